@@ -1,0 +1,3 @@
+//! Toshiba.
+pub mod ascii;
+pub mod binary;

@@ -40,6 +40,21 @@ impl ChecksumKind {
     }
 }
 
+/// What a wrong checksum would be right for: a clue to a sender's bug.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MismatchHint {
+    /// The checksum of only the first `len` bytes of the frame.
+    PrefixOnly {
+        /// Bytes covered.
+        len: u8,
+    },
+    /// The checksum of the same frame with another address byte.
+    OtherAddress {
+        /// That address.
+        address: u8,
+    },
+}
+
 /// Why bytes are not a valid frame. Every variant prints as one sentence.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
@@ -52,9 +67,9 @@ pub enum FrameError {
         carried: u16,
         /// The value computed over the frame.
         computed: u16,
-        /// When the carried checksum is the checksum of a shorter prefix of the frame,
-        /// that prefix's length: the sender forgot bytes (seed 004's RTU read).
-        covers_prefix: Option<u8>,
+        /// What the carried value would be right for, where a search found it
+        /// (seed 004's errata: a CRC over too few bytes, a CRC for another address).
+        hint: Option<MismatchHint>,
     },
     /// The frame ended before all the bytes its header announces.
     Truncated {

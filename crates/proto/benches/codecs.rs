@@ -1,1 +1,2 @@
+//! Codec benchmarks (filled in below).
 fn main() {}

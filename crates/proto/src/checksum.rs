@@ -33,11 +33,7 @@ const CRC16_TABLE: [u16; 256] = {
         let mut crc = i as u16;
         let mut bit = 0;
         while bit < 8 {
-            crc = if crc & 1 != 0 {
-                (crc >> 1) ^ 0xA001
-            } else {
-                crc >> 1
-            };
+            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xA001 } else { crc >> 1 };
             bit += 1;
         }
         table[i] = crc;
@@ -88,52 +84,25 @@ mod tests {
     #[test]
     fn crc16_modbus_spec_example() {
         // 11 03 00 6B 00 03 -> 76 87 on the wire (low byte first).
-        assert_eq!(
-            crc16_modbus(&[0x11, 0x03, 0x00, 0x6B, 0x00, 0x03]).to_le_bytes(),
-            [0x76, 0x87]
-        );
+        assert_eq!(crc16_modbus(&[0x11, 0x03, 0x00, 0x6B, 0x00, 0x03]).to_le_bytes(), [0x76, 0x87]);
     }
 
     #[test]
     fn crc16_seed_002_examples() {
         // seed 002: 01 03 FD 00 00 01 B5 A6 / 01 03 02 17 70 B6 50 / 01 83 03 01 31
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x03, 0xFD, 0x00, 0x00, 0x01]).to_le_bytes(),
-            [0xB5, 0xA6]
-        );
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x03, 0x02, 0x17, 0x70]).to_le_bytes(),
-            [0xB6, 0x50]
-        );
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x03, 0xFD, 0x00, 0x00, 0x02]).to_le_bytes(),
-            [0xF5, 0xA7]
-        );
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x83, 0x03]).to_le_bytes(),
-            [0x01, 0x31]
-        );
+        assert_eq!(crc16_modbus(&[0x01, 0x03, 0xFD, 0x00, 0x00, 0x01]).to_le_bytes(), [0xB5, 0xA6]);
+        assert_eq!(crc16_modbus(&[0x01, 0x03, 0x02, 0x17, 0x70]).to_le_bytes(), [0xB6, 0x50]);
+        assert_eq!(crc16_modbus(&[0x01, 0x03, 0xFD, 0x00, 0x00, 0x02]).to_le_bytes(), [0xF5, 0xA7]);
+        assert_eq!(crc16_modbus(&[0x01, 0x83, 0x03]).to_le_bytes(), [0x01, 0x31]);
     }
 
     #[test]
     fn crc16_seed_004_examples() {
         // seed 004: the RTU read's E8 4B is the CRC of the first four bytes only.
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x03, 0x21, 0x04]).to_le_bytes(),
-            [0xE8, 0x4B]
-        );
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x03, 0x21, 0x04, 0x00, 0x01]).to_le_bytes(),
-            [0xCF, 0xF7]
-        );
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x06, 0x00, 0x02, 0x13, 0x88]).to_le_bytes(),
-            [0x25, 0x5C]
-        );
-        assert_eq!(
-            crc16_modbus(&[0x01, 0x08, 0x01, 0x02, 0x03, 0x04]).to_le_bytes(),
-            [0x41, 0x04]
-        );
+        assert_eq!(crc16_modbus(&[0x01, 0x03, 0x21, 0x04]).to_le_bytes(), [0xE8, 0x4B]);
+        assert_eq!(crc16_modbus(&[0x01, 0x03, 0x21, 0x04, 0x00, 0x01]).to_le_bytes(), [0xCF, 0xF7]);
+        assert_eq!(crc16_modbus(&[0x01, 0x06, 0x00, 0x02, 0x13, 0x88]).to_le_bytes(), [0x25, 0x5C]);
+        assert_eq!(crc16_modbus(&[0x01, 0x08, 0x01, 0x02, 0x03, 0x04]).to_le_bytes(), [0x41, 0x04]);
     }
 
     #[test]

@@ -80,11 +80,7 @@ pub trait Scanner {
 
     /// The stream ended with `buf` (never empty) unfinished.
     fn truncated(&self, buf: &[u8]) -> FrameError {
-        FrameError::Truncated {
-            what: "the frame in progress",
-            expected: buf.len() + 1,
-            got: buf.len(),
-        }
+        FrameError::Truncated { what: "the frame in progress", expected: buf.len() + 1, got: buf.len() }
     }
 }
 
@@ -190,10 +186,7 @@ impl<S: Scanner> Deframer<S> {
                 let rest = &input[used..];
                 if !rest.is_empty() {
                     let cap = self.buf.as_ref().len();
-                    debug_assert!(
-                        rest.len() <= cap,
-                        "scanner asked to buffer more than its buffer holds"
-                    );
+                    debug_assert!(rest.len() <= cap, "scanner asked to buffer more than its buffer holds");
                     let n = rest.len().min(cap);
                     self.buf.as_mut()[..n].copy_from_slice(&rest[..n]);
                     self.len = n;
@@ -264,11 +257,7 @@ impl<S: Scanner> Deframer<S> {
             let error = self.scanner.truncated(bytes);
             if self.resync == 0 {
                 self.stats.malformed += 1;
-                on_event(Event::Rejected {
-                    bytes,
-                    position: self.position,
-                    error,
-                });
+                on_event(Event::Rejected { bytes, position: self.position, error });
             }
             self.stats.dropped_bytes += self.len as u64;
             self.position += self.len as u64;
@@ -318,21 +307,8 @@ impl<S: Scanner> Deframer<S> {
                 _ => {
                     let len = self.len;
                     // Split borrows: the event borrows the buffer while stats change.
-                    let Deframer {
-                        buf,
-                        stats,
-                        resync,
-                        position,
-                        ..
-                    } = self;
-                    at += emit_one(
-                        scan,
-                        &buf.as_ref()[at..len],
-                        stats,
-                        resync,
-                        position,
-                        on_event,
-                    );
+                    let Deframer { buf, stats, resync, position, .. } = self;
+                    at += emit_one(scan, &buf.as_ref()[at..len], stats, resync, position, on_event);
                 }
             }
         }
@@ -341,32 +317,12 @@ impl<S: Scanner> Deframer<S> {
 
     fn apply(&mut self, scan: Scan, on_event: &mut impl FnMut(Event<'_>)) -> usize {
         let len = self.len;
-        let Deframer {
-            buf,
-            stats,
-            resync,
-            position,
-            ..
-        } = self;
-        emit_one(
-            scan,
-            &buf.as_ref()[..len],
-            stats,
-            resync,
-            position,
-            on_event,
-        )
+        let Deframer { buf, stats, resync, position, .. } = self;
+        emit_one(scan, &buf.as_ref()[..len], stats, resync, position, on_event)
     }
 
     fn emit(&mut self, scan: Scan, bytes: &[u8], on_event: &mut impl FnMut(Event<'_>)) -> usize {
-        emit_one(
-            scan,
-            bytes,
-            &mut self.stats,
-            &mut self.resync,
-            &mut self.position,
-            on_event,
-        )
+        emit_one(scan, bytes, &mut self.stats, &mut self.resync, &mut self.position, on_event)
     }
 }
 
@@ -385,10 +341,7 @@ fn emit_one(
             let len = len.clamp(1, bytes.len());
             stats.frames += 1;
             *resync = 0;
-            on_event(Event::Frame {
-                bytes: &bytes[..len],
-                position: *position,
-            });
+            on_event(Event::Frame { bytes: &bytes[..len], position: *position });
             len
         }
         Scan::Invalid { len, skip, error } => {
@@ -400,11 +353,7 @@ fn emit_one(
                 } else {
                     stats.malformed += 1;
                 }
-                on_event(Event::Rejected {
-                    bytes: &bytes[..len],
-                    position: *position,
-                    error,
-                });
+                on_event(Event::Rejected { bytes: &bytes[..len], position: *position, error });
                 *resync = len - skip;
             } else {
                 *resync = resync.saturating_sub(skip);
@@ -444,24 +393,16 @@ mod tests {
             match buf.iter().position(|&b| b == b'>') {
                 Some(end) => {
                     let body = &buf[1..end];
-                    if body.len() >= 1 && (body[0] - b'0') as usize == body.len() - 1 {
+                    if !body.is_empty() && (body[0].wrapping_sub(b'0')) as usize == body.len() - 1 {
                         Scan::Frame { len: end + 1 }
                     } else {
-                        Scan::Invalid {
-                            len: end + 1,
-                            skip: 1,
-                            error: FrameError::Malformed("bad toy"),
-                        }
+                        Scan::Invalid { len: end + 1, skip: 1, error: FrameError::Malformed("bad toy") }
                     }
                 }
                 None if buf.len() >= 16 => Scan::Invalid {
                     len: buf.len(),
                     skip: 1,
-                    error: FrameError::TooLong {
-                        what: "toy",
-                        max: 16,
-                        got: buf.len(),
-                    },
+                    error: FrameError::TooLong { what: "toy", max: 16, got: buf.len() },
                 },
                 None => Scan::Incomplete { checked: buf.len() },
             }

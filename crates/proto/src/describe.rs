@@ -136,56 +136,27 @@ pub struct Field<'a> {
 impl<'a> Field<'a> {
     /// A field shown in hex with `digits` digits.
     pub const fn hex(name: &'static str, value: u32, digits: u8) -> Self {
-        Field {
-            name,
-            raw: Raw::Hex { value, digits },
-            quantity: None,
-            meaning: None,
-        }
+        Field { name, raw: Raw::Hex { value, digits }, quantity: None, meaning: None }
     }
     /// A field shown in decimal.
     pub const fn dec(name: &'static str, value: i64) -> Self {
-        Field {
-            name,
-            raw: Raw::Dec(value),
-            quantity: None,
-            meaning: None,
-        }
+        Field { name, raw: Raw::Dec(value), quantity: None, meaning: None }
     }
     /// A flag.
     pub const fn flag(name: &'static str, value: bool) -> Self {
-        Field {
-            name,
-            raw: Raw::Bool(value),
-            quantity: None,
-            meaning: None,
-        }
+        Field { name, raw: Raw::Bool(value), quantity: None, meaning: None }
     }
     /// A run of bytes shown in hex.
     pub const fn bytes(name: &'static str, value: &'a [u8]) -> Self {
-        Field {
-            name,
-            raw: Raw::Bytes(value),
-            quantity: None,
-            meaning: None,
-        }
+        Field { name, raw: Raw::Bytes(value), quantity: None, meaning: None }
     }
     /// Text from the wire.
     pub const fn text(name: &'static str, value: &'a [u8]) -> Self {
-        Field {
-            name,
-            raw: Raw::Text(value),
-            quantity: None,
-            meaning: None,
-        }
+        Field { name, raw: Raw::Text(value), quantity: None, meaning: None }
     }
     /// Adds the value in a unit.
     pub const fn with_quantity(mut self, value: f64, unit: &'static str, decimals: u8) -> Self {
-        self.quantity = Some(Quantity {
-            value,
-            unit,
-            decimals,
-        });
+        self.quantity = Some(Quantity { value, unit, decimals });
         self
     }
     /// Adds what the value means.
@@ -272,10 +243,7 @@ mod tests {
     }
 
     fn show(field: Field<'_>) -> Buf {
-        let mut b = Buf {
-            bytes: [0; 128],
-            len: 0,
-        };
+        let mut b = Buf { bytes: [0; 128], len: 0 };
         fmt::write(&mut b, format_args!("{field}")).unwrap();
         b
     }

@@ -135,12 +135,7 @@ pub enum FrameError {
 impl fmt::Display for FrameError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
-            FrameError::ChecksumMismatch {
-                kind,
-                carried,
-                computed,
-                covers_prefix,
-            } => {
+            FrameError::ChecksumMismatch { kind, carried, computed, hint } => {
                 f.write_str(kind.name())?;
                 f.write_str(" mismatch: frame carries ")?;
                 match kind {
@@ -151,61 +146,36 @@ impl fmt::Display for FrameError {
                     }
                     _ => write!(f, "{carried:02X}, computed {computed:02X}")?,
                 }
-                if let Some(n) = covers_prefix {
-                    write!(
+                match hint {
+                    Some(MismatchHint::PrefixOnly { len }) => {
+                        write!(f, " (the carried {} is that of the first {len} bytes only)", kind.name())
+                    }
+                    Some(MismatchHint::OtherAddress { address }) => write!(
                         f,
-                        " (the carried {} is that of the first {n} bytes only)",
+                        " (the carried {} is right for the same frame sent to address {address})",
                         kind.name()
-                    )?;
+                    ),
+                    None => Ok(()),
                 }
-                Ok(())
             }
-            FrameError::Truncated {
-                what,
-                expected,
-                got,
-            } => {
-                write!(
-                    f,
-                    "truncated frame: {what} needs {expected} bytes, got {got}"
-                )
+            FrameError::Truncated { what, expected, got } => {
+                write!(f, "truncated frame: {what} needs {expected} bytes, got {got}")
             }
             FrameError::TooLong { what, max, got } => {
-                write!(
-                    f,
-                    "frame too long: {what} allows at most {max} bytes, got {got}"
-                )
+                write!(f, "frame too long: {what} allows at most {max} bytes, got {got}")
             }
             FrameError::NonHex { byte, offset } => {
-                write!(
-                    f,
-                    "non-hex byte 0x{byte:02X} at offset {offset} ends the frame"
-                )
+                write!(f, "non-hex byte 0x{byte:02X} at offset {offset} ends the frame")
             }
             FrameError::OddDigits { count } => {
-                write!(
-                    f,
-                    "odd number of hex digits ({count}): a byte is two digits"
-                )
+                write!(f, "odd number of hex digits ({count}): a byte is two digits")
             }
-            FrameError::OutOfRange {
-                field,
-                value,
-                min,
-                max,
-            } => {
+            FrameError::OutOfRange { field, value, min, max } => {
                 write!(f, "{field} {value} is not allowed ({min}..{max})")
             }
             FrameError::Unknown { field, value } => write!(f, "unknown {field} 0x{value:02X}"),
-            FrameError::Inconsistent {
-                field,
-                value,
-                expected,
-            } => {
-                write!(
-                    f,
-                    "{field} {value} does not match the frame, which implies {expected}"
-                )
+            FrameError::Inconsistent { field, value, expected } => {
+                write!(f, "{field} {value} does not match the frame, which implies {expected}")
             }
             FrameError::Malformed(what) => f.write_str(what),
         }
@@ -247,12 +217,7 @@ impl fmt::Display for EmitError {
             EmitError::BufferTooSmall { needed, capacity } => {
                 write!(f, "frame needs {needed} bytes, the buffer holds {capacity}")
             }
-            EmitError::OutOfRange {
-                field,
-                value,
-                min,
-                max,
-            } => {
+            EmitError::OutOfRange { field, value, min, max } => {
                 write!(f, "{field} {value} is out of range ({min}..{max})")
             }
             EmitError::Invalid(what) => f.write_str(what),
@@ -276,9 +241,7 @@ pub enum SessionError {
 impl fmt::Display for SessionError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            SessionError::Busy => {
-                f.write_str("a request is still in flight: wait for its reply or timeout")
-            }
+            SessionError::Busy => f.write_str("a request is still in flight: wait for its reply or timeout"),
             SessionError::Emit(e) => write!(f, "cannot build the request: {e}"),
         }
     }
@@ -297,10 +260,7 @@ impl From<EmitError> for SessionError {
 #[inline]
 pub(crate) fn need(buf: &[u8], needed: usize) -> Result<(), EmitError> {
     if buf.len() < needed {
-        Err(EmitError::BufferTooSmall {
-            needed,
-            capacity: buf.len(),
-        })
+        Err(EmitError::BufferTooSmall { needed, capacity: buf.len() })
     } else {
         Ok(())
     }

@@ -87,10 +87,7 @@ mod tests {
         for b in 0..=255u8 {
             let [h, l] = byte_digits(b);
             assert_eq!(decode_pair(h, l), Some(b));
-            assert_eq!(
-                decode_pair(h.to_ascii_lowercase(), l.to_ascii_lowercase()),
-                Some(b)
-            );
+            assert_eq!(decode_pair(h.to_ascii_lowercase(), l.to_ascii_lowercase()), Some(b));
         }
     }
 

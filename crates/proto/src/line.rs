@@ -29,38 +29,18 @@ pub struct CharFormat {
 
 impl CharFormat {
     /// 8 data bits, even parity, 1 stop bit: Modbus RTU's default, Toshiba's and FC's.
-    pub const EVEN_8E1: CharFormat = CharFormat {
-        data_bits: 8,
-        parity: Parity::Even,
-        stop_bits: 1,
-    };
+    pub const EVEN_8E1: CharFormat = CharFormat { data_bits: 8, parity: Parity::Even, stop_bits: 1 };
     /// 8 data bits, no parity, 1 stop bit: B800.
-    pub const NONE_8N1: CharFormat = CharFormat {
-        data_bits: 8,
-        parity: Parity::None,
-        stop_bits: 1,
-    };
+    pub const NONE_8N1: CharFormat = CharFormat { data_bits: 8, parity: Parity::None, stop_bits: 1 };
     /// 8 data bits, no parity, 2 stop bits: the generic drive's RTU default.
-    pub const NONE_8N2: CharFormat = CharFormat {
-        data_bits: 8,
-        parity: Parity::None,
-        stop_bits: 2,
-    };
+    pub const NONE_8N2: CharFormat = CharFormat { data_bits: 8, parity: Parity::None, stop_bits: 2 };
     /// 7 data bits, no parity, 2 stop bits: the generic drive's ASCII default (seed 004).
-    pub const NONE_7N2: CharFormat = CharFormat {
-        data_bits: 7,
-        parity: Parity::None,
-        stop_bits: 2,
-    };
+    pub const NONE_7N2: CharFormat = CharFormat { data_bits: 7, parity: Parity::None, stop_bits: 2 };
 
     /// Bits on the wire per character: start + data + parity + stop.
     pub const fn bits_per_char(self) -> u32 {
         1 + self.data_bits as u32
-            + if matches!(self.parity, Parity::None) {
-                0
-            } else {
-                1
-            }
+            + if matches!(self.parity, Parity::None) { 0 } else { 1 }
             + self.stop_bits as u32
     }
 
@@ -108,7 +88,9 @@ pub struct BadCharFormat;
 
 impl fmt::Display for BadCharFormat {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str("a serial format is data bits (7 or 8), parity (N, E or O) and stop bits (1 or 2), e.g. 8E1")
+        f.write_str(
+            "a serial format is data bits (7 or 8), parity (N, E or O) and stop bits (1 or 2), e.g. 8E1",
+        )
     }
 }
 
@@ -135,11 +117,7 @@ impl FromStr for CharFormat {
             b'2' => 2,
             _ => return Err(BadCharFormat),
         };
-        Ok(CharFormat {
-            data_bits,
-            parity,
-            stop_bits,
-        })
+        Ok(CharFormat { data_bits, parity, stop_bits })
     }
 }
 

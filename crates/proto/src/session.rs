@@ -207,10 +207,7 @@ impl<P: Protocol> MasterSession<P> {
 
     /// Counts so far.
     pub fn stats(&self) -> MasterStats {
-        MasterStats {
-            deframer: self.deframer.stats(),
-            ..self.stats
-        }
+        MasterStats { deframer: self.deframer.stats(), ..self.stats }
     }
 
     /// True when a new request may be submitted.
@@ -232,9 +229,7 @@ impl<P: Protocol> MasterSession<P> {
         }
         let len = self.proto.emit_request(req, self.tx.as_mut())?;
         self.tx_len = len;
-        self.state = MasterState::Queued {
-            pending: self.proto.pending(req),
-        };
+        self.state = MasterState::Queued { pending: self.proto.pending(req) };
         Ok(())
     }
 
@@ -250,13 +245,8 @@ impl<P: Protocol> MasterSession<P> {
         self.deframer.clear();
         let sent = now + self.timing.char_time * self.tx_len as u32;
         self.state = match pending {
-            Some(pending) => MasterState::Awaiting {
-                pending,
-                deadline: sent + self.timing.response_timeout,
-            },
-            None => MasterState::Turnaround {
-                until: sent + self.timing.turnaround,
-            },
+            Some(pending) => MasterState::Awaiting { pending, deadline: sent + self.timing.response_timeout },
+            None => MasterState::Turnaround { until: sent + self.timing.turnaround },
         };
         self.ready_at = sent + self.timing.min_gap;
         self.stats.requests += 1;
@@ -289,43 +279,15 @@ impl<P: Protocol> MasterSession<P> {
                 *deadline = floor;
             }
         }
-        let MasterSession {
-            proto,
-            deframer,
-            state,
-            rx,
-            rx_len,
-            stats,
-            ..
-        } = self;
-        let mut sink = Sink {
-            proto,
-            state,
-            rx: rx.as_mut(),
-            rx_len,
-            stats,
-        };
+        let MasterSession { proto, deframer, state, rx, rx_len, stats, .. } = self;
+        let mut sink = Sink { proto, state, rx: rx.as_mut(), rx_len, stats };
         deframer.push(bytes, &mut |e| sink.on_event(e));
     }
 
     /// The line has been silent for t3.5 (Modbus RTU): the bytes held are a whole frame.
     pub fn handle_silence(&mut self, _now: Instant) {
-        let MasterSession {
-            proto,
-            deframer,
-            state,
-            rx,
-            rx_len,
-            stats,
-            ..
-        } = self;
-        let mut sink = Sink {
-            proto,
-            state,
-            rx: rx.as_mut(),
-            rx_len,
-            stats,
-        };
+        let MasterSession { proto, deframer, state, rx, rx_len, stats, .. } = self;
+        let mut sink = Sink { proto, state, rx: rx.as_mut(), rx_len, stats };
         deframer.silence(&mut |e| sink.on_event(e));
     }
 
@@ -535,10 +497,7 @@ impl<P: Protocol> SlaveSession<P> {
 
     /// Counts so far.
     pub fn stats(&self) -> SlaveStats {
-        SlaveStats {
-            deframer: self.deframer.stats(),
-            ..self.core.stats
-        }
+        SlaveStats { deframer: self.deframer.stats(), ..self.core.stats }
     }
 
     /// Bytes from the line; each request for this slave goes to `handler`, which may answer
@@ -586,13 +545,7 @@ impl<P: Protocol> SlaveCore<P> {
             Event::Frame { bytes, .. } => match self.proto.parse_request(bytes) {
                 Ok(request) => {
                     let d = self.proto.disposition(&request, me);
-                    (
-                        Incoming::Request {
-                            request,
-                            broadcast: matches!(d, Disposition::Broadcast { .. }),
-                        },
-                        d,
-                    )
+                    (Incoming::Request { request, broadcast: matches!(d, Disposition::Broadcast { .. }) }, d)
                 }
                 Err(error) => {
                     self.stats.invalid += 1;
@@ -615,12 +568,7 @@ impl<P: Protocol> SlaveCore<P> {
         };
         self.stats.requests += 1;
         let mut len = 0;
-        let mut responder = Responder {
-            proto: &self.proto,
-            out: self.tx.as_mut(),
-            len: &mut len,
-            may_reply,
-        };
+        let mut responder = Responder { proto: &self.proto, out: self.tx.as_mut(), len: &mut len, may_reply };
         handler(now, incoming, &mut responder);
         if len > 0 {
             self.tx_len = len;

@@ -1,2 +1,71 @@
-//! Codec benchmarks (filled in below).
-fn main() {}
+//! Parse and encode throughput of every wire format.
+//!
+//! Parse: a buffer of 1024 back-to-back frames (one of the manuals' examples, repeated) goes
+//! through `Deframer::push` and every frame through `Codec::parse`, as a receiver does it.
+//! Reported twice: frames/s (`parse_frames`) and bytes/s (`parse_bytes`).
+//! Encode: the same frame emitted 1024 times into a buffer (`encode_frames`).
+//!
+//! Run: `cargo bench -p drivebus-proto --bench codecs` (or `bench/codecs.sh` for a summary).
+
+use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use drivebus_proto::{b800, fc, modbus, toshiba};
+use drivebus_proto::{Codec, Deframer, Direction, Event};
+
+const FRAMES: usize = 1024;
+
+/// One sample frame per codec, from the manuals (protocols.md section 5).
+fn samples() -> Vec<(&'static str, Vec<u8>)> {
+    vec![
+        // TM1: read FD00, one register.
+        ("modbus-rtu", vec![0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA6]),
+        // M4: read 2 registers from 2102H.
+        ("modbus-ascii", b":010321020002D7\r\n".to_vec()),
+        // TA5 request form with checksum: (RFE03&..)CR.
+        ("toshiba-ascii", b"(RFE03)\r".to_vec()),
+        // TB1: R comm-no 0000.
+        ("toshiba-binary", vec![0x2F, 0x52, 0x00, 0x00, 0x81]),
+        // D1: process telegram to address 4, CTW 047C, REF 2000.
+        ("danfoss-fc", vec![0x02, 0x06, 0x04, 0x04, 0x7C, 0x20, 0x00, 0x58]),
+        // B2: drive 5, P 40.0 Hz.
+        ("b800", b"\x7E85500960\x35\x45\x7F".to_vec()),
+    ]
+}
+
+fn parse_all<C: Codec>(buf: &[u8]) -> usize {
+    let mut d = Deframer::new(C::scanner(Some(Direction::Master)));
+    let mut n = 0;
+    d.push(buf, &mut |e| {
+        if let Event::Frame { bytes, .. } = e {
+            if let Ok(f) = C::parse(bytes, Some(Direction::Master)) {
+                black_box(&f);
+                n += 1;
+            }
+        }
+    });
+    n
+}
+
+fn run_parse(c: &mut Criterion) {
+    for (unit, group_name) in [(true, "parse_frames"), (false, "parse_bytes")] {
+        let mut g = c.benchmark_group(group_name);
+        g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
+        for (name, frame) in samples() {
+            let buf = frame.repeat(FRAMES);
+            g.throughput(if unit { Throughput::Elements(FRAMES as u64) } else { Throughput::Bytes(buf.len() as u64) });
+            let f: fn(&[u8]) -> usize = match name {
+                "modbus-rtu" => parse_all::<modbus::rtu::RtuCodec>,
+                "modbus-ascii" => parse_all::<modbus::ascii::AsciiCodec>,
+                "toshiba-ascii" => parse_all::<toshiba::ascii::AsciiCodec>,
+                "toshiba-binary" => parse_all::<toshiba::binary::BinaryCodec>,
+                "danfoss-fc" => parse_all::<fc::FcCodec>,
+                _ => parse_all::<b800::B800Codec>,
+            };
+            assert_eq!(f(&buf), FRAMES, "{name}: the sample must parse");
+            g.bench_with_input(BenchmarkId::from_parameter(name), &buf, |b, buf| b.iter(|| f(black_box(buf))));
+        }
+        g.finish();
+    }
+}
+
+criterion_group!(benches, run_parse);
+criterion_main!(benches);

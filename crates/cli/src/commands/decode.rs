@@ -1,0 +1,374 @@
+//! `drivebus decode`: frames out of captured bytes, with an exact diagnosis of bad bytes.
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+
+use anyhow::Result;
+use clap::{Args, ValueEnum};
+use drivebus_proto::describe::{CodeStyle, Raw};
+use drivebus_proto::{Codec, Deframer, Describe, Direction, Event, Target};
+use serde_json::{json, Map, Value};
+
+use crate::hexarg::parse_hex_args;
+
+/// The wire formats `decode` reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ProtocolName {
+    /// Modbus RTU (binary, CRC-16).
+    ModbusRtu,
+    /// Modbus ASCII (':' ... LRC CR LF).
+    ModbusAscii,
+    /// Toshiba Inverter Protocol, ASCII mode ('(' ... ')' CR).
+    ToshibaAscii,
+    /// Toshiba Inverter Protocol, binary mode (2F ... SUM).
+    ToshibaBinary,
+    /// Danfoss FC protocol (STX LGE ADR ... BCC).
+    DanfossFc,
+    /// B800 hex-ASCII protocol (7E ... 7F).
+    B800,
+}
+
+/// Who sent the bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum From {
+    /// The master (host, PLC, drivebus).
+    Master,
+    /// A drive.
+    Drive,
+}
+
+/// Arguments of `drivebus decode`.
+#[derive(Args, Debug)]
+pub struct DecodeArgs {
+    /// The wire format of the bytes.
+    #[arg(long, short = 'p', value_enum)]
+    pub protocol: ProtocolName,
+    /// Who sent the bytes, where the protocol cannot tell (a Modbus request and its reply).
+    #[arg(long, value_enum)]
+    pub from: Option<From>,
+    /// One JSON object per line and per frame.
+    #[arg(long)]
+    pub json: bool,
+    /// The bytes on the wire in hex, spaced or not, in one or several arguments
+    /// (ASCII protocols too: 3A 30 31 ...).
+    #[arg(required = true, num_args = 1.., value_name = "HEX")]
+    pub hex: Vec<String>,
+}
+
+/// One field of a decoded frame, owned.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldReport {
+    /// The manual's name.
+    pub name: String,
+    /// As shown in text.
+    pub text: String,
+    /// As a JSON value.
+    pub json: Value,
+}
+
+/// What one stretch of the input turned out to be.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Item {
+    /// A frame, valid or not.
+    Frame(FrameReport),
+    /// Bytes outside any frame.
+    Noise {
+        /// Offset of the first byte.
+        offset: u64,
+        /// The bytes.
+        bytes: Vec<u8>,
+    },
+}
+
+/// A decoded (or rejected) frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameReport {
+    /// Offset of its first byte in the input.
+    pub offset: u64,
+    /// Its bytes.
+    pub bytes: Vec<u8>,
+    /// Who sent it, where known.
+    pub direction: Option<Direction>,
+    /// Its address, where known.
+    pub target: Option<Target>,
+    /// Command or function code and name, where known.
+    pub command: Option<(String, Value, String)>,
+    /// True for a drive's refusal (exception, error reply).
+    pub refusal: bool,
+    /// Its fields.
+    pub fields: Vec<FieldReport>,
+    /// Why it is not valid.
+    pub error: Option<String>,
+}
+
+/// Decodes `bytes` as a stream of frames of codec `C`.
+pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Item> {
+    let mut items = Vec::new();
+    let mut deframer = Deframer::new(C::scanner(from));
+    let mut next = 0u64;
+    let mut on_event = |e: Event<'_>| {
+        let (frame, position, error) = match e {
+            Event::Frame { bytes, position } => (bytes, position, None),
+            Event::Rejected { bytes, position, error } => (bytes, position, Some(error.to_string())),
+        };
+        if position > next {
+            let noise = input.get(next as usize..position as usize).unwrap_or_default().to_vec();
+            items.push(Item::Noise { offset: next, bytes: noise });
+        }
+        next = next.max(position + frame.len() as u64);
+        let report = match error {
+            Some(error) => FrameReport {
+                offset: position,
+                bytes: frame.to_vec(),
+                direction: from,
+                target: None,
+                command: None,
+                refusal: false,
+                fields: Vec::new(),
+                error: Some(error),
+            },
+            None => match C::parse(frame, from) {
+                Ok(parsed) => describe(position, frame, &parsed),
+                Err(error) => FrameReport {
+                    offset: position,
+                    bytes: frame.to_vec(),
+                    direction: from,
+                    target: None,
+                    command: None,
+                    refusal: false,
+                    fields: Vec::new(),
+                    error: Some(error.to_string()),
+                },
+            },
+        };
+        items.push(Item::Frame(report));
+    };
+    deframer.push(input, &mut on_event);
+    deframer.finish(&mut on_event);
+    if (next as usize) < input.len() {
+        items.push(Item::Noise { offset: next, bytes: input[next as usize..].to_vec() });
+    }
+    items
+}
+
+fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
+    let mut fields: Vec<FieldReport> = Vec::new();
+    frame.fields(&mut |f| {
+        let json = field_json(&f);
+        let mut name = f.name.to_string();
+        let same = fields.iter().filter(|x| x.name == name || x.name.starts_with(&format!("{name}["))).count();
+        if same > 0 {
+            name = format!("{name}[{}]", same + 1);
+        }
+        fields.push(FieldReport { name, text: f.to_string(), json });
+    });
+    let cmd = frame.command();
+    let code = match cmd.style {
+        CodeStyle::Letter => (format!("'{}'", cmd.code as char), json!((cmd.code as char).to_string())),
+        CodeStyle::Hex => (format!("{:02X}", cmd.code), json!(cmd.code)),
+    };
+    FrameReport {
+        offset,
+        bytes: bytes.to_vec(),
+        direction: Some(frame.direction()),
+        target: Some(frame.target()),
+        command: Some((code.0, code.1, cmd.name.to_string())),
+        refusal: frame.is_refusal(),
+        fields,
+        error: None,
+    }
+}
+
+fn field_json(f: &drivebus_proto::Field<'_>) -> Value {
+    let raw = match f.raw {
+        Raw::Hex { value, .. } => json!(value),
+        Raw::Dec(v) => json!(v),
+        Raw::Bool(b) => json!(b),
+        Raw::Bytes(b) => json!(hex_string(b)),
+        Raw::Text(t) => json!(String::from_utf8_lossy(t)),
+    };
+    let mut obj = Map::new();
+    obj.insert("raw".into(), raw);
+    if let Raw::Hex { value, digits } = f.raw {
+        obj.insert("hex".into(), json!(format!("{:0w$X}", value, w = digits as usize)));
+    }
+    if let Some(q) = f.quantity {
+        let rounded = format!("{:.*}", q.decimals as usize, q.value).parse::<f64>().unwrap_or(q.value);
+        obj.insert("value".into(), json!(rounded));
+        obj.insert("unit".into(), json!(q.unit));
+    }
+    if let Some(m) = f.meaning {
+        obj.insert("meaning".into(), json!(m));
+    }
+    Value::Object(obj)
+}
+
+/// Bytes as spaced upper-case hex.
+pub fn hex_string(bytes: &[u8]) -> String {
+    let mut s = String::with_capacity(bytes.len() * 3);
+    for (i, b) in bytes.iter().enumerate() {
+        if i > 0 {
+            s.push(' ');
+        }
+        let _ = write!(s, "{b:02X}");
+    }
+    s
+}
+
+fn target_text(t: Target) -> String {
+    match t {
+        Target::Unit(n) => format!("drive {n}"),
+        Target::Broadcast => "all drives (broadcast)".into(),
+        Target::Wildcard { tens, units } => {
+            let d = |x: Option<u8>| x.map(|v| char::from(b'0' + v)).unwrap_or('*');
+            format!("drives matching {}{} (wildcard)", d(tens), d(units))
+        }
+        Target::Implicit => "the drive on the line (no address)".into(),
+    }
+}
+
+/// The text form of one item.
+pub fn render_text(protocol: &str, index: usize, item: &Item) -> String {
+    match item {
+        Item::Noise { offset, bytes } => format!(
+            "bytes {}..{} are not part of any {protocol} frame: {}\n",
+            offset,
+            offset + bytes.len() as u64,
+            hex_string(bytes)
+        ),
+        Item::Frame(f) => {
+            let mut s = format!("frame {index} at byte {}: ", f.offset);
+            if let Some(err) = &f.error {
+                let _ = writeln!(s, "INVALID: {err}");
+                let _ = writeln!(s, "    bytes {}", hex_string(&f.bytes));
+                return s;
+            }
+            let who = match (f.direction, f.target) {
+                (Some(Direction::Master), Some(t)) => format!("master to {}", target_text(t)),
+                (Some(Direction::Drive), Some(Target::Unit(n))) => format!("drive {n} to master"),
+                (Some(Direction::Drive), Some(t)) => format!("{} to master", target_text(t)),
+                _ => "?".into(),
+            };
+            let (code, _, name) = f.command.clone().unwrap_or_default();
+            let _ = writeln!(
+                s,
+                "{who}: {code} {name}{}",
+                if f.refusal { " (the drive refuses)" } else { "" }
+            );
+            for field in &f.fields {
+                let _ = writeln!(s, "    {}", field.text);
+            }
+            s
+        }
+    }
+}
+
+/// The JSON form of one item (frames only; noise gets `null`).
+pub fn render_json(protocol: &str, item: &Item) -> Option<Value> {
+    let Item::Frame(f) = item else { return None };
+    let mut o = Map::new();
+    o.insert("valid".into(), json!(f.error.is_none()));
+    o.insert("protocol".into(), json!(protocol));
+    o.insert("offset".into(), json!(f.offset));
+    o.insert("bytes".into(), json!(hex_string(&f.bytes)));
+    o.insert("direction".into(), f.direction.map(|d| json!(d.as_str())).unwrap_or(Value::Null));
+    let (address, broadcast, wildcard) = match f.target {
+        Some(Target::Unit(n)) => (json!(n), false, None),
+        Some(Target::Broadcast) => (json!(0), true, None),
+        Some(Target::Wildcard { tens, units }) => {
+            let d = |x: Option<u8>| x.map(|v| char::from(b'0' + v)).unwrap_or('*');
+            (Value::Null, true, Some(format!("{}{}", d(tens), d(units))))
+        }
+        Some(Target::Implicit) | None => (Value::Null, false, None),
+    };
+    o.insert("address".into(), address);
+    o.insert("broadcast".into(), json!(broadcast));
+    if let Some(w) = wildcard {
+        o.insert("wildcard".into(), json!(w));
+    }
+    let key = if protocol.starts_with("modbus") { "function" } else { "command" };
+    match &f.command {
+        Some((_, code, name)) => {
+            o.insert(key.into(), code.clone());
+            o.insert(format!("{key}_name"), json!(name));
+        }
+        None => {
+            o.insert(key.into(), Value::Null);
+        }
+    }
+    o.insert("refusal".into(), json!(f.refusal));
+    let mut fields = Map::new();
+    for field in &f.fields {
+        fields.insert(field.name.clone(), field.json.clone());
+    }
+    o.insert("fields".into(), Value::Object(fields));
+    if let Some(e) = &f.error {
+        o.insert("error".into(), json!(e));
+    }
+    Some(Value::Object(o))
+}
+
+/// Decodes with the codec `name`.
+pub fn decode_by_name(name: ProtocolName, bytes: &[u8], from: Option<Direction>) -> (&'static str, Vec<Item>) {
+    use drivebus_proto::{b800, fc, modbus, toshiba};
+    match name {
+        ProtocolName::ModbusRtu => (modbus::rtu::RtuCodec::NAME, decode_stream::<modbus::rtu::RtuCodec>(bytes, from)),
+        ProtocolName::ModbusAscii => {
+            (modbus::ascii::AsciiCodec::NAME, decode_stream::<modbus::ascii::AsciiCodec>(bytes, from))
+        }
+        ProtocolName::ToshibaAscii => {
+            (toshiba::ascii::AsciiCodec::NAME, decode_stream::<toshiba::ascii::AsciiCodec>(bytes, from))
+        }
+        ProtocolName::ToshibaBinary => {
+            (toshiba::binary::BinaryCodec::NAME, decode_stream::<toshiba::binary::BinaryCodec>(bytes, from))
+        }
+        ProtocolName::DanfossFc => (fc::FcCodec::NAME, decode_stream::<fc::FcCodec>(bytes, from)),
+        ProtocolName::B800 => (b800::B800Codec::NAME, decode_stream::<b800::B800Codec>(bytes, from)),
+    }
+}
+
+/// Runs `drivebus decode`; returns the exit status (0 a valid frame was found, 1 none).
+pub fn run(args: &DecodeArgs) -> Result<u8> {
+    let bytes = parse_hex_args(&args.hex)?;
+    let from = args.from.map(|f| match f {
+        From::Master => Direction::Master,
+        From::Drive => Direction::Drive,
+    });
+    let (protocol, items) = decode_by_name(args.protocol, &bytes, from);
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    let mut valid = 0;
+    let mut index = 0;
+    for item in &items {
+        if let Item::Frame(f) = item {
+            index += 1;
+            if f.error.is_none() {
+                valid += 1;
+            }
+        }
+        if args.json {
+            if let Some(v) = render_json(protocol, item) {
+                writeln!(out, "{v}")?;
+            }
+        } else {
+            write!(out, "{}", render_text(protocol, index, item))?;
+        }
+        match item {
+            Item::Frame(FrameReport { error: Some(e), offset, .. }) => {
+                eprintln!("drivebus: {protocol} frame {index} at byte {offset}: {e}");
+            }
+            Item::Noise { offset, bytes } => {
+                eprintln!(
+                    "drivebus: skipped {} byte{} at byte {offset} that are not part of any {protocol} frame",
+                    bytes.len(),
+                    if bytes.len() == 1 { "" } else { "s" }
+                );
+            }
+            _ => {}
+        }
+    }
+    if index == 0 {
+        eprintln!("drivebus: no {protocol} frame found in {} bytes: check --protocol", bytes.len());
+    }
+    Ok(if valid > 0 { 0 } else { 1 })
+}

@@ -1,0 +1,2 @@
+//! Virtual drives.
+pub mod model;

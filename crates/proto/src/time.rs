@@ -47,3 +47,11 @@ impl Sub<Instant> for Instant {
         self.saturating_since(earlier)
     }
 }
+
+impl Sub<Duration> for Instant {
+    type Output = Instant;
+    /// The instant `d` earlier, or the epoch.
+    fn sub(self, d: Duration) -> Instant {
+        Instant(self.0.saturating_sub(d.as_micros().min(u64::MAX as u128) as u64))
+    }
+}

@@ -1,2 +1,4 @@
 //! Virtual drives.
+pub mod bus;
 pub mod model;
+pub mod rng;

@@ -1,0 +1,505 @@
+//! The virtual RS-485 line: many devices on one pair of wires, paced at the real baud rate.
+//!
+//! Every byte takes its wire time (`CharFormat::char_time`: 1.146 ms for an 11-bit character
+//! at 9600 baud) and reaches every other device when its last bit has arrived. The line is half
+//! duplex: a talker that starts while another is still sending garbles the bytes that overlap,
+//! for both. Faults can be injected at run time: byte corruption, dropped bytes, extra latency,
+//! a silent device.
+//!
+//! The line is sans-IO like the protocol sessions: it never reads a clock. The caller advances
+//! it with [`VirtualLine::advance_to`] and asks [`VirtualLine::next_deadline`] when something will
+//! happen next; a test drives it on a virtual clock, the simulator's runtime maps it to wall time.
+//! The master (the program under test, on a pty or TCP) is the port [`MASTER`]; devices are
+//! numbered from 1 in the order they are added.
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use drivebus_proto::line::{modbus_t15_t35, CharFormat};
+use drivebus_proto::Instant;
+
+use crate::rng::Rng;
+
+/// The port of the external master.
+pub const MASTER: usize = 0;
+
+/// A device on the line: it hears every byte and may answer.
+pub trait Device {
+    /// Bytes that arrived from the line at `now` (in order, all of them whole characters).
+    fn receive(&mut self, now: Instant, bytes: &[u8]);
+    /// The line has been quiet for t3.5 after the last byte (Modbus RTU frame end).
+    fn silence(&mut self, now: Instant) {
+        let _ = now;
+    }
+    /// Bytes to put on the line now, if an answer is due.
+    fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>>;
+    /// When the device next needs [`Device::poll_transmit`] or [`Device::advance_to`].
+    fn poll_timeout(&self) -> Option<Instant>;
+    /// Lets the device's own state (a motor ramp) reach `now`.
+    fn advance_to(&mut self, now: Instant) {
+        let _ = now;
+    }
+}
+
+/// Faults to inject, settable at run time.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Faults {
+    /// Probability that a byte arrives with one bit flipped.
+    pub corrupt_rate: f64,
+    /// Probability that a byte is lost.
+    pub drop_rate: f64,
+    /// Added to every device's answer.
+    pub extra_latency: Duration,
+}
+
+/// What the line has carried.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LineStats {
+    /// Bytes put on the line by the master.
+    pub master_bytes: u64,
+    /// Bytes put on the line by devices.
+    pub device_bytes: u64,
+    /// Bytes garbled by two talkers at once.
+    pub collisions: u64,
+    /// Bytes corrupted by injected noise.
+    pub corrupted: u64,
+    /// Bytes lost to injected drops.
+    pub dropped: u64,
+    /// Time the line carried a signal.
+    pub busy: Duration,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Slot {
+    /// When the character's last bit arrives.
+    end: Instant,
+    byte: u8,
+    talker: usize,
+    garbled: bool,
+}
+
+struct Port {
+    device: Option<Box<dyn Device + Send>>,
+    silent: bool,
+    /// When this talker's current transmission ends.
+    tx_end: Instant,
+}
+
+/// One RS-485 line with its devices.
+pub struct VirtualLine {
+    baud: u32,
+    format: CharFormat,
+    char_time: Duration,
+    t35: Duration,
+    ports: Vec<Port>,
+    /// Characters on the wire, in arrival order.
+    wire: VecDeque<Slot>,
+    /// Bytes that reached the master, not yet read.
+    to_master: VecDeque<u8>,
+    now: Instant,
+    last_byte_end: Instant,
+    silence_due: bool,
+    faults: Faults,
+    rng: Rng,
+    stats: LineStats,
+}
+
+impl VirtualLine {
+    /// An empty line at `baud` with `format`, at simulated time `now`.
+    pub fn new(baud: u32, format: CharFormat, now: Instant) -> Self {
+        let (_, t35) = modbus_t15_t35(baud);
+        VirtualLine {
+            baud,
+            format,
+            char_time: format.char_time(baud),
+            t35,
+            ports: vec![Port { device: None, silent: false, tx_end: now }],
+            wire: VecDeque::new(),
+            to_master: VecDeque::new(),
+            now,
+            last_byte_end: now,
+            silence_due: false,
+            faults: Faults::default(),
+            rng: Rng::new(1),
+            stats: LineStats::default(),
+        }
+    }
+
+    /// The baud rate.
+    pub fn baud(&self) -> u32 {
+        self.baud
+    }
+
+    /// The character format.
+    pub fn format(&self) -> CharFormat {
+        self.format
+    }
+
+    /// One character's wire time.
+    pub fn char_time(&self) -> Duration {
+        self.char_time
+    }
+
+    /// Adds a device; returns its port number (1, 2, ...).
+    pub fn add_device(&mut self, device: Box<dyn Device + Send>) -> usize {
+        self.ports.push(Port { device: Some(device), silent: false, tx_end: self.now });
+        self.ports.len() - 1
+    }
+
+    /// The device on `port`.
+    pub fn device_mut(&mut self, port: usize) -> Option<&mut (dyn Device + Send + 'static)> {
+        self.ports.get_mut(port)?.device.as_deref_mut()
+    }
+
+    /// Number of devices.
+    pub fn devices(&self) -> usize {
+        self.ports.len() - 1
+    }
+
+    /// Silences a device (it hears but never answers) or lets it talk again.
+    pub fn set_silent(&mut self, port: usize, silent: bool) {
+        if let Some(p) = self.ports.get_mut(port) {
+            p.silent = silent;
+        }
+    }
+
+    /// True if the device on `port` is silenced.
+    pub fn is_silent(&self, port: usize) -> bool {
+        self.ports.get(port).is_some_and(|p| p.silent)
+    }
+
+    /// The faults in force.
+    pub fn faults(&self) -> Faults {
+        self.faults
+    }
+
+    /// Sets the faults to inject.
+    pub fn set_faults(&mut self, faults: Faults) {
+        self.faults = faults;
+    }
+
+    /// Seeds the fault generator (for repeatable tests).
+    pub fn seed(&mut self, seed: u64) {
+        self.rng = Rng::new(seed);
+    }
+
+    /// What the line has carried.
+    pub fn stats(&self) -> LineStats {
+        self.stats
+    }
+
+    /// The simulated time the line has reached.
+    pub fn now(&self) -> Instant {
+        self.now
+    }
+
+    /// The master writes `bytes` at `now`: they go on the wire one character time apart,
+    /// after whatever the master is still sending.
+    pub fn master_write(&mut self, now: Instant, bytes: &[u8]) {
+        self.advance_to(now);
+        self.transmit(MASTER, bytes);
+    }
+
+    /// Bytes that have reached the master by now.
+    pub fn master_read(&mut self, out: &mut Vec<u8>) {
+        out.extend(self.to_master.drain(..));
+    }
+
+    /// True when bytes wait for the master.
+    pub fn master_has_input(&self) -> bool {
+        !self.to_master.is_empty()
+    }
+
+    /// The next time something happens on the line (a byte arrives, a device answers, a
+    /// silence is detected), if anything is pending.
+    pub fn next_deadline(&self) -> Option<Instant> {
+        let mut next: Option<Instant> = self.wire.front().map(|s| s.end);
+        let mut consider = |t: Instant| {
+            next = Some(next.map_or(t, |n| n.min(t)));
+        };
+        if self.silence_due {
+            consider(self.last_byte_end + self.t35);
+        }
+        for p in &self.ports {
+            if let Some(t) = p.device.as_ref().and_then(|d| d.poll_timeout()) {
+                consider(t.max(self.now));
+            }
+        }
+        next
+    }
+
+    /// Advances the line to `now`: delivers every byte whose last bit has arrived, signals
+    /// silences, and lets devices answer, in time order.
+    pub fn advance_to(&mut self, now: Instant) {
+        if now < self.now {
+            return;
+        }
+        let mut batch: Vec<u8> = Vec::new();
+        loop {
+            // The next event at or before `now`.
+            let next_byte = self.wire.front().map(|s| s.end).filter(|&t| t <= now);
+            let next_silence = (self.silence_due && self.last_byte_end + self.t35 <= now)
+                .then_some(self.last_byte_end + self.t35);
+            let next_device = self
+                .ports
+                .iter()
+                .filter_map(|p| p.device.as_ref().and_then(|d| d.poll_timeout()))
+                .filter(|&t| t <= now)
+                .min();
+            let t = [next_byte, next_silence, next_device].into_iter().flatten().min();
+            let Some(t) = t else { break };
+            let t = t.max(self.now);
+            self.now = t;
+            if next_byte == Some(t) || next_byte.is_some_and(|b| b <= t) {
+                // Deliver every byte that ends at t, from one talker at a time.
+                let Some(first) = self.wire.front().copied() else { continue };
+                batch.clear();
+                let talker = first.talker;
+                while let Some(s) = self.wire.front().copied() {
+                    if s.end > t || s.talker != talker {
+                        break;
+                    }
+                    self.wire.pop_front();
+                    if let Some(b) = self.arrive(s) {
+                        batch.push(b);
+                    }
+                }
+                self.last_byte_end = t;
+                self.silence_due = true;
+                self.deliver(talker, t, &batch);
+                continue;
+            }
+            if next_silence == Some(t) {
+                self.silence_due = false;
+                for p in self.ports.iter_mut() {
+                    if let Some(d) = p.device.as_mut() {
+                        d.silence(t);
+                    }
+                }
+                continue;
+            }
+            // A device's timer: let it move and perhaps answer.
+            for i in 1..self.ports.len() {
+                let due = self.ports[i].device.as_ref().and_then(|d| d.poll_timeout()).is_some_and(|d| d <= t);
+                if !due {
+                    continue;
+                }
+                let out = self.ports[i].device.as_mut().and_then(|d| {
+                    d.advance_to(t);
+                    d.poll_transmit(t)
+                });
+                if let Some(bytes) = out {
+                    if !self.ports[i].silent {
+                        self.transmit_at(i, t + self.faults.extra_latency, &bytes);
+                    }
+                }
+            }
+        }
+        self.now = now;
+        for p in self.ports.iter_mut() {
+            if let Some(d) = p.device.as_mut() {
+                d.advance_to(now);
+            }
+        }
+    }
+
+    fn arrive(&mut self, s: Slot) -> Option<u8> {
+        if self.rng.chance(self.faults.drop_rate) {
+            self.stats.dropped += 1;
+            return None;
+        }
+        let mut b = s.byte;
+        if s.garbled {
+            b ^= 0xA5;
+        }
+        if self.rng.chance(self.faults.corrupt_rate) {
+            b ^= 1 << self.rng.below(8);
+            self.stats.corrupted += 1;
+        }
+        Some(b)
+    }
+
+    fn deliver(&mut self, talker: usize, t: Instant, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        if talker != MASTER {
+            self.to_master.extend(bytes.iter().copied());
+        }
+        for (i, p) in self.ports.iter_mut().enumerate() {
+            if i == talker {
+                continue;
+            }
+            if let Some(d) = p.device.as_mut() {
+                d.advance_to(t);
+                d.receive(t, bytes);
+            }
+        }
+    }
+
+    fn transmit(&mut self, talker: usize, bytes: &[u8]) {
+        let now = self.now;
+        self.transmit_at(talker, now, bytes);
+    }
+
+    fn transmit_at(&mut self, talker: usize, at: Instant, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        let start = at.max(self.ports[talker].tx_end);
+        let mut end = start;
+        let mut new_slots = Vec::with_capacity(bytes.len());
+        for &byte in bytes {
+            end = end + self.char_time;
+            new_slots.push(Slot { end, byte, talker, garbled: false });
+        }
+        self.ports[talker].tx_end = end;
+        // Half duplex: characters of other talkers that overlap in time garble, both ways.
+        for s in self.wire.iter_mut() {
+            if s.talker == talker {
+                continue;
+            }
+            let s_start = s.end - self.char_time;
+            for n in new_slots.iter_mut() {
+                let n_start = n.end - self.char_time;
+                if n_start < s.end && s_start < n.end {
+                    if !s.garbled {
+                        self.stats.collisions += 1;
+                    }
+                    s.garbled = true;
+                    n.garbled = true;
+                }
+            }
+        }
+        if talker == MASTER {
+            self.stats.master_bytes += bytes.len() as u64;
+        } else {
+            self.stats.device_bytes += bytes.len() as u64;
+        }
+        self.stats.busy += self.char_time * bytes.len() as u32;
+        for n in new_slots {
+            // Keep arrival order.
+            let pos = self.wire.iter().rposition(|s| s.end <= n.end).map_or(0, |p| p + 1);
+            self.wire.insert(pos, n);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::{Arc, Mutex};
+
+    /// Answers every byte string it hears with the same bytes, after `delay`.
+    struct Echo {
+        heard: Arc<Mutex<Vec<(Instant, Vec<u8>)>>>,
+        pending: Option<(Instant, Vec<u8>)>,
+        delay: Duration,
+        silences: Arc<Mutex<u32>>,
+    }
+
+    impl Device for Echo {
+        fn receive(&mut self, now: Instant, bytes: &[u8]) {
+            self.heard.lock().unwrap().push((now, bytes.to_vec()));
+        }
+        fn silence(&mut self, now: Instant) {
+            *self.silences.lock().unwrap() += 1;
+            let all: Vec<u8> = self.heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();
+            self.pending = Some((now + self.delay, all));
+        }
+        fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>> {
+            match &self.pending {
+                Some((t, _)) if *t <= now => self.pending.take().map(|(_, b)| b),
+                _ => None,
+            }
+        }
+        fn poll_timeout(&self) -> Option<Instant> {
+            self.pending.as_ref().map(|(t, _)| *t)
+        }
+    }
+
+    fn echo(delay_ms: u64) -> (Echo, Arc<Mutex<Vec<(Instant, Vec<u8>)>>>, Arc<Mutex<u32>>) {
+        let heard = Arc::new(Mutex::new(Vec::new()));
+        let silences = Arc::new(Mutex::new(0));
+        (
+            Echo { heard: heard.clone(), pending: None, delay: Duration::from_millis(delay_ms), silences: silences.clone() },
+            heard,
+            silences,
+        )
+    }
+
+    fn run_until_idle(line: &mut VirtualLine) {
+        while let Some(t) = line.next_deadline() {
+            line.advance_to(t);
+        }
+    }
+
+    #[test]
+    fn bytes_take_their_wire_time() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (dev, heard, _) = echo(5);
+        line.add_device(Box::new(dev));
+        line.master_write(Instant::ZERO, &[1, 2, 3]);
+        // 11 bits at 9600: the first byte is whole after 1.146 ms, the third after 3.438 ms.
+        line.advance_to(Instant::from_micros(1145));
+        assert!(heard.lock().unwrap().is_empty());
+        line.advance_to(Instant::from_micros(1146));
+        assert_eq!(heard.lock().unwrap().len(), 1);
+        line.advance_to(Instant::from_micros(3438));
+        let got: Vec<u8> = heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();
+        assert_eq!(got, [1, 2, 3]);
+    }
+
+    #[test]
+    fn device_answers_after_silence_and_delay_and_master_reads_it() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (dev, _, silences) = echo(5);
+        line.add_device(Box::new(dev));
+        line.master_write(Instant::ZERO, &[0xAB, 0xCD]);
+        run_until_idle(&mut line);
+        assert_eq!(*silences.lock().unwrap(), 2, "after the request and after the reply");
+        let mut got = Vec::new();
+        line.master_read(&mut got);
+        assert_eq!(got, [0xAB, 0xCD]);
+        // Request 2 chars + t3.5 + 5 ms + 2 chars of reply.
+        let expect = 4 * 1_145_834u64 / 1000 + 4010 + 5000;
+        let now = line.now().as_micros();
+        assert!(now >= expect && now <= expect + 4100, "{now} vs {expect}");
+        assert_eq!(line.stats().master_bytes, 2);
+        assert_eq!(line.stats().device_bytes, 2);
+    }
+
+    #[test]
+    fn two_talkers_at_once_garble() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (dev, _, _) = echo(0);
+        line.add_device(Box::new(dev));
+        line.master_write(Instant::ZERO, &[1, 2, 3, 4]);
+        line.advance_to(Instant::from_millis(8));
+        // The device starts its echo ~t3.5 after the first request; the master now talks over it.
+        line.master_write(Instant::from_millis(8), &[9, 9, 9, 9, 9, 9]);
+        run_until_idle(&mut line);
+        assert!(line.stats().collisions > 0);
+        let mut got = Vec::new();
+        line.master_read(&mut got);
+        assert_ne!(got, [1, 2, 3, 4]);
+    }
+
+    #[test]
+    fn silent_device_never_answers_and_noise_is_counted() {
+        let mut line = VirtualLine::new(115200, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (dev, heard, _) = echo(1);
+        let port = line.add_device(Box::new(dev));
+        line.set_silent(port, true);
+        line.set_faults(Faults { corrupt_rate: 1.0, ..Default::default() });
+        line.master_write(Instant::ZERO, &[0u8; 10]);
+        run_until_idle(&mut line);
+        let mut got = Vec::new();
+        line.master_read(&mut got);
+        assert!(got.is_empty());
+        let heard: Vec<u8> = heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();
+        assert_eq!(heard.len(), 10);
+        assert!(heard.iter().all(|&b| b.count_ones() == 1), "one bit flipped per byte");
+        assert_eq!(line.stats().corrupted, 10);
+    }
+}

@@ -732,6 +732,13 @@ impl Scanner for FcScanner {
         }
     }
 
+    /// protocols.md 2.9: "The gap between characters inside a telegram must not exceed
+    /// 2 characters", so silence ends a telegram in progress: it was cut short. Skip 1, so
+    /// a telegram that starts inside it (behind a corrupted LGE) is still found.
+    fn silence(&self, buf: &[u8]) -> Scan {
+        Scan::Invalid { len: buf.len(), skip: 1, error: self.truncated(buf) }
+    }
+
     fn truncated(&self, buf: &[u8]) -> FrameError {
         match buf {
             [STX, lge, ..] if check_lge(*lge).is_ok() => FrameError::Truncated {

@@ -818,3 +818,39 @@ fn a_late_reply_for_another_parameter_is_not_taken() {
     m.handle_input(at(40_000), &good);
     assert!(matches!(m.poll_event(), Some(MasterEvent::Reply(r)) if r.value() == Some(500)));
 }
+
+#[test]
+fn silence_ends_a_telegram_and_the_one_inside_is_found() {
+    // A corrupted LGE (0x50) announces 82 bytes and swallows the good telegram after it;
+    // the line then goes silent (more than 2 characters): the candidate is cut short, and the
+    // deframer searches inside it.
+    let mut stream = hex("02 50 04 04 7C");
+    stream.extend_from_slice(&hex("02 06 04 06 07 00 00 01"));
+    let mut d = Deframer::new(FcScanner);
+    let mut good = Vec::new();
+    let mut bad = Vec::new();
+    let mut on = |e: Event<'_>| match e {
+        Event::Frame { bytes, .. } => good.push(bytes.to_vec()),
+        Event::Rejected { error, .. } => bad.push(error.to_string()),
+    };
+    d.push(&stream, &mut on);
+    assert_eq!(d.buffered(), 13);
+    d.silence(&mut on);
+    assert_eq!(d.buffered(), 0);
+    assert_eq!(good, [hex("02 06 04 06 07 00 00 01")]);
+    assert_eq!(bad, ["truncated frame: the telegram its LGE announces needs 82 bytes, got 13"]);
+}
+
+#[test]
+fn a_reply_cut_short_is_corrupt_at_the_deadline() {
+    let mut m = new_master();
+    m.send(at(0), &Request::read(m.protocol().adr(4).unwrap(), pnu("4-14"), 0)).unwrap();
+    m.poll_transmit(at(0)).unwrap();
+    m.handle_input(at(25_000), &hex("02 0E 84 11 9E 00"));
+    let deadline = m.poll_timeout().unwrap();
+    m.handle_timeout(deadline);
+    match m.poll_event() {
+        Some(MasterEvent::Corrupt(FrameError::Truncated { expected: 16, got: 6, .. })) => {}
+        other => panic!("{other:?}"),
+    }
+}

@@ -152,6 +152,10 @@ pub enum ParameterCommand {
     /// E: "Write parameter value in RAM and EEPROM (word)."
     WriteRamEepromWord = 0xE,
     /// F: "Read text." (IND high byte 04 = read, 05 = write text.)
+    ///
+    /// seed 003 Table 5.5 names F "Read text." only, but its 5.4.6 says "The text block is
+    /// used to read or write texts", and protocols.md 2.5 gives IND 05xx for writing: so
+    /// drivebus calls it "read/write text".
     Text = 0xF,
 }
 

@@ -133,7 +133,11 @@ impl Adr {
         }
     }
 
-    /// Reads an ADR byte from the wire.
+    /// Reads an ADR byte from the wire. Address 0 (format 1–31, bit 5 = 0) and 127
+    /// (format 1–126) are neither a drive nor broadcast, and are refused.
+    ///
+    /// seed 003 5.4.4: "Bit 7 = 1 (address format 1–126 active). Bit 0–6 = frequency
+    /// converter address 1–126. Bit 0–6 = 0 broadcast."
     pub const fn from_byte(byte: u8) -> Result<Adr, FrameError> {
         let adr = Adr(byte);
         if !adr.is_broadcast() {

@@ -438,11 +438,19 @@ pub(crate) fn split(bytes: &[u8]) -> Result<Wire<'_>, FrameError> {
     }
     // seed 000: "Any non-ASCII byte received other than the START / STOP flags will terminate
     // the data reception" (project decision: any byte that is not a hex digit).
-    if let Some(i) = digits.iter().position(|&c| HEX[c as usize] > 0x0F) {
-        let byte = digits.get(i).copied().unwrap_or(0);
-        return Err(FrameError::NonHex { byte, offset: i + 1 });
+    // One pass for both: any digit's table entry above 0x0F marks a non-hex byte.
+    let (mut marks, mut sum) = (0u8, 0u8);
+    for &c in digits {
+        marks |= HEX[c as usize];
+        sum = sum.wrapping_add(c);
     }
-    verify(digits)?;
+    if marks > 0x0F {
+        if let Some(i) = digits.iter().position(|&c| HEX[c as usize] > 0x0F) {
+            let byte = digits.get(i).copied().unwrap_or(0);
+            return Err(FrameError::NonHex { byte, offset: i + 1 });
+        }
+    }
+    verify_summed(digits, sum)?;
     match digits {
         [a0, a1, c0, c1, data @ .., _, _] => Ok(Wire { da: pair(*a0, *a1), cmd: pair(*c0, *c1), data }),
         _ => Err(short(bytes.len())),
@@ -457,6 +465,12 @@ fn short(got: usize) -> FrameError {
 /// at least 6 and the CS.
 #[inline]
 pub(crate) fn verify(digits: &[u8]) -> Result<(), FrameError> {
+    verify_summed(digits, crate::checksum::sum8(digits))
+}
+
+/// [`verify`] with the 8-bit sum of all of `digits` (CS digits included) already known.
+#[inline]
+fn verify_summed(digits: &[u8], sum: u8) -> Result<(), FrameError> {
     let n = digits.len();
     if n % 2 != 0 {
         return Err(FrameError::OddDigits { count: n });
@@ -470,7 +484,7 @@ pub(crate) fn verify(digits: &[u8]) -> Result<(), FrameError> {
     // seed 000: "the logical NOT of the byte result of the byte addition of all transmitted
     // ASCII bytes excluding the START and STOP flags and the checksum itself", over the
     // characters as received (a lower-case digit counts as its lower-case code).
-    let computed = not_sum8(body);
+    let computed = !sum.wrapping_sub(*s0).wrapping_sub(*s1);
     let carried = pair(*s0, *s1);
     if carried != computed {
         return Err(FrameError::ChecksumMismatch {

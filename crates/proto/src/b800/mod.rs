@@ -14,7 +14,7 @@
 //!   reply); a drive replies with its plain number 1–63. So the DA byte tells who sent a frame.
 //! - Replies are the lower-case command letter, or `e` with an error code. Words go high byte
 //!   first as 4 digits; the units of the reply words are project decisions (see
-//!   `/work/shared/protocols.md`, "B800"): `a` 0.1 A, `z` 60 x Hz, `m` rpm, `v` BCD, `t` status.
+//!   protocols.md, "Project decisions", "B800"): `a` 0.1 A, `z` 60 x Hz, `m` rpm, `v` BCD, `t` status.
 //!
 //! Types: [`Request`] / [`Reply`] (typed frames, `parse` / `emit`), [`Packet`] (either side),
 //! [`FrameScanner`] (the receiver state machine), [`B800`] (the [`Protocol`] for sessions and

@@ -91,7 +91,7 @@ impl Scanner for FrameScanner {
             }
             let i = start + k;
             return match b {
-                FG2 => self.end(&buf[..=i]),
+                FG2 => buf.get(..=i).map_or(Scan::Noise { len: 1 }, |frame| self.end(frame)),
                 // A 7E always starts a new frame; the digits before it were a frame cut short.
                 FG1 if i == 1 => Scan::Noise { len: 1 },
                 FG1 => Scan::Invalid {

@@ -1,0 +1,239 @@
+//! The four drive families and how each one spells its parameter names.
+
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
+/// A drive family: one wire protocol, one parameter catalog, one seed manual.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Family {
+    /// Generic Chinese VFD with Modbus RTU/ASCII and the 2000H/2100H map (`seeds/004_e8ea1998fe1a671e.txt`).
+    Generic,
+    /// Toshiba VF-AS1: Toshiba Inverter Protocol and Modbus-RTU (`seeds/002_43d8a4399c8be05f.txt`).
+    Toshiba,
+    /// Danfoss VLT FC series: FC protocol (`seeds/003_26a4c04ca1af5f26.txt`).
+    Danfoss,
+    /// B800 series: hex-ASCII protocol without parameter access (`seeds/000_04b515f0e0c1734e.txt`).
+    B800,
+}
+
+impl Family {
+    /// Every family, in the order the docs list them.
+    pub const ALL: [Family; 4] = [Family::Generic, Family::Toshiba, Family::Danfoss, Family::B800];
+
+    /// The lower-case name used on the command line and in catalog files ("generic", "toshiba", ...).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Family::Generic => "generic",
+            Family::Toshiba => "toshiba",
+            Family::Danfoss => "danfoss",
+            Family::B800 => "b800",
+        }
+    }
+
+    /// The seed manual this family's protocol and catalog come from, as `seeds/<file>`.
+    pub fn manual(self) -> &'static str {
+        match self {
+            Family::Generic => "seeds/004_e8ea1998fe1a671e.txt",
+            Family::Toshiba => "seeds/002_43d8a4399c8be05f.txt",
+            Family::Danfoss => "seeds/003_26a4c04ca1af5f26.txt",
+            Family::B800 => "seeds/000_04b515f0e0c1734e.txt",
+        }
+    }
+
+    /// The wire number that a parameter name or number written in this family's style stands for.
+    ///
+    /// Accepted spellings (case-insensitive, surrounding blanks ignored), besides `0x`-prefixed hex
+    /// in every family:
+    ///
+    /// | family | spelling | number |
+    /// |---|---|---|
+    /// | generic | `P3.09`, `p3.09` | register 0x0309 (the name's digits as hex digits) |
+    /// | generic | `2103H` | register 0x2103 |
+    /// | toshiba | `f803`, `F803` | communication number 0x0803 |
+    /// | toshiba | `0803`, `FA01` (four hex digits) | that communication number |
+    /// | danfoss | `4-14`, `04-14` | PNU 414 |
+    /// | danfoss | `414` | PNU 414 |
+    /// | b800 | `F-12`, `F12`, `12` | local index 12 |
+    ///
+    /// Returns `None` for text that is not a number in this family's style; whether a parameter
+    /// with that number exists is the catalog's business.
+    pub fn parse_number(self, text: &str) -> Option<u32> {
+        let t = text.trim();
+        if let Some(hex) = t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+            return parse_hex(hex);
+        }
+        match self {
+            Family::Generic => {
+                if let Some(rest) = t.strip_prefix(['P', 'p']) {
+                    let (group, item) = rest.split_once('.')?;
+                    if !(1..=2).contains(&group.len()) || item.len() != 2 {
+                        return None;
+                    }
+                    if !all_digits(group) || !all_digits(item) {
+                        return None;
+                    }
+                    // Pgg.nn is register 0xGGNN: the digits as written become hex digits.
+                    Some((parse_hex(group)? << 8) | parse_hex(item)?)
+                } else {
+                    let hex = t.strip_suffix(['H', 'h'])?;
+                    parse_hex(hex)
+                }
+            }
+            Family::Toshiba => {
+                if let Some(digits) = t.strip_prefix(['F', 'f']) {
+                    if digits.len() == 3 && all_digits(digits) {
+                        // Extended parameter fNNN has communication number 0NNN.
+                        return parse_hex(digits);
+                    }
+                }
+                if t.len() == 4 {
+                    parse_hex(t)
+                } else {
+                    None
+                }
+            }
+            Family::Danfoss => {
+                if let Some((group, item)) = t.split_once('-') {
+                    if !(1..=2).contains(&group.len()) || item.len() != 2 {
+                        return None;
+                    }
+                    if !all_digits(group) || !all_digits(item) {
+                        return None;
+                    }
+                    Some(group.parse::<u32>().ok()? * 100 + item.parse::<u32>().ok()?)
+                } else {
+                    parse_decimal(t)
+                }
+            }
+            Family::B800 => {
+                let rest = t.strip_prefix(['F', 'f']).map(|r| r.strip_prefix('-').unwrap_or(r));
+                parse_decimal(rest.unwrap_or(t))
+            }
+        }
+    }
+
+    /// A wire number written the way this family's documents write it: `0x0803` for generic and
+    /// Toshiba, plain decimal for the FC PNU and the B800 local index.
+    pub fn format_number(self, number: u32) -> String {
+        match self {
+            Family::Generic | Family::Toshiba => format!("0x{number:04X}"),
+            Family::Danfoss | Family::B800 => number.to_string(),
+        }
+    }
+}
+
+fn all_digits(s: &str) -> bool {
+    !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit())
+}
+
+fn parse_hex(s: &str) -> Option<u32> {
+    if s.is_empty() || s.len() > 8 || !s.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return None;
+    }
+    u32::from_str_radix(s, 16).ok()
+}
+
+fn parse_decimal(s: &str) -> Option<u32> {
+    if !all_digits(s) || s.len() > 9 {
+        return None;
+    }
+    s.parse().ok()
+}
+
+impl fmt::Display for Family {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The text given to [`Family::from_str`] names no family.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownFamily {
+    /// The text as given.
+    pub text: String,
+}
+
+impl fmt::Display for UnknownFamily {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "unknown drive family {:?}: expected generic, toshiba, danfoss or b800", self.text)
+    }
+}
+
+impl std::error::Error for UnknownFamily {}
+
+impl FromStr for Family {
+    type Err = UnknownFamily;
+
+    /// Parses "generic", "toshiba", "danfoss" or "b800", in any letter case.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let t = s.trim();
+        Family::ALL
+            .into_iter()
+            .find(|f| f.as_str().eq_ignore_ascii_case(t))
+            .ok_or_else(|| UnknownFamily { text: s.to_string() })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip() {
+        for f in Family::ALL {
+            assert_eq!(f.to_string().parse::<Family>(), Ok(f));
+            assert_eq!(f.as_str().to_uppercase().parse::<Family>(), Ok(f));
+        }
+        let err = "siemens".parse::<Family>().unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "unknown drive family \"siemens\": expected generic, toshiba, danfoss or b800"
+        );
+    }
+
+    #[test]
+    fn generic_numbers() {
+        let g = Family::Generic;
+        assert_eq!(g.parse_number("P0.02"), Some(0x0002));
+        assert_eq!(g.parse_number("p3.09"), Some(0x0309));
+        assert_eq!(g.parse_number("P3.10"), Some(0x0310));
+        assert_eq!(g.parse_number("P10.05"), Some(0x1005));
+        assert_eq!(g.parse_number("2103H"), Some(0x2103));
+        assert_eq!(g.parse_number("0x2103"), Some(0x2103));
+        assert_eq!(g.parse_number("P3.9"), None);
+        assert_eq!(g.parse_number("P3.0A"), None);
+        assert_eq!(g.parse_number("2103"), None);
+    }
+
+    #[test]
+    fn toshiba_numbers() {
+        let t = Family::Toshiba;
+        assert_eq!(t.parse_number("f803"), Some(0x0803));
+        assert_eq!(t.parse_number("F803"), Some(0x0803));
+        assert_eq!(t.parse_number("0803"), Some(0x0803));
+        assert_eq!(t.parse_number("0010"), Some(0x0010));
+        assert_eq!(t.parse_number("FA01"), Some(0xFA01));
+        assert_eq!(t.parse_number("fd00"), Some(0xFD00));
+        assert_eq!(t.parse_number("10"), None);
+        assert_eq!(t.parse_number("f80"), None);
+    }
+
+    #[test]
+    fn danfoss_and_b800_numbers() {
+        let d = Family::Danfoss;
+        assert_eq!(d.parse_number("4-14"), Some(414));
+        assert_eq!(d.parse_number("04-14"), Some(414));
+        assert_eq!(d.parse_number("16-14"), Some(1614));
+        assert_eq!(d.parse_number("0-01"), Some(1));
+        assert_eq!(d.parse_number("414"), Some(414));
+        assert_eq!(d.parse_number("4-1"), None);
+        let b = Family::B800;
+        assert_eq!(b.parse_number("F-12"), Some(12));
+        assert_eq!(b.parse_number("f12"), Some(12));
+        assert_eq!(b.parse_number("12"), Some(12));
+        assert_eq!(b.parse_number("F-"), None);
+    }
+}

@@ -4,4 +4,4 @@
 #[path = "common.rs"]
 mod common;
 
-libfuzzer_sys::fuzz_target!(|data: &[u8]| common::run::<drivebus_proto::b800::B800Codec>(data));
+libfuzzer_sys::fuzz_target!(|data: &[u8]| common::run::<drivebus_proto::b800::B800>(data));

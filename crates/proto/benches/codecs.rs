@@ -57,8 +57,8 @@ fn run_parse(c: &mut Criterion) {
                 "modbus-ascii" => parse_all::<modbus::ascii::AsciiCodec>,
                 "toshiba-ascii" => parse_all::<toshiba::ascii::AsciiCodec>,
                 "toshiba-binary" => parse_all::<toshiba::binary::BinaryCodec>,
-                "danfoss-fc" => parse_all::<fc::FcCodec>,
-                _ => parse_all::<b800::B800Codec>,
+                "danfoss-fc" => parse_all::<fc::DanfossFc>,
+                _ => parse_all::<b800::B800>,
             };
             assert_eq!(f(&buf), FRAMES, "{name}: the sample must parse");
             g.bench_with_input(BenchmarkId::from_parameter(name), &buf, |b, buf| b.iter(|| f(black_box(buf))));

@@ -29,7 +29,7 @@
 //!   a [`deframe::Scanner`] for the streaming [`deframe::Deframer`], an implementation of
 //!   [`session::Protocol`] for the sessions, and of [`codec::Codec`] + [`describe::Describe`]
 //!   for tools.
-//! - [`checksum`] holds the six checksums, [`hex`] the hex-ASCII helpers, [`line`] the
+//! - [`checksum`] holds the six checksums, [`hex`] the hex-ASCII helpers, [`line`](mod@line) the
 //!   character format and the times it implies, [`time`] the caller-supplied clock.
 //! - Errors say whose fault they are: [`error::FrameError`] for bad bytes,
 //!   [`error::EmitError`] for a frame the caller cannot build, and a drive's refusal is a

@@ -90,11 +90,11 @@ fn no_codec_allocates_per_frame() {
         ),
         (
             "danfoss-fc",
-            decode::<fc::FcCodec>,
+            decode::<fc::DanfossFc>,
             repeated(&[0x02, 0x0E, 0x01, 0x22, 0x08, 0, 0, 0, 0, 0x02, 0x0C, 0x06, 0x07, 0, 0, 0x28], &[]),
             Direction::Drive,
         ),
-        ("b800", decode::<b800::B800Codec>, repeated(b"\x7E85500960\x35\x45\x7F", b"\x00"), Direction::Master),
+        ("b800", decode::<b800::B800>, repeated(b"\x7E85500960\x35\x45\x7F", b"\x00"), Direction::Master),
     ];
     for (name, f, stream, from) in cases {
         let (frames, allocations) = f(&stream, from);

@@ -322,8 +322,8 @@ pub fn decode_by_name(name: ProtocolName, bytes: &[u8], from: Option<Direction>)
         ProtocolName::ToshibaBinary => {
             (toshiba::binary::BinaryCodec::NAME, decode_stream::<toshiba::binary::BinaryCodec>(bytes, from))
         }
-        ProtocolName::DanfossFc => (fc::FcCodec::NAME, decode_stream::<fc::FcCodec>(bytes, from)),
-        ProtocolName::B800 => (b800::B800Codec::NAME, decode_stream::<b800::B800Codec>(bytes, from)),
+        ProtocolName::DanfossFc => (fc::DanfossFc::NAME, decode_stream::<fc::DanfossFc>(bytes, from)),
+        ProtocolName::B800 => (b800::B800::NAME, decode_stream::<b800::B800>(bytes, from)),
     }
 }
 

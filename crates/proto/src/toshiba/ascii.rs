@@ -505,6 +505,8 @@ struct Lexed<'a> {
     rest_at: usize,
     /// Offset of `&`, if present.
     amp: Option<usize>,
+    /// Between `(` and `&` or `)`.
+    body: &'a [u8],
 }
 
 fn lex(bytes: &[u8]) -> Result<Lexed<'_>, Fault> {
@@ -543,11 +545,6 @@ fn lex(bytes: &[u8]) -> Result<Lexed<'_>, Fault> {
         Some(a) if inner[a] == SUM_MARK => (&inner[..a], Some(a + 1)),
         _ => (inner, None),
     };
-    if body.contains(&SUM_MARK) {
-        return Err(Fault::format(FrameError::Malformed(
-            "format error: '&' must be followed by exactly two SUM digits and ')'; a drive does not answer",
-        )));
-    }
     let inv_char = |c: &u8| c.is_ascii_digit() || *c == WILDCARD;
     let (inv_no, cmd_at) = match body.first() {
         None => return Err(Fault::format(FrameError::Malformed("format error: no CMD between '(' and ')'"))),
@@ -563,23 +560,58 @@ fn lex(bytes: &[u8]) -> Result<Lexed<'_>, Fault> {
     let Some(&letter) = body.get(cmd_at) else {
         return Err(Fault::format(FrameError::Malformed("format error: no CMD after INV-NO")));
     };
-    Ok(Lexed { inv_no, letter, rest: &body[cmd_at + 1..], rest_at: cmd_at + 2, amp })
+    Ok(Lexed { inv_no, letter, rest: &body[cmd_at + 1..], rest_at: cmd_at + 2, amp, body })
 }
 
+/// Hex digit values; 0x10 marks a byte that is not a hex digit.
+const HEX: [u8; 256] = {
+    let mut t = [0x10u8; 256];
+    let mut c = 0;
+    while c < 256 {
+        if let Some(v) = hex::digit_value(c as u8) {
+            t[c] = v;
+        }
+        c += 1;
+    }
+    t
+};
+
 /// Decodes `digits` (at frame offset `at`) as a hex number.
+#[inline]
 fn hex_value(digits: &[u8], at: usize) -> Result<u16, FrameError> {
     let mut v = 0u16;
-    for (i, &c) in digits.iter().enumerate() {
-        match hex::digit_value(c) {
-            Some(d) => v = v << 4 | d as u16,
-            None => return Err(FrameError::NonHex { byte: c, offset: at + i }),
+    let mut bad = 0u8;
+    for &c in digits {
+        let d = HEX[c as usize];
+        bad |= d;
+        v = v << 4 | (d & 0x0F) as u16;
+    }
+    if bad & 0x10 != 0 {
+        if let Some(i) = digits.iter().position(|&c| HEX[c as usize] & 0x10 != 0) {
+            return Err(FrameError::NonHex { byte: digits[i], offset: at + i });
         }
     }
     Ok(v)
 }
 
+const MISPLACED_AMP: &str =
+    "format error: '&' must be followed by exactly two SUM digits and ')'; a drive does not answer";
+
 pub(crate) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<AsciiFrame, Fault> {
     let lx = lex(bytes)?;
+    // A '&' anywhere but before the two SUM digits fails a check below (it is no INV-NO
+    // digit, no command, no hex digit): it is a format error, whatever that check said.
+    parse_lexed(bytes, &lx, from).map_err(|f| {
+        if lx.body.contains(&SUM_MARK) {
+            Fault::format(FrameError::Malformed(MISPLACED_AMP))
+        } else {
+            f
+        }
+    })
+}
+
+#[inline]
+fn parse_lexed(bytes: &[u8], lx: &Lexed<'_>, from: Option<Direction>) -> Result<AsciiFrame, Fault> {
     let kind = Cmd::from_letter(lx.letter).filter(|(c, _)| *c != Cmd::G);
     // E6581315 4.3: "(R11)CR" takes "11)" and CR as the communication number: format error.
     if kind.is_some() && lx.rest.len() < 4 {
@@ -591,14 +623,16 @@ pub(crate) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<Ascii
     if let Some(amp) = lx.amp {
         let covered = &bytes[..=amp];
         let (hi, lo) = (bytes[amp + 1], bytes[amp + 2]);
-        let carried = match hex::decode_pair(hi, lo) {
-            Some(c) => c,
-            None => {
-                let (byte, offset) = if hex::is_hex_digit(hi) { (lo, amp + 2) } else { (hi, amp + 1) };
-                return Err(Fault::answered(FrameError::NonHex { byte, offset }, ErrorCode::CHECKSUM_ERROR));
-            }
-        };
-        let computed = sum8(covered);
+        let (h, l) = (HEX[hi as usize], HEX[lo as usize]);
+        if (h | l) & 0x10 != 0 {
+            let (byte, offset) = if h & 0x10 == 0 { (lo, amp + 2) } else { (hi, amp + 1) };
+            return Err(Fault::answered(FrameError::NonHex { byte, offset }, ErrorCode::CHECKSUM_ERROR));
+        }
+        let carried = h << 4 | l;
+        let mut computed = 0u8;
+        for &b in covered {
+            computed = computed.wrapping_add(b);
+        }
         if carried != computed {
             return Err(Fault::answered(
                 FrameError::ChecksumMismatch {
@@ -734,45 +768,50 @@ impl Scanner for AsciiScanner {
     }
 }
 
+/// Byte classes for the scanner: what a byte does inside an ASCII-mode frame.
+const ORDINARY: u8 = 0;
+const END: u8 = 1;
+const RESTART: u8 = 2;
+const SLASH: u8 = 3;
+const BAD: u8 = 4;
+
+const fn classes(tip: bool) -> [u8; 256] {
+    let mut t = [BAD; 256];
+    let mut c = 0x20;
+    while c < 0x7F {
+        t[c] = ORDINARY;
+        c += 1;
+    }
+    t[CR as usize] = END;
+    t[START as usize] = RESTART;
+    if tip {
+        t[super::binary::START as usize] = SLASH;
+    }
+    t
+}
+
+/// Classes on an ASCII-only line.
+static CLASS: [u8; 256] = classes(false);
+/// Classes on a line that carries both modes (2F starts a binary frame).
+static CLASS_TIP: [u8; 256] = classes(true);
+
 /// Scans for an ASCII-mode frame; `tip`: the line also carries binary mode, so 2F is a start code.
 #[inline]
 pub(crate) fn scan_ascii(buf: &[u8], checked: usize, tip: bool) -> Scan {
     if buf.first() != Some(&START) {
         return Scan::Noise { len: next_start(buf, tip) };
     }
+    let table = if tip { &CLASS_TIP } else { &CLASS };
     let limit = buf.len().min(MAX_FRAME);
-    let mut i = checked.max(1);
-    while i < limit {
-        let b = buf[i];
-        if b == CR {
-            return finish_ascii(&buf[..=i]);
+    let from = checked.clamp(1, limit);
+    // The sum of the bytes before the one looked at, for SUM.
+    let mut sum = sum8(&buf[..from]);
+    for (i, &b) in buf[from..limit].iter().enumerate() {
+        let class = table[b as usize];
+        if class != ORDINARY {
+            return special(buf, from + i, class, sum);
         }
-        if b == START {
-            return Scan::Invalid {
-                len: i,
-                skip: i,
-                error: FrameError::Malformed(
-                    "a new start code '(' came before CR: the frame before it was cut short",
-                ),
-            };
-        }
-        if tip && b == super::binary::START {
-            return Scan::Invalid {
-                len: i,
-                skip: i,
-                error: FrameError::Malformed(
-                    "a binary-mode start code 2F came before CR: the ASCII-mode frame before it was cut short",
-                ),
-            };
-        }
-        if !(0x20..0x7F).contains(&b) {
-            return Scan::Invalid {
-                len: i + 1,
-                skip: i + 1,
-                error: FrameError::NonHex { byte: b, offset: i },
-            };
-        }
-        i += 1;
+        sum = sum.wrapping_add(b);
     }
     if limit == MAX_FRAME {
         return Scan::Invalid {
@@ -784,6 +823,34 @@ pub(crate) fn scan_ascii(buf: &[u8], checked: usize, tip: bool) -> Scan {
     Scan::Incomplete { checked: limit }
 }
 
+/// The byte at `i` is not an ordinary frame byte: CR ends the frame, a start code cuts it short,
+/// anything else is not allowed in one.
+#[inline]
+fn special(buf: &[u8], i: usize, class: u8, sum: u8) -> Scan {
+    match class {
+        END => finish_ascii(&buf[..=i], sum),
+        RESTART => Scan::Invalid {
+            len: i,
+            skip: i,
+            error: FrameError::Malformed(
+                "a new start code '(' came before CR: the frame before it was cut short",
+            ),
+        },
+        SLASH => Scan::Invalid {
+            len: i,
+            skip: i,
+            error: FrameError::Malformed(
+                "a binary-mode start code 2F came before CR: the ASCII-mode frame before it was cut short",
+            ),
+        },
+        _ => Scan::Invalid {
+            len: i + 1,
+            skip: i + 1,
+            error: FrameError::NonHex { byte: buf.get(i).copied().unwrap_or(0), offset: i },
+        },
+    }
+}
+
 /// Bytes before the next start code (`(`, and 2F on a line that carries both modes).
 pub(crate) fn next_start(buf: &[u8], tip: bool) -> usize {
     buf.iter()
@@ -792,14 +859,20 @@ pub(crate) fn next_start(buf: &[u8], tip: bool) -> usize {
         .map_or(buf.len(), |p| p + 1)
 }
 
-/// A candidate from `(` to CR: checks SUM when `&` is where it belongs.
-fn finish_ascii(frame: &[u8]) -> Scan {
+/// A candidate from `(` to CR, whose bytes before CR add up to `sum`: checks SUM when `&`
+/// is where it belongs.
+#[inline]
+fn finish_ascii(frame: &[u8], sum: u8) -> Scan {
     let len = frame.len();
     if len >= 6 && frame[len - 5] == SUM_MARK {
-        if let Some(carried) = hex::decode_pair(frame[len - 4], frame[len - 3]) {
-            let covered = &frame[..len - 4];
-            let computed = sum8(covered);
+        let (hi, lo, stop) = (frame[len - 4], frame[len - 3], frame[len - 2]);
+        let (h, l) = (HEX[hi as usize], HEX[lo as usize]);
+        if (h | l) & 0x10 == 0 {
+            let carried = h << 4 | l;
+            // The covered bytes end with '&': the sum of all before CR less SUM and ')'.
+            let computed = sum.wrapping_sub(hi).wrapping_sub(lo).wrapping_sub(stop);
             if carried != computed {
+                let covered = &frame[..len - 4];
                 return Scan::Invalid {
                     len,
                     skip: len,

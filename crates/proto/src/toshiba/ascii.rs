@@ -691,13 +691,16 @@ fn parse_lexed(bytes: &[u8], lx: &Lexed<'_>, from: Option<Direction>) -> Result<
         ));
     }
     let data = hex_value(digits, lx.rest_at + 4).map_err(|e| Fault::answered(e, ErrorCode::DATA_ERROR))?;
-    if digits.is_empty() && (cmd.is_write() || tripped) {
-        let msg = if tripped {
-            "a reply carries DATA (4 digits)"
-        } else {
-            "data error: W and P carry 1 to 4 DATA digits, this one has none"
-        };
-        return Err(Fault::answered(FrameError::Malformed(msg), ErrorCode::DATA_ERROR));
+    if digits.is_empty() && tripped {
+        // Lower case is a tripped drive's reply, which carries DATA; this is neither a reply
+        // nor a request, and a drive does not answer it.
+        return Err(Fault::format(FrameError::Malformed("a reply (lower-case CMD) carries 4 DATA digits")));
+    }
+    if digits.is_empty() && cmd.is_write() {
+        return Err(Fault::answered(
+            FrameError::Malformed("data error: W and P carry 1 to 4 DATA digits, this one has none"),
+            ErrorCode::DATA_ERROR,
+        ));
     }
     let is_reply = tripped
         || match cmd {
@@ -1418,6 +1421,16 @@ mod tests {
         );
         // W without data: data error.
         assert_eq!(rejection_reply(b"(WFA01)\r", 0, false).unwrap().error(), Some(ErrorCode::DATA_ERROR));
+        assert_eq!(
+            AsciiRequest::parse(b"(WFA01)\r").unwrap_err().to_string(),
+            "data error: W and P carry 1 to 4 DATA digits, this one has none"
+        );
+        // A lower-case command without DATA is neither a reply nor a request: silence.
+        assert_eq!(rejection_reply(b"(wFA01)\r", 0, false), None);
+        assert_eq!(
+            AsciiReply::parse(b"(rFD00)\r").unwrap_err().to_string(),
+            "a reply (lower-case CMD) carries 4 DATA digits"
+        );
         // Wildcard: the reply carries this inverter's number.
         let rep = rejection_reply(b"(*5XFD00)\r", 5, false).unwrap();
         assert_eq!(emit_rep(&rep), b"(05N0003)\r");

@@ -725,9 +725,13 @@ fn later_frame(buf: &[u8], end: usize, from: Option<Direction>, tip: bool) -> Op
     let end = end.min(buf.len());
     (1..end).find(|&p| match buf[p] {
         START => matches!(check(&buf[p..], from), Check::Frame(_)),
-        super::ascii::START if tip => {
-            matches!(super::ascii::scan_ascii(&buf[p..], 0, true), Scan::Frame { .. })
-        }
+        // An ASCII frame without SUM has no check: it must at least parse.
+        super::ascii::START if tip => match super::ascii::scan_ascii(&buf[p..], 0, true) {
+            Scan::Frame { len } => {
+                buf.get(p..p + len).is_some_and(|f| super::ascii::parse_frame(f, None).is_ok())
+            }
+            _ => false,
+        },
         _ => false,
     })
 }

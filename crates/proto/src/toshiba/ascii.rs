@@ -1,4 +1,5 @@
-//! TIP ASCII mode (protocols.md 1.4; manual VF-S11 p.8–9, VF-S15 p.7–8, VF-AS1 E6581315).
+//! TIP ASCII mode. `seeds/002_43d8a4399c8be05f.txt` names it; the frame is in protocols.md 1.4,
+//! from the public VF-S11 (p.8–9) and VF-S15 (p.7–8) manuals.
 //!
 //! ```text
 //! "(" [INV-NO:2] CMD COMNO:4 [DATA:0..4] ["&" SUM:2] ")" CR        request and reply
@@ -19,7 +20,7 @@
 //!
 //! Format errors (a one-digit INV-NO, `(R11)` CR, a wrong stop code) get no reply from a drive;
 //! checksum, command, communication-number and data errors get an `N` reply
-//! (E6581315 4.3 "Transmission errors"). [`rejection_reply`] builds it.
+//! (protocols.md 1.6, VF-AS1 manual 4.3 "Transmission errors"). [`rejection_reply`] builds it.
 
 use crate::checksum::sum8;
 use crate::codec::Codec;
@@ -534,7 +535,8 @@ fn lex(bytes: &[u8]) -> Result<Lexed<'_>, Fault> {
             "format error: the frame does not end with CR (0D)",
         )));
     }
-    // E6581315 4.3: format error "a code other than ')' in the stop-code position": no reply.
+    // protocols.md 1.6, transmission errors: format error (no reply) for "a code other than ')'
+    // in the stop-code position".
     if n < 3 || bytes[n - 2] != STOP {
         return Err(Fault::format(FrameError::Malformed(
             "format error: the byte before CR is not the stop code ')'; a drive does not answer",
@@ -550,7 +552,7 @@ fn lex(bytes: &[u8]) -> Result<Lexed<'_>, Fault> {
         None => return Err(Fault::format(FrameError::Malformed("format error: no CMD between '(' and ')'"))),
         Some(c) if inv_char(c) => match body.get(1) {
             Some(d) if inv_char(d) => (AsciiAddress::from_chars(*c, *d), 2),
-            // E6581315 4.3: "one-digit inverter number" is a format error.
+            // protocols.md 1.6, transmission errors: "one-digit inverter number" is a format error.
             _ => return Err(Fault::format(FrameError::Malformed(
                 "format error: one-digit INV-NO (it is two digits 00-99, or none); a drive does not answer",
             ))),
@@ -613,7 +615,8 @@ pub(crate) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<Ascii
 #[inline]
 fn parse_lexed(bytes: &[u8], lx: &Lexed<'_>, from: Option<Direction>) -> Result<AsciiFrame, Fault> {
     let kind = Cmd::from_letter(lx.letter).filter(|(c, _)| *c != Cmd::G);
-    // E6581315 4.3: "(R11)CR" takes "11)" and CR as the communication number: format error.
+    // protocols.md 1.6, transmission errors: "(R11)CR" takes "11)" and CR as the communication
+    // number: a format error.
     if kind.is_some() && lx.rest.len() < 4 {
         return Err(Fault::format(FrameError::Malformed(
             "format error: COMNO needs 4 hex digits before ')'; a drive reads ')' and CR as digits and does not answer",
@@ -668,7 +671,7 @@ fn parse_lexed(bytes: &[u8], lx: &Lexed<'_>, from: Option<Direction>) -> Result<
                 sum,
             }));
         }
-        // E6581315 4.3: command error 0003, answered in ASCII mode.
+        // protocols.md 1.6, transmission errors: command error 0003, answered in ASCII mode.
         return Err(Fault::answered(
             FrameError::Unknown { field: "ASCII-mode CMD", value: lx.letter as u32 },
             ErrorCode::COMMAND_ERROR,
@@ -679,7 +682,7 @@ fn parse_lexed(bytes: &[u8], lx: &Lexed<'_>, from: Option<Direction>) -> Result<
     );
     let digits = &lx.rest[4..];
     if digits.len() > 4 {
-        // E6581315 4.3: data error "too many digits".
+        // protocols.md 1.6, transmission errors: data error "too many digits".
         return Err(Fault::answered(
             FrameError::OutOfRange {
                 field: "number of DATA digits",
@@ -1147,7 +1150,7 @@ mod tests {
         (good, bad)
     }
 
-    /// TA4: `(RFE03)` CR, read output current (seed 002 TOC "RFE03CR").
+    /// TA4: `(RFE03)` CR, read output current (seeds/002_43d8a4399c8be05f.txt TOC: "RFE03CR").
     #[test]
     fn ta4_read_output_current() {
         let wire = [
@@ -1167,7 +1170,7 @@ mod tests {
         assert_eq!(describe(&f), "communication number FE03 (output current)");
     }
 
-    /// TA5: `(RFE03077B)` CR, reply 077B = 19.15 % (seed 002 TOC "RFE03077BCR").
+    /// TA5: `(RFE03077B)` CR, reply 077B = 19.15 % (seeds/002_43d8a4399c8be05f.txt TOC).
     #[test]
     fn ta5_reply_output_current() {
         let wire = [

@@ -1,4 +1,5 @@
-//! TIP binary mode (protocols.md 1.5–1.7; manual E6581315 p.10–17, VF-S11 p.7 and p.15).
+//! TIP binary mode. `seeds/002_43d8a4399c8be05f.txt` names it; the frame is in protocols.md 1.5–1.7,
+//! from the public VF-AS1 (p.10–17) and VF-S11 (p.7, p.15) manuals.
 //!
 //! ```text
 //! 2F [INV-NO] CMD COMNO:2 [DATA:2] SUM                 R (no DATA), W, P, G (dummy DATA)
@@ -13,7 +14,7 @@
 //! - SUM: the 8-bit sum of the bytes from 2F through the last data byte; it is not omissible.
 //! - A tripped inverter answers with CMD + 20H (`r` 72H, `w`, `p`, `g`, `y`, `n` 6EH).
 //! - A drive answers only a checksum error with an error reply (`2F 4E 00 04 81`); command
-//!   errors, format errors and other inverters' numbers get no reply (E6581315 4.3).
+//!   errors, format errors and other inverters' numbers get no reply (protocols.md 1.6).
 //!
 //! Receiving (manual VF-S11 p.7): everything before 2F is ignored; if 2F comes more than once,
 //! the last one counts; the frame is complete once the command's byte count is in. 2F is also
@@ -877,7 +878,7 @@ fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<BinaryFrame, Fau
                 computed: computed as u16,
                 hint: prefix_hint(covered, carried),
             },
-            // E6581315 4.3: a checksum error is answered with 0004 (2F 4E 00 04 81).
+            // protocols.md 1.6, transmission errors: a checksum error is answered with 0004 (2F 4E 00 04 81).
             answer: to_drive.then_some(ErrorCode::CHECKSUM_ERROR),
         });
     }

@@ -1,5 +1,6 @@
-//! Toshiba Inverter Protocol (TIP) of the VF-AS1 (manual E6581315, `seeds/002_43d8a4399c8be05f.txt`),
-//! ASCII mode and binary mode. (Modbus-RTU on the same drive lives in [`crate::modbus`].)
+//! Toshiba Inverter Protocol (TIP) of the VF-AS1, ASCII mode and binary mode
+//! (`seeds/002_43d8a4399c8be05f.txt` and the public manuals in protocols.md section 1).
+//! Modbus-RTU on the same drive lives in [`crate::modbus`].
 //!
 //! The drive tells the two modes apart by the start code (protocols.md 1.3):
 //!
@@ -350,7 +351,7 @@ impl Cmd {
 /// The letter of an error reply: `N` (4EH), `n` (6EH) while the inverter is tripped.
 pub const ERROR_LETTER: u8 = b'N';
 
-/// The error code of an error reply (manual E6581315 4.3 "Transmission errors").
+/// The error code of an error reply (protocols.md 1.6: VF-AS1 manual 4.3 "Transmission errors").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ErrorCode(pub u16);
 
@@ -563,7 +564,7 @@ mod tests {
     #[test]
     fn known_numbers() {
         assert_eq!(CommNo(0xFE03).name(), Some("output current"));
-        // seed 002 TOC: "(RFE03077B)CR" -> 077B = 1915 = 19.15 %.
+        // seeds/002_43d8a4399c8be05f.txt, table of contents: "RFE03077BCR" -> 077B = 1915 = 19.15 %.
         assert_eq!(CommNo(0xFE03).value(0x077B), Some(19.15));
         assert_eq!(CommNo::OUTPUT_FREQUENCY.hz(0x1770), Some(60.0));
         assert_eq!(CommNo::OUTPUT_CURRENT.hz(0x1770), None);

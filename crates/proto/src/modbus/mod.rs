@@ -18,6 +18,9 @@ pub mod ascii;
 pub mod pdu;
 pub mod rtu;
 
+#[cfg(test)]
+mod tests;
+
 use core::fmt;
 
 use crate::describe::{CodeStyle, Command, Describe, Direction, Field, Target};

@@ -124,6 +124,10 @@ impl Scanner for RtuScanner {
     /// over all but its last two bytes matches them; otherwise the error says what is wrong
     /// (short by how many bytes, and whose CRC the last two bytes are).
     fn silence(&self, buf: &[u8]) -> Scan {
+        if buf.len() > MAX_ADU {
+            let error = FrameError::TooLong { what: WHAT_FRAME, max: MAX_ADU, got: buf.len() };
+            return Scan::Invalid { len: buf.len(), skip: buf.len(), error };
+        }
         if crc_ok(buf) {
             return Scan::Frame { len: buf.len() };
         }

@@ -96,7 +96,43 @@ pub struct Pending {
     pub function: u8,
 }
 
-impl Request<'_> {
+impl<'a> Request<'a> {
+    /// 03: read `quantity` holding registers from `start`.
+    pub const fn read_holding_registers(unit: UnitId, start: u16, quantity: u16) -> Self {
+        Request { unit, pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(start), quantity } }
+    }
+
+    /// 04: read `quantity` input registers from `start`.
+    pub const fn read_input_registers(unit: UnitId, start: u16, quantity: u16) -> Self {
+        Request { unit, pdu: RequestPdu::ReadInputRegisters { start: RegisterAddress(start), quantity } }
+    }
+
+    /// 06: write `value` into register `address`.
+    pub const fn write_single_register(unit: UnitId, address: u16, value: u16) -> Self {
+        Request { unit, pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(address), value } }
+    }
+
+    /// 10: write `values` from `start`.
+    pub const fn write_multiple_registers(unit: UnitId, start: u16, values: &'a [u16]) -> Self {
+        Request {
+            unit,
+            pdu: RequestPdu::WriteMultipleRegisters {
+                start: RegisterAddress(start),
+                values: Registers::from_values(values),
+            },
+        }
+    }
+
+    /// 08: diagnostics `sub_function` with `data` (seed 004's loop-back test).
+    pub const fn diagnostics(unit: UnitId, sub_function: u16, data: &'a [u8]) -> Self {
+        Request { unit, pdu: RequestPdu::Diagnostics { sub_function, data: Data::binary(data) } }
+    }
+
+    /// 2B/0E: read device identification `code` from `object_id`.
+    pub const fn read_device_identification(unit: UnitId, code: ReadDeviceIdCode, object_id: u8) -> Self {
+        Request { unit, pdu: RequestPdu::ReadDeviceIdentification { code, object_id } }
+    }
+
     /// What the reply must match, or `None` for a broadcast (no reply is due).
     pub fn pending(&self) -> Option<Pending> {
         (!self.unit.is_broadcast()).then_some(Pending { unit: self.unit, function: self.pdu.function() })
@@ -143,6 +179,23 @@ pub struct RegisterInfo {
     pub name: &'static str,
     /// The unit, the value of one count in it, and the decimals that resolution gives.
     pub unit: Option<(&'static str, f64, u8)>,
+}
+
+impl RegisterInfo {
+    /// The raw register value in the register's unit (`0x1770` -> `60.0` for a 0.01 Hz
+    /// register), or `None` for a register without a unit.
+    pub fn quantity(&self, raw: u16) -> Option<f64> {
+        self.unit.map(|(_, scale, _)| raw as f64 * scale)
+    }
+
+    /// The raw register value for `value` in the register's unit (`50.0` Hz -> `5000` for a
+    /// 0.01 Hz register), rounded; `None` without a unit or when it does not fit 0..=65535.
+    pub fn raw(&self, value: f64) -> Option<u16> {
+        let (_, scale, _) = self.unit?;
+        let raw = value / scale;
+        // Round half up without `f64::round` (not in `core`); NaN fails the range test.
+        (-0.5..65535.5).contains(&raw).then_some((raw + 0.5) as u16)
+    }
 }
 
 /// The seed drives' registers that drivebus knows by name. The two maps do not overlap:

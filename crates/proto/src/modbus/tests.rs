@@ -1238,3 +1238,36 @@ fn codec_names_and_scanners() {
     assert_eq!(frame.direction(), Direction::Drive);
     assert_eq!(frame.command().code, function::READ_HOLDING_REGISTERS);
 }
+
+#[test]
+fn register_units_and_constructors() {
+    let fa01 = register_info(RegisterAddress(0xFA01)).unwrap();
+    assert_eq!(fa01.quantity(0x1770), Some(60.0));
+    assert_eq!(fa01.raw(60.0), Some(0x1770));
+    let p = register_info(RegisterAddress(0x2104)).unwrap();
+    assert_eq!(p.raw(5.24), Some(52));
+    assert_eq!(p.raw(-1.0), None);
+    assert_eq!(register_info(RegisterAddress(0x2000)).unwrap().quantity(1), None);
+    assert_eq!(register_info(RegisterAddress(0x0002)), None);
+    // The constructors build the vectors.
+    assert_eq!(
+        emit_rtu_req(&Request::read_holding_registers(UnitId(1), 0xFD00, 1)),
+        h("01 03 FD 00 00 01 B5 A6")
+    );
+    assert_eq!(
+        emit_rtu_req(&Request::write_single_register(UnitId(1), 0xFA01, 6000)),
+        h("01 06 FA 01 17 70 E6 C6")
+    );
+    assert_eq!(emit_rtu_req(&Request::diagnostics(UnitId(1), 0x0102, &[3, 4])), h("01 08 01 02 03 04 41 04"));
+    assert_eq!(
+        emit_rtu_req(&Request::read_device_identification(UnitId(1), ReadDeviceIdCode::BASIC, 0)),
+        h("01 2B 0E 01 00 70 77")
+    );
+    assert_eq!(emit_ascii_req(&Request::read_holding_registers(UnitId(1), 0x2102, 2)), a(":010321020002D7"));
+    assert_eq!(
+        Request::read_input_registers(UnitId(2), 5, 1).pdu,
+        RequestPdu::ReadInputRegisters { start: RegisterAddress(5), quantity: 1 }
+    );
+    let v = [1u16, 2];
+    assert_eq!(Request::write_multiple_registers(UnitId(1), 0x2000, &v).pdu.wire_len(), 10);
+}

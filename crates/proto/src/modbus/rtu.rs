@@ -354,8 +354,9 @@ impl RtuScanner {
         let fc = buf[1];
         let q = adu_len(buf, true);
         let r = adu_len(buf, false);
-        // The reading to explain: the direction set, or for a monitor the one that still
-        // needed more bytes, the request first.
+        // The reading to explain: the direction set, or for a monitor the one as long as the
+        // frame, else the one that still needed more bytes, the request first.
+        let whole = |l: PduLen| l == PduLen::Known(got);
         let short = |l: PduLen| match l {
             PduLen::Known(n) if n > got && n <= MAX_ADU => Some(n),
             PduLen::NeedMore(n) if n > got => Some(n),
@@ -365,6 +366,8 @@ impl RtuScanner {
             Accept::Requests => Some((true, q)),
             Accept::Replies => Some((false, r)),
             Accept::Either => match (short(q), short(r)) {
+                _ if whole(q) => Some((true, q)),
+                _ if whole(r) => Some((false, r)),
                 (Some(_), _) => Some((true, q)),
                 (None, Some(_)) => Some((false, r)),
                 _ if q != PduLen::Unknown => Some((true, q)),

@@ -1271,3 +1271,19 @@ fn register_units_and_constructors() {
     let v = [1u16, 2];
     assert_eq!(Request::write_multiple_registers(UnitId(1), 0x2000, &v).pdu.wire_len(), 10);
 }
+
+#[test]
+fn monitor_diagnoses_at_silence() {
+    // A monitor waits for the longer reply reading; at silence it explains the reading as
+    // long as the frame.
+    let f8 = h("01 03 21 04 00 01 E8 4B");
+    assert_eq!(deframe(RtuScanner::either(), &[&f8], false), []);
+    assert_eq!(
+        first(deframe(RtuScanner::either(), &[&f8], true)),
+        [Ev::Rejected(
+            f8.clone(),
+            "CRC mismatch: frame carries E8 4B, computed CF F7 (the carried CRC is that of the first 4 bytes only)"
+                .into()
+        )]
+    );
+}

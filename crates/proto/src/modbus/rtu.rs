@@ -162,8 +162,12 @@ fn too_long(buf: &[u8], n: usize) -> Scan {
 }
 
 fn unknown_function(buf: &[u8], request: bool) -> Scan {
+    Scan::Invalid { len: 2, skip: 1, error: unknown_function_error(buf, request) }
+}
+
+fn unknown_function_error(buf: &[u8], request: bool) -> FrameError {
     let fc = buf[1];
-    let error = match fc {
+    match fc {
         pdu::function::ENCAPSULATED_INTERFACE => {
             FrameError::Unknown { field: "MEI type", value: buf.get(2).copied().unwrap_or(0) as u32 }
         }
@@ -171,8 +175,7 @@ fn unknown_function(buf: &[u8], request: bool) -> Scan {
             "a function code with the 0x80 bit set is an exception reply, not a request",
         ),
         _ => FrameError::Unknown { field: "function code", value: fc as u32 },
-    };
-    Scan::Invalid { len: 2, skip: 1, error }
+    }
 }
 
 /// A line monitor: the request reading and the reply reading, shorter first.
@@ -376,10 +379,7 @@ impl RtuScanner {
             },
         };
         let Some((request, len)) = reading else {
-            return match unknown_function(buf, fc & 0x80 == 0) {
-                Scan::Invalid { error, .. } => error,
-                _ => FrameError::Malformed("unknown function code"),
-            };
+            return unknown_function_error(buf, fc & 0x80 == 0);
         };
         let what = if request { pdu::request_what(fc) } else { pdu::reply_what(fc) };
         let expected = match len {
@@ -387,17 +387,12 @@ impl RtuScanner {
                 return FrameError::TooLong { what: WHAT_FRAME, max: MAX_ADU, got: n };
             }
             PduLen::Known(n) | PduLen::NeedMore(n) => n.max(MIN_ADU),
-            PduLen::Unknown => {
-                return match unknown_function(buf, request) {
-                    Scan::Invalid { error, .. } => error,
-                    _ => FrameError::Malformed("unknown function code"),
-                };
-            }
+            PduLen::Unknown => return unknown_function_error(buf, request),
         };
-        if got >= expected || got < MIN_ADU {
-            if got < MIN_ADU {
-                return FrameError::Truncated { what, expected, got };
-            }
+        if got < MIN_ADU {
+            return FrameError::Truncated { what, expected, got };
+        }
+        if got >= expected {
             // As long as a frame should be (or longer) and the CRC fails.
             return mismatch(buf);
         }

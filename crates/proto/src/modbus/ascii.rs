@@ -158,6 +158,19 @@ fn check_digits(digits: &[u8]) -> Result<(), FrameError> {
 
 /// Checks a whole frame (`:` ... CR LF) and returns the unit and the PDU's hex digits.
 fn split(frame: &[u8]) -> Result<(UnitId, Data<'_>), FrameError> {
+    split_with(frame, true)
+}
+
+/// [`split`]; with `check` false, a frame that has the shape of one (`:`, an even count of
+/// at least 6 characters, CR LF) is taken as the scanner checked it: digits and LRC.
+#[inline]
+fn split_with(frame: &[u8], check: bool) -> Result<(UnitId, Data<'_>), FrameError> {
+    let n = frame.len();
+    if !check && n >= 9 && n <= MAX_FRAME && n % 2 == 1 && frame[0] == START && frame[n - 2..] == [CR, LF] {
+        let digits = &frame[1..n - 2];
+        let unit = hex::decode_pair(digits[0], digits[1]).unwrap_or(0);
+        return Ok((UnitId(unit), Data::hex_digits(&digits[2..digits.len() - 2])));
+    }
     if frame.first() != Some(&START) {
         return Err(FrameError::Malformed("a Modbus ASCII frame starts with ':'"));
     }
@@ -191,7 +204,16 @@ fn adu_error(e: FrameError) -> FrameError {
 impl<'a> Request<'a> {
     /// Parses an ASCII request frame (`:` ... CR LF), checking digits and LRC.
     pub fn parse_ascii(frame: &'a [u8]) -> Result<Self, FrameError> {
-        let (unit, pdu) = split(frame)?;
+        Self::parse_ascii_with(frame, true)
+    }
+
+    /// Parses an ASCII request frame whose digits and LRC have been checked (by [`AsciiScanner`]).
+    pub fn parse_ascii_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
+        Self::parse_ascii_with(frame, false)
+    }
+
+    fn parse_ascii_with(frame: &'a [u8], check: bool) -> Result<Self, FrameError> {
+        let (unit, pdu) = split_with(frame, check)?;
         match RequestPdu::parse_data(pdu) {
             Ok(pdu) => Ok(Request { unit, pdu }),
             Err(FrameError::Truncated { expected: 5, got: 4, .. })
@@ -222,7 +244,16 @@ impl<'a> Request<'a> {
 impl<'a> Reply<'a> {
     /// Parses an ASCII reply frame (`:` ... CR LF), checking digits and LRC.
     pub fn parse_ascii(frame: &'a [u8]) -> Result<Self, FrameError> {
-        let (unit, pdu) = split(frame)?;
+        Self::parse_ascii_with(frame, true)
+    }
+
+    /// Parses an ASCII reply frame whose digits and LRC have been checked (by [`AsciiScanner`]).
+    pub fn parse_ascii_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
+        Self::parse_ascii_with(frame, false)
+    }
+
+    fn parse_ascii_with(frame: &'a [u8], check: bool) -> Result<Self, FrameError> {
+        let (unit, pdu) = split_with(frame, check)?;
         Ok(Reply { unit, pdu: ReplyPdu::parse_data(pdu).map_err(adu_error)? })
     }
 
@@ -280,10 +311,10 @@ impl Protocol for ModbusAscii {
         rep.emit_ascii(out)
     }
     fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Request<'a>, FrameError> {
-        Request::parse_ascii(bytes)
+        Request::parse_ascii_unchecked(bytes)
     }
     fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Reply<'a>, FrameError> {
-        Reply::parse_ascii(bytes)
+        Reply::parse_ascii_unchecked(bytes)
     }
     fn pending(&self, req: &Request<'_>) -> Option<Pending> {
         req.pending()
@@ -317,7 +348,12 @@ impl Codec for ModbusAscii {
 
     fn parse(bytes: &[u8], from: Option<Direction>) -> Result<Frame<'_>, FrameError> {
         let function = bytes.get(3..5).and_then(|d| hex::decode_pair(d[0], d[1]));
-        parse_either(from, || Request::parse_ascii(bytes), || Reply::parse_ascii(bytes), function)
+        parse_either(
+            from,
+            || Request::parse_ascii_unchecked(bytes),
+            || Reply::parse_ascii_unchecked(bytes),
+            function,
+        )
     }
 }
 

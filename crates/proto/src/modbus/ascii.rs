@@ -166,7 +166,8 @@ fn split(frame: &[u8]) -> Result<(UnitId, Data<'_>), FrameError> {
 #[inline]
 fn split_with(frame: &[u8], check: bool) -> Result<(UnitId, Data<'_>), FrameError> {
     let n = frame.len();
-    if !check && n >= 9 && n <= MAX_FRAME && n % 2 == 1 && frame[0] == START && frame[n - 2..] == [CR, LF] {
+    if !check && (9..=MAX_FRAME).contains(&n) && n % 2 == 1 && frame[0] == START && frame[n - 2..] == [CR, LF]
+    {
         let digits = &frame[1..n - 2];
         let unit = hex::decode_pair(digits[0], digits[1]).unwrap_or(0);
         return Ok((UnitId(unit), Data::hex_digits(&digits[2..digits.len() - 2])));

@@ -33,13 +33,29 @@ fn run<C: Codec>(frame: &[u8], from: Option<Direction>, label: &str) -> f64 {
     rate
 }
 
+const RTU_REQUEST: [u8; 8] = [0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA6];
+
 #[test]
 #[ignore]
-fn throughput() {
-    let rtu = [0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA6];
-    run::<ModbusRtu>(&rtu, Some(Direction::Master), "RTU requests, 8-byte frames");
-    run::<ModbusRtu>(&rtu, None, "RTU monitor, 8-byte frames");
+fn throughput_rtu_requests() {
+    run::<ModbusRtu>(&RTU_REQUEST, Some(Direction::Master), "RTU requests, 8-byte frames");
+}
+
+#[test]
+#[ignore]
+fn throughput_rtu_monitor() {
+    run::<ModbusRtu>(&RTU_REQUEST, None, "RTU monitor, 8-byte frames");
+}
+
+#[test]
+#[ignore]
+fn throughput_rtu_replies() {
     let rep = [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50];
     run::<ModbusRtu>(&rep, Some(Direction::Drive), "RTU replies, 7-byte frames");
+}
+
+#[test]
+#[ignore]
+fn throughput_ascii() {
     run::<ModbusAscii>(b":010604051234AA\r\n", None, "ASCII, 17-char frames");
 }

@@ -860,7 +860,22 @@ fn quantity_ok(q: u16, max: u16) -> Result<(), FrameError> {
 
 impl<'a> RequestPdu<'a> {
     /// Parses a binary request PDU (function code first).
+    #[inline]
     pub fn parse(pdu: &'a [u8]) -> Result<Self, FrameError> {
+        // Fast path for the usual 5-byte layouts, straight from the slice.
+        if let &[fc, a0, a1, b0, b1] = pdu {
+            let (a, b) = (u16::from_be_bytes([a0, a1]), u16::from_be_bytes([b0, b1]));
+            match fc {
+                0x03 if (1..=125).contains(&b) => {
+                    return Ok(RequestPdu::ReadHoldingRegisters { start: RegisterAddress(a), quantity: b })
+                }
+                0x04 if (1..=125).contains(&b) => {
+                    return Ok(RequestPdu::ReadInputRegisters { start: RegisterAddress(a), quantity: b })
+                }
+                0x06 => return Ok(RequestPdu::WriteSingleRegister { address: RegisterAddress(a), value: b }),
+                _ => {}
+            }
+        }
         Self::parse_data(Data::binary(pdu))
     }
 
@@ -1058,7 +1073,28 @@ fn put_word(out: &mut [u8], at: usize, v: u16) {
 
 impl<'a> ReplyPdu<'a> {
     /// Parses a binary reply PDU (function code first).
+    #[inline]
     pub fn parse(pdu: &'a [u8]) -> Result<Self, FrameError> {
+        // Fast paths for register reads and the 06 echo, straight from the slice.
+        match *pdu {
+            [fc @ (0x03 | 0x04), count, ref data @ ..]
+                if count as usize == data.len() && count % 2 == 0 && (2..=250).contains(&count) =>
+            {
+                let values = Registers::from_be_bytes(data);
+                return Ok(if fc == 0x03 {
+                    ReplyPdu::ReadHoldingRegisters { values }
+                } else {
+                    ReplyPdu::ReadInputRegisters { values }
+                });
+            }
+            [0x06, a0, a1, b0, b1] => {
+                return Ok(ReplyPdu::WriteSingleRegister {
+                    address: RegisterAddress(u16::from_be_bytes([a0, a1])),
+                    value: u16::from_be_bytes([b0, b1]),
+                })
+            }
+            _ => {}
+        }
         Self::parse_data(Data::binary(pdu))
     }
 

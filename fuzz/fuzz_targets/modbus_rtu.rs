@@ -4,4 +4,4 @@
 #[path = "common.rs"]
 mod common;
 
-libfuzzer_sys::fuzz_target!(|data: &[u8]| common::run::<drivebus_proto::modbus::rtu::RtuCodec>(data));
+libfuzzer_sys::fuzz_target!(|data: &[u8]| common::run::<drivebus_proto::modbus::rtu::ModbusRtu>(data));

@@ -48,20 +48,27 @@ fn parse_all<C: Codec>(buf: &[u8]) -> usize {
 fn run_parse(c: &mut Criterion) {
     for (unit, group_name) in [(true, "parse_frames"), (false, "parse_bytes")] {
         let mut g = c.benchmark_group(group_name);
-        g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
+        g.measurement_time(std::time::Duration::from_secs(2))
+            .warm_up_time(std::time::Duration::from_millis(500));
         for (name, frame) in samples() {
             let buf = frame.repeat(FRAMES);
-            g.throughput(if unit { Throughput::Elements(FRAMES as u64) } else { Throughput::Bytes(buf.len() as u64) });
+            g.throughput(if unit {
+                Throughput::Elements(FRAMES as u64)
+            } else {
+                Throughput::Bytes(buf.len() as u64)
+            });
             let f: fn(&[u8]) -> usize = match name {
-                "modbus-rtu" => parse_all::<modbus::rtu::RtuCodec>,
-                "modbus-ascii" => parse_all::<modbus::ascii::AsciiCodec>,
+                "modbus-rtu" => parse_all::<modbus::rtu::ModbusRtu>,
+                "modbus-ascii" => parse_all::<modbus::ascii::ModbusAscii>,
                 "toshiba-ascii" => parse_all::<toshiba::ascii::AsciiCodec>,
                 "toshiba-binary" => parse_all::<toshiba::binary::BinaryCodec>,
                 "danfoss-fc" => parse_all::<fc::DanfossFc>,
                 _ => parse_all::<b800::B800>,
             };
             assert_eq!(f(&buf), FRAMES, "{name}: the sample must parse");
-            g.bench_with_input(BenchmarkId::from_parameter(name), &buf, |b, buf| b.iter(|| f(black_box(buf))));
+            g.bench_with_input(BenchmarkId::from_parameter(name), &buf, |b, buf| {
+                b.iter(|| f(black_box(buf)))
+            });
         }
         g.finish();
     }

@@ -234,18 +234,23 @@ impl<S: Scanner> Deframer<S> {
         if let Scan::Incomplete { .. } = scan {
             return;
         }
-        self.resync = 0;
+        // Applied with any resynchronisation still in force: the tail of a candidate that
+        // already failed is not reported a second time.
         let used = self.apply(scan, on_event);
         self.buf.as_mut().copy_within(used..self.len, 0);
         self.len -= used;
         self.checked = 0;
         if self.len > 0 {
-            // The silence ended a frame; anything after it is scanned as usual.
+            // The scanner kept bytes after a skip: scan them as usual.
             let mut tmp = S::Buffer::zeroed();
             let n = self.len;
             tmp.as_mut()[..n].copy_from_slice(&self.buf.as_ref()[..n]);
             self.len = 0;
             self.push(&tmp.as_ref()[..n], on_event);
+        }
+        if self.len == 0 {
+            // Silence is a frame boundary: whatever comes next is a new candidate.
+            self.resync = 0;
         }
     }
 
@@ -485,6 +490,58 @@ mod tests {
         });
         assert!(matches!(rejected, Some(FrameError::Truncated { .. })));
         assert_eq!(d.buffered(), 0);
+    }
+
+    /// Ends every candidate at silence: the whole buffer is one frame or one bad candidate.
+    #[derive(Default)]
+    struct Silent;
+
+    impl Scanner for Silent {
+        type Buffer = [u8; 16];
+        fn scan(&self, buf: &[u8], _checked: usize) -> Scan {
+            // A frame is "<" + 3 bytes; a bad one is reported and searched byte by byte.
+            if buf[0] != b'<' {
+                return Scan::Noise { len: 1 };
+            }
+            if buf.len() < 4 {
+                return Scan::Incomplete { checked: 0 };
+            }
+            if buf[1..4].iter().all(|b| b.is_ascii_digit()) {
+                Scan::Frame { len: 4 }
+            } else {
+                Scan::Invalid { len: 4, skip: 1, error: FrameError::Malformed("bad") }
+            }
+        }
+        fn silence(&self, buf: &[u8]) -> Scan {
+            Scan::Invalid { len: buf.len(), skip: buf.len(), error: FrameError::Malformed("cut short") }
+        }
+    }
+
+    #[test]
+    fn silence_does_not_report_the_tail_of_a_failed_candidate_again() {
+        let mut d = Deframer::new(Silent);
+        let mut rejected = Vec::new();
+        // "<a<1" fails as a whole; its tail "<1" is searched silently; silence then ends it.
+        d.push(b"<a<1", &mut |e| {
+            if let Event::Rejected { bytes, .. } = e {
+                rejected.push(bytes.to_vec())
+            }
+        });
+        d.silence(&mut |e| {
+            if let Event::Rejected { bytes, .. } = e {
+                rejected.push(bytes.to_vec())
+            }
+        });
+        assert_eq!(rejected, [b"<a<1".to_vec()]);
+        // After the silence a new bad candidate is reported again.
+        d.push(b"<b<2", &mut |e| {
+            if let Event::Rejected { bytes, .. } = e {
+                rejected.push(bytes.to_vec())
+            }
+        });
+        assert_eq!(rejected.len(), 2);
+        assert_eq!(d.stats().dropped_bytes, 4 + 2);
+        assert_eq!(d.buffered(), 2);
     }
 
     #[test]

@@ -76,12 +76,22 @@ fn no_codec_allocates_per_frame() {
     let cases: Vec<(&str, fn(&[u8], Direction) -> (usize, usize), Vec<u8>, Direction)> = vec![
         (
             "modbus-rtu",
-            decode::<modbus::rtu::RtuCodec>,
+            decode::<modbus::rtu::ModbusRtu>,
             repeated(&[0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50], &[]),
             Direction::Drive,
         ),
-        ("modbus-ascii", decode::<modbus::ascii::AsciiCodec>, repeated(b":010321020002D7\r\n", b"zz"), Direction::Master),
-        ("toshiba-ascii", decode::<toshiba::ascii::AsciiCodec>, repeated(b"(RFE03077B)\r", b"\x00"), Direction::Drive),
+        (
+            "modbus-ascii",
+            decode::<modbus::ascii::ModbusAscii>,
+            repeated(b":010321020002D7\r\n", b"zz"),
+            Direction::Master,
+        ),
+        (
+            "toshiba-ascii",
+            decode::<toshiba::ascii::AsciiCodec>,
+            repeated(b"(RFE03077B)\r", b"\x00"),
+            Direction::Drive,
+        ),
         (
             "toshiba-binary",
             decode::<toshiba::binary::BinaryCodec>,

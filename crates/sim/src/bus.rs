@@ -280,7 +280,8 @@ impl VirtualLine {
             }
             // A device's timer: let it move and perhaps answer.
             for i in 1..self.ports.len() {
-                let due = self.ports[i].device.as_ref().and_then(|d| d.poll_timeout()).is_some_and(|d| d <= t);
+                let due =
+                    self.ports[i].device.as_ref().and_then(|d| d.poll_timeout()).is_some_and(|d| d <= t);
                 if !due {
                     continue;
                 }
@@ -422,7 +423,12 @@ mod tests {
         let heard = Arc::new(Mutex::new(Vec::new()));
         let silences = Arc::new(Mutex::new(0));
         (
-            Echo { heard: heard.clone(), pending: None, delay: Duration::from_millis(delay_ms), silences: silences.clone() },
+            Echo {
+                heard: heard.clone(),
+                pending: None,
+                delay: Duration::from_millis(delay_ms),
+                silences: silences.clone(),
+            },
             heard,
             silences,
         )

@@ -469,7 +469,8 @@ impl DriveModel {
         let dt = now - self.now;
         self.now = now;
         if let Some(timeout) = self.comm_timeout {
-            if now.saturating_since(self.last_comm) >= timeout && !matches!(self.state, RunState::Tripped(_)) {
+            if now.saturating_since(self.last_comm) >= timeout && !matches!(self.state, RunState::Tripped(_))
+            {
                 self.trip_now(Trip::CommunicationTimeout);
             }
         }

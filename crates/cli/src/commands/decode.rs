@@ -156,7 +156,8 @@ fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
     frame.fields(&mut |f| {
         let json = field_json(&f);
         let mut name = f.name.to_string();
-        let same = fields.iter().filter(|x| x.name == name || x.name.starts_with(&format!("{name}["))).count();
+        let same =
+            fields.iter().filter(|x| x.name == name || x.name.starts_with(&format!("{name}["))).count();
         if same > 0 {
             name = format!("{name}[{}]", same + 1);
         }
@@ -250,11 +251,8 @@ pub fn render_text(protocol: &str, index: usize, item: &Item) -> String {
                 _ => "?".into(),
             };
             let (code, _, name) = f.command.clone().unwrap_or_default();
-            let _ = writeln!(
-                s,
-                "{who}: {code} {name}{}",
-                if f.refusal { " (the drive refuses)" } else { "" }
-            );
+            let _ =
+                writeln!(s, "{who}: {code} {name}{}", if f.refusal { " (the drive refuses)" } else { "" });
             for field in &f.fields {
                 let _ = writeln!(s, "    {}", field.text);
             }
@@ -309,12 +307,18 @@ pub fn render_json(protocol: &str, item: &Item) -> Option<Value> {
 }
 
 /// Decodes with the codec `name`.
-pub fn decode_by_name(name: ProtocolName, bytes: &[u8], from: Option<Direction>) -> (&'static str, Vec<Item>) {
+pub fn decode_by_name(
+    name: ProtocolName,
+    bytes: &[u8],
+    from: Option<Direction>,
+) -> (&'static str, Vec<Item>) {
     use drivebus_proto::{b800, fc, modbus, toshiba};
     match name {
-        ProtocolName::ModbusRtu => (modbus::rtu::RtuCodec::NAME, decode_stream::<modbus::rtu::RtuCodec>(bytes, from)),
+        ProtocolName::ModbusRtu => {
+            (modbus::rtu::ModbusRtu::NAME, decode_stream::<modbus::rtu::ModbusRtu>(bytes, from))
+        }
         ProtocolName::ModbusAscii => {
-            (modbus::ascii::AsciiCodec::NAME, decode_stream::<modbus::ascii::AsciiCodec>(bytes, from))
+            (modbus::ascii::ModbusAscii::NAME, decode_stream::<modbus::ascii::ModbusAscii>(bytes, from))
         }
         ProtocolName::ToshibaAscii => {
             (toshiba::ascii::AsciiCodec::NAME, decode_stream::<toshiba::ascii::AsciiCodec>(bytes, from))

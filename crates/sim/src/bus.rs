@@ -397,6 +397,7 @@ mod tests {
         pending: Option<(Instant, Vec<u8>)>,
         delay: Duration,
         silences: Arc<Mutex<u32>>,
+        answered: usize,
     }
 
     impl Device for Echo {
@@ -405,8 +406,14 @@ mod tests {
         }
         fn silence(&mut self, now: Instant) {
             *self.silences.lock().unwrap() += 1;
-            let all: Vec<u8> = self.heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();
-            self.pending = Some((now + self.delay, all));
+            // Answer only what was heard since the last answer.
+            let mut heard = self.heard.lock().unwrap();
+            let all: Vec<u8> = heard[self.answered..].iter().flat_map(|(_, b)| b.clone()).collect();
+            self.answered = heard.len();
+            drop(heard);
+            if !all.is_empty() {
+                self.pending = Some((now + self.delay, all));
+            }
         }
         fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>> {
             match &self.pending {
@@ -428,6 +435,7 @@ mod tests {
                 pending: None,
                 delay: Duration::from_millis(delay_ms),
                 silences: silences.clone(),
+                answered: 0,
             },
             heard,
             silences,
@@ -447,11 +455,11 @@ mod tests {
         line.add_device(Box::new(dev));
         line.master_write(Instant::ZERO, &[1, 2, 3]);
         // 11 bits at 9600: the first byte is whole after 1.146 ms, the third after 3.438 ms.
-        line.advance_to(Instant::from_micros(1145));
+        line.advance_to(Instant::from_nanos(1_145_833));
         assert!(heard.lock().unwrap().is_empty());
-        line.advance_to(Instant::from_micros(1146));
+        line.advance_to(Instant::from_nanos(1_145_834));
         assert_eq!(heard.lock().unwrap().len(), 1);
-        line.advance_to(Instant::from_micros(3438));
+        line.advance_to(Instant::from_nanos(3 * 1_145_834));
         let got: Vec<u8> = heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();
         assert_eq!(got, [1, 2, 3]);
     }

@@ -697,11 +697,11 @@ fn master_and_slave_exchange_a_parameter_read() {
         other => panic!("{other:?}"),
     }
     // The next telegram waits 2 characters after the reply's last byte.
-    assert_eq!(m.ready_at(), t2 + Duration::from_micros(2291));
+    assert_eq!(m.ready_at(), t2 + Duration::from_nanos(2_291_667));
     m.send(t2, &Request::process(adr, ControlWord::START, Reference(0x2000))).unwrap();
     assert_eq!(m.poll_transmit(at(41_000)), None);
-    assert_eq!(m.poll_timeout(), Some(t2 + Duration::from_micros(2291)));
-    assert!(m.poll_transmit(t2 + Duration::from_micros(2291)).is_some());
+    assert_eq!(m.poll_timeout(), Some(t2 + Duration::from_nanos(2_291_667)));
+    assert!(m.poll_transmit(t2 + Duration::from_nanos(2_291_667)).is_some());
 }
 
 #[test]

@@ -1076,8 +1076,8 @@ fn session_min_gap_is_respected() {
     master.send(t_rx, &req).unwrap();
     // t3.5 at 9600 baud is 4.010 ms after the last byte received.
     assert_eq!(master.poll_transmit(t_rx + Duration::from_micros(4000)), None);
-    assert_eq!(master.poll_timeout(), Some(t_rx + Duration::from_micros(4010)));
-    assert!(master.poll_transmit(t_rx + Duration::from_micros(4010)).is_some());
+    assert_eq!(master.poll_timeout(), Some(t_rx + Duration::from_nanos(4_010_417)));
+    assert!(master.poll_transmit(t_rx + Duration::from_nanos(4_010_417)).is_some());
 }
 
 #[test]

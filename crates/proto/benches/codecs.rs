@@ -1,3 +1,4 @@
+#![allow(missing_docs)] // criterion_group! generates undocumented items
 //! Parse and encode throughput of every wire format.
 //!
 //! Parse: a buffer of 1024 back-to-back frames (one of the manuals' examples, repeated) goes
@@ -8,6 +9,7 @@
 //! Run: `cargo bench -p drivebus-proto --bench codecs` (or `bench/codecs.sh` for a summary).
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use drivebus_proto::session::Protocol;
 use drivebus_proto::{b800, fc, modbus, toshiba};
 use drivebus_proto::{Codec, Deframer, Direction, Event};
 
@@ -74,5 +76,41 @@ fn run_parse(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, run_parse);
+/// Emits the request `frame` (parsed once) `FRAMES` times into one buffer; returns the bytes written.
+fn emit_all<P: Protocol + Default>(frame: &[u8], out: &mut [u8]) -> usize {
+    let proto = P::default();
+    let req = proto.parse_request(frame).expect("sample parses");
+    let mut at = 0;
+    for _ in 0..FRAMES {
+        at += proto.emit_request(black_box(&req), &mut out[at..]).expect("fits");
+    }
+    at
+}
+
+fn run_encode(c: &mut Criterion) {
+    let mut g = c.benchmark_group("encode_frames");
+    g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
+    for (name, frame) in samples() {
+        let mut out = vec![0u8; frame.len() * FRAMES];
+        let f: fn(&[u8], &mut [u8]) -> usize = match name {
+            "modbus-rtu" => emit_all::<modbus::rtu::ModbusRtu>,
+            "modbus-ascii" => emit_all::<modbus::ascii::ModbusAscii>,
+            "toshiba-ascii" => emit_all::<toshiba::ascii::TipAscii>,
+            "toshiba-binary" => emit_all::<toshiba::binary::TipBinary>,
+            "danfoss-fc" => emit_all::<fc::Fc>,
+            _ => emit_all::<b800::B800>,
+        };
+        assert_eq!(f(&frame, &mut out), out.len(), "{name}: the emitted frames have the sample's size");
+        assert_eq!(&out[..frame.len()], &frame[..], "{name}: emit gives back the manual's bytes");
+        g.throughput(Throughput::Elements(FRAMES as u64));
+        g.bench_function(BenchmarkId::from_parameter(name), |b| b.iter(|| f(black_box(&frame), &mut out)));
+    }
+    g.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default();
+    targets = run_parse, run_encode
+}
 criterion_main!(benches);

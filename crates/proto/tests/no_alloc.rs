@@ -71,9 +71,12 @@ fn repeated(frame: &[u8], garbage: &[u8]) -> Vec<u8> {
     v
 }
 
+/// A codec's decoding loop, returning (frames, allocations).
+type Decoder = fn(&[u8], Direction) -> (usize, usize);
+
 #[test]
 fn no_codec_allocates_per_frame() {
-    let cases: Vec<(&str, fn(&[u8], Direction) -> (usize, usize), Vec<u8>, Direction)> = vec![
+    let cases: Vec<(&str, Decoder, Vec<u8>, Direction)> = vec![
         (
             "modbus-rtu",
             decode::<modbus::rtu::ModbusRtu>,

@@ -391,9 +391,12 @@ mod tests {
     use super::*;
     use std::sync::{Arc, Mutex};
 
+    /// What a test device heard: (arrival, bytes) per delivery.
+    type Heard = Arc<Mutex<Vec<(Instant, Vec<u8>)>>>;
+
     /// Answers every byte string it hears with the same bytes, after `delay`.
     struct Echo {
-        heard: Arc<Mutex<Vec<(Instant, Vec<u8>)>>>,
+        heard: Heard,
         pending: Option<(Instant, Vec<u8>)>,
         delay: Duration,
         silences: Arc<Mutex<u32>>,
@@ -407,7 +410,7 @@ mod tests {
         fn silence(&mut self, now: Instant) {
             *self.silences.lock().unwrap() += 1;
             // Answer only what was heard since the last answer.
-            let mut heard = self.heard.lock().unwrap();
+            let heard = self.heard.lock().unwrap();
             let all: Vec<u8> = heard[self.answered..].iter().flat_map(|(_, b)| b.clone()).collect();
             self.answered = heard.len();
             drop(heard);
@@ -426,7 +429,7 @@ mod tests {
         }
     }
 
-    fn echo(delay_ms: u64) -> (Echo, Arc<Mutex<Vec<(Instant, Vec<u8>)>>>, Arc<Mutex<u32>>) {
+    fn echo(delay_ms: u64) -> (Echo, Heard, Arc<Mutex<u32>>) {
         let heard = Arc::new(Mutex::new(Vec::new()));
         let silences = Arc::new(Mutex::new(0));
         (

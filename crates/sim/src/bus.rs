@@ -18,6 +18,7 @@ use std::time::Duration;
 use drivebus_proto::line::{modbus_t15_t35, CharFormat};
 use drivebus_proto::Instant;
 
+use crate::drive::VirtualDrive;
 use crate::rng::Rng;
 
 /// The port of the external master.
@@ -38,6 +39,14 @@ pub trait Device {
     /// Lets the device's own state (a motor ramp) reach `now`.
     fn advance_to(&mut self, now: Instant) {
         let _ = now;
+    }
+    /// This device as a virtual drive, if it is one (for the control interface).
+    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
+        None
+    }
+    /// This device as a virtual drive, mutable.
+    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
+        None
     }
 }
 
@@ -149,6 +158,16 @@ impl VirtualLine {
     /// The device on `port`.
     pub fn device_mut(&mut self, port: usize) -> Option<&mut (dyn Device + Send + 'static)> {
         self.ports.get_mut(port)?.device.as_deref_mut()
+    }
+
+    /// The virtual drive on `port`, if that device is one.
+    pub fn drive(&self, port: usize) -> Option<&dyn VirtualDrive> {
+        self.ports.get(port)?.device.as_deref()?.as_drive()
+    }
+
+    /// The virtual drive on `port`, mutable.
+    pub fn drive_mut(&mut self, port: usize) -> Option<&mut dyn VirtualDrive> {
+        self.ports.get_mut(port)?.device.as_deref_mut()?.as_drive_mut()
     }
 
     /// Number of devices.

@@ -1,0 +1,160 @@
+//! What every virtual drive has, whatever its family: the motor model, the parameter values,
+//! the address, the response time, and a snapshot for the control interface.
+//!
+//! A family (`crate::family::*`) wraps a [`DriveCore`] with its protocol behaviour and
+//! implements [`VirtualDrive`] (and so [`Device`], to sit on a [`crate::bus::VirtualLine`]).
+
+use std::time::Duration;
+
+use drivebus_drive::{Family, ParamStore};
+use drivebus_proto::Instant;
+use serde::Serialize;
+
+use crate::bus::Device;
+use crate::model::{DriveModel, ModelSettings, Rotation, RunState};
+
+/// The state shared by every family.
+#[derive(Clone, Debug)]
+pub struct DriveCore {
+    /// Motor, ramps, trips.
+    pub model: DriveModel,
+    /// Parameter values and EEPROM write counts.
+    pub params: ParamStore,
+    /// The drive's number on the bus.
+    pub address: u8,
+    /// Time from the end of a request to the start of the reply.
+    pub response_delay: Duration,
+}
+
+impl DriveCore {
+    /// A stopped drive numbered `address` with its family's default parameters.
+    pub fn new(params: ParamStore, settings: ModelSettings, address: u8, now: Instant) -> Self {
+        DriveCore {
+            model: DriveModel::new(settings, now),
+            params,
+            address,
+            response_delay: Duration::from_millis(5),
+        }
+    }
+}
+
+/// One row of the trip log, for the control interface.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TripEntry {
+    /// What tripped.
+    pub trip: String,
+    /// Simulated time of the trip, seconds since the simulation started.
+    pub at_s: f64,
+    /// Output frequency at the trip, Hz.
+    pub output_hz: f64,
+}
+
+/// A virtual drive's state as the control interface shows it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct DriveSnapshot {
+    /// `generic`, `toshiba`, `danfoss` or `b800`.
+    pub family: String,
+    /// The drive's number on the bus.
+    pub address: u8,
+    /// The wire protocol it answers (`modbus-rtu`, `toshiba-ascii+binary`, ...).
+    pub protocol: String,
+    /// `stopped`, `running`, `stopping` or `tripped`.
+    pub state: String,
+    /// `forward` or `reverse` (commanded).
+    pub direction: String,
+    /// True while jogging.
+    pub jog: bool,
+    /// Hardware enable input.
+    pub hardware_enable: bool,
+    /// Where run commands come from (the family's setting, in its own words).
+    pub control_source: String,
+    /// Setpoint, Hz.
+    pub setpoint_hz: f64,
+    /// Output frequency, Hz.
+    pub output_hz: f64,
+    /// Motor current, A.
+    pub current_a: f64,
+    /// DC bus voltage, V.
+    pub dc_bus_v: f64,
+    /// Heat-sink temperature, degC.
+    pub heatsink_c: f64,
+    /// Run hours.
+    pub run_hours: f64,
+    /// Load, fraction of rated torque.
+    pub load: f64,
+    /// The trip in force.
+    pub trip: Option<String>,
+    /// The trip log, oldest first.
+    pub trip_log: Vec<TripEntry>,
+    /// EEPROM writes since start, all parameters.
+    pub eeprom_writes: u64,
+    /// True when the drive is silenced by fault injection.
+    pub silent: bool,
+}
+
+/// A virtual drive: a [`Device`] with a model and parameters that a control interface can
+/// inspect and disturb.
+pub trait VirtualDrive: Device + Send {
+    /// The family.
+    fn family(&self) -> Family;
+    /// The wire protocol it answers, as a user would name it.
+    fn protocol(&self) -> String;
+    /// The shared state.
+    fn core(&self) -> &DriveCore;
+    /// The shared state, mutable (control interface, tests).
+    fn core_mut(&mut self) -> &mut DriveCore;
+    /// Where run commands come from, in the family's words (`F-12 = 1 keypad`, ...).
+    fn control_source(&self) -> String;
+    /// The family's trip code for `trip` where the protocol reports one, for tests.
+    fn snapshot(&self) -> DriveSnapshot {
+        snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
+    }
+}
+
+/// Builds a snapshot from the shared state.
+pub fn snapshot_of(
+    core: &DriveCore,
+    family: Family,
+    protocol: String,
+    control_source: String,
+) -> DriveSnapshot {
+    let m = &core.model;
+    let state = match m.state() {
+        RunState::Stopped => "stopped",
+        RunState::Running => "running",
+        RunState::Stopping => "stopping",
+        RunState::Tripped(_) => "tripped",
+    };
+    let round = |v: f64, d: i32| (v * 10f64.powi(d)).round() / 10f64.powi(d);
+    DriveSnapshot {
+        family: family.to_string(),
+        address: core.address,
+        protocol,
+        state: state.into(),
+        direction: match m.rotation() {
+            Rotation::Forward => "forward".into(),
+            Rotation::Reverse => "reverse".into(),
+        },
+        jog: m.is_jogging(),
+        hardware_enable: m.hardware_enable(),
+        control_source,
+        setpoint_hz: round(m.setpoint_hz(), 3),
+        output_hz: round(m.output_hz(), 3),
+        current_a: round(m.current_a(), 2),
+        dc_bus_v: round(m.dc_bus_v(), 1),
+        heatsink_c: round(m.heatsink_c(), 1),
+        run_hours: round(m.run_hours(), 4),
+        load: m.load(),
+        trip: m.trip().map(|t| t.name().to_string()),
+        trip_log: m
+            .trip_log()
+            .map(|r| TripEntry {
+                trip: r.trip.name().into(),
+                at_s: r.at.as_nanos() as f64 / 1e9,
+                output_hz: r.output_mhz as f64 / 1000.0,
+            })
+            .collect(),
+        eeprom_writes: core.params.total_eeprom_writes(),
+        silent: false,
+    }
+}

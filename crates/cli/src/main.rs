@@ -24,6 +24,9 @@ enum Command {
     /// Decode bytes captured on the wire: every frame, its fields named as the manual names
     /// them, values in units, and an exact diagnosis of bad bytes.
     Decode(commands::decode::DecodeArgs),
+    /// Run virtual drives on a virtual RS-485 line, paced at the real baud rate, behind a
+    /// pseudo-terminal or a TCP port.
+    Simulate(commands::simulate::SimulateArgs),
 }
 
 /// Exit status for bad usage (unknown option, value out of range).
@@ -47,6 +50,7 @@ fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Decode(args) => commands::decode::run(&args),
+        Command::Simulate(args) => commands::simulate::run(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

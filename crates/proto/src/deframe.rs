@@ -16,7 +16,7 @@
 use crate::error::FrameError;
 
 /// A fixed-size buffer for one frame, `[u8; N]` for any `N`.
-pub trait FrameBuffer: AsRef<[u8]> + AsMut<[u8]> {
+pub trait FrameBuffer: AsRef<[u8]> + AsMut<[u8]> + Send + Sync {
     /// A zeroed buffer.
     fn zeroed() -> Self;
 }

@@ -24,7 +24,10 @@
 //! Nothing here reads a clock: tests run the whole bus on simulated time.
 
 pub mod bus;
+pub mod config;
 pub mod drive;
 pub mod family;
 pub mod model;
+pub mod monitor;
 pub mod rng;
+pub mod runtime;

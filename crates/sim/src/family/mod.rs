@@ -11,3 +11,27 @@ pub mod b800;
 pub mod danfoss;
 pub mod generic;
 pub mod toshiba;
+
+use drivebus_drive::Family;
+use drivebus_proto::Instant;
+
+use crate::config::{ConfigError, DriveSpec};
+use crate::drive::VirtualDrive;
+
+/// Builds the virtual drive `spec` describes, at simulated time `now`.
+pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, ConfigError> {
+    let _ = now;
+    Err(ConfigError(format!("{}@{}: not built yet", spec.family, spec.address)))
+}
+
+/// The codec names a master may use to talk to the drive `spec` describes.
+pub fn wire_protocols(spec: &DriveSpec) -> &'static [&'static str] {
+    match (spec.family, spec.protocol.as_deref()) {
+        (Family::Generic, Some("modbus-rtu")) => &["modbus-rtu"],
+        (Family::Generic, _) => &["modbus-ascii"],
+        (Family::Toshiba, Some("modbus-rtu")) => &["modbus-rtu"],
+        (Family::Toshiba, _) => &["toshiba-ascii", "toshiba-binary"],
+        (Family::Danfoss, _) => &["danfoss-fc"],
+        (Family::B800, _) => &["b800"],
+    }
+}

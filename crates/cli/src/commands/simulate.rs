@@ -1,0 +1,131 @@
+//! `drivebus simulate`: virtual drives on a virtual RS-485 line, behind a pty or a TCP port.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use drivebus_proto::line::CharFormat;
+use drivebus_sim::config::{BusSpec, DriveSpec};
+use drivebus_sim::runtime::{Endpoint, Simulator};
+
+/// Arguments of `drivebus simulate`.
+#[derive(Args, Debug)]
+pub struct SimulateArgs {
+    /// A drive on the bus: KIND@ADDR[:PROTOCOL], KIND one of generic, toshiba, danfoss, b800
+    /// (e.g. generic@1:modbus-rtu, toshiba@2, danfoss@3, b800@5). Repeat for more drives.
+    #[arg(long = "drive", value_name = "KIND@ADDR[:PROTOCOL]")]
+    pub drives: Vec<String>,
+    /// A TOML file describing the whole bus (see docs/simulator.md); --drive adds to it.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Baud rate (default: the first drive's family default).
+    #[arg(long)]
+    pub baud: Option<u32>,
+    /// Character format, e.g. 8N1, 8E1, 7N2 (default: the first drive's family default).
+    #[arg(long, value_name = "FORMAT")]
+    pub serial: Option<String>,
+    /// Create a pseudo-terminal and a symlink at PATH to it: open PATH as a serial port.
+    #[arg(long, value_name = "PATH", conflicts_with = "tcp")]
+    pub pty: Option<PathBuf>,
+    /// Serve raw bytes on HOST:PORT, as a serial device server does.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub tcp: Option<SocketAddr>,
+    /// Serve the HTTP/JSON control interface (faults, load, trips, state) on HOST:PORT.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub control: Option<SocketAddr>,
+    /// Print each frame decoded, one line each.
+    #[arg(short, long)]
+    pub verbose: bool,
+}
+
+/// Builds the bus the arguments describe.
+pub fn bus_spec(args: &SimulateArgs) -> Result<BusSpec> {
+    let format = match &args.serial {
+        Some(s) => Some(s.parse::<CharFormat>().map_err(|e| anyhow::anyhow!("--serial {s:?}: {e}"))?),
+        None => None,
+    };
+    let mut extra = Vec::new();
+    for d in &args.drives {
+        extra.push(d.parse::<DriveSpec>()?);
+    }
+    let bus = match &args.config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read the bus file {}", path.display()))?;
+            let mut bus = BusSpec::from_toml(&path.display().to_string(), &text)?;
+            bus.drives.extend(extra);
+            if let Some(b) = args.baud {
+                bus.baud = b;
+            }
+            if let Some(f) = format {
+                bus.format = f;
+            }
+            bus.check()?;
+            bus
+        }
+        None => BusSpec::new(extra, args.baud, format)?,
+    };
+    bus.check()?;
+    bus.drives.iter().try_for_each(|d| d.check())?;
+    Ok(bus)
+}
+
+/// Runs `drivebus simulate` until interrupted.
+pub fn run(args: &SimulateArgs) -> Result<u8> {
+    let endpoint = match (&args.pty, &args.tcp) {
+        (Some(p), None) => Endpoint::Pty(p.clone()),
+        (None, Some(a)) => Endpoint::Tcp(*a),
+        _ => bail!("say where the master connects: --pty PATH or --tcp HOST:PORT"),
+    };
+    let bus = bus_spec(args)?;
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    rt.block_on(async move {
+        let sim = Simulator::new(&bus)?;
+        println!(
+            "drivebus simulate: {} drive{} at {} baud {}: {}",
+            bus.drives.len(),
+            if bus.drives.len() == 1 { "" } else { "s" },
+            bus.baud,
+            bus.format,
+            bus.drives
+                .iter()
+                .map(|d| format!(
+                    "{}@{}{}",
+                    d.family,
+                    d.address,
+                    d.protocol.as_deref().map(|p| format!(":{p}")).unwrap_or_default()
+                ))
+                .collect::<Vec<_>>()
+                .join(" ")
+        );
+        if let Some(addr) = args.control {
+            let s = sim.clone();
+            let listener = tokio::net::TcpListener::bind(addr)
+                .await
+                .with_context(|| format!("cannot listen for the control interface on {addr}"))?;
+            println!("control http://{}/drives", listener.local_addr()?);
+            tokio::spawn(async move { axum_serve(listener, s).await });
+        }
+        let verbose = args.verbose;
+        let serve = sim.clone().serve(endpoint.clone(), verbose, |at| println!("listening on {at}"));
+        tokio::select! {
+            r = serve => r.with_context(|| match &endpoint {
+                Endpoint::Pty(p) => format!("pty {}", p.display()),
+                Endpoint::Tcp(a) => format!("tcp {a}"),
+            })?,
+            _ = tokio::signal::ctrl_c() => {}
+        }
+        if let Endpoint::Pty(p) = &endpoint {
+            let _ = std::fs::remove_file(p);
+        }
+        Ok::<_, anyhow::Error>(())
+    })?;
+    Ok(0)
+}
+
+async fn axum_serve(listener: tokio::net::TcpListener, sim: std::sync::Arc<Simulator>) {
+    if let Err(e) = drivebus_sim::runtime::serve_router(listener, sim).await {
+        eprintln!("drivebus: control interface stopped: {e}");
+    }
+}

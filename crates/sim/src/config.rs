@@ -1,0 +1,346 @@
+//! A whole virtual bus described in TOML, or built from `--drive KIND@ADDR[:PROTOCOL]` options.
+//!
+//! ```toml
+//! baud = 9600          # optional: the first drive's family default
+//! serial = "8N1"       # optional: idem
+//! seed = 1             # fault injection seed
+//!
+//! [faults]             # optional
+//! corrupt_rate = 0.0   # probability a byte arrives with a bit flipped
+//! drop_rate = 0.0      # probability a byte is lost
+//! extra_latency_ms = 0 # added to every answer
+//!
+//! [[drive]]
+//! kind = "generic"     # generic | toshiba | danfoss | b800
+//! address = 1
+//! protocol = "modbus-rtu"  # where the family speaks several
+//! response_ms = 5      # the drive's response time
+//! load = 0.5           # fraction of rated torque
+//! ```
+
+use std::fmt;
+use std::str::FromStr;
+use std::time::Duration;
+
+use drivebus_drive::Family;
+use drivebus_proto::line::CharFormat;
+use serde::Deserialize;
+
+use crate::bus::Faults;
+
+/// One drive on the virtual bus.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DriveSpec {
+    /// The family.
+    pub family: Family,
+    /// Its number on the bus.
+    pub address: u8,
+    /// The wire protocol, where the family speaks several (`None`: the family default).
+    pub protocol: Option<String>,
+    /// Its response time.
+    pub response: Duration,
+    /// Its load, fraction of rated torque.
+    pub load: f64,
+}
+
+/// A virtual bus: line settings, faults and drives.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BusSpec {
+    /// Baud rate.
+    pub baud: u32,
+    /// Character format.
+    pub format: CharFormat,
+    /// The drives.
+    pub drives: Vec<DriveSpec>,
+    /// Faults to inject from the start.
+    pub faults: Faults,
+    /// Seed for fault injection.
+    pub seed: u64,
+}
+
+/// Why a bus description is not usable. Prints as one sentence naming the place.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConfigError(pub String);
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// The serial defaults of a family and protocol (protocols.md, project decisions).
+pub fn serial_default(family: Family, protocol: Option<&str>) -> (u32, CharFormat) {
+    match family {
+        Family::Generic => match protocol {
+            Some("modbus-rtu") => (9600, CharFormat::NONE_8N2),
+            _ => (9600, CharFormat::NONE_7N2),
+        },
+        Family::Toshiba => (19200, CharFormat::EVEN_8E1),
+        Family::Danfoss => (9600, CharFormat::EVEN_8E1),
+        Family::B800 => (9600, CharFormat::NONE_8N1),
+    }
+}
+
+/// The protocols a family speaks; the first is its default.
+pub fn protocols(family: Family) -> &'static [&'static str] {
+    match family {
+        // seed 004: "默认通讯协议方式采用ASCII 方式" (the default is ASCII).
+        Family::Generic => &["modbus-ascii", "modbus-rtu"],
+        Family::Toshiba => &["toshiba-ascii", "toshiba-binary", "modbus-rtu"],
+        Family::Danfoss => &["danfoss-fc"],
+        Family::B800 => &["b800"],
+    }
+}
+
+impl FromStr for DriveSpec {
+    type Err = ConfigError;
+
+    /// `KIND@ADDR[:PROTOCOL]`, e.g. `generic@1:modbus-rtu`, `b800@5`.
+    fn from_str(s: &str) -> Result<Self, ConfigError> {
+        let bad = |why: String| {
+            ConfigError(format!(
+                "--drive {s:?}: {why} (expected KIND@ADDR[:PROTOCOL], e.g. generic@1:modbus-rtu)"
+            ))
+        };
+        let (kind, rest) = s.split_once('@').ok_or_else(|| bad("no '@' between kind and address".into()))?;
+        let family: Family = kind
+            .parse()
+            .map_err(|_| bad(format!("unknown kind {kind:?}: use generic, toshiba, danfoss or b800")))?;
+        let (addr, protocol) = match rest.split_once(':') {
+            Some((a, p)) => (a, Some(p.to_string())),
+            None => (rest, None),
+        };
+        let address: u8 =
+            addr.parse().map_err(|_| bad(format!("address {addr:?} is not a number 0..255")))?;
+        let spec = DriveSpec { family, address, protocol, response: Duration::from_millis(5), load: 0.5 };
+        spec.check().map_err(|e| bad(e.0))?;
+        Ok(spec)
+    }
+}
+
+impl DriveSpec {
+    /// Checks the address range and protocol of the family.
+    pub fn check(&self) -> Result<(), ConfigError> {
+        let (lo, hi) = match self.family {
+            Family::Generic => (1, 254),
+            Family::Toshiba => match self.protocol.as_deref() {
+                Some("modbus-rtu") => (1, 247),
+                _ => (0, 99),
+            },
+            Family::Danfoss => (1, 126),
+            Family::B800 => (1, 63),
+        };
+        if self.address < lo || self.address > hi {
+            return Err(ConfigError(format!(
+                "a {} drive's address is {lo}..{hi}, not {}",
+                self.family, self.address
+            )));
+        }
+        if let Some(p) = &self.protocol {
+            if !protocols(self.family).contains(&p.as_str()) {
+                return Err(ConfigError(format!(
+                    "a {} drive speaks {}, not {p:?}",
+                    self.family,
+                    protocols(self.family).join(", ")
+                )));
+            }
+        }
+        if !(0.0..=5.0).contains(&self.load) {
+            return Err(ConfigError(format!(
+                "load {} is outside 0..5 (fraction of rated torque)",
+                self.load
+            )));
+        }
+        Ok(())
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileBus {
+    baud: Option<u32>,
+    serial: Option<String>,
+    #[serde(default = "one")]
+    seed: u64,
+    #[serde(default)]
+    faults: FileFaults,
+    #[serde(default, rename = "drive")]
+    drives: Vec<FileDrive>,
+}
+
+fn one() -> u64 {
+    1
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileFaults {
+    #[serde(default)]
+    corrupt_rate: f64,
+    #[serde(default)]
+    drop_rate: f64,
+    #[serde(default)]
+    extra_latency_ms: u64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileDrive {
+    kind: String,
+    address: u8,
+    protocol: Option<String>,
+    response_ms: Option<u64>,
+    load: Option<f64>,
+}
+
+impl BusSpec {
+    /// A bus of `drives` with the line settings given, or the first drive's family defaults.
+    pub fn new(
+        drives: Vec<DriveSpec>,
+        baud: Option<u32>,
+        format: Option<CharFormat>,
+    ) -> Result<Self, ConfigError> {
+        let first =
+            drives.first().ok_or_else(|| ConfigError("no drive on the bus: add --drive KIND@ADDR".into()))?;
+        let (db, df) = serial_default(first.family, first.protocol.as_deref());
+        let spec = BusSpec {
+            baud: baud.unwrap_or(db),
+            format: format.unwrap_or(df),
+            drives,
+            faults: Faults::default(),
+            seed: 1,
+        };
+        spec.check()?;
+        Ok(spec)
+    }
+
+    /// Reads a bus from TOML; errors name `file`, the line and the field.
+    pub fn from_toml(file: &str, text: &str) -> Result<Self, ConfigError> {
+        let raw: FileBus = toml::from_str(text).map_err(|e| {
+            let line = e.span().map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            let msg = e.message().to_string();
+            match line {
+                Some(l) => ConfigError(format!("{file}:{l}: {msg}")),
+                None => ConfigError(format!("{file}: {msg}")),
+            }
+        })?;
+        let mut drives = Vec::new();
+        for (i, d) in raw.drives.iter().enumerate() {
+            let at = format!("{file}: drive {} (kind {:?}, address {})", i + 1, d.kind, d.address);
+            let family: Family = d.kind.parse().map_err(|_| {
+                ConfigError(format!("{at}: field `kind`: use generic, toshiba, danfoss or b800"))
+            })?;
+            let spec = DriveSpec {
+                family,
+                address: d.address,
+                protocol: d.protocol.clone(),
+                response: Duration::from_millis(d.response_ms.unwrap_or(5)),
+                load: d.load.unwrap_or(0.5),
+            };
+            spec.check().map_err(|e| ConfigError(format!("{at}: {e}")))?;
+            drives.push(spec);
+        }
+        let format = match &raw.serial {
+            Some(s) => Some(
+                s.parse::<CharFormat>().map_err(|e| ConfigError(format!("{file}: field `serial`: {e}")))?,
+            ),
+            None => None,
+        };
+        let mut bus =
+            BusSpec::new(drives, raw.baud, format).map_err(|e| ConfigError(format!("{file}: {e}")))?;
+        for (name, v) in [("corrupt_rate", raw.faults.corrupt_rate), ("drop_rate", raw.faults.drop_rate)] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(ConfigError(format!(
+                    "{file}: field `faults.{name}`: {v} is not a probability 0..1"
+                )));
+            }
+        }
+        bus.faults = Faults {
+            corrupt_rate: raw.faults.corrupt_rate,
+            drop_rate: raw.faults.drop_rate,
+            extra_latency: Duration::from_millis(raw.faults.extra_latency_ms),
+        };
+        bus.seed = raw.seed;
+        Ok(bus)
+    }
+
+    /// Checks line settings and that no two drives share an address.
+    pub fn check(&self) -> Result<(), ConfigError> {
+        if !(300..=1_000_000).contains(&self.baud) {
+            return Err(ConfigError(format!("baud {} is outside 300..1000000", self.baud)));
+        }
+        for (i, a) in self.drives.iter().enumerate() {
+            for b in &self.drives[..i] {
+                if a.address == b.address && a.family == b.family {
+                    return Err(ConfigError(format!(
+                        "two {} drives have address {}: each drive on a bus needs its own",
+                        a.family, a.address
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn drive_option_parses() {
+        let d: DriveSpec = "generic@1:modbus-rtu".parse().unwrap();
+        assert_eq!((d.family, d.address, d.protocol.as_deref()), (Family::Generic, 1, Some("modbus-rtu")));
+        let d: DriveSpec = "b800@5".parse().unwrap();
+        assert_eq!((d.family, d.address, d.protocol), (Family::B800, 5, None));
+    }
+
+    #[test]
+    fn drive_option_errors_say_what_to_do() {
+        let e = "b800@64".parse::<DriveSpec>().unwrap_err().0;
+        assert!(e.contains("1..63"), "{e}");
+        let e = "pump@1".parse::<DriveSpec>().unwrap_err().0;
+        assert!(e.contains("unknown kind") && e.contains("KIND@ADDR"), "{e}");
+        let e = "danfoss@3:modbus-rtu".parse::<DriveSpec>().unwrap_err().0;
+        assert!(e.contains("speaks danfoss-fc"), "{e}");
+        let e = "generic1".parse::<DriveSpec>().unwrap_err().0;
+        assert!(e.contains("no '@'"), "{e}");
+    }
+
+    #[test]
+    fn serial_defaults_follow_the_first_drive() {
+        let bus = BusSpec::new(vec!["toshiba@1".parse().unwrap()], None, None).unwrap();
+        assert_eq!((bus.baud, bus.format), (19200, CharFormat::EVEN_8E1));
+        let bus = BusSpec::new(vec!["generic@1".parse().unwrap()], None, None).unwrap();
+        assert_eq!(bus.format, CharFormat::NONE_7N2);
+    }
+
+    #[test]
+    fn toml_bus_and_its_errors() {
+        let bus = BusSpec::from_toml(
+            "bus.toml",
+            "baud = 19200\nserial = \"8E1\"\n[faults]\ncorrupt_rate = 0.01\n[[drive]]\nkind = \"toshiba\"\naddress = 2\n[[drive]]\nkind = \"generic\"\naddress = 3\nprotocol = \"modbus-rtu\"\nload = 0.8\n",
+        )
+        .unwrap();
+        assert_eq!(bus.drives.len(), 2);
+        assert_eq!(bus.faults.corrupt_rate, 0.01);
+        assert_eq!(bus.drives[1].load, 0.8);
+        let e = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"generic\"\naddress = 1\nspeed = 3\n")
+            .unwrap_err()
+            .0;
+        assert!(e.starts_with("bus.toml:") && e.contains("speed"), "{e}");
+        let e = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"b800\"\naddress = 70\n").unwrap_err().0;
+        assert!(e.contains("drive 1") && e.contains("1..63"), "{e}");
+        let e = BusSpec::from_toml(
+            "bus.toml",
+            "[[drive]]\nkind = \"b800\"\naddress = 7\n[[drive]]\nkind = \"b800\"\naddress = 7\n",
+        )
+        .unwrap_err()
+        .0;
+        assert!(e.contains("two b800 drives have address 7"), "{e}");
+        let e = BusSpec::from_toml("bus.toml", "").unwrap_err().0;
+        assert!(e.contains("no drive"), "{e}");
+    }
+}

@@ -1,0 +1,97 @@
+//! One line per frame for `drivebus simulate -v`: what the master sent and what the drives
+//! answered, decoded with the bus's protocols.
+
+use drivebus_proto::describe::CodeStyle;
+use drivebus_proto::{b800, fc, modbus, toshiba};
+use drivebus_proto::{Codec, Deframer, Describe, Direction, Event, Target};
+
+/// A streaming decoder for one protocol and one direction that prints a line per frame.
+pub struct Monitor {
+    inner: Box<dyn MonitorImpl + Send>,
+}
+
+trait MonitorImpl {
+    fn push(&mut self, bytes: &[u8], out: &mut Vec<String>);
+}
+
+struct Typed<C: Codec> {
+    deframer: Deframer<C::Scanner>,
+    from: Direction,
+    report_rejects: bool,
+}
+
+impl<C: Codec> MonitorImpl for Typed<C>
+where
+    C::Scanner: Send,
+{
+    fn push(&mut self, bytes: &[u8], out: &mut Vec<String>) {
+        let from = self.from;
+        let report = self.report_rejects;
+        self.deframer.push(bytes, &mut |e| match e {
+            Event::Frame { bytes, .. } => match C::parse(bytes, Some(from)) {
+                Ok(f) => out.push(format!("{} {}", C::NAME, line_of(&f))),
+                Err(err) if report => out.push(format!("{} {}: invalid: {err}", C::NAME, hex(bytes))),
+                Err(_) => {}
+            },
+            Event::Rejected { bytes, error, .. } if report => {
+                out.push(format!("{} {}: invalid: {error}", C::NAME, hex(bytes)))
+            }
+            Event::Rejected { .. } => {}
+        });
+    }
+}
+
+impl Monitor {
+    /// A monitor for the protocol named `protocol` (a codec name) and frames from `from`.
+    /// `report_rejects`: print damaged frames too (only useful when one protocol is on the line).
+    pub fn new(protocol: &str, from: Direction, report_rejects: bool) -> Option<Monitor> {
+        fn make<C: Codec + 'static>(from: Direction, report_rejects: bool) -> Box<dyn MonitorImpl + Send>
+        where
+            C::Scanner: Send,
+        {
+            Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(Some(from))), from, report_rejects })
+        }
+        let inner = match protocol {
+            "modbus-rtu" => make::<modbus::rtu::ModbusRtu>(from, report_rejects),
+            "modbus-ascii" => make::<modbus::ascii::ModbusAscii>(from, report_rejects),
+            "toshiba-ascii" => make::<toshiba::ascii::AsciiCodec>(from, report_rejects),
+            "toshiba-binary" => make::<toshiba::binary::BinaryCodec>(from, report_rejects),
+            "danfoss-fc" => make::<fc::DanfossFc>(from, report_rejects),
+            "b800" => make::<b800::B800>(from, report_rejects),
+            _ => return None,
+        };
+        Some(Monitor { inner })
+    }
+
+    /// Feeds bytes; returns a line per frame completed.
+    pub fn push(&mut self, bytes: &[u8]) -> Vec<String> {
+        let mut out = Vec::new();
+        self.inner.push(bytes, &mut out);
+        out
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(" ")
+}
+
+/// `master to drive 1: 03 read holding registers; starting address 2103, quantity 1`.
+pub fn line_of<F: Describe>(f: &F) -> String {
+    let who = match (f.direction(), f.target()) {
+        (Direction::Master, Target::Unit(n)) => format!("master to drive {n}"),
+        (Direction::Master, Target::Broadcast) => "master to all drives".into(),
+        (Direction::Master, Target::Wildcard { .. }) => "master to drives by wildcard".into(),
+        (Direction::Master, Target::Implicit) => "master to the drive".into(),
+        (Direction::Drive, Target::Unit(n)) => format!("drive {n} to master"),
+        (Direction::Drive, _) => "drive to master".into(),
+    };
+    let c = f.command();
+    let code = match c.style {
+        CodeStyle::Letter => format!("'{}'", c.code as char),
+        CodeStyle::Hex => format!("{:02X}", c.code),
+    };
+    let mut fields = Vec::new();
+    f.fields(&mut |field| fields.push(field.to_string()));
+    let refusal = if f.is_refusal() { " (refused)" } else { "" };
+    format!("{who}: {code} {}{refusal}; {}", c.name, fields.join(", "))
+}

@@ -1,0 +1,494 @@
+//! The simulator in real time: a virtual bus behind a pseudo-terminal or a TCP port, so any
+//! serial program (pymodbus, mbpoll, a PLC runtime, `drivebus` itself) can talk to it, and a
+//! small HTTP/JSON control interface to disturb it.
+//!
+//! Simulated time is the wall time since the simulator started; the line's pacing then holds
+//! in real time: a byte written by the master reaches the drives one character time later.
+
+use std::io;
+use std::net::SocketAddr;
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::path::{Path, PathBuf};
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::task::{ready, Context, Poll};
+use std::time::Duration;
+
+use axum::extract::{Path as UrlPath, State};
+use axum::http::StatusCode;
+use axum::routing::get;
+use axum::{Json, Router};
+use drivebus_proto::{Direction, Instant};
+use serde::Deserialize;
+use serde_json::{json, Value};
+use tokio::io::unix::AsyncFd;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
+use tokio::sync::Notify;
+
+use crate::bus::{Faults, VirtualLine};
+use crate::config::{BusSpec, ConfigError};
+use crate::model::Trip;
+use crate::monitor::Monitor;
+
+/// A running virtual bus.
+pub struct Simulator {
+    line: Mutex<VirtualLine>,
+    start: std::time::Instant,
+    wake: Notify,
+    protocols: Vec<String>,
+}
+
+/// Where the master reaches the bus.
+#[derive(Clone, Debug)]
+pub enum Endpoint {
+    /// A pseudo-terminal, with a symlink at this path to its device.
+    Pty(PathBuf),
+    /// Raw bytes over TCP, as a serial device server gives them.
+    Tcp(SocketAddr),
+}
+
+impl Simulator {
+    /// Builds every drive of `bus` on a fresh line.
+    pub fn new(bus: &BusSpec) -> Result<Arc<Self>, ConfigError> {
+        let mut line = VirtualLine::new(bus.baud, bus.format, Instant::ZERO);
+        line.set_faults(bus.faults);
+        line.seed(bus.seed);
+        let mut protocols: Vec<String> = Vec::new();
+        for spec in &bus.drives {
+            let mut drive = crate::family::build(spec, Instant::ZERO)?;
+            drive.core_mut().model.set_load(spec.load);
+            drive.core_mut().response_delay = spec.response;
+            for p in crate::family::wire_protocols(spec) {
+                if !protocols.iter().any(|x| x == p) {
+                    protocols.push(p.to_string());
+                }
+            }
+            line.add_device(drive);
+        }
+        Ok(Arc::new(Simulator {
+            line: Mutex::new(line),
+            start: std::time::Instant::now(),
+            wake: Notify::new(),
+            protocols,
+        }))
+    }
+
+    /// Simulated time now.
+    pub fn now(&self) -> Instant {
+        Instant::from_nanos(self.start.elapsed().as_nanos().min(u64::MAX as u128) as u64)
+    }
+
+    fn wall(&self, t: Instant) -> tokio::time::Instant {
+        tokio::time::Instant::from_std(self.start + Duration::from_nanos(t.as_nanos()))
+    }
+
+    /// The line, brought up to now.
+    pub fn line(&self) -> MutexGuard<'_, VirtualLine> {
+        let mut l = self.line.lock().unwrap_or_else(|p| p.into_inner());
+        l.advance_to(self.now());
+        l
+    }
+
+    /// The wire protocols spoken on the line.
+    pub fn protocols(&self) -> &[String] {
+        &self.protocols
+    }
+
+    /// Serves the bus at `endpoint` until the process ends; calls `ready` with where it
+    /// listens. With `verbose`, prints a line per frame decoded.
+    pub async fn serve(
+        self: Arc<Self>,
+        endpoint: Endpoint,
+        verbose: bool,
+        ready: impl FnOnce(String),
+    ) -> io::Result<()> {
+        match endpoint {
+            Endpoint::Pty(path) => {
+                let pty = Pty::open(&path)?;
+                ready(format!("pty {} -> {}", path.display(), pty.device.display()));
+                let (r, w) = tokio::io::split(pty.master);
+                // The slave stays open here so the master never sees EIO between clients.
+                let _slave = pty.slave;
+                self.pump(r, w, verbose).await
+            }
+            Endpoint::Tcp(addr) => {
+                let listener = tokio::net::TcpListener::bind(addr).await?;
+                ready(format!("tcp {}", listener.local_addr()?));
+                loop {
+                    let (stream, peer) = listener.accept().await?;
+                    if verbose {
+                        println!("client {peer} connected");
+                    }
+                    let _ = stream.set_nodelay(true);
+                    let (r, w) = stream.into_split();
+                    let result = self.clone().pump(r, w, verbose).await;
+                    if verbose {
+                        println!(
+                            "client {peer} left ({})",
+                            result.err().map_or("closed".into(), |e| e.to_string())
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    async fn pump<R, W>(self: Arc<Self>, mut r: R, mut w: W, verbose: bool) -> io::Result<()>
+    where
+        R: AsyncRead + Unpin,
+        W: AsyncWrite + Unpin,
+    {
+        let single = self.protocols.len() == 1;
+        let mut monitors: Vec<(Monitor, Monitor)> = if verbose {
+            self.protocols
+                .iter()
+                .filter_map(|p| {
+                    Some((
+                        Monitor::new(p, Direction::Master, single)?,
+                        Monitor::new(p, Direction::Drive, single)?,
+                    ))
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut buf = vec![0u8; 4096];
+        let mut out = Vec::new();
+        loop {
+            let deadline = self.line.lock().unwrap_or_else(|p| p.into_inner()).next_deadline();
+            let sleep = match deadline {
+                Some(d) => tokio::time::sleep_until(self.wall(d)),
+                None => tokio::time::sleep(Duration::from_secs(3600)),
+            };
+            tokio::select! {
+                n = r.read(&mut buf) => {
+                    let n = n?;
+                    if n == 0 {
+                        return Ok(());
+                    }
+                    let now = self.now();
+                    self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write(now, &buf[..n]);
+                    for (m, _) in &mut monitors {
+                        for l in m.push(&buf[..n]) {
+                            println!("{:>10.3} {l}", now.as_nanos() as f64 / 1e9);
+                        }
+                    }
+                }
+                _ = sleep => {}
+                _ = self.wake.notified() => {}
+            }
+            let now = self.now();
+            {
+                let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
+                line.advance_to(now);
+                line.master_read(&mut out);
+            }
+            if !out.is_empty() {
+                for (_, m) in &mut monitors {
+                    for l in m.push(&out) {
+                        println!("{:>10.3} {l}", now.as_nanos() as f64 / 1e9);
+                    }
+                }
+                w.write_all(&out).await?;
+                w.flush().await?;
+                out.clear();
+            }
+        }
+    }
+
+    /// The HTTP/JSON control interface (see `docs/simulator.md`).
+    pub fn control_router(self: Arc<Self>) -> Router {
+        Router::new()
+            .route("/", get(index))
+            .route("/drives", get(list_drives))
+            .route("/drives/:n", get(get_drive).post(patch_drive))
+            .route("/faults", get(get_faults).put(put_faults))
+            .route("/stats", get(get_stats))
+            .with_state(self)
+    }
+
+    /// Serves the control interface on `addr`; calls `ready` with the bound address.
+    pub async fn serve_control(
+        self: Arc<Self>,
+        addr: SocketAddr,
+        ready: impl FnOnce(SocketAddr),
+    ) -> io::Result<()> {
+        let listener = tokio::net::TcpListener::bind(addr).await?;
+        ready(listener.local_addr()?);
+        axum::serve(listener, self.control_router()).await
+    }
+}
+
+/// Serves the control interface on an already bound listener.
+pub async fn serve_router(listener: tokio::net::TcpListener, sim: Arc<Simulator>) -> io::Result<()> {
+    axum::serve(listener, sim.control_router()).await
+}
+
+type ApiResult = Result<Json<Value>, (StatusCode, Json<Value>)>;
+
+fn api_error(status: StatusCode, msg: impl Into<String>) -> (StatusCode, Json<Value>) {
+    (status, Json(json!({ "error": msg.into() })))
+}
+
+async fn index() -> Json<Value> {
+    Json(json!({
+        "endpoints": {
+            "GET /drives": "every drive's state",
+            "GET /drives/{n}": "drive n (1 = first --drive)",
+            "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0}",
+            "GET /faults, PUT /faults": "{\"corrupt_rate\": 0.01, \"drop_rate\": 0.0, \"extra_latency_ms\": 0}",
+            "GET /stats": "what the line has carried"
+        }
+    }))
+}
+
+fn snapshot(line: &VirtualLine, n: usize) -> Option<Value> {
+    let d = line.drive(n)?;
+    let mut s = serde_json::to_value(d.snapshot()).ok()?;
+    s["silent"] = json!(line.is_silent(n));
+    s["n"] = json!(n);
+    Some(s)
+}
+
+async fn list_drives(State(sim): State<Arc<Simulator>>) -> Json<Value> {
+    let line = sim.line();
+    Json(Value::Array((1..=line.devices()).filter_map(|n| snapshot(&line, n)).collect()))
+}
+
+async fn get_drive(State(sim): State<Arc<Simulator>>, UrlPath(n): UrlPath<usize>) -> ApiResult {
+    let line = sim.line();
+    snapshot(&line, n).map(Json).ok_or_else(|| no_drive(n, line.devices()))
+}
+
+fn no_drive(n: usize, count: usize) -> (StatusCode, Json<Value>) {
+    api_error(
+        StatusCode::NOT_FOUND,
+        format!("no drive {n}: drives are numbered 1..{count} in the order given"),
+    )
+}
+
+/// Changes to one drive.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DrivePatch {
+    load: Option<f64>,
+    trip: Option<String>,
+    reset: Option<bool>,
+    silent: Option<bool>,
+    hardware_enable: Option<bool>,
+    supply: Option<f64>,
+}
+
+fn parse_trip(s: &str) -> Option<Trip> {
+    Some(match s.to_ascii_lowercase().replace(['_', ' '], "-").as_str() {
+        "over-current" | "overcurrent" | "oc" => Trip::OverCurrent,
+        "over-voltage" | "overvoltage" | "ov" => Trip::OverVoltage,
+        "under-voltage" | "undervoltage" | "uv" => Trip::UnderVoltage,
+        "over-temperature" | "overtemperature" | "oh" => Trip::OverTemperature,
+        "communication-timeout" | "comm-timeout" => Trip::CommunicationTimeout,
+        "external" => Trip::External,
+        _ => return None,
+    })
+}
+
+async fn patch_drive(
+    State(sim): State<Arc<Simulator>>,
+    UrlPath(n): UrlPath<usize>,
+    body: Result<Json<DrivePatch>, axum::extract::rejection::JsonRejection>,
+) -> ApiResult {
+    let Json(p) = body.map_err(|e| api_error(StatusCode::BAD_REQUEST, e.body_text()))?;
+    let mut line = sim.line();
+    let count = line.devices();
+    if let Some(s) = p.silent {
+        if n == 0 || n > count {
+            return Err(no_drive(n, count));
+        }
+        line.set_silent(n, s);
+    }
+    let d = line.drive_mut(n).ok_or_else(|| no_drive(n, count))?;
+    if let Some(load) = p.load {
+        if !(0.0..=5.0).contains(&load) {
+            return Err(api_error(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("load {load} is outside 0..5 (fraction of rated torque)"),
+            ));
+        }
+        d.core_mut().model.set_load(load);
+    }
+    if let Some(supply) = p.supply {
+        if !(0.0..=2.0).contains(&supply) {
+            return Err(api_error(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("supply {supply} is outside 0..2 (fraction of nominal)"),
+            ));
+        }
+        d.core_mut().model.set_supply(supply);
+    }
+    if let Some(on) = p.hardware_enable {
+        d.core_mut().model.set_hardware_enable(on);
+    }
+    if let Some(t) = &p.trip {
+        let trip = parse_trip(t).ok_or_else(|| {
+            api_error(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("unknown trip {t:?}: use over-current, over-voltage, under-voltage, over-temperature, communication-timeout or external"),
+            )
+        })?;
+        d.core_mut().model.trip_now(trip);
+    }
+    if p.reset == Some(true) {
+        if let Err(t) = d.core_mut().model.reset() {
+            return Err(api_error(
+                StatusCode::CONFLICT,
+                format!("the {} persists: the drive stays tripped", t.name()),
+            ));
+        }
+    }
+    drop(line);
+    sim.wake.notify_one();
+    let line = sim.line();
+    snapshot(&line, n).map(Json).ok_or_else(|| no_drive(n, count))
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FaultsBody {
+    corrupt_rate: Option<f64>,
+    drop_rate: Option<f64>,
+    extra_latency_ms: Option<u64>,
+}
+
+fn faults_json(f: Faults) -> Value {
+    json!({ "corrupt_rate": f.corrupt_rate, "drop_rate": f.drop_rate, "extra_latency_ms": f.extra_latency.as_millis() as u64 })
+}
+
+async fn get_faults(State(sim): State<Arc<Simulator>>) -> Json<Value> {
+    Json(faults_json(sim.line().faults()))
+}
+
+async fn put_faults(
+    State(sim): State<Arc<Simulator>>,
+    body: Result<Json<FaultsBody>, axum::extract::rejection::JsonRejection>,
+) -> ApiResult {
+    let Json(b) = body.map_err(|e| api_error(StatusCode::BAD_REQUEST, e.body_text()))?;
+    let mut line = sim.line();
+    let mut f = line.faults();
+    for (name, v, slot) in
+        [("corrupt_rate", b.corrupt_rate, &mut f.corrupt_rate), ("drop_rate", b.drop_rate, &mut f.drop_rate)]
+    {
+        if let Some(v) = v {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(api_error(
+                    StatusCode::UNPROCESSABLE_ENTITY,
+                    format!("{name} {v} is not a probability 0..1"),
+                ));
+            }
+            *slot = v;
+        }
+    }
+    if let Some(ms) = b.extra_latency_ms {
+        if ms > 60_000 {
+            return Err(api_error(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                format!("extra_latency_ms {ms} is over 60000"),
+            ));
+        }
+        f.extra_latency = Duration::from_millis(ms);
+    }
+    line.set_faults(f);
+    Ok(Json(faults_json(f)))
+}
+
+async fn get_stats(State(sim): State<Arc<Simulator>>) -> Json<Value> {
+    let line = sim.line();
+    let s = line.stats();
+    let elapsed = sim.now().as_nanos() as f64 / 1e9;
+    Json(json!({
+        "baud": line.baud(),
+        "serial": line.format().to_string(),
+        "master_bytes": s.master_bytes,
+        "device_bytes": s.device_bytes,
+        "collisions": s.collisions,
+        "corrupted": s.corrupted,
+        "dropped": s.dropped,
+        "utilization": if elapsed > 0.0 { s.busy.as_secs_f64() / elapsed } else { 0.0 },
+    }))
+}
+
+/// A pseudo-terminal whose slave side a serial program opens.
+struct Pty {
+    master: PtyMaster,
+    slave: OwnedFd,
+    device: PathBuf,
+}
+
+impl Pty {
+    fn open(link: &Path) -> io::Result<Pty> {
+        use nix::sys::termios;
+        let pair = nix::pty::openpty(None, None).map_err(io::Error::from)?;
+        // Raw mode: no echo, no CR/LF translation, bytes as they come.
+        let mut t = termios::tcgetattr(pair.slave.as_fd()).map_err(io::Error::from)?;
+        termios::cfmakeraw(&mut t);
+        termios::tcsetattr(pair.slave.as_fd(), termios::SetArg::TCSANOW, &t).map_err(io::Error::from)?;
+        let device = nix::unistd::ttyname(pair.slave.as_fd()).map_err(io::Error::from)?;
+        if link.symlink_metadata().is_ok() {
+            std::fs::remove_file(link)
+                .map_err(|e| io::Error::new(e.kind(), format!("cannot replace {}: {e}", link.display())))?;
+        }
+        std::os::unix::fs::symlink(&device, link).map_err(|e| {
+            io::Error::new(e.kind(), format!("cannot create the link {}: {e}", link.display()))
+        })?;
+        let flags = nix::fcntl::fcntl(pair.master.as_raw_fd(), nix::fcntl::FcntlArg::F_GETFL)
+            .map_err(io::Error::from)?;
+        let flags = nix::fcntl::OFlag::from_bits_truncate(flags) | nix::fcntl::OFlag::O_NONBLOCK;
+        nix::fcntl::fcntl(pair.master.as_raw_fd(), nix::fcntl::FcntlArg::F_SETFL(flags))
+            .map_err(io::Error::from)?;
+        // SAFETY: an `OwnedFd` is an open descriptor that stays open, and always returns the
+        // same raw fd, for as long as the `AsyncFd` owns it: exactly `register`'s contract.
+        #[allow(unsafe_code)]
+        let fd = unsafe { AsyncFd::register(pair.master) }.map_err(io::Error::from)?;
+        Ok(Pty { master: PtyMaster { fd }, slave: pair.slave, device })
+    }
+}
+
+/// The master side of a pty as a tokio stream.
+struct PtyMaster {
+    fd: AsyncFd<OwnedFd>,
+}
+
+impl AsyncRead for PtyMaster {
+    fn poll_read(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        loop {
+            let mut guard = ready!(self.fd.poll_read_ready(cx))?;
+            let unfilled = buf.initialize_unfilled();
+            match guard
+                .try_io(|fd| nix::unistd::read(fd.get_ref().as_raw_fd(), unfilled).map_err(io::Error::from))
+            {
+                Ok(Ok(n)) => {
+                    buf.advance(n);
+                    return Poll::Ready(Ok(()));
+                }
+                Ok(Err(e)) => return Poll::Ready(Err(e)),
+                Err(_would_block) => continue,
+            }
+        }
+    }
+}
+
+impl AsyncWrite for PtyMaster {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        loop {
+            let mut guard = ready!(self.fd.poll_write_ready(cx))?;
+            match guard.try_io(|fd| nix::unistd::write(fd.get_ref(), data).map_err(io::Error::from)) {
+                Ok(r) => return Poll::Ready(r),
+                Err(_would_block) => continue,
+            }
+        }
+    }
+    fn poll_flush(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+    fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Poll::Ready(Ok(()))
+    }
+}

@@ -105,7 +105,7 @@ pub trait VirtualDrive: Device + Send {
     fn core_mut(&mut self) -> &mut DriveCore;
     /// Where run commands come from, in the family's words (`F-12 = 1 keypad`, ...).
     fn control_source(&self) -> String;
-    /// The family's trip code for `trip` where the protocol reports one, for tests.
+    /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
         snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
     }

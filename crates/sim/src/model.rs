@@ -155,6 +155,8 @@ pub struct DriveModel {
     trip_log: VecDeque<TripRecord>,
     comm_timeout: Option<Duration>,
     last_comm: Instant,
+    /// The communication time-out counts only once a first telegram has been seen.
+    comm_armed: bool,
 }
 
 impl DriveModel {
@@ -178,6 +180,7 @@ impl DriveModel {
             trip_log: VecDeque::with_capacity(TRIP_LOG_LEN),
             comm_timeout: None,
             last_comm: now,
+            comm_armed: false,
         }
     }
 
@@ -333,15 +336,17 @@ impl DriveModel {
         self.trip_log.iter().rev()
     }
 
-    /// Sets the communication time-out (None: off).
+    /// Sets the communication time-out (None: off). It runs from the last valid telegram, and
+    /// only once a first one has arrived: a drive nobody has talked to yet does not trip.
     pub fn set_comm_timeout(&mut self, timeout: Option<Duration>) {
         self.comm_timeout = timeout;
         self.last_comm = self.now;
     }
 
-    /// A valid telegram for this drive arrived: restarts the communication time-out.
+    /// A valid telegram for this drive arrived: (re)starts the communication time-out.
     pub fn comm_seen(&mut self, now: Instant) {
         self.last_comm = now;
+        self.comm_armed = true;
     }
 
     /// Sets the setpoint, Hz (clamped to the limits; the sign is ignored).
@@ -468,7 +473,7 @@ impl DriveModel {
         }
         let dt = now - self.now;
         self.now = now;
-        if let Some(timeout) = self.comm_timeout {
+        if let (Some(timeout), true) = (self.comm_timeout, self.comm_armed) {
             if now.saturating_since(self.last_comm) >= timeout && !matches!(self.state, RunState::Tripped(_))
             {
                 self.trip_now(Trip::CommunicationTimeout);
@@ -488,30 +493,43 @@ impl DriveModel {
     }
 
     fn ramp(&mut self, dt: Duration) {
-        let target = self.target_mhz();
-        if self.output_mhz == target {
+        // Integrated in nanoseconds with the remainder carried, so the result does not depend
+        // on how time is sliced. A reversal ramps down to zero, turns, and spends the rest of
+        // the step ramping up the other way.
+        let mut left_ns = dt.as_nanos() as i128;
+        for _ in 0..4 {
+            let target = self.target_mhz();
+            if self.output_mhz == target {
+                self.ramp_carry = 0;
+                let before = self.output_rotation;
+                self.settle();
+                if self.output_rotation == before || self.target_mhz() == self.output_mhz {
+                    return;
+                }
+                continue;
+            }
+            if left_ns <= 0 {
+                return;
+            }
+            let max_mhz = ((self.settings.max_hz * 1000.0).round() as i128).max(1);
+            let up = target > self.output_mhz;
+            let ramp = if up { self.settings.accel } else { self.settings.decel };
+            let ramp_ns = (ramp.as_nanos() as i128).max(1);
+            let distance = (target - self.output_mhz).unsigned_abs() as i128;
+            // Time to cover the distance: max_mhz * t + carry >= distance * ramp_ns.
+            let need_ns = ((distance * ramp_ns - self.ramp_carry).max(0) + max_mhz - 1) / max_mhz;
+            if need_ns > left_ns {
+                let numer = max_mhz * left_ns + self.ramp_carry;
+                let delta = (numer / ramp_ns).min(distance) as i64;
+                self.ramp_carry = numer % ramp_ns;
+                self.output_mhz += if up { delta } else { -delta };
+                return;
+            }
+            self.output_mhz = target;
             self.ramp_carry = 0;
+            left_ns -= need_ns;
             self.settle();
-            return;
         }
-        let max_mhz = ((self.settings.max_hz * 1000.0).round() as i128).max(1);
-        let up = target > self.output_mhz;
-        let ramp = if up { self.settings.accel } else { self.settings.decel };
-        let ramp_us = ramp.as_micros().max(1) as i128;
-        // delta = max_mhz * dt / ramp, integrated exactly with the remainder carried.
-        let numer = max_mhz * dt.as_micros() as i128 + self.ramp_carry;
-        let delta = numer / ramp_us;
-        self.ramp_carry = numer % ramp_us;
-        let delta = delta.min(i64::MAX as i128) as i64;
-        if up {
-            self.output_mhz = (self.output_mhz + delta).min(target);
-        } else {
-            self.output_mhz = (self.output_mhz - delta).max(target);
-        }
-        if self.output_mhz == target {
-            self.ramp_carry = 0;
-        }
-        self.settle();
     }
 
     fn settle(&mut self) {
@@ -648,9 +666,38 @@ mod tests {
     }
 
     #[test]
+    fn reversal_in_one_long_step_continues_past_zero() {
+        let mut m = DriveModel::new(ModelSettings::default(), at(0));
+        m.set_setpoint_hz(20.0);
+        m.run().unwrap();
+        m.advance_to(at(4000));
+        m.set_rotation(Rotation::Reverse);
+        // 4 s down to zero, then 4 s up to 20 Hz the other way: all in one step.
+        m.advance_to(at(12_000));
+        assert_eq!((m.output_mhz(), m.output_rotation()), (20_000, Rotation::Reverse));
+        // Half way: sliced or not, the same.
+        let mut n = DriveModel::new(ModelSettings::default(), at(0));
+        n.set_setpoint_hz(20.0);
+        n.run().unwrap();
+        n.advance_to(at(4000));
+        n.set_rotation(Rotation::Reverse);
+        n.advance_to(at(10_000));
+        assert_eq!((n.output_mhz(), n.output_rotation()), (10_000, Rotation::Reverse));
+    }
+
+    #[test]
+    fn communication_timeout_waits_for_a_first_telegram() {
+        let mut m = DriveModel::new(ModelSettings::default(), at(0));
+        m.set_comm_timeout(Some(Duration::from_secs(1)));
+        m.advance_to(at(60_000));
+        assert_eq!(m.trip(), None);
+    }
+
+    #[test]
     fn communication_timeout_trips() {
         let mut m = DriveModel::new(ModelSettings::default(), at(0));
         m.set_comm_timeout(Some(Duration::from_secs(2)));
+        m.comm_seen(at(0));
         m.advance_to(at(1500));
         m.comm_seen(at(1500));
         m.advance_to(at(3000));

@@ -217,7 +217,7 @@ impl B800Drive {
         if now < due {
             return;
         }
-        self.core.model.advance_to(due);
+        self.advance_model(due);
         self.comm.lost = true;
         if self.core.model.is_running() {
             if self.derived.comm_action == 1 {
@@ -226,6 +226,30 @@ impl B800Drive {
                 self.core.model.coast();
             }
         }
+    }
+
+    /// Advances the model to `now`. A reversal's zero crossing gets a step of its own:
+    /// `DriveModel::advance_to` ramps toward one target per call, so one long step across the
+    /// crossing would leave the output at 0 Hz until the next call (workaround for the shared
+    /// model).
+    fn advance_model(&mut self, now: Instant) {
+        let m = &mut self.core.model;
+        if m.state() == RunState::Running
+            && !m.is_jogging()
+            && m.output_rotation() != m.rotation()
+            && m.output_mhz() > 0
+        {
+            let s = m.settings();
+            let max_mhz = ((s.max_hz * 1000.0).round() as u128).max(1);
+            let decel_us = s.decel.as_micros().max(1);
+            // Rounded up, so the output has surely reached zero at `cross`.
+            let us = (u128::from(m.output_mhz().unsigned_abs()) * decel_us).div_ceil(max_mhz);
+            let cross = m.now() + Duration::from_micros(u64::try_from(us).unwrap_or(u64::MAX));
+            if cross < now {
+                m.advance_to(cross);
+            }
+        }
+        m.advance_to(now);
     }
 
     /// F-13: the last four trip codes, newest first, 0 where there is none.
@@ -490,7 +514,7 @@ impl Device for B800Drive {
     fn advance_to(&mut self, now: Instant) {
         self.sync();
         self.watch_comm(now);
-        self.core.model.advance_to(now);
+        self.advance_model(now);
         self.refresh_trip_log();
     }
 

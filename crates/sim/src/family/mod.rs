@@ -20,8 +20,11 @@ use crate::drive::VirtualDrive;
 
 /// Builds the virtual drive `spec` describes, at simulated time `now`.
 pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, ConfigError> {
-    let _ = now;
-    Err(ConfigError(format!("{}@{}: not built yet", spec.family, spec.address)))
+    let err = |e: String| ConfigError(format!("{}@{}: {e}", spec.family, spec.address));
+    Ok(match spec.family {
+        Family::B800 => Box::new(b800::B800Drive::new(spec.address, now).map_err(err)?),
+        _ => return Err(err("this family's simulator is not built yet".into())),
+    })
 }
 
 /// The codec names a master may use to talk to the drive `spec` describes.

@@ -408,8 +408,15 @@ fn comm_timeout_trips_err5() {
         wait(&mut line, Duration::from_millis(1500));
         assert_eq!(exchange(&mut line, b"(RFC90)\r"), b"(RFC900000)\r");
     }
+    // The last valid telegram ended when its CR arrived; the trip comes 2 s later, exactly.
+    let last_sent = line.now();
+    exchange(&mut line, b"(RFC90)\r");
+    let last_comm = last_sent + line.char_time() * 8;
     wait(&mut line, Duration::from_millis(2100));
     assert_eq!(model(&line, 1).trip(), Some(Trip::CommunicationTimeout));
+    let record = *model(&line, 1).recent_trips().next().unwrap();
+    assert_eq!(record.at, last_comm + Duration::from_secs(2));
+    assert_eq!(record.output_mhz, 60_000);
     assert_eq!(model(&line, 1).output_hz(), 0.0);
     assert_eq!(
         exchange(&mut line, b"(RFC90)\r"),
@@ -429,6 +436,24 @@ fn comm_timeout_trips_err5() {
     assert_eq!(model(&line, 1).trip(), None);
     assert!(model(&line, 1).is_running());
     assert_eq!(exchange(&mut line, b"(RFD01)\r"), b"(RFD016404)\r");
+}
+
+#[test]
+fn comm_timeout_with_deceleration_stop() {
+    let mut line = line_with(&[0]);
+    run_at(&mut line, "1770");
+    // f804 = 2: trip after a deceleration stop; f803 = 1 s.
+    exchange(&mut line, b"(P08040002)\r");
+    exchange(&mut line, b"(P08030001)\r");
+    // DEC 10.0 s from FH 80 Hz: 60 Hz -> 0 in 7.5 s, then Err5.
+    wait(&mut line, Duration::from_secs(5));
+    let m = model(&line, 1);
+    assert_eq!(m.trip(), None);
+    assert!(m.output_hz() > 20.0 && m.output_hz() < 40.0, "{}", m.output_hz());
+    wait(&mut line, Duration::from_secs(4));
+    assert_eq!(model(&line, 1).trip(), Some(Trip::CommunicationTimeout));
+    assert_eq!(model(&line, 1).recent_trips().next().unwrap().output_mhz, 0);
+    assert_eq!(exchange(&mut line, b"(RFC90)\r"), b"(rFC900018)\r");
 }
 
 #[test]

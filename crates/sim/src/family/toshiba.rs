@@ -37,7 +37,7 @@ use drivebus_proto::modbus::{
 };
 use drivebus_proto::session::{Incoming, Responder, SlaveSession};
 use drivebus_proto::toshiba::binary::{BinaryRequestBody, BlockRequest};
-use drivebus_proto::toshiba::{Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipRequest};
+use drivebus_proto::toshiba::{Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipReply, TipRequest};
 use drivebus_proto::Instant;
 
 use crate::bus::Device;
@@ -167,6 +167,10 @@ struct Inner {
     last_comm: Instant,
     /// f803 elapsed with f804 = 0 (alarm only); cleared by a fault reset or power-up.
     comm_alarm: bool,
+    /// f803 has elapsed since `last_comm` and its action was taken.
+    timeout_fired: bool,
+    /// f804 = 2: decelerating to a stop, then tripping Err5.
+    decel_trip: bool,
     /// FA00 bit 15 was set by the last command: communication has command authority.
     comm_priority: bool,
     /// A coast stop was commanded and no run since.
@@ -206,6 +210,8 @@ impl ToshibaDrive {
             eeprom_shadow: BTreeMap::new(),
             last_comm: now,
             comm_alarm: false,
+            timeout_fired: false,
+            decel_trip: false,
             comm_priority: false,
             coast_stopped: false,
             deaf_until: None,
@@ -373,20 +379,53 @@ impl Inner {
         self.core.model.trip().is_some()
     }
 
+    /// Lets the model reach `now`, taking the f803/f804 action at the very instant the
+    /// communication time-out elapses (protocols.md 1.2: "if nothing valid is received within
+    /// f803, the inverter takes the action set by f804").
     fn advance(&mut self, now: Instant) {
-        self.core.model.advance_to(now);
-        // f804 = 0 "alarm only": the time-out raises the alarm bit, the motor runs on.
-        if !self.comm_alarm && self.param(TIMEOUT_ACTION) == 0 {
-            let secs = self.param(TIMEOUT_TIME);
-            if secs > 0 && now.saturating_since(self.last_comm) >= Duration::from_secs(secs as u64) {
-                self.comm_alarm = true;
+        if let Some(deadline) = self.timeout_deadline().filter(|&d| d <= now) {
+            // f804 = 1: the model trips by itself at the deadline (model.set_comm_timeout).
+            self.core.model.advance_to(deadline);
+            self.timeout_fired = true;
+            match self.param(TIMEOUT_ACTION) {
+                // "alarm only": FD01 bit 2, the motor runs on.
+                0 => self.comm_alarm = true,
+                // "trip (deceleration stop)": ramp down, then trip.
+                2 if self.core.model.trip().is_none() => {
+                    self.core.model.stop();
+                    self.decel_trip = true;
+                }
+                _ => {}
             }
         }
+        self.core.model.advance_to(now);
+        if self.decel_trip && !self.core.model.is_running() {
+            self.decel_trip = false;
+            self.core.model.trip_now(Trip::CommunicationTimeout);
+        }
+    }
+
+    /// When f803 runs out, unless it is off, has run out already or the drive is tripped.
+    fn timeout_deadline(&self) -> Option<Instant> {
+        let secs = self.param(TIMEOUT_TIME);
+        if secs <= 0 || self.timeout_fired || self.tripped() {
+            return None;
+        }
+        Some(self.last_comm + Duration::from_secs(secs as u64))
     }
 
     fn comm_seen(&mut self, now: Instant) {
         self.core.model.comm_seen(now);
         self.last_comm = now;
+        self.timeout_fired = false;
+    }
+
+    /// The time-out starts again from the model's present (after a reset or a setting change).
+    fn restart_timeout(&mut self) {
+        self.last_comm = self.core.model.now();
+        self.timeout_fired = false;
+        self.comm_alarm = false;
+        self.decel_trip = false;
     }
 
     fn param(&self, number: u32) -> i64 {
@@ -414,10 +453,8 @@ impl Inner {
         }
         self.protocol = ToshibaProtocol::from_f829(self.param(PROTOCOL));
         self.core.address = u8::try_from(self.param(INVERTER_NUMBER)).unwrap_or(0);
-        self.comm_alarm = false;
         self.comm_priority = false;
         self.coast_stopped = false;
-        self.last_comm = now;
         self.deaf_until = Some(now + STARTUP_DEAF);
         let settings = settings_from(&self.core.params);
         self.core.model.set_settings(settings);
@@ -438,8 +475,7 @@ impl Inner {
                     TipRequest::Binary(b) => match b.body {
                         BinaryRequestBody::Block(block) => {
                             let rdata = self.block(block);
-                            b.block_reply(me, self.tripped(), &rdata)
-                                .map(drivebus_proto::toshiba::TipReply::Binary)
+                            b.block_reply(me, self.tripped(), &rdata).map(TipReply::Binary)
                         }
                         body => {
                             let comm_no = body.comm_no().map_or(0, |c| c.0);
@@ -469,12 +505,7 @@ impl Inner {
 
     /// `R`, `G`, `W` or `P` on `comm_no`; the reply (data, or an error code). Lower case when
     /// tripped after the command (a fault reset answers in upper case).
-    fn execute(
-        &mut self,
-        request: &TipRequest,
-        comm_no: u16,
-        data: u16,
-    ) -> Option<drivebus_proto::toshiba::TipReply> {
+    fn execute(&mut self, request: &TipRequest, comm_no: u16, data: u16) -> Option<TipReply> {
         let me = self.core.address;
         let result = match request.cmd() {
             Some(Cmd::R | Cmd::G) => self.read(comm_no),
@@ -695,9 +726,15 @@ impl Inner {
             return;
         }
         self.comm_priority = true;
-        if c.contains(Command1::FAULT_RESET) && model.trip().is_some() && model.reset().is_ok() {
-            self.comm_alarm = false;
+        if c.contains(Command1::FAULT_RESET) {
+            if model.trip().is_some() && model.reset().is_ok() {
+                self.restart_timeout();
+            } else {
+                // Not tripped: the reset clears an alarm-only time-out.
+                self.comm_alarm = false;
+            }
         }
+        let model = &mut self.core.model;
         if c.contains(Command1::EMERGENCY_STOP) {
             model.trip_now(Trip::External);
             return;
@@ -742,14 +779,13 @@ impl Inner {
         self.core.model.set_setpoint_hz(centi.clamp(0, limit.max(0)) as f64 / 100.0);
     }
 
-    /// f803 (seconds, 0 = off) and f804 (0 alarm only, 1 trip, 2 trip after deceleration: the
-    /// model trips at once either way).
+    /// f803 (seconds, 0 = off) and f804 (0 alarm only, 1 trip, 2 trip after a deceleration
+    /// stop). The model's own time-out trips for 1; 0 and 2 are handled in [`Inner::advance`].
     fn apply_comm_timeout(&mut self) {
         let secs = self.param(TIMEOUT_TIME);
-        let timeout = (secs > 0 && self.param(TIMEOUT_ACTION) != 0).then(|| Duration::from_secs(secs as u64));
+        let timeout = (secs > 0 && self.param(TIMEOUT_ACTION) == 1).then(|| Duration::from_secs(secs as u64));
         self.core.model.set_comm_timeout(timeout);
-        self.last_comm = self.core.model.now();
-        self.comm_alarm = false;
+        self.restart_timeout();
     }
 
     // ---------------------------------------------------------------------------------------

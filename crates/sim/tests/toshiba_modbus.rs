@@ -52,7 +52,7 @@ fn params(line: &VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
     &line.drive(port).unwrap().core().params
 }
 
-/// TM5 and FA00 = C400: run forward at 60.00 Hz.
+/// TM5 and FA00 = C400 to drive 1: run forward at 60.00 Hz.
 fn run_60(line: &mut VirtualLine) {
     // manual VF-S15 p.31: "01 06 FA 01 17 70 E6 C6"; the reply is identical.
     let tm5 = [0x01, 0x06, 0xFA, 0x01, 0x17, 0x70, 0xE6, 0xC6];
@@ -223,4 +223,29 @@ fn master_session_over_the_line() {
         }
     };
     assert_eq!(value, Some(175), "FE70 rated current 17.5 A");
+}
+
+#[test]
+fn constructor_checks_numbers_and_snapshot_names_the_protocol() {
+    let t = Instant::ZERO;
+    assert!(ToshibaDrive::new(100, ToshibaProtocol::Tip, t).unwrap_err().contains("0..99"));
+    assert!(ToshibaDrive::new(0, ToshibaProtocol::ModbusRtu, t).unwrap_err().contains("1..247"));
+    assert!(ToshibaDrive::new(248, ToshibaProtocol::ModbusRtu, t).is_err());
+    assert!(ToshibaDrive::new(0, ToshibaProtocol::Tip, t).is_ok());
+    assert!(ToshibaDrive::new(247, ToshibaProtocol::ModbusRtu, t).is_ok());
+    let mut line = line_with(&[5]);
+    let fa01 = rtu(&[0x05, 0x06, 0xFA, 0x01, 0x17, 0x70]);
+    assert_eq!(exchange(&mut line, &fa01), fa01);
+    let run = rtu(&[0x05, 0x06, 0xFA, 0x00, 0xC4, 0x00]);
+    assert_eq!(exchange(&mut line, &run), run);
+    wait(&mut line, Duration::from_secs(8));
+    let snap = line.drive(1).unwrap().snapshot();
+    assert_eq!((snap.family.as_str(), snap.protocol.as_str(), snap.address), ("toshiba", "modbus-rtu", 5));
+    assert_eq!(snap.state, "running");
+    assert_eq!(snap.output_hz, 60.0);
+    assert_eq!(snap.eeprom_writes, 0);
+    assert!(snap.control_source.starts_with("communication"), "{}", snap.control_source);
+    // f829 = 1 and f802 = 5 were set by the constructor.
+    let p = params(&line, 1);
+    assert_eq!((p.get(0x0829u32), p.get(0x0802u32)), (Some(1), Some(5)));
 }

@@ -525,3 +525,25 @@ fn master_session_reads_through_the_line() {
     assert_eq!(reply.error(), None);
     assert!(!reply.tripped());
 }
+
+#[test]
+fn random_bytes_never_panic_in_either_protocol() {
+    for protocol in [ToshibaProtocol::Tip, ToshibaProtocol::ModbusRtu] {
+        let mut drive = ToshibaDrive::new(1, protocol, Instant::ZERO).unwrap();
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut now = Instant::ZERO;
+        let alphabet = b"()&*/0123456789ABCDEFRWPGXNrwp\r\x2F\x01\x03\x06\x2B\x0E\xFF\x00";
+        for i in 0..20_000u32 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let b = if x % 3 == 0 { (x >> 24) as u8 } else { alphabet[(x >> 32) as usize % alphabet.len()] };
+            now = now + Duration::from_micros(600);
+            drive.receive(now, &[b]);
+            if i % 7 == 0 {
+                drive.silence(now);
+            }
+            let _ = drive.poll_transmit(now + Duration::from_millis(10));
+        }
+    }
+}

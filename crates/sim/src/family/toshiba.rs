@@ -154,6 +154,17 @@ pub struct ToshibaDrive {
     inner: Inner,
 }
 
+impl std::fmt::Debug for ToshibaDrive {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ToshibaDrive")
+            .field("address", &self.inner.core.address)
+            .field("protocol", &self.inner.protocol)
+            .field("state", &self.inner.core.model.state())
+            .field("output_hz", &self.inner.core.model.output_hz())
+            .finish_non_exhaustive()
+    }
+}
+
 /// Everything but the sessions, so a session's handler can borrow it.
 struct Inner {
     core: DriveCore,
@@ -578,17 +589,17 @@ impl Inner {
                     // seed 002: "Set the number of data words 0001 (fixed)"; its example with
                     // 0002 is answered "01 83 03 01 31".
                     RequestPdu::ReadHoldingRegisters { quantity, .. } if quantity != 1 => {
-                        let _ = resp.reply(&exception(ExceptionCode::ILLEGAL_DATA_VALUE));
+                        answer(resp, &exception(ExceptionCode::ILLEGAL_DATA_VALUE));
                     }
                     RequestPdu::ReadHoldingRegisters { start, .. } => match self.read(start.0) {
                         Ok(v) => {
                             let values = [v];
                             let pdu =
                                 ReplyPdu::ReadHoldingRegisters { values: Registers::from_values(&values) };
-                            let _ = resp.reply(&Reply { unit, pdu });
+                            answer(resp, &Reply { unit, pdu });
                         }
                         Err(code) => {
-                            let _ = resp.reply(&exception(modbus_exception(code)));
+                            answer(resp, &exception(modbus_exception(code)));
                         }
                     },
                     // manual VF-S15 p.31: 06 writes RAM and EEPROM (FAxx RAM only); the reply
@@ -597,10 +608,10 @@ impl Inner {
                         match self.write(address.0, value, Storage::Eeprom) {
                             Ok(()) => {
                                 let pdu = ReplyPdu::WriteSingleRegister { address, value };
-                                let _ = resp.reply(&Reply { unit, pdu });
+                                answer(resp, &Reply { unit, pdu });
                             }
                             Err(code) => {
-                                let _ = resp.reply(&exception(modbus_exception(code)));
+                                answer(resp, &exception(modbus_exception(code)));
                             }
                         }
                     }
@@ -623,18 +634,18 @@ impl Inner {
                                     next_object_id: 0,
                                     objects: DeviceObjects::from_list(&objects[first..]),
                                 });
-                                let _ = resp.reply(&Reply { unit, pdu });
+                                answer(resp, &Reply { unit, pdu });
                             }
                             // 04 (one specific object) needs individual access, which conformity
                             // level 01 does not offer.
                             _ => {
-                                let _ = resp.reply(&exception(ExceptionCode::ILLEGAL_DATA_VALUE));
+                                answer(resp, &exception(ExceptionCode::ILLEGAL_DATA_VALUE));
                             }
                         }
                     }
                     // VF-AS1 knows 03 and 06 (and 2B/0E): anything else is an illegal function.
                     _ => {
-                        let _ = resp.reply(&exception(ExceptionCode::ILLEGAL_FUNCTION));
+                        answer(resp, &exception(ExceptionCode::ILLEGAL_FUNCTION));
                     }
                 }
             }
@@ -643,7 +654,7 @@ impl Inner {
                 // function): the session only hands over those addressed to this drive.
                 self.comm_seen(now);
                 let function = bytes.get(1).copied().unwrap_or(0);
-                let _ = resp.reply(&Reply::exception(unit, function, ExceptionCode::for_error(&error)));
+                answer(resp, &Reply::exception(unit, function, ExceptionCode::for_error(&error)));
             }
         }
     }
@@ -901,6 +912,14 @@ impl Inner {
             a |= Alarm::MAIN_UNDER_VOLTAGE;
         }
         a
+    }
+}
+
+/// Queues a Modbus reply, unless the drive's number is 0: with f802 = 0 a Modbus drive hears
+/// only broadcasts, which get no reply (seed 002: "Data will not be returned if "0"").
+fn answer(resp: &mut Responder<'_, ModbusRtu>, reply: &Reply<'_>) {
+    if reply.unit.0 != 0 {
+        let _ = resp.reply(reply);
     }
 }
 

@@ -23,7 +23,21 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
     let err = |e: String| ConfigError(format!("{}@{}: {e}", spec.family, spec.address));
     Ok(match spec.family {
         Family::B800 => Box::new(b800::B800Drive::new(spec.address, now).map_err(err)?),
-        _ => return Err(err("this family's simulator is not built yet".into())),
+        Family::Generic => {
+            let protocol = match spec.protocol.as_deref() {
+                Some("modbus-rtu") => generic::GenericProtocol::Rtu,
+                _ => generic::GenericProtocol::Ascii,
+            };
+            Box::new(generic::GenericDrive::new(spec.address, protocol, now).map_err(err)?)
+        }
+        Family::Toshiba => {
+            let protocol = match spec.protocol.as_deref() {
+                Some("modbus-rtu") => toshiba::ToshibaProtocol::ModbusRtu,
+                _ => toshiba::ToshibaProtocol::Tip,
+            };
+            Box::new(toshiba::ToshibaDrive::new(spec.address, protocol, now).map_err(err)?)
+        }
+        Family::Danfoss => return Err(err("this family's simulator is not built yet".into())),
     })
 }
 

@@ -37,7 +37,7 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
             };
             Box::new(toshiba::ToshibaDrive::new(spec.address, protocol, now).map_err(err)?)
         }
-        Family::Danfoss => return Err(err("this family's simulator is not built yet".into())),
+        Family::Danfoss => Box::new(danfoss::DanfossDrive::new(spec.address, now).map_err(err)?),
     })
 }
 

@@ -19,6 +19,10 @@ struct Sim {
 
 impl Sim {
     fn start(drives: &[&str]) -> Sim {
+        Sim::start_with(drives, &[])
+    }
+
+    fn start_with(drives: &[&str], extra: &[&str]) -> Sim {
         let pty = std::env::temp_dir().join(format!(
             "drivebus-interop-{}-{}",
             std::process::id(),
@@ -29,6 +33,7 @@ impl Sim {
         for d in drives {
             cmd.arg("--drive").arg(d);
         }
+        cmd.args(extra);
         let mut child =
             cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start drivebus simulate");
         let out = child.stdout.take().expect("stdout");
@@ -80,11 +85,11 @@ fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_client.py")
 }
 
-fn pymodbus(family: &str, drive: &str) {
+fn pymodbus(family: &str, drive: &str, extra: &[&str]) {
     if !witness("pymodbus", has_pymodbus(), "pip install pymodbus pyserial") {
         return;
     }
-    let sim = Sim::start(&[drive]);
+    let sim = Sim::start_with(&[drive], extra);
     let out = Command::new("python3").arg(script()).arg(family).arg(&sim.pty).output().expect("run python3");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -94,12 +99,13 @@ fn pymodbus(family: &str, drive: &str) {
 
 #[test]
 fn pymodbus_runs_a_generic_drive_and_sees_2103h_ramp() {
-    pymodbus("generic", "generic@1:modbus-rtu");
+    pymodbus("generic", "generic@1:modbus-rtu", &[]);
 }
 
 #[test]
 fn pymodbus_runs_a_toshiba_drive_and_sees_fd00_ramp() {
-    pymodbus("toshiba", "toshiba@1:modbus-rtu");
+    // 8N1: see the note in pymodbus_client.py (pyserial, exclusive lock, even parity, pty).
+    pymodbus("toshiba", "toshiba@1:modbus-rtu", &["--serial", "8N1"]);
 }
 
 fn mbpoll(sim: &Sim, args: &[&str]) -> String {

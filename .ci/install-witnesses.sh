@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Installs the programs nobody here wrote that the interop tests use as witnesses:
+# pymodbus (PyPI) and mbpoll (Debian). Idempotent.
+set -euo pipefail
+if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
+  python3 -m pip install --quiet pymodbus pyserial
+fi
+if ! command -v mbpoll >/dev/null; then
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get install -y -q mbpoll >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mbpoll >/dev/null; }
+fi
+python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
+mbpoll -V 2>&1 | head -n 1

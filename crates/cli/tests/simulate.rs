@@ -1,0 +1,154 @@
+//! `drivebus simulate` end to end over TCP: drives answer as their manuals say, and the
+//! control interface silences, trips, injects noise and reports state at run time.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use serde_json::Value;
+
+struct Sim {
+    child: Child,
+    bus: String,
+    control: String,
+}
+
+impl Sim {
+    fn start(args: &[&str]) -> Sim {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .arg("simulate")
+            .args(args)
+            .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start drivebus simulate");
+        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        let (mut bus, mut control) = (None, None);
+        while bus.is_none() || control.is_none() {
+            let line = lines.next().expect("simulate printed where it listens").expect("utf-8");
+            if let Some(a) = line.strip_prefix("listening on tcp ") {
+                bus = Some(a.to_string());
+            }
+            if let Some(a) = line.strip_prefix("control http://") {
+                control = Some(a.trim_end_matches("/drives").to_string());
+            }
+        }
+        std::thread::spawn(move || for _ in lines {});
+        Sim { child, bus: bus.unwrap_or_default(), control: control.unwrap_or_default() }
+    }
+
+    fn http(&self, method: &str, path: &str, body: &str) -> (u16, Value) {
+        let mut s = TcpStream::connect(&self.control).expect("connect control");
+        write!(
+            s,
+            "{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            body.len()
+        )
+        .unwrap();
+        let mut text = String::new();
+        s.read_to_string(&mut text).unwrap();
+        let status: u16 = text.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+        let json = text.split("\r\n\r\n").nth(1).unwrap_or("null");
+        (status, serde_json::from_str(json).unwrap_or(Value::Null))
+    }
+}
+
+impl Drop for Sim {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Sends `req` and collects what comes back until `until` bytes arrived or the line is quiet.
+fn exchange(bus: &mut TcpStream, req: &[u8], until: usize) -> Vec<u8> {
+    bus.write_all(req).unwrap();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 256];
+    bus.set_read_timeout(Some(Duration::from_millis(400))).unwrap();
+    while got.len() < until {
+        match bus.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => got.extend_from_slice(&buf[..n]),
+        }
+    }
+    got
+}
+
+fn b800(frame: &str) -> Vec<u8> {
+    let digits: Vec<u8> = frame.bytes().collect();
+    let cs = !digits.iter().fold(0u8, |a, &b| a.wrapping_add(b));
+    let mut v = vec![0x7E];
+    v.extend_from_slice(&digits);
+    v.extend_from_slice(format!("{cs:02X}").as_bytes());
+    v.push(0x7F);
+    v
+}
+
+#[test]
+fn b800_drive_over_tcp_with_control_interface() {
+    let sim = Sim::start(&["--drive", "b800@5", "--drive", "b800@6"]);
+    let mut bus = TcpStream::connect(&sim.bus).expect("connect bus");
+    // The seed's example: P 40.0 Hz to drive 5, answered 'p'.
+    assert_eq!(exchange(&mut bus, &b800("85500960"), 8), b"\x7E0570\x33\x33\x7F");
+    // R runs it; the control interface sees it running with its setpoint.
+    assert_eq!(exchange(&mut bus, &b800("8552"), 8), b800("0572"));
+    let (code, d) = sim.http("GET", "/drives/1", "");
+    assert_eq!(code, 200);
+    assert_eq!(d["state"], "running");
+    assert_eq!(d["setpoint_hz"], 40.0);
+    assert_eq!(d["address"], 5);
+
+    // Silenced, it hears but does not answer.
+    let (code, _) = sim.http("POST", "/drives/1", r#"{"silent": true}"#);
+    assert_eq!(code, 200);
+    assert!(exchange(&mut bus, &b800("8554"), 1).is_empty());
+    sim.http("POST", "/drives/1", r#"{"silent": false}"#);
+
+    // Tripped, a run command gets e 9A.
+    sim.http("POST", "/drives/2", r#"{"trip": "over-current"}"#);
+    let reply = exchange(&mut bus, &b800("8652"), 10);
+    assert_eq!(&reply[..5], b"\x7E0665", "{reply:?}");
+    assert_eq!(&reply[5..7], b"9A");
+    let (_, d) = sim.http("GET", "/drives/2", "");
+    assert_eq!(d["trip"], "over-current");
+    assert_eq!(d["trip_log"].as_array().map(|a| a.len()), Some(1));
+
+    // Noise on every byte: the drive sees a bad frame and does not answer as usual.
+    let (code, f) = sim.http("PUT", "/faults", r#"{"corrupt_rate": 1.0}"#);
+    assert_eq!((code, f["corrupt_rate"].as_f64()), (200, Some(1.0)));
+    let reply = exchange(&mut bus, &b800("8554"), 8);
+    assert_ne!(reply, b800("0574"));
+    sim.http("PUT", "/faults", r#"{"corrupt_rate": 0.0}"#);
+
+    // Bad requests get a 4xx with a sentence.
+    let (code, e) = sim.http("POST", "/drives/9", r#"{"load": 1}"#);
+    assert_eq!(code, 404);
+    assert!(e["error"].as_str().unwrap().contains("numbered 1..2"));
+    let (code, e) = sim.http("POST", "/drives/1", r#"{"load": 9}"#);
+    assert_eq!(code, 422);
+    assert!(e["error"].as_str().unwrap().contains("0..5"));
+    let (code, _) = sim.http("POST", "/drives/1", "{not json");
+    assert_eq!(code, 400);
+    let (code, e) = sim.http("PUT", "/faults", r#"{"drop_rate": 2}"#);
+    assert_eq!(code, 422);
+    assert!(e["error"].as_str().unwrap().contains("probability"));
+}
+
+#[test]
+fn bad_options_exit_3_with_one_line() {
+    for args in [
+        vec!["simulate", "--drive", "b800@64", "--tcp", "127.0.0.1:0"],
+        vec!["simulate", "--drive", "pump@1", "--tcp", "127.0.0.1:0"],
+        vec!["simulate", "--drive", "b800@1"],
+        vec!["simulate", "--drive", "generic@1", "--serial", "9Z1", "--tcp", "127.0.0.1:0"],
+        vec!["simulate", "--config", "/nonexistent/bus.toml", "--tcp", "127.0.0.1:0"],
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_drivebus")).args(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(3), "{args:?}: {err}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: one line: {err}");
+    }
+}

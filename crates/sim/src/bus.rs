@@ -232,12 +232,24 @@ impl VirtualLine {
     /// The next time something happens on the line (a byte arrives, a device answers, a
     /// silence is detected), if anything is pending.
     pub fn next_deadline(&self) -> Option<Instant> {
-        let mut next: Option<Instant> = self.wire.front().map(|s| s.end);
+        let other = self.next_other_event();
+        // Bytes go out a burst at a time: the end of the front talker's run of characters,
+        // or the first other event before it.
+        let burst = self.burst_end(other.unwrap_or(Instant(u64::MAX)));
+        match (burst, other) {
+            (Some(b), Some(o)) => Some(b.min(o)),
+            (b, o) => b.or(o),
+        }
+    }
+
+    /// The earliest silence or device timer.
+    fn next_other_event(&self) -> Option<Instant> {
+        let mut next: Option<Instant> = None;
         let mut consider = |t: Instant| {
             next = Some(next.map_or(t, |n| n.min(t)));
         };
-        if self.silence_due {
-            consider(self.last_byte_end + self.t35);
+        if let Some(t) = self.silence_at() {
+            consider(t);
         }
         for p in &self.ports {
             if let Some(t) = p.device.as_ref().and_then(|d| d.poll_timeout()) {
@@ -245,6 +257,32 @@ impl VirtualLine {
             }
         }
         next
+    }
+
+    /// When receivers will have heard t3.5 of silence, unless a character starts before.
+    fn silence_at(&self) -> Option<Instant> {
+        if !self.silence_due {
+            return None;
+        }
+        let at = self.last_byte_end + self.t35;
+        match self.wire.front() {
+            Some(s) if s.end - self.char_time < at => None,
+            _ => Some(at),
+        }
+    }
+
+    /// The end of the last character of the front talker's run that ends by `limit` (or the
+    /// front character's end, if even that one ends later).
+    fn burst_end(&self, limit: Instant) -> Option<Instant> {
+        let first = self.wire.front()?;
+        let mut end = first.end;
+        for s in self.wire.iter().skip(1) {
+            if s.talker != first.talker || s.end > limit {
+                break;
+            }
+            end = s.end;
+        }
+        Some(end)
     }
 
     /// Advances the line to `now`: delivers every byte whose last bit has arrived, signals
@@ -257,8 +295,7 @@ impl VirtualLine {
         loop {
             // The next event at or before `now`.
             let next_byte = self.wire.front().map(|s| s.end).filter(|&t| t <= now);
-            let next_silence = (self.silence_due && self.last_byte_end + self.t35 <= now)
-                .then_some(self.last_byte_end + self.t35);
+            let next_silence = self.silence_at().filter(|&t| t <= now);
             let next_device = self
                 .ports
                 .iter()
@@ -269,23 +306,29 @@ impl VirtualLine {
             let Some(t) = t else { break };
             let t = t.max(self.now);
             self.now = t;
-            if next_byte == Some(t) || next_byte.is_some_and(|b| b <= t) {
-                // Deliver every byte that ends at t, from one talker at a time.
+            if next_byte.is_some_and(|b| b <= t) {
+                // Deliver the front talker's run of characters in one batch, up to `now` or
+                // the next other event, whichever comes first: devices see whole bursts, as a
+                // UART FIFO gives them, and a frame is complete when its last byte is.
+                let limit = [Some(now), next_silence, next_device].into_iter().flatten().min().unwrap_or(now);
                 let Some(first) = self.wire.front().copied() else { continue };
                 batch.clear();
                 let talker = first.talker;
+                let mut last = t;
                 while let Some(s) = self.wire.front().copied() {
-                    if s.end > t || s.talker != talker {
+                    if s.talker != talker || (s.end > limit && s.end > t) {
                         break;
                     }
                     self.wire.pop_front();
+                    last = s.end;
                     if let Some(b) = self.arrive(s) {
                         batch.push(b);
                     }
                 }
-                self.last_byte_end = t;
+                self.now = last.max(self.now);
+                self.last_byte_end = last;
                 self.silence_due = true;
-                self.deliver(talker, t, &batch);
+                self.deliver(talker, last, &batch);
                 continue;
             }
             if next_silence == Some(t) {
@@ -316,6 +359,13 @@ impl VirtualLine {
             }
         }
         self.now = now;
+    }
+
+    /// Brings every device's own state (motor ramps) up to the line's time. Devices otherwise
+    /// advance lazily, when they hear bytes or their timers fire; a control interface calls
+    /// this before it reads their state.
+    pub fn advance_devices(&mut self) {
+        let now = self.now;
         for p in self.ports.iter_mut() {
             if let Some(d) = p.device.as_mut() {
                 d.advance_to(now);
@@ -511,9 +561,10 @@ mod tests {
         let (dev, _, _) = echo(0);
         line.add_device(Box::new(dev));
         line.master_write(Instant::ZERO, &[1, 2, 3, 4]);
-        line.advance_to(Instant::from_millis(8));
-        // The device starts its echo ~t3.5 after the first request; the master now talks over it.
-        line.master_write(Instant::from_millis(8), &[9, 9, 9, 9, 9, 9]);
+        // The device hears t3.5 of silence at 4.583 + 4.010 ms and starts its echo at once;
+        // at 9 ms the master talks over it.
+        line.advance_to(Instant::from_millis(9));
+        line.master_write(Instant::from_millis(9), &[9, 9, 9, 9, 9, 9]);
         run_until_idle(&mut line);
         assert!(line.stats().collisions > 0);
         let mut got = Vec::new();

@@ -86,6 +86,7 @@ impl Simulator {
     pub fn line(&self) -> MutexGuard<'_, VirtualLine> {
         let mut l = self.line.lock().unwrap_or_else(|p| p.into_inner());
         l.advance_to(self.now());
+        l.advance_devices();
         l
     }
 

@@ -160,14 +160,20 @@ impl VirtualLine {
         self.ports.get_mut(port)?.device.as_deref_mut()
     }
 
-    /// The virtual drive on `port`, if that device is one.
-    pub fn drive(&self, port: usize) -> Option<&dyn VirtualDrive> {
-        self.ports.get(port)?.device.as_deref()?.as_drive()
+    /// The virtual drive on `port`, if that device is one, brought up to the line's time.
+    pub fn drive(&mut self, port: usize) -> Option<&dyn VirtualDrive> {
+        let now = self.now;
+        let d = self.ports.get_mut(port)?.device.as_deref_mut()?;
+        d.advance_to(now);
+        d.as_drive()
     }
 
-    /// The virtual drive on `port`, mutable.
+    /// The virtual drive on `port`, mutable, brought up to the line's time.
     pub fn drive_mut(&mut self, port: usize) -> Option<&mut dyn VirtualDrive> {
-        self.ports.get_mut(port)?.device.as_deref_mut()?.as_drive_mut()
+        let now = self.now;
+        let d = self.ports.get_mut(port)?.device.as_deref_mut()?;
+        d.advance_to(now);
+        d.as_drive_mut()
     }
 
     /// Number of devices.

@@ -243,7 +243,7 @@ async fn index() -> Json<Value> {
     }))
 }
 
-fn snapshot(line: &VirtualLine, n: usize) -> Option<Value> {
+fn snapshot(line: &mut VirtualLine, n: usize) -> Option<Value> {
     let d = line.drive(n)?;
     let mut s = serde_json::to_value(d.snapshot()).ok()?;
     s["silent"] = json!(line.is_silent(n));
@@ -252,13 +252,14 @@ fn snapshot(line: &VirtualLine, n: usize) -> Option<Value> {
 }
 
 async fn list_drives(State(sim): State<Arc<Simulator>>) -> Json<Value> {
-    let line = sim.line();
-    Json(Value::Array((1..=line.devices()).filter_map(|n| snapshot(&line, n)).collect()))
+    let mut line = sim.line();
+    Json(Value::Array((1..=line.devices()).filter_map(|n| snapshot(&mut line, n)).collect()))
 }
 
 async fn get_drive(State(sim): State<Arc<Simulator>>, UrlPath(n): UrlPath<usize>) -> ApiResult {
-    let line = sim.line();
-    snapshot(&line, n).map(Json).ok_or_else(|| no_drive(n, line.devices()))
+    let mut line = sim.line();
+    let count = line.devices();
+    snapshot(&mut line, n).map(Json).ok_or_else(|| no_drive(n, count))
 }
 
 fn no_drive(n: usize, count: usize) -> (StatusCode, Json<Value>) {
@@ -347,8 +348,8 @@ async fn patch_drive(
     }
     drop(line);
     sim.wake.notify_one();
-    let line = sim.line();
-    snapshot(&line, n).map(Json).ok_or_else(|| no_drive(n, count))
+    let mut line = sim.line();
+    snapshot(&mut line, n).map(Json).ok_or_else(|| no_drive(n, count))
 }
 
 #[derive(Deserialize)]

@@ -95,7 +95,7 @@ fn pwe(reply: &[u8]) -> u32 {
     u32::from_be_bytes([reply[7], reply[8], reply[9], reply[10]])
 }
 
-fn drive(line: &VirtualLine, port: usize) -> &dyn drivebus_sim::drive::VirtualDrive {
+fn drive(line: &mut VirtualLine, port: usize) -> &dyn drivebus_sim::drive::VirtualDrive {
     line.drive(port).unwrap()
 }
 
@@ -115,13 +115,13 @@ fn manual_d1_starts_drive_4_at_50_percent_and_mav_ramps() {
     // ADR returned unchanged; STW 0E07: control ready, drive ready, enable, bus control,
     // frequency limit OK, in operation; MAV 0: the ramp has just begun.
     assert_eq!(reply, [0x02, 0x06, 0x04, 0x0E, 0x07, 0x00, 0x00, 0x09]);
-    let d = drive(&line, 1).snapshot();
+    let d = drive(&mut line, 1).snapshot();
     assert_eq!((d.state.as_str(), d.setpoint_hz), ("running", 25.0));
 
     // 3-41 = 3.00 s from 0 to 1-23 = 50 Hz: 16.67 Hz/s, so 5 Hz after 0.3 s.
     let started = Instant::ZERO + line.char_time() * 8;
     run_until(&mut line, started + ms(300));
-    let hz = drive(&line, 1).core().model.output_hz();
+    let hz = drive(&mut line, 1).core().model.output_hz();
     assert!((hz - 5.0).abs() < 0.002, "{hz} Hz at 0.3 s");
 
     // MAV follows on simulated time: 10 Hz of 50 Hz is 0x4000 / 5 = 0x0CCD at 0.6 s.
@@ -208,7 +208,7 @@ fn write_4_14_in_ram_and_in_eeprom() {
         reply,
         [0x02, 0x0E, 0x81, 0x11, 0x9E, 0x00, 0x00, 0x00, 0x00, 0x03, 0xE8, 0x06, 0x03, 0x00, 0x00, 0xEC]
     );
-    let core = drive(&line, 1).core();
+    let core = drive(&mut line, 1).core();
     assert_eq!(core.params.get("4-14"), Some(1000));
     assert_eq!(core.params.eeprom_writes("4-14"), Some(0));
     assert_eq!(core.model.settings().max_hz, 100.0);
@@ -218,9 +218,9 @@ fn write_4_14_in_ram_and_in_eeprom() {
     assert_eq!(request.to_vec(), param(0x81, 0xE, 414, 0, 1000));
     let reply = exchange(&mut line, &request);
     assert_eq!(pwe(&reply), 1000);
-    assert_eq!(drive(&line, 1).core().params.eeprom_writes("4-14"), Some(1));
+    assert_eq!(drive(&mut line, 1).core().params.eeprom_writes("4-14"), Some(1));
     exchange(&mut line, &param(0x81, 0xE, 414, 0, 500));
-    let core = drive(&line, 1).core();
+    let core = drive(&mut line, 1).core();
     assert_eq!((core.params.eeprom_writes("4-14"), core.params.total_eeprom_writes()), (Some(2), 2));
     assert_eq!(core.model.settings().max_hz, 50.0);
     // Read back: AK 1 with PWElow 01F4.
@@ -229,9 +229,9 @@ fn write_4_14_in_ram_and_in_eeprom() {
     // A double word (3-41, AK D) in EEPROM: reply AK 2; the ramp follows.
     let reply = exchange(&mut line, &param(0x81, 0xD, 341, 0, 1000));
     assert_eq!((reply[3], pwe(&reply)), (0x21, 1000));
-    assert_eq!(drive(&line, 1).core().params.eeprom_writes("3-41"), Some(1));
+    assert_eq!(drive(&mut line, 1).core().params.eeprom_writes("3-41"), Some(1));
     // 10.00 s from 0 to 50 Hz (1-23) with 4-14 = 50 Hz.
-    assert_eq!(drive(&line, 1).core().model.settings().accel, Duration::from_secs(10));
+    assert_eq!(drive(&mut line, 1).core().model.settings().accel, Duration::from_secs(10));
 }
 
 /// Every fault code of protocols.md 2.4 the drive produces, with its exact reply (drive 1 in
@@ -303,7 +303,7 @@ fn every_fault_code_with_its_reply_bytes() {
         assert_eq!(parsed.fault_code().map(|c| c.0), Some(u16::from(expected[10])), "{what}");
     }
     // Nothing was written.
-    let core = drive(&line, 1).core();
+    let core = drive(&mut line, 1).core();
     assert_eq!((core.params.get("4-14"), core.params.get("3-41")), (Some(650), Some(300)));
 
     // 17 not while running: 4-19 Max Output Frequency (while_running = false).
@@ -314,7 +314,7 @@ fn every_fault_code_with_its_reply_bytes() {
         reply,
         [0x02, 0x0E, 0x81, 0x71, 0xA3, 0x00, 0x00, 0x00, 0x00, 0x00, 0x11, 0x0F, 0x07, 0x20, 0x00, 0x66]
     );
-    assert_eq!(drive(&line, 1).core().params.get("4-19"), Some(1000));
+    assert_eq!(drive(&mut line, 1).core().params.get("4-19"), Some(1000));
     // The same write after a stop is accepted.
     exchange(&mut line, &process(0x81, 0x043C, 0x2000));
     wait(&mut line, ms(2000));
@@ -392,20 +392,20 @@ fn reset_acts_on_the_rising_edge_of_bit_7_only() {
     // 04BC: bit 7 rises: reset.
     let (stw, _) = stw_mav(&exchange(&mut line, &process(0x81, 0x04BC, 0)));
     assert_eq!(stw, STW_READY | 0x0004);
-    assert_eq!(drive(&line, 1).core().model.trip(), None);
+    assert_eq!(drive(&mut line, 1).core().model.trip(), None);
     // Trip again while bit 7 is held: the next 04BC is no edge, so no reset.
     line.drive_mut(1).unwrap().core_mut().model.trip_now(Trip::External);
     let (stw, _) = stw_mav(&exchange(&mut line, &process(0x81, 0x04BC, 0)));
     assert_eq!(stw & 0x0008, 0x0008, "still tripped");
-    assert_eq!(drive(&line, 1).core().model.trip(), Some(Trip::External));
+    assert_eq!(drive(&mut line, 1).core().model.trip(), Some(Trip::External));
     // A word with bit 10 = 0 does not count as bit 7 falling either.
     exchange(&mut line, &process(0x81, 0x0000, 0));
     exchange(&mut line, &process(0x81, 0x04BC, 0));
-    assert_eq!(drive(&line, 1).core().model.trip(), Some(Trip::External));
+    assert_eq!(drive(&mut line, 1).core().model.trip(), Some(Trip::External));
     // 043C then 04BC: an edge, a reset.
     exchange(&mut line, &process(0x81, 0x043C, 0));
     exchange(&mut line, &process(0x81, 0x04BC, 0));
-    assert_eq!(drive(&line, 1).core().model.trip(), None);
+    assert_eq!(drive(&mut line, 1).core().model.trip(), None);
     // 15-30 Alarm Log, newest first: two external trips (alarm 60), then empty.
     for (index, code) in [(0, 60), (1, 60), (2, 0)] {
         let reply = exchange(&mut line, &param(0x81, 0x1, 1530, index, 0));
@@ -419,8 +419,8 @@ fn control_word_with_bit_10_clear_is_ignored() {
     // 047C without bit 10 (007C): nothing starts, the reference is not taken.
     let (stw, _) = stw_mav(&exchange(&mut line, &process(0x81, 0x007C, 0x4000)));
     assert_eq!(stw, STW_READY);
-    assert_eq!(drive(&line, 1).core().model.state(), RunState::Stopped);
-    assert_eq!(drive(&line, 1).core().model.setpoint_hz(), 0.0);
+    assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line, 1).core().model.setpoint_hz(), 0.0);
     exchange(&mut line, &process(0x81, 0x047C, 0x2000));
     wait(&mut line, ms(2000));
     // Ramp stop, coast and a new reference, all without bit 10: the drive keeps running at 25 Hz.
@@ -430,13 +430,13 @@ fn control_word_with_bit_10_clear_is_ignored() {
     }
     // Parameter telegrams carry CTW 0000: they do not stop the drive either.
     exchange(&mut line, &param(0x81, 0x1, 1613, 0, 0));
-    let m = &drive(&line, 1).core().model;
+    let m = &drive(&mut line, 1).core().model;
     assert_eq!((m.state(), m.output_hz(), m.setpoint_hz()), (RunState::Running, 25.0, 25.0));
     // With bit 10: ramp stop (bit 6 = 0), then stopped after 3-42 x 25/50 = 1.5 s.
     let (stw, _) = stw_mav(&exchange(&mut line, &process(0x81, 0x043C, 0x2000)));
     assert_eq!(stw & 0x0100, 0, "no longer at reference");
     wait(&mut line, ms(1600));
-    assert_eq!(drive(&line, 1).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Stopped);
 }
 
 #[test]
@@ -445,10 +445,10 @@ fn coast_and_quick_stop_release_the_motor_at_once() {
     for (ctw, stw) in [(0x0474, STW_READY), (0x046C, STW_READY | 0x0004), (0x0478, STW_READY | 0x0004)] {
         exchange(&mut line, &process(0x81, 0x047C, 0x2000));
         wait(&mut line, ms(2000));
-        assert_eq!(drive(&line, 1).core().model.output_hz(), 25.0);
+        assert_eq!(drive(&mut line, 1).core().model.output_hz(), 25.0);
         let reply = exchange(&mut line, &process(0x81, ctw, 0x2000));
         assert_eq!(stw_mav(&reply), (stw, 0), "CTW {ctw:04X}");
-        assert_eq!(drive(&line, 1).core().model.state(), RunState::Stopped);
+        assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Stopped);
     }
 }
 
@@ -458,21 +458,21 @@ fn jog_runs_at_3_19() {
     // 057C: bit 8 jog; 3-19 = 150 rpm with 2 pole pairs (1-23 50 Hz, 1-25 1420 rpm) = 5 Hz.
     exchange(&mut line, &process(0x81, 0x057C, 0x2000));
     wait(&mut line, ms(1000));
-    let m = &drive(&line, 1).core().model;
+    let m = &drive(&mut line, 1).core().model;
     assert!(m.is_jogging());
     assert_eq!(m.output_hz(), 5.0);
     let reply = exchange(&mut line, &process(0x81, 0x057C, 0x2000));
     // MAV 5 Hz of 50 Hz = 0x0666; speed = reference.
     assert_eq!(stw_mav(&reply), (STW_AT_SPEED, 0x0666));
-    assert!(drive(&line, 1).snapshot().jog);
+    assert!(drive(&mut line, 1).snapshot().jog);
     // 3-19 = 300 rpm: 10 Hz.
     exchange(&mut line, &param(0x81, 0x2, 319, 0, 300));
     wait(&mut line, ms(1000));
-    assert_eq!(drive(&line, 1).core().model.output_hz(), 10.0);
+    assert_eq!(drive(&mut line, 1).core().model.output_hz(), 10.0);
     // Back to 047C: the reference again.
     exchange(&mut line, &process(0x81, 0x047C, 0x2000));
     wait(&mut line, ms(2000));
-    let m = &drive(&line, 1).core().model;
+    let m = &drive(&mut line, 1).core().model;
     assert_eq!((m.is_jogging(), m.output_hz()), (false, 25.0));
 }
 
@@ -484,8 +484,8 @@ fn reverse_with_bit_15_and_with_a_negative_reference() {
     wait(&mut line, ms(2000));
     let reply = exchange(&mut line, &process(0x81, 0x847C, 0x2000));
     assert_eq!(stw_mav(&reply), (STW_AT_SPEED, 0xE000));
-    assert_eq!(drive(&line, 1).core().model.output_rotation(), Rotation::Reverse);
-    assert_eq!(drive(&line, 1).snapshot().direction, "reverse");
+    assert_eq!(drive(&mut line, 1).core().model.output_rotation(), Rotation::Reverse);
+    assert_eq!(drive(&mut line, 1).snapshot().direction, "reverse");
     // Forward again: through zero to +25 Hz (1.5 s down, 1.5 s up).
     exchange(&mut line, &process(0x81, 0x047C, 0x2000));
     wait(&mut line, ms(3100));
@@ -503,7 +503,7 @@ fn reverse_with_bit_15_and_with_a_negative_reference() {
     exchange(&mut line, &param(0x81, 0xE, 410, 0, 0));
     exchange(&mut line, &process(0x81, 0x847C, 0xE000));
     wait(&mut line, ms(2000));
-    assert_eq!(drive(&line, 1).core().model.output_rotation(), Rotation::Forward);
+    assert_eq!(drive(&mut line, 1).core().model.output_rotation(), Rotation::Forward);
 }
 
 #[test]
@@ -514,19 +514,19 @@ fn broadcasts_in_both_formats_are_executed_without_reply() {
     assert!(reply.is_empty(), "{reply:02X?}");
     wait(&mut line, ms(2000));
     for port in 1..=3 {
-        assert_eq!(drive(&line, port).core().model.output_hz(), 25.0, "drive on port {port}");
+        assert_eq!(drive(&mut line, port).core().model.output_hz(), 25.0, "drive on port {port}");
     }
     // Format 1-31: bit 5 (ADR 20, bits 0-4 ignored: 3F too) stops them all.
     let reply = exchange(&mut line, &process(0x3F, 0x043C, 0x2000));
     assert!(reply.is_empty(), "{reply:02X?}");
     wait(&mut line, ms(2000));
     for port in 1..=3 {
-        assert_eq!(drive(&line, port).core().model.state(), RunState::Stopped, "port {port}");
+        assert_eq!(drive(&mut line, port).core().model.state(), RunState::Stopped, "port {port}");
     }
     // A broadcast parameter write is executed too (AK E 4-14 = 60.0 Hz), unanswered.
     assert!(exchange(&mut line, &param(0x20, 0xE, 414, 0, 600)).is_empty());
     for port in 1..=3 {
-        let core = drive(&line, port).core();
+        let core = drive(&mut line, port).core();
         assert_eq!((core.params.get("4-14"), core.params.eeprom_writes("4-14")), (Some(600), Some(1)));
     }
     assert_eq!(line.stats().device_bytes, 0);
@@ -539,12 +539,12 @@ fn other_addresses_bad_bcc_and_cut_telegrams_get_no_reply() {
     for adr in [0x85, 0x05, 0xA1] {
         assert!(exchange(&mut line, &process(adr, 0x047C, 0x2000)).is_empty(), "ADR {adr:02X}");
     }
-    assert_eq!(drive(&line, 1).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Stopped);
     // A bad BCC: silent, and nothing done.
     let mut bad = process(0x81, 0x047C, 0x2000);
     bad[7] ^= 0x01;
     assert!(exchange(&mut line, &bad).is_empty());
-    assert_eq!(drive(&line, 1).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Stopped);
     // A telegram cut short: dropped after the silence; the next one is answered.
     let whole = process(0x81, 0x043C, 0);
     assert!(exchange(&mut line, &whole[..5]).is_empty());
@@ -574,7 +574,7 @@ fn control_timeout_trips_and_15_30_logs_it() {
         exchange(&mut line, &process(0x81, 0x047C, 0x2000));
     }
     assert_ne!(last, line.now());
-    assert_eq!(drive(&line, 1).core().model.trip(), None);
+    assert_eq!(drive(&mut line, 1).core().model.trip(), None);
     // Then silence: the timeout acts 1.0 s after the last telegram's last byte.
     let d = match line.device_mut(1) {
         Some(d) => d.poll_timeout(),
@@ -582,9 +582,9 @@ fn control_timeout_trips_and_15_30_logs_it() {
     };
     let deadline = d.unwrap();
     run_until(&mut line, deadline - Duration::from_micros(1));
-    assert_eq!(drive(&line, 1).core().model.trip(), None);
+    assert_eq!(drive(&mut line, 1).core().model.trip(), None);
     run_until(&mut line, deadline);
-    let m = &drive(&line, 1).core().model;
+    let m = &drive(&mut line, 1).core().model;
     assert_eq!(m.trip(), Some(Trip::CommunicationTimeout));
     assert_eq!(m.trip_log().last().map(|r| r.at), Some(deadline));
     // The reply shows the trip; 15-30[0] holds alarm 17 "control word timeout".
@@ -593,7 +593,7 @@ fn control_timeout_trips_and_15_30_logs_it() {
         reply,
         [0x02, 0x0E, 0x81, 0x15, 0xFA, 0x00, 0x00, 0x00, 0x00, 0x00, 0x11, 0x06, 0x08, 0x00, 0x00, 0x7D]
     );
-    assert_eq!(drive(&line, 1).snapshot().trip.as_deref(), Some("communication time-out"));
+    assert_eq!(drive(&mut line, 1).snapshot().trip.as_deref(), Some("communication time-out"));
     // Reset on the edge of bit 7; start again.
     exchange(&mut line, &process(0x81, 0x043C, 0x2000));
     let (stw, _) = stw_mav(&exchange(&mut line, &process(0x81, 0x04FC, 0x2000)));
@@ -607,10 +607,10 @@ fn control_timeout_stop_function_resumes_with_the_next_telegram() {
     exchange(&mut line, &param(0x81, 0xE, 804, 0, 2));
     exchange(&mut line, &process(0x81, 0x047C, 0x2000));
     wait(&mut line, ms(2000));
-    let m = &drive(&line, 1).core().model;
+    let m = &drive(&mut line, 1).core().model;
     assert_eq!((m.trip(), m.state()), (None, RunState::Stopped), "8-04 = 2 stops without a trip");
     exchange(&mut line, &process(0x81, 0x047C, 0x2000));
-    assert_eq!(drive(&line, 1).core().model.state(), RunState::Running);
+    assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Running);
 }
 
 #[test]
@@ -618,7 +618,7 @@ fn address_8_31_and_snapshot() {
     let mut line = line_with(&[1]);
     assert!(DanfossDrive::new(0, Instant::ZERO).is_err());
     assert!(DanfossDrive::new(127, Instant::ZERO).is_err());
-    let d = drive(&line, 1);
+    let d = drive(&mut line, 1);
     assert_eq!((d.protocol().as_str(), d.family().as_str()), ("danfoss-fc", "danfoss"));
     assert_eq!(d.core().params.get("8-31"), Some(1));
     assert_eq!(
@@ -633,13 +633,13 @@ fn address_8_31_and_snapshot() {
     assert_eq!((reply[2], pwe(&reply)), (0x81, 9));
     assert!(exchange(&mut line, &process(0x81, 0x043C, 0)).is_empty());
     assert_eq!(exchange(&mut line, &process(0x89, 0x043C, 0)).len(), 8);
-    assert_eq!(drive(&line, 1).snapshot().address, 9);
+    assert_eq!(drive(&mut line, 1).snapshot().address, 9);
     // 8-02 = option A: the control word no longer acts, bus control is off.
     exchange(&mut line, &param(0x89, 0xE, 802, 0, 3));
     let (stw, _) = stw_mav(&exchange(&mut line, &process(0x89, 0x047C, 0x2000)));
     assert_eq!(stw & 0x0A00, 0, "no bus control, not in operation");
     // The drive adopts the core's response delay (8-35 = 10 ms by default).
-    assert_eq!(drive(&line, 1).core().response_delay, ms(10));
+    assert_eq!(drive(&mut line, 1).core().response_delay, ms(10));
 }
 
 #[test]
@@ -649,7 +649,7 @@ fn reference_range_and_ramp_2_follow_their_parameters() {
     wait(&mut line, ms(2000));
     // 3-03 Maximum Reference = 40.000 Hz (Int32, AK D): 50 % is now 20 Hz.
     exchange(&mut line, &param(0x81, 0xD, 303, 0, 40_000));
-    assert_eq!(drive(&line, 1).core().model.setpoint_hz(), 20.0);
+    assert_eq!(drive(&mut line, 1).core().model.setpoint_hz(), 20.0);
     wait(&mut line, ms(2000));
     let reply = exchange(&mut line, &process(0x81, 0x047C, 0x2000));
     assert_eq!(stw_mav(&reply), (STW_AT_SPEED, 0x2000));
@@ -657,13 +657,13 @@ fn reference_range_and_ramp_2_follow_their_parameters() {
     exchange(&mut line, &param(0x81, 0x3, 351, 0, 100));
     exchange(&mut line, &process(0x81, 0x043C, 0x2000));
     wait(&mut line, ms(2000));
-    assert_eq!(drive(&line, 1).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line, 1).core().model.state(), RunState::Stopped);
     exchange(&mut line, &process(0x81, 0x067C, 0x2000));
-    assert_eq!(drive(&line, 1).core().model.settings().accel, ms(1300), "65 Hz / 50 Hz x 1.00 s");
+    assert_eq!(drive(&mut line, 1).core().model.settings().accel, ms(1300), "65 Hz / 50 Hz x 1.00 s");
     wait(&mut line, ms(450));
-    assert_eq!(drive(&line, 1).core().model.output_hz(), 20.0);
+    assert_eq!(drive(&mut line, 1).core().model.output_hz(), 20.0);
     // Bit 05 = 0 holds the output: a new reference is not followed.
     exchange(&mut line, &process(0x81, 0x065C, 0x4000));
     wait(&mut line, ms(1000));
-    assert_eq!(drive(&line, 1).core().model.output_hz(), 20.0);
+    assert_eq!(drive(&mut line, 1).core().model.output_hz(), 20.0);
 }

@@ -94,7 +94,7 @@ fn write1(line: &mut VirtualLine, register: u16, value: u16) {
     assert_eq!(exchange(line, &request), request, "06 echo for {register:04X}H = {value}");
 }
 
-fn drive(line: &VirtualLine) -> &dyn VirtualDrive {
+fn drive(line: &mut VirtualLine) -> &dyn VirtualDrive {
     line.drive(1).expect("port 1 holds a virtual drive")
 }
 
@@ -118,7 +118,7 @@ fn seed_ascii_write_p0_02_is_echoed_and_stored() {
     let mut line = ascii_line();
     let request = b":0106000213885C\r\n";
     assert_eq!(exchange(&mut line, request), request.to_vec());
-    let params = &drive(&line).core().params;
+    let params = &drive(&mut line).core().params;
     assert_eq!(params.get("P0.02"), Some(5000));
     assert_eq!(params.eeprom_writes("P0.02"), Some(1));
 }
@@ -129,7 +129,7 @@ fn seed_rtu_write_is_echoed() {
     let mut line = rtu_line();
     let request = [0x01, 0x06, 0x00, 0x02, 0x13, 0x88, 0x25, 0x5C];
     assert_eq!(exchange(&mut line, &request), request);
-    assert_eq!(drive(&line).core().params.get("P0.02"), Some(5000));
+    assert_eq!(drive(&mut line).core().params.get("P0.02"), Some(5000));
 }
 
 #[test]
@@ -231,14 +231,14 @@ fn bad_crc_and_bad_lrc_are_discarded_without_a_word() {
     let mut request = write_req(1, reg::FREQUENCY, 1000);
     request[7] ^= 0x01;
     assert!(exchange(&mut line, &request).is_empty());
-    assert_eq!(drive(&line).snapshot().setpoint_hz, 0.0);
+    assert_eq!(drive(&mut line).snapshot().setpoint_hz, 0.0);
     // The next good frame is answered.
     assert_eq!(read1(&mut line, reg::FREQUENCY), 0);
 
     let mut line = ascii_line();
     assert!(exchange(&mut line, b":0106000213885D\r\n").is_empty());
-    assert_eq!(drive(&line).core().params.get("P0.02"), Some(5000), "the default, unchanged");
-    assert_eq!(drive(&line).core().params.eeprom_writes("P0.02"), Some(0));
+    assert_eq!(drive(&mut line).core().params.get("P0.02"), Some(5000), "the default, unchanged");
+    assert_eq!(drive(&mut line).core().params.eeprom_writes("P0.02"), Some(0));
     assert_eq!(line.stats().device_bytes, 0);
 }
 
@@ -257,7 +257,7 @@ fn exception_01_for_every_function_but_03_06_08() {
     // 10 write multiple registers: refused, not executed.
     let reply = exchange(&mut line, &rtu(&[0x01, 0x10, 0x20, 0x01, 0x00, 0x01, 0x02, 0x03, 0xE8]));
     assert_eq!(reply, [0x01, 0x90, 0x01, 0x8D, 0xC0]);
-    assert_eq!(drive(&line).snapshot().setpoint_hz, 0.0);
+    assert_eq!(drive(&mut line).snapshot().setpoint_hz, 0.0);
     // 01 read coils, 05 write coil, 2B/0E device identification.
     assert_eq!(exchange(&mut line, &rtu(&[0x01, 0x01, 0x00, 0x00, 0x00, 0x08])), rtu(&[0x01, 0x81, 0x01]));
     assert_eq!(exchange(&mut line, &rtu(&[0x01, 0x05, 0x00, 0x00, 0xFF, 0x00])), rtu(&[0x01, 0x85, 0x01]));
@@ -326,7 +326,7 @@ fn exception_03_for_values_out_of_range_and_reads_over_8_bytes() {
     assert_eq!(exchange(&mut line, &write_req(1, 0x0007, 0)), rtu(&[0x01, 0x86, 0x03]));
     // P0.02 above P0.04.
     assert_eq!(exchange(&mut line, &write_req(1, 0x0002, 6000)), rtu(&[0x01, 0x86, 0x03]));
-    let params = &drive(&line).core().params;
+    let params = &drive(&mut line).core().params;
     assert_eq!((params.get("P0.07"), params.get("P0.02")), (Some(100), Some(5000)));
     assert_eq!(params.total_eeprom_writes(), 0, "refused writes never reach the EEPROM");
 
@@ -359,7 +359,7 @@ fn run_at_40_hz_ramps_the_output_frequency() {
     // Read at the end of this request (4 s + the reply + 8 characters): about 20.1 Hz.
     assert!((2000..2020).contains(&f), "about 20.00 Hz 4 s into the ramp, got {f}");
     let now = line.now();
-    let out = drive(&line).core().model.output_mhz();
+    let out = drive(&mut line).core().model.output_mhz();
     assert!((expected_mhz(now) - 2..=expected_mhz(now)).contains(&out), "{out} mHz at {now:?}");
     // Reaches 40.00 Hz at 8 s and stays.
     line.advance_to(started + Duration::from_millis(7980));
@@ -440,36 +440,36 @@ fn reverse_prohibited_by_p0_03_is_refused() {
     write1(&mut line, 0x0003, 2);
     assert_eq!(exchange(&mut line, &write_req(1, reg::COMMAND, 3)), rtu(&[0x01, 0x86, 0x03]));
     assert_eq!(exchange(&mut line, &write_req(1, reg::COMMAND, 6)), rtu(&[0x01, 0x86, 0x03]));
-    assert_eq!(drive(&line).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line).core().model.state(), RunState::Stopped);
     write1(&mut line, reg::COMMAND, 2);
-    assert_eq!(drive(&line).core().model.state(), RunState::Running);
+    assert_eq!(drive(&mut line).core().model.state(), RunState::Running);
 }
 
 #[test]
 fn run_commands_need_p0_01_communication() {
     let mut line = rtu_line();
-    assert_eq!(drive(&line).control_source(), "P0.01 = 2 communication");
+    assert_eq!(drive(&mut line).control_source(), "P0.01 = 2 communication");
     // P0.01 = 0: keypad. Run and stop from the line are refused with 03.
     write1(&mut line, 0x0001, 0);
-    assert_eq!(drive(&line).control_source(), "P0.01 = 0 keypad");
+    assert_eq!(drive(&mut line).control_source(), "P0.01 = 0 keypad");
     assert_eq!(read1(&mut line, reg::STATUS) & status::RUN_FROM_COMM, 0);
     for command in [1, 2, 4, 7, 8] {
         assert_eq!(exchange(&mut line, &write_req(1, reg::COMMAND, command)), rtu(&[0x01, 0x86, 0x03]));
     }
-    assert_eq!(drive(&line).core().model.state(), RunState::Stopped);
+    assert_eq!(drive(&mut line).core().model.state(), RunState::Stopped);
     // A fault reset is accepted from any control source.
     drive_mut(&mut line).core_mut().model.trip_now(Trip::External);
     write1(&mut line, reg::COMMAND, 0x0A);
-    assert_eq!(drive(&line).core().model.trip(), None);
+    assert_eq!(drive(&mut line).core().model.trip(), None);
     // Back to communication: the drive runs.
     write1(&mut line, 0x0001, 2);
     write1(&mut line, reg::COMMAND, 1);
-    assert_eq!(drive(&line).core().model.state(), RunState::Running);
+    assert_eq!(drive(&mut line).core().model.state(), RunState::Running);
     // Terminal control refuses a stop from the line too.
     write1(&mut line, 0x0001, 1);
     assert_eq!(exchange(&mut line, &write_req(1, reg::COMMAND, 7)), rtu(&[0x01, 0x86, 0x03]));
-    assert_eq!(drive(&line).core().model.state(), RunState::Running);
-    assert_eq!(drive(&line).core().params.eeprom_writes("P0.01"), Some(3));
+    assert_eq!(drive(&mut line).core().model.state(), RunState::Running);
+    assert_eq!(drive(&mut line).core().params.eeprom_writes("P0.01"), Some(3));
 }
 
 #[test]
@@ -495,7 +495,7 @@ fn trips_show_in_2100h_refuse_run_and_reset_with_0a() {
     write1(&mut line, reg::COMMAND, 0x0A);
     assert_eq!(read1(&mut line, reg::FAULT_CODE), 0);
     write1(&mut line, reg::COMMAND, 2);
-    assert_eq!(drive(&line).core().model.state(), RunState::Running);
+    assert_eq!(drive(&mut line).core().model.state(), RunState::Running);
     // A second fault moves the first to P4.01.
     drive_mut(&mut line).core_mut().model.trip_now(Trip::External);
     assert_eq!(read1(&mut line, reg::FAULT_CODE), 5);
@@ -525,7 +525,7 @@ fn communication_timeout_trips_with_code_6() {
         assert_eq!(read1(&mut line, reg::FAULT_CODE), 0);
     }
     wait(&mut line, Duration::from_millis(2100));
-    assert_eq!(drive(&line).core().model.trip(), Some(Trip::CommunicationTimeout));
+    assert_eq!(drive(&mut line).core().model.trip(), Some(Trip::CommunicationTimeout));
     assert_eq!(read1(&mut line, reg::FAULT_CODE), 6);
     // P3.14 = 0: alarm only, no trip.
     write1(&mut line, reg::COMMAND, 0x0A);
@@ -550,11 +550,11 @@ fn parameter_writes_check_range_read_only_running_and_count_eeprom() {
     for v in [1000, 2000, 3000, 4000] {
         write1(&mut line, reg::FREQUENCY, v);
     }
-    let params = &drive(&line).core().params;
+    let params = &drive(&mut line).core().params;
     assert_eq!(params.eeprom_writes("P0.02"), Some(3));
     assert_eq!(params.eeprom_writes("2001H"), Some(0));
     assert_eq!(params.total_eeprom_writes(), 3);
-    assert_eq!(drive(&line).snapshot().eeprom_writes, 3);
+    assert_eq!(drive(&mut line).snapshot().eeprom_writes, 3);
     // The starting values the simulator forces cost nothing and read back.
     assert_eq!(read1(&mut line, 0x0000), 4, "P0.00 = 4 communication");
     assert_eq!(read1(&mut line, 0x0001), 2, "P0.01 = 2 communication");
@@ -575,14 +575,14 @@ fn parameter_writes_check_range_read_only_running_and_count_eeprom() {
     write1(&mut line, reg::COMMAND, 2);
     assert_eq!(exchange(&mut line, &write_req(1, 0x0004, 6000)), rtu(&[0x01, 0x86, 0x03]));
     write1(&mut line, 0x0007, 50); // 5.0 s
-    assert_eq!(drive(&line).core().model.settings().accel, Duration::from_secs(5));
+    assert_eq!(drive(&mut line).core().model.settings().accel, Duration::from_secs(5));
     write1(&mut line, reg::COMMAND, 8);
     // Stopped: P0.04 = 60.00 Hz takes, 2001H may now go to 60 Hz, the ramp reference changes.
     write1(&mut line, 0x0004, 6000);
-    assert_eq!(drive(&line).core().model.settings().max_hz, 60.0);
+    assert_eq!(drive(&mut line).core().model.settings().max_hz, 60.0);
     write1(&mut line, 0x0005, 6000);
     write1(&mut line, reg::FREQUENCY, 6000);
-    assert_eq!(drive(&line).snapshot().setpoint_hz, 60.0);
+    assert_eq!(drive(&mut line).snapshot().setpoint_hz, 60.0);
     // The upper limit P0.05 limits the setpoint.
     write1(&mut line, 0x0005, 4500);
     assert_eq!(read1(&mut line, reg::SET_FREQUENCY), 4500);
@@ -616,7 +616,7 @@ fn factory_reset_keeps_communication_and_address_change_takes_effect_after_the_r
     assert_eq!(read1(&mut line, 0x0007), 100, "P0.07 back to its default");
     assert_eq!(read1(&mut line, 0x0001), 2, "P0.01 back to the simulator's starting value");
     assert_eq!(read1(&mut line, 0x0312), 20, "P3.12 kept");
-    assert_eq!(drive(&line).core().model.settings().accel, Duration::from_secs(10));
+    assert_eq!(drive(&mut line).core().model.settings().accel, Duration::from_secs(10));
 
     // P3.12 = 20 ms: the reply starts 20 ms after the request.
     let t0 = line.now();
@@ -636,7 +636,7 @@ fn factory_reset_keeps_communication_and_address_change_takes_effect_after_the_r
     assert!(exchange(&mut line, &read_req(1, reg::STATUS, 1)).is_empty());
     let reply = exchange(&mut line, &read_req(7, 0x0311, 1));
     assert_eq!(reply, rtu(&[0x07, 0x03, 0x02, 0x00, 0x07]));
-    assert_eq!(drive(&line).snapshot().address, 7);
+    assert_eq!(drive(&mut line).snapshot().address, 7);
 }
 
 #[test]
@@ -651,7 +651,7 @@ fn ascii_reads_and_writes_the_same_map() {
     // Lower-case hex digits are accepted; the reply is upper case.
     assert_eq!(exchange(&mut line, b":010321020001d8\r\n"), b":0103020FA04B\r\n");
     assert_eq!(read_ascii_p3_10(&mut line), 0, "P3.10 = 0 ASCII 1-7-2");
-    assert_eq!(drive(&line).protocol(), "modbus-ascii");
+    assert_eq!(drive(&mut line).protocol(), "modbus-ascii");
 }
 
 fn read_ascii_p3_10(line: &mut VirtualLine) -> u16 {
@@ -722,9 +722,9 @@ fn a_master_session_runs_the_drive() {
     // A broadcast stop through the session: no reply, the drive stops.
     let stop = Request::write_single_register(UnitId::BROADCAST, reg::COMMAND, 8);
     assert_eq!(transact(&mut line, &mut master, &stop), None);
-    assert_eq!(drive(&line).core().model.output_hz(), 0.0);
+    assert_eq!(drive(&mut line).core().model.output_hz(), 0.0);
     // The forced starting values cost no EEPROM write.
-    assert_eq!(drive(&line).core().params.total_eeprom_writes(), 0);
+    assert_eq!(drive(&mut line).core().params.total_eeprom_writes(), 0);
 }
 
 #[test]

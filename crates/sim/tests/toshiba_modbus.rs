@@ -44,11 +44,11 @@ fn rtu(body: &[u8]) -> Vec<u8> {
     f
 }
 
-fn model(line: &VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
+fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
     &line.drive(port).unwrap().core().model
 }
 
-fn params(line: &VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
+fn params(line: &mut VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
     &line.drive(port).unwrap().core().params
 }
 
@@ -75,7 +75,7 @@ fn tm1_tm2_output_frequency_after_the_ramp() {
     wait(&mut line, Duration::from_secs(4));
     // seed 002: "Reading output frequency (During 60Hz operation)": 01 03 02 17 70 B6 50.
     assert_eq!(exchange(&mut line, &tm1), [0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50]);
-    assert_eq!(model(&line, 1).output_hz(), 60.0);
+    assert_eq!(model(&mut line, 1).output_hz(), 60.0);
 }
 
 #[test]
@@ -97,7 +97,7 @@ fn every_exception() {
     assert_eq!(exchange(&mut line, &rtu(&[0x01, 0x04, 0xFD, 0x00, 0x00, 0x01])), rtu(&[0x01, 0x84, 0x01]));
     let w10 = rtu(&[0x01, 0x10, 0xFA, 0x00, 0x00, 0x02, 0x04, 0xC4, 0x00, 0x17, 0x70]);
     assert_eq!(exchange(&mut line, &w10), rtu(&[0x01, 0x90, 0x01]));
-    assert_eq!(params(&line, 1).get(0xFA00u32), Some(0));
+    assert_eq!(params(&mut line, 1).get(0xFA00u32), Some(0));
     // 02 illegal data address. manual VF-S15 p.31: 01 06 FF FF 00 00 89 EE -> 01 86 02 C3 A1.
     assert_eq!(
         exchange(&mut line, &[0x01, 0x06, 0xFF, 0xFF, 0x00, 0x00, 0x89, 0xEE]),
@@ -112,8 +112,8 @@ fn every_exception() {
     assert_eq!(exchange(&mut line, &rtu(&[0x01, 0x06, 0xFD, 0x00, 0x00, 0x00])), rtu(&[0x01, 0x86, 0x04]));
     // A bad CRC: no reply.
     assert_eq!(exchange(&mut line, &[0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA7]), b"");
-    assert_eq!(params(&line, 1).get(0x0011u32), Some(8000));
-    assert_eq!(params(&line, 1).get(0x0010u32), Some(100));
+    assert_eq!(params(&mut line, 1).get(0x0011u32), Some(8000));
+    assert_eq!(params(&mut line, 1).get(0x0010u32), Some(100));
 }
 
 #[test]
@@ -148,10 +148,10 @@ fn broadcast_executed_without_reply_and_other_numbers_silent() {
     let mut line = line_with(&[1, 2]);
     let bcast = rtu(&[0x00, 0x06, 0xFA, 0x01, 0x17, 0x70]);
     assert_eq!(exchange(&mut line, &bcast), b"");
-    assert_eq!(params(&line, 1).get(0xFA01u32), Some(0x1770));
-    assert_eq!(params(&line, 2).get(0xFA01u32), Some(0x1770));
+    assert_eq!(params(&mut line, 1).get(0xFA01u32), Some(0x1770));
+    assert_eq!(params(&mut line, 2).get(0xFA01u32), Some(0x1770));
     assert_eq!(exchange(&mut line, &rtu(&[0x00, 0x06, 0xFA, 0x00, 0xC4, 0x00])), b"");
-    assert!(model(&line, 1).is_running() && model(&line, 2).is_running());
+    assert!(model(&mut line, 1).is_running() && model(&mut line, 2).is_running());
     // A broadcast that fails is not answered either.
     assert_eq!(exchange(&mut line, &rtu(&[0x00, 0x06, 0xFF, 0xFF, 0x00, 0x00])), b"");
     // Number 3 is not on the line; number 2 answers alone.
@@ -169,9 +169,9 @@ fn write_counts_eeprom_except_fa_numbers() {
     let mut line = line_with(&[1]);
     let dec = rtu(&[0x01, 0x06, 0x00, 0x10, 0x00, 0x64]);
     assert_eq!(exchange(&mut line, &dec), dec);
-    assert_eq!(params(&line, 1).eeprom_writes(0x0010u32), Some(1));
+    assert_eq!(params(&mut line, 1).eeprom_writes(0x0010u32), Some(1));
     run_60(&mut line);
-    assert_eq!(params(&line, 1).total_eeprom_writes(), 1, "FA00/FA01 are RAM only");
+    assert_eq!(params(&mut line, 1).total_eeprom_writes(), 1, "FA00/FA01 are RAM only");
     assert_eq!(
         exchange(&mut line, &rtu(&[0x01, 0x03, 0xFA, 0x00, 0x00, 0x01])),
         rtu(&[0x01, 0x03, 0x02, 0xC4, 0x00])
@@ -185,9 +185,9 @@ fn comm_timeout_trips_and_fc90_shows_err5() {
     exchange(&mut line, &rtu(&[0x01, 0x06, 0x08, 0x04, 0x00, 0x01]));
     exchange(&mut line, &rtu(&[0x01, 0x06, 0x08, 0x03, 0x00, 0x01]));
     wait(&mut line, Duration::from_millis(900));
-    assert_eq!(model(&line, 1).trip(), None);
+    assert_eq!(model(&mut line, 1).trip(), None);
     wait(&mut line, Duration::from_millis(200));
-    assert_eq!(model(&line, 1).trip(), Some(Trip::CommunicationTimeout));
+    assert_eq!(model(&mut line, 1).trip(), Some(Trip::CommunicationTimeout));
     let fc90 = exchange(&mut line, &rtu(&[0x01, 0x03, 0xFC, 0x90, 0x00, 0x01]));
     assert_eq!(fc90, rtu(&[0x01, 0x03, 0x02, 0x00, TRIP_ERR5_COMMUNICATION as u8]));
     // FD01: tripped and FL.
@@ -196,7 +196,7 @@ fn comm_timeout_trips_and_fc90_shows_err5() {
     // Fault reset (FA00 bit 13 with bit 15).
     let reset = rtu(&[0x01, 0x06, 0xFA, 0x00, 0xA0, 0x00]);
     assert_eq!(exchange(&mut line, &reset), reset);
-    assert_eq!(model(&line, 1).trip(), None);
+    assert_eq!(model(&mut line, 1).trip(), None);
 }
 
 #[test]
@@ -246,6 +246,6 @@ fn constructor_checks_numbers_and_snapshot_names_the_protocol() {
     assert_eq!(snap.eeprom_writes, 0);
     assert!(snap.control_source.starts_with("communication"), "{}", snap.control_source);
     // f829 = 1 and f802 = 5 were set by the constructor.
-    let p = params(&line, 1);
+    let p = params(&mut line, 1);
     assert_eq!((p.get(0x0829u32), p.get(0x0802u32)), (Some(1), Some(5)));
 }

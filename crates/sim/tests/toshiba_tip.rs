@@ -46,11 +46,11 @@ fn bin(body: &[u8]) -> Vec<u8> {
     f
 }
 
-fn model(line: &VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
+fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
     &line.drive(port).unwrap().core().model
 }
 
-fn params(line: &VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
+fn params(line: &mut VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
     &line.drive(port).unwrap().core().params
 }
 
@@ -63,7 +63,7 @@ fn ta4_ta5_read_output_current() {
     exchange(&mut line, b"(PFA011770)\r");
     exchange(&mut line, b"(PFA00C400)\r");
     wait(&mut line, Duration::from_secs(10));
-    let amps = model(&line, 1).current_a();
+    let amps = model(&mut line, 1).current_a();
     assert!(amps > 0.0);
     let expect = format!("(RFE03{:04X})\r", (amps / 17.5 * 10000.0).round() as u16);
     assert_eq!(exchange(&mut line, b"(RFE03)\r"), expect.as_bytes());
@@ -75,18 +75,18 @@ fn ta7_w_writes_eeprom_p_writes_ram() {
     let mut line = line_with(&[0]);
     // manual VF-AS1 p.17: W 0010 = 0064 writes 10.0 s; the reply echoes it.
     assert_eq!(exchange(&mut line, b"(W00100064)\r"), b"(W00100064)\r");
-    assert_eq!(params(&line, 1).eeprom_writes(0x0010u32), Some(1));
+    assert_eq!(params(&mut line, 1).eeprom_writes(0x0010u32), Some(1));
     // P writes RAM only: the value changes, the EEPROM count does not.
     assert_eq!(exchange(&mut line, b"(P00100032)\r"), b"(P00100032)\r");
-    assert_eq!(params(&line, 1).get(0x0010u32), Some(0x32));
-    assert_eq!(params(&line, 1).eeprom_writes(0x0010u32), Some(1));
-    assert_eq!(model(&line, 1).settings().decel, Duration::from_secs(5), "dEC re-derived");
+    assert_eq!(params(&mut line, 1).get(0x0010u32), Some(0x32));
+    assert_eq!(params(&mut line, 1).eeprom_writes(0x0010u32), Some(1));
+    assert_eq!(model(&mut line, 1).settings().decel, Duration::from_secs(5), "dEC re-derived");
     // Fewer than 4 data digits are echoed as 4 (project decision).
     assert_eq!(exchange(&mut line, b"(P001064)\r"), b"(P00100064)\r");
     // W to FA01 is RAM only: no EEPROM write.
     assert_eq!(exchange(&mut line, b"(WFA011770)\r"), b"(WFA011770)\r");
-    assert_eq!(params(&line, 1).eeprom_writes(0xFA01u32), Some(0));
-    assert_eq!(params(&line, 1).total_eeprom_writes(), 1);
+    assert_eq!(params(&mut line, 1).eeprom_writes(0xFA01u32), Some(0));
+    assert_eq!(params(&mut line, 1).total_eeprom_writes(), 1);
     // With &SUM the reply carries one too.
     let mut req = b"(R0010&".to_vec();
     req.extend(format!("{:02X})\r", sum8(&req)).bytes());
@@ -106,11 +106,11 @@ fn tb1_tb2_binary_read_and_write_echo() {
     // manual VF-AS1 p.17: "2F 57 00 10 00 64 FA"; the reply is identical.
     let tb2 = [0x2F, 0x57, 0x00, 0x10, 0x00, 0x64, 0xFA];
     assert_eq!(exchange(&mut line, &tb2), tb2);
-    assert_eq!(params(&line, 1).eeprom_writes(0x0010u32), Some(1));
+    assert_eq!(params(&mut line, 1).eeprom_writes(0x0010u32), Some(1));
     // P (50H) in binary mode: RAM only.
     let p = bin(&[0x2F, 0x50, 0x00, 0x10, 0x00, 0x32]);
     assert_eq!(exchange(&mut line, &p), p);
-    assert_eq!(params(&line, 1).eeprom_writes(0x0010u32), Some(1));
+    assert_eq!(params(&mut line, 1).eeprom_writes(0x0010u32), Some(1));
     // G (47H) reads with dummy data.
     let g = bin(&[0x2F, 0x47, 0x00, 0x10, 0x00, 0x00]);
     assert_eq!(exchange(&mut line, &g), bin(&[0x2F, 0x47, 0x00, 0x10, 0x00, 0x32]));
@@ -125,12 +125,12 @@ fn tb14_block_communication() {
     // manual VF-AS1 p.16: the SUM D8 is wrong (D9 is right): checksum error 0004.
     let tb14 = [0x2F, 0x58, 0x02, 0x05, 0xC4, 0x00, 0x17, 0x70, 0xD8];
     assert_eq!(exchange(&mut line, &tb14), [0x2F, 0x4E, 0x00, 0x04, 0x81]);
-    assert!(!model(&line, 1).is_running());
+    assert!(!model(&mut line, 1).is_running());
     // With D9: FA00 = C400 (run forward, both priorities), FA01 = 60.00 Hz; 5 read items
     // FD01, FD00, FE03, FC90, FE05 (f875-f879 defaults).
     let good = [0x2F, 0x58, 0x02, 0x05, 0xC4, 0x00, 0x17, 0x70, 0xD9];
     let reply = exchange(&mut line, &good);
-    assert!(model(&line, 1).is_running());
+    assert!(model(&mut line, 1).is_running());
     assert_eq!(reply.len(), 3 + 2 * 5 + 1);
     assert_eq!(&reply[..3], [0x2F, 0x59, 0x05]);
     assert_eq!(*reply.last().unwrap(), sum8(&reply[..reply.len() - 1]));
@@ -144,18 +144,18 @@ fn tb14_block_communication() {
     // nR over 5: a reply with no read groups; the write is still done.
     let stop = bin(&[0x2F, 0x58, 0x01, 0x06, 0xC0, 0x00]);
     assert_eq!(exchange(&mut line, &stop), bin(&[0x2F, 0x59, 0x00]));
-    assert_eq!(params(&line, 1).get(0xFA00u32), Some(0xC000));
+    assert_eq!(params(&mut line, 1).get(0xFA00u32), Some(0xC000));
     // nW over 2: format error, no reply, nothing done.
     let bad = bin(&[0x2F, 0x58, 0x03, 0x01, 0xC4, 0x00, 0x17, 0x70, 0x00, 0x00]);
     assert_eq!(exchange(&mut line, &bad), b"");
-    assert_eq!(params(&line, 1).get(0xFA00u32), Some(0xC000));
+    assert_eq!(params(&mut line, 1).get(0xFA00u32), Some(0xC000));
     // The write targets follow f870/f871: swap them.
     exchange(&mut line, b"(P08700003)\r");
     exchange(&mut line, b"(P08710001)\r");
     let swapped = bin(&[0x2F, 0x58, 0x02, 0x00, 0x0B, 0xB8, 0xC4, 0x00]);
     assert_eq!(exchange(&mut line, &swapped), bin(&[0x2F, 0x59, 0x00]));
-    assert_eq!(params(&line, 1).get(0xFA01u32), Some(3000));
-    assert_eq!(params(&line, 1).get(0xFA00u32), Some(0xC400));
+    assert_eq!(params(&mut line, 1).get(0xFA01u32), Some(3000));
+    assert_eq!(params(&mut line, 1).get(0xFA00u32), Some(0xC400));
 }
 
 #[test]
@@ -166,12 +166,12 @@ fn ta13_ascii_wildcard_smallest_number_answers() {
     // Every matching drive acts, only 02 answers; 03 does not match.
     assert_eq!(exchange(&mut line, b"(*2PFA011770)\r"), b"(02PFA011770)\r");
     for port in 1..=3 {
-        assert_eq!(params(&line, port).get(0xFA01u32), Some(0x1770), "port {port}");
+        assert_eq!(params(&mut line, port).get(0xFA01u32), Some(0x1770), "port {port}");
     }
-    assert_eq!(params(&line, 4).get(0xFA01u32), Some(0));
+    assert_eq!(params(&mut line, 4).get(0xFA01u32), Some(0));
     // A pattern whose smallest number is not on the line: all act, none answers.
     assert_eq!(exchange(&mut line, b"(1*PFA010BB8)\r"), b"");
-    assert_eq!(params(&line, 2).get(0xFA01u32), Some(0x0BB8));
+    assert_eq!(params(&mut line, 2).get(0xFA01u32), Some(0x0BB8));
     // Another number: silence.
     assert_eq!(exchange(&mut line, b"(05RFD00)\r"), b"");
     assert_eq!(exchange(&mut line, b"(12RFA01)\r"), b"(12RFA010BB8)\r");
@@ -185,13 +185,13 @@ fn binary_broadcast_only_inverter_00_answers() {
     // A broadcast write acts on both.
     let write = bin(&[0x2F, 0xFF, 0x50, 0xFA, 0x01, 0x17, 0x70]);
     assert_eq!(exchange(&mut line, &write), bin(&[0x2F, 0x00, 0x50, 0xFA, 0x01, 0x17, 0x70]));
-    assert_eq!(params(&line, 1).get(0xFA01u32), Some(0x1770));
-    assert_eq!(params(&line, 2).get(0xFA01u32), Some(0x1770));
+    assert_eq!(params(&mut line, 1).get(0xFA01u32), Some(0x1770));
+    assert_eq!(params(&mut line, 2).get(0xFA01u32), Some(0x1770));
     // Without inverter 00 a broadcast is executed and never answered.
     let mut line = line_with(&[1, 2]);
     assert_eq!(exchange(&mut line, &write), b"");
-    assert_eq!(params(&line, 1).get(0xFA01u32), Some(0x1770));
-    assert_eq!(params(&line, 2).get(0xFA01u32), Some(0x1770));
+    assert_eq!(params(&mut line, 1).get(0xFA01u32), Some(0x1770));
+    assert_eq!(params(&mut line, 2).get(0xFA01u32), Some(0x1770));
     // Another number: silence.
     assert_eq!(exchange(&mut line, &bin(&[0x2F, 0x05, 0x52, 0xFD, 0x00])), b"");
 }
@@ -228,8 +228,8 @@ fn every_ascii_error_code() {
     assert_eq!(exchange(&mut line, b"(R11)\r"), b"");
     assert_eq!(exchange(&mut line, b"(R0000]\r"), b"");
     // Refused writes changed nothing, counted nothing.
-    assert_eq!(params(&line, 1).get(0x0011u32), Some(8000));
-    assert_eq!(params(&line, 1).total_eeprom_writes(), 0);
+    assert_eq!(params(&mut line, 1).get(0x0011u32), Some(8000));
+    assert_eq!(params(&mut line, 1).total_eeprom_writes(), 0);
 }
 
 #[test]
@@ -270,8 +270,8 @@ fn lower_case_while_tripped() {
     run_at(&mut line, "1770");
     // FA00 bit 12, emergency stop (with bit 15): the drive trips E; the reply is already lower case.
     assert_eq!(exchange(&mut line, b"(PFA009000)\r"), b"(pFA009000)\r");
-    assert_eq!(model(&line, 1).trip(), Some(Trip::External));
-    assert_eq!(model(&line, 1).output_hz(), 0.0);
+    assert_eq!(model(&mut line, 1).trip(), Some(Trip::External));
+    assert_eq!(model(&mut line, 1).output_hz(), 0.0);
     assert_eq!(exchange(&mut line, b"(RFC90)\r"), format!("(rFC90{TRIP_E:04X})\r").as_bytes());
     assert_eq!(exchange(&mut line, b"(RFD01)\r"), b"(rFD011003)\r", "emergency-stopped, tripped, FL");
     assert_eq!(exchange(&mut line, b"(RFFFF)\r"), b"(n0002)\r");
@@ -288,7 +288,7 @@ fn lower_case_while_tripped() {
     assert_eq!(&block[9..11], [0x00, TRIP_E as u8], "FC90 in the block");
     // Running is refused while tripped.
     exchange(&mut line, b"(PFA00C400)\r");
-    assert!(!model(&line, 1).is_running());
+    assert!(!model(&mut line, 1).is_running());
     // Fault reset (bit 13): the reply after it is upper case again; the trip is in the past-trip log.
     assert_eq!(exchange(&mut line, b"(PFA00A000)\r"), b"(PFA00A000)\r");
     assert_eq!(exchange(&mut line, b"(RFC90)\r"), b"(RFC900000)\r");
@@ -307,7 +307,7 @@ fn run_ramps_on_simulated_time_and_stops() {
     line.master_write(sent_at, frame);
     line.advance_to(arrives + Duration::from_millis(3750));
     // ACC 10.0 s from 0 to FH 80.00 Hz: 8 Hz/s, 30 Hz at 3.75 s.
-    let mhz = model(&line, 1).output_mhz();
+    let mhz = model(&mut line, 1).output_mhz();
     assert!((29_990..=30_000).contains(&mhz), "{mhz} mHz");
     while let Some(t) = line.next_deadline() {
         line.advance_to(t);
@@ -323,7 +323,7 @@ fn run_ramps_on_simulated_time_and_stops() {
     // Reverse (C600): ramps through zero to the other side.
     exchange(&mut line, b"(07PFA00C600)\r");
     wait(&mut line, Duration::from_secs(20));
-    assert_eq!(model(&line, 1).output_rotation(), drivebus_sim::model::Rotation::Reverse);
+    assert_eq!(model(&mut line, 1).output_rotation(), drivebus_sim::model::Rotation::Reverse);
     assert_eq!(exchange(&mut line, b"(07RFD01)\r"), b"(07RFD016600)\r");
     // Upper limit UL clamps the command: 50 Hz.
     exchange(&mut line, b"(07P00121388)\r");
@@ -333,7 +333,7 @@ fn run_ramps_on_simulated_time_and_stops() {
     // Stop (C000): DEC 10.0 s from FH, 50 Hz -> 0 in 6.25 s.
     exchange(&mut line, b"(07PFA00C000)\r");
     wait(&mut line, Duration::from_secs(7));
-    assert!(!model(&line, 1).is_running());
+    assert!(!model(&mut line, 1).is_running());
     assert_eq!(exchange(&mut line, b"(07RFD00)\r"), b"(07RFD000000)\r");
 }
 
@@ -344,30 +344,30 @@ fn command_needs_priority_and_frequency_needs_bit_14() {
     // Run without command priority (bit 15): ignored.
     exchange(&mut line, b"(PFA004400)\r");
     wait(&mut line, Duration::from_secs(1));
-    assert!(!model(&line, 1).is_running());
+    assert!(!model(&mut line, 1).is_running());
     assert!(line.drive(1).unwrap().control_source().starts_with("CMOd (0003) = 0"));
     // 8400: command priority, run, panel frequency (0.00 Hz by default; then 20 Hz).
     exchange(&mut line, b"(PFA008400)\r");
-    assert!(model(&line, 1).is_running());
-    assert_eq!(model(&line, 1).setpoint_hz(), 0.0);
+    assert!(model(&mut line, 1).is_running());
+    assert_eq!(model(&mut line, 1).setpoint_hz(), 0.0);
     assert!(line.drive(1).unwrap().control_source().starts_with("communication"));
     // C400: FA01 is used.
     exchange(&mut line, b"(PFA00C400)\r");
-    assert_eq!(model(&line, 1).setpoint_hz(), 60.0);
+    assert_eq!(model(&mut line, 1).setpoint_hz(), 60.0);
     // Releasing command priority stops the motor (the terminal board gives no run signal).
     exchange(&mut line, b"(PFA000000)\r");
-    assert_eq!(model(&line, 1).state(), drivebus_sim::model::RunState::Stopping);
+    assert_eq!(model(&mut line, 1).state(), drivebus_sim::model::RunState::Stopping);
     wait(&mut line, Duration::from_secs(1));
-    assert_eq!(model(&line, 1).state(), drivebus_sim::model::RunState::Stopped);
+    assert_eq!(model(&mut line, 1).state(), drivebus_sim::model::RunState::Stopped);
     // Coast stop (bit 11) and jog (bit 8).
     exchange(&mut line, b"(PFA00C400)\r");
     wait(&mut line, Duration::from_secs(2));
     exchange(&mut line, b"(PFA00C800)\r");
-    assert_eq!(model(&line, 1).output_hz(), 0.0);
+    assert_eq!(model(&mut line, 1).output_hz(), 0.0);
     assert_eq!(exchange(&mut line, b"(RFD01)\r"), b"(RFD016800)\r", "coast-stopped");
     exchange(&mut line, b"(PFA00C500)\r");
     wait(&mut line, Duration::from_secs(2));
-    assert_eq!(model(&line, 1).output_hz(), 5.0, "jog frequency");
+    assert_eq!(model(&mut line, 1).output_hz(), 5.0, "jog frequency");
     assert_eq!(exchange(&mut line, b"(RFD01)\r"), b"(RFD016500)\r");
 }
 
@@ -376,17 +376,17 @@ fn parameter_writes_are_checked() {
     let mut line = line_with(&[0]);
     // ACC 5.0 s (0032H) by W: counted; the model follows.
     assert_eq!(exchange(&mut line, b"(W00090032)\r"), b"(W00090032)\r");
-    assert_eq!(model(&line, 1).settings().accel, Duration::from_secs(5));
+    assert_eq!(model(&mut line, 1).settings().accel, Duration::from_secs(5));
     // FH may change while stopped; the model's maximum follows.
     assert_eq!(exchange(&mut line, b"(W00111770)\r"), b"(W00111770)\r");
-    assert_eq!(model(&line, 1).settings().max_hz, 60.0);
+    assert_eq!(model(&mut line, 1).settings().max_hz, 60.0);
     // f803 range 0..100 s.
     assert_eq!(exchange(&mut line, b"(W08030065)\r"), b"(N0001)\r");
     // LL above UL: data error.
     assert_eq!(exchange(&mut line, b"(W00131771)\r"), b"(N0001)\r");
     // Read-only catalog entry (FE70 rated current).
     assert_eq!(exchange(&mut line, b"(WFE700001)\r"), b"(N0000)\r");
-    let p = params(&line, 1);
+    let p = params(&mut line, 1);
     assert_eq!(p.eeprom_writes(0x0009u32), Some(1));
     assert_eq!(p.eeprom_writes(0x0011u32), Some(1));
     assert_eq!(p.total_eeprom_writes(), 2);
@@ -413,11 +413,11 @@ fn comm_timeout_trips_err5() {
     exchange(&mut line, b"(RFC90)\r");
     let last_comm = last_sent + line.char_time() * 8;
     wait(&mut line, Duration::from_millis(2100));
-    assert_eq!(model(&line, 1).trip(), Some(Trip::CommunicationTimeout));
-    let record = *model(&line, 1).recent_trips().next().unwrap();
+    assert_eq!(model(&mut line, 1).trip(), Some(Trip::CommunicationTimeout));
+    let record = *model(&mut line, 1).recent_trips().next().unwrap();
     assert_eq!(record.at, last_comm + Duration::from_secs(2));
     assert_eq!(record.output_mhz, 60_000);
-    assert_eq!(model(&line, 1).output_hz(), 0.0);
+    assert_eq!(model(&mut line, 1).output_hz(), 0.0);
     assert_eq!(
         exchange(&mut line, b"(RFC90)\r"),
         format!("(rFC90{TRIP_ERR5_COMMUNICATION:04X})\r").as_bytes()
@@ -428,13 +428,13 @@ fn comm_timeout_trips_err5() {
     );
     // Fault reset over the line.
     assert_eq!(exchange(&mut line, b"(PFA00A000)\r"), b"(PFA00A000)\r");
-    assert_eq!(model(&line, 1).trip(), None);
+    assert_eq!(model(&mut line, 1).trip(), None);
     // f804 = 0, alarm only: FD01 bit 2 after the time-out, the motor keeps running.
     exchange(&mut line, b"(P08040000)\r");
     exchange(&mut line, b"(PFA00C400)\r");
     wait(&mut line, Duration::from_secs(3));
-    assert_eq!(model(&line, 1).trip(), None);
-    assert!(model(&line, 1).is_running());
+    assert_eq!(model(&mut line, 1).trip(), None);
+    assert!(model(&mut line, 1).is_running());
     assert_eq!(exchange(&mut line, b"(RFD01)\r"), b"(RFD016404)\r");
 }
 
@@ -447,12 +447,12 @@ fn comm_timeout_with_deceleration_stop() {
     exchange(&mut line, b"(P08030001)\r");
     // DEC 10.0 s from FH 80 Hz: 60 Hz -> 0 in 7.5 s, then Err5.
     wait(&mut line, Duration::from_secs(5));
-    let m = model(&line, 1);
+    let m = model(&mut line, 1);
     assert_eq!(m.trip(), None);
     assert!(m.output_hz() > 20.0 && m.output_hz() < 40.0, "{}", m.output_hz());
     wait(&mut line, Duration::from_secs(4));
-    assert_eq!(model(&line, 1).trip(), Some(Trip::CommunicationTimeout));
-    assert_eq!(model(&line, 1).recent_trips().next().unwrap().output_mhz, 0);
+    assert_eq!(model(&mut line, 1).trip(), Some(Trip::CommunicationTimeout));
+    assert_eq!(model(&mut line, 1).recent_trips().next().unwrap().output_mhz, 0);
     assert_eq!(exchange(&mut line, b"(RFC90)\r"), b"(rFC900018)\r");
 }
 

@@ -58,6 +58,8 @@ mod family;
 mod param;
 mod store;
 
+pub mod profile;
+
 pub use catalog::{Catalog, CatalogError, ParamKey};
 pub use family::{Family, UnknownFamily};
 pub use param::{format_fixed, Choice, ParamDef, RangeError, Size, Storage, ValueError};

@@ -1,0 +1,162 @@
+//! The unified drive API, sans-IO: one profile per family turns an operation (run, stop, set
+//! speed, read status, read or write a parameter) into the requests its protocol needs, and the
+//! replies into a result. The profile never touches a line: a bus owner (drivebus-link) sends
+//! each request and hands back the reply, and tests do the same on a virtual line with
+//! simulated time.
+//!
+//! ```text
+//! let mut plan = profile.plan(&Operation::SetSpeed(40.0))?;   // checked against the limits
+//! let mut reply = None;
+//! loop {
+//!     match plan.step(reply.as_deref())? {
+//!         Step::Send(x) => reply = bus.transact(x)?,            // None when no reply is due
+//!         Step::Done(outcome) => break outcome,
+//!     }
+//! }
+//! ```
+
+use std::fmt;
+
+use crate::{Family, ParamDef, Storage};
+
+pub mod b800;
+pub mod danfoss;
+pub mod generic;
+pub mod toshiba;
+
+/// What to do to a drive.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Operation {
+    /// Read the drive's state.
+    Status,
+    /// Start (in the direction last commanded).
+    Run,
+    /// Ramp to a stop.
+    Stop,
+    /// Reverse the direction (a running drive ramps through zero).
+    Reverse,
+    /// Run at the jog speed.
+    Jog,
+    /// Reset a fault.
+    Reset,
+    /// Set the speed setpoint, Hz.
+    SetSpeed(f64),
+    /// Read a parameter by the manual's name (`P0.02`, `0010`, `4-14`, `F-12`).
+    ReadParam(String),
+    /// Write a parameter (raw integer as on the wire; see [`ParamDef::to_raw`]).
+    WriteParam {
+        /// The manual's name.
+        name: String,
+        /// The raw value.
+        raw: i64,
+        /// RAM (default) or EEPROM where the protocol lets the master choose.
+        storage: Storage,
+    },
+}
+
+/// A drive's state, as far as its protocol tells.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DriveStatus {
+    /// The drive's number on the bus.
+    pub address: u8,
+    /// True while the output is on.
+    pub running: bool,
+    /// `"forward"` or `"reverse"`, where readable.
+    pub direction: Option<String>,
+    /// Output frequency, Hz.
+    pub output_hz: Option<f64>,
+    /// Setpoint, Hz, where readable.
+    pub setpoint_hz: Option<f64>,
+    /// Motor current, A, where readable.
+    pub current_a: Option<f64>,
+    /// The fault in force, if any.
+    pub fault: Option<Fault>,
+}
+
+/// A drive's fault: its code and the manual's text for it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Fault {
+    /// The code as the drive reports it.
+    pub code: u32,
+    /// What it means.
+    pub text: String,
+}
+
+/// The result of an operation.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outcome {
+    /// Done; nothing to report.
+    Done,
+    /// The drive's state.
+    Status(DriveStatus),
+    /// A parameter's raw value.
+    Param(i64),
+}
+
+/// One request to put on the line.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Exchange {
+    /// The whole frame, checksum included.
+    pub request: Vec<u8>,
+    /// False for broadcasts: no reply comes, the bus waits the turnaround delay.
+    pub expect_reply: bool,
+}
+
+/// What a plan wants next.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Step {
+    /// Send this and call [`Plan::step`] again with the reply (`None` if none was due).
+    Send(Exchange),
+    /// The operation is finished.
+    Done(Outcome),
+}
+
+/// Why an operation failed, sorted by what the user can do about it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum DriveError {
+    /// The drive answered no: an exception or error code, with the manual's meaning.
+    Refused {
+        /// The code as the drive sent it.
+        code: u32,
+        /// What it means, from the manual.
+        meaning: String,
+    },
+    /// A value the drive cannot take (checked before anything is sent).
+    OutOfRange(String),
+    /// The operation or parameter does not exist for this family or protocol.
+    Unsupported(String),
+    /// The reply did not make sense (wrong shape, wrong register).
+    Protocol(String),
+}
+
+impl fmt::Display for DriveError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DriveError::Refused { code, meaning } => write!(f, "the drive refused: code {code:#04X}, {meaning}"),
+            DriveError::OutOfRange(s) | DriveError::Unsupported(s) | DriveError::Protocol(s) => f.write_str(s),
+        }
+    }
+}
+
+impl std::error::Error for DriveError {}
+
+/// An operation in progress: a small state machine over request/reply exchanges.
+pub trait Plan: Send {
+    /// The next step, given the reply to the last [`Step::Send`] (`None` before the first
+    /// exchange and after a broadcast).
+    fn step(&mut self, reply: Option<&[u8]>) -> Result<Step, DriveError>;
+}
+
+/// One drive family spoken in one protocol, for one drive address.
+pub trait Profile: Send + Sync {
+    /// The family.
+    fn family(&self) -> Family;
+    /// The codec name of the protocol in use (`modbus-rtu`, `toshiba-binary`, ...).
+    fn protocol(&self) -> &'static str;
+    /// The drive's number on the bus.
+    fn address(&self) -> u8;
+    /// The parameter named `name` in this family's catalog, with its unit and limits.
+    fn param(&self, name: &str) -> Result<&ParamDef, DriveError>;
+    /// Starts `op`, after checking its values (a speed against the drive's limits).
+    fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError>;
+}

@@ -327,6 +327,11 @@ impl<P: Protocol> MasterSession<P> {
         })
     }
 
+    /// The bytes of the last reply delivered by [`poll_event`](Self::poll_event), as received.
+    pub fn reply_bytes(&self) -> &[u8] {
+        &self.rx.as_ref()[..self.rx_len]
+    }
+
     /// Abandons the transaction in flight (the caller gave up); the line gap still applies.
     pub fn abort(&mut self) {
         self.state = MasterState::Idle;

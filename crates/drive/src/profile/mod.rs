@@ -132,8 +132,12 @@ pub enum DriveError {
 impl fmt::Display for DriveError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            DriveError::Refused { code, meaning } => write!(f, "the drive refused: code {code:#04X}, {meaning}"),
-            DriveError::OutOfRange(s) | DriveError::Unsupported(s) | DriveError::Protocol(s) => f.write_str(s),
+            DriveError::Refused { code, meaning } => {
+                write!(f, "the drive refused: code {code:#04X}, {meaning}")
+            }
+            DriveError::OutOfRange(s) | DriveError::Unsupported(s) | DriveError::Protocol(s) => {
+                f.write_str(s)
+            }
         }
     }
 }

@@ -10,6 +10,7 @@
 //!                                                           MasterSession<P> + Link
 //! ```
 
+pub mod drive;
 pub mod link;
 pub mod owner;
 

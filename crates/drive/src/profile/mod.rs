@@ -164,3 +164,9 @@ pub trait Profile: Send + Sync {
     /// Starts `op`, after checking its values (a speed against the drive's limits).
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError>;
 }
+
+/// The profile for drive `address` of `family` spoken in `protocol` (a codec name).
+pub fn for_drive(family: Family, protocol: &str, address: u8) -> Result<Box<dyn Profile>, DriveError> {
+    let _ = address;
+    Err(DriveError::Unsupported(format!("no profile yet for {family} over {protocol}")))
+}

@@ -1,0 +1,310 @@
+//! The unified drive API: the same operations on every family, async first, with a blocking
+//! wrapper for scripts and simple tools.
+//!
+//! ```no_run
+//! # async fn demo() -> Result<(), drivebus_link::drive::Error> {
+//! use drivebus_link::drive::{open, Drive};
+//! use drivebus_drive::Family;
+//! let bus = open("/dev/ttyUSB0", "modbus-rtu", 9600, "8N2".parse().unwrap()).await?;
+//! let drive = Drive::new(bus, drivebus_drive::profile::for_drive(Family::Generic, "modbus-rtu", 1)?);
+//! drive.set_speed(40.0).await?;
+//! drive.run().await?;
+//! let status = drive.status().await?;
+//! println!("{:?} Hz", status.output_hz);
+//! # Ok(()) }
+//! ```
+//!
+//! Blocking:
+//!
+//! ```no_run
+//! use drivebus_link::drive::BlockingDrive;
+//! use drivebus_drive::Family;
+//! let drive = BlockingDrive::open("tcp://10.0.0.5:4001", Family::Danfoss, "danfoss-fc", 3, 9600, "8E1".parse().unwrap()).unwrap();
+//! drive.run().unwrap();
+//! ```
+
+use std::fmt;
+use std::io;
+use std::time::Duration;
+
+use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Profile, Step};
+use drivebus_drive::{Family, ParamDef, Storage};
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::Instant;
+
+use crate::link::{Clock, Link, SerialLink, TcpLink};
+use crate::owner::{Bus, BusConfig, BusError, Priority};
+
+/// Why an operation on a drive failed.
+#[derive(Debug)]
+pub enum Error {
+    /// The drive said no, or the value was out of range, or the operation does not exist.
+    Drive(DriveError),
+    /// No answer or a broken link.
+    Bus(BusError),
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::Drive(e) => e.fmt(f),
+            Error::Bus(e) => e.fmt(f),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+impl From<DriveError> for Error {
+    fn from(e: DriveError) -> Self {
+        Error::Drive(e)
+    }
+}
+
+impl From<BusError> for Error {
+    fn from(e: BusError) -> Self {
+        Error::Bus(e)
+    }
+}
+
+/// A serial port or a TCP serial server, chosen by the port's spelling.
+pub enum AnyLink {
+    /// A serial device (`/dev/ttyUSB0`, a pty path).
+    Serial(SerialLink),
+    /// `tcp://host:port`.
+    Tcp(TcpLink),
+}
+
+impl Link for AnyLink {
+    fn name(&self) -> String {
+        match self {
+            AnyLink::Serial(l) => l.name(),
+            AnyLink::Tcp(l) => l.name(),
+        }
+    }
+    fn clock(&self) -> Clock {
+        match self {
+            AnyLink::Serial(l) => l.clock(),
+            AnyLink::Tcp(l) => l.clock(),
+        }
+    }
+    fn now(&self) -> Instant {
+        self.clock().now()
+    }
+    async fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
+        match self {
+            AnyLink::Serial(l) => l.write(bytes).await,
+            AnyLink::Tcp(l) => l.write(bytes).await,
+        }
+    }
+    async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            AnyLink::Serial(l) => l.read(buf).await,
+            AnyLink::Tcp(l) => l.read(buf).await,
+        }
+    }
+    async fn reopen(&mut self) -> io::Result<()> {
+        match self {
+            AnyLink::Serial(l) => l.reopen().await,
+            AnyLink::Tcp(l) => l.reopen().await,
+        }
+    }
+}
+
+/// Opens `port` (a device path or `tcp://host:port`) and starts a bus owner for `protocol`.
+pub async fn open(port: &str, protocol: &str, baud: u32, format: CharFormat) -> Result<Bus, Error> {
+    open_with(port, BusConfig::new(protocol, baud, format)).await
+}
+
+/// Opens `port` and starts a bus owner with `config`.
+pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
+    let link = match port.strip_prefix("tcp://") {
+        Some(addr) => AnyLink::Tcp(TcpLink::connect(addr).await.map_err(|e| BusError::Link(e.to_string()))?),
+        None => AnyLink::Serial(
+            SerialLink::open(port, config.baud, config.format).map_err(|e| BusError::Link(e.to_string()))?,
+        ),
+    };
+    Ok(Bus::spawn(link, config)?)
+}
+
+/// One drive on a bus, spoken to through its family's profile.
+pub struct Drive {
+    bus: Bus,
+    profile: Box<dyn Profile>,
+    timeout: Option<Duration>,
+    priority: Priority,
+}
+
+impl Drive {
+    /// A drive reached through `bus` with `profile`.
+    pub fn new(bus: Bus, profile: Box<dyn Profile>) -> Self {
+        Drive { bus, profile, timeout: None, priority: Priority::Command }
+    }
+
+    /// Sets this drive's response timeout (the bus default otherwise).
+    pub fn with_timeout(mut self, timeout: Duration) -> Self {
+        self.timeout = Some(timeout);
+        self
+    }
+
+    /// Marks this drive's requests as polling (they wait behind commands).
+    pub fn polling(mut self) -> Self {
+        self.priority = Priority::Poll;
+        self
+    }
+
+    /// The profile.
+    pub fn profile(&self) -> &dyn Profile {
+        self.profile.as_ref()
+    }
+
+    /// The bus.
+    pub fn bus(&self) -> &Bus {
+        &self.bus
+    }
+
+    /// Runs `op` to completion.
+    pub async fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
+        let mut plan = self.profile.plan(op)?;
+        let mut reply: Option<Vec<u8>> = None;
+        loop {
+            match plan.step(reply.as_deref())? {
+                Step::Done(outcome) => return Ok(outcome),
+                Step::Send(exchange) => {
+                    reply = self
+                        .bus
+                        .transact(self.profile.address(), exchange, self.priority, self.timeout)
+                        .await?;
+                }
+            }
+        }
+    }
+
+    /// The drive's state.
+    pub async fn status(&self) -> Result<DriveStatus, Error> {
+        match self.execute(&Operation::Status).await? {
+            Outcome::Status(s) => Ok(s),
+            other => Err(DriveError::Protocol(format!("a status read gave {other:?}")).into()),
+        }
+    }
+
+    /// Starts the motor.
+    pub async fn run(&self) -> Result<(), Error> {
+        self.execute(&Operation::Run).await.map(|_| ())
+    }
+
+    /// Ramps to a stop.
+    pub async fn stop(&self) -> Result<(), Error> {
+        self.execute(&Operation::Stop).await.map(|_| ())
+    }
+
+    /// Reverses the direction.
+    pub async fn reverse(&self) -> Result<(), Error> {
+        self.execute(&Operation::Reverse).await.map(|_| ())
+    }
+
+    /// Runs at the jog speed.
+    pub async fn jog(&self) -> Result<(), Error> {
+        self.execute(&Operation::Jog).await.map(|_| ())
+    }
+
+    /// Resets a fault.
+    pub async fn reset(&self) -> Result<(), Error> {
+        self.execute(&Operation::Reset).await.map(|_| ())
+    }
+
+    /// Sets the speed setpoint in Hz (checked against the drive's limits first).
+    pub async fn set_speed(&self, hz: f64) -> Result<(), Error> {
+        self.execute(&Operation::SetSpeed(hz)).await.map(|_| ())
+    }
+
+    /// Reads a parameter by the manual's name: its raw value and definition.
+    pub async fn read_param(&self, name: &str) -> Result<(i64, ParamDef), Error> {
+        let def = self.profile.param(name)?.clone();
+        match self.execute(&Operation::ReadParam(name.to_string())).await? {
+            Outcome::Param(raw) => Ok((raw, def)),
+            other => Err(DriveError::Protocol(format!("a parameter read gave {other:?}")).into()),
+        }
+    }
+
+    /// Writes a parameter from a value in its unit (`"50"`, `"50 Hz"`, a choice's number).
+    pub async fn write_param(&self, name: &str, value: &str, storage: Storage) -> Result<i64, Error> {
+        let def = self.profile.param(name)?;
+        let raw = def.parse_value(value).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
+        self.execute(&Operation::WriteParam { name: name.to_string(), raw, storage }).await?;
+        Ok(raw)
+    }
+}
+
+/// The same API without async, for scripts: owns a small runtime.
+pub struct BlockingDrive {
+    rt: tokio::runtime::Runtime,
+    drive: Drive,
+}
+
+impl BlockingDrive {
+    /// Opens `port` and speaks to drive `address` of `family` with `protocol`.
+    pub fn open(
+        port: &str,
+        family: Family,
+        protocol: &str,
+        address: u8,
+        baud: u32,
+        format: CharFormat,
+    ) -> Result<Self, Error> {
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| BusError::Link(e.to_string()))?;
+        let profile = drivebus_drive::profile::for_drive(family, protocol, address)?;
+        let bus = rt.block_on(open(port, protocol, baud, format))?;
+        Ok(BlockingDrive { rt, drive: Drive::new(bus, profile) })
+    }
+
+    /// Wraps an async drive with its runtime.
+    pub fn from_parts(rt: tokio::runtime::Runtime, drive: Drive) -> Self {
+        BlockingDrive { rt, drive }
+    }
+
+    /// The async drive.
+    pub fn inner(&self) -> &Drive {
+        &self.drive
+    }
+
+    /// See [`Drive::status`].
+    pub fn status(&self) -> Result<DriveStatus, Error> {
+        self.rt.block_on(self.drive.status())
+    }
+    /// See [`Drive::run`].
+    pub fn run(&self) -> Result<(), Error> {
+        self.rt.block_on(self.drive.run())
+    }
+    /// See [`Drive::stop`].
+    pub fn stop(&self) -> Result<(), Error> {
+        self.rt.block_on(self.drive.stop())
+    }
+    /// See [`Drive::reverse`].
+    pub fn reverse(&self) -> Result<(), Error> {
+        self.rt.block_on(self.drive.reverse())
+    }
+    /// See [`Drive::jog`].
+    pub fn jog(&self) -> Result<(), Error> {
+        self.rt.block_on(self.drive.jog())
+    }
+    /// See [`Drive::reset`].
+    pub fn reset(&self) -> Result<(), Error> {
+        self.rt.block_on(self.drive.reset())
+    }
+    /// See [`Drive::set_speed`].
+    pub fn set_speed(&self, hz: f64) -> Result<(), Error> {
+        self.rt.block_on(self.drive.set_speed(hz))
+    }
+    /// See [`Drive::read_param`].
+    pub fn read_param(&self, name: &str) -> Result<(i64, ParamDef), Error> {
+        self.rt.block_on(self.drive.read_param(name))
+    }
+    /// See [`Drive::write_param`].
+    pub fn write_param(&self, name: &str, value: &str, storage: Storage) -> Result<i64, Error> {
+        self.rt.block_on(self.drive.write_param(name, value, storage))
+    }
+}

@@ -17,6 +17,8 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    #[command(flatten)]
+    target: commands::drive::Target,
 }
 
 #[derive(Subcommand, Debug)]
@@ -27,6 +29,36 @@ enum Command {
     /// Run virtual drives on a virtual RS-485 line, paced at the real baud rate, behind a
     /// pseudo-terminal or a TCP port.
     Simulate(commands::simulate::SimulateArgs),
+    /// Read a drive's state: running, direction, output and setpoint Hz, current, fault.
+    Status,
+    /// Start the motor.
+    Run,
+    /// Ramp to a stop.
+    Stop,
+    /// Reverse the direction.
+    Reverse,
+    /// Run at the jog speed.
+    Jog,
+    /// Reset a fault.
+    Reset,
+    /// Set the speed in Hz (checked against the drive's limits before anything is sent).
+    Speed {
+        /// The speed in Hz.
+        #[arg(allow_negative_numbers = true)]
+        hz: f64,
+    },
+    /// Read or write one parameter by the manual's name.
+    #[command(subcommand)]
+    Param(commands::drive::ParamCmd),
+    /// Back up, restore or compare a drive's parameter set.
+    #[command(subcommand)]
+    Params(commands::drive::ParamsCmd),
+    /// Send bytes (hex) as one request and print the decoded reply.
+    Raw {
+        /// The request on the wire, in hex.
+        #[arg(required = true, num_args = 1..)]
+        hex: Vec<String>,
+    },
 }
 
 /// Exit status for bad usage (unknown option, value out of range).
@@ -49,14 +81,26 @@ fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
-        Command::Decode(args) => commands::decode::run(&args),
-        Command::Simulate(args) => commands::simulate::run(&args),
+        Command::Decode(args) => commands::decode::run(&args, &cli.target),
+        Command::Simulate(args) => commands::simulate::run(&args, &cli.target),
+        Command::Status => commands::drive::status(&cli.target),
+        Command::Run => commands::drive::command(&cli.target, "run", None),
+        Command::Stop => commands::drive::command(&cli.target, "stop", None),
+        Command::Reverse => commands::drive::command(&cli.target, "reverse", None),
+        Command::Jog => commands::drive::command(&cli.target, "jog", None),
+        Command::Reset => commands::drive::command(&cli.target, "reset", None),
+        Command::Speed { hz } => commands::drive::command(&cli.target, "speed", Some(hz)),
+        Command::Param(cmd) => commands::drive::param(&cli.target, &cmd),
+        Command::Params(cmd) => commands::drive::params(&cli.target, &cmd),
+        Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
     };
     match result {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
-            eprintln!("drivebus: {e:#}");
-            ExitCode::from(EXIT_USAGE)
+            let code = e.downcast_ref::<commands::drive::Failure>().map_or(EXIT_USAGE, |f| f.code);
+            let line = format!("{e:#}").replace('\n', " ");
+            eprintln!("drivebus: {line}");
+            ExitCode::from(code)
         }
     }
 }

@@ -5,6 +5,7 @@ use std::io::Write as _;
 
 use anyhow::Result;
 use clap::{Args, ValueEnum};
+
 use drivebus_proto::describe::{CodeStyle, Raw};
 use drivebus_proto::{Codec, Deframer, Describe, Direction, Event, Target};
 use serde_json::{json, Map, Value};
@@ -28,6 +29,21 @@ pub enum ProtocolName {
     B800,
 }
 
+impl ProtocolName {
+    /// The decoder for a codec name.
+    pub fn from_codec(name: &str) -> Option<Self> {
+        Some(match name {
+            "modbus-rtu" => ProtocolName::ModbusRtu,
+            "modbus-ascii" => ProtocolName::ModbusAscii,
+            "toshiba-ascii" => ProtocolName::ToshibaAscii,
+            "toshiba-binary" => ProtocolName::ToshibaBinary,
+            "danfoss-fc" => ProtocolName::DanfossFc,
+            "b800" => ProtocolName::B800,
+            _ => return None,
+        })
+    }
+}
+
 /// Who sent the bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum From {
@@ -37,18 +53,12 @@ pub enum From {
     Drive,
 }
 
-/// Arguments of `drivebus decode`.
+/// Arguments of `drivebus decode` (with the global `--protocol` and `--json`).
 #[derive(Args, Debug)]
 pub struct DecodeArgs {
-    /// The wire format of the bytes.
-    #[arg(long, short = 'p', value_enum)]
-    pub protocol: ProtocolName,
     /// Who sent the bytes, where the protocol cannot tell (a Modbus request and its reply).
     #[arg(long, value_enum)]
     pub from: Option<From>,
-    /// One JSON object per line and per frame.
-    #[arg(long)]
-    pub json: bool,
     /// The bytes on the wire in hex, spaced or not, in one or several arguments
     /// (ASCII protocols too: 3A 30 31 ...).
     #[arg(required = true, num_args = 1.., value_name = "HEX")]
@@ -332,13 +342,20 @@ pub fn decode_by_name(
 }
 
 /// Runs `drivebus decode`; returns the exit status (0 a valid frame was found, 1 none).
-pub fn run(args: &DecodeArgs) -> Result<u8> {
+pub fn run(args: &DecodeArgs, target: &crate::commands::drive::Target) -> Result<u8> {
+    let name = target.protocol.as_deref().ok_or_else(|| {
+        anyhow::anyhow!("say which wire format: --protocol modbus-rtu|modbus-ascii|toshiba-ascii|toshiba-binary|danfoss-fc|b800")
+    })?;
+    let protocol = ProtocolName::from_codec(name).ok_or_else(|| {
+        anyhow::anyhow!("unknown protocol {name:?}: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800")
+    })?;
+    let json = target.json;
     let bytes = parse_hex_args(&args.hex)?;
     let from = args.from.map(|f| match f {
         From::Master => Direction::Master,
         From::Drive => Direction::Drive,
     });
-    let (protocol, items) = decode_by_name(args.protocol, &bytes, from);
+    let (protocol, items) = decode_by_name(protocol, &bytes, from);
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     let mut valid = 0;
@@ -350,7 +367,7 @@ pub fn run(args: &DecodeArgs) -> Result<u8> {
                 valid += 1;
             }
         }
-        if args.json {
+        if json {
             if let Some(v) = render_json(protocol, item) {
                 writeln!(out, "{v}")?;
             }

@@ -1,4 +1,5 @@
 //! One module per subcommand.
 
 pub mod decode;
+pub mod drive;
 pub mod simulate;

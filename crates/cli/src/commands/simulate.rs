@@ -9,22 +9,13 @@ use drivebus_proto::line::CharFormat;
 use drivebus_sim::config::{BusSpec, DriveSpec};
 use drivebus_sim::runtime::{Endpoint, Simulator};
 
-/// Arguments of `drivebus simulate`.
+/// Arguments of `drivebus simulate`, with the global `--drive KIND@ADDR[:PROTOCOL]` (one per
+/// drive: generic@1:modbus-rtu, toshiba@2, danfoss@3, b800@5), `--baud` and `--serial`.
 #[derive(Args, Debug)]
 pub struct SimulateArgs {
-    /// A drive on the bus: KIND@ADDR[:PROTOCOL], KIND one of generic, toshiba, danfoss, b800
-    /// (e.g. generic@1:modbus-rtu, toshiba@2, danfoss@3, b800@5). Repeat for more drives.
-    #[arg(long = "drive", value_name = "KIND@ADDR[:PROTOCOL]")]
-    pub drives: Vec<String>,
     /// A TOML file describing the whole bus (see docs/simulator.md); --drive adds to it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Baud rate (default: the first drive's family default).
-    #[arg(long)]
-    pub baud: Option<u32>,
-    /// Character format, e.g. 8N1, 8E1, 7N2 (default: the first drive's family default).
-    #[arg(long, value_name = "FORMAT")]
-    pub serial: Option<String>,
     /// Create a pseudo-terminal and a symlink at PATH to it: open PATH as a serial port.
     #[arg(long, value_name = "PATH", conflicts_with = "tcp")]
     pub pty: Option<PathBuf>,
@@ -40,13 +31,13 @@ pub struct SimulateArgs {
 }
 
 /// Builds the bus the arguments describe.
-pub fn bus_spec(args: &SimulateArgs) -> Result<BusSpec> {
-    let format = match &args.serial {
+pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Result<BusSpec> {
+    let format = match &target.serial {
         Some(s) => Some(s.parse::<CharFormat>().map_err(|e| anyhow::anyhow!("--serial {s:?}: {e}"))?),
         None => None,
     };
     let mut extra = Vec::new();
-    for d in &args.drives {
+    for d in &target.drive {
         extra.push(d.parse::<DriveSpec>()?);
     }
     let bus = match &args.config {
@@ -55,7 +46,7 @@ pub fn bus_spec(args: &SimulateArgs) -> Result<BusSpec> {
                 .with_context(|| format!("cannot read the bus file {}", path.display()))?;
             let mut bus = BusSpec::from_toml(&path.display().to_string(), &text)?;
             bus.drives.extend(extra);
-            if let Some(b) = args.baud {
+            if let Some(b) = target.baud {
                 bus.baud = b;
             }
             if let Some(f) = format {
@@ -64,7 +55,7 @@ pub fn bus_spec(args: &SimulateArgs) -> Result<BusSpec> {
             bus.check()?;
             bus
         }
-        None => BusSpec::new(extra, args.baud, format)?,
+        None => BusSpec::new(extra, target.baud, format)?,
     };
     bus.check()?;
     bus.drives.iter().try_for_each(|d| d.check())?;
@@ -72,13 +63,13 @@ pub fn bus_spec(args: &SimulateArgs) -> Result<BusSpec> {
 }
 
 /// Runs `drivebus simulate` until interrupted.
-pub fn run(args: &SimulateArgs) -> Result<u8> {
+pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Result<u8> {
     let endpoint = match (&args.pty, &args.tcp) {
         (Some(p), None) => Endpoint::Pty(p.clone()),
         (None, Some(a)) => Endpoint::Tcp(*a),
         _ => bail!("say where the master connects: --pty PATH or --tcp HOST:PORT"),
     };
-    let bus = bus_spec(args)?;
+    let bus = bus_spec(args, target)?;
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     rt.block_on(async move {
         let sim = Simulator::new(&bus)?;

@@ -1,0 +1,436 @@
+//! The commissioning commands: one drive at a time, on a serial port or a serial server.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{anyhow, Context, Result};
+use clap::{Args, Subcommand};
+use drivebus_drive::profile::{DriveError, DriveStatus};
+use drivebus_drive::{Family, Storage};
+use drivebus_link::drive::{open_with, Drive, Error};
+use drivebus_link::owner::BusConfig;
+use drivebus_link::Priority;
+use drivebus_proto::line::CharFormat;
+use serde_json::{json, Map, Value};
+
+use crate::hexarg::parse_hex_args;
+
+/// Where the drive is and how to speak to it (options before or after the command).
+#[derive(Args, Debug, Clone)]
+pub struct Target {
+    /// Serial device (/dev/ttyUSB0, a pty) or tcp://HOST:PORT of a serial device server.
+    #[arg(long, global = true, value_name = "DEVICE|tcp://HOST:PORT")]
+    pub port: Option<String>,
+    /// The drive family (generic, toshiba, danfoss, b800); for `simulate`, a drive on the
+    /// virtual bus as KIND@ADDR[:PROTOCOL], repeated for more drives.
+    #[arg(long = "drive", global = true, value_name = "FAMILY | KIND@ADDR[:PROTOCOL]")]
+    pub drive: Vec<String>,
+    /// The drive's address.
+    #[arg(long, global = true)]
+    pub address: Option<u8>,
+    /// The protocol: for `decode` the wire format (modbus-rtu, modbus-ascii, toshiba-ascii,
+    /// toshiba-binary, danfoss-fc, b800); for a drive, where its family speaks several.
+    #[arg(long, short = 'p', global = true)]
+    pub protocol: Option<String>,
+    /// Baud rate (default: the family's).
+    #[arg(long, global = true)]
+    pub baud: Option<u32>,
+    /// Character format such as 8E1 (default: the family's).
+    #[arg(long, global = true, value_name = "FORMAT")]
+    pub serial: Option<String>,
+    /// Response timeout in milliseconds (default: the protocol's).
+    #[arg(long, global = true, value_name = "MS")]
+    pub timeout: Option<u64>,
+    /// Retries after a timeout or a damaged reply.
+    #[arg(long, global = true, default_value_t = 2)]
+    pub retries: u8,
+    /// Output JSON.
+    #[arg(long, global = true)]
+    pub json: bool,
+}
+
+/// `param` subcommands.
+#[derive(Subcommand, Debug)]
+pub enum ParamCmd {
+    /// Read a parameter by the manual's name (P0.02, 0010, 4-14, F-12).
+    Get {
+        /// The parameter's name.
+        name: String,
+    },
+    /// Write a parameter (RAM unless --eeprom, where the protocol lets you choose).
+    Set {
+        /// The parameter's name.
+        name: String,
+        /// The value in the parameter's unit (50, 50.00, "50 Hz").
+        value: String,
+        /// Store it in EEPROM too (wears the EEPROM: about 10 000 writes per parameter).
+        #[arg(long)]
+        eeprom: bool,
+    },
+}
+
+/// `params` subcommands.
+#[derive(Subcommand, Debug)]
+pub enum ParamsCmd {
+    /// Read every writable parameter into FILE (JSON).
+    Backup {
+        /// The file to write.
+        file: PathBuf,
+    },
+    /// Write the parameters of FILE that differ from the drive's (to EEPROM).
+    Restore {
+        /// The backup file.
+        file: PathBuf,
+        /// Only show what would be written.
+        #[arg(long)]
+        dry_run: bool,
+    },
+    /// Compare the drive with FILE: exit 0 when equal, 1 with the list when not.
+    Diff {
+        /// The backup file.
+        file: PathBuf,
+    },
+}
+
+/// Exit status: the drive answered no.
+pub const EXIT_REFUSED: u8 = 1;
+/// Exit status: no answer, or the link failed.
+pub const EXIT_LINK: u8 = 2;
+/// Exit status: bad usage or a value out of range.
+pub const EXIT_USAGE: u8 = 3;
+
+/// A failure with its exit status.
+#[derive(Debug)]
+pub struct Failure {
+    /// The exit status.
+    pub code: u8,
+    /// One line for stderr.
+    pub message: String,
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for Failure {}
+
+fn fail(code: u8, message: impl Into<String>) -> anyhow::Error {
+    anyhow::Error::new(Failure { code, message: message.into() })
+}
+
+fn classify(e: Error, target: &str) -> anyhow::Error {
+    match e {
+        Error::Drive(DriveError::Refused { .. }) => fail(EXIT_REFUSED, format!("{target}: {e}")),
+        Error::Drive(DriveError::Protocol(_)) => fail(EXIT_LINK, format!("{target}: {e}")),
+        Error::Drive(_) => fail(EXIT_USAGE, format!("{target}: {e}")),
+        Error::Bus(_) => fail(EXIT_LINK, e.to_string()),
+    }
+}
+
+struct Resolved {
+    family: Family,
+    protocol: String,
+    address: u8,
+    port: String,
+    config: BusConfig,
+    label: String,
+}
+
+fn resolve(t: &Target) -> Result<Resolved> {
+    let port = t.port.clone().ok_or_else(|| {
+        fail(EXIT_USAGE, "say where the drive is: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
+    })?;
+    let family_s = match t.drive.as_slice() {
+        [one] => one.clone(),
+        [] => return Err(fail(EXIT_USAGE, "say which drive family: --drive generic|toshiba|danfoss|b800")),
+        _ => return Err(fail(EXIT_USAGE, "give one --drive: this command talks to one drive")),
+    };
+    let family: Family = family_s.parse().map_err(|_| {
+        fail(EXIT_USAGE, format!("unknown drive family {family_s:?}: use generic, toshiba, danfoss or b800"))
+    })?;
+    let address = t.address.ok_or_else(|| fail(EXIT_USAGE, "say which drive: --address N"))?;
+    let protocols = drivebus_sim::config::protocols(family);
+    let protocol = match &t.protocol {
+        Some(p) if protocols.contains(&p.as_str()) || (family == Family::Generic && p == "modbus-ascii") => {
+            p.clone()
+        }
+        Some(p) => {
+            return Err(fail(
+                EXIT_USAGE,
+                format!("a {family} drive speaks {}, not {p:?}", protocols.join(", ")),
+            ))
+        }
+        None => match family {
+            // The generic drive defaults to ASCII (seed 004); most installations use RTU, so
+            // an RTU port is the common override.
+            Family::Toshiba => "toshiba-binary".to_string(),
+            _ => protocols[0].to_string(),
+        },
+    };
+    let (db, df) = drivebus_sim::config::serial_default(family, Some(protocol.as_str()));
+    let format = match &t.serial {
+        Some(s) => s.parse::<CharFormat>().map_err(|e| fail(EXIT_USAGE, format!("--serial {s:?}: {e}")))?,
+        None => df,
+    };
+    let baud = t.baud.unwrap_or(db);
+    let mut config = BusConfig::new(&protocol, baud, format);
+    config.retries = t.retries;
+    config.response_timeout = t.timeout.map(Duration::from_millis);
+    let label = format!("{family} drive {address} on {port}");
+    Ok(Resolved { family, protocol, address, port, config, label })
+}
+
+async fn connect(t: &Target) -> Result<(Drive, String)> {
+    let r = resolve(t)?;
+    let profile = drivebus_drive::profile::for_drive(r.family, &r.protocol, r.address)
+        .map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
+    let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
+    Ok((Drive::new(bus, profile), r.label))
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime> {
+    Ok(tokio::runtime::Builder::new_current_thread().enable_all().build()?)
+}
+
+fn status_json(s: &DriveStatus) -> Value {
+    json!({
+        "address": s.address,
+        "running": s.running,
+        "direction": s.direction,
+        "output_hz": s.output_hz,
+        "setpoint_hz": s.setpoint_hz,
+        "current_a": s.current_a,
+        "fault": s.fault.as_ref().map(|f| json!({"code": f.code, "text": f.text})),
+    })
+}
+
+fn opt(v: Option<f64>, unit: &str, d: usize) -> String {
+    v.map_or("-".into(), |x| format!("{x:.d$} {unit}"))
+}
+
+/// `status`.
+pub fn status(t: &Target) -> Result<u8> {
+    runtime()?.block_on(async {
+        let (drive, label) = connect(t).await?;
+        let s = drive.status().await.map_err(|e| classify(e, &label))?;
+        if t.json {
+            println!("{}", status_json(&s));
+        } else {
+            println!("{label}");
+            println!("  state      {}", if s.running { "running" } else { "stopped" });
+            println!("  direction  {}", s.direction.as_deref().unwrap_or("-"));
+            println!("  output     {}", opt(s.output_hz, "Hz", 2));
+            println!("  setpoint   {}", opt(s.setpoint_hz, "Hz", 2));
+            println!("  current    {}", opt(s.current_a, "A", 1));
+            match &s.fault {
+                Some(f) => println!("  fault      {} ({})", f.code, f.text),
+                None => println!("  fault      none"),
+            }
+            let st = drive.bus().stats();
+            println!(
+                "  link       {} transaction(s), {} retr(y/ies), {} timeout(s), {} damaged",
+                st.transactions, st.retries, st.timeouts, st.checksum_errors
+            );
+        }
+        Ok(0)
+    })
+}
+
+/// `run`, `stop`, `reverse`, `jog`, `reset`, `speed`.
+pub fn command(t: &Target, what: &str, hz: Option<f64>) -> Result<u8> {
+    runtime()?.block_on(async {
+        let (drive, label) = connect(t).await?;
+        let r = match what {
+            "run" => drive.run().await,
+            "stop" => drive.stop().await,
+            "reverse" => drive.reverse().await,
+            "jog" => drive.jog().await,
+            "reset" => drive.reset().await,
+            _ => drive.set_speed(hz.unwrap_or(0.0)).await,
+        };
+        r.map_err(|e| classify(e, &label))?;
+        if t.json {
+            println!("{}", json!({"ok": true, "command": what, "hz": hz}));
+        } else {
+            match hz {
+                Some(hz) => println!("{label}: speed set to {hz} Hz"),
+                None => println!("{label}: {what} done"),
+            }
+        }
+        Ok(0)
+    })
+}
+
+/// `param get|set`.
+pub fn param(t: &Target, cmd: &ParamCmd) -> Result<u8> {
+    runtime()?.block_on(async {
+        let (drive, label) = connect(t).await?;
+        match cmd {
+            ParamCmd::Get { name } => {
+                let (raw, def) = drive.read_param(name).await.map_err(|e| classify(e, &label))?;
+                if t.json {
+                    println!("{}", json!({"name": def.name, "raw": raw, "value": def.from_raw(raw), "unit": def.unit, "text": def.format(raw)}));
+                } else {
+                    println!("{} {} = {}", def.name, def.title, def.format(raw));
+                }
+            }
+            ParamCmd::Set { name, value, eeprom } => {
+                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
+                if *eeprom {
+                    eprintln!("drivebus: note: writing {name} to EEPROM (about 10 000 writes per parameter over the drive's life); leave out --eeprom for RAM");
+                }
+                let raw = drive.write_param(name, value, storage).await.map_err(|e| classify(e, &label))?;
+                let def = drive.profile().param(name).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
+                if t.json {
+                    println!("{}", json!({"name": def.name, "raw": raw, "value": def.from_raw(raw), "unit": def.unit, "storage": if *eeprom {"eeprom"} else {"ram"}}));
+                } else {
+                    println!("{} {} set to {}", def.name, def.title, def.format(raw));
+                }
+            }
+        }
+        Ok(0)
+    })
+}
+
+async fn read_all(drive: &Drive, label: &str) -> Result<Map<String, Value>> {
+    let family = drive.profile().family();
+    let catalog = drivebus_drive::Catalog::load(family).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
+    let mut out = Map::new();
+    for def in catalog.iter().filter(|d| !d.read_only) {
+        match drive.read_param(&def.name).await {
+            Ok((raw, def)) => {
+                out.insert(def.name.clone(), json!({"raw": raw, "value": def.format(raw)}));
+            }
+            Err(Error::Drive(DriveError::Unsupported(_))) => {}
+            Err(e) => return Err(classify(e, label)),
+        }
+    }
+    Ok(out)
+}
+
+fn load_backup(file: &PathBuf) -> Result<(String, Map<String, Value>)> {
+    let text = std::fs::read_to_string(file)
+        .with_context(|| format!("cannot read {}", file.display()))
+        .map_err(|e| fail(EXIT_USAGE, format!("{e:#}")))?;
+    let v: Value = serde_json::from_str(&text)
+        .map_err(|e| fail(EXIT_USAGE, format!("{}: not a drivebus backup: {e}", file.display())))?;
+    let family = v["family"].as_str().unwrap_or_default().to_string();
+    let params = v["params"]
+        .as_object()
+        .cloned()
+        .ok_or_else(|| fail(EXIT_USAGE, format!("{}: no \"params\" object", file.display())))?;
+    Ok((family, params))
+}
+
+fn differences(
+    drive_params: &Map<String, Value>,
+    file: &Map<String, Value>,
+) -> Vec<(String, i64, i64, String, String)> {
+    let mut diffs = Vec::new();
+    for (name, want) in file {
+        let Some(want_raw) = want["raw"].as_i64() else { continue };
+        if let Some(have) = drive_params.get(name) {
+            let have_raw = have["raw"].as_i64().unwrap_or(i64::MIN);
+            if have_raw != want_raw {
+                diffs.push((
+                    name.clone(),
+                    have_raw,
+                    want_raw,
+                    have["value"].as_str().unwrap_or("").to_string(),
+                    want["value"].as_str().unwrap_or("").to_string(),
+                ));
+            }
+        }
+    }
+    diffs
+}
+
+/// `params backup|restore|diff`.
+pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
+    runtime()?.block_on(async {
+        let (drive, label) = connect(t).await?;
+        let family = drive.profile().family().to_string();
+        match cmd {
+            ParamsCmd::Backup { file } => {
+                let params = read_all(&drive, &label).await?;
+                let n = params.len();
+                let doc = json!({"family": family, "protocol": drive.profile().protocol(), "address": drive.profile().address(), "params": params});
+                let text = serde_json::to_string_pretty(&doc)?;
+                std::fs::write(file, text + "\n").map_err(|e| fail(EXIT_USAGE, format!("cannot write {}: {e}", file.display())))?;
+                println!("{label}: {n} parameters saved to {}", file.display());
+                Ok(0)
+            }
+            ParamsCmd::Restore { file, dry_run } => {
+                let (ffam, wanted) = load_backup(file)?;
+                if ffam != family {
+                    return Err(fail(EXIT_USAGE, format!("{} holds {ffam} parameters; this is a {family} drive", file.display())));
+                }
+                let have = read_all(&drive, &label).await?;
+                let diffs = differences(&have, &wanted);
+                for (name, _, want, hv, wv) in &diffs {
+                    println!("{name}: {hv} -> {wv}{}", if *dry_run { " (dry run)" } else { "" });
+                    if !dry_run {
+                        drive
+                            .execute(&drivebus_drive::profile::Operation::WriteParam { name: name.clone(), raw: *want, storage: Storage::Eeprom })
+                            .await
+                            .map_err(|e| classify(e, &label))?;
+                    }
+                }
+                println!("{label}: {} parameter(s) {}", diffs.len(), if *dry_run { "would be written" } else { "written to EEPROM" });
+                Ok(0)
+            }
+            ParamsCmd::Diff { file } => {
+                let (_, wanted) = load_backup(file)?;
+                let have = read_all(&drive, &label).await?;
+                let diffs = differences(&have, &wanted);
+                if t.json {
+                    println!("{}", json!(diffs.iter().map(|(n, h, w, _, _)| json!({"name": n, "drive": h, "file": w})).collect::<Vec<_>>()));
+                } else {
+                    for (name, _, _, hv, wv) in &diffs {
+                        println!("{name}: drive {hv}, file {wv}");
+                    }
+                }
+                Ok(if diffs.is_empty() { 0 } else { 1 })
+            }
+        }
+    })
+}
+
+/// `raw <HEX>`: sends the bytes as one request and prints the decoded reply.
+pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
+    let bytes = parse_hex_args(hex).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
+    let r = resolve(t)?;
+    let protocol = r.protocol.clone();
+    runtime()?.block_on(async move {
+        let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
+        let exchange = drivebus_drive::profile::Exchange { request: bytes, expect_reply: true };
+        let reply = bus
+            .transact(r.address, exchange, Priority::Command, None)
+            .await
+            .map_err(|e| classify(Error::Bus(e), &r.label))?;
+        match reply {
+            Some(reply) => {
+                let name = crate::commands::decode::ProtocolName::from_codec(&protocol)
+                    .ok_or_else(|| anyhow!("no decoder for {protocol}"))?;
+                let (p, items) = crate::commands::decode::decode_by_name(
+                    name,
+                    &reply,
+                    Some(drivebus_proto::Direction::Drive),
+                );
+                for (i, item) in items.iter().enumerate() {
+                    if t.json {
+                        if let Some(v) = crate::commands::decode::render_json(p, item) {
+                            println!("{v}");
+                        }
+                    } else {
+                        print!("{}", crate::commands::decode::render_text(p, i + 1, item));
+                    }
+                }
+            }
+            None => println!("{}: sent; no reply is due", r.label),
+        }
+        Ok(0)
+    })
+}

@@ -97,7 +97,13 @@ fn commission(port: &str, family: &str, protocol: Option<&str>, address: u8) {
     let o = drivebus(port, family, protocol, address, &["speed", "5000"]);
     assert_eq!(o.code, 3, "{family}: out of range: {}{}", o.stdout, o.stderr);
     assert_eq!(o.stderr.lines().count(), 1, "{}", o.stderr);
-    let o = drivebus(port, family, protocol, if family == "toshiba" && protocol != Some("modbus-rtu") { 33 } else { 9 }, &["status"]);
+    let o = drivebus(
+        port,
+        family,
+        protocol,
+        if family == "toshiba" && protocol != Some("modbus-rtu") { 33 } else { 9 },
+        &["status"],
+    );
     assert_eq!(o.code, 2, "{family}: no drive there: {}{}", o.stdout, o.stderr);
     assert!(o.stderr.contains("no answer"), "{}", o.stderr);
 }
@@ -136,7 +142,11 @@ fn generic_ascii_over_tcp() {
 
 #[test]
 fn toshiba_in_every_protocol() {
-    for (drive, protocol) in [("toshiba@1", "toshiba-binary"), ("toshiba@1", "toshiba-ascii"), ("toshiba@1:modbus-rtu", "modbus-rtu")] {
+    for (drive, protocol) in [
+        ("toshiba@1", "toshiba-binary"),
+        ("toshiba@1", "toshiba-ascii"),
+        ("toshiba@1:modbus-rtu", "modbus-rtu"),
+    ] {
         let sim = simulate(drive, &["--tcp", "127.0.0.1:0"]);
         let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
         commission(&port, "toshiba", Some(protocol), 1);
@@ -191,7 +201,8 @@ fn the_generic_profile_drives_a_pymodbus_server() {
         return;
     }
     let port_no = 20000 + (std::process::id() % 20000) as u16;
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_server.py");
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_server.py");
     let mut cmd = Command::new("python3");
     cmd.arg(script).arg(port_no.to_string());
     let _server = Proc::start(cmd, "listening on ");

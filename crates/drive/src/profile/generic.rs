@@ -315,7 +315,7 @@ impl Profile for GenericProfile {
             Operation::WriteParam { name, raw, storage } => {
                 let def = self.def(name)?;
                 let register = register_of(def)?;
-                let value = checked_write(def, *raw, *storage, storage_rule)?;
+                let value = checked_write(def, *raw, *storage, &storage_rule)?;
                 Job::Write {
                     register,
                     value,
@@ -328,9 +328,13 @@ impl Profile for GenericProfile {
     }
 }
 
-/// Why a Storage that differs from the parameter's own is refused on the generic drive.
-fn storage_rule(def: &ParamDef, asked: Storage) -> String {
-    match asked {
+/// The generic drive writes every parameter where the catalog says it lives: a write must ask
+/// for that storage.
+fn storage_rule(def: &ParamDef, asked: Storage) -> Result<(), String> {
+    if asked == def.storage {
+        return Ok(());
+    }
+    Err(match asked {
         Storage::Ram => format!(
             "{} is an EEPROM setting and the generic drive stores every 06 write to it in EEPROM: the \
              protocol has no RAM-only write; ask for Storage::Eeprom",
@@ -340,7 +344,7 @@ fn storage_rule(def: &ParamDef, asked: Storage) -> String {
             "{} lives in RAM only ({}): it cannot be stored in EEPROM; ask for Storage::Ram",
             def.name, def.title
         ),
-    }
+    })
 }
 
 /// The Modbus register of a catalog entry (every generic and Toshiba number fits 16 bits).
@@ -356,20 +360,19 @@ pub(crate) fn register_of(def: &ParamDef) -> Result<u16, DriveError> {
     })
 }
 
-/// The checks every WriteParam passes before anything is sent: read-only, storage, range. The
+/// The checks every WriteParam passes before anything is sent: read-only, storage (as
+/// `storage_check` rules), range. The
 /// result is the 16-bit value on the wire (negative values in two's complement).
 pub(crate) fn checked_write(
     def: &ParamDef,
     raw: i64,
     storage: Storage,
-    storage_refusal: fn(&ParamDef, Storage) -> String,
+    storage_check: &dyn Fn(&ParamDef, Storage) -> Result<(), String>,
 ) -> Result<u16, DriveError> {
     if def.read_only {
         return Err(DriveError::Unsupported(format!("{} ({}) is read-only", def.name, def.title)));
     }
-    if storage != def.storage {
-        return Err(DriveError::Unsupported(storage_refusal(def, storage)));
-    }
+    storage_check(def, storage).map_err(DriveError::Unsupported)?;
     def.check(raw).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
     if raw < 0 {
         i16::try_from(raw).map(|v| v as u16).map_err(|_| {

@@ -14,6 +14,8 @@
 //!
 //! Every FA00 command carries bit 15 (command priority) and bit 14 (frequency priority): the
 //! drive acts on FA00 only with bit 15, and uses FA01 only with bit 14 (protocols.md 1.9).
+//! TIP requests always carry the inverter number, and ASCII requests `&` + SUM (optional in the
+//! manual), so that the drive checks them and its reply can be matched.
 //!
 //! Decisions (where the manuals are silent; they match the simulated VF-AS1 of `drivebus-sim`):
 //!

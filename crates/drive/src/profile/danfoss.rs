@@ -16,11 +16,15 @@
 //!   (bit 08, at 3-19 Jog Speed), bit 15 for reverse, and the reference of the current
 //!   setpoint. Reset is two telegrams, stop `043C` and then `04BC`, the 0->1 edge of bit 07.
 //!
-//! A profile that has commanded nothing yet does not know what the drive is doing. Before its
-//! first Run, Jog, Reverse or SetSpeed it reads the drive's state (the status word and MAV of a
-//! parameter reply), so that it repeats a start for a running drive and keeps its direction.
-//! It knows no setpoint either: Run before any SetSpeed starts at reference 0, which is
-//! 3-02 Minimum Reference (0 Hz by default).
+//! Reset leaves the drive stopped (with a start held through the reset edge, the motor would
+//! restart at once): Run again after it.
+//!
+//! A profile that has commanded nothing yet reads 16-00 Control Word (the last control word the
+//! drive acted on) before its first Run, Jog, Reverse or SetSpeed, and builds on it: a SetSpeed
+//! keeps a started drive started, in its direction; a Run to a drive that holds a start already
+//! sends nothing. The bus reference cannot be read back (the FC catalog has no reference
+//! readout), so until its first SetSpeed such a profile's Run starts at reference 0 (3-02
+//! Minimum Reference, 0 Hz by default) and its Reverse of a running drive is `Unsupported`.
 //!
 //! ## Reference and speed
 //!
@@ -90,8 +94,8 @@ const MAX_REF: u16 = 303;
 const HIGH_LIMIT: u16 = 414;
 /// 15-30 Alarm Log: Error Code.
 const ALARM_LOG: u16 = 1530;
-/// 16-03 Status Word.
-const STATUS_WORD: u16 = 1603;
+/// 16-00 Control Word: the last control word the drive acted on.
+const CONTROL_WORD: u16 = 1600;
 /// 16-14 Motor current (0.01 A).
 const MOTOR_CURRENT: u16 = 1614;
 
@@ -415,8 +419,8 @@ impl DanfossProfile {
                 if !known_ctw && broadcast {
                     return Err(needs_command("a set speed"));
                 }
-                let reads = plan.read_scale(true);
-                if !known_ctw && !reads {
+                plan.read_scale(true);
+                if !known_ctw {
                     plan.sync();
                 }
                 plan.push(Action::Command(Command::SetSpeed(hz)));
@@ -637,6 +641,8 @@ struct FcPlan {
     sent: Option<Sent>,
     /// Status word and MAV of the last reply.
     observed: Option<(StatusWord, Reference)>,
+    /// 16-00 as read for a profile that has commanded nothing.
+    drive_ctw: Option<ControlWord>,
     current_a: Option<f64>,
     alarm: Option<Fault>,
     value: Option<i64>,
@@ -650,6 +656,7 @@ impl FcPlan {
             queue: std::collections::VecDeque::new(),
             sent: None,
             observed: None,
+            drive_ctw: None,
             current_a: None,
             alarm: None,
             value: None,
@@ -660,25 +667,21 @@ impl FcPlan {
         self.queue.push_back(action);
     }
 
-    /// Queues reads of the scale parameters not yet known (with 4-14 when `limit`); true if any.
-    fn read_scale(&mut self, limit: bool) -> bool {
+    /// Queues reads of the scale parameters not yet known (with 4-14 when `limit`).
+    fn read_scale(&mut self, limit: bool) {
         if self.inner.broadcast() {
-            return false;
+            return;
         }
         let missing = self.inner.memory().known.missing(limit);
-        let any = !missing.is_empty();
         for pnu in missing {
             self.push(Action::read(pnu, 0, Why::Scale));
         }
-        any
     }
 
-    /// Queues what a command needs to learn the drive's state: the scale (to read MAV's
-    /// direction) and, if that is known already, 16-03.
+    /// Queues the read of 16-00 Control Word, the last control word the drive acted on, for a
+    /// command from a profile that has sent none.
     fn sync(&mut self) {
-        if !self.read_scale(false) {
-            self.push(Action::read(STATUS_WORD, 0, Why::Sync));
-        }
+        self.push(Action::read(CONTROL_WORD, 0, Why::Sync));
     }
 
     /// The request for `action`, with what it sends.
@@ -719,18 +722,10 @@ impl FcPlan {
     /// The control word and reference of a command, from the memory or what the drive showed.
     fn command(&self, command: Command, memory: &Memory) -> Result<Sent, DriveError> {
         let scale = memory.known.scale();
-        // Direction and running from the memory, else from the status read just before.
-        let (running, reverse) = match (memory.ctw, self.observed) {
-            (Some(c), _) => (c.start() || c.jog(), c.reverse()),
-            (None, Some((stw, mav))) => {
-                let hz = scale.map_or(f64::from(mav.0), |s| s.hz(mav));
-                (stw.in_operation(), hz < -0.05)
-            }
-            (None, None) => (false, false),
-        };
+        // The control word in force: the memory's, else the drive's 16-00, else a stop.
+        let current = memory.ctw.or(self.drive_ctw).unwrap_or(ControlWord::RAMP_STOP);
+        let reverse = current.reverse();
         let base = |word: ControlWord| word.with(ControlWord::BIT_REVERSE, reverse);
-        let current =
-            memory.ctw.unwrap_or(base(if running { ControlWord::START } else { ControlWord::RAMP_STOP }));
         let mut sent = Sent {
             action: Action::Command(command),
             ctw: current,
@@ -794,7 +789,7 @@ impl FcPlan {
                 };
                 match why {
                     Why::Scale => self.inner.memory().known.learn(pnu, raw),
-                    Why::Sync => {}
+                    Why::Sync => self.synced(raw)?,
                     Why::Current => {
                         self.current_a = Some(self.inner.def(pnu)?.from_raw(raw));
                         if reply.stw.trip() {
@@ -820,6 +815,30 @@ impl FcPlan {
                 Ok(())
             }
         }
+    }
+
+    /// Takes in 16-00 for a profile that has commanded nothing yet. A word with bit 10 = 0 was
+    /// never acted on (0000 after power-up): the drive holds no bus start.
+    fn synced(&mut self, raw: i64) -> Result<(), DriveError> {
+        let word = ControlWord(raw as u16).with(ControlWord::BIT_RESET, false);
+        let word = if word.data_valid() { word } else { ControlWord::RAMP_STOP };
+        self.drive_ctw = Some(word);
+        let started = word.start() && !word.jog();
+        match self.queue.front() {
+            // Already started: a start with the unknown reference replaced by 0 would slow it.
+            Some(Action::Command(Command::Run)) if started => {
+                self.queue.pop_front();
+            }
+            Some(Action::Command(Command::Reverse)) if started => {
+                return Err(DriveError::Unsupported(format!(
+                    "the drive runs (16-00 = {:04X}) with a bus reference this profile did not send, and the FC \
+                     protocol cannot read it back: a reverse would have to send one; give SetSpeed first",
+                    word.0
+                )));
+            }
+            _ => {}
+        }
+        Ok(())
     }
 
     /// The raw value of an AK 1/2 reply for `pnu`, or the drive's AK 7 refusal.

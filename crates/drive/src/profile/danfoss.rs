@@ -42,7 +42,8 @@
 //!
 //! One parameter telegram reading 16-14 Motor Current: its reply carries the status word
 //! (running = bit 11 "in operation", trip = bit 03) and MAV (output frequency, signed by
-//! direction). A tripped drive costs one more read, 15-30 Alarm Log [0], for the alarm number.
+//! direction; the profile's first status reads 3-00, 3-02 and 3-03 before it, to scale MAV).
+//! A tripped drive costs one more read, 15-30 Alarm Log [0], for the alarm number.
 //! The setpoint is the one this profile last commanded (the FC catalog has no reference
 //! readout).
 //!

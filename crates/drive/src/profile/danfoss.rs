@@ -43,7 +43,7 @@
 //! One parameter telegram reading 16-14 Motor Current: its reply carries the status word
 //! (running = bit 11 "in operation", trip = bit 03) and MAV (output frequency, signed by
 //! direction; the profile's first status reads 3-00, 3-02 and 3-03 before it, to scale MAV).
-//! A tripped drive costs one more read, 15-30 Alarm Log [0], for the alarm number.
+//! A tripped drive costs one more read, 15-30 Alarm Log element 0, for the alarm number.
 //! The setpoint is the one this profile last commanded (the FC catalog has no reference
 //! readout).
 //!
@@ -52,7 +52,7 @@
 //! - AK 7 "command cannot be performed": `Refused` with the fault code of PWElow and its
 //!   meaning (protocols.md 2.4).
 //! - Run or Jog to a tripped drive (status bit 03): `Refused` with the FC alarm number
-//!   (15-30 [0]) and its text; so is a Reset that leaves the trip in force.
+//!   (15-30 element 0) and its text; so is a Reset that leaves the trip in force.
 //! - A command while the drive does not take the bus control word (status bit 09 "bus
 //!   control" = 0: 8-02 Control Source, 8-01 Control Site): `Refused` with the status word as
 //!   the code.
@@ -579,9 +579,9 @@ enum Why {
     Sync,
     /// 16-14 for a status.
     Current,
-    /// 15-30 [0] for a status of a tripped drive.
+    /// 15-30 element 0 for a status of a tripped drive.
     Alarm,
-    /// 15-30 [0] for a refusal.
+    /// 15-30 element 0 for a refusal.
     Refusal(Refusal),
     /// The user's ReadParam.
     User,

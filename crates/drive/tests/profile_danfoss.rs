@@ -1,0 +1,556 @@
+//! The FC profile against the simulated Danfoss FC drive on a paced virtual line, on simulated
+//! time: every operation run to completion, refusals, range checks, parameters, broadcast.
+
+use std::time::Duration;
+
+use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
+use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
+use drivebus_drive::Storage;
+use drivebus_proto::deframe::{Deframer, Event};
+use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::Instant;
+use drivebus_sim::bus::VirtualLine;
+use drivebus_sim::family::danfoss::DanfossDrive;
+use drivebus_sim::model::{Rotation, RunState, Trip};
+
+/// How long the helper waits for a reply: the FC response timeout, 50 ms.
+const TIMEOUT: Duration = Duration::from_millis(50);
+/// The wait after a broadcast (protocols.md 2.9 / proto's BROADCAST_TURNAROUND).
+const TURNAROUND: Duration = Duration::from_millis(20);
+
+/// A 9600 baud 8E1 line with one FC drive per address; ports 1, 2, ... in that order.
+fn line_with(addresses: &[u8]) -> VirtualLine {
+    let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+    for &a in addresses {
+        line.add_device(Box::new(DanfossDrive::new(a, Instant::ZERO).expect("a drive")));
+    }
+    line
+}
+
+/// Runs the line until `end`, event by event.
+fn run_until(line: &mut VirtualLine, end: Instant) {
+    while let Some(t) = line.next_deadline().filter(|&t| t <= end) {
+        line.advance_to(t);
+    }
+    line.advance_to(end);
+}
+
+fn wait(line: &mut VirtualLine, d: Duration) {
+    let end = line.now() + d;
+    run_until(line, end);
+}
+
+/// Writes `request` and runs the line until a whole telegram has come back (or the timeout).
+fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Option<Vec<u8>> {
+    let now = line.now();
+    line.master_write(now, request);
+    let sent = now + line.char_time() * request.len() as u32;
+    if !expect_reply {
+        run_until(line, sent + TURNAROUND);
+        return None;
+    }
+    let deadline = sent + TIMEOUT;
+    let mut deframer = Deframer::new(FcScanner);
+    let mut frame = None;
+    loop {
+        match line.next_deadline() {
+            Some(t) if t <= deadline => line.advance_to(t),
+            _ => {
+                line.advance_to(deadline);
+                break;
+            }
+        }
+        let mut got = Vec::new();
+        line.master_read(&mut got);
+        deframer.push(&got, &mut |event| {
+            if let Event::Frame { bytes, .. } = event {
+                frame.get_or_insert_with(|| bytes.to_vec());
+            }
+        });
+        if frame.is_some() {
+            break;
+        }
+    }
+    // Two characters of silence before the next telegram (protocols.md 2.9).
+    wait(line, line.char_time() * 2);
+    frame
+}
+
+/// Runs a plan to its end; the outcome and the number of telegrams sent.
+fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
+    let mut reply: Option<Vec<u8>> = None;
+    let mut sent = 0;
+    loop {
+        match plan.step(reply.as_deref()) {
+            Err(e) => return (Err(e), sent),
+            Ok(Step::Done(outcome)) => return (Ok(outcome), sent),
+            Ok(Step::Send(x)) => {
+                sent += 1;
+                assert!(sent < 20, "a plan that does not end");
+                reply = transact(line, &x.request, x.expect_reply);
+            }
+        }
+    }
+}
+
+/// Runs `op` and expects it to succeed; returns the outcome and the telegram count.
+fn run(line: &mut VirtualLine, profile: &DanfossProfile, op: Operation) -> (Outcome, usize) {
+    let plan = profile.plan(&op).unwrap_or_else(|e| panic!("{op:?}: {e}"));
+    match execute(line, plan) {
+        (Ok(outcome), n) => (outcome, n),
+        (Err(e), _) => panic!("{op:?}: {e}"),
+    }
+}
+
+fn status(line: &mut VirtualLine, profile: &DanfossProfile) -> DriveStatus {
+    match run(line, profile, Operation::Status).0 {
+        Outcome::Status(s) => s,
+        other => panic!("a status, not {other:?}"),
+    }
+}
+
+fn read(line: &mut VirtualLine, profile: &DanfossProfile, name: &str) -> i64 {
+    match run(line, profile, Operation::ReadParam(name.to_string())).0 {
+        Outcome::Param(v) => v,
+        other => panic!("a value, not {other:?}"),
+    }
+}
+
+fn write(name: &str, raw: i64, storage: Storage) -> Operation {
+    Operation::WriteParam { name: name.to_string(), raw, storage }
+}
+
+fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
+    &line.drive(port).expect("a drive").core().model
+}
+
+fn refusal(result: Result<Outcome, DriveError>) -> (u32, String) {
+    match result {
+        Err(DriveError::Refused { code, meaning }) => (code, meaning),
+        other => panic!("a refusal, not {other:?}"),
+    }
+}
+
+#[test]
+fn set_speed_then_run_ramps_and_status_shows_it() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    assert_eq!(
+        (fc.family(), fc.protocol(), fc.address()),
+        (drivebus_drive::Family::Danfoss, "danfoss-fc", 1)
+    );
+
+    // The first set speed reads 3-00, 3-02, 3-03, 4-14 and 16-00 (0000: never commanded),
+    // then sends stop 043C with the reference of 40 Hz: the drive keeps still and holds it.
+    let (outcome, sent) = run(&mut line, &fc, Operation::SetSpeed(40.0));
+    assert_eq!((outcome, sent), (Outcome::Done, 6));
+    assert_eq!(fc.reference_range(), Some(ReferenceRange::catalog_defaults()));
+    assert_eq!(fc.last_command().map(|(c, r)| (c.0, r.0)), Some((0x043C, 0x3333)));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+    assert!((model(&mut line, 1).setpoint_hz() - 40.0).abs() < 0.01);
+
+    // Run is one telegram now: 047C with the same reference.
+    assert_eq!(run(&mut line, &fc, Operation::Run), (Outcome::Done, 1));
+    assert_eq!(model(&mut line, 1).state(), RunState::Running);
+
+    // 3-41 = 3 s from 0 to 50 Hz: about 16.7 Hz after a second. The first status reads 16-14
+    // only: the scale is known.
+    wait(&mut line, Duration::from_secs(1));
+    let (outcome, sent) = run(&mut line, &fc, Operation::Status);
+    assert_eq!(sent, 1);
+    let Outcome::Status(s) = outcome else { panic!("{outcome:?}") };
+    assert!(s.running && s.fault.is_none(), "{s:?}");
+    assert_eq!((s.address, s.direction.as_deref(), s.setpoint_hz), (1, Some("forward"), Some(40.0)));
+    let early = s.output_hz.expect("output");
+    assert!((10.0..25.0).contains(&early), "{early} Hz after 1 s");
+    assert!(s.current_a.expect("current") > 0.0);
+
+    wait(&mut line, Duration::from_secs(1));
+    let later = status(&mut line, &fc).output_hz.expect("output");
+    assert!(later > early + 10.0, "{early} -> {later}: the output ramps");
+    wait(&mut line, Duration::from_secs(2));
+    let s = status(&mut line, &fc);
+    assert!((s.output_hz.expect("output") - 40.0).abs() < 0.01, "{s:?}");
+
+    // A set speed while running repeats the start: the drive keeps running toward 25 Hz.
+    assert_eq!(run(&mut line, &fc, Operation::SetSpeed(25.0)), (Outcome::Done, 1));
+    assert_eq!(model(&mut line, 1).state(), RunState::Running);
+    assert!((model(&mut line, 1).setpoint_hz() - 25.0).abs() < 0.01);
+
+    // Stop ramps down: 25 Hz takes 1.5 s at 3 s per 50 Hz.
+    assert_eq!(run(&mut line, &fc, Operation::Stop), (Outcome::Done, 1));
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
+    wait(&mut line, Duration::from_secs(3));
+    let s = status(&mut line, &fc);
+    assert!(!s.running && s.output_hz == Some(0.0), "{s:?}");
+}
+
+#[test]
+fn first_status_reads_the_scale_then_one_telegram() {
+    let mut line = line_with(&[7]);
+    let fc = DanfossProfile::new(7).expect("profile");
+    let (outcome, sent) = run(&mut line, &fc, Operation::Status);
+    // 3-00, 3-02, 3-03, then 16-14.
+    assert_eq!(sent, 4);
+    let Outcome::Status(s) = outcome else { panic!("{outcome:?}") };
+    assert_eq!(
+        s,
+        DriveStatus {
+            address: 7,
+            running: false,
+            direction: None,
+            output_hz: Some(0.0),
+            setpoint_hz: None,
+            current_a: Some(0.0),
+            fault: None
+        }
+    );
+    assert_eq!(run(&mut line, &fc, Operation::Status).1, 1);
+    // 4-14 is read before the first set speed only.
+    assert_eq!(fc.reference_range(), None);
+}
+
+#[test]
+fn status_and_parameter_telegrams_do_not_change_the_drive() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    run(&mut line, &fc, Operation::SetSpeed(30.0));
+    run(&mut line, &fc, Operation::Run);
+    // 16-00 shows the control word the drive acted on last: the start, not the reads' words.
+    assert_eq!(read(&mut line, &fc, "16-00"), 0x047C);
+    status(&mut line, &fc);
+    run(&mut line, &fc, write("3-41", 200, Storage::Ram));
+    assert_eq!(read(&mut line, &fc, "16-00"), 0x047C);
+    assert_eq!(model(&mut line, 1).state(), RunState::Running);
+    assert!((model(&mut line, 1).setpoint_hz() - 30.0).abs() < 0.01);
+}
+
+#[test]
+fn reverse_and_jog() {
+    let mut line = line_with(&[3]);
+    let fc = DanfossProfile::new(3).expect("profile");
+    run(&mut line, &fc, Operation::SetSpeed(20.0));
+    run(&mut line, &fc, Operation::Run);
+    wait(&mut line, Duration::from_secs(2));
+    assert_eq!(run(&mut line, &fc, Operation::Reverse), (Outcome::Done, 1));
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x847C));
+    assert_eq!(model(&mut line, 1).rotation(), Rotation::Reverse);
+    // Through zero and up to 20 Hz the other way: 1.2 s down, 1.2 s up.
+    wait(&mut line, Duration::from_secs(3));
+    let s = status(&mut line, &fc);
+    assert_eq!(s.direction.as_deref(), Some("reverse"), "{s:?}");
+    assert!((s.output_hz.expect("output") - 20.0).abs() < 0.01, "{s:?}");
+
+    // Stop keeps the direction; Reverse on a stopped drive only turns it for the next run.
+    run(&mut line, &fc, Operation::Stop);
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x843C));
+    run(&mut line, &fc, Operation::Reverse);
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
+    wait(&mut line, Duration::from_secs(2));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+
+    // Jog: bit 08, 057C, at 3-19 = 150 rpm = 5 Hz with the 4-pole default motor.
+    assert_eq!(run(&mut line, &fc, Operation::Jog), (Outcome::Done, 1));
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x057C));
+    assert!(model(&mut line, 1).is_jogging());
+    wait(&mut line, Duration::from_secs(1));
+    let s = status(&mut line, &fc);
+    assert!(s.running && (s.output_hz.expect("output") - 5.0).abs() < 0.01, "{s:?}");
+    run(&mut line, &fc, Operation::Stop);
+    wait(&mut line, Duration::from_secs(1));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+}
+
+#[test]
+fn a_new_profile_reads_the_drives_control_word_before_commanding() {
+    let mut line = line_with(&[2]);
+    let first = DanfossProfile::new(2).expect("profile");
+    run(&mut line, &first, Operation::SetSpeed(30.0));
+    run(&mut line, &first, Operation::Run);
+    run(&mut line, &first, Operation::Reverse);
+    wait(&mut line, Duration::from_secs(3));
+
+    // Another profile (another program) sets the speed: after the scale it reads 16-00 = 847C
+    // and keeps the drive started in reverse.
+    let second = DanfossProfile::new(2).expect("profile");
+    assert_eq!(run(&mut line, &second, Operation::SetSpeed(20.0)), (Outcome::Done, 6));
+    assert_eq!(second.last_command().map(|(c, _)| c.0), Some(0x847C));
+    let m = model(&mut line, 1);
+    assert_eq!((m.state(), m.rotation()), (RunState::Running, Rotation::Reverse));
+    assert!((m.setpoint_hz() - 20.0).abs() < 0.01);
+
+    // A third one runs: the drive holds a start, so nothing is sent after 16-00 (a start with
+    // reference 0 would slow it down).
+    let third = DanfossProfile::new(2).expect("profile");
+    assert_eq!(run(&mut line, &third, Operation::Run), (Outcome::Done, 1));
+    assert_eq!(third.last_command(), None);
+    assert!((model(&mut line, 1).setpoint_hz() - 20.0).abs() < 0.01);
+    // Its reverse would have to send a reference it does not know.
+    let (result, sent) = execute(&mut line, third.plan(&Operation::Reverse).expect("plan"));
+    assert!(
+        matches!(result, Err(DriveError::Unsupported(ref s)) if s.contains("SetSpeed first")),
+        "{result:?}"
+    );
+    assert_eq!(sent, 1);
+    assert_eq!(model(&mut line, 1).rotation(), Rotation::Reverse);
+
+    // Stopped, a fresh profile's reverse turns the direction the drive holds (843C -> 043C).
+    run(&mut line, &second, Operation::Stop);
+    wait(&mut line, Duration::from_secs(2));
+    let fourth = DanfossProfile::new(2).expect("profile");
+    assert_eq!(run(&mut line, &fourth, Operation::Reverse), (Outcome::Done, 2));
+    assert_eq!(fourth.last_command().map(|(c, _)| c.0), Some(0x043C));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+}
+
+#[test]
+fn run_while_tripped_is_refused_with_the_alarm_and_reset_clears_it() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    run(&mut line, &fc, Operation::SetSpeed(30.0));
+    run(&mut line, &fc, Operation::Run);
+    wait(&mut line, Duration::from_secs(1));
+    line.drive_mut(1).expect("drive").core_mut().model.trip_now(Trip::OverCurrent);
+
+    // Status: trip bit 03 and alarm 13 from 15-30 [0] (one more telegram).
+    let (outcome, sent) = run(&mut line, &fc, Operation::Status);
+    assert_eq!(sent, 2);
+    let Outcome::Status(s) = outcome else { panic!("{outcome:?}") };
+    assert!(!s.running);
+    let fault = s.fault.expect("a fault");
+    assert_eq!((fault.code, fault.text.as_str()), (13, "over current"));
+
+    // Run: the start telegram, then 15-30 for the alarm number.
+    let (result, sent) = execute(&mut line, fc.plan(&Operation::Run).expect("plan"));
+    assert_eq!(sent, 2);
+    let (code, meaning) = refusal(result);
+    assert_eq!(code, 13);
+    assert_eq!(meaning, "the drive is tripped: reset it first (alarm 13: over current)");
+    let (result, _) = execute(&mut line, fc.plan(&Operation::Jog).expect("plan"));
+    assert_eq!(refusal(result).0, 13);
+
+    // Reset: stop 043C, then 04BC (the 0->1 edge of bit 07). The drive is left stopped.
+    assert_eq!(run(&mut line, &fc, Operation::Reset), (Outcome::Done, 2));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
+    assert_eq!(status(&mut line, &fc).fault, None);
+    run(&mut line, &fc, Operation::Run);
+    assert_eq!(model(&mut line, 1).state(), RunState::Running);
+}
+
+#[test]
+fn a_reset_that_leaves_the_trip_is_refused() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    {
+        let m = &mut line.drive_mut(1).expect("drive").core_mut().model;
+        m.set_supply(0.5);
+        m.trip_now(Trip::UnderVoltage);
+    }
+    let (result, sent) = execute(&mut line, fc.plan(&Operation::Reset).expect("plan"));
+    assert_eq!(sent, 3);
+    let (code, meaning) = refusal(result);
+    assert_eq!(code, 8);
+    assert!(meaning.contains("DC under voltage"), "{meaning}");
+}
+
+#[test]
+fn commands_without_bus_control_are_refused() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    // 8-01 Control Site = digital only: the drive ignores the control word (status bit 09 = 0).
+    run(&mut line, &fc, write("8-01", 1, Storage::Ram));
+    let (result, _) = execute(&mut line, fc.plan(&Operation::Run).expect("plan"));
+    let (code, meaning) = refusal(result);
+    assert_eq!(code & 0x0200, 0);
+    assert!(meaning.contains("bit 09"), "{meaning}");
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+    assert_eq!(fc.last_command(), None, "a command the drive ignored is not remembered");
+}
+
+#[test]
+fn set_speed_out_of_range_is_refused_before_anything_is_sent() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    for (hz, message) in [
+        (-1.0, "-1 Hz is below 0 Hz: give the direction with Reverse"),
+        (600.0, "600 Hz is above 500.0 Hz, the highest 4-14 Motor Speed High Limit an FC drive takes"),
+        (f64::NAN, "NaN is not a speed"),
+    ] {
+        assert_eq!(
+            fc.plan(&Operation::SetSpeed(hz)).err(),
+            Some(DriveError::OutOfRange(message.to_string()))
+        );
+    }
+    assert_eq!(line.stats().master_bytes, 0);
+
+    // Unknown limits: the reads go out (the scale and 16-00), the command does not.
+    let (result, sent) = execute(&mut line, fc.plan(&Operation::SetSpeed(55.0)).expect("plan"));
+    assert_eq!(sent, 5);
+    assert_eq!(
+        result,
+        Err(DriveError::OutOfRange("55 Hz is above the maximum reference 3-03 = 50.000 Hz".to_string()))
+    );
+    assert_eq!(fc.last_command(), None);
+    // Known limits: refused before any byte.
+    let before = line.stats().master_bytes;
+    assert!(matches!(fc.plan(&Operation::SetSpeed(50.5)), Err(DriveError::OutOfRange(_))));
+    assert_eq!(line.stats().master_bytes, before);
+
+    // 3-03 = 60 Hz written through the profile: 55 Hz is fine now; 4-14 = 65 Hz still bounds.
+    run(&mut line, &fc, write("3-03", 60_000, Storage::Ram));
+    // The profile has commanded nothing yet: one read of 16-00 for the drive's control word first.
+    assert_eq!(run(&mut line, &fc, Operation::SetSpeed(55.0)), (Outcome::Done, 2));
+    assert!((model(&mut line, 1).setpoint_hz() - 55.0).abs() < 0.01);
+    run(&mut line, &fc, write("4-14", 500, Storage::Ram));
+    assert_eq!(
+        fc.plan(&Operation::SetSpeed(55.0)).err(),
+        Some(DriveError::OutOfRange("55 Hz is above the motor speed high limit 4-14 = 50.0 Hz".to_string()))
+    );
+}
+
+#[test]
+fn parameters_round_trip_in_ram_and_eeprom() {
+    let mut line = line_with(&[5]);
+    let fc = DanfossProfile::new(5).expect("profile");
+    let eeprom = |line: &mut VirtualLine, name: &str| {
+        line.drive(1).expect("drive").core().params.eeprom_writes(name).expect("known")
+    };
+    // Double word 3-41 (AK 3 RAM, AK D EEPROM), word 4-14 (AK 2 / E).
+    assert_eq!(read(&mut line, &fc, "3-41"), 300);
+    assert_eq!(run(&mut line, &fc, write("3-41", 1250, Storage::Ram)), (Outcome::Done, 1));
+    assert_eq!(read(&mut line, &fc, "3-41"), 1250);
+    assert_eq!(eeprom(&mut line, "3-41"), 0);
+    run(&mut line, &fc, write("3-41", 800, Storage::Eeprom));
+    assert_eq!(read(&mut line, &fc, "341"), 800);
+    assert_eq!(eeprom(&mut line, "3-41"), 1);
+    run(&mut line, &fc, write("4-14", 600, Storage::Eeprom));
+    assert_eq!(read(&mut line, &fc, "4-14"), 600);
+    assert_eq!(eeprom(&mut line, "4-14"), 1);
+    // Signed double word: 3-02 = -5.000 Hz.
+    run(&mut line, &fc, write("3-02", -5000, Storage::Ram));
+    assert_eq!(read(&mut line, &fc, "3-02"), -5000);
+    // 15-30 Alarm Log, element 1 of 10.
+    line.drive_mut(1).expect("drive").core_mut().model.trip_now(Trip::External);
+    assert_eq!(read(&mut line, &fc, "15-30[0]"), 60);
+    assert_eq!(read(&mut line, &fc, "15-30[1]"), 0);
+    assert_eq!(fc.param("8-32").map(|p| p.title.as_str()), Ok("Baud Rate"));
+}
+
+#[test]
+fn parameter_refusals() {
+    let mut line = line_with(&[1]);
+    let fc = DanfossProfile::new(1).expect("profile");
+    let plan_err = |op: Operation| fc.plan(&op).err();
+    assert_eq!(
+        plan_err(Operation::ReadParam("99-99".into())),
+        Some(DriveError::Unsupported("the FC catalog has no parameter \"99-99\"".into()))
+    );
+    assert_eq!(
+        plan_err(write("16-14", 1, Storage::Ram)),
+        Some(DriveError::Unsupported(
+            "16-14 Motor current is read-only: the drive refuses every write".into()
+        ))
+    );
+    assert_eq!(
+        plan_err(write("4-14", 6000, Storage::Ram)),
+        Some(DriveError::OutOfRange("4-14 is 0.0..500.0 Hz, 600.0 is out of range".into()))
+    );
+    assert_eq!(
+        plan_err(Operation::ReadParam("15-30[10]".into())),
+        Some(DriveError::OutOfRange(
+            "15-30 Alarm Log: Error Code is an array of 10 (index 0..9): there is no element 10".into()
+        ))
+    );
+    assert!(matches!(plan_err(Operation::ReadParam("4-14[x]".into())), Some(DriveError::Unsupported(_))));
+    assert_eq!(line.stats().master_bytes, 0);
+
+    // AK 7 from the drive: 1-23 Motor Frequency cannot change while running (fault 17).
+    run(&mut line, &fc, Operation::SetSpeed(10.0));
+    run(&mut line, &fc, Operation::Run);
+    let (result, _) = execute(&mut line, fc.plan(&write("1-23", 60, Storage::Ram)).expect("plan"));
+    assert_eq!(result, Err(DriveError::Refused { code: 17, meaning: "not while running".into() }));
+    // And fault 2 from the drive's own check: 8-31 above 126 with the FC protocol.
+    let (result, _) = execute(&mut line, fc.plan(&write("8-31", 200, Storage::Ram)).expect("plan"));
+    assert_eq!(result, Err(DriveError::Refused { code: 2, meaning: "upper or lower limit exceeded".into() }));
+}
+
+#[test]
+fn broadcast_commands_reach_every_drive_and_ask_for_no_reply() {
+    let mut line = line_with(&[1, 2]);
+    let all = DanfossProfile::new(0).expect("profile");
+    assert_eq!(all.address(), 0);
+    assert_eq!(all.reference_range(), Some(ReferenceRange::catalog_defaults()));
+    assert!(matches!(all.plan(&Operation::Status), Err(DriveError::Unsupported(_))));
+    assert!(matches!(all.plan(&Operation::ReadParam("4-14".into())), Err(DriveError::Unsupported(_))));
+    assert!(matches!(all.plan(&Operation::SetSpeed(10.0)), Err(DriveError::Unsupported(_))));
+    assert!(matches!(all.plan(&Operation::Reverse), Err(DriveError::Unsupported(_))));
+
+    let mut plan = all.plan(&Operation::Run).expect("plan");
+    let Ok(Step::Send(x)) = plan.step(None) else { panic!("a telegram") };
+    assert!(!x.expect_reply);
+    assert_eq!(x.request[..7], [0x02, 0x06, 0x80, 0x04, 0x7C, 0x00, 0x00]);
+    transact(&mut line, &x.request, false);
+    assert_eq!(plan.step(None), Ok(Step::Done(Outcome::Done)));
+    assert_eq!(line.stats().device_bytes, 0);
+    assert_eq!(model(&mut line, 1).state(), RunState::Running);
+    assert_eq!(model(&mut line, 2).state(), RunState::Running);
+
+    // Set speed with the catalog's scale (3-03 = 50 Hz), and a parameter write.
+    assert_eq!(run(&mut line, &all, Operation::SetSpeed(25.0)), (Outcome::Done, 1));
+    assert_eq!(run(&mut line, &all, write("3-42", 150, Storage::Ram)), (Outcome::Done, 1));
+    for port in [1, 2] {
+        assert!((model(&mut line, port).setpoint_hz() - 25.0).abs() < 0.01);
+        assert_eq!(line.drive(port).expect("drive").core().params.get("3-42"), Some(150));
+    }
+    run(&mut line, &all, Operation::Stop);
+    wait(&mut line, Duration::from_secs(2));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+    assert_eq!(line.stats().device_bytes, 0);
+}
+
+#[test]
+fn address_format_1_to_31() {
+    let mut line = line_with(&[22]);
+    let fc = DanfossProfile::with_address_format(22, AddressFormat::OneTo31).expect("profile");
+    let mut plan = fc.plan(&Operation::Stop).expect("plan");
+    let Ok(Step::Send(x)) = plan.step(None) else { panic!("a telegram") };
+    // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
+    assert_eq!(x.request[2], 0x16);
+    let reply = transact(&mut line, &x.request, true);
+    assert_eq!(plan.step(reply.as_deref()), Ok(Step::Done(Outcome::Done)));
+    assert!(DanfossProfile::with_address_format(32, AddressFormat::OneTo31).is_err());
+    assert_eq!(
+        DanfossProfile::new(127).err(),
+        Some(DriveError::OutOfRange(
+            "an FC drive address is 1 to 126 in address format 1–126 (0 for broadcast), not 127".into()
+        ))
+    );
+}
+
+#[test]
+fn malformed_or_missing_replies_are_protocol_errors() {
+    let fc = DanfossProfile::new(1).expect("profile");
+    let first = |fc: &DanfossProfile, op: &Operation| {
+        let mut plan = fc.plan(op).expect("plan");
+        let Ok(Step::Send(_)) = plan.step(None) else { panic!("a telegram") };
+        plan
+    };
+    let mut plan = first(&fc, &Operation::Stop);
+    assert!(matches!(plan.step(Some(&[0x02, 0x06, 0x81])), Err(DriveError::Protocol(_))));
+    let mut plan = first(&fc, &Operation::Stop);
+    assert_eq!(plan.step(None), Err(DriveError::Protocol("drive 1 did not answer".into())));
+    // A reply from another ADR: 02 06 82 0603 0000 BCC.
+    let mut plan = first(&fc, &Operation::Stop);
+    let other = [0x02, 0x06, 0x82, 0x06, 0x03, 0x00, 0x00, 0x02 ^ 0x06 ^ 0x82 ^ 0x06 ^ 0x03];
+    assert_eq!(
+        plan.step(Some(&other)),
+        Err(DriveError::Protocol("the reply carries ADR 82, the request 81".into()))
+    );
+    // A process block answering a parameter read.
+    let mut plan = first(&fc, &Operation::ReadParam("4-14".into()));
+    let process = [0x02, 0x06, 0x81, 0x06, 0x03, 0x00, 0x00, 0x02 ^ 0x06 ^ 0x81 ^ 0x06 ^ 0x03];
+    assert!(matches!(plan.step(Some(&process)), Err(DriveError::Protocol(_))));
+    assert_eq!(ControlWord::START.0, 0x047C);
+}

@@ -141,10 +141,11 @@ fn set_speed_then_run_ramps_and_status_shows_it() {
         (drivebus_drive::Family::Danfoss, "danfoss-fc", 1)
     );
 
-    // The first set speed reads 3-00, 3-02, 3-03, 4-14 and 16-00 (0000: never commanded),
-    // then sends stop 043C with the reference of 40 Hz: the drive keeps still and holds it.
+    // The first set speed reads 3-00, 3-02, 3-03, 4-14, 16-02 (the reference held) and 16-00
+    // (0000: never commanded), then sends stop 043C with the reference of 40 Hz: the drive
+    // keeps still and holds it.
     let (outcome, sent) = run(&mut line, &fc, Operation::SetSpeed(40.0));
-    assert_eq!((outcome, sent), (Outcome::Done, 6));
+    assert_eq!((outcome, sent), (Outcome::Done, 7));
     assert_eq!(fc.reference_range(), Some(ReferenceRange::catalog_defaults()));
     assert_eq!(fc.last_command().map(|(c, r)| (c.0, r.0)), Some((0x043C, 0x3333)));
     assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
@@ -271,35 +272,35 @@ fn a_new_profile_reads_the_drives_control_word_before_commanding() {
     run(&mut line, &first, Operation::Reverse);
     wait(&mut line, Duration::from_secs(3));
 
-    // Another profile (another program) sets the speed: after the scale it reads 16-00 = 847C
-    // and keeps the drive started in reverse.
+    // Another profile (another program) sets the speed: after the scale it reads 16-02 (the
+    // reference held) and 16-00 = 847C, and keeps the drive started in reverse.
     let second = DanfossProfile::new(2).expect("profile");
-    assert_eq!(run(&mut line, &second, Operation::SetSpeed(20.0)), (Outcome::Done, 6));
+    assert_eq!(run(&mut line, &second, Operation::SetSpeed(20.0)), (Outcome::Done, 7));
     assert_eq!(second.last_command().map(|(c, _)| c.0), Some(0x847C));
     let m = model(&mut line, 1);
     assert_eq!((m.state(), m.rotation()), (RunState::Running, Rotation::Reverse));
     assert!((m.setpoint_hz() - 20.0).abs() < 0.01);
 
-    // A third one runs: the drive holds a start, so nothing is sent after 16-00 (a start with
-    // reference 0 would slow it down).
+    // A third one runs: the drive holds a start, so nothing is sent after 16-02 and 16-00 (a
+    // start is already in force).
     let third = DanfossProfile::new(2).expect("profile");
-    assert_eq!(run(&mut line, &third, Operation::Run), (Outcome::Done, 1));
+    assert_eq!(run(&mut line, &third, Operation::Run), (Outcome::Done, 2));
     assert_eq!(third.last_command(), None);
     assert!((model(&mut line, 1).setpoint_hz() - 20.0).abs() < 0.01);
-    // Its reverse would have to send a reference it does not know.
+    // Its reverse keeps the reference the drive holds (read from 16-02) and turns the motor.
     let (result, sent) = execute(&mut line, third.plan(&Operation::Reverse).expect("plan"));
-    assert!(
-        matches!(result, Err(DriveError::Unsupported(ref s)) if s.contains("SetSpeed first")),
-        "{result:?}"
-    );
-    assert_eq!(sent, 1);
+    assert_eq!(result, Ok(Outcome::Done));
+    assert_eq!(sent, 3);
+    assert_eq!(model(&mut line, 1).rotation(), Rotation::Forward);
+    assert!((model(&mut line, 1).setpoint_hz() - 20.0).abs() < 0.01);
+    run(&mut line, &third, Operation::Reverse);
     assert_eq!(model(&mut line, 1).rotation(), Rotation::Reverse);
 
     // Stopped, a fresh profile's reverse turns the direction the drive holds (843C -> 043C).
     run(&mut line, &second, Operation::Stop);
     wait(&mut line, Duration::from_secs(2));
     let fourth = DanfossProfile::new(2).expect("profile");
-    assert_eq!(run(&mut line, &fourth, Operation::Reverse), (Outcome::Done, 2));
+    assert_eq!(run(&mut line, &fourth, Operation::Reverse), (Outcome::Done, 3));
     assert_eq!(fourth.last_command().map(|(c, _)| c.0), Some(0x043C));
     assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
 }
@@ -385,9 +386,9 @@ fn set_speed_out_of_range_is_refused_before_anything_is_sent() {
     }
     assert_eq!(line.stats().master_bytes, 0);
 
-    // Unknown limits: the reads go out (the scale and 16-00), the command does not.
+    // Unknown limits: the reads go out (the scale, 16-02 and 16-00), the command does not.
     let (result, sent) = execute(&mut line, fc.plan(&Operation::SetSpeed(55.0)).expect("plan"));
-    assert_eq!(sent, 5);
+    assert_eq!(sent, 6);
     assert_eq!(
         result,
         Err(DriveError::OutOfRange("55 Hz is above the maximum reference 3-03 = 50.000 Hz".to_string()))
@@ -400,8 +401,9 @@ fn set_speed_out_of_range_is_refused_before_anything_is_sent() {
 
     // 3-03 = 60 Hz written through the profile: 55 Hz is fine now; 4-14 = 65 Hz still bounds.
     run(&mut line, &fc, write("3-03", 60_000, Storage::Ram));
-    // The profile has commanded nothing yet: one read of 16-00 for the drive's control word first.
-    assert_eq!(run(&mut line, &fc, Operation::SetSpeed(55.0)), (Outcome::Done, 2));
+    // The profile has commanded nothing yet: reads of 16-02 and 16-00 (the reference and the
+    // control word the drive holds) first.
+    assert_eq!(run(&mut line, &fc, Operation::SetSpeed(55.0)), (Outcome::Done, 3));
     assert!((model(&mut line, 1).setpoint_hz() - 55.0).abs() < 0.01);
     run(&mut line, &fc, write("4-14", 500, Storage::Ram));
     assert_eq!(
@@ -553,4 +555,19 @@ fn malformed_or_missing_replies_are_protocol_errors() {
     let process = [0x02, 0x06, 0x81, 0x06, 0x03, 0x00, 0x00, 0x02 ^ 0x06 ^ 0x81 ^ 0x06 ^ 0x03];
     assert!(matches!(plan.step(Some(&process)), Err(DriveError::Protocol(_))));
     assert_eq!(ControlWord::START.0, 0x047C);
+}
+
+/// A profile made after another one set the speed (another `drivebus` run) keeps that speed:
+/// it reads the reference the drive holds (16-02) before its first command.
+#[test]
+fn a_fresh_profile_keeps_the_reference_the_drive_holds() {
+    let mut line = line_with(&[4]);
+    let first = DanfossProfile::new(4).expect("profile");
+    run(&mut line, &first, Operation::SetSpeed(30.0));
+    let second = DanfossProfile::new(4).expect("profile");
+    run(&mut line, &second, Operation::Run);
+    wait(&mut line, Duration::from_secs(20));
+    let m = model(&mut line, 1);
+    assert_eq!(m.state(), RunState::Running);
+    assert!((m.output_hz() - 30.0).abs() < 0.05, "{} Hz", m.output_hz());
 }

@@ -72,7 +72,7 @@ pub enum ParamCmd {
 /// `params` subcommands.
 #[derive(Subcommand, Debug)]
 pub enum ParamsCmd {
-    /// Read every writable parameter into FILE (JSON).
+    /// Read every setting (writable, stored in EEPROM) into FILE (JSON).
     Backup {
         /// The file to write.
         file: PathBuf,
@@ -277,9 +277,22 @@ pub fn param(t: &Target, cmd: &ParamCmd) -> Result<u8> {
                 }
             }
             ParamCmd::Set { name, value, eeprom } => {
-                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
-                if *eeprom {
-                    eprintln!("drivebus: note: writing {name} to EEPROM (about 10 000 writes per parameter over the drive's life); leave out --eeprom for RAM");
+                let def = drive.profile().param(name).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
+                let choose = can_choose_storage(drive.profile().family(), drive.profile().protocol());
+                let storage = if *eeprom {
+                    Storage::Eeprom
+                } else if choose {
+                    Storage::Ram
+                } else {
+                    def.storage
+                };
+                if storage == Storage::Eeprom {
+                    let why = if *eeprom {
+                        "as asked".to_string()
+                    } else {
+                        format!("every {} write of it goes to EEPROM", drive.profile().protocol())
+                    };
+                    eprintln!("drivebus: note: {name} is written to EEPROM ({why}; about 10 000 writes per parameter over the drive's life)");
                 }
                 let raw = drive.write_param(name, value, storage).await.map_err(|e| classify(e, &label))?;
                 let def = drive.profile().param(name).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
@@ -294,11 +307,18 @@ pub fn param(t: &Target, cmd: &ParamCmd) -> Result<u8> {
     })
 }
 
+/// Whether the protocol lets the master choose RAM or EEPROM for a write (TIP `P`/`W`, FC AK
+/// 2/3 or E/D); Modbus 06 on the generic and Toshiba drives always stores.
+fn can_choose_storage(family: Family, protocol: &str) -> bool {
+    matches!((family, protocol), (Family::Toshiba, "toshiba-ascii" | "toshiba-binary") | (Family::Danfoss, _))
+}
+
 async fn read_all(drive: &Drive, label: &str) -> Result<Map<String, Value>> {
     let family = drive.profile().family();
     let catalog = drivebus_drive::Catalog::load(family).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let mut out = Map::new();
-    for def in catalog.iter().filter(|d| !d.read_only) {
+    // The drive's settings: stored in EEPROM and writable (not commands, setpoints, monitors).
+    for def in catalog.iter().filter(|d| !d.read_only && d.storage == Storage::Eeprom) {
         match drive.read_param(&def.name).await {
             Ok((raw, def)) => {
                 out.insert(def.name.clone(), json!({"raw": raw, "value": def.format(raw)}));

@@ -97,6 +97,8 @@ const HIGH_LIMIT: u16 = 414;
 const ALARM_LOG: u16 = 1530;
 /// 16-00 Control Word: the last control word the drive acted on.
 const CONTROL_WORD: u16 = 1600;
+/// 16-02 Reference [%]: the reference the drive holds (conversion index -1).
+const REFERENCE_PCT: u16 = 1602;
 /// 16-14 Motor current (0.01 A).
 const MOTOR_CURRENT: u16 = 1614;
 
@@ -577,6 +579,8 @@ enum Why {
     Scale,
     /// Only for the status word and MAV of the reply.
     Sync,
+    /// 16-02 Reference [%] for a profile that has commanded nothing: the reference to keep.
+    SyncReference,
     /// 16-14 for a status.
     Current,
     /// 15-30 element 0 for a status of a tripped drive.
@@ -682,6 +686,8 @@ impl FcPlan {
     /// Queues the read of 16-00 Control Word, the last control word the drive acted on, for a
     /// command from a profile that has sent none.
     fn sync(&mut self) {
+        // The reference first, so that a run from a fresh profile keeps the drive's speed.
+        self.push(Action::read(REFERENCE_PCT, 0, Why::SyncReference));
         self.push(Action::read(CONTROL_WORD, 0, Why::Sync));
     }
 
@@ -791,6 +797,12 @@ impl FcPlan {
                 match why {
                     Why::Scale => self.inner.memory().known.learn(pnu, raw),
                     Why::Sync => self.synced(raw)?,
+                    Why::SyncReference => {
+                        let reference = Reference::from_percent(raw as f64 / 10.0);
+                        let mut memory = self.inner.memory();
+                        memory.reference = reference;
+                        memory.setpoint_hz = memory.known.scale().map(|range| range.hz(reference));
+                    }
                     Why::Current => {
                         self.current_a = Some(self.inner.def(pnu)?.from_raw(raw));
                         if reply.stw.trip() {
@@ -829,13 +841,6 @@ impl FcPlan {
             // Already started: a start with the unknown reference replaced by 0 would slow it.
             Some(Action::Command(Command::Run)) if started => {
                 self.queue.pop_front();
-            }
-            Some(Action::Command(Command::Reverse)) if started => {
-                return Err(DriveError::Unsupported(format!(
-                    "the drive runs (16-00 = {:04X}) with a bus reference this profile did not send, and the FC \
-                     protocol cannot read it back: a reverse would have to send one; give SetSpeed first",
-                    word.0
-                )));
             }
             _ => {}
         }

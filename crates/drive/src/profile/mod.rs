@@ -167,6 +167,37 @@ pub trait Profile: Send + Sync {
 
 /// The profile for drive `address` of `family` spoken in `protocol` (a codec name).
 pub fn for_drive(family: Family, protocol: &str, address: u8) -> Result<Box<dyn Profile>, DriveError> {
-    let _ = address;
-    Err(DriveError::Unsupported(format!("no profile yet for {family} over {protocol}")))
+    let wrong = || {
+        DriveError::Unsupported(format!(
+            "a {family} drive does not speak {protocol:?}: use {}",
+            match family {
+                Family::Generic => "modbus-rtu or modbus-ascii",
+                Family::Toshiba => "modbus-rtu, toshiba-ascii or toshiba-binary",
+                Family::Danfoss => "danfoss-fc",
+                Family::B800 => "b800",
+            }
+        ))
+    };
+    Ok(match family {
+        Family::Generic => {
+            let p = match protocol {
+                "modbus-rtu" => generic::GenericProtocol::Rtu,
+                "modbus-ascii" => generic::GenericProtocol::Ascii,
+                _ => return Err(wrong()),
+            };
+            Box::new(generic::GenericProfile::new(address, p)?)
+        }
+        Family::Toshiba => {
+            let p = match protocol {
+                "modbus-rtu" => toshiba::ToshibaProtocol::ModbusRtu,
+                "toshiba-ascii" => toshiba::ToshibaProtocol::TipAscii,
+                "toshiba-binary" => toshiba::ToshibaProtocol::TipBinary,
+                _ => return Err(wrong()),
+            };
+            Box::new(toshiba::ToshibaProfile::new(address, p)?)
+        }
+        Family::Danfoss if protocol == "danfoss-fc" => Box::new(danfoss::DanfossProfile::new(address)?),
+        Family::B800 if protocol == "b800" => Box::new(b800::B800Profile::new(address)?),
+        _ => return Err(wrong()),
+    })
 }

@@ -596,6 +596,7 @@ impl State {
         let power_10w = (3f64.sqrt() * m.output_v() * m.current_a() * 0.85 / 10.0).round() as i64;
         let values = [
             ("16-00", i64::from(self.ctw.0)),
+            ("16-02", (self.reference.percent() * 10.0).round() as i64),
             ("16-03", i64::from(stw.0)),
             ("16-10", power_10w),
             ("16-12", (m.output_v() * 10.0).round() as i64),

@@ -53,6 +53,9 @@ enum Command {
     /// Back up, restore or compare a drive's parameter set.
     #[command(subcommand)]
     Params(commands::drive::ParamsCmd),
+    /// Find the drives on a line across addresses, baud rates and protocols (--drive auto for
+    /// every family).
+    Scan(commands::scan::ScanArgs),
     /// Send bytes (hex) as one request and print the decoded reply.
     Raw {
         /// The request on the wire, in hex.
@@ -93,6 +96,7 @@ fn main() -> ExitCode {
         Command::Param(cmd) => commands::drive::param(&cli.target, &cmd),
         Command::Params(cmd) => commands::drive::params(&cli.target, &cmd),
         Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
+        Command::Scan(args) => commands::scan::run(&args, &cli.target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

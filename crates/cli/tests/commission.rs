@@ -230,3 +230,30 @@ fn the_generic_profile_drives_a_pymodbus_server() {
     let text = v.to_string();
     assert!(text.contains("2500") || text.contains("09C4"), "{text}");
 }
+
+#[test]
+fn scan_finds_the_drives_on_a_mixed_line() {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", "generic@3:modbus-rtu", "--drive", "b800@5", "--tcp", "127.0.0.1:0"]);
+    let sim = Proc::start(cmd, "listening on ");
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["scan", "--port", &port, "--drive", "auto", "--addresses", "1-6", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let found: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let list = found.as_array().unwrap();
+    assert!(
+        list.iter().any(|f| f["family"] == "generic" && f["address"] == 3 && f["protocol"] == "modbus-rtu"),
+        "{found}"
+    );
+    assert!(list.iter().any(|f| f["family"] == "b800" && f["address"] == 5), "{found}");
+    assert!(!list.iter().any(|f| f["address"] == 1 || f["address"] == 2), "{found}");
+    // --first stops at the first; nothing at 10-12 is exit 2.
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["scan", "--port", &port, "--drive", "b800", "--addresses", "10-12"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+}

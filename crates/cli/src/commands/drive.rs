@@ -120,6 +120,16 @@ fn fail(code: u8, message: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Failure { code, message: message.into() })
 }
 
+/// A bad-usage failure (exit 3).
+pub fn usage(message: impl Into<String>) -> anyhow::Error {
+    fail(EXIT_USAGE, message)
+}
+
+/// A link failure (exit 2).
+pub fn link_failure(message: impl Into<String>) -> anyhow::Error {
+    fail(EXIT_LINK, message)
+}
+
 fn classify(e: Error, target: &str) -> anyhow::Error {
     match e {
         Error::Drive(DriveError::Refused { .. }) => fail(EXIT_REFUSED, format!("{target}: {e}")),

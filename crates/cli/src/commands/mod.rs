@@ -2,4 +2,5 @@
 
 pub mod decode;
 pub mod drive;
+pub mod scan;
 pub mod simulate;

@@ -1,0 +1,213 @@
+//! `drivebus scan`: find the drives on a line across addresses, baud rates and protocols.
+
+use std::time::Duration;
+
+use anyhow::Result;
+use clap::Args;
+use drivebus_drive::profile::{for_drive, DriveError};
+use drivebus_drive::Family;
+use drivebus_link::drive::{open_with, Drive, Error};
+use drivebus_link::owner::BusConfig;
+use drivebus_proto::line::CharFormat;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+
+use crate::commands::drive::Target;
+
+/// Arguments of `drivebus scan` (with the global --port, --drive FAMILY|auto, --protocol,
+/// --baud, --serial, --timeout, --json).
+#[derive(Args, Debug)]
+pub struct ScanArgs {
+    /// Addresses to try, e.g. 1-32 or 1,2,5 (default: every address of the family).
+    #[arg(long, value_name = "RANGE")]
+    pub addresses: Option<String>,
+    /// Baud rates to try, e.g. 9600,19200 (default: --baud, or the family's).
+    #[arg(long, value_name = "LIST")]
+    pub bauds: Option<String>,
+    /// Stop at the first drive that answers.
+    #[arg(long)]
+    pub first: bool,
+}
+
+struct Found {
+    family: Family,
+    protocol: String,
+    address: u8,
+    baud: u32,
+    format: CharFormat,
+    note: String,
+}
+
+fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
+    let mut out = Vec::new();
+    for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let bad =
+            || crate::commands::drive::usage(format!("{what} {part:?} is not a number or a range like 1-32"));
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b): (u32, u32) =
+                    (a.trim().parse().map_err(|_| bad())?, b.trim().parse().map_err(|_| bad())?);
+                if a > b {
+                    return Err(bad());
+                }
+                out.extend(a..=b);
+            }
+            None => out.push(part.parse().map_err(|_| bad())?),
+        }
+    }
+    Ok(out)
+}
+
+fn family_range(family: Family, protocol: &str) -> (u8, u8) {
+    match (family, protocol) {
+        (Family::Generic, _) => (1, 247),
+        (Family::Toshiba, "modbus-rtu") => (1, 247),
+        (Family::Toshiba, "toshiba-binary") => (0, 63),
+        (Family::Toshiba, _) => (0, 99),
+        (Family::Danfoss, _) => (1, 126),
+        (Family::B800, _) => (1, 63),
+    }
+}
+
+/// Runs `drivebus scan`; exit 0 when a drive answered, 2 when none did.
+pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
+    let port = t.port.clone().ok_or_else(|| {
+        crate::commands::drive::usage("say which line: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
+    })?;
+    let families: Vec<Family> = match t.drive.as_slice() {
+        [] => {
+            return Err(crate::commands::drive::usage(
+                "say which drive family, or --drive auto to try them all",
+            ))
+        }
+        [one] if one == "auto" => Family::ALL.to_vec(),
+        names => names
+            .iter()
+            .map(|n| {
+                n.parse().map_err(|_| {
+                    crate::commands::drive::usage(format!(
+                        "unknown drive family {n:?}: use generic, toshiba, danfoss, b800 or auto"
+                    ))
+                })
+            })
+            .collect::<Result<_>>()?,
+    };
+    // Every (family, protocol, baud, format, address) to try.
+    let mut combos = Vec::new();
+    for &family in &families {
+        let protocols: Vec<String> = match &t.protocol {
+            Some(p) => vec![p.clone()],
+            None => drivebus_sim::config::protocols(family).iter().map(|s| s.to_string()).collect(),
+        };
+        for protocol in protocols {
+            if for_drive(family, &protocol, 1).is_err() {
+                continue;
+            }
+            let (db, df) = drivebus_sim::config::serial_default(family, Some(&protocol));
+            let bauds = match (&args.bauds, t.baud) {
+                (Some(list), _) => parse_list(list, "baud")?,
+                (None, Some(b)) => vec![b],
+                (None, None) => vec![db],
+            };
+            let format = match &t.serial {
+                Some(s) => s
+                    .parse::<CharFormat>()
+                    .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?,
+                None => df,
+            };
+            let (lo, hi) = family_range(family, &protocol);
+            let addresses: Vec<u8> = match &args.addresses {
+                Some(r) => parse_list(r, "address")?
+                    .into_iter()
+                    .filter(|&a| a >= lo as u32 && a <= hi as u32)
+                    .map(|a| a as u8)
+                    .collect(),
+                None => (lo..=hi).collect(),
+            };
+            for &baud in &bauds {
+                for &address in &addresses {
+                    combos.push((family, protocol.clone(), baud, format, address));
+                }
+            }
+        }
+    }
+    if combos.is_empty() {
+        return Err(crate::commands::drive::usage(
+            "nothing to scan: check --drive, --protocol and --addresses",
+        ));
+    }
+    let timeout = Duration::from_millis(t.timeout.unwrap_or(60));
+    let bar = if t.json { ProgressBar::hidden() } else { ProgressBar::new(combos.len() as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let found: Vec<Found> = rt.block_on(async {
+        let mut found = Vec::new();
+        let mut current: Option<((String, u32, CharFormat), drivebus_link::Bus)> = None;
+        for (family, protocol, baud, format, address) in combos {
+            bar.set_message(format!("{family} {protocol} {baud} address {address}"));
+            bar.inc(1);
+            let key = (protocol.clone(), baud, format);
+            if current.as_ref().map(|(k, _)| k) != Some(&key) {
+                let mut config = BusConfig::new(&protocol, baud, format);
+                config.retries = 0;
+                config.response_timeout = Some(timeout);
+                config.offline_after = u32::MAX;
+                let bus = open_with(&port, config)
+                    .await
+                    .map_err(|e| crate::commands::drive::link_failure(e.to_string()))?;
+                current = Some((key, bus));
+            }
+            let Some((_, bus)) = &current else { continue };
+            let Ok(profile) = for_drive(family, &protocol, address) else { continue };
+            let drive = Drive::new(bus.clone(), profile);
+            let note = match drive.status().await {
+                Ok(s) => format!(
+                    "{}{}",
+                    if s.running { "running" } else { "stopped" },
+                    s.output_hz.map(|h| format!(" at {h:.2} Hz")).unwrap_or_default()
+                ),
+                // A refusal is an answer: something with this address speaks the protocol.
+                Err(Error::Drive(DriveError::Refused { code, meaning })) => {
+                    format!("answers (refused status: {code}, {meaning})")
+                }
+                Err(Error::Drive(DriveError::Protocol(e))) => format!("answers oddly: {e}"),
+                Err(_) => continue,
+            };
+            bar.println(format!("found {family} drive {address} ({protocol}, {baud} {format}): {note}"));
+            found.push(Found { family, protocol, address, baud, format, note });
+            if args.first {
+                break;
+            }
+        }
+        Ok::<_, anyhow::Error>(found)
+    })?;
+    bar.finish_and_clear();
+    if t.json {
+        let list: Vec<_> = found
+            .iter()
+            .map(|f| json!({"family": f.family.to_string(), "protocol": f.protocol, "address": f.address, "baud": f.baud, "serial": f.format.to_string(), "state": f.note}))
+            .collect();
+        println!("{}", json!(list));
+    } else if found.is_empty() {
+        eprintln!(
+            "drivebus: no drive answered on {port}: check the wiring, the termination and --drive/--bauds"
+        );
+    } else {
+        println!("{:<8} {:<15} {:>7} {:>7} {:<6} state", "family", "protocol", "address", "baud", "serial");
+        for f in &found {
+            println!(
+                "{:<8} {:<15} {:>7} {:>7} {:<6} {}",
+                f.family.to_string(),
+                f.protocol,
+                f.address,
+                f.baud,
+                f.format.to_string(),
+                f.note
+            );
+        }
+    }
+    Ok(if found.is_empty() { crate::commands::drive::EXIT_LINK } else { 0 })
+}

@@ -123,6 +123,18 @@ fn b800_drive_over_tcp_with_control_interface() {
     assert_ne!(reply, b800("0574"));
     sim.http("PUT", "/faults", r#"{"corrupt_rate": 0.0}"#);
 
+    // Parameters as on the keypad: F-12 = 0 (terminals) makes R an error 91.
+    let (code, _) = sim.http("POST", "/drives/1", r#"{"params": {"F-12": 0}}"#);
+    assert_eq!(code, 200);
+    let reply = exchange(&mut bus, &b800("8552"), 10);
+    assert_eq!(&reply[..7], b"\x7E056591", "{reply:?}");
+    let (code, e) = sim.http("POST", "/drives/1", r#"{"params": {"F-12": 7}}"#);
+    assert_eq!(code, 422);
+    assert!(e["error"].as_str().unwrap().contains("F-12"), "{e}");
+    // A power cycle stops the motor.
+    let (code, d) = sim.http("POST", "/drives/1", r#"{"power_cycle": true}"#);
+    assert_eq!((code, d["state"].as_str()), (200, Some("stopped")));
+
     // Bad requests get a 4xx with a sentence.
     let (code, e) = sim.http("POST", "/drives/9", r#"{"load": 1}"#);
     assert_eq!(code, 404);

@@ -44,6 +44,7 @@ async fn run(baud: u32) -> (f64, f64, f64) {
             protocol: Some("modbus-rtu".into()),
             response: RESPONSE,
             load: 0.5,
+            params: Vec::new(),
         };
         let mut d = drivebus_sim::family::build(&spec, Instant::ZERO).expect("drive");
         d.core_mut().response_delay = RESPONSE;

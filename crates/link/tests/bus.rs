@@ -33,6 +33,7 @@ fn bus_of(addresses: &[u8], faults: Faults) -> (Bus, Arc<Mutex<VirtualLine>>) {
             protocol: Some("modbus-rtu".into()),
             response: Duration::from_millis(3),
             load: 0.5,
+            params: Vec::new(),
         };
         line.add_device(drivebus_sim::family::build(&spec, Instant::ZERO).unwrap());
     }

@@ -63,6 +63,7 @@ fn run_line<P: Protocol + Default>(
             protocol: protocol.map(str::to_string),
             response: Duration::from_millis(2),
             load: 0.5,
+            params: Vec::new(),
         };
         let mut d = drivebus_sim::family::build(&spec, Instant::ZERO).expect("drive");
         d.core_mut().response_delay = spec.response;

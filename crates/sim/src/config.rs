@@ -16,6 +16,7 @@
 //! protocol = "modbus-rtu"  # where the family speaks several
 //! response_ms = 5      # the drive's response time
 //! load = 0.5           # fraction of rated torque
+//! params = { "P0.02" = "45 Hz" }  # set at start, as on the keypad
 //! ```
 
 use std::fmt;
@@ -41,6 +42,8 @@ pub struct DriveSpec {
     pub response: Duration,
     /// Its load, fraction of rated torque.
     pub load: f64,
+    /// Parameters set at start (name, value in its unit), as on the keypad.
+    pub params: Vec<(String, String)>,
 }
 
 /// A virtual bus: line settings, faults and drives.
@@ -114,7 +117,14 @@ impl FromStr for DriveSpec {
         };
         let address: u8 =
             addr.parse().map_err(|_| bad(format!("address {addr:?} is not a number 0..255")))?;
-        let spec = DriveSpec { family, address, protocol, response: Duration::from_millis(5), load: 0.5 };
+        let spec = DriveSpec {
+            family,
+            address,
+            protocol,
+            response: Duration::from_millis(5),
+            load: 0.5,
+            params: Vec::new(),
+        };
         spec.check().map_err(|e| bad(e.0))?;
         Ok(spec)
     }
@@ -193,6 +203,8 @@ struct FileDrive {
     protocol: Option<String>,
     response_ms: Option<u64>,
     load: Option<f64>,
+    #[serde(default)]
+    params: toml::Table,
 }
 
 impl BusSpec {
@@ -238,6 +250,11 @@ impl BusSpec {
                 protocol: d.protocol.clone(),
                 response: Duration::from_millis(d.response_ms.unwrap_or(5)),
                 load: d.load.unwrap_or(0.5),
+                params: d
+                    .params
+                    .iter()
+                    .map(|(k, v)| (k.clone(), v.as_str().map_or_else(|| v.to_string(), str::to_string)))
+                    .collect(),
             };
             spec.check().map_err(|e| ConfigError(format!("{at}: {e}")))?;
             drives.push(spec);
@@ -327,6 +344,15 @@ mod tests {
         assert_eq!(bus.drives.len(), 2);
         assert_eq!(bus.faults.corrupt_rate, 0.01);
         assert_eq!(bus.drives[1].load, 0.8);
+        let bus = BusSpec::from_toml(
+            "bus.toml",
+            "[[drive]]\nkind = \"b800\"\naddress = 5\nparams = { \"F-12\" = 2, \"F-01\" = \"45 Hz\" }\n",
+        )
+        .unwrap();
+        assert_eq!(
+            bus.drives[0].params,
+            [("F-01".to_string(), "45 Hz".to_string()), ("F-12".to_string(), "2".to_string())]
+        );
         let e = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"generic\"\naddress = 1\nspeed = 3\n")
             .unwrap_err()
             .0;

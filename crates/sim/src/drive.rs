@@ -105,6 +105,31 @@ pub trait VirtualDrive: Device + Send {
     fn core_mut(&mut self) -> &mut DriveCore;
     /// Where run commands come from, in the family's words (`F-12 = 1 keypad`, ...).
     fn control_source(&self) -> String;
+    /// Switches the drive off and on at `now` (settings that take effect at power-up, such as
+    /// Toshiba's f829 protocol selection, do). Default: the motor coasts and a trip whose cause
+    /// is gone clears.
+    fn power_cycle(&mut self, now: Instant) {
+        let model = &mut self.core_mut().model;
+        model.advance_to(now);
+        model.coast();
+        let _ = model.reset();
+    }
+    /// Sets parameter `name` from a value in its unit (`"2"`, `"50 Hz"`), as the keypad would:
+    /// range and read-only checks apply, nothing counts as a bus write.
+    fn set_param(&mut self, name: &str, value: &str) -> Result<(), String> {
+        let core = self.core_mut();
+        let def = core
+            .params
+            .catalog()
+            .get(name)
+            .ok_or_else(|| format!("no parameter {name:?} in the catalog"))?
+            .clone();
+        let raw = def.parse_value(value).map_err(|e| e.to_string())?;
+        let running = core.model.is_running();
+        core.params
+            .set(def.name.as_str(), raw, drivebus_drive::Storage::Ram, running)
+            .map_err(|e| e.to_string())
+    }
     /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
         snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())

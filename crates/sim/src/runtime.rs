@@ -58,6 +58,11 @@ impl Simulator {
             let mut drive = crate::family::build(spec, Instant::ZERO)?;
             drive.core_mut().model.set_load(spec.load);
             drive.core_mut().response_delay = spec.response;
+            for (name, value) in &spec.params {
+                drive.set_param(name, value).map_err(|e| {
+                    ConfigError(format!("{}@{}: parameter {name}: {e}", spec.family, spec.address))
+                })?;
+            }
             for p in crate::family::wire_protocols(spec) {
                 if !protocols.iter().any(|x| x == p) {
                     protocols.push(p.to_string());
@@ -236,7 +241,7 @@ async fn index() -> Json<Value> {
         "endpoints": {
             "GET /drives": "every drive's state",
             "GET /drives/{n}": "drive n (1 = first --drive)",
-            "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0}",
+            "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0, \"params\": {\"F-12\": 2}, \"power_cycle\": true}",
             "GET /faults, PUT /faults": "{\"corrupt_rate\": 0.01, \"drop_rate\": 0.0, \"extra_latency_ms\": 0}",
             "GET /stats": "what the line has carried"
         }
@@ -273,6 +278,8 @@ fn no_drive(n: usize, count: usize) -> (StatusCode, Json<Value>) {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct DrivePatch {
+    params: Option<std::collections::BTreeMap<String, Value>>,
+    power_cycle: Option<bool>,
     load: Option<f64>,
     trip: Option<String>,
     reset: Option<bool>,
@@ -308,6 +315,20 @@ async fn patch_drive(
         line.set_silent(n, s);
     }
     let d = line.drive_mut(n).ok_or_else(|| no_drive(n, count))?;
+    if let Some(params) = &p.params {
+        for (name, v) in params {
+            let text = match v {
+                Value::String(s) => s.clone(),
+                other => other.to_string(),
+            };
+            d.set_param(name, &text)
+                .map_err(|e| api_error(StatusCode::UNPROCESSABLE_ENTITY, format!("{name}: {e}")))?;
+        }
+    }
+    if p.power_cycle == Some(true) {
+        let now = sim.now();
+        d.power_cycle(now);
+    }
     if let Some(load) = p.load {
         if !(0.0..=5.0).contains(&load) {
             return Err(api_error(

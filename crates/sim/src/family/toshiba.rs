@@ -354,6 +354,10 @@ impl VirtualDrive for ToshibaDrive {
         Family::Toshiba
     }
 
+    fn power_cycle(&mut self, now: Instant) {
+        ToshibaDrive::power_cycle(self, now);
+    }
+
     fn protocol(&self) -> String {
         self.inner.protocol.name().to_string()
     }

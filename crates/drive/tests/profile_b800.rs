@@ -8,11 +8,11 @@ use drivebus_drive::profile::b800::B800Profile;
 use drivebus_drive::profile::{DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step};
 use drivebus_drive::{Family, Storage};
 use drivebus_proto::b800::FrameScanner;
-use drivebus_proto::deframe::{Deframer, Event};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::{Direction, Instant};
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::b800::B800Drive;
+use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{DriveModel, Rotation, RunState, Trip};
 
 /// The master's response timeout (project decision: 100 ms).
@@ -28,10 +28,7 @@ fn line_with(addresses: &[u8]) -> VirtualLine {
 }
 
 fn run_until(line: &mut VirtualLine, end: Instant) {
-    while let Some(t) = line.next_deadline().filter(|&t| t <= end) {
-        line.advance_to(t);
-    }
-    line.advance_to(end);
+    line.run_until(end);
 }
 
 fn wait(line: &mut VirtualLine, d: Duration) {
@@ -39,40 +36,16 @@ fn wait(line: &mut VirtualLine, d: Duration) {
     run_until(line, end);
 }
 
-/// Writes `request` and runs the line until a whole frame has come back (or the timeout).
+/// Writes `request` and runs the line until a whole frame has come back (or the timeout); one
+/// character of silence after it. No reply to a global frame: a response time's wait.
 fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Option<Vec<u8>> {
-    let now = line.now();
-    line.master_write(now, request);
-    let sent = now + line.char_time() * request.len() as u32;
-    if !expect_reply {
-        // No reply to a global frame: wait a response time before the next.
-        run_until(line, sent + TIMEOUT);
-        return None;
-    }
-    let deadline = sent + TIMEOUT;
-    let mut deframer = Deframer::new(FrameScanner::new(Some(Direction::Drive)));
-    let mut frame = None;
-    loop {
-        match line.next_deadline() {
-            Some(t) if t <= deadline => line.advance_to(t),
-            _ => {
-                line.advance_to(deadline);
-                break;
-            }
-        }
-        let mut got = Vec::new();
-        line.master_read(&mut got);
-        deframer.push(&got, &mut |event| {
-            if let Event::Frame { bytes, .. } = event {
-                frame.get_or_insert_with(|| bytes.to_vec());
-            }
-        });
-        if frame.is_some() {
-            break;
-        }
-    }
-    wait(line, line.char_time());
-    frame
+    let master = LineMaster {
+        gap_before: Duration::ZERO,
+        gap_after: line.char_time(),
+        timeout: TIMEOUT,
+        turnaround: TIMEOUT,
+    };
+    master.transact(line, FrameScanner::new(Some(Direction::Drive)), request, expect_reply)
 }
 
 /// Runs a plan to its end; the outcome and the frames sent, as text.

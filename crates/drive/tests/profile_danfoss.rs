@@ -6,12 +6,12 @@ use std::time::Duration;
 use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
 use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
 use drivebus_drive::Storage;
-use drivebus_proto::deframe::{Deframer, Event};
 use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::danfoss::DanfossDrive;
+use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
 
 /// How long the helper waits for a reply: the FC response timeout, 50 ms.
@@ -30,10 +30,7 @@ fn line_with(addresses: &[u8]) -> VirtualLine {
 
 /// Runs the line until `end`, event by event.
 fn run_until(line: &mut VirtualLine, end: Instant) {
-    while let Some(t) = line.next_deadline().filter(|&t| t <= end) {
-        line.advance_to(t);
-    }
-    line.advance_to(end);
+    line.run_until(end);
 }
 
 fn wait(line: &mut VirtualLine, d: Duration) {
@@ -41,40 +38,16 @@ fn wait(line: &mut VirtualLine, d: Duration) {
     run_until(line, end);
 }
 
-/// Writes `request` and runs the line until a whole telegram has come back (or the timeout).
+/// Writes `request` and runs the line until a whole telegram has come back (or the timeout);
+/// two characters of silence after it (protocols.md 2.9).
 fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Option<Vec<u8>> {
-    let now = line.now();
-    line.master_write(now, request);
-    let sent = now + line.char_time() * request.len() as u32;
-    if !expect_reply {
-        run_until(line, sent + TURNAROUND);
-        return None;
-    }
-    let deadline = sent + TIMEOUT;
-    let mut deframer = Deframer::new(FcScanner);
-    let mut frame = None;
-    loop {
-        match line.next_deadline() {
-            Some(t) if t <= deadline => line.advance_to(t),
-            _ => {
-                line.advance_to(deadline);
-                break;
-            }
-        }
-        let mut got = Vec::new();
-        line.master_read(&mut got);
-        deframer.push(&got, &mut |event| {
-            if let Event::Frame { bytes, .. } = event {
-                frame.get_or_insert_with(|| bytes.to_vec());
-            }
-        });
-        if frame.is_some() {
-            break;
-        }
-    }
-    // Two characters of silence before the next telegram (protocols.md 2.9).
-    wait(line, line.char_time() * 2);
-    frame
+    let master = LineMaster {
+        gap_before: Duration::ZERO,
+        gap_after: line.char_time() * 2,
+        timeout: TIMEOUT,
+        turnaround: TURNAROUND,
+    };
+    master.transact(line, FcScanner, request, expect_reply)
 }
 
 /// Runs a plan to its end; the outcome and the number of telegrams sent.

@@ -6,13 +6,13 @@ use std::time::Duration;
 use drivebus_drive::profile::generic::{GenericProfile, GenericProtocol};
 use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step};
 use drivebus_drive::Storage;
-use drivebus_proto::deframe::{Deframer, Event};
 use drivebus_proto::modbus::ascii::ModbusAscii;
 use drivebus_proto::modbus::rtu::ModbusRtu;
 use drivebus_proto::{Codec, Direction, Instant};
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::generic as sim;
+use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
 
 const BAUD: u32 = 9600;
@@ -41,39 +41,16 @@ fn profile(address: u8, protocol: GenericProtocol) -> GenericProfile {
     GenericProfile::new(address, protocol).unwrap_or_else(|e| panic!("{e}"))
 }
 
-/// Puts one request on the line (after the minimum gap) and waits for the reply, which the
-/// codec's deframer says is whole; `None` after a broadcast or when nothing came in time.
+/// Puts one request on the line (after the minimum gap) and waits until the codec's deframer
+/// has a whole reply; `None` after a broadcast or when nothing came in time.
 fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
-    let start = line.now() + GAP;
-    line.advance_to(start);
-    let mut stale = Vec::new();
-    line.master_read(&mut stale);
-    line.master_write(start, &x.request);
-    if !x.expect_reply {
-        line.advance_to(start + TURNAROUND);
-        line.master_read(&mut stale);
-        return None;
-    }
-    let deadline = start + RESPONSE_TIMEOUT;
-    let mut deframer = Deframer::new(C::scanner(Some(Direction::Drive)));
-    let mut frame = None;
-    for _ in 0..10_000 {
-        match line.next_deadline() {
-            Some(t) if t <= deadline => line.advance_to(t),
-            _ => line.advance_to(deadline),
-        }
-        let mut got = Vec::new();
-        line.master_read(&mut got);
-        deframer.push(&got, &mut |e| {
-            if let Event::Frame { bytes, .. } = e {
-                frame.get_or_insert_with(|| bytes.to_vec());
-            }
-        });
-        if frame.is_some() || line.now() >= deadline {
-            return frame;
-        }
-    }
-    panic!("the line did not reach the deadline");
+    let master = LineMaster {
+        gap_before: GAP,
+        gap_after: Duration::ZERO,
+        timeout: RESPONSE_TIMEOUT,
+        turnaround: TURNAROUND,
+    };
+    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
 }
 
 /// Runs `op` to completion, as a bus owner would.

@@ -7,7 +7,6 @@ use std::time::Duration;
 use drivebus_drive::profile::toshiba::{ToshibaProfile, ToshibaProtocol, TIP_BROADCAST};
 use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step};
 use drivebus_drive::Storage;
-use drivebus_proto::deframe::{Deframer, Event};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::modbus::rtu::ModbusRtu;
 use drivebus_proto::toshiba::ascii::AsciiCodec;
@@ -17,6 +16,7 @@ use drivebus_proto::{Codec, Direction, Instant};
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::toshiba as sim;
+use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, Trip};
 
 const ALL: [ToshibaProtocol; 3] =
@@ -114,39 +114,16 @@ impl Bus {
     }
 }
 
-/// Puts one request on the line (after a gap) and waits until the codec's deframer has a whole
-/// reply; `None` after a broadcast or when nothing came in time.
+/// Puts one request on the line (after the minimum gap) and waits until the codec's deframer
+/// has a whole reply; `None` after a broadcast or when nothing came in time.
 fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
-    let start = line.now() + GAP;
-    line.advance_to(start);
-    let mut stale = Vec::new();
-    line.master_read(&mut stale);
-    line.master_write(start, &x.request);
-    if !x.expect_reply {
-        line.advance_to(start + TURNAROUND);
-        line.master_read(&mut stale);
-        return None;
-    }
-    let deadline = start + RESPONSE_TIMEOUT;
-    let mut deframer = Deframer::new(C::scanner(Some(Direction::Drive)));
-    let mut frame = None;
-    for _ in 0..10_000 {
-        match line.next_deadline() {
-            Some(t) if t <= deadline => line.advance_to(t),
-            _ => line.advance_to(deadline),
-        }
-        let mut got = Vec::new();
-        line.master_read(&mut got);
-        deframer.push(&got, &mut |e| {
-            if let Event::Frame { bytes, .. } = e {
-                frame.get_or_insert_with(|| bytes.to_vec());
-            }
-        });
-        if frame.is_some() || line.now() >= deadline {
-            return frame;
-        }
-    }
-    panic!("the line did not reach the deadline");
+    let master = LineMaster {
+        gap_before: GAP,
+        gap_after: Duration::ZERO,
+        timeout: RESPONSE_TIMEOUT,
+        turnaround: TURNAROUND,
+    };
+    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
 }
 
 /// Inverter 1 (Modbus numbers start at 1; TIP has 0 too).

@@ -367,6 +367,14 @@ impl VirtualLine {
         self.now = now;
     }
 
+    /// Runs the line event by event until `end` (bytes delivered, silences, answers in order).
+    pub fn run_until(&mut self, end: Instant) {
+        while let Some(t) = self.next_deadline().filter(|&t| t <= end) {
+            self.advance_to(t);
+        }
+        self.advance_to(end);
+    }
+
     /// Brings every device's own state (motor ramps) up to the line's time. Devices otherwise
     /// advance lazily, when they hear bytes or their timers fire; a control interface calls
     /// this before it reads their state.

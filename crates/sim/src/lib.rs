@@ -27,6 +27,7 @@ pub mod bus;
 pub mod config;
 pub mod drive;
 pub mod family;
+pub mod master;
 pub mod model;
 pub mod monitor;
 pub mod rng;

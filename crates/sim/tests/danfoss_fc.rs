@@ -26,13 +26,7 @@ fn line_with(addresses: &[u8]) -> VirtualLine {
 
 /// Runs the line until `end`, event by event.
 fn run_until(line: &mut VirtualLine, end: Instant) {
-    for _ in 0..100_000 {
-        match line.next_deadline() {
-            Some(t) if t <= end => line.advance_to(t),
-            _ => break,
-        }
-    }
-    line.advance_to(end);
+    line.run_until(end);
 }
 
 /// Lets `d` of simulated time pass.

@@ -59,6 +59,7 @@ mod param;
 mod store;
 
 pub mod profile;
+pub mod registers;
 
 pub use catalog::{Catalog, CatalogError, ParamKey};
 pub use family::{Family, UnknownFamily};

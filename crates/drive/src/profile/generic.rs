@@ -43,57 +43,7 @@ use drivebus_proto::modbus::{ExceptionCode, Reply, ReplyPdu, Request, UnitId};
 use super::{DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
 use crate::{format_fixed, Catalog, Family, ParamDef, Size, Storage};
 
-/// The registers of the seed's map ("通讯协议参数定义") that the profile uses.
-pub mod reg {
-    /// 2000H: command (06).
-    pub const COMMAND: u16 = 0x2000;
-    /// 2001H: frequency setting from the serial port, 0.01 Hz.
-    pub const FREQUENCY: u16 = 0x2001;
-    /// 2100H: fault code.
-    pub const FAULT_CODE: u16 = 0x2100;
-    /// 2101H: status bits ([`super::status`]).
-    pub const STATUS: u16 = 0x2101;
-    /// 2102H: set frequency, 0.01 Hz.
-    pub const SET_FREQUENCY: u16 = 0x2102;
-    /// 2103H: output frequency, 0.01 Hz.
-    pub const OUTPUT_FREQUENCY: u16 = 0x2103;
-    /// 2104H: output current, 0.1 A.
-    pub const OUTPUT_CURRENT: u16 = 0x2104;
-}
-
-/// The values of the command register 2000H.
-pub mod command {
-    /// 0001H: run (in the commanded direction).
-    pub const RUN: u16 = 0x0001;
-    /// 0002H: forward run.
-    pub const FORWARD_RUN: u16 = 0x0002;
-    /// 0003H: reverse run.
-    pub const REVERSE_RUN: u16 = 0x0003;
-    /// 0004H: jog.
-    pub const JOG: u16 = 0x0004;
-    /// 0005H: jog forward.
-    pub const JOG_FORWARD: u16 = 0x0005;
-    /// 0006H: jog reverse.
-    pub const JOG_REVERSE: u16 = 0x0006;
-    /// 0007H: decelerate to stop.
-    pub const DECELERATE_TO_STOP: u16 = 0x0007;
-    /// 0008H: emergency stop.
-    pub const EMERGENCY_STOP: u16 = 0x0008;
-    /// 0009H: jog stop.
-    pub const JOG_STOP: u16 = 0x0009;
-    /// 000AH: fault reset.
-    pub const FAULT_RESET: u16 = 0x000A;
-}
-
-/// Bits of the status register 2101H that the profile reads.
-pub mod status {
-    /// BIT0: running ("运行停止标志, 1: 运行").
-    pub const RUN: u16 = 1 << 0;
-    /// BIT2: reverse ("正反转标志, 1: 反转").
-    pub const REVERSE: u16 = 1 << 2;
-    /// BIT3: jog ("点动运行标志").
-    pub const JOG: u16 = 1 << 3;
-}
+pub use crate::registers::generic::{command, reg, status};
 
 /// The broadcast address: every drive acts, none answers ("主机使用广播地址发送命令时, 从机不应答").
 pub const BROADCAST: u8 = 0;

@@ -1,0 +1,692 @@
+//! The gateway's configuration: one TOML file naming the buses, the drives on them, the
+//! listeners, the tokens, the linkage rules and the store. Every error names the file, the
+//! line and the field, and nothing starts until the whole file is right.
+//!
+//! ```toml
+//! name = "hall-1"                       # the gateway's name (MQTT topic tree, dashboards)
+//!
+//! [http]
+//! listen = "127.0.0.1:8080"
+//! anonymous_read = false                # reads without a token
+//!
+//! [modbus]
+//! listen = "127.0.0.1:5020"
+//! allow = ["127.0.0.1"]                 # client addresses that may connect
+//! read_only = false                     # refuse every write
+//!
+//! [store]
+//! path = "drivebus.db"
+//!
+//! [[token]]
+//! name = "scada"
+//! token = "change-me-0123456789"
+//! role = "write"                        # read | write
+//!
+//! [[bus]]
+//! name = "line-1"
+//! port = "/dev/ttyUSB0"                 # a device, tcp://HOST:PORT, or "virtual" (simulated)
+//! protocol = "modbus-rtu"
+//! baud = 19200
+//! serial = "8E1"
+//! timeout_ms = 200
+//! retries = 2
+//!
+//! [[bus.drive]]
+//! name = "pump-1"
+//! family = "generic"
+//! address = 1
+//! poll_ms = 500
+//! priority = "high"                     # high | normal | low
+//!
+//! [[linkage]]
+//! leader = "pump-1"
+//! follower = "pump-2"
+//! ratio = 0.5
+//! offset_hz = 2.0
+//! ```
+
+use std::collections::HashSet;
+use std::fmt;
+use std::net::{IpAddr, SocketAddr};
+use std::ops::Range;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use drivebus_drive::Family;
+use drivebus_proto::line::CharFormat;
+use serde::Deserialize;
+use toml::Spanned;
+
+/// The embedded demo: a virtual bus per family with simulated drives on each.
+pub const DEMO: &str = include_str!("demo.toml");
+
+/// Why a configuration is not usable: one line naming the file, the line and the field.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ConfigError(pub String);
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+/// A whole gateway.
+#[derive(Clone, Debug)]
+pub struct GatewayConfig {
+    /// The gateway's name.
+    pub name: String,
+    /// The HTTP listener.
+    pub http: HttpConfig,
+    /// The Modbus TCP listener.
+    pub modbus: ModbusConfig,
+    /// Where events and trends are kept (`None`: not kept).
+    pub store: Option<PathBuf>,
+    /// Bearer tokens.
+    pub tokens: Vec<Token>,
+    /// The buses.
+    pub buses: Vec<BusConfig>,
+    /// Leader/follower rules.
+    pub linkage: Vec<Linkage>,
+    /// MQTT publishing, if configured.
+    pub mqtt: Option<MqttConfig>,
+}
+
+/// The HTTP listener.
+#[derive(Clone, Debug)]
+pub struct HttpConfig {
+    /// Where to listen.
+    pub listen: SocketAddr,
+    /// Whether reads need no token.
+    pub anonymous_read: bool,
+    /// Largest request body, bytes.
+    pub max_body: usize,
+}
+
+/// The Modbus TCP listener.
+#[derive(Clone, Debug)]
+pub struct ModbusConfig {
+    /// Where to listen.
+    pub listen: SocketAddr,
+    /// Client addresses allowed to connect (empty: anyone who can reach the listener).
+    pub allow: Vec<IpAddr>,
+    /// Refuse every write.
+    pub read_only: bool,
+    /// Most connections served at once.
+    pub max_connections: usize,
+}
+
+/// What a token may do.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Role {
+    /// Read values, events and trends.
+    Read,
+    /// Also command drives and write parameters.
+    Write,
+}
+
+/// A bearer token.
+#[derive(Clone, Debug)]
+pub struct Token {
+    /// Who holds it (shown in the audit trail).
+    pub name: String,
+    /// The secret.
+    pub secret: String,
+    /// What it may do.
+    pub role: Role,
+}
+
+/// How a bus is reached.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Port {
+    /// A serial device path.
+    Serial(String),
+    /// A serial device server, raw bytes over TCP.
+    Tcp(String),
+    /// Simulated drives in this process, one per configured drive.
+    Virtual,
+}
+
+impl fmt::Display for Port {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Port::Serial(p) => f.write_str(p),
+            Port::Tcp(a) => write!(f, "tcp://{a}"),
+            Port::Virtual => f.write_str("virtual"),
+        }
+    }
+}
+
+/// One bus.
+#[derive(Clone, Debug)]
+pub struct BusConfig {
+    /// Its name (unique).
+    pub name: String,
+    /// How it is reached.
+    pub port: Port,
+    /// The wire protocol (a codec name: `modbus-rtu`, `toshiba-binary`, `danfoss-fc`, ...).
+    pub protocol: String,
+    /// Baud rate.
+    pub baud: u32,
+    /// Character format.
+    pub format: CharFormat,
+    /// Response timeout (`None`: the protocol's default).
+    pub timeout: Option<Duration>,
+    /// Retries after a timeout or damaged reply.
+    pub retries: u8,
+    /// Remove the local echo of 2-wire adapters.
+    pub echo: bool,
+    /// The drives.
+    pub drives: Vec<DriveConfig>,
+}
+
+/// Which drive is polled first when several are due.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum PollPriority {
+    /// Polled first.
+    High,
+    /// The default.
+    Normal,
+    /// Polled last.
+    Low,
+}
+
+/// One drive.
+#[derive(Clone, Debug)]
+pub struct DriveConfig {
+    /// Its id in the gateway (unique across buses).
+    pub name: String,
+    /// The family.
+    pub family: Family,
+    /// Its number on the bus.
+    pub address: u8,
+    /// Its Modbus TCP unit id (unique).
+    pub unit_id: u8,
+    /// How often it is polled.
+    pub poll: Duration,
+    /// Poll order when several are due.
+    pub priority: PollPriority,
+    /// Refuse writes from everyone.
+    pub locked: bool,
+    /// Load on a simulated drive (fraction of rated torque).
+    pub load: f64,
+}
+
+/// A follower's setpoint is the leader's output frequency times `ratio` plus `offset_hz`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Linkage {
+    /// The leader's id.
+    pub leader: String,
+    /// The follower's id.
+    pub follower: String,
+    /// Multiplier.
+    pub ratio: f64,
+    /// Added, Hz.
+    pub offset_hz: f64,
+}
+
+/// MQTT publishing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MqttConfig {
+    /// `mqtt://HOST:PORT`.
+    pub url: String,
+    /// Topic root (default `drivebus/<gateway>`).
+    pub topic_prefix: Option<String>,
+    /// Publish Home Assistant discovery messages.
+    pub discovery: bool,
+    /// Command topics accepted, as `<bus>/<drive>/<command>` patterns where `*` matches one level
+    /// (empty: none).
+    pub allow_commands: Vec<String>,
+    /// Token whose role authorizes MQTT commands (commands need a write token configured).
+    pub client_id: Option<String>,
+}
+
+// ---- the file as written -------------------------------------------------------------------
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileConfig {
+    name: Option<String>,
+    #[serde(default)]
+    http: FileHttp,
+    #[serde(default)]
+    modbus: FileModbus,
+    #[serde(default)]
+    store: FileStore,
+    #[serde(default)]
+    token: Vec<FileToken>,
+    #[serde(default)]
+    bus: Vec<FileBus>,
+    #[serde(default)]
+    linkage: Vec<Spanned<FileLinkage>>,
+    mqtt: Option<FileMqtt>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileHttp {
+    listen: Option<Spanned<String>>,
+    anonymous_read: Option<bool>,
+    max_body: Option<usize>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileModbus {
+    listen: Option<Spanned<String>>,
+    #[serde(default)]
+    allow: Vec<Spanned<String>>,
+    #[serde(default)]
+    read_only: bool,
+    max_connections: Option<usize>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileStore {
+    path: Option<String>,
+    #[serde(default)]
+    disabled: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileToken {
+    name: Spanned<String>,
+    token: Spanned<String>,
+    role: Spanned<String>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileBus {
+    name: Spanned<String>,
+    port: Spanned<String>,
+    protocol: Option<Spanned<String>>,
+    baud: Option<Spanned<u32>>,
+    serial: Option<Spanned<String>>,
+    timeout_ms: Option<u64>,
+    retries: Option<u8>,
+    #[serde(default)]
+    echo: bool,
+    #[serde(default)]
+    drive: Vec<FileDrive>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileDrive {
+    name: Spanned<String>,
+    family: Spanned<String>,
+    address: Spanned<u8>,
+    unit_id: Option<Spanned<u8>>,
+    poll_ms: Option<Spanned<u64>>,
+    priority: Option<Spanned<String>>,
+    #[serde(default)]
+    locked: bool,
+    load: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileLinkage {
+    leader: Spanned<String>,
+    follower: Spanned<String>,
+    ratio: Option<f64>,
+    offset_hz: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileMqtt {
+    url: Spanned<String>,
+    topic_prefix: Option<String>,
+    #[serde(default)]
+    discovery: bool,
+    #[serde(default)]
+    allow_commands: Vec<String>,
+    client_id: Option<String>,
+}
+
+struct Ctx<'a> {
+    file: &'a str,
+    text: &'a str,
+}
+
+impl Ctx<'_> {
+    fn line(&self, span: Range<usize>) -> usize {
+        self.text[..span.start.min(self.text.len())].lines().count().max(1)
+            + usize::from(self.text[..span.start.min(self.text.len())].ends_with('\n'))
+    }
+    fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
+        Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
+    }
+}
+
+impl GatewayConfig {
+    /// The embedded demo configuration.
+    pub fn demo() -> Self {
+        // The embedded file is checked by a test; a failure here is a build defect.
+        GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"))
+    }
+
+    /// Reads a configuration; errors name `file`, the line and the field.
+    pub fn from_toml(file: &str, text: &str) -> Result<Self, ConfigError> {
+        let cx = Ctx { file, text };
+        let raw: FileConfig = toml::from_str(text).map_err(|e| {
+            let msg = e.message().trim().to_string();
+            match e.span() {
+                Some(s) => ConfigError(format!("{file}:{}: {msg}", cx.line(s))),
+                None => ConfigError(format!("{file}: {msg}")),
+            }
+        })?;
+
+        let addr =
+            |s: &Option<Spanned<String>>, field: &str, default: &str| -> Result<SocketAddr, ConfigError> {
+                match s {
+                    None => Ok(default.parse().expect("default listener")),
+                    Some(s) => s.get_ref().parse().or_else(|_| {
+                        cx.err(
+                            s.span(),
+                            field,
+                            format!("{:?} is not HOST:PORT (e.g. 127.0.0.1:8080)", s.get_ref()),
+                        )
+                    }),
+                }
+            };
+        let http = HttpConfig {
+            listen: addr(&raw.http.listen, "http.listen", "127.0.0.1:8080")?,
+            anonymous_read: raw.http.anonymous_read.unwrap_or(false),
+            max_body: raw.http.max_body.unwrap_or(64 * 1024),
+        };
+        let mut allow = Vec::new();
+        for a in &raw.modbus.allow {
+            allow.push(a.get_ref().parse::<IpAddr>().or_else(|_| {
+                cx.err(a.span(), "modbus.allow", format!("{:?} is not an IP address", a.get_ref()))
+            })?);
+        }
+        let modbus = ModbusConfig {
+            listen: addr(&raw.modbus.listen, "modbus.listen", "127.0.0.1:5020")?,
+            allow,
+            read_only: raw.modbus.read_only,
+            max_connections: raw.modbus.max_connections.unwrap_or(16_384),
+        };
+
+        let mut tokens = Vec::new();
+        for t in &raw.token {
+            let role = match t.role.get_ref().as_str() {
+                "read" => Role::Read,
+                "write" => Role::Write,
+                other => return cx.err(t.role.span(), "token.role", format!("{other:?}: use read or write")),
+            };
+            if t.token.get_ref().len() < 16 {
+                return cx.err(t.token.span(), "token.token", "a token needs at least 16 characters");
+            }
+            if tokens.iter().any(|x: &Token| x.secret == *t.token.get_ref()) {
+                return cx.err(t.token.span(), "token.token", "two tokens have the same secret");
+            }
+            tokens.push(Token { name: t.name.get_ref().clone(), secret: t.token.get_ref().clone(), role });
+        }
+
+        let mut buses = Vec::new();
+        let mut names = HashSet::new();
+        let mut units = HashSet::new();
+        let mut next_unit = 1u8;
+        for b in &raw.bus {
+            let name = b.name.get_ref().trim().to_string();
+            if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+                return cx.err(b.name.span(), "bus.name", "use letters, digits, - and _ only");
+            }
+            if buses.iter().any(|x: &BusConfig| x.name == name) {
+                return cx.err(b.name.span(), "bus.name", format!("two buses are named {name:?}"));
+            }
+            let port = match b.port.get_ref().as_str() {
+                "virtual" => Port::Virtual,
+                p if p.starts_with("tcp://") => Port::Tcp(p["tcp://".len()..].to_string()),
+                "" => {
+                    return cx.err(
+                        b.port.span(),
+                        "bus.port",
+                        "give a device path, tcp://HOST:PORT or virtual",
+                    )
+                }
+                p => Port::Serial(p.to_string()),
+            };
+            let mut drives = Vec::new();
+            for d in &b.drive {
+                let family: Family = d.family.get_ref().parse().or_else(|_| {
+                    cx.err(d.family.span(), "bus.drive.family", "use generic, toshiba, danfoss or b800")
+                })?;
+                let dname = d.name.get_ref().trim().to_string();
+                if dname.is_empty()
+                    || !dname.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+                {
+                    return cx.err(d.name.span(), "bus.drive.name", "use letters, digits, - and _ only");
+                }
+                if !names.insert(dname.clone()) {
+                    return cx.err(
+                        d.name.span(),
+                        "bus.drive.name",
+                        format!("two drives are named {dname:?}"),
+                    );
+                }
+                let unit_id = match &d.unit_id {
+                    Some(u) if *u.get_ref() == 0 || *u.get_ref() > 247 => {
+                        return cx.err(u.span(), "bus.drive.unit_id", "use 1..247");
+                    }
+                    Some(u) => *u.get_ref(),
+                    None => {
+                        while units.contains(&next_unit) {
+                            next_unit = next_unit.saturating_add(1);
+                        }
+                        next_unit
+                    }
+                };
+                if !units.insert(unit_id) {
+                    let span = d.unit_id.as_ref().map_or(d.name.span(), |u| u.span());
+                    return cx.err(span, "bus.drive.unit_id", format!("unit id {unit_id} is used twice"));
+                }
+                let poll_ms = d.poll_ms.as_ref().map_or(500, |p| *p.get_ref());
+                if !(10..=3_600_000).contains(&poll_ms) {
+                    let span = d.poll_ms.as_ref().map(|p| p.span()).unwrap_or(d.name.span());
+                    return cx.err(span, "bus.drive.poll_ms", format!("{poll_ms} is outside 10..3600000"));
+                }
+                let priority = match d.priority.as_ref().map(|p| (p.get_ref().as_str(), p.span())) {
+                    None | Some(("normal", _)) => PollPriority::Normal,
+                    Some(("high", _)) => PollPriority::High,
+                    Some(("low", _)) => PollPriority::Low,
+                    Some((other, span)) => {
+                        return cx.err(
+                            span,
+                            "bus.drive.priority",
+                            format!("{other:?}: use high, normal or low"),
+                        )
+                    }
+                };
+                if drives.iter().any(|x: &DriveConfig| x.address == *d.address.get_ref()) {
+                    return cx.err(
+                        d.address.span(),
+                        "bus.drive.address",
+                        format!("two drives on bus {name:?} have address {}", d.address.get_ref()),
+                    );
+                }
+                drives.push(DriveConfig {
+                    name: dname,
+                    family,
+                    address: *d.address.get_ref(),
+                    unit_id,
+                    poll: Duration::from_millis(poll_ms),
+                    priority,
+                    locked: d.locked,
+                    load: d.load.unwrap_or(0.4),
+                });
+            }
+            let first = drives.first().map(|d| d.family);
+            let protocol = match (&b.protocol, first) {
+                (Some(p), _) => p.get_ref().clone(),
+                (None, Some(f)) => drivebus_sim::config::protocols(f)[0].to_string(),
+                (None, None) => {
+                    return cx.err(b.name.span(), "bus.protocol", "give the bus's protocol or a drive")
+                }
+            };
+            for d in &drives {
+                if let Err(e) = drivebus_drive::profile::for_drive(d.family, &protocol, d.address) {
+                    let span = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
+                    return cx.err(span, "bus.protocol", format!("drive {:?}: {e}", d.name));
+                }
+            }
+            let (db, df) = first.map_or((9600, CharFormat::NONE_8N1), |f| {
+                drivebus_sim::config::serial_default(f, Some(protocol.as_str()))
+            });
+            let baud = match &b.baud {
+                Some(v) if !(300..=1_000_000).contains(v.get_ref()) => {
+                    return cx.err(v.span(), "bus.baud", format!("{} is outside 300..1000000", v.get_ref()))
+                }
+                Some(v) => *v.get_ref(),
+                None => db,
+            };
+            let format = match &b.serial {
+                Some(s) => {
+                    s.get_ref().parse::<CharFormat>().or_else(|e| cx.err(s.span(), "bus.serial", e))?
+                }
+                None => df,
+            };
+            buses.push(BusConfig {
+                name,
+                port,
+                protocol,
+                baud,
+                format,
+                timeout: b.timeout_ms.map(Duration::from_millis),
+                retries: b.retries.unwrap_or(2),
+                echo: b.echo,
+                drives,
+            });
+        }
+
+        let mut linkage = Vec::new();
+        for l in &raw.linkage {
+            let span = l.span();
+            let l = l.get_ref();
+            for (who, field) in [(&l.leader, "linkage.leader"), (&l.follower, "linkage.follower")] {
+                if !names.contains(who.get_ref()) {
+                    return cx.err(who.span(), field, format!("no drive is named {:?}", who.get_ref()));
+                }
+            }
+            if l.leader.get_ref() == l.follower.get_ref() {
+                return cx.err(span, "linkage.follower", "a drive cannot follow itself");
+            }
+            let ratio = l.ratio.unwrap_or(1.0);
+            let offset_hz = l.offset_hz.unwrap_or(0.0);
+            if !ratio.is_finite() || !offset_hz.is_finite() {
+                return cx.err(span, "linkage.ratio", "ratio and offset_hz must be finite numbers");
+            }
+            linkage.push(Linkage {
+                leader: l.leader.get_ref().clone(),
+                follower: l.follower.get_ref().clone(),
+                ratio,
+                offset_hz,
+            });
+        }
+
+        let mqtt = match raw.mqtt {
+            None => None,
+            Some(m) => {
+                if !m.url.get_ref().starts_with("mqtt://") {
+                    return cx.err(m.url.span(), "mqtt.url", "use mqtt://HOST:PORT");
+                }
+                Some(MqttConfig {
+                    url: m.url.get_ref().clone(),
+                    topic_prefix: m.topic_prefix,
+                    discovery: m.discovery,
+                    allow_commands: m.allow_commands,
+                    client_id: m.client_id,
+                })
+            }
+        };
+
+        let store = if raw.store.disabled {
+            None
+        } else {
+            Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
+        };
+        Ok(GatewayConfig {
+            name: raw.name.unwrap_or_else(|| "drivebus".to_string()),
+            http,
+            modbus,
+            store,
+            tokens,
+            buses,
+            linkage,
+            mqtt,
+        })
+    }
+
+    /// Every drive, in configuration order, with its bus.
+    pub fn drives(&self) -> impl Iterator<Item = (&BusConfig, &DriveConfig)> {
+        self.buses.iter().flat_map(|b| b.drives.iter().map(move |d| (b, d)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_demo_parses_and_has_every_family() {
+        let c = GatewayConfig::demo();
+        let families: HashSet<Family> = c.drives().map(|(_, d)| d.family).collect();
+        assert_eq!(families.len(), 4);
+        assert!(c.buses.iter().all(|b| b.port == Port::Virtual));
+        assert!(c.drives().count() >= 8);
+    }
+
+    fn err(text: &str) -> String {
+        GatewayConfig::from_toml("plant.toml", text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn errors_name_the_file_line_and_field() {
+        let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"siemens\"\naddress = 1\n");
+        assert_eq!(e, "plant.toml:6: field `bus.drive.family`: use generic, toshiba, danfoss or b800");
+        let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = 12\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 1\n");
+        assert_eq!(e, "plant.toml:4: field `bus.baud`: 12 is outside 300..1000000");
+        let e = err("[http]\nlisten = \"localhost\"\n");
+        assert!(e.starts_with("plant.toml:2: field `http.listen`"), "{e}");
+        let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nspeed = 3\n");
+        assert!(e.starts_with("plant.toml:4: unknown field `speed`"), "{e}");
+        let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"b800\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"danfoss\"\naddress = 1\n");
+        assert!(
+            e.starts_with("plant.toml:4: field `bus.protocol`: drive \"x\": a danfoss drive does not speak"),
+            "{e}"
+        );
+        let e = err("[[token]]\nname = \"s\"\ntoken = \"short\"\nrole = \"write\"\n");
+        assert_eq!(e, "plant.toml:3: field `token.token`: a token needs at least 16 characters");
+        let e = err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n");
+        assert_eq!(e, "plant.toml:2: field `linkage.leader`: no drive is named \"a\"");
+    }
+
+    #[test]
+    fn duplicate_names_addresses_and_units_are_refused() {
+        let two = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 1\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 2\n";
+        assert!(err(two).contains("two drives are named \"x\""));
+        let two = two.replace("address = 2", "address = 1").replacen("name = \"x\"", "name = \"y\"", 1);
+        assert!(err(&two).contains("have address 1"));
+    }
+
+    #[test]
+    fn defaults_follow_the_family() {
+        let c = GatewayConfig::from_toml(
+            "p.toml",
+            "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5:4001\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"toshiba\"\naddress = 1\n",
+        )
+        .unwrap();
+        let b = &c.buses[0];
+        assert_eq!(b.port, Port::Tcp("10.0.0.5:4001".into()));
+        assert_eq!((b.baud, b.format, b.protocol.as_str()), (19200, CharFormat::EVEN_8E1, "toshiba-ascii"));
+        assert_eq!(c.http.listen.to_string(), "127.0.0.1:8080");
+        assert_eq!(c.modbus.listen.to_string(), "127.0.0.1:5020");
+        assert_eq!(b.drives[0].unit_id, 1);
+    }
+}

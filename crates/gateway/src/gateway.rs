@@ -1,0 +1,863 @@
+//! The running gateway: a bus owner and a poll scheduler per bus, a state cache where every
+//! value carries its age, commands that go ahead of polling and are answered only when the drive
+//! confirmed, linkage rules, events to the store and to live subscribers.
+//!
+//! Every front end (HTTP, Modbus TCP, MQTT, the dashboard) goes through [`Gateway`]: reads come
+//! from the cache ([`Gateway::drive_view`], [`Gateway::registers`]) and never touch a bus;
+//! writes go through [`Gateway::command`], which checks the lock, sends the command through the
+//! bus owner and writes the audit trail before it answers.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, RwLock};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use drivebus_drive::profile::{DriveError, DriveStatus};
+use drivebus_drive::{Family, ParamDef, Storage};
+use drivebus_link::drive::{Drive, Error as LinkError};
+use drivebus_link::owner::{Bus, BusConfig as OwnerConfig, BusError, BusStats};
+use drivebus_sim::bus::VirtualLine;
+use drivebus_store::{Event, EventKind, Sample, Store};
+use serde::Serialize;
+use serde_json::json;
+use tokio::sync::{broadcast, Notify};
+
+use crate::config::{BusConfig, DriveConfig, GatewayConfig, Port};
+use crate::port::{sim_link, virtual_line, PortLink};
+
+/// Unix time now, ms.
+pub fn unix_ms() -> i64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
+}
+
+/// A command to a drive.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// Start.
+    Run,
+    /// Ramp to a stop.
+    Stop,
+    /// Reverse the direction.
+    Reverse,
+    /// Run at the jog speed.
+    Jog,
+    /// Reset a fault.
+    Reset,
+    /// Set the speed setpoint, Hz.
+    Speed(f64),
+    /// Write a parameter by the manual's name, value in its unit.
+    SetParam {
+        /// The manual's name (`P0.02`, `0010`, `4-14`, `F-12`).
+        name: String,
+        /// The value in its unit (`"50"`, `"50 Hz"`, a choice's number).
+        value: String,
+        /// Write to EEPROM where the protocol lets the master choose (RAM otherwise).
+        eeprom: bool,
+    },
+}
+
+impl Command {
+    /// The command as written in the audit trail (`run`, `speed 40 Hz`, `param 4-14 = 50`).
+    pub fn action(&self) -> String {
+        match self {
+            Command::Run => "run".into(),
+            Command::Stop => "stop".into(),
+            Command::Reverse => "reverse".into(),
+            Command::Jog => "jog".into(),
+            Command::Reset => "reset".into(),
+            Command::Speed(hz) => format!("speed {hz} Hz"),
+            Command::SetParam { name, value, eeprom } => {
+                format!("param {name} = {value}{}", if *eeprom { " (eeprom)" } else { "" })
+            }
+        }
+    }
+
+    /// Parses a command name as used in URLs and topics (`run`, `stop`, `reverse`, `jog`, `reset`).
+    pub fn from_name(name: &str) -> Option<Command> {
+        Some(match name {
+            "run" => Command::Run,
+            "stop" => Command::Stop,
+            "reverse" => Command::Reverse,
+            "jog" => Command::Jog,
+            "reset" => Command::Reset,
+            _ => return None,
+        })
+    }
+}
+
+/// Why a command or parameter read was not done.
+#[derive(Debug)]
+pub enum CommandError {
+    /// No drive has that id.
+    UnknownDrive(String),
+    /// The drive is locked against writes.
+    Locked(String),
+    /// The request was not valid (bad value, unknown parameter) and nothing was sent.
+    Invalid(String),
+    /// The drive answered no.
+    Refused {
+        /// The drive's code.
+        code: u32,
+        /// The manual's meaning.
+        meaning: String,
+        /// Whether the code is a Modbus exception code (passed through to Modbus clients).
+        modbus: bool,
+    },
+    /// The operation does not exist for this drive.
+    Unsupported(String),
+    /// The drive did not answer, or its replies were damaged, or it is offline.
+    NoAnswer(String),
+    /// The bus's port is gone.
+    LinkDown(String),
+    /// The reply made no sense.
+    Protocol(String),
+}
+
+impl std::fmt::Display for CommandError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            CommandError::UnknownDrive(id) => write!(f, "no drive {id:?}: GET /api/drives lists them"),
+            CommandError::Locked(id) => {
+                write!(f, "drive {id:?} is locked against writes: unlock it in the configuration")
+            }
+            CommandError::Invalid(s) | CommandError::Unsupported(s) | CommandError::Protocol(s) => {
+                f.write_str(s)
+            }
+            CommandError::Refused { code, meaning, .. } => {
+                write!(f, "the drive refused: code {code:#04X}, {meaning}")
+            }
+            CommandError::NoAnswer(s) | CommandError::LinkDown(s) => f.write_str(s),
+        }
+    }
+}
+
+impl std::error::Error for CommandError {}
+
+impl CommandError {
+    /// A short kind for JSON errors and the audit trail.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            CommandError::UnknownDrive(_) => "unknown_drive",
+            CommandError::Locked(_) => "locked",
+            CommandError::Invalid(_) => "invalid",
+            CommandError::Refused { .. } => "refused",
+            CommandError::Unsupported(_) => "unsupported",
+            CommandError::NoAnswer(_) => "no_answer",
+            CommandError::LinkDown(_) => "link_down",
+            CommandError::Protocol(_) => "protocol",
+        }
+    }
+
+    /// The HTTP status that says what happened.
+    pub fn http_status(&self) -> u16 {
+        match self {
+            CommandError::UnknownDrive(_) => 404,
+            CommandError::Locked(_) => 423,
+            CommandError::Invalid(_) => 422,
+            CommandError::Refused { .. } => 409,
+            CommandError::Unsupported(_) => 422,
+            CommandError::NoAnswer(_) => 504,
+            CommandError::LinkDown(_) => 503,
+            CommandError::Protocol(_) => 502,
+        }
+    }
+
+    /// The Modbus exception code that says what happened (docs/register-map.md).
+    pub fn modbus_exception(&self) -> u8 {
+        match self {
+            CommandError::UnknownDrive(_) => 0x0B,
+            CommandError::Locked(_) | CommandError::Unsupported(_) => 0x01,
+            CommandError::Invalid(_) => 0x03,
+            CommandError::Refused { code, modbus: true, .. } if *code > 0 && *code <= 0xFF => *code as u8,
+            CommandError::Refused { .. } | CommandError::Protocol(_) => 0x04,
+            CommandError::NoAnswer(_) => 0x0B,
+            CommandError::LinkDown(_) => 0x0A,
+        }
+    }
+
+    fn from_link(e: LinkError, modbus: bool) -> Self {
+        match e {
+            LinkError::Drive(DriveError::Refused { code, meaning }) => {
+                CommandError::Refused { code, meaning, modbus }
+            }
+            LinkError::Drive(DriveError::OutOfRange(s)) => CommandError::Invalid(s),
+            LinkError::Drive(DriveError::Unsupported(s)) => CommandError::Unsupported(s),
+            LinkError::Drive(DriveError::Protocol(s)) => CommandError::Protocol(s),
+            LinkError::Bus(BusError::Link(s)) => CommandError::LinkDown(s),
+            LinkError::Bus(BusError::Closed) => CommandError::LinkDown("the bus has stopped".into()),
+            LinkError::Bus(e) => CommandError::NoAnswer(e.to_string()),
+        }
+    }
+}
+
+/// A parameter's value as read from a drive.
+#[derive(Clone, Debug, Serialize)]
+pub struct ParamReading {
+    /// The manual's name.
+    pub name: String,
+    /// The manual's title.
+    pub title: String,
+    /// Raw value on the wire.
+    pub raw: i64,
+    /// The value in its unit.
+    pub value: f64,
+    /// The unit.
+    pub unit: String,
+    /// The value as the keypad would show it (`50.00 Hz`, a choice's text).
+    pub text: String,
+}
+
+/// What the cache holds of one drive.
+#[derive(Clone, Debug, Default)]
+pub struct DriveState {
+    /// The last status read.
+    pub status: Option<DriveStatus>,
+    /// When it was read.
+    pub updated: Option<std::time::Instant>,
+    /// When it was read, unix ms.
+    pub updated_ms: Option<i64>,
+    /// `None` until the first poll; then whether the last poll was answered.
+    pub online: Option<bool>,
+    /// The last poll or linkage error.
+    pub last_error: Option<String>,
+    /// Polls made.
+    pub polls: u64,
+    /// Polls that failed.
+    pub poll_errors: u64,
+    /// The last speed commanded through the gateway, Hz.
+    pub commanded_hz: Option<f64>,
+}
+
+/// One drive in the gateway.
+pub struct DriveEntry {
+    /// Its configuration.
+    pub config: DriveConfig,
+    /// The bus's name.
+    pub bus: String,
+    /// The bus's index.
+    pub bus_index: usize,
+    /// The bus's protocol.
+    pub protocol: String,
+    command: Drive,
+    poll: Drive,
+    state: RwLock<DriveState>,
+    locked: AtomicBool,
+    poll_now: AtomicBool,
+    linking: AtomicBool,
+}
+
+impl DriveEntry {
+    /// A copy of the cached state.
+    pub fn state(&self) -> DriveState {
+        self.state.read().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Reads the cached state without copying it.
+    pub fn with_state<R>(&self, f: impl FnOnce(&DriveState) -> R) -> R {
+        f(&self.state.read().unwrap_or_else(|p| p.into_inner()))
+    }
+
+    /// Whether writes are refused.
+    pub fn locked(&self) -> bool {
+        self.locked.load(Ordering::Relaxed)
+    }
+
+    /// The parameter named `name` in this drive's catalog.
+    pub fn param(&self, name: &str) -> Result<&ParamDef, CommandError> {
+        self.command.profile().param(name).map_err(|e| CommandError::Invalid(e.to_string()))
+    }
+
+    /// The drive's parameter catalog, in the family's order.
+    pub fn catalog(&self) -> Arc<drivebus_drive::Catalog> {
+        drivebus_drive::Catalog::load(self.config.family).expect("embedded catalogs load (tested)")
+    }
+}
+
+/// One bus in the gateway.
+pub struct BusEntry {
+    /// Its configuration.
+    pub config: BusConfig,
+    bus: Bus,
+    online: AtomicBool,
+    wake: Notify,
+    /// The simulated drives of a virtual bus.
+    pub line: Option<Arc<Mutex<VirtualLine>>>,
+}
+
+impl BusEntry {
+    /// The bus owner's counts.
+    pub fn stats(&self) -> BusStats {
+        self.bus.stats()
+    }
+
+    /// False after the port failed, until a poll is answered again.
+    pub fn online(&self) -> bool {
+        self.online.load(Ordering::Relaxed)
+    }
+}
+
+/// A drive as the API shows it: configuration, cached values and their age, link health.
+#[derive(Clone, Debug, Serialize)]
+pub struct DriveView {
+    /// The drive's id.
+    pub id: String,
+    /// The bus's name.
+    pub bus: String,
+    /// The family.
+    pub family: String,
+    /// The wire protocol.
+    pub protocol: String,
+    /// Its number on the bus.
+    pub address: u8,
+    /// Its Modbus TCP unit id.
+    pub unit_id: u8,
+    /// Whether writes are refused.
+    pub locked: bool,
+    /// `true`/`false` after the first poll; `null` before.
+    pub online: Option<bool>,
+    /// Whether the output is on.
+    pub running: Option<bool>,
+    /// `forward`/`reverse`.
+    pub direction: Option<String>,
+    /// Output frequency, Hz.
+    pub output_hz: Option<f64>,
+    /// Setpoint, Hz (the drive's, or the last commanded where the drive does not tell).
+    pub setpoint_hz: Option<f64>,
+    /// Motor current, A.
+    pub current_a: Option<f64>,
+    /// The fault in force.
+    pub fault: Option<FaultView>,
+    /// Age of the values, ms (`null` before the first answer).
+    pub age_ms: Option<u64>,
+    /// When the drive last answered, unix ms.
+    pub last_seen_ms: Option<i64>,
+    /// Failed polls / polls.
+    pub error_rate: f64,
+    /// Polls made.
+    pub polls: u64,
+    /// The last error.
+    pub last_error: Option<String>,
+    /// The poll interval, ms.
+    pub poll_ms: u64,
+}
+
+/// A fault as the API shows it.
+#[derive(Clone, Debug, Serialize, PartialEq, Eq)]
+pub struct FaultView {
+    /// The drive's code.
+    pub code: u32,
+    /// The manual's text.
+    pub text: String,
+}
+
+/// A bus as the API shows it.
+#[derive(Clone, Debug, Serialize)]
+pub struct BusView {
+    /// Its name.
+    pub name: String,
+    /// Its port.
+    pub port: String,
+    /// Its protocol.
+    pub protocol: String,
+    /// Baud rate.
+    pub baud: u32,
+    /// Character format.
+    pub serial: String,
+    /// False after the port failed.
+    pub online: bool,
+    /// Requests sent (retries included).
+    pub transactions: u64,
+    /// Replies received.
+    pub replies: u64,
+    /// Requests not answered in time.
+    pub timeouts: u64,
+    /// Damaged replies.
+    pub checksum_errors: u64,
+    /// Retries.
+    pub retries: u64,
+    /// Time on the wire / elapsed.
+    pub utilization: f64,
+    /// The drives' ids.
+    pub drives: Vec<String>,
+}
+
+/// A change for live subscribers (the HTTP stream, MQTT, the dashboard).
+#[derive(Clone, Debug, Serialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum Change {
+    /// A drive's values were refreshed.
+    Drive(DriveView),
+    /// Something happened (also in the store).
+    Event(Event),
+    /// A bus's statistics.
+    Bus(BusView),
+}
+
+/// Counters of the gateway's own work, for metrics.
+#[derive(Debug, Default)]
+pub struct Counters {
+    /// Commands accepted and confirmed by a drive.
+    pub commands_ok: AtomicU64,
+    /// Commands refused or failed.
+    pub commands_failed: AtomicU64,
+    /// Events that could not be written to the store.
+    pub store_errors: AtomicU64,
+}
+
+/// The gateway.
+pub struct Gateway {
+    config: GatewayConfig,
+    drives: Vec<DriveEntry>,
+    index: HashMap<String, usize>,
+    units: Vec<Option<usize>>,
+    buses: Vec<BusEntry>,
+    changes: broadcast::Sender<Change>,
+    store: Option<Store>,
+    /// Counters for metrics.
+    pub counters: Counters,
+}
+
+impl Gateway {
+    /// Builds every bus and drive of `config` and starts polling (on the current tokio runtime).
+    /// `store` receives events and trends.
+    pub fn start(config: GatewayConfig, store: Option<Store>) -> Result<Arc<Gateway>, String> {
+        let mut buses = Vec::new();
+        let mut drives = Vec::new();
+        for (bi, b) in config.buses.iter().enumerate() {
+            let mut owner = OwnerConfig::new(&b.protocol, b.baud, b.format);
+            owner.response_timeout = b.timeout;
+            owner.retries = b.retries;
+            owner.echo = b.echo;
+            let (bus, line) = match b.port {
+                Port::Virtual => {
+                    let line = virtual_line(b)?;
+                    let link = sim_link(line.clone(), &format!("virtual:{}", b.name));
+                    (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
+                }
+                _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
+            };
+            for d in &b.drives {
+                let profile = |a| {
+                    drivebus_drive::profile::for_drive(d.family, &b.protocol, a)
+                        .map_err(|e| format!("drive {}: {e}", d.name))
+                };
+                let mut command = Drive::new(bus.clone(), profile(d.address)?);
+                let mut poll = Drive::new(bus.clone(), profile(d.address)?).polling();
+                if let Some(t) = b.timeout {
+                    command = command.with_timeout(t);
+                    poll = poll.with_timeout(t);
+                }
+                drives.push(DriveEntry {
+                    config: d.clone(),
+                    bus: b.name.clone(),
+                    bus_index: bi,
+                    protocol: b.protocol.clone(),
+                    command,
+                    poll,
+                    state: RwLock::new(DriveState::default()),
+                    locked: AtomicBool::new(d.locked),
+                    poll_now: AtomicBool::new(false),
+                    linking: AtomicBool::new(false),
+                });
+            }
+            buses.push(BusEntry {
+                config: b.clone(),
+                bus,
+                online: AtomicBool::new(true),
+                wake: Notify::new(),
+                line,
+            });
+        }
+        let index = drives.iter().enumerate().map(|(i, d)| (d.config.name.clone(), i)).collect();
+        let mut units = vec![None; 256];
+        for (i, d) in drives.iter().enumerate() {
+            units[d.config.unit_id as usize] = Some(i);
+        }
+        let (changes, _) = broadcast::channel(1024);
+        let gw = Arc::new(Gateway {
+            config,
+            drives,
+            index,
+            units,
+            buses,
+            changes,
+            store,
+            counters: Counters::default(),
+        });
+        gw.record(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Started,
+            bus: None,
+            drive: None,
+            actor: Some("gateway".into()),
+            action: None,
+            result: None,
+            detail: json!({ "buses": gw.buses.len(), "drives": gw.drives.len() }),
+        });
+        for bi in 0..gw.buses.len() {
+            tokio::spawn(gw.clone().poll_bus(bi));
+        }
+        tokio::spawn(gw.clone().publish_buses());
+        Ok(gw)
+    }
+
+    /// The configuration it runs.
+    pub fn config(&self) -> &GatewayConfig {
+        &self.config
+    }
+
+    /// Every drive, in configuration order.
+    pub fn drives(&self) -> &[DriveEntry] {
+        &self.drives
+    }
+
+    /// Every bus.
+    pub fn buses(&self) -> &[BusEntry] {
+        &self.buses
+    }
+
+    /// The drive with id `id`.
+    pub fn drive(&self, id: &str) -> Result<&DriveEntry, CommandError> {
+        self.index.get(id).map(|&i| &self.drives[i]).ok_or_else(|| CommandError::UnknownDrive(id.to_string()))
+    }
+
+    /// The drive with Modbus TCP unit id `unit`.
+    pub fn drive_by_unit(&self, unit: u8) -> Option<&DriveEntry> {
+        self.units[unit as usize].map(|i| &self.drives[i])
+    }
+
+    /// The store, if configured.
+    pub fn store(&self) -> Option<&Store> {
+        self.store.as_ref()
+    }
+
+    /// Subscribes to live changes.
+    pub fn subscribe(&self) -> broadcast::Receiver<Change> {
+        self.changes.subscribe()
+    }
+
+    /// The API view of a drive.
+    pub fn drive_view(&self, d: &DriveEntry) -> DriveView {
+        d.with_state(|s| {
+            let st = s.status.as_ref();
+            DriveView {
+                id: d.config.name.clone(),
+                bus: d.bus.clone(),
+                family: d.config.family.as_str().to_string(),
+                protocol: d.protocol.clone(),
+                address: d.config.address,
+                unit_id: d.config.unit_id,
+                locked: d.locked(),
+                online: s.online,
+                running: st.map(|x| x.running),
+                direction: st.and_then(|x| x.direction.clone()),
+                output_hz: st.and_then(|x| x.output_hz),
+                setpoint_hz: st.and_then(|x| x.setpoint_hz).or(s.commanded_hz),
+                current_a: st.and_then(|x| x.current_a),
+                fault: st
+                    .and_then(|x| x.fault.as_ref())
+                    .map(|f| FaultView { code: f.code, text: f.text.clone() }),
+                age_ms: s.updated.map(|t| t.elapsed().as_millis() as u64),
+                last_seen_ms: s.updated_ms,
+                error_rate: if s.polls == 0 { 0.0 } else { s.poll_errors as f64 / s.polls as f64 },
+                polls: s.polls,
+                last_error: s.last_error.clone(),
+                poll_ms: d.config.poll.as_millis() as u64,
+            }
+        })
+    }
+
+    /// The API view of a bus.
+    pub fn bus_view(&self, b: &BusEntry) -> BusView {
+        let s = b.stats();
+        BusView {
+            name: b.config.name.clone(),
+            port: b.config.port.to_string(),
+            protocol: b.config.protocol.clone(),
+            baud: b.config.baud,
+            serial: b.config.format.to_string(),
+            online: b.online(),
+            transactions: s.transactions,
+            replies: s.replies,
+            timeouts: s.timeouts,
+            checksum_errors: s.checksum_errors,
+            retries: s.retries,
+            utilization: s.utilization(),
+            drives: self
+                .drives
+                .iter()
+                .filter(|d| d.bus == b.config.name)
+                .map(|d| d.config.name.clone())
+                .collect(),
+        }
+    }
+
+    /// Appends an event to the store (waiting for the commit) and tells live subscribers.
+    /// Returns the stored event (with its id), or the event unstored when the store failed.
+    pub fn record(&self, mut event: Event) -> Event {
+        if let Some(store) = &self.store {
+            match store.record(&event) {
+                Ok(id) => event.id = id,
+                Err(e) => {
+                    self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
+                    eprintln!("drivebus serve: event not stored: {e}");
+                }
+            }
+        }
+        let _ = self.changes.send(Change::Event(event.clone()));
+        event
+    }
+
+    async fn record_async(self: &Arc<Self>, event: Event) -> Event {
+        let gw = self.clone();
+        match tokio::task::spawn_blocking(move || gw.record(event)).await {
+            Ok(e) => e,
+            Err(e) => panic!("event writer task failed: {e}"),
+        }
+    }
+
+    /// Sends `command` to drive `id` on behalf of `actor` (for the audit trail) and waits for the
+    /// drive's confirmation. The command and its result are in the store before this returns.
+    pub async fn command(
+        self: &Arc<Self>,
+        id: &str,
+        command: Command,
+        actor: &str,
+    ) -> Result<(), CommandError> {
+        let d = self.drive(id)?;
+        let result = if d.locked() {
+            Err(CommandError::Locked(id.to_string()))
+        } else {
+            self.execute(d, &command).await
+        };
+        match &result {
+            Ok(()) => self.counters.commands_ok.fetch_add(1, Ordering::Relaxed),
+            Err(_) => self.counters.commands_failed.fetch_add(1, Ordering::Relaxed),
+        };
+        self.record_async(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Command,
+            bus: Some(d.bus.clone()),
+            drive: Some(id.to_string()),
+            actor: Some(actor.to_string()),
+            action: Some(command.action()),
+            result: Some(match &result {
+                Ok(()) => "ok".to_string(),
+                Err(e) => format!("{}: {e}", e.kind()),
+            }),
+            detail: json!({}),
+        })
+        .await;
+        result
+    }
+
+    async fn execute(&self, d: &DriveEntry, command: &Command) -> Result<(), CommandError> {
+        let modbus = d.protocol.starts_with("modbus");
+        let map = |e| CommandError::from_link(e, modbus);
+        match command {
+            Command::Run => d.command.run().await.map_err(map)?,
+            Command::Stop => d.command.stop().await.map_err(map)?,
+            Command::Reverse => d.command.reverse().await.map_err(map)?,
+            Command::Jog => d.command.jog().await.map_err(map)?,
+            Command::Reset => d.command.reset().await.map_err(map)?,
+            Command::Speed(hz) => {
+                if !hz.is_finite() {
+                    return Err(CommandError::Invalid(format!("speed {hz} is not a number of Hz")));
+                }
+                d.command.set_speed(*hz).await.map_err(map)?;
+                d.state.write().unwrap_or_else(|p| p.into_inner()).commanded_hz = Some(*hz);
+            }
+            Command::SetParam { name, value, eeprom } => {
+                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
+                d.command.write_param(name, value, storage).await.map_err(map)?;
+            }
+        }
+        // Refresh the cache now rather than at the next poll.
+        d.poll_now.store(true, Ordering::Relaxed);
+        self.buses[d.bus_index].wake.notify_one();
+        Ok(())
+    }
+
+    /// Reads parameter `name` of drive `id` from the drive (through the bus owner, ahead of polls).
+    pub async fn read_param(&self, id: &str, name: &str) -> Result<ParamReading, CommandError> {
+        let d = self.drive(id)?;
+        let modbus = d.protocol.starts_with("modbus");
+        let (raw, def) = d.command.read_param(name).await.map_err(|e| CommandError::from_link(e, modbus))?;
+        Ok(ParamReading {
+            name: def.name.clone(),
+            title: def.title.clone(),
+            raw,
+            value: def.from_raw(raw),
+            unit: def.unit.clone(),
+            text: def.format(raw),
+        })
+    }
+
+    async fn poll_bus(self: Arc<Self>, bi: usize) {
+        let mine: Vec<usize> = (0..self.drives.len()).filter(|&i| self.drives[i].bus_index == bi).collect();
+        if mine.is_empty() {
+            return;
+        }
+        let start = tokio::time::Instant::now();
+        let mut due: Vec<tokio::time::Instant> = mine.iter().map(|_| start).collect();
+        loop {
+            // A drive whose command just went through is polled at once.
+            for (k, &i) in mine.iter().enumerate() {
+                if self.drives[i].poll_now.swap(false, Ordering::Relaxed) {
+                    due[k] = tokio::time::Instant::now();
+                }
+            }
+            let k = (0..mine.len())
+                .min_by_key(|&k| (due[k], self.drives[mine[k]].config.priority))
+                .expect("a bus with drives");
+            let wake = self.buses[bi].wake.notified();
+            tokio::select! {
+                _ = tokio::time::sleep_until(due[k]) => {}
+                _ = wake => continue,
+            }
+            let i = mine[k];
+            let result = self.drives[i].poll.status().await;
+            self.update(i, result).await;
+            let next = due[k] + self.drives[i].config.poll;
+            due[k] = next.max(tokio::time::Instant::now());
+        }
+    }
+
+    async fn update(self: &Arc<Self>, i: usize, result: Result<DriveStatus, LinkError>) {
+        let d = &self.drives[i];
+        let bus = &self.buses[d.bus_index];
+        let now_ms = unix_ms();
+        let mut events = Vec::new();
+        let event = |kind, detail| Event {
+            id: 0,
+            time_ms: now_ms,
+            kind,
+            bus: Some(d.bus.clone()),
+            drive: Some(d.config.name.clone()),
+            actor: Some("gateway".into()),
+            action: None,
+            result: None,
+            detail,
+        };
+        let link_down = matches!(&result, Err(LinkError::Bus(BusError::Link(_))));
+        if link_down && bus.online.swap(false, Ordering::Relaxed) {
+            let why = match &result {
+                Err(e) => e.to_string(),
+                Ok(_) => String::new(),
+            };
+            events.push(Event { drive: None, ..event(EventKind::BusOffline, json!({ "error": why })) });
+        }
+        if result.is_ok() && !bus.online.swap(true, Ordering::Relaxed) {
+            events.push(Event { drive: None, ..event(EventKind::BusOnline, json!({})) });
+        }
+        let mut linked = None;
+        {
+            let mut s = d.state.write().unwrap_or_else(|p| p.into_inner());
+            s.polls += 1;
+            let was_online = s.online;
+            match result {
+                Ok(status) => {
+                    let old_fault = s.status.as_ref().and_then(|x| x.fault.clone());
+                    match (&old_fault, &status.fault) {
+                        (None, Some(f)) => {
+                            events.push(event(EventKind::Trip, json!({ "code": f.code, "text": f.text })));
+                        }
+                        (Some(f), None) => {
+                            events.push(event(
+                                EventKind::FaultReset,
+                                json!({ "code": f.code, "text": f.text }),
+                            ));
+                        }
+                        _ => {}
+                    }
+                    if was_online == Some(false) {
+                        events.push(event(EventKind::Online, json!({})));
+                    }
+                    if let Some(store) = &self.store {
+                        store.sample(Sample {
+                            time_ms: now_ms,
+                            drive: d.config.name.clone(),
+                            output_hz: status.output_hz,
+                            current_a: status.current_a,
+                            setpoint_hz: status.setpoint_hz.or(s.commanded_hz),
+                        });
+                    }
+                    linked = status.output_hz;
+                    s.status = Some(status);
+                    s.updated = Some(std::time::Instant::now());
+                    s.updated_ms = Some(now_ms);
+                    s.online = Some(true);
+                    s.last_error = None;
+                }
+                Err(e) => {
+                    s.poll_errors += 1;
+                    s.last_error = Some(e.to_string());
+                    // A drive the bus owner still counts as online had one bad poll; offline is
+                    // the owner's verdict after several in a row (or a dead port).
+                    let health_online = bus.bus.health().get(&d.config.address).is_none_or(|h| h.online);
+                    if !health_online || link_down {
+                        if was_online != Some(false) {
+                            events.push(event(EventKind::Offline, json!({ "error": e.to_string() })));
+                        }
+                        s.online = Some(false);
+                    }
+                }
+            }
+        }
+        for e in events {
+            self.record_async(e).await;
+        }
+        let _ = self.changes.send(Change::Drive(self.drive_view(d)));
+        if let Some(hz) = linked {
+            self.follow(i, hz);
+        }
+    }
+
+    /// Applies the linkage rules whose leader is drive `i`, now at `hz`.
+    fn follow(self: &Arc<Self>, leader: usize, hz: f64) {
+        for rule in &self.config.linkage {
+            if rule.leader != self.drives[leader].config.name {
+                continue;
+            }
+            let Some(&fi) = self.index.get(&rule.follower) else { continue };
+            let f = &self.drives[fi];
+            let target = ((hz * rule.ratio + rule.offset_hz).max(0.0) * 100.0).round() / 100.0;
+            let current = f.with_state(|s| s.commanded_hz);
+            if current.is_some_and(|c| (c - target).abs() < 0.005) || f.locked() {
+                continue;
+            }
+            if f.linking.swap(true, Ordering::Relaxed) {
+                continue;
+            }
+            let gw = self.clone();
+            tokio::spawn(async move {
+                let f = &gw.drives[fi];
+                match f.command.set_speed(target).await {
+                    Ok(()) => f.state.write().unwrap_or_else(|p| p.into_inner()).commanded_hz = Some(target),
+                    Err(e) => {
+                        f.state.write().unwrap_or_else(|p| p.into_inner()).last_error =
+                            Some(format!("linkage: {e}"))
+                    }
+                }
+                f.linking.store(false, Ordering::Relaxed);
+            });
+        }
+    }
+
+    async fn publish_buses(self: Arc<Self>) {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            tick.tick().await;
+            for b in &self.buses {
+                let _ = self.changes.send(Change::Bus(self.bus_view(b)));
+            }
+        }
+    }
+
+    /// Family name of a drive (for front ends that show it).
+    pub fn family(d: &DriveEntry) -> Family {
+        d.config.family
+    }
+}

@@ -1,0 +1,24 @@
+//! The drivebus gateway: many buses, one view.
+//!
+//! ```text
+//!  config.rs ──► Gateway::start ──► per bus: a bus owner (drivebus-link) + a poll scheduler
+//!                      │                 │ status polls (Priority::Poll)    ▲ commands (Priority::Command)
+//!                      ▼                 ▼                                  │
+//!                 state cache ◄── update: values + age, trips, online ──► events ──► store (SQLite)
+//!                      │                                                     │
+//!     reads (no bus) ──┼── Modbus TCP (modbus_tcp.rs)                        └──► live stream (broadcast)
+//!                      └── HTTP/JSON (http/), dashboard, MQTT, metrics
+//! ```
+//!
+//! Every front end reads from the cache ([`gateway::Gateway::drive_view`]) and writes through
+//! [`gateway::Gateway::command`], which checks the per-drive lock, sends the command through the
+//! bus owner ahead of polling, and records the audit event before it answers. A `port =
+//! "virtual"` bus runs simulated drives (drivebus-sim) on a paced virtual line in this process:
+//! that is `drivebus serve --demo`.
+
+pub mod config;
+pub mod gateway;
+pub mod port;
+
+pub use config::GatewayConfig;
+pub use gateway::{Command, CommandError, Gateway};

@@ -1,0 +1,99 @@
+//! The gateway over virtual buses on a virtual clock: polling fills the cache, commands go
+//! through and are audited, linkage follows, locks refuse.
+
+use std::time::Duration;
+
+use drivebus_gateway::gateway::{Change, Command, CommandError};
+use drivebus_gateway::{Gateway, GatewayConfig};
+
+async fn settle(secs: u64) {
+    // Paused time: sleeping advances the virtual clock as far as the tasks need.
+    tokio::time::sleep(Duration::from_secs(secs)).await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_demo_polls_every_drive_and_runs_one() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    settle(3).await;
+    for d in gw.drives() {
+        let v = gw.drive_view(d);
+        assert_eq!(v.online, Some(true), "{} not online: {:?}", v.id, v.last_error);
+        assert_eq!(v.running, Some(false), "{}", v.id);
+        assert!(v.age_ms.is_some());
+    }
+    gw.command("pump-1", Command::Speed(40.0), "test").await.unwrap();
+    gw.command("pump-1", Command::Run, "test").await.unwrap();
+    settle(20).await;
+    let v = gw.drive_view(gw.drive("pump-1").unwrap());
+    assert_eq!(v.running, Some(true));
+    let hz = v.output_hz.unwrap();
+    assert!((hz - 40.0).abs() < 0.05, "pump-1 at {hz} Hz");
+    for b in gw.buses() {
+        let s = gw.bus_view(b);
+        assert!(s.transactions > 0 && s.online, "{s:?}");
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn every_family_runs_to_its_setpoint() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    for id in ["conveyor-1", "pump-2", "ahu-1", "mixer-1"] {
+        gw.command(id, Command::Speed(30.0), "test").await.unwrap_or_else(|e| panic!("{id}: {e}"));
+        gw.command(id, Command::Run, "test").await.unwrap_or_else(|e| panic!("{id}: {e}"));
+    }
+    settle(30).await;
+    for id in ["conveyor-1", "pump-2", "ahu-1", "mixer-1"] {
+        let v = gw.drive_view(gw.drive(id).unwrap());
+        assert_eq!(v.running, Some(true), "{id}");
+        let hz = v.output_hz.unwrap();
+        assert!((hz - 30.0).abs() < 0.1, "{id} at {hz} Hz");
+    }
+    // conveyor-2 follows conveyor-1: 30 * 0.5 + 5 = 20 Hz setpoint.
+    let v = gw.drive_view(gw.drive("conveyor-2").unwrap());
+    assert_eq!(v.setpoint_hz, Some(20.0), "{v:?}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn refusals_say_why() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    settle(2).await;
+    let e = gw.command("pump-3", Command::Run, "test").await.unwrap_err();
+    assert!(matches!(e, CommandError::Locked(_)), "{e}");
+    assert_eq!(e.modbus_exception(), 0x01);
+    let e = gw.command("nobody", Command::Run, "test").await.unwrap_err();
+    assert_eq!(e.http_status(), 404);
+    let e = gw.command("fan-1", Command::Speed(500.0), "test").await.unwrap_err();
+    assert!(matches!(e, CommandError::Invalid(_)), "{e}");
+    assert_eq!(e.modbus_exception(), 0x03);
+    let e = gw.command("fan-1", Command::Speed(f64::NAN), "test").await.unwrap_err();
+    assert_eq!(e.http_status(), 422);
+}
+
+#[tokio::test(start_paused = true)]
+async fn changes_are_streamed() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    let mut rx = gw.subscribe();
+    gw.command("mixer-2", Command::Run, "test").await.unwrap();
+    let mut saw_command = false;
+    let mut saw_drive = false;
+    while !(saw_command && saw_drive) {
+        match rx.recv().await.unwrap() {
+            Change::Event(e) if e.action.as_deref() == Some("run") => saw_command = true,
+            Change::Drive(v) if v.id == "mixer-2" => saw_drive = true,
+            _ => {}
+        }
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn parameters_read_from_the_drive() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    let p = gw.read_param("ahu-1", "4-14").await.unwrap();
+    assert_eq!(p.unit, "Hz");
+    gw.command("ahu-1", Command::SetParam { name: "4-14".into(), value: "55".into(), eeprom: false }, "t")
+        .await
+        .unwrap();
+    assert_eq!(gw.read_param("ahu-1", "4-14").await.unwrap().value, 55.0);
+    let e = gw.read_param("ahu-1", "99-99").await.unwrap_err();
+    assert_eq!(e.http_status(), 422, "{e}");
+}

@@ -62,6 +62,9 @@ enum Command {
         #[arg(required = true, num_args = 1..)]
         hex: Vec<String>,
     },
+    /// Run the gateway: every bus polled, one view over Modbus TCP, HTTP/JSON and the dashboard
+    /// (`--demo` runs simulated drives with nothing attached).
+    Serve(commands::serve::ServeArgs),
 }
 
 /// Exit status for bad usage (unknown option, value out of range).
@@ -97,6 +100,7 @@ fn main() -> ExitCode {
         Command::Params(cmd) => commands::drive::params(&cli.target, &cmd),
         Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
         Command::Scan(args) => commands::scan::run(&args, &cli.target),
+        Command::Serve(args) => commands::serve::run(&args),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -18,7 +18,10 @@
 
 pub mod config;
 pub mod gateway;
+pub mod http;
+pub mod modbus_tcp;
 pub mod port;
+pub mod server;
 
 pub use config::GatewayConfig;
 pub use gateway::{Command, CommandError, Gateway};

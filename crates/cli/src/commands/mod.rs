@@ -3,4 +3,5 @@
 pub mod decode;
 pub mod drive;
 pub mod scan;
+pub mod serve;
 pub mod simulate;

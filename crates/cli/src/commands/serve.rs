@@ -1,0 +1,130 @@
+//! `drivebus serve`: the gateway service over every configured bus (or the embedded demo).
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Context, Result};
+use clap::Args;
+use drivebus_gateway::config::{MqttConfig, Role, Token};
+use drivebus_gateway::{Gateway, GatewayConfig};
+
+use crate::commands::drive::Failure;
+
+/// Arguments of `drivebus serve`.
+#[derive(Args, Debug)]
+pub struct ServeArgs {
+    /// The gateway's TOML configuration (see docs/gateway.md).
+    #[arg(long, value_name = "FILE", required_unless_present = "demo", conflicts_with = "demo")]
+    pub config: Option<PathBuf>,
+    /// Run the embedded demo: a virtual bus per family with simulated drives, nothing attached.
+    #[arg(long)]
+    pub demo: bool,
+    /// Listen for HTTP on HOST:PORT (default 127.0.0.1:8080).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub http: Option<SocketAddr>,
+    /// Listen for Modbus TCP on HOST:PORT (default 127.0.0.1:5020).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub modbus: Option<SocketAddr>,
+    /// Publish to an MQTT broker, mqtt://HOST:PORT.
+    #[arg(long, value_name = "URL")]
+    pub mqtt: Option<String>,
+    /// The event store (SQLite file); overrides the configuration's.
+    #[arg(long, value_name = "FILE")]
+    pub db: Option<PathBuf>,
+    /// Keep no events or trends.
+    #[arg(long, conflicts_with = "db")]
+    pub no_store: bool,
+}
+
+fn demo_token() -> String {
+    let mut bytes = [0u8; 16];
+    if let Ok(mut f) = std::fs::File::open("/dev/urandom") {
+        use std::io::Read;
+        let _ = f.read_exact(&mut bytes);
+    }
+    if bytes == [0; 16] {
+        // No /dev/urandom: derive one from the clock and the process (still unique per run).
+        let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+        let seed = t.as_nanos() ^ (u128::from(std::process::id()) << 64);
+        bytes = seed.to_le_bytes();
+    }
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Runs `drivebus serve`.
+pub fn run(args: &ServeArgs) -> Result<u8> {
+    let mut config = match &args.config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read the configuration {}", path.display()))?;
+            GatewayConfig::from_toml(&path.display().to_string(), &text)?
+        }
+        None => GatewayConfig::demo(),
+    };
+    if let Some(a) = args.http {
+        config.http.listen = a;
+    }
+    if let Some(a) = args.modbus {
+        config.modbus.listen = a;
+    }
+    if let Some(url) = &args.mqtt {
+        if !url.starts_with("mqtt://") {
+            return Err(anyhow!("--mqtt {url:?}: use mqtt://HOST:PORT"));
+        }
+        let mut m = config.mqtt.clone().unwrap_or(MqttConfig {
+            url: url.clone(),
+            topic_prefix: None,
+            discovery: false,
+            allow_commands: Vec::new(),
+            client_id: None,
+        });
+        m.url = url.clone();
+        config.mqtt = Some(m);
+    }
+    if args.no_store {
+        config.store = None;
+    } else if let Some(db) = &args.db {
+        config.store = Some(db.clone());
+    }
+    let token = args.demo.then(demo_token);
+    if let Some(t) = &token {
+        config.tokens.push(Token { name: "demo".into(), secret: t.clone(), role: Role::Write });
+    }
+    let store = match &config.store {
+        Some(path) => {
+            Some(drivebus_store::Store::open(path).map_err(|e| Failure { code: 2, message: e.to_string() })?)
+        }
+        None => None,
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")?;
+    rt.block_on(async move {
+        let db = config.store.clone();
+        let gw = Gateway::start(config, store).map_err(|e| Failure { code: 3, message: e })?;
+        drivebus_gateway::server::run(gw.clone(), |bound| {
+            println!("drivebus serve: {} buses, {} drives", gw.buses().len(), gw.drives().len());
+            println!("  dashboard   http://{}/", bound.http);
+            println!("  HTTP API    http://{}/api/drives", bound.http);
+            println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
+            match &db {
+                Some(p) => println!("  event store {}", p.display()),
+                None => println!("  event store off"),
+            }
+            if let Some(t) = &token {
+                println!("  demo write token: {t}");
+                println!(
+                    "  e.g. curl -X POST -H 'Authorization: Bearer {t}' http://{}/api/drives/pump-1/run",
+                    bound.http
+                );
+            }
+            use std::io::Write;
+            let _ = std::io::stdout().flush();
+        })
+        .await
+        .map_err(|e| Failure { code: 2, message: e })?;
+        Ok::<u8, Failure>(0)
+    })
+    .map_err(Into::into)
+}

@@ -1,0 +1,55 @@
+//! `drivebus serve`: the gateway and its listeners in one process, until Ctrl-C or SIGTERM.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use tokio::net::TcpListener;
+
+use crate::gateway::Gateway;
+
+/// Where the service listens, once bound.
+#[derive(Clone, Debug)]
+pub struct Bound {
+    /// The HTTP listener.
+    pub http: SocketAddr,
+    /// The Modbus TCP listener.
+    pub modbus: SocketAddr,
+}
+
+async fn bind(addr: SocketAddr, what: &str, option: &str) -> Result<TcpListener, String> {
+    TcpListener::bind(addr).await.map_err(|e| {
+        format!("cannot listen for {what} on {addr}: {e}: give another address with {option} HOST:PORT")
+    })
+}
+
+/// Binds the listeners of `gw`'s configuration, calls `ready` with them, and serves until the
+/// process is asked to stop; then flushes the store.
+pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), String> {
+    let cfg = gw.config().clone();
+    let http = bind(cfg.http.listen, "HTTP", "--http").await?;
+    let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus").await?;
+    let bound = Bound {
+        http: http.local_addr().map_err(|e| e.to_string())?,
+        modbus: modbus.local_addr().map_err(|e| e.to_string())?,
+    };
+    let router = crate::http::router(gw.clone());
+    let http_task = tokio::spawn(async move { axum::serve(http, router).await });
+    let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
+    ready(&bound);
+    let stop = async {
+        let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+        }
+    };
+    let result = tokio::select! {
+        _ = stop => Ok(()),
+        r = http_task => Err(format!("the HTTP server stopped: {r:?}")),
+        r = modbus_task => Err(format!("the Modbus TCP server stopped: {r:?}")),
+    };
+    if let Some(store) = gw.store() {
+        store.flush().map_err(|e| e.to_string())?;
+    }
+    result
+}

@@ -76,3 +76,25 @@ async fn a_lost_port_goes_offline_and_comes_back() {
     sim.abort();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_port_missing_at_start_is_an_offline_bus_not_a_failure() {
+    let text = "[store]\ndisabled = true\n\
+         [[bus]]\nname = \"gone\"\nport = \"/dev/drivebus-no-such-port\"\nprotocol = \"b800\"\ntimeout_ms = 50\n\
+         [[bus.drive]]\nname = \"m1\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n\
+         [[bus]]\nname = \"sim\"\nport = \"virtual\"\nprotocol = \"b800\"\n\
+         [[bus.drive]]\nname = \"m2\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n";
+    let gw = Gateway::start(GatewayConfig::from_toml("t.toml", text).unwrap(), None).unwrap();
+    wait_for("m1 offline", Duration::from_secs(10), || {
+        gw.drive_view(gw.drive("m1").unwrap()).online == Some(false)
+    })
+    .await;
+    wait_for("m2 online", Duration::from_secs(10), || {
+        gw.drive_view(gw.drive("m2").unwrap()).online == Some(true)
+    })
+    .await;
+    let bus = gw.bus_view(&gw.buses()[0]);
+    assert!(!bus.online, "{bus:?}");
+    let err = gw.drive_view(gw.drive("m1").unwrap()).last_error.unwrap();
+    assert!(err.contains("/dev/drivebus-no-such-port"), "{err}");
+}

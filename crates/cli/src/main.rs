@@ -62,6 +62,12 @@ enum Command {
         #[arg(required = true, num_args = 1..)]
         hex: Vec<String>,
     },
+    /// List the gateway's event log (drivebus.db): commands with who, what and the result,
+    /// trips, fault resets, drives and buses going online and offline. --drive ID narrows it.
+    Events(commands::history::EventsArgs),
+    /// Show one drive's trend (--drive ID) from the gateway's store: output Hz (average, min,
+    /// max), current and setpoint per second or per minute.
+    Trend(commands::history::TrendArgs),
 }
 
 /// Exit status for bad usage (unknown option, value out of range).
@@ -97,6 +103,8 @@ fn main() -> ExitCode {
         Command::Params(cmd) => commands::drive::params(&cli.target, &cmd),
         Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
         Command::Scan(args) => commands::scan::run(&args, &cli.target),
+        Command::Events(args) => commands::history::events(&args, &cli.target),
+        Command::Trend(args) => commands::history::trend(&args, &cli.target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

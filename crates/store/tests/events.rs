@@ -162,3 +162,17 @@ fn read_only_store_refuses_writes() {
     });
     assert_eq!(ro.dropped_samples(), 1);
 }
+
+#[test]
+fn a_batch_is_stored_in_order_with_its_ids() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("s.db")).unwrap();
+    let first = store.record(&ev(1, EventKind::BusOffline, None)).unwrap();
+    let batch: Vec<Event> = ["a", "b", "c"].iter().map(|d| ev(2, EventKind::Offline, Some(d))).collect();
+    let new_ids = store.record_batch(&batch).unwrap();
+    assert_eq!(new_ids, vec![first + 1, first + 2, first + 3]);
+    let got = store.events(&EventFilter { kind: Some(EventKind::Offline), ..Default::default() }).unwrap();
+    assert_eq!(got.iter().map(|e| e.drive.clone().unwrap()).collect::<Vec<_>>(), ["a", "b", "c"]);
+    assert_eq!(ids(&got), new_ids);
+    assert!(store.record_batch(&[]).unwrap().is_empty());
+}

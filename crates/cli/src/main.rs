@@ -65,6 +65,12 @@ enum Command {
     /// Run the gateway: every bus polled, one view over Modbus TCP, HTTP/JSON and the dashboard
     /// (`--demo` runs simulated drives with nothing attached).
     Serve(commands::serve::ServeArgs),
+    /// List the gateway's event log (drivebus.db): commands with who, what and the result,
+    /// trips, fault resets, drives and buses going online and offline. --drive ID narrows it.
+    Events(commands::history::EventsArgs),
+    /// Show one drive's trend (--drive ID) from the gateway's store: output Hz (average, min,
+    /// max), current and setpoint per second or per minute.
+    Trend(commands::history::TrendArgs),
 }
 
 /// Exit status for bad usage (unknown option, value out of range).
@@ -101,6 +107,8 @@ fn main() -> ExitCode {
         Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
         Command::Scan(args) => commands::scan::run(&args, &cli.target),
         Command::Serve(args) => commands::serve::run(&args),
+        Command::Events(args) => commands::history::events(&args, &cli.target),
+        Command::Trend(args) => commands::history::trend(&args, &cli.target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -2,6 +2,7 @@
 
 pub mod decode;
 pub mod drive;
+pub mod history;
 pub mod scan;
 pub mod serve;
 pub mod simulate;

@@ -1,0 +1,288 @@
+//! `drivebus events` and `drivebus trend` end to end: a store made through drivebus_store, the
+//! binary run on it, its output checked; missing and bad files; bad usage.
+
+use std::path::Path;
+use std::process::Command;
+
+use drivebus_store::{Event, EventKind, Sample, Store};
+use serde_json::{json, Value};
+
+struct Run {
+    code: i32,
+    stdout: String,
+    stderr: String,
+}
+
+fn run_in(dir: &Path, args: &[&str]) -> Run {
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("run drivebus");
+    Run {
+        code: out.status.code().unwrap_or(-1),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+/// 2026-11-21T10:00:00Z
+const T0: i64 = 1_795_255_200_000;
+
+fn event(time_ms: i64, kind: EventKind, drive: &str, actor: &str, action: &str, result: &str) -> Event {
+    Event {
+        id: 0,
+        time_ms,
+        kind,
+        bus: Some("line-1".into()),
+        drive: Some(drive.into()),
+        actor: (!actor.is_empty()).then(|| actor.into()),
+        action: (!action.is_empty()).then(|| action.into()),
+        result: (!result.is_empty()).then(|| result.into()),
+        detail: Value::Null,
+    }
+}
+
+/// A store in `dir/drivebus.db` with five events and two minutes of one drive's trend.
+fn fixture(dir: &Path) {
+    let store = Store::open(&dir.join("drivebus.db")).unwrap();
+    store.record(&event(T0, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "run", "ok")).unwrap();
+    store
+        .record(&event(T0 + 1_000, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "speed 40 Hz", "ok"))
+        .unwrap();
+    let mut trip = event(T0 + 60_000, EventKind::Trip, "fan-2", "", "", "");
+    trip.detail = json!({"code": 7, "text": "overcurrent"});
+    store.record(&trip).unwrap();
+    store
+        .record(&event(
+            T0 + 120_000,
+            EventKind::Command,
+            "fan-2",
+            "modbus:127.0.0.1:5555",
+            "stop",
+            "refused: locked",
+        ))
+        .unwrap();
+    let mut gw = Event::new(T0 + 180_000, EventKind::Started);
+    gw.actor = Some("gateway".into());
+    store.record(&gw).unwrap();
+    for i in 0..120 {
+        let hz = if i < 60 { i as f64 } else { 50.0 };
+        store.sample(Sample {
+            time_ms: T0 + i * 1000,
+            drive: "pump-1".into(),
+            output_hz: Some(hz),
+            current_a: Some(2.0),
+            setpoint_hz: Some(50.0),
+        });
+    }
+    store.flush().unwrap();
+}
+
+fn json_lines(stdout: &str) -> Vec<Value> {
+    stdout.lines().map(|l| serde_json::from_str(l).expect("one JSON object per line")).collect()
+}
+
+#[test]
+fn events_table_lists_every_column() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    let r = run_in(dir.path(), &["events"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let lines: Vec<&str> = r.stdout.lines().collect();
+    assert_eq!(lines.len(), 6, "{}", r.stdout);
+    for col in ["TIME", "KIND", "BUS", "DRIVE", "ACTOR", "ACTION", "RESULT"] {
+        assert!(lines[0].contains(col), "{}", lines[0]);
+    }
+    let first: Vec<&str> = lines[1].split_whitespace().collect();
+    assert_eq!(
+        first,
+        ["2026-11-21T10:00:00Z", "command", "line-1", "pump-1", "http:ops@127.0.0.1", "run", "ok"]
+    );
+    assert!(lines[2].contains("speed 40 Hz"), "{}", lines[2]);
+    assert!(lines[3].contains("2026-11-21T10:01:00Z") && lines[3].contains("trip"), "{}", lines[3]);
+    assert!(lines[4].contains("refused: locked"), "{}", lines[4]);
+    assert!(lines[5].contains("started") && lines[5].contains("gateway"), "{}", lines[5]);
+}
+
+#[test]
+fn events_filters_reach_the_store() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    let kinds = |args: &[&str]| {
+        let mut all = vec!["events", "--json"];
+        all.extend_from_slice(args);
+        let r = run_in(dir.path(), &all);
+        assert_eq!(r.code, 0, "{args:?}: {}", r.stderr);
+        json_lines(&r.stdout)
+            .iter()
+            .map(|e| format!("{}@{}", e["kind"].as_str().unwrap(), e["time_ms"].as_i64().unwrap() - T0))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(kinds(&["--drive", "fan-2"]), ["trip@60000", "command@120000"]);
+    assert_eq!(kinds(&["--kind", "command"]), ["command@0", "command@1000", "command@120000"]);
+    assert_eq!(kinds(&["--kind", "command", "--drive", "pump-1", "--limit", "1"]), ["command@1000"]);
+    assert_eq!(
+        kinds(&["--since", "2026-11-21T10:01:00Z", "--until", "2026-11-21T10:03:00Z"]),
+        ["trip@60000", "command@120000"]
+    );
+    let ms = (T0 + 120_000).to_string();
+    assert_eq!(kinds(&["--since", &ms]), ["command@120000", "started@180000"]);
+    // relative times: the fixture is in 2026-11, so "-1d" from now finds it only before then
+    let recent = kinds(&["--since", "-1d"]);
+    let now = drivebus_store::time::now_ms();
+    assert_eq!(recent.len(), if now - 86_400_000 <= T0 { 5 } else { 0 });
+}
+
+#[test]
+fn events_json_is_the_stored_event() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    let r = run_in(dir.path(), &["--json", "events", "--kind", "trip"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let got = json_lines(&r.stdout);
+    assert_eq!(got.len(), 1);
+    assert_eq!(
+        got[0],
+        json!({"id": 3, "time_ms": T0 + 60_000, "kind": "trip", "bus": "line-1", "drive": "fan-2", "actor": null,
+               "action": null, "result": null, "detail": {"code": 7, "text": "overcurrent"}})
+    );
+    let e: Event = serde_json::from_value(got[0].clone()).unwrap();
+    assert_eq!(e.kind, EventKind::Trip);
+}
+
+#[test]
+fn events_with_db_elsewhere_and_none_matching() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    let other = tempfile::tempdir().unwrap();
+    let db = dir.path().join("drivebus.db");
+    let r = run_in(other.path(), &["events", "--db", db.to_str().unwrap(), "--kind", "bus_offline"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert_eq!(r.stdout, "");
+    assert!(r.stderr.contains("no events match"), "{}", r.stderr);
+}
+
+#[test]
+fn trend_table_and_json() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    let range = ["--since", "2026-11-21T10:00:00Z", "--until", "2026-11-21T10:02:00Z"];
+    let mut args = vec!["trend", "--drive", "pump-1", "--resolution", "1m"];
+    args.extend_from_slice(&range);
+    let r = run_in(dir.path(), &args);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let lines: Vec<&str> = r.stdout.lines().collect();
+    assert_eq!(lines.len(), 3, "{}", r.stdout);
+    assert!(lines[0].contains("OUTPUT HZ") && lines[0].contains("MAX HZ"), "{}", lines[0]);
+    let row: Vec<&str> = lines[1].split_whitespace().collect();
+    assert_eq!(row, ["2026-11-21T10:00:00Z", "29.50", "0.00", "59.00", "2.00", "50.00", "60"]);
+    let row: Vec<&str> = lines[2].split_whitespace().collect();
+    assert_eq!(row, ["2026-11-21T10:01:00Z", "50.00", "50.00", "50.00", "2.00", "50.00", "60"]);
+
+    // 1 s resolution, JSON: one point per second; explicit --resolution beats the default
+    let mut args = vec!["trend", "--drive", "pump-1", "--resolution", "1s", "--json"];
+    args.extend_from_slice(&range);
+    let r = run_in(dir.path(), &args);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let pts = json_lines(&r.stdout);
+    assert_eq!(pts.len(), 120);
+    assert_eq!(pts[30]["time_ms"], json!(T0 + 30_000));
+    assert_eq!(pts[30]["output_hz"], json!(30.0));
+    assert_eq!(pts[30]["samples"], json!(1));
+}
+
+#[test]
+fn trend_default_resolution_follows_since() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    // --since older than a day and no --resolution: minute buckets
+    let r = run_in(dir.path(), &["trend", "--drive", "pump-1", "--json", "--since", "0"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert_eq!(json_lines(&r.stdout).len(), 2, "{}", r.stdout);
+    // --since within the last day: second buckets (samples a few seconds before now)
+    let now = drivebus_store::time::now_ms();
+    {
+        let store = Store::open(&dir.path().join("drivebus.db")).unwrap();
+        for t in [now - 5_000, now - 4_000] {
+            store.sample(Sample {
+                time_ms: t,
+                drive: "live".into(),
+                output_hz: Some(10.0),
+                current_a: None,
+                setpoint_hz: None,
+            });
+        }
+    }
+    let r = run_in(dir.path(), &["trend", "--drive", "live", "--json", "--since", "-1h"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    let pts = json_lines(&r.stdout);
+    assert_eq!(pts.len(), 2, "{}", r.stdout);
+    assert!(pts.iter().all(|p| p["samples"] == json!(1)), "{}", r.stdout);
+    // and with no --since at all (the last hour at 1 s)
+    let r = run_in(dir.path(), &["trend", "--drive", "live", "--json"]);
+    assert_eq!(json_lines(&r.stdout).len(), 2, "{}", r.stdout);
+    // an unknown drive: nothing, said on stderr, still success
+    let r = run_in(dir.path(), &["trend", "--drive", "nope", "--since", "0", "--resolution", "1m"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert_eq!(r.stdout, "");
+    assert!(r.stderr.contains("no 1m trend for drive nope"), "{}", r.stderr);
+}
+
+#[test]
+fn a_missing_store_is_exit_2_with_what_to_do() {
+    let dir = tempfile::tempdir().unwrap();
+    for args in [&["events"][..], &["trend", "--drive", "p"][..]] {
+        let r = run_in(dir.path(), args);
+        assert_eq!(r.code, 2, "{args:?}");
+        assert_eq!(
+            r.stderr.trim(),
+            "drivebus: no event store at drivebus.db: start `drivebus serve` or give --db FILE",
+            "{args:?}"
+        );
+        assert!(!dir.path().join("drivebus.db").exists(), "reading must not create the store");
+    }
+}
+
+#[test]
+fn a_file_that_is_not_a_store_is_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("notes.txt"), "not a database\n".repeat(100)).unwrap();
+    let r = run_in(dir.path(), &["events", "--db", "notes.txt"]);
+    assert_eq!(r.code, 2);
+    assert_eq!(r.stderr.lines().count(), 1, "{}", r.stderr);
+    assert!(r.stderr.contains("notes.txt is not a drivebus event store"), "{}", r.stderr);
+}
+
+#[test]
+fn bad_usage_is_exit_3() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    for (args, needle) in [
+        (&["events", "--since", "yesterday"][..], "RFC 3339"),
+        (&["events", "--until", "-5x"][..], "RFC 3339"),
+        (&["events", "--kind", "tripped"][..], "fault_reset"),
+        (&["events", "--limit", "many"][..], "--limit"),
+        (&["events", "--since", "-1h", "--until", "-2h"][..], "before --until"),
+        (&["events", "--drive", "a", "--drive", "b"][..], "one --drive"),
+        (&["trend"][..], "--drive ID"),
+        (&["trend", "--drive", "p", "--resolution", "5m"][..], "1s or 1m"),
+    ] {
+        let r = run_in(dir.path(), args);
+        assert_eq!(r.code, 3, "{args:?}: {}", r.stderr);
+        assert_eq!(r.stderr.lines().count(), 1, "{args:?}: {}", r.stderr);
+        assert!(r.stderr.contains(needle), "{args:?}: {}", r.stderr);
+    }
+}
+
+#[test]
+fn reads_while_a_writer_has_the_store_open() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture(dir.path());
+    let writer = Store::open(&dir.path().join("drivebus.db")).unwrap();
+    writer.record(&event(T0 + 240_000, EventKind::Offline, "pump-1", "", "", "")).unwrap();
+    let r = run_in(dir.path(), &["events", "--json", "--kind", "offline"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert_eq!(json_lines(&r.stdout).len(), 1);
+    drop(writer);
+}

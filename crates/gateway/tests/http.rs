@@ -39,7 +39,14 @@ fn app_with(gw: &Arc<Gateway>) -> Router {
 }
 
 fn app(anonymous_read: bool, store: bool) -> (Arc<Gateway>, Router) {
-    let s = store.then(|| drivebus_store::Store::open(std::path::Path::new(":memory:")).unwrap());
+    let s = store.then(|| {
+        static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("drivebus-http-test-{}-{n}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        drivebus_store::Store::open(&dir.join("events.db")).unwrap()
+    });
     let gw = Gateway::start(config(anonymous_read), s).unwrap();
     let app = app_with(&gw);
     (gw, app)
@@ -462,6 +469,8 @@ async fn the_openapi_schemas_match_what_is_served() {
         current_a: None,
         output_hz_min: None,
         output_hz_max: None,
+        setpoint_hz: None,
+        samples: 0,
     };
     assert_eq!(schema_keys("TrendPoint"), keys(&serde_json::to_value(&point).unwrap()));
     // Every error kind the API answers with is listed.

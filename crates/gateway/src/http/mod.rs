@@ -10,9 +10,11 @@ use axum::{Json, Router};
 
 use crate::gateway::{DriveView, Gateway};
 
+pub mod dashboard;
+
 /// The whole HTTP service.
 pub fn router(gw: Arc<Gateway>) -> Router {
-    Router::new().route("/api/drives", get(drives)).with_state(gw)
+    Router::new().route("/api/drives", get(drives)).merge(dashboard::routes()).with_state(gw)
 }
 
 async fn drives(State(gw): State<Arc<Gateway>>) -> Json<Vec<DriveView>> {

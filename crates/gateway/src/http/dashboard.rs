@@ -64,7 +64,8 @@ async fn asset_handler(Path(name): Path<String>) -> Response {
     match asset(&name) {
         Some((ct, body)) => respond(ct, body),
         None => {
-            let message = format!("no dashboard asset {name:?}: the page uses app.js, style.css and favicon.svg");
+            let message =
+                format!("no dashboard asset {name:?}: the page uses app.js, style.css and favicon.svg");
             let body = serde_json::json!({ "error": { "kind": "not_found", "message": message } });
             (StatusCode::NOT_FOUND, axum::Json(body)).into_response()
         }
@@ -84,7 +85,10 @@ mod tests {
         assert!(!INDEX_HTML.contains("http://") && !INDEX_HTML.contains("https://"));
         // The SVG namespace is a name, not a place the page goes to.
         let js = APP_JS.replace("http://www.w3.org/2000/svg", "");
-        assert!(!js.contains("http://") && !js.contains("https://"), "the script fetches only from this gateway");
+        assert!(
+            !js.contains("http://") && !js.contains("https://"),
+            "the script fetches only from this gateway"
+        );
     }
 
     #[test]

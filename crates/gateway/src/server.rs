@@ -33,7 +33,9 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
         modbus: modbus.local_addr().map_err(|e| e.to_string())?,
     };
     let router = crate::http::router(gw.clone());
-    let http_task = tokio::spawn(async move { axum::serve(http, router).await });
+    let http_task = tokio::spawn(async move {
+        axum::serve(http, router.into_make_service_with_connect_info::<SocketAddr>()).await
+    });
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
     ready(&bound);
     let stop = async {

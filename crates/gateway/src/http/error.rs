@@ -1,0 +1,117 @@
+//! JSON errors: every 4xx/5xx answer of the API is
+//! `{"error": {"kind": "<snake_case>", "message": "<one line>"}}`.
+
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde_json::json;
+
+use crate::gateway::CommandError;
+
+/// An error answer: status, kind and a one-line message naming the problem.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ApiError {
+    /// The HTTP status.
+    pub status: StatusCode,
+    /// A short snake_case kind (`unknown_drive`, `bad_json`, ...).
+    pub kind: &'static str,
+    /// One line saying what was wrong.
+    pub message: String,
+}
+
+impl ApiError {
+    /// An error with `status`, `kind` and `message` (newlines are folded into one line).
+    pub fn new(status: StatusCode, kind: &'static str, message: impl Into<String>) -> Self {
+        let message: String = message.into();
+        let message = if message.contains(['\n', '\r']) {
+            message.split(['\n', '\r']).map(str::trim).filter(|s| !s.is_empty()).collect::<Vec<_>>().join(" ")
+        } else {
+            message
+        };
+        ApiError { status, kind, message }
+    }
+
+    /// 400 `bad_json`: the body is not JSON.
+    pub fn bad_json(message: impl Into<String>) -> Self {
+        ApiError::new(StatusCode::BAD_REQUEST, "bad_json", message)
+    }
+
+    /// 400 `bad_request`: a query string or path that cannot be understood.
+    pub fn bad_request(message: impl Into<String>) -> Self {
+        ApiError::new(StatusCode::BAD_REQUEST, "bad_request", message)
+    }
+
+    /// 422 `invalid`: well-formed but not acceptable; nothing was sent.
+    pub fn invalid(message: impl Into<String>) -> Self {
+        ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid", message)
+    }
+
+    /// 404 `not_found`: no such path.
+    pub fn not_found(path: &str) -> Self {
+        ApiError::new(
+            StatusCode::NOT_FOUND,
+            "not_found",
+            format!("no route {path}: GET /api/openapi.json lists them"),
+        )
+    }
+
+    /// 503 `no_store`: the gateway keeps no events or trends.
+    pub fn no_store() -> Self {
+        ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "no_store",
+            "this gateway keeps no events or trends: configure [store] path (or drop --no-store)",
+        )
+    }
+
+    /// 500 `internal`: a defect in the gateway.
+    pub fn internal(message: impl Into<String>) -> Self {
+        ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", message)
+    }
+
+    /// The error a status alone implies, for answers made by the framework (405, 413, ...).
+    pub fn from_status(status: StatusCode, detail: &str) -> Self {
+        let detail = detail.trim();
+        let (kind, default) = match status {
+            StatusCode::NOT_FOUND => ("not_found", "no such route: GET /api/openapi.json lists them"),
+            StatusCode::METHOD_NOT_ALLOWED => (
+                "method_not_allowed",
+                "this route does not take that method: GET /api/openapi.json lists them",
+            ),
+            StatusCode::PAYLOAD_TOO_LARGE => ("too_large", "the request body is larger than [http] max_body"),
+            StatusCode::UNAUTHORIZED => ("unauthorized", "send Authorization: Bearer <token>"),
+            StatusCode::FORBIDDEN => ("forbidden", "this token may not do that"),
+            StatusCode::UNSUPPORTED_MEDIA_TYPE => {
+                ("bad_request", "unsupported content type: send application/json")
+            }
+            s if s.is_server_error() => ("internal", "the gateway failed to answer"),
+            _ => ("bad_request", "the request cannot be understood"),
+        };
+        let message = if detail.is_empty() { default.to_string() } else { detail.to_string() };
+        ApiError::new(status, kind, message)
+    }
+}
+
+impl std::fmt::Display for ApiError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} {}: {}", self.status.as_u16(), self.kind, self.message)
+    }
+}
+
+impl From<CommandError> for ApiError {
+    fn from(e: CommandError) -> Self {
+        let status = StatusCode::from_u16(e.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
+        ApiError::new(status, e.kind(), e.to_string())
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let body = json!({ "error": { "kind": self.kind, "message": self.message } });
+        let mut r = (self.status, Json(body)).into_response();
+        if self.status == StatusCode::UNAUTHORIZED {
+            r.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+        }
+        r
+    }
+}

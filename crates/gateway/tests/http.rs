@@ -1,0 +1,497 @@
+//! The HTTP API in process (tower `oneshot`) on the demo gateway over a virtual clock: every
+//! route, every error answer, the auth matrix, the live stream and the OpenAPI document.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::extract::connect_info::MockConnectInfo;
+use axum::http::{header, Method, Request, StatusCode};
+use axum::Router;
+use drivebus_gateway::config::{Role, Token};
+use drivebus_gateway::gateway::{Change, Gateway};
+use drivebus_gateway::http::{api::OPENAPI, router, API_ROUTES};
+use drivebus_gateway::GatewayConfig;
+use http_body_util::BodyExt;
+use serde_json::{json, Value};
+use tower::ServiceExt;
+
+const WRITE: &str = "write-token-0123456789abcdef";
+const READ: &str = "read-token-0123456789abcdef";
+const MAX_BODY: usize = 1024;
+
+fn config(anonymous_read: bool) -> GatewayConfig {
+    let mut c = GatewayConfig::demo();
+    c.http.anonymous_read = anonymous_read;
+    c.http.max_body = MAX_BODY;
+    c.store = None;
+    c.tokens = vec![
+        Token { name: "writer".into(), secret: WRITE.into(), role: Role::Write },
+        Token { name: "reader".into(), secret: READ.into(), role: Role::Read },
+    ];
+    c
+}
+
+fn app_with(gw: &Arc<Gateway>) -> Router {
+    router(gw.clone()).layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 7], 40000))))
+}
+
+fn app(anonymous_read: bool, store: bool) -> (Arc<Gateway>, Router) {
+    let s = store.then(|| drivebus_store::Store::open(std::path::Path::new(":memory:")).unwrap());
+    let gw = Gateway::start(config(anonymous_read), s).unwrap();
+    let app = app_with(&gw);
+    (gw, app)
+}
+
+struct Reply {
+    status: StatusCode,
+    headers: axum::http::HeaderMap,
+    json: Value,
+}
+
+async fn call(app: &Router, method: &str, path: &str, token: Option<&str>, body: Option<&str>) -> Reply {
+    let mut req = Request::builder().method(method).uri(path);
+    if let Some(t) = token {
+        req = req.header(header::AUTHORIZATION, format!("Bearer {t}"));
+    }
+    let req = req.body(body.map_or_else(Body::empty, |b| Body::from(b.to_string()))).unwrap();
+    let r = app.clone().oneshot(req).await.unwrap();
+    let status = r.status();
+    let headers = r.headers().clone();
+    let bytes = r.into_body().collect().await.unwrap().to_bytes();
+    let json = serde_json::from_slice(&bytes)
+        .unwrap_or_else(|e| panic!("{method} {path}: {status} answered non-JSON ({e}): {bytes:?}"));
+    Reply { status, headers, json }
+}
+
+/// Asserts a JSON error of `status` and `kind` with a one-line message; returns the message.
+fn assert_error(r: &Reply, status: u16, kind: &str) -> String {
+    assert_eq!(r.status.as_u16(), status, "{}", r.json);
+    assert_eq!(r.json["error"]["kind"], kind, "{}", r.json);
+    let m = r.json["error"]["message"].as_str().expect("a message").to_string();
+    assert!(!m.is_empty() && !m.contains('\n'), "{m:?}");
+    assert_eq!(r.headers[header::CONTENT_TYPE], "application/json");
+    m
+}
+
+async fn settle(secs: u64) {
+    tokio::time::sleep(Duration::from_secs(secs)).await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn reads_answer_from_the_cache() {
+    let (_gw, app) = app(true, false);
+    settle(3).await;
+    let r = call(&app, "GET", "/api/drives", None, None).await;
+    assert_eq!(r.status, 200);
+    let drives = r.json.as_array().unwrap();
+    assert_eq!(drives.len(), 10);
+    assert_eq!(drives[3]["id"], "pump-1");
+    assert!(drives.iter().all(|d| d["online"] == true), "{}", r.json);
+    let r = call(&app, "GET", "/api/drives/ahu-2", None, None).await;
+    assert_eq!(r.status, 200);
+    assert_eq!(r.json["id"], "ahu-2");
+    assert_eq!(r.json["family"], "danfoss");
+    assert_eq!(r.json["unit_id"], 8);
+    let r = call(&app, "GET", "/api/buses", None, None).await;
+    assert_eq!(r.status, 200);
+    assert_eq!(r.json.as_array().unwrap().len(), 4);
+    assert_eq!(r.json[1]["drives"], json!(["pump-1", "pump-2", "pump-3"]));
+}
+
+#[tokio::test(start_paused = true)]
+async fn commands_run_a_drive_and_are_audited_with_the_caller() {
+    let (gw, app) = app(false, false);
+    let mut rx = gw.subscribe();
+    let r = call(&app, "POST", "/api/drives/pump-1/speed", Some(WRITE), Some(r#"{"hz": 40}"#)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!(r.json["ok"], true);
+    assert_eq!(r.json["drive"]["id"], "pump-1");
+    let r = call(&app, "POST", "/api/drives/pump-1/run", Some(WRITE), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    settle(20).await;
+    let r = call(&app, "GET", "/api/drives/pump-1", Some(READ), None).await;
+    assert_eq!(r.json["running"], true, "{}", r.json);
+    let hz = r.json["output_hz"].as_f64().unwrap();
+    assert!((hz - 40.0).abs() < 0.1, "pump-1 at {hz} Hz");
+    let mut actions = Vec::new();
+    while let Ok(c) = rx.try_recv() {
+        if let Change::Event(e) = c {
+            if e.kind == drivebus_store::EventKind::Command {
+                assert_eq!(e.actor.as_deref(), Some("http:writer@127.0.0.7"), "{e:?}");
+                actions.push(e.action.unwrap());
+            }
+        }
+    }
+    assert_eq!(actions, ["speed 40 Hz", "run"]);
+    let r = call(&app, "POST", "/api/drives/pump-1/stop", Some(WRITE), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+}
+
+#[tokio::test(start_paused = true)]
+async fn parameters_read_and_write() {
+    let (_gw, app) = app(true, false);
+    let r = call(&app, "PUT", "/api/drives/ahu-1/params/4-14", Some(WRITE), Some(r#"{"value": "55"}"#)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    let r = call(&app, "GET", "/api/drives/ahu-1/params/4-14", None, None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!(r.json["value"], 55.0);
+    assert_eq!(r.json["unit"], "Hz");
+    // A number is taken as its text.
+    let body = r#"{"value": 52, "eeprom": false}"#;
+    let r = call(&app, "PUT", "/api/drives/ahu-1/params/4-14", Some(WRITE), Some(body)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    let r = call(&app, "GET", "/api/drives/ahu-1/params/4-14", None, None).await;
+    assert_eq!(r.json["value"], 52.0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn bad_requests_are_one_line_json_errors_and_reach_no_drive() {
+    let (gw, app) = app(true, false);
+    settle(2).await;
+    let w = Some(WRITE);
+    let speed = "/api/drives/fan-1/speed";
+    // Unknown drives, on reads and writes.
+    let m = assert_error(&call(&app, "GET", "/api/drives/nobody", None, None).await, 404, "unknown_drive");
+    assert!(m.contains("nobody"), "{m}");
+    assert_error(&call(&app, "POST", "/api/drives/nobody/run", w, None).await, 404, "unknown_drive");
+    assert_error(
+        &call(&app, "POST", "/api/drives/nobody/speed", w, Some(r#"{"hz":1}"#)).await,
+        404,
+        "unknown_drive",
+    );
+    assert_error(&call(&app, "GET", "/api/drives/nobody/trend", None, None).await, 404, "unknown_drive");
+    // Bodies.
+    let m = assert_error(&call(&app, "POST", speed, w, Some("{\"hz\": 40")).await, 400, "bad_json");
+    assert!(m.contains("not JSON"), "{m}");
+    assert_error(&call(&app, "POST", speed, w, Some("hz=40")).await, 400, "bad_json");
+    assert_error(&call(&app, "POST", speed, w, None).await, 400, "bad_json");
+    let m = assert_error(&call(&app, "POST", speed, w, Some("{}")).await, 422, "invalid");
+    assert!(m.contains("missing field `hz`"), "{m}");
+    let m =
+        assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": 40, "hertz": 1}"#)).await, 422, "invalid");
+    assert!(m.contains("hertz"), "{m}");
+    assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": "fast"}"#)).await, 422, "invalid");
+    // Out of range: refused before the drive, setpoint unchanged.
+    let before = call(&app, "GET", "/api/drives/fan-1", None, None).await.json["setpoint_hz"].clone();
+    assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": 500}"#)).await, 422, "invalid");
+    assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": -1e300}"#)).await, 422, "invalid");
+    settle(2).await;
+    assert_eq!(call(&app, "GET", "/api/drives/fan-1", None, None).await.json["setpoint_hz"], before);
+    // Oversize bodies, declared or not.
+    let big = format!(r#"{{"hz": 40, "pad": "{}"}}"#, "x".repeat(MAX_BODY));
+    let m = assert_error(&call(&app, "POST", speed, w, Some(&big)).await, 413, "too_large");
+    assert!(m.contains("max_body") || m.contains("length limit"), "{m}");
+    let req = Request::post(speed)
+        .header(header::AUTHORIZATION, format!("Bearer {WRITE}"))
+        .header(header::CONTENT_LENGTH, big.len())
+        .body(Body::from(big.clone()))
+        .unwrap();
+    let r = app.clone().oneshot(req).await.unwrap();
+    assert_eq!(r.status(), 413);
+    // Parameters: unknown, out of range, wrong value type.
+    let p = "/api/drives/ahu-1/params/";
+    assert_error(&call(&app, "GET", &format!("{p}99-99"), None, None).await, 422, "invalid");
+    let ok_body = Some(r#"{"value": "50"}"#);
+    assert_error(&call(&app, "PUT", &format!("{p}99-99"), w, ok_body).await, 422, "invalid");
+    assert_error(
+        &call(&app, "PUT", &format!("{p}4-14"), w, Some(r#"{"value": "99999"}"#)).await,
+        422,
+        "invalid",
+    );
+    assert_error(&call(&app, "PUT", &format!("{p}4-14"), w, Some(r#"{"value": [1]}"#)).await, 422, "invalid");
+    assert_error(
+        &call(&app, "PUT", &format!("{p}4-14"), w, Some(r#"{"eeprom": true}"#)).await,
+        422,
+        "invalid",
+    );
+    // Methods and paths.
+    let r = call(&app, "DELETE", "/api/drives", w, None).await;
+    assert_error(&r, 405, "method_not_allowed");
+    assert!(r.headers.get(header::ALLOW).is_some());
+    assert_error(&call(&app, "GET", "/api/drives/pump-1/run", None, None).await, 405, "method_not_allowed");
+    let m = assert_error(&call(&app, "GET", "/api/nothing", None, None).await, 404, "not_found");
+    assert!(m.contains("/api/nothing"), "{m}");
+    assert_error(&call(&app, "POST", "/api/drives/pump-1/fly", w, None).await, 404, "not_found");
+    // Locked drives.
+    assert_error(&call(&app, "POST", "/api/drives/pump-3/run", w, None).await, 423, "locked");
+    // Query strings.
+    assert_error(&call(&app, "GET", "/api/events?since=yesterday", None, None).await, 400, "bad_request");
+    assert_error(&call(&app, "GET", "/api/events?sinse=1", None, None).await, 400, "bad_request");
+    assert_error(&call(&app, "GET", "/api/events?limit=0", None, None).await, 400, "bad_request");
+    assert_error(&call(&app, "GET", "/api/events?since=5&until=4", None, None).await, 400, "bad_request");
+    assert_error(
+        &call(&app, "GET", "/api/drives/ahu-1/trend?resolution=1h", None, None).await,
+        400,
+        "bad_request",
+    );
+    assert_error(&call(&app, "GET", "/api/stream?drive=nobody", None, None).await, 404, "unknown_drive");
+    assert_error(&call(&app, "GET", "/api/stream?drives=ahu-1", None, None).await, 400, "bad_request");
+    // No store.
+    assert_error(&call(&app, "GET", "/api/events", None, None).await, 503, "no_store");
+    assert_error(&call(&app, "GET", "/api/drives/ahu-1/trend", None, None).await, 503, "no_store");
+    // None of it reached a drive: the only commands counted are the refused ones audited by the
+    // gateway (the locked drive); nothing succeeded.
+    assert_eq!(gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed), 0);
+}
+
+#[tokio::test(start_paused = true)]
+async fn events_and_trends_come_from_the_store() {
+    let (_gw, app) = app(true, true);
+    let r = call(&app, "GET", "/api/events?since=0&limit=50&drive=pump-1&kind=command", None, None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert!(r.json.is_array());
+    let r = call(&app, "GET", "/api/drives/pump-1/trend?since=0&until=60000&resolution=1s", None, None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert!(r.json.is_array());
+}
+
+#[tokio::test(start_paused = true)]
+async fn auth_matrix() {
+    for anonymous_read in [false, true] {
+        let (_gw, app) = app(anonymous_read, false);
+        let read = |t| {
+            let app = app.clone();
+            async move { call(&app, "GET", "/api/drives/mixer-1", t, None).await }
+        };
+        let write = |t| {
+            let app = app.clone();
+            async move { call(&app, "POST", "/api/drives/mixer-1/stop", t, None).await }
+        };
+        // Reads.
+        let r = read(None).await;
+        if anonymous_read {
+            assert_eq!(r.status, 200);
+        } else {
+            assert_error(&r, 401, "unauthorized");
+            assert_eq!(r.headers[header::WWW_AUTHENTICATE], "Bearer");
+        }
+        assert_eq!(read(Some(READ)).await.status, 200);
+        assert_eq!(read(Some(WRITE)).await.status, 200);
+        assert_error(&read(Some("not-a-token-0123456789")).await, 401, "unauthorized");
+        // Writes.
+        assert_error(&write(None).await, 401, "unauthorized");
+        assert_error(&write(Some(READ)).await, 403, "forbidden");
+        assert_error(&write(Some("not-a-token-0123456789")).await, 401, "unauthorized");
+        assert_error(&write(Some(&WRITE[..WRITE.len() - 1])).await, 401, "unauthorized");
+        assert_eq!(write(Some(WRITE)).await.status, 200);
+        // Other schemes and malformed headers.
+        let req = Request::post("/api/drives/mixer-1/stop")
+            .header(header::AUTHORIZATION, format!("Basic {WRITE}"))
+            .body(Body::empty())
+            .unwrap();
+        assert_eq!(app.clone().oneshot(req).await.unwrap().status(), 401);
+        // Auth comes before validation: an unauthorized bad request says unauthorized.
+        assert_error(
+            &call(&app, "POST", "/api/drives/nobody/speed", Some(READ), Some("{")).await,
+            403,
+            "forbidden",
+        );
+        // The OpenAPI document is public.
+        let r = call(&app, "GET", "/api/openapi.json", None, None).await;
+        assert_eq!(r.status, 200);
+    }
+}
+
+/// Reads SSE frames until `want` matches a message's (event, data); fails after `limit` of
+/// virtual time.
+async fn read_stream(body: Body, limit: Duration, mut want: impl FnMut(&str, &Value) -> bool) -> Vec<String> {
+    let mut body = body;
+    let mut seen = Vec::new();
+    let mut buf = String::new();
+    let found = tokio::time::timeout(limit, async {
+        loop {
+            let frame = body.frame().await.expect("the stream goes on").unwrap();
+            let Ok(data) = frame.into_data() else { continue };
+            buf.push_str(std::str::from_utf8(&data).unwrap());
+            while let Some(end) = buf.find("\n\n") {
+                let msg: String = buf.drain(..end + 2).collect();
+                let mut event = "";
+                let mut json = Value::Null;
+                for line in msg.lines() {
+                    if let Some(e) = line.strip_prefix("event: ") {
+                        event = e;
+                    } else if let Some(d) = line.strip_prefix("data: ") {
+                        json = serde_json::from_str(d).unwrap();
+                    }
+                }
+                seen.push(event.to_string());
+                if want(event, &json) {
+                    return;
+                }
+            }
+        }
+    })
+    .await;
+    assert!(found.is_ok(), "not seen; saw {seen:?}");
+    seen
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_stream_delivers_a_drive_change_after_a_command() {
+    let (_gw, app) = app(true, false);
+    settle(2).await;
+    let r = app
+        .clone()
+        .oneshot(Request::get("/api/stream?drive=mixer-2").body(Body::empty()).unwrap())
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()[header::CONTENT_TYPE], "text/event-stream");
+    let body = r.into_body();
+    let c = call(&app, "POST", "/api/drives/mixer-2/run", Some(WRITE), None).await;
+    assert_eq!(c.status, 200, "{}", c.json);
+    let mut kinds = BTreeSet::new();
+    let seen = read_stream(body, Duration::from_secs(30), |event, data| {
+        assert_eq!(event, data["type"], "{data}");
+        match event {
+            "drive" => assert_eq!(data["id"], "mixer-2"),
+            "bus" => assert_eq!(data["name"], "line-b800"),
+            "event" => assert_eq!(data["drive"], "mixer-2"),
+            other => panic!("unexpected {other}"),
+        }
+        kinds.insert(event.to_string());
+        event == "drive" && data["running"] == true
+    })
+    .await;
+    assert!(kinds.contains("event"), "the audited command is streamed too: {seen:?}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_slow_stream_client_is_told_it_lagged() {
+    let (_gw, app) = app(true, false);
+    let r = app.clone().oneshot(Request::get("/api/stream").body(Body::empty()).unwrap()).await.unwrap();
+    // Nobody reads for a while: the gateway goes on (the buffer holds 1024 changes).
+    settle(300).await;
+    let mut skipped = 0;
+    read_stream(r.into_body(), Duration::from_secs(5), |event, data| {
+        if event == "lagged" {
+            skipped = data["skipped"].as_u64().unwrap();
+            return true;
+        }
+        false
+    })
+    .await;
+    assert!(skipped > 0);
+}
+
+fn openapi() -> Value {
+    serde_json::from_str(OPENAPI).expect("openapi.json is JSON")
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_openapi_document_describes_exactly_the_routes_served() {
+    let doc = openapi();
+    assert_eq!(doc["openapi"].as_str().unwrap().get(..3), Some("3.1"));
+    let documented: BTreeMap<String, BTreeSet<String>> = doc["paths"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .map(|(p, ops)| {
+            let methods = ops
+                .as_object()
+                .unwrap()
+                .keys()
+                .filter(|k| {
+                    ["get", "put", "post", "delete", "patch", "head", "options"].contains(&k.as_str())
+                })
+                .map(|k| k.to_uppercase())
+                .collect();
+            (p.clone(), methods)
+        })
+        .collect();
+    let table: BTreeMap<String, BTreeSet<String>> = API_ROUTES
+        .iter()
+        .map(|(p, m)| {
+            let p = p.split('/').map(|s| s.strip_prefix(':').map_or(s.to_string(), |v| format!("{{{v}}}")));
+            (p.collect::<Vec<_>>().join("/"), m.iter().map(|m| m.to_string()).collect())
+        })
+        .collect();
+    assert_eq!(documented, table, "openapi.json and the router's table differ");
+    // The router serves exactly the table: each listed method is routed (401 without a token,
+    // nothing reaches a drive), every other method is 405.
+    let (_gw, app) = app(false, false);
+    for (path, methods) in API_ROUTES {
+        let uri = path.replace(":id", "mixer-1").replace(":name", "F-01");
+        for m in ["GET", "POST", "PUT", "DELETE", "PATCH"] {
+            let req = Request::builder().method(Method::from_bytes(m.as_bytes()).unwrap()).uri(&uri);
+            let r = app.clone().oneshot(req.body(Body::empty()).unwrap()).await.unwrap();
+            let expect: u16 = match (methods.contains(&m), *path == "/api/openapi.json") {
+                (true, true) => 200,
+                (true, false) => 401,
+                (false, _) => 405,
+            };
+            assert_eq!(r.status().as_u16(), expect, "{m} {uri}");
+        }
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_openapi_schemas_match_what_is_served() {
+    let doc = openapi();
+    let schema_keys = |name: &str| -> BTreeSet<String> {
+        let s = &doc["components"]["schemas"][name];
+        s["properties"].as_object().unwrap_or_else(|| panic!("schema {name}")).keys().cloned().collect()
+    };
+    let keys = |v: &Value| -> BTreeSet<String> { v.as_object().unwrap().keys().cloned().collect() };
+    let (gw, app) = app(true, false);
+    settle(2).await;
+    let drive = call(&app, "GET", "/api/drives/pump-1", None, None).await.json;
+    assert_eq!(schema_keys("DriveView"), keys(&drive));
+    let bus = call(&app, "GET", "/api/buses", None, None).await.json[0].clone();
+    assert_eq!(schema_keys("BusView"), keys(&bus));
+    let param = call(&app, "GET", "/api/drives/ahu-1/params/4-14", None, None).await.json;
+    assert_eq!(schema_keys("ParamReading"), keys(&param));
+    let event = drivebus_store::Event {
+        id: 1,
+        time_ms: 0,
+        kind: drivebus_store::EventKind::Command,
+        bus: None,
+        drive: None,
+        actor: None,
+        action: None,
+        result: None,
+        detail: json!({}),
+    };
+    assert_eq!(schema_keys("Event"), keys(&serde_json::to_value(&event).unwrap()));
+    let point = drivebus_store::TrendPoint {
+        time_ms: 0,
+        output_hz: None,
+        current_a: None,
+        output_hz_min: None,
+        output_hz_max: None,
+    };
+    assert_eq!(schema_keys("TrendPoint"), keys(&serde_json::to_value(&point).unwrap()));
+    // Every error kind the API answers with is listed.
+    let kinds: BTreeSet<&str> = doc["components"]["schemas"]["Error"]["properties"]["error"]["properties"]
+        ["kind"]["enum"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k.as_str().unwrap())
+        .collect();
+    for k in [
+        "unknown_drive",
+        "locked",
+        "invalid",
+        "refused",
+        "unsupported",
+        "no_answer",
+        "link_down",
+        "protocol",
+        "unauthorized",
+        "forbidden",
+        "bad_json",
+        "bad_request",
+        "too_large",
+        "not_found",
+        "method_not_allowed",
+        "no_store",
+        "internal",
+    ] {
+        assert!(kinds.contains(k), "error kind {k} is not in openapi.json");
+    }
+    drop(gw);
+}

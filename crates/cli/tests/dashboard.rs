@@ -207,7 +207,7 @@ struct Browser {
     _chromedriver: Proc,
 }
 
-const ELEMENT: &str = "element-6066-11e4-a52f-4ce6bf5d3a1a";
+const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
 
 impl Browser {
     fn start(chromium: &Path, chromedriver: &Path) -> Browser {
@@ -243,7 +243,7 @@ impl Browser {
                 "goog:chromeOptions": {
                     "binary": chromium.to_string_lossy(),
                     "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                             "--window-size=1280,1900", "--no-first-run", "--no-default-browser-check"]
+                             "--window-size=1280,2300", "--no-first-run", "--no-default-browser-check"]
                 }
             }}});
             let (status, v) = http_json(driver, "POST", "/session", Some(&caps)).expect("POST /session");

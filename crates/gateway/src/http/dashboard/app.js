@@ -353,9 +353,12 @@
 
   function drawTrend(d) {
     const now = Date.now();
-    const from = now - TREND_SPAN_MS;
     const firstLive = d.samples.length ? d.samples[0].t : Infinity;
-    const pts = d.history.filter((p) => p.t >= from && p.t < firstLive).concat(d.samples.filter((p) => p.t >= from));
+    const cut = now - TREND_SPAN_MS;
+    const pts = d.history.filter((p) => p.t >= cut && p.t < firstLive).concat(d.samples.filter((p) => p.t >= cut));
+    // The window is the last 10 minutes, or less while there is less to show (at least a minute).
+    const span = Math.max(60000, Math.min(TREND_SPAN_MS, pts.length ? now - pts[0].t : 0));
+    const from = now - span;
     let hzMax = 10;
     let aMax = 1;
     for (const p of pts) {
@@ -368,14 +371,15 @@
     const H = 120;
     const line = (key, max) => pts
       .filter((p) => typeof p[key] === 'number')
-      .map((p) => `${(((p.t - from) / TREND_SPAN_MS) * W).toFixed(1)},${(H - (Math.abs(p[key]) / max) * (H - 4) - 2).toFixed(1)}`)
+      .map((p) => `${(((p.t - from) / span) * W).toFixed(1)},${(H - (Math.abs(p[key]) / max) * (H - 4) - 2).toFixed(1)}`)
       .join(' ');
     const t = d.tile;
     $('.trend-hz', t).setAttribute('points', line('hz', hzMax));
     $('.trend-a', t).setAttribute('points', line('a', aMax));
     field(t, 'trend-hz-max').textContent = `≤ ${num(hzMax, 0)}`;
     field(t, 'trend-a-max').textContent = `≤ ${num(aMax, 1)}`;
-    field(t, 'trend-span').textContent = d.historyNote ? `· last 10 min · ${d.historyNote}` : '· last 10 min';
+    const spanText = span >= TREND_SPAN_MS ? 'last 10 min' : `last ${Math.round(span / 1000)} s`;
+    field(t, 'trend-span').textContent = d.historyNote ? `· ${spanText} · ${d.historyNote}` : `· ${spanText}`;
   }
 
   // ---------- commands ----------
@@ -422,8 +426,8 @@
     try {
       const res = await api('POST', `/api/drives/${encodeURIComponent(id)}/${action}`, body);
       if (res && res.drive) updateDrive(res.drive);
-      const v = res && res.drive ? res.drive : d.view;
-      tileMessage(id, `${label}: done (${driveState(v)}, ${num(v.output_hz, 2)} Hz)`, 'ok');
+      // The answer comes when the drive confirmed; its new values follow with the next poll.
+      tileMessage(id, `${label}: ok, the drive confirmed`, 'ok');
     } catch (e) {
       if (e.status === 401) {
         setToken('');

@@ -96,4 +96,50 @@ mod tests {
         assert!(asset("../Cargo.toml").is_none());
         assert!(asset("").is_none());
     }
+
+    async fn get(app: &Router, path: &str) -> (StatusCode, String, String) {
+        use http_body_util::BodyExt;
+        use tower::ServiceExt;
+        let req = axum::http::Request::get(path).body(axum::body::Body::empty()).unwrap();
+        let r = app.clone().oneshot(req).await.unwrap();
+        let status = r.status();
+        let ct = r
+            .headers()
+            .get(header::CONTENT_TYPE)
+            .map(|v| v.to_str().unwrap().to_string())
+            .unwrap_or_default();
+        let body = r.into_body().collect().await.unwrap().to_bytes();
+        (status, ct, String::from_utf8_lossy(&body).into_owned())
+    }
+
+    /// The page and its assets are served by the gateway's router without a token, even where
+    /// reads need one: the page itself holds nothing secret and asks for the token.
+    #[tokio::test(start_paused = true)]
+    async fn the_router_serves_the_page_without_a_token() {
+        let mut cfg = crate::GatewayConfig::demo();
+        cfg.http.anonymous_read = false;
+        cfg.store = None;
+        let gw = Gateway::start(cfg, None).unwrap();
+        let app = crate::http::router(gw);
+        let (status, ct, body) = get(&app, "/").await;
+        assert_eq!(status, StatusCode::OK);
+        assert!(ct.starts_with("text/html"), "{ct}");
+        assert!(body.contains("/assets/app.js") && body.contains("tile-template"));
+        for (path, want) in [
+            ("/assets/app.js", "text/javascript"),
+            ("/assets/style.css", "text/css"),
+            ("/assets/favicon.svg", "image/svg+xml"),
+        ] {
+            let (status, ct, body) = get(&app, path).await;
+            assert_eq!(status, StatusCode::OK, "{path}");
+            assert!(ct.starts_with(want), "{path}: {ct}");
+            assert!(!body.is_empty());
+        }
+        let (status, ct, body) = get(&app, "/assets/missing.js").await;
+        assert_eq!(status, StatusCode::NOT_FOUND);
+        assert!(ct.starts_with("application/json"), "{ct}");
+        let v: serde_json::Value = serde_json::from_str(&body).unwrap();
+        assert_eq!(v["error"]["kind"], "not_found");
+        assert!(v["error"]["message"].as_str().unwrap().contains("missing.js"));
+    }
 }

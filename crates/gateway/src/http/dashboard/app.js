@@ -543,6 +543,11 @@
       case 'event':
         addEvent(data, true);
         break;
+      case 'lagged':
+        // The stream skipped messages this page was too slow for: read the current state.
+        loadDrivesAndBuses().catch(() => {});
+        loadEvents();
+        break;
       default:
         break;
     }

@@ -1,0 +1,100 @@
+//! A bus whose port disappears is reported offline and reopened when it returns; the other
+//! buses keep polling. Real time: the port is a pseudo-terminal served by the simulator.
+
+use std::time::{Duration, Instant};
+
+use drivebus_gateway::{Gateway, GatewayConfig};
+use drivebus_sim::config::BusSpec;
+use drivebus_sim::runtime::{Endpoint, Simulator};
+
+fn serve_pty(path: std::path::PathBuf) -> tokio::task::JoinHandle<()> {
+    let bus = BusSpec::new(vec!["b800@1".parse().unwrap()], Some(9600), None).unwrap();
+    let sim = Simulator::new(&bus).unwrap();
+    tokio::spawn(async move {
+        let _ = sim.serve(Endpoint::Pty(path), false, |_| {}).await;
+    })
+}
+
+async fn wait_for(what: &str, limit: Duration, mut ok: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !ok() {
+        assert!(start.elapsed() < limit, "timed out waiting for {what}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_port_goes_offline_and_comes_back() {
+    let dir = std::env::temp_dir().join(format!("drivebus-port-loss-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let pty = dir.join("ttyV0");
+    let sim = serve_pty(pty.clone());
+    wait_for("the pty", Duration::from_secs(10), || pty.exists()).await;
+
+    let text = format!(
+        "[store]\ndisabled = true\n\
+         [[bus]]\nname = \"real\"\nport = \"{}\"\nprotocol = \"b800\"\nbaud = 9600\ntimeout_ms = 100\nretries = 0\n\
+         [[bus.drive]]\nname = \"m1\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n\
+         [[bus]]\nname = \"sim\"\nport = \"virtual\"\nprotocol = \"b800\"\nbaud = 9600\n\
+         [[bus.drive]]\nname = \"m2\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n",
+        pty.display()
+    );
+    let gw = Gateway::start(GatewayConfig::from_toml("t.toml", &text).unwrap(), None).unwrap();
+    let m1 = || gw.drive_view(gw.drive("m1").unwrap());
+    let m2_polls = || gw.drive_view(gw.drive("m2").unwrap()).polls;
+    wait_for("m1 online", Duration::from_secs(10), || m1().online == Some(true)).await;
+
+    // The port goes away.
+    let mut changes = gw.subscribe();
+    sim.abort();
+    let _ = sim.await;
+    wait_for("m1 offline", Duration::from_secs(10), || m1().online == Some(false)).await;
+    let before = m2_polls();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert!(m2_polls() > before + 3, "the other bus stopped polling");
+    let err = m1().last_error.unwrap_or_default();
+    assert!(!err.is_empty());
+    let mut kinds = Vec::new();
+    while let Ok(c) = changes.try_recv() {
+        if let drivebus_gateway::gateway::Change::Event(e) = c {
+            kinds.push((e.kind, e.bus, e.drive));
+        }
+    }
+    eprintln!("m1 error while the port is gone: {err}; events {kinds:?}");
+    assert!(
+        kinds.iter().any(|(k, b, d)| *k == drivebus_store::EventKind::Offline
+            && b.as_deref() == Some("real")
+            && d.as_deref() == Some("m1")),
+        "{kinds:?}"
+    );
+
+    // It comes back at the same path.
+    let sim = serve_pty(pty.clone());
+    wait_for("m1 online again", Duration::from_secs(20), || m1().online == Some(true)).await;
+    let bus = gw.bus_view(&gw.buses()[0]);
+    assert!(bus.online, "{bus:?}");
+    sim.abort();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_port_missing_at_start_is_an_offline_bus_not_a_failure() {
+    let text = "[store]\ndisabled = true\n\
+         [[bus]]\nname = \"gone\"\nport = \"/dev/drivebus-no-such-port\"\nprotocol = \"b800\"\ntimeout_ms = 50\n\
+         [[bus.drive]]\nname = \"m1\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n\
+         [[bus]]\nname = \"sim\"\nport = \"virtual\"\nprotocol = \"b800\"\n\
+         [[bus.drive]]\nname = \"m2\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n";
+    let gw = Gateway::start(GatewayConfig::from_toml("t.toml", text).unwrap(), None).unwrap();
+    wait_for("m1 offline", Duration::from_secs(10), || {
+        gw.drive_view(gw.drive("m1").unwrap()).online == Some(false)
+    })
+    .await;
+    wait_for("m2 online", Duration::from_secs(10), || {
+        gw.drive_view(gw.drive("m2").unwrap()).online == Some(true)
+    })
+    .await;
+    let bus = gw.bus_view(&gw.buses()[0]);
+    assert!(!bus.online, "{bus:?}");
+    let err = gw.drive_view(gw.drive("m1").unwrap()).last_error.unwrap();
+    assert!(err.contains("/dev/drivebus-no-such-port"), "{err}");
+}

@@ -221,10 +221,14 @@ impl Browser {
                 .stderr(Stdio::null())
                 .spawn()
                 .expect("start chromedriver");
-            let proc = Proc(child);
+            let mut proc = Proc(child);
             let driver: SocketAddr = ([127, 0, 0, 1], port).into();
             let deadline = Instant::now() + PATIENCE;
             let ready = loop {
+                if let Ok(Some(status)) = proc.0.try_wait() {
+                    last = format!("chromedriver --port={port} exited: {status}");
+                    break false;
+                }
                 match http_json(driver, "GET", "/status", None) {
                     Ok((200, v)) if v["value"]["ready"] == json!(true) => break true,
                     Ok((_, v)) => last = v.to_string(),
@@ -314,7 +318,7 @@ impl Browser {
         let png = base64_decode(b64.as_str().expect("base64 screenshot"));
         assert!(png.starts_with(b"\x89PNG"), "the screenshot is not a PNG");
         std::fs::write(path, png).unwrap_or_else(|e| panic!("write {}: {e}", path.display()));
-        eprintln!("dashboard screenshot: {}", path.display());
+        let _ = writeln!(std::io::stderr(), "dashboard screenshot: {}", path.display());
     }
 }
 
@@ -351,7 +355,11 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
             std::env::var_os("DRIVEBUS_REQUIRE_BROWSER").is_none(),
             "DRIVEBUS_REQUIRE_BROWSER is set but chromium/chromedriver not found: .ci/install-witnesses.sh installs them"
         );
-        eprintln!("dashboard browser test did not run: chromium/chromedriver not found");
+        // Straight to stderr, past the test harness's capture, so that a passing run still says it.
+        let _ = writeln!(
+            std::io::stderr(),
+            "dashboard browser test did not run: chromium/chromedriver not found"
+        );
         return;
     };
     let (_serve, http, token) = start_serve();

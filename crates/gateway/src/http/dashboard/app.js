@@ -489,7 +489,8 @@
   }
 
   function addEvent(e, live) {
-    const key = e.id ? 'id' + e.id : `${e.time_ms}|${e.kind}|${e.drive}|${e.action}|${e.result}`;
+    // The store's id where there is one; the content as well, so that events never collapse.
+    const key = `${e.id || 0}|${e.time_ms}|${e.kind}|${e.bus}|${e.drive}|${e.action}|${e.result}`;
     if (state.eventIds.has(key)) return;
     state.eventIds.add(key);
     state.events.push(e);

@@ -11,12 +11,20 @@ if ! command -v mbpoll >/dev/null; then
   [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get install -y -q mbpoll >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mbpoll >/dev/null; }
 fi
+if ! command -v curl >/dev/null; then
+  # curl drives `drivebus serve` in crates/cli/tests/serve.rs (it falls back to plain HTTP/1.1).
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get install -y -q curl >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q curl >/dev/null; }
+fi
 if ! command -v chromedriver >/dev/null || ! { command -v chromium >/dev/null || command -v chromium-browser >/dev/null; }; then
+  # Headless Chromium and its WebDriver run the dashboard's browser test (crates/cli/tests/dashboard.rs).
   SUDO=""
   [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q chromium chromium-driver >/dev/null; }
 fi
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 mbpoll -V 2>&1 | head -n 1
+curl --version | head -n 1
 (chromium --version 2>/dev/null || chromium-browser --version) | head -n 1
 chromedriver --version | head -n 1

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the interop tests use as witnesses:
-# pymodbus (PyPI), mbpoll (Debian) and, for the dashboard's browser test, Debian's chromium and
+# pymodbus (PyPI), mbpoll and curl (Debian) and, for the dashboard's browser test, Debian's chromium and
 # chromium-driver (chromedriver). Idempotent.
 set -euo pipefail
 if ! python3 -c "import pymodbus, serial" 2>/dev/null; then

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the interop tests use as witnesses:
-# pymodbus (PyPI) and mbpoll (Debian). Idempotent.
+# pymodbus (PyPI), mbpoll and curl (Debian) and, for the dashboard's browser test, Debian's chromium and
+# chromium-driver (chromedriver). Idempotent.
 set -euo pipefail
 if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
   python3 -m pip install --quiet pymodbus pyserial
@@ -16,6 +17,14 @@ if ! command -v curl >/dev/null; then
   [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get install -y -q curl >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q curl >/dev/null; }
 fi
+if ! command -v chromedriver >/dev/null || ! { command -v chromium >/dev/null || command -v chromium-browser >/dev/null; }; then
+  # Headless Chromium and its WebDriver run the dashboard's browser test (crates/cli/tests/dashboard.rs).
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q chromium chromium-driver >/dev/null; }
+fi
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
+(chromium --version 2>/dev/null || chromium-browser --version) | head -n 1
+chromedriver --version | head -n 1

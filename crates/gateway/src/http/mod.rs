@@ -9,6 +9,7 @@
 
 pub mod api;
 pub mod auth;
+pub mod dashboard;
 pub mod error;
 pub mod stream;
 
@@ -65,6 +66,7 @@ pub fn api_routes() -> Router<Arc<Gateway>> {
 pub fn router(gw: Arc<Gateway>) -> Router {
     let max_body = gw.config().http.max_body;
     api_routes()
+        .merge(dashboard::routes())
         .fallback(api::fallback)
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::map_response(json_errors))

@@ -1,0 +1,483 @@
+//! The dashboard in a real browser: `drivebus serve --demo` with headless Chromium driven through
+//! WebDriver (chromedriver). The page must show a tile for every demo drive, ask for the token
+//! when a command is first sent, say clearly when a token is not accepted, show a locked drive's
+//! refusal, run `mixer-1` (state running, output frequency above 0), and fit a 360 px wide screen.
+//! Screenshots go to `target/artifacts/dashboard.png` and `dashboard-phone.png`.
+//!
+//! `.ci/run` installs Debian's chromium and chromium-driver and sets `DRIVEBUS_REQUIRE_BROWSER=1`,
+//! so in CI a missing browser is a failure. Locally, without them, the test says it did not run.
+//!
+//! The WebDriver client is a few lines over `std::net::TcpStream` (JSON with serde_json): the
+//! protocol is plain HTTP/1.1 on loopback, and no crate is needed for it.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::{json, Value};
+
+/// How long anything may take before the test gives up (a generous bound, not a speed claim).
+const PATIENCE: Duration = Duration::from_secs(90);
+
+const DEMO_DRIVES: [&str; 10] = [
+    "conveyor-1",
+    "conveyor-2",
+    "fan-1",
+    "pump-1",
+    "pump-2",
+    "pump-3",
+    "ahu-1",
+    "ahu-2",
+    "mixer-1",
+    "mixer-2",
+];
+
+/// A child process killed on drop.
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn find_program(names: &[&str]) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    for dir in std::env::split_paths(&path) {
+        for n in names {
+            let p = dir.join(n);
+            if p.is_file() {
+                return Some(p);
+            }
+        }
+    }
+    None
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("a free loopback port").port()
+}
+
+/// `drivebus serve --demo` on free loopback ports: its HTTP address and the demo write token.
+fn start_serve() -> (Proc, SocketAddr, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-store"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start drivebus serve --demo");
+    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+    let proc = Proc(child);
+    let mut http = None;
+    let mut token = None;
+    // Wait for the lines that say where it listens and the token (events, not sleeps).
+    while http.is_none() || token.is_none() {
+        let line = match lines.next() {
+            Some(Ok(l)) => l,
+            _ => panic!("drivebus serve --demo ended before printing its dashboard URL and token"),
+        };
+        if let Some(rest) = line.trim().strip_prefix("dashboard") {
+            let url = rest.trim().trim_start_matches("http://").trim_end_matches('/');
+            http = Some(url.parse::<SocketAddr>().unwrap_or_else(|e| panic!("dashboard URL {line:?}: {e}")));
+        } else if let Some(t) = line.trim().strip_prefix("demo write token:") {
+            token = Some(t.trim().to_string());
+        }
+    }
+    std::thread::spawn(move || for _ in lines {});
+    (proc, http.unwrap(), token.unwrap())
+}
+
+/// One HTTP/1.1 request with a JSON body; the status and the JSON answer.
+fn http_json(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    body: Option<&Value>,
+) -> Result<(u16, Value), String> {
+    let mut s = TcpStream::connect_timeout(&addr, Duration::from_secs(5)).map_err(|e| e.to_string())?;
+    s.set_read_timeout(Some(PATIENCE)).map_err(|e| e.to_string())?;
+    let body = body.map(|b| b.to_string()).unwrap_or_default();
+    let req = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json; charset=utf-8\r\n\
+         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    s.write_all(req.as_bytes()).map_err(|e| e.to_string())?;
+    // chromedriver keeps the connection open whatever the request says: read by the head's length.
+    let mut raw = Vec::new();
+    let mut buf = [0u8; 16384];
+    let (head, body_start) = loop {
+        if let Some(i) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+            break (String::from_utf8_lossy(&raw[..i]).to_string(), i + 4);
+        }
+        let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+        if n == 0 {
+            return Err(format!("{method} {path}: the connection closed before the answer"));
+        }
+        raw.extend_from_slice(&buf[..n]);
+    };
+    let status: u16 = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .ok_or_else(|| format!("bad status line: {head}"))?;
+    let header = |name: &str| {
+        head.lines().skip(1).find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.trim().eq_ignore_ascii_case(name).then(|| v.trim().to_ascii_lowercase())
+        })
+    };
+    let mut content = raw.split_off(body_start);
+    if header("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
+        while !content.windows(5).any(|w| w == b"0\r\n\r\n") {
+            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+            if n == 0 {
+                break;
+            }
+            content.extend_from_slice(&buf[..n]);
+        }
+        content = dechunk(&content)?;
+    } else if let Some(len) = header("content-length").and_then(|v| v.parse::<usize>().ok()) {
+        while content.len() < len {
+            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+            if n == 0 {
+                return Err(format!("{method} {path}: short body"));
+            }
+            content.extend_from_slice(&buf[..n]);
+        }
+        content.truncate(len);
+    } else {
+        s.read_to_end(&mut content).map_err(|e| format!("{method} {path}: {e}"))?;
+    }
+    let value = if content.is_empty() {
+        Value::Null
+    } else {
+        serde_json::from_slice(&content).map_err(|e| format!("{method} {path}: not JSON ({e})"))?
+    };
+    Ok((status, value))
+}
+
+fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    loop {
+        let eol = b.windows(2).position(|w| w == b"\r\n").ok_or("bad chunk")?;
+        let size_text = String::from_utf8_lossy(&b[..eol]).to_string();
+        let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
+            .map_err(|_| format!("bad chunk size {size_text:?}"))?;
+        b = &b[eol + 2..];
+        if size == 0 {
+            return Ok(out);
+        }
+        out.extend_from_slice(b.get(..size).ok_or("short chunk")?);
+        b = b.get(size + 2..).ok_or("short chunk")?;
+    }
+}
+
+fn base64_decode(s: &str) -> Vec<u8> {
+    let val = |c: u8| -> Option<u32> {
+        Some(match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return None,
+        } as u32)
+    };
+    let mut out = Vec::with_capacity(s.len() * 3 / 4);
+    let (mut acc, mut bits) = (0u32, 0);
+    for v in s.bytes().filter_map(val) {
+        acc = (acc << 6) | v;
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push((acc >> bits) as u8);
+        }
+    }
+    out
+}
+
+/// A WebDriver session, deleted (and chromedriver stopped) on drop.
+struct Browser {
+    driver: SocketAddr,
+    session: String,
+    _chromedriver: Proc,
+}
+
+const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
+
+impl Browser {
+    fn start(chromium: &Path, chromedriver: &Path) -> Browser {
+        let mut last = String::new();
+        // A free port can be taken between our look and chromedriver's bind: try a few.
+        for _ in 0..3 {
+            let port = free_port();
+            let child = Command::new(chromedriver)
+                .arg(format!("--port={port}"))
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("start chromedriver");
+            let mut proc = Proc(child);
+            let driver: SocketAddr = ([127, 0, 0, 1], port).into();
+            let deadline = Instant::now() + PATIENCE;
+            let ready = loop {
+                if let Ok(Some(status)) = proc.0.try_wait() {
+                    last = format!("chromedriver --port={port} exited: {status}");
+                    break false;
+                }
+                match http_json(driver, "GET", "/status", None) {
+                    Ok((200, v)) if v["value"]["ready"] == json!(true) => break true,
+                    Ok((_, v)) => last = v.to_string(),
+                    Err(e) => last = e,
+                }
+                if Instant::now() > deadline {
+                    break false;
+                }
+                std::thread::sleep(Duration::from_millis(100));
+            };
+            if !ready {
+                continue;
+            }
+            let caps = json!({ "capabilities": { "alwaysMatch": {
+                "browserName": "chrome",
+                "goog:chromeOptions": {
+                    "binary": chromium.to_string_lossy(),
+                    "args": ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                             "--window-size=1280,2300", "--no-first-run", "--no-default-browser-check"]
+                }
+            }}});
+            let (status, v) = http_json(driver, "POST", "/session", Some(&caps)).expect("POST /session");
+            assert_eq!(status, 200, "chromedriver could not start Chromium: {v}");
+            let session = v["value"]["sessionId"].as_str().expect("a session id").to_string();
+            return Browser { driver, session, _chromedriver: proc };
+        }
+        panic!("chromedriver did not become ready: {last}");
+    }
+
+    fn call(&self, method: &str, path: &str, body: Option<Value>) -> Value {
+        let full = format!("/session/{}{path}", self.session);
+        let (status, v) = http_json(self.driver, method, &full, body.as_ref())
+            .unwrap_or_else(|e| panic!("WebDriver {method} {path}: {e}"));
+        assert_eq!(status, 200, "WebDriver {method} {path}: {v}");
+        v["value"].clone()
+    }
+
+    fn goto(&self, url: &str) {
+        self.call("POST", "/url", Some(json!({ "url": url })));
+    }
+
+    /// Runs `script` in the page (a function body; `return` gives the value).
+    fn js(&self, script: &str) -> Value {
+        self.call("POST", "/execute/sync", Some(json!({ "script": script, "args": [] })))
+    }
+
+    fn element(&self, css: &str) -> String {
+        let v = self.call("POST", "/element", Some(json!({ "using": "css selector", "value": css })));
+        v[ELEMENT].as_str().unwrap_or_else(|| panic!("no element {css}: {v}")).to_string()
+    }
+
+    /// A click as a user makes it (WebDriver element click: scrolled into view, must be visible).
+    fn click(&self, css: &str) {
+        let e = self.element(css);
+        self.call("POST", &format!("/element/{e}/click"), Some(json!({})));
+    }
+
+    /// Types `text` into the field `css` after clearing it.
+    fn type_into(&self, css: &str, text: &str) {
+        let e = self.element(css);
+        self.call("POST", &format!("/element/{e}/clear"), Some(json!({})));
+        self.call("POST", &format!("/element/{e}/value"), Some(json!({ "text": text })));
+    }
+
+    fn text(&self, css: &str) -> String {
+        let sel = q(css);
+        self.js(&format!("const e = document.querySelector({sel}); return e ? e.textContent.trim() : null;"))
+            .as_str()
+            .unwrap_or("")
+            .to_string()
+    }
+
+    /// Waits until `script` returns true; on timeout fails with `what` and the value of `show`.
+    fn wait_for(&self, what: &str, script: &str, show: &str) {
+        let deadline = Instant::now() + PATIENCE;
+        while Instant::now() < deadline {
+            if self.js(script) == json!(true) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        panic!("timed out waiting for {what}; the page shows: {}", self.js(show));
+    }
+
+    fn screenshot(&self, path: &Path) {
+        let b64 = self.call("GET", "/screenshot", None);
+        let png = base64_decode(b64.as_str().expect("base64 screenshot"));
+        assert!(png.starts_with(b"\x89PNG"), "the screenshot is not a PNG");
+        std::fs::write(path, png).unwrap_or_else(|e| panic!("write {}: {e}", path.display()));
+        let _ = writeln!(std::io::stderr(), "dashboard screenshot: {}", path.display());
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let _ = http_json(self.driver, "DELETE", &format!("/session/{}", self.session), None);
+    }
+}
+
+fn artifacts_dir() -> PathBuf {
+    // target/<profile>/drivebus -> target/artifacts
+    let bin = Path::new(env!("CARGO_BIN_EXE_drivebus"));
+    let target = bin.parent().and_then(Path::parent).expect("the binary is in target/<profile>/");
+    let dir = target.join("artifacts");
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("create {}: {e}", dir.display()));
+    dir
+}
+
+/// `css` as a JavaScript string literal.
+fn q(css: &str) -> String {
+    serde_json::to_string(css).expect("a string")
+}
+
+fn tile(id: &str, rest: &str) -> String {
+    format!("[data-drive=\"{id}\"] {rest}")
+}
+
+#[test]
+fn the_dashboard_runs_a_drive_in_a_real_browser() {
+    let chromium = find_program(&["chromium", "chromium-browser"]);
+    let chromedriver = find_program(&["chromedriver"]);
+    let (Some(chromium), Some(chromedriver)) = (chromium, chromedriver) else {
+        assert!(
+            std::env::var_os("DRIVEBUS_REQUIRE_BROWSER").is_none(),
+            "DRIVEBUS_REQUIRE_BROWSER is set but chromium/chromedriver not found: .ci/install-witnesses.sh installs them"
+        );
+        // Straight to stderr, past the test harness's capture, so that a passing run still says it.
+        let _ = writeln!(
+            std::io::stderr(),
+            "dashboard browser test did not run: chromium/chromedriver not found"
+        );
+        return;
+    };
+    let (_serve, http, token) = start_serve();
+    let browser = Browser::start(&chromium, &chromedriver);
+    browser.goto(&format!("http://{http}/"));
+
+    // A tile for every demo drive, grouped by the four demo buses, each polled.
+    browser.wait_for(
+        "a polled tile for each of the 10 demo drives",
+        "const t = [...document.querySelectorAll('[data-drive]')];
+         return t.length === 10 && t.every(e => e.querySelector('[data-field=state]').textContent !== 'unknown');",
+        "return [...document.querySelectorAll('[data-drive]')].map(e => e.dataset.drive + ':' + e.querySelector('[data-field=state]').textContent);",
+    );
+    let mut ids: Vec<String> = serde_json::from_value(
+        browser.js("return [...document.querySelectorAll('[data-drive]')].map(e => e.dataset.drive);"),
+    )
+    .unwrap();
+    ids.sort();
+    let mut want: Vec<String> = DEMO_DRIVES.iter().map(|s| s.to_string()).collect();
+    want.sort();
+    assert_eq!(ids, want);
+    assert_eq!(browser.js("return document.querySelectorAll('[data-bus]').length;"), json!(4));
+    assert_eq!(browser.text(&tile("mixer-1", "[data-field=state]")), "stopped");
+    // The bus statistics come from GET /api/buses and the stream.
+    browser.wait_for(
+        "bus statistics with transactions counted",
+        "const d = document.querySelector('[data-bus=\"line-b800\"] [data-field=transactions]');
+         return !!d && Number(d.textContent) > 0;",
+        "return document.querySelector('[data-bus=\"line-b800\"]').innerText;",
+    );
+    assert!(browser.js("return document.getElementById('token-dialog').hidden;") == json!(true));
+
+    // First command: the page asks for the token. A wrong one is refused clearly (401).
+    browser.type_into(&tile("mixer-1", "[data-field=speed]"), "30");
+    browser.click(&tile("mixer-1", "[data-action=speed]"));
+    browser.wait_for(
+        "the token prompt",
+        "return !document.getElementById('token-dialog').hidden;",
+        "return document.body.innerText.slice(0, 500);",
+    );
+    browser.type_into("#token-input", "not-the-token");
+    browser.click("#token-save");
+    let msg = q(&tile("mixer-1", "[data-field=message]"));
+    browser.wait_for(
+        "the 401 message and the prompt again",
+        &format!(
+            "const m = document.querySelector({msg});
+             return m.dataset.kind === 'error' && m.textContent.includes('401')
+                 && !document.getElementById('token-dialog').hidden;"
+        ),
+        &format!("return document.querySelector({msg}).textContent;"),
+    );
+    // The right token: the pending command is sent and the drive's answer shown.
+    browser.type_into("#token-input", &token);
+    browser.click("#token-save");
+    browser.wait_for(
+        "the speed command's answer",
+        &format!("return document.querySelector({msg}).dataset.kind === 'ok';"),
+        &format!("return document.querySelector({msg}).textContent;"),
+    );
+
+    // Run: the state becomes running and the output frequency rises above 0.
+    browser.click(&tile("mixer-1", "[data-action=run]"));
+    let state = q(&tile("mixer-1", "[data-field=state]"));
+    let hz = q(&tile("mixer-1", "[data-field=output_hz]"));
+    browser.wait_for(
+        "mixer-1 running with its output frequency above 0",
+        &format!(
+            "return document.querySelector({state}).textContent === 'running'
+                 && Number(document.querySelector({hz}).dataset.value) > 0;"
+        ),
+        "return document.querySelector('[data-drive=\"mixer-1\"]').innerText;",
+    );
+    assert!(browser.js("return document.getElementById('token-dialog').hidden;") == json!(true));
+
+    // A locked drive's refusal is shown as the API words it.
+    browser.click(&tile("pump-3", "[data-action=run]"));
+    let pmsg = q(&tile("pump-3", "[data-field=message]"));
+    browser.wait_for(
+        "pump-3's refusal",
+        &format!(
+            "const m = document.querySelector({pmsg});
+             return m.dataset.kind === 'error' && m.textContent.includes('locked');"
+        ),
+        &format!("return document.querySelector({pmsg}).textContent;"),
+    );
+    assert!(browser.text(&tile("pump-3", "[data-field=message]")).contains("\"pump-3\" is locked"));
+
+    // The live trend opens with points from the stream.
+    browser.click(&tile("mixer-1", "[data-action=trend]"));
+    browser.wait_for(
+        "mixer-1's trend with points",
+        "const p = document.querySelector('[data-drive=\"mixer-1\"] .trend-hz').getAttribute('points');
+         return p.trim().split(' ').length >= 2;",
+        "return document.querySelector('[data-drive=\"mixer-1\"] [data-field=trend]').outerHTML;",
+    );
+
+    // The event log shows the commands (stored or live).
+    browser.wait_for(
+        "the run command in the event log",
+        "return [...document.querySelectorAll('#event-rows tr')].some(r => r.dataset.kind === 'command' && r.textContent.includes('mixer-1') && r.textContent.includes('run'));",
+        "return document.getElementById('event-rows').innerText;",
+    );
+
+    let dir = artifacts_dir();
+    browser.screenshot(&dir.join("dashboard.png"));
+
+    // A phone: 360 CSS px wide, nothing wider than the screen.
+    browser.call("POST", "/window/rect", Some(json!({ "width": 360, "height": 800 })));
+    browser.wait_for(
+        "a 360 px wide viewport",
+        "return window.innerWidth <= 400;",
+        "return window.innerWidth;",
+    );
+    let overflow = browser.js("return document.documentElement.scrollWidth - window.innerWidth;");
+    assert!(
+        overflow.as_i64().is_some_and(|o| o <= 0),
+        "the page is wider than a phone screen by {overflow} px"
+    );
+    browser.screenshot(&dir.join("dashboard-phone.png"));
+}

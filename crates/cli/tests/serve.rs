@@ -27,6 +27,11 @@ impl Serve {
     fn start() -> Serve {
         let dir = std::env::temp_dir().join(format!("drivebus-serve-{}-{}", std::process::id(), free_port()));
         std::fs::create_dir_all(&dir).unwrap();
+        Serve::start_in(dir)
+    }
+
+    /// Starts on the store in `dir` (kept from an earlier run).
+    fn start_in(dir: PathBuf) -> Serve {
         let http: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
         let modbus = format!("127.0.0.1:{}", free_port());
         let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
@@ -63,6 +68,17 @@ impl Serve {
         let json =
             serde_json::from_str(&text).unwrap_or_else(|e| panic!("{method} {path}: {status} {text:?}: {e}"));
         (status, json)
+    }
+}
+
+impl Serve {
+    /// SIGKILL (`kill -9`): no flush, no goodbye; the store directory stays.
+    fn kill9(mut self) -> PathBuf {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let dir = std::mem::take(&mut self.dir);
+        std::mem::forget(self);
+        dir
     }
 }
 
@@ -134,7 +150,7 @@ fn raw(http: SocketAddr, method: &str, path: &str, token: Option<&str>, body: Op
 }
 
 #[test]
-fn serve_demo_runs_a_drive_over_http_and_audits_it() {
+fn serve_demo_runs_a_drive_over_http_and_audits_it_through_kill_9() {
     let s = Serve::start();
     if !has_curl() {
         eprintln!("curl is not installed: plain HTTP/1.1 requests from the test instead");
@@ -177,5 +193,19 @@ fn serve_demo_runs_a_drive_over_http_and_audits_it() {
             commands.iter().any(|(a, who, r)| a == action && who == "http:demo@127.0.0.1" && r == "ok"),
             "{action} by http:demo@127.0.0.1 is not in the events: {commands:?}"
         );
+    }
+    // kill -9 and a restart on the same store: the audit trail is still there.
+    let dir = s.kill9();
+    let s = Serve::start_in(dir);
+    let (status, events) = s.call("GET", "/api/events?drive=pump-1&kind=command&since=0", None, None);
+    assert_eq!(status, 200, "{events}");
+    let after: Vec<String> = events
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e["action"].as_str().unwrap_or_default().to_string())
+        .collect();
+    for action in ["speed 40 Hz", "run"] {
+        assert!(after.iter().any(|a| a == action), "{action} lost after kill -9: {after:?}");
     }
 }

@@ -11,8 +11,9 @@
 //!
 //! [modbus]
 //! listen = "127.0.0.1:5020"
-//! allow = ["127.0.0.1"]                 # client addresses that may connect
+//! allow = ["127.0.0.1"]                 # client addresses that may write (default: loopback)
 //! read_only = false                     # refuse every write
+//! max_connections = 16384               # beyond it, new connections are closed
 //!
 //! [store]
 //! path = "drivebus.db"
@@ -109,7 +110,8 @@ pub struct HttpConfig {
 pub struct ModbusConfig {
     /// Where to listen.
     pub listen: SocketAddr,
-    /// Client addresses allowed to connect (empty: anyone who can reach the listener).
+    /// Client addresses allowed to write (reads are open to whoever reaches the listener).
+    /// Without `allow` in the file: loopback only (127.0.0.1, ::1); `allow = []`: nobody.
     pub allow: Vec<IpAddr>,
     /// Refuse every write.
     pub read_only: bool,
@@ -275,8 +277,7 @@ struct FileHttp {
 #[serde(deny_unknown_fields)]
 struct FileModbus {
     listen: Option<Spanned<String>>,
-    #[serde(default)]
-    allow: Vec<Spanned<String>>,
+    allow: Option<Vec<Spanned<String>>>,
     #[serde(default)]
     read_only: bool,
     max_connections: Option<usize>,
@@ -400,18 +401,27 @@ impl GatewayConfig {
             anonymous_read: raw.http.anonymous_read.unwrap_or(false),
             max_body: raw.http.max_body.unwrap_or(64 * 1024),
         };
-        let mut allow = Vec::new();
-        for a in &raw.modbus.allow {
-            allow.push(a.get_ref().parse::<IpAddr>().or_else(|_| {
-                cx.err(a.span(), "modbus.allow", format!("{:?} is not an IP address", a.get_ref()))
-            })?);
-        }
+        let allow = match &raw.modbus.allow {
+            None => vec![IpAddr::from([127, 0, 0, 1]), IpAddr::from(std::net::Ipv6Addr::LOCALHOST)],
+            Some(list) => {
+                let mut allow = Vec::new();
+                for a in list {
+                    allow.push(a.get_ref().parse::<IpAddr>().or_else(|_| {
+                        cx.err(a.span(), "modbus.allow", format!("{:?} is not an IP address", a.get_ref()))
+                    })?);
+                }
+                allow
+            }
+        };
         let modbus = ModbusConfig {
             listen: addr(&raw.modbus.listen, "modbus.listen", "127.0.0.1:5020")?,
             allow,
             read_only: raw.modbus.read_only,
             max_connections: raw.modbus.max_connections.unwrap_or(16_384),
         };
+        if modbus.max_connections == 0 {
+            return Err(ConfigError(format!("{file}: field `modbus.max_connections`: use 1 or more")));
+        }
 
         let mut tokens = Vec::new();
         for t in &raw.token {
@@ -688,5 +698,18 @@ mod tests {
         assert_eq!(c.http.listen.to_string(), "127.0.0.1:8080");
         assert_eq!(c.modbus.listen.to_string(), "127.0.0.1:5020");
         assert_eq!(b.drives[0].unit_id, 1);
+        let loopback: Vec<IpAddr> = vec!["127.0.0.1".parse().unwrap(), "::1".parse().unwrap()];
+        assert_eq!(c.modbus.allow, loopback);
+        assert_eq!(c.modbus.max_connections, 16_384);
+    }
+
+    #[test]
+    fn modbus_allow_is_explicit_or_loopback() {
+        let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = []\nread_only = true\n").unwrap();
+        assert!(c.modbus.allow.is_empty() && c.modbus.read_only);
+        let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = [\"10.0.0.7\"]\n").unwrap();
+        assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
+        let e = err("[modbus]\nallow = [\"plc\"]\n");
+        assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
     }
 }

@@ -419,3 +419,23 @@ async fn connections_beyond_the_limit_are_closed() {
     }
     assert!(b.input(1, 9, 1).await.is_ok());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_write_multiple_writes_then_reads() {
+    let (gw, addr) = demo().await;
+    all_online(addr, 10).await;
+    let mut c = Client::connect(addr).await;
+    // FC 23 on fan-1: write the setpoint (register 1) = 25.00 Hz, read registers 0..2.
+    let p = c.call(3, &[0x17, 0, 0, 0, 2, 0, 1, 0, 1, 2, 0x09, 0xC4]).await.unwrap();
+    assert_eq!(p[..2], [0x17, 4]);
+    assert_eq!(u16::from_be_bytes([p[4], p[5]]), 2500);
+    let dl = Deadline::new();
+    while gw.drive_view(gw.drive("fan-1").unwrap()).setpoint_hz != Some(25.0) {
+        dl.tick("the cache shows fan-1's new setpoint").await;
+    }
+    assert_eq!(c.input(3, 2, 1).await, Ok(vec![2500]));
+    // The B800 protocol has no parameter access; its jog does not exist.
+    let mixer = gw.drive("mixer-1").unwrap().config.unit_id;
+    assert_eq!(c.holding(mixer, 1000, 2).await, Err(0x01));
+    assert_eq!(c.write1(mixer, 0, 0x0008).await, Err(0x01));
+}

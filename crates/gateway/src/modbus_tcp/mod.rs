@@ -14,7 +14,7 @@
 pub mod map;
 
 use std::net::{IpAddr, SocketAddr};
-use std::sync::atomic::{AtomicBool, AtomicU16, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -54,8 +54,17 @@ struct Server {
     active: AtomicUsize,
     /// One per unit id; held across a write so concurrent writers to a drive are serialized.
     written: Vec<tokio::sync::Mutex<Written>>,
-    /// The last command word written to each unit, for reads.
-    shown: Vec<AtomicU16>,
+    /// What was last written to each unit, for reads until the cache has caught up.
+    shown: Vec<std::sync::Mutex<Shown>>,
+}
+
+/// The last command word and setpoint written to a unit, and when the drive confirmed them.
+#[derive(Clone, Copy, Debug, Default)]
+struct Shown {
+    word: u16,
+    word_at: Option<Instant>,
+    setpoint: u16,
+    setpoint_at: Option<Instant>,
 }
 
 /// Decrements the connection count when a connection ends.
@@ -90,7 +99,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
         config,
         active: AtomicUsize::new(0),
         written: (0..256).map(|_| Default::default()).collect(),
-        shown: (0..256).map(|_| AtomicU16::new(0)).collect(),
+        shown: (0..256).map(|_| Default::default()).collect(),
     });
     static WARNED: AtomicBool = AtomicBool::new(false);
     loop {
@@ -331,19 +340,29 @@ impl Server {
     }
 
     /// Holding registers 0 and 1 from the cache; bits 2 and 3 of the command word are the last
-    /// written ones.
+    /// written ones, and a write the drive confirmed shows until the cache is newer than it.
     fn holding(&self, d: &DriveEntry, unit: u8) -> [u16; 2] {
-        let written = self.shown[unit as usize].load(Ordering::Relaxed);
+        let shown = *self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
         d.with_state(|s| {
             let st = s.status.as_ref();
-            let mut word = written & (CMD_RESET | CMD_JOG);
-            if st.is_some_and(|x| x.running) {
-                word |= CMD_RUN;
+            let newer = |at: Option<Instant>| at.is_some_and(|w| s.updated.map_or(true, |u| w >= u));
+            let mut word = shown.word & (CMD_RESET | CMD_JOG);
+            if newer(shown.word_at) {
+                word |= shown.word & (CMD_RUN | CMD_REVERSE);
+            } else {
+                if st.is_some_and(|x| x.running) {
+                    word |= CMD_RUN;
+                }
+                if is_reverse(s) {
+                    word |= CMD_REVERSE;
+                }
             }
-            if is_reverse(s) {
-                word |= CMD_REVERSE;
-            }
-            [word, hundredths(st.and_then(|x| x.setpoint_hz).or(s.commanded_hz))]
+            let setpoint = if newer(shown.setpoint_at) {
+                shown.setpoint
+            } else {
+                hundredths(st.and_then(|x| x.setpoint_hz).or(s.commanded_hz))
+            };
+            [word, setpoint]
         })
     }
 
@@ -462,8 +481,11 @@ impl Server {
             }
             // The setpoint first, so a drive told to run starts toward the new speed.
             if addr + n as u16 == 2 {
-                let hz = f64::from(values.get(n - 1)) / 100.0;
-                self.command(conn, d, Command::Speed(hz)).await?;
+                let raw = values.get(n - 1);
+                self.command(conn, d, Command::Speed(f64::from(raw) / 100.0)).await?;
+                let mut shown = self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
+                shown.setpoint = raw;
+                shown.setpoint_at = Some(Instant::now());
             }
             if addr == HR_COMMAND {
                 self.command_word(conn, unit, d, values.get(0)).await?;
@@ -534,7 +556,9 @@ impl Server {
             }
         }
         *written = Written { word, at: Some(Instant::now()) };
-        self.shown[unit as usize].store(word, Ordering::Relaxed);
+        let mut shown = self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
+        shown.word = word;
+        shown.word_at = written.at;
         Ok(())
     }
 

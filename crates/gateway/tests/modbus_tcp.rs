@@ -318,7 +318,7 @@ async fn pipelined_requests_are_answered_in_order() {
     assert_eq!(c.read_reply().await, (3, 99, Err(0x0B)));
     for tid in 4..40u16 {
         let unit = (tid % 10 + 1) as u8;
-        let address = gw.drive_by_unit(unit).unwrap().config.address as u8;
+        let address = gw.drive_by_unit(unit).unwrap().config.address;
         assert_eq!(c.read_reply().await, (tid, unit, Ok(vec![4, 2, 0, address])));
     }
 }

@@ -76,7 +76,7 @@ fn mbpoll_values(out: &str) -> Vec<(u32, i64)> {
     out.lines()
         .filter_map(|l| {
             let (k, v) = l.trim().split_once("]:")?;
-            Some((k.trim_start_matches('[').parse().ok()?, v.trim().split_whitespace().next()?.parse().ok()?))
+            Some((k.trim_start_matches('[').parse().ok()?, v.split_whitespace().next()?.parse().ok()?))
         })
         .collect()
 }

@@ -203,7 +203,8 @@ pub struct DriveConfig {
     pub family: Family,
     /// Its number on the bus.
     pub address: u8,
-    /// Its Modbus TCP unit id (unique).
+    /// Its Modbus TCP unit id (unique; 1..247; 0 = none, for drives past the 247th that were
+    /// given no `unit_id`).
     pub unit_id: u8,
     /// How often it is polled.
     pub poll: Duration,
@@ -487,13 +488,18 @@ impl GatewayConfig {
                     }
                     Some(u) => *u.get_ref(),
                     None => {
-                        while units.contains(&next_unit) {
-                            next_unit = next_unit.saturating_add(1);
+                        while next_unit <= 247 && units.contains(&next_unit) {
+                            next_unit += 1;
                         }
-                        next_unit
+                        // Past 247 drives the rest have no Modbus TCP unit (0): HTTP/MQTT only.
+                        if next_unit <= 247 {
+                            next_unit
+                        } else {
+                            0
+                        }
                     }
                 };
-                if !units.insert(unit_id) {
+                if unit_id != 0 && !units.insert(unit_id) {
                     let span = d.unit_id.as_ref().map_or(d.name.span(), |u| u.span());
                     return cx.err(span, "bus.drive.unit_id", format!("unit id {unit_id} is used twice"));
                 }

@@ -12,8 +12,9 @@ from pymodbus.server import StartAsyncTcpServer
 
 async def main():
     port = int(sys.argv[1])
-    # Address 0 of the block is register 0 here (pymodbus adds 1 to request addresses).
-    block = ModbusSequentialDataBlock(0, [i * 100 for i in range(11)])
+    # pymodbus adds 1 to request addresses and its blocks start at 1 or above: the block starts
+    # at 1 so that request address 0 is its first value.
+    block = ModbusSequentialDataBlock(1, [i * 100 for i in range(10)])
     ctx = ModbusServerContext(devices=ModbusDeviceContext(ir=block), single=True)
     print(f"listening on 127.0.0.1:{port}", flush=True)
     await StartAsyncTcpServer(context=ctx, address=("127.0.0.1", port))

@@ -710,6 +710,21 @@ mod tests {
     }
 
     #[test]
+    fn drives_past_the_247th_get_no_unit() {
+        let mut text = String::new();
+        for b in 0..9 {
+            text += &format!("[[bus]]\nname = \"b{b}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n");
+            for a in 1..=30 {
+                text += &format!("[[bus.drive]]\nname = \"d{b}-{a}\"\nfamily = \"generic\"\naddress = {a}\n");
+            }
+        }
+        let c = GatewayConfig::from_toml("p.toml", &text).unwrap();
+        let units: Vec<u8> = c.drives().map(|(_, d)| d.unit_id).collect();
+        assert_eq!(units[..247], (1..=247).collect::<Vec<u8>>()[..]);
+        assert!(units[247..].iter().all(|&u| u == 0));
+    }
+
+    #[test]
     fn modbus_allow_is_explicit_or_loopback() {
         let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = []\nread_only = true\n").unwrap();
         assert!(c.modbus.allow.is_empty() && c.modbus.read_only);

@@ -11,8 +11,9 @@
 //!
 //! [modbus]
 //! listen = "127.0.0.1:5020"
-//! allow = ["127.0.0.1"]                 # client addresses that may connect
+//! allow = ["127.0.0.1"]                 # client addresses that may write (default: loopback)
 //! read_only = false                     # refuse every write
+//! max_connections = 16384               # beyond it, new connections are closed
 //!
 //! [store]
 //! path = "drivebus.db"
@@ -109,7 +110,8 @@ pub struct HttpConfig {
 pub struct ModbusConfig {
     /// Where to listen.
     pub listen: SocketAddr,
-    /// Client addresses allowed to connect (empty: anyone who can reach the listener).
+    /// Client addresses allowed to write (reads are open to whoever reaches the listener).
+    /// Without `allow` in the file: loopback only (127.0.0.1, ::1); `allow = []`: nobody.
     pub allow: Vec<IpAddr>,
     /// Refuse every write.
     pub read_only: bool,
@@ -201,7 +203,8 @@ pub struct DriveConfig {
     pub family: Family,
     /// Its number on the bus.
     pub address: u8,
-    /// Its Modbus TCP unit id (unique).
+    /// Its Modbus TCP unit id (unique; 1..247; 0 = none, for drives past the 247th that were
+    /// given no `unit_id`).
     pub unit_id: u8,
     /// How often it is polled.
     pub poll: Duration,
@@ -275,8 +278,7 @@ struct FileHttp {
 #[serde(deny_unknown_fields)]
 struct FileModbus {
     listen: Option<Spanned<String>>,
-    #[serde(default)]
-    allow: Vec<Spanned<String>>,
+    allow: Option<Vec<Spanned<String>>>,
     #[serde(default)]
     read_only: bool,
     max_connections: Option<usize>,
@@ -400,18 +402,27 @@ impl GatewayConfig {
             anonymous_read: raw.http.anonymous_read.unwrap_or(false),
             max_body: raw.http.max_body.unwrap_or(64 * 1024),
         };
-        let mut allow = Vec::new();
-        for a in &raw.modbus.allow {
-            allow.push(a.get_ref().parse::<IpAddr>().or_else(|_| {
-                cx.err(a.span(), "modbus.allow", format!("{:?} is not an IP address", a.get_ref()))
-            })?);
-        }
+        let allow = match &raw.modbus.allow {
+            None => vec![IpAddr::from([127, 0, 0, 1]), IpAddr::from(std::net::Ipv6Addr::LOCALHOST)],
+            Some(list) => {
+                let mut allow = Vec::new();
+                for a in list {
+                    allow.push(a.get_ref().parse::<IpAddr>().or_else(|_| {
+                        cx.err(a.span(), "modbus.allow", format!("{:?} is not an IP address", a.get_ref()))
+                    })?);
+                }
+                allow
+            }
+        };
         let modbus = ModbusConfig {
             listen: addr(&raw.modbus.listen, "modbus.listen", "127.0.0.1:5020")?,
             allow,
             read_only: raw.modbus.read_only,
             max_connections: raw.modbus.max_connections.unwrap_or(16_384),
         };
+        if modbus.max_connections == 0 {
+            return Err(ConfigError(format!("{file}: field `modbus.max_connections`: use 1 or more")));
+        }
 
         let mut tokens = Vec::new();
         for t in &raw.token {
@@ -477,13 +488,18 @@ impl GatewayConfig {
                     }
                     Some(u) => *u.get_ref(),
                     None => {
-                        while units.contains(&next_unit) {
-                            next_unit = next_unit.saturating_add(1);
+                        while next_unit <= 247 && units.contains(&next_unit) {
+                            next_unit += 1;
                         }
-                        next_unit
+                        // Past 247 drives the rest have no Modbus TCP unit (0): HTTP/MQTT only.
+                        if next_unit <= 247 {
+                            next_unit
+                        } else {
+                            0
+                        }
                     }
                 };
-                if !units.insert(unit_id) {
+                if unit_id != 0 && !units.insert(unit_id) {
                     let span = d.unit_id.as_ref().map_or(d.name.span(), |u| u.span());
                     return cx.err(span, "bus.drive.unit_id", format!("unit id {unit_id} is used twice"));
                 }
@@ -688,5 +704,33 @@ mod tests {
         assert_eq!(c.http.listen.to_string(), "127.0.0.1:8080");
         assert_eq!(c.modbus.listen.to_string(), "127.0.0.1:5020");
         assert_eq!(b.drives[0].unit_id, 1);
+        let loopback: Vec<IpAddr> = vec!["127.0.0.1".parse().unwrap(), "::1".parse().unwrap()];
+        assert_eq!(c.modbus.allow, loopback);
+        assert_eq!(c.modbus.max_connections, 16_384);
+    }
+
+    #[test]
+    fn drives_past_the_247th_get_no_unit() {
+        let mut text = String::new();
+        for b in 0..9 {
+            text += &format!("[[bus]]\nname = \"b{b}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n");
+            for a in 1..=30 {
+                text += &format!("[[bus.drive]]\nname = \"d{b}-{a}\"\nfamily = \"generic\"\naddress = {a}\n");
+            }
+        }
+        let c = GatewayConfig::from_toml("p.toml", &text).unwrap();
+        let units: Vec<u8> = c.drives().map(|(_, d)| d.unit_id).collect();
+        assert_eq!(units[..247], (1..=247).collect::<Vec<u8>>()[..]);
+        assert!(units[247..].iter().all(|&u| u == 0));
+    }
+
+    #[test]
+    fn modbus_allow_is_explicit_or_loopback() {
+        let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = []\nread_only = true\n").unwrap();
+        assert!(c.modbus.allow.is_empty() && c.modbus.read_only);
+        let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = [\"10.0.0.7\"]\n").unwrap();
+        assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
+        let e = err("[modbus]\nallow = [\"plc\"]\n");
+        assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
     }
 }

@@ -470,7 +470,7 @@ impl Gateway {
         }
         let index = drives.iter().enumerate().map(|(i, d)| (d.config.name.clone(), i)).collect();
         let mut units = vec![None; 256];
-        for (i, d) in drives.iter().enumerate() {
+        for (i, d) in drives.iter().enumerate().filter(|(_, d)| d.config.unit_id != 0) {
             units[d.config.unit_id as usize] = Some(i);
         }
         let (changes, _) = broadcast::channel(1024);

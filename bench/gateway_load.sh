@@ -1,0 +1,114 @@
+#!/usr/bin/env bash
+# The gateway's load benchmark (issue 5), not run in CI.
+#
+#  1. `drivebus serve --demo` pinned to core 0, the load generator (crates/gateway/examples/
+#     loadgen.rs, one thread) pinned to core 1: 128 Modbus TCP clients reading 10 input
+#     registers in a loop, alone and then together with 64 keep-alive HTTP clients
+#     (GET $HTTP_PATH), $SECS s each: requests/s and latency percentiles.
+#  2. The same 128 Modbus clients against libmodbus' TCP server (bench/libmodbus_server.c,
+#     compiled here) and pymodbus' TCP server (bench/pymodbus_server.py), same pinning, same run.
+#  3. 10 000 concurrent connections to the gateway: all connected, then each reads once.
+#  4. RSS of `drivebus serve` with 1000 simulated drives on 32 virtual buses, after 10 s.
+#
+# SECS=10 HTTP_PATH=/api/drives bench/gateway_load.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SECS=${SECS:-10}
+HTTP_PATH=${HTTP_PATH:-/api/drives}
+CONNS=${CONNS:-10000}
+SERVER_CORE=${SERVER_CORE:-0}
+CLIENT_CORE=${CLIENT_CORE:-1}
+
+cargo build --release -q -p drivebus
+cargo build --release -q -p drivebus-gateway --example loadgen
+BIN=target/release/drivebus
+LOADGEN=target/release/examples/loadgen
+ulimit -n "$(ulimit -Hn)"
+
+TMP=$(mktemp -d)
+PIDS=()
+cleanup() {
+  for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  rm -rf "$TMP"
+}
+trap cleanup EXIT
+
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+wait_port() {
+  for _ in $(seq 1 200); do
+    if (exec 3<>"/dev/tcp/127.0.0.1/$1") 2>/dev/null; then return 0; fi
+    sleep 0.05
+  done
+  echo "nothing listens on port $1" >&2
+  return 1
+}
+stop() { kill "$1" 2>/dev/null || true; wait "$1" 2>/dev/null || true; }
+load() { taskset -c "$CLIENT_CORE" "$LOADGEN" load --secs "$SECS" "$@"; }
+
+echo "== gateway: drivebus serve --demo on core $SERVER_CORE, load generator on core $CLIENT_CORE, ${SECS} s per run"
+MP=$(free_port); HP=$(free_port)
+taskset -c "$SERVER_CORE" "$BIN" serve --demo --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw.log" 2>&1 &
+GW=$!; PIDS+=("$GW")
+wait_port "$MP"; wait_port "$HP"; sleep 2
+load --modbus "127.0.0.1:$MP" --clients 128 --units 1-10
+load --modbus "127.0.0.1:$MP" --clients 128 --units 1-10 --http "127.0.0.1:$HP" --http-clients 64 --path "$HTTP_PATH"
+stop "$GW"
+
+echo "== libmodbus $(pkg-config --modversion libmodbus 2>/dev/null || echo '?') TCP server (select loop) on core $SERVER_CORE"
+if ! pkg-config --exists libmodbus; then
+  echo "libmodbus-dev is missing: apt-get install libmodbus-dev" >&2
+else
+  cc -O2 -o "$TMP/libmodbus_server" bench/libmodbus_server.c $(pkg-config --cflags --libs libmodbus)
+  LP=$(free_port)
+  taskset -c "$SERVER_CORE" "$TMP/libmodbus_server" "$LP" >"$TMP/lm.log" 2>&1 &
+  LM=$!; PIDS+=("$LM")
+  wait_port "$LP"
+  load --modbus "127.0.0.1:$LP" --clients 128 --units 1
+  stop "$LM"
+fi
+
+echo "== pymodbus $(python3 -c 'import pymodbus; print(pymodbus.__version__)' 2>/dev/null || echo '?') TCP server on core $SERVER_CORE"
+if ! python3 -c 'import pymodbus' 2>/dev/null; then
+  echo "pymodbus is missing: python3 -m pip install pymodbus" >&2
+else
+  PP=$(free_port)
+  taskset -c "$SERVER_CORE" python3 bench/pymodbus_server.py "$PP" >"$TMP/pm.log" 2>&1 &
+  PM=$!; PIDS+=("$PM")
+  wait_port "$PP"
+  load --modbus "127.0.0.1:$PP" --clients 128 --units 1
+  stop "$PM"
+fi
+
+echo "== $CONNS concurrent connections to the gateway"
+MP=$(free_port); HP=$(free_port)
+taskset -c "$SERVER_CORE" "$BIN" serve --demo --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw2.log" 2>&1 &
+GW=$!; PIDS+=("$GW")
+wait_port "$MP"; sleep 1
+taskset -c "$CLIENT_CORE" "$LOADGEN" conns --modbus "127.0.0.1:$MP" --n "$CONNS"
+echo "gateway RSS after the connections closed: $(awk '/VmRSS/ {print $2, $3}' /proc/$GW/status)"
+stop "$GW"
+
+echo "== RSS with 1000 simulated drives on 32 virtual buses (115200 baud, poll 500 ms)"
+CFG="$TMP/big.toml"
+{
+  echo 'name = "load"'
+  n=0
+  for b in $(seq 1 32); do
+    per=31; [ "$b" -le 8 ] && per=32   # 8 x 32 + 24 x 31 = 1000
+    printf '[[bus]]\nname = "line-%d"\nport = "virtual"\nprotocol = "modbus-rtu"\nbaud = 115200\n' "$b"
+    for a in $(seq 1 "$per"); do
+      n=$((n + 1))
+      printf '[[bus.drive]]\nname = "vfd-%d"\nfamily = "generic"\naddress = %d\n' "$n" "$a"
+    done
+  done
+} >"$CFG"
+MP=$(free_port); HP=$(free_port)
+taskset -c "$SERVER_CORE" "$BIN" serve --config "$CFG" --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw3.log" 2>&1 &
+GW=$!; PIDS+=("$GW")
+wait_port "$MP"
+sleep 10
+echo "drivebus serve: $(head -n 1 "$TMP/gw3.log"); VmRSS $(awk '/VmRSS/ {print $2, $3}' /proc/$GW/status) after 10 s"
+ONLINE=$(curl -s "http://127.0.0.1:$HP/api/drives" | python3 -c 'import json,sys; d=json.load(sys.stdin); print(sum(1 for x in d if x["online"]), "of", len(d))' 2>/dev/null || echo "?")
+echo "drives online: $ONLINE"
+stop "$GW"

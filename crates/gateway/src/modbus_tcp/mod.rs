@@ -1,0 +1,606 @@
+//! The Modbus TCP server: each drive is a unit id; one register map for every family
+//! (docs/register-map.md, [`map`]). Reads come from the cache; writes go through the bus owner
+//! and are answered when the drive confirmed.
+//!
+//! A task per connection with a reused input buffer and a reused output buffer: every complete
+//! request in what one read returned is answered in order, and the answers go out in one write.
+//! Input registers and the command/setpoint holding registers are answered from the cache
+//! under a read lock without allocating; parameter reads and every write wait for the drive
+//! (the answers before them are sent first).
+//!
+//! MBAP: a frame whose protocol id is not 0 or whose length is below 2 or above 254 closes the
+//! connection (nothing after it can be trusted to be framed right).
+
+pub mod map;
+
+use std::net::{IpAddr, SocketAddr};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use drivebus_drive::{format_fixed, ParamDef};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+use crate::config::ModbusConfig;
+use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
+use map::*;
+
+/// Exception 01: illegal function (also: writes refused by configuration or a lock).
+pub const ILLEGAL_FUNCTION: u8 = 0x01;
+/// Exception 02: illegal data address.
+pub const ILLEGAL_ADDRESS: u8 = 0x02;
+/// Exception 03: illegal data value (counts, byte counts, values out of range).
+pub const ILLEGAL_VALUE: u8 = 0x03;
+/// Exception 0B: gateway target device failed to respond (no drive has the unit id).
+pub const TARGET_FAILED: u8 = 0x0B;
+
+/// The longest Modbus TCP frame: 7 bytes of MBAP header and a 253-byte PDU.
+const MAX_FRAME: usize = 260;
+/// Input buffer per connection (several pipelined requests).
+const IN_BUF: usize = 2048;
+
+/// What the server remembers of the last command word written to a unit (for the edge-triggered
+/// bits, and to compare against while the cache has not seen the command's effect yet).
+#[derive(Clone, Copy, Debug, Default)]
+struct Written {
+    word: u16,
+    at: Option<Instant>,
+}
+
+struct Server {
+    gw: Arc<Gateway>,
+    config: ModbusConfig,
+    active: AtomicUsize,
+    /// One per unit id; held across a write so concurrent writers to a drive are serialized.
+    written: Vec<tokio::sync::Mutex<Written>>,
+    /// What was last written to each unit, for reads until the cache has caught up.
+    shown: Vec<std::sync::Mutex<Shown>>,
+}
+
+/// The last command word and setpoint written to a unit, and when the drive confirmed them.
+#[derive(Clone, Copy, Debug, Default)]
+struct Shown {
+    word: u16,
+    word_at: Option<Instant>,
+    setpoint: u16,
+    setpoint_at: Option<Instant>,
+}
+
+/// Decrements the connection count when a connection ends.
+struct Slot<'a>(&'a AtomicUsize);
+
+impl Drop for Slot<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// Raises the soft limit of open files to the hard limit (each client is a descriptor).
+/// Returns the new soft limit.
+pub fn raise_nofile_limit() -> std::io::Result<u64> {
+    use nix::sys::resource::{getrlimit, setrlimit, Resource};
+    let (soft, hard) = getrlimit(Resource::RLIMIT_NOFILE).map_err(std::io::Error::from)?;
+    if soft < hard {
+        setrlimit(Resource::RLIMIT_NOFILE, hard, hard).map_err(std::io::Error::from)?;
+    }
+    Ok(hard.max(soft))
+}
+
+/// Serves Modbus TCP clients on `listener` with the gateway's `[modbus]` configuration until the
+/// process ends.
+pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<()> {
+    if let Err(e) = raise_nofile_limit() {
+        eprintln!("drivebus serve: Modbus TCP: cannot raise the open files limit: {e}");
+    }
+    let config = gw.config().modbus.clone();
+    let server = Arc::new(Server {
+        gw,
+        config,
+        active: AtomicUsize::new(0),
+        written: (0..256).map(|_| Default::default()).collect(),
+        shown: (0..256).map(|_| Default::default()).collect(),
+    });
+    static WARNED: AtomicBool = AtomicBool::new(false);
+    loop {
+        let (socket, peer) = match listener.accept().await {
+            Ok(x) => x,
+            Err(e) => {
+                // Out of descriptors or a connection reset before accept: keep serving the others.
+                if !WARNED.swap(true, Ordering::Relaxed) {
+                    eprintln!("drivebus serve: Modbus TCP: accept failed: {e} (retrying)");
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+                continue;
+            }
+        };
+        if server.active.fetch_add(1, Ordering::Relaxed) >= server.config.max_connections {
+            server.active.fetch_sub(1, Ordering::Relaxed);
+            drop(socket);
+            continue;
+        }
+        let server = server.clone();
+        tokio::spawn(async move {
+            let _slot = Slot(&server.active);
+            let _ = server.connection(socket, peer).await;
+        });
+    }
+}
+
+/// A parsed request PDU; register values are views into the request.
+enum Request<'a> {
+    Read { input: bool, addr: u16, count: u16 },
+    Write { addr: u16, values: Regs<'a> },
+    ReadWrite { addr: u16, count: u16, waddr: u16, values: Regs<'a> },
+}
+
+/// Big-endian registers in a request.
+#[derive(Clone, Copy)]
+struct Regs<'a>(&'a [u8]);
+
+impl Regs<'_> {
+    fn len(&self) -> usize {
+        self.0.len() / 2
+    }
+    fn get(&self, i: usize) -> u16 {
+        u16::from_be_bytes([self.0[2 * i], self.0[2 * i + 1]])
+    }
+}
+
+fn be16(b: &[u8], at: usize) -> u16 {
+    u16::from_be_bytes([b[at], b[at + 1]])
+}
+
+/// Parses a request PDU (function code first); errors are exception codes.
+fn parse(pdu: &[u8]) -> Result<Request<'_>, u8> {
+    let fc = pdu[0];
+    match fc {
+        0x03 | 0x04 => {
+            if pdu.len() != 5 {
+                return Err(ILLEGAL_VALUE);
+            }
+            let count = be16(pdu, 3);
+            if count == 0 || count > 125 {
+                return Err(ILLEGAL_VALUE);
+            }
+            Ok(Request::Read { input: fc == 0x04, addr: be16(pdu, 1), count })
+        }
+        0x06 => {
+            if pdu.len() != 5 {
+                return Err(ILLEGAL_VALUE);
+            }
+            Ok(Request::Write { addr: be16(pdu, 1), values: Regs(&pdu[3..5]) })
+        }
+        0x10 => {
+            if pdu.len() < 6 {
+                return Err(ILLEGAL_VALUE);
+            }
+            let count = be16(pdu, 3) as usize;
+            let bytes = pdu[5] as usize;
+            if count == 0 || count > 123 || bytes != 2 * count || pdu.len() != 6 + bytes {
+                return Err(ILLEGAL_VALUE);
+            }
+            Ok(Request::Write { addr: be16(pdu, 1), values: Regs(&pdu[6..]) })
+        }
+        0x17 => {
+            if pdu.len() < 10 {
+                return Err(ILLEGAL_VALUE);
+            }
+            let count = be16(pdu, 3);
+            let wcount = be16(pdu, 7) as usize;
+            let bytes = pdu[9] as usize;
+            if count == 0
+                || count > 125
+                || wcount == 0
+                || wcount > 121
+                || bytes != 2 * wcount
+                || pdu.len() != 10 + bytes
+            {
+                return Err(ILLEGAL_VALUE);
+            }
+            Ok(Request::ReadWrite {
+                addr: be16(pdu, 1),
+                count,
+                waddr: be16(pdu, 5),
+                values: Regs(&pdu[10..]),
+            })
+        }
+        _ => Err(ILLEGAL_FUNCTION),
+    }
+}
+
+/// Starts an answer: the request's transaction id and unit, protocol 0, length filled by [`end`].
+fn begin(out: &mut Vec<u8>, header: &[u8]) -> usize {
+    let start = out.len();
+    out.extend_from_slice(&[header[0], header[1], 0, 0, 0, 0, header[6]]);
+    start
+}
+
+fn end(out: &mut [u8], start: usize) {
+    let len = (out.len() - start - 6) as u16;
+    out[start + 4..start + 6].copy_from_slice(&len.to_be_bytes());
+}
+
+fn exception(out: &mut Vec<u8>, header: &[u8], fc: u8, code: u8) {
+    let start = begin(out, header);
+    out.extend_from_slice(&[fc | 0x80, code]);
+    end(out, start);
+}
+
+fn push_regs(out: &mut Vec<u8>, regs: impl IntoIterator<Item = u16>) {
+    for r in regs {
+        out.extend_from_slice(&r.to_be_bytes());
+    }
+}
+
+/// The parameter index and half (`true`: high word) of a window address.
+fn param_slot(addr: u16) -> Option<(usize, bool)> {
+    let off = addr.checked_sub(PARAM_BASE)? as usize;
+    Some((off / 2, off % 2 == 0))
+}
+
+impl Server {
+    async fn connection(&self, mut sock: TcpStream, peer: SocketAddr) -> std::io::Result<()> {
+        let _ = sock.set_nodelay(true);
+        let ip = match peer.ip() {
+            IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
+            v4 => v4,
+        };
+        let may_write = !self.config.read_only && self.config.allow.contains(&ip);
+        let mut conn = Conn { may_write, actor: None, peer };
+        let mut buf = vec![0u8; IN_BUF];
+        let mut len = 0;
+        let mut out: Vec<u8> = Vec::with_capacity(512);
+        loop {
+            let n = sock.read(&mut buf[len..]).await?;
+            if n == 0 {
+                return Ok(());
+            }
+            len += n;
+            let mut pos = 0;
+            let mut close = false;
+            while len - pos >= 7 {
+                let h = &buf[pos..pos + 7];
+                let length = be16(h, 4) as usize;
+                if be16(h, 2) != 0 || !(2..=254).contains(&length) {
+                    close = true;
+                    break;
+                }
+                let total = 6 + length;
+                if len - pos < total {
+                    break;
+                }
+                let frame = &buf[pos..pos + total];
+                if !self.answer_cached(frame, &mut out) {
+                    // The drive's answer takes a bus transaction: send the answers before it first.
+                    if !out.is_empty() {
+                        sock.write_all(&out).await?;
+                        out.clear();
+                    }
+                    self.answer_drive(&mut conn, frame, &mut out).await;
+                }
+                pos += total;
+            }
+            if !out.is_empty() {
+                sock.write_all(&out).await?;
+                out.clear();
+            }
+            if close {
+                return Ok(());
+            }
+            buf.copy_within(pos..len, 0);
+            len -= pos;
+            debug_assert!(IN_BUF - len >= MAX_FRAME);
+        }
+    }
+
+    /// Answers `frame` into `out` from the cache; false when it needs the drive.
+    fn answer_cached(&self, frame: &[u8], out: &mut Vec<u8>) -> bool {
+        let (header, pdu) = frame.split_at(7);
+        let Some(d) = self.gw.drive_by_unit(header[6]) else {
+            exception(out, header, pdu[0], TARGET_FAILED);
+            return true;
+        };
+        let fc = pdu[0];
+        let req = match parse(pdu) {
+            Ok(r) => r,
+            Err(code) => {
+                exception(out, header, fc, code);
+                return true;
+            }
+        };
+        match req {
+            Request::Read { input: true, addr, count } => {
+                let Some(last) = addr.checked_add(count - 1).filter(|&l| l < INPUT_COUNT) else {
+                    exception(out, header, fc, ILLEGAL_ADDRESS);
+                    return true;
+                };
+                let mut regs = [0u16; INPUT_COUNT as usize];
+                input_registers(d, &mut regs);
+                let start = begin(out, header);
+                out.extend_from_slice(&[fc, (count * 2) as u8]);
+                push_regs(out, regs[addr as usize..=last as usize].iter().copied());
+                end(out, start);
+                true
+            }
+            Request::Read { input: false, addr, count } if addr <= HR_SETPOINT => {
+                if u32::from(addr) + u32::from(count) > 2 {
+                    exception(out, header, fc, ILLEGAL_ADDRESS);
+                    return true;
+                }
+                let regs = self.holding(d, header[6]);
+                let start = begin(out, header);
+                out.extend_from_slice(&[fc, (count * 2) as u8]);
+                push_regs(out, regs[addr as usize..(addr + count) as usize].iter().copied());
+                end(out, start);
+                true
+            }
+            Request::Read { .. } | Request::Write { .. } | Request::ReadWrite { .. } => false,
+        }
+    }
+
+    /// Holding registers 0 and 1 from the cache; bits 2 and 3 of the command word are the last
+    /// written ones, and a write the drive confirmed shows until the cache is newer than it.
+    fn holding(&self, d: &DriveEntry, unit: u8) -> [u16; 2] {
+        let shown = *self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
+        d.with_state(|s| {
+            let st = s.status.as_ref();
+            let newer = |at: Option<Instant>| at.is_some_and(|w| s.updated.map_or(true, |u| w >= u));
+            let mut word = shown.word & (CMD_RESET | CMD_JOG);
+            if newer(shown.word_at) {
+                word |= shown.word & (CMD_RUN | CMD_REVERSE);
+            } else {
+                if st.is_some_and(|x| x.running) {
+                    word |= CMD_RUN;
+                }
+                if is_reverse(s) {
+                    word |= CMD_REVERSE;
+                }
+            }
+            let setpoint = if newer(shown.setpoint_at) {
+                shown.setpoint
+            } else {
+                hundredths(st.and_then(|x| x.setpoint_hz).or(s.commanded_hz))
+            };
+            [word, setpoint]
+        })
+    }
+
+    /// Answers a request that needs the drive: a parameter read or a write.
+    async fn answer_drive(&self, conn: &mut Conn, frame: &[u8], out: &mut Vec<u8>) {
+        let (header, pdu) = frame.split_at(7);
+        let fc = pdu[0];
+        let Some(d) = self.gw.drive_by_unit(header[6]) else {
+            exception(out, header, fc, TARGET_FAILED);
+            return;
+        };
+        let result: Result<(), u8> = match parse(pdu) {
+            Err(code) => Err(code),
+            Ok(Request::Read { addr, count, .. }) => {
+                let start = begin(out, header);
+                out.extend_from_slice(&[fc, (count * 2) as u8]);
+                match self.read_window(d, addr, count, out).await {
+                    Ok(()) => {
+                        end(out, start);
+                        return;
+                    }
+                    Err(code) => {
+                        out.truncate(start);
+                        Err(code)
+                    }
+                }
+            }
+            Ok(Request::Write { addr, values }) => match self.write(conn, header[6], d, addr, values).await {
+                Ok(()) => {
+                    let start = begin(out, header);
+                    if fc == 0x06 {
+                        out.extend_from_slice(pdu);
+                    } else {
+                        out.push(fc);
+                        out.extend_from_slice(&addr.to_be_bytes());
+                        out.extend_from_slice(&(values.len() as u16).to_be_bytes());
+                    }
+                    end(out, start);
+                    return;
+                }
+                Err(code) => Err(code),
+            },
+            Ok(Request::ReadWrite { addr, count, waddr, values }) => {
+                match self.write(conn, header[6], d, waddr, values).await {
+                    Err(code) => Err(code),
+                    Ok(()) => {
+                        let start = begin(out, header);
+                        out.extend_from_slice(&[fc, (count * 2) as u8]);
+                        let read = if addr >= PARAM_BASE {
+                            self.read_window(d, addr, count, out).await
+                        } else if u32::from(addr) + u32::from(count) > 2 {
+                            Err(ILLEGAL_ADDRESS)
+                        } else {
+                            let regs = self.holding(d, header[6]);
+                            push_regs(out, regs[addr as usize..(addr + count) as usize].iter().copied());
+                            Ok(())
+                        };
+                        match read {
+                            Ok(()) => {
+                                end(out, start);
+                                return;
+                            }
+                            Err(code) => {
+                                out.truncate(start);
+                                Err(code)
+                            }
+                        }
+                    }
+                }
+            }
+        };
+        if let Err(code) = result {
+            exception(out, header, fc, code);
+        }
+    }
+
+    /// Reads holding registers `addr..addr + count` of the parameter window from the drive.
+    async fn read_window(&self, d: &DriveEntry, addr: u16, count: u16, out: &mut Vec<u8>) -> Result<(), u8> {
+        let catalog = d.catalog();
+        let (first, first_high) = param_slot(addr).ok_or(ILLEGAL_ADDRESS)?;
+        let last_addr = addr.checked_add(count - 1).ok_or(ILLEGAL_ADDRESS)?;
+        let (last, last_high) = param_slot(last_addr).ok_or(ILLEGAL_ADDRESS)?;
+        if last >= catalog.len() {
+            return Err(ILLEGAL_ADDRESS);
+        }
+        for i in first..=last {
+            let name = &catalog.params()[i].name;
+            let reading = self.gw.read_param(&d.config.name, name).await.map_err(|e| e.modbus_exception())?;
+            let bits = reading.raw as i32 as u32;
+            if i != first || first_high {
+                out.extend_from_slice(&((bits >> 16) as u16).to_be_bytes());
+            }
+            if i != last || !last_high {
+                out.extend_from_slice(&(bits as u16).to_be_bytes());
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes holding registers from `addr` on unit `unit` (drive `d`); Ok once the drive confirmed.
+    async fn write(
+        &self,
+        conn: &mut Conn,
+        unit: u8,
+        d: &DriveEntry,
+        addr: u16,
+        values: Regs<'_>,
+    ) -> Result<(), u8> {
+        if !conn.may_write || d.locked() {
+            return Err(ILLEGAL_FUNCTION);
+        }
+        let n = values.len();
+        if addr <= HR_SETPOINT {
+            if addr as usize + n > 2 {
+                return Err(ILLEGAL_ADDRESS);
+            }
+            // The setpoint first, so a drive told to run starts toward the new speed.
+            if addr + n as u16 == 2 {
+                let raw = values.get(n - 1);
+                self.command(conn, d, Command::Speed(f64::from(raw) / 100.0)).await?;
+                let mut shown = self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
+                shown.setpoint = raw;
+                shown.setpoint_at = Some(Instant::now());
+            }
+            if addr == HR_COMMAND {
+                self.command_word(conn, unit, d, values.get(0)).await?;
+            }
+            return Ok(());
+        }
+        let catalog = d.catalog();
+        let (first, high) = param_slot(addr).ok_or(ILLEGAL_ADDRESS)?;
+        // Aligned pairs (high, low) write 32-bit values; a single low register a 16-bit one.
+        let writes: usize = if high && n % 2 == 0 {
+            n / 2
+        } else if !high && n == 1 {
+            1
+        } else {
+            return Err(ILLEGAL_ADDRESS);
+        };
+        if first + writes > catalog.len() {
+            return Err(ILLEGAL_ADDRESS);
+        }
+        let defs = &catalog.params()[first..first + writes];
+        if defs.iter().any(|p| p.read_only) {
+            return Err(ILLEGAL_ADDRESS);
+        }
+        for (k, def) in defs.iter().enumerate() {
+            let raw = if high {
+                let v = (u32::from(values.get(2 * k)) << 16 | u32::from(values.get(2 * k + 1))) as i32;
+                if v < 0 && def.min >= 0 {
+                    i64::from(v as u32)
+                } else {
+                    i64::from(v)
+                }
+            } else {
+                i64::from(values.get(0) as i16)
+            };
+            let value = value_text(def, raw);
+            self.command(conn, d, Command::SetParam { name: def.name.clone(), value, eeprom: false }).await?;
+        }
+        Ok(())
+    }
+
+    /// Writes the command word: sends only what differs from the drive's state.
+    async fn command_word(&self, conn: &mut Conn, unit: u8, d: &DriveEntry, word: u16) -> Result<(), u8> {
+        if word & !CMD_MASK != 0 {
+            return Err(ILLEGAL_VALUE);
+        }
+        let mut written = self.written[unit as usize].lock().await;
+        // Until the cache has seen the last command's effect, compare with what was commanded.
+        let (running, reverse) = d.with_state(|s| match (written.at, s.updated) {
+            (Some(w), Some(u)) if u > w => (s.status.as_ref().is_some_and(|x| x.running), is_reverse(s)),
+            (Some(_), _) => (written.word & (CMD_RUN | CMD_JOG) != 0, written.word & CMD_REVERSE != 0),
+            (None, _) => (s.status.as_ref().is_some_and(|x| x.running), is_reverse(s)),
+        });
+        let plan = plan_command(word, written.word, running, reverse);
+        let steps = [
+            (plan.reset, Command::Reset),
+            (plan.stop, Command::Stop),
+            (plan.reverse, Command::Reverse),
+            (plan.run, Command::Run),
+            (plan.jog, Command::Jog),
+        ];
+        for (due, cmd) in steps {
+            if due {
+                if let Err(code) = self.command(conn, d, cmd).await {
+                    // Compare with the cache next time; a failed edge can be retried.
+                    written.at = None;
+                    return Err(code);
+                }
+            }
+        }
+        *written = Written { word, at: Some(Instant::now()) };
+        let mut shown = self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
+        shown.word = word;
+        shown.word_at = written.at;
+        Ok(())
+    }
+
+    async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), u8> {
+        let actor = conn.actor.get_or_insert_with(|| format!("modbus:{}", conn.peer));
+        self.gw.command(&d.config.name, cmd, actor).await.map_err(|e: CommandError| e.modbus_exception())
+    }
+}
+
+/// A client connection's standing.
+struct Conn {
+    may_write: bool,
+    actor: Option<String>,
+    peer: SocketAddr,
+}
+
+/// A raw value as a number in the parameter's unit (what [`Command::SetParam`] takes).
+fn value_text(def: &ParamDef, raw: i64) -> String {
+    format_fixed(raw, def.scale)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requests_are_checked_before_anything_is_done() {
+        assert!(matches!(parse(&[4, 0, 0, 0, 10]), Ok(Request::Read { input: true, addr: 0, count: 10 })));
+        assert_eq!(parse(&[4, 0, 0, 0, 0]).err(), Some(ILLEGAL_VALUE));
+        assert_eq!(parse(&[3, 0, 0, 0, 126]).err(), Some(ILLEGAL_VALUE));
+        assert_eq!(parse(&[3, 0, 0, 0]).err(), Some(ILLEGAL_VALUE));
+        assert_eq!(parse(&[0x10, 0, 0, 0, 2, 3, 0, 1, 0]).err(), Some(ILLEGAL_VALUE));
+        assert!(matches!(parse(&[0x10, 0, 0, 0, 2, 4, 0, 1, 0, 2]), Ok(Request::Write { addr: 0, .. })));
+        assert_eq!(parse(&[0x01, 0, 0, 0, 1]).err(), Some(ILLEGAL_FUNCTION));
+        assert_eq!(parse(&[0x17, 0, 0, 0, 1, 0, 1, 0, 1, 2, 0]).err(), Some(ILLEGAL_VALUE));
+    }
+
+    #[test]
+    fn window_addresses_name_a_parameter_and_a_half() {
+        assert_eq!(param_slot(999), None);
+        assert_eq!(param_slot(1000), Some((0, true)));
+        assert_eq!(param_slot(1001), Some((0, false)));
+        assert_eq!(param_slot(1006), Some((3, true)));
+    }
+}

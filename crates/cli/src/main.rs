@@ -56,6 +56,9 @@ enum Command {
     /// Find the drives on a line across addresses, baud rates and protocols (--drive auto for
     /// every family).
     Scan(commands::scan::ScanArgs),
+    /// Live view of one or more drives (repeat --address): state, trend of frequency and
+    /// current, link statistics; `q` quits. Prints lines instead when stdout is not a terminal.
+    Monitor(commands::monitor::MonitorArgs),
     /// Send bytes (hex) as one request and print the decoded reply.
     Raw {
         /// The request on the wire, in hex.
@@ -97,6 +100,7 @@ fn main() -> ExitCode {
         Command::Params(cmd) => commands::drive::params(&cli.target, &cmd),
         Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
         Command::Scan(args) => commands::scan::run(&args, &cli.target),
+        Command::Monitor(args) => commands::monitor::run(&args, &cli.target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

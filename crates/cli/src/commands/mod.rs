@@ -2,5 +2,6 @@
 
 pub mod decode;
 pub mod drive;
+pub mod monitor;
 pub mod scan;
 pub mod simulate;

@@ -40,6 +40,10 @@ pub struct BusConfig {
     pub offline_after: u32,
     /// Longest wait between probes of an offline drive.
     pub max_backoff: Duration,
+    /// The silence kept before each request; `None`: the protocol's (Modbus RTU t3.5, FC 2
+    /// characters, ...). `Some(ZERO)` for links with no line behind them (a pty to a
+    /// simulator, a TCP server that frames by itself).
+    pub gap: Option<Duration>,
 }
 
 impl BusConfig {
@@ -55,6 +59,7 @@ impl BusConfig {
             echo: false,
             offline_after: 3,
             max_backoff: Duration::from_secs(30),
+            gap: None,
         }
     }
 }
@@ -194,6 +199,9 @@ impl Bus {
             let mut timing = f(config.baud, config.format);
             if let Some(rt) = config.response_timeout {
                 timing.response_timeout = rt;
+            }
+            if let Some(gap) = config.gap {
+                timing.min_gap = gap;
             }
             timing
         };

@@ -44,6 +44,10 @@ pub struct Target {
     /// Retries after a timeout or a damaged reply.
     #[arg(long, global = true, default_value_t = 2)]
     pub retries: u8,
+    /// Silence kept before each request, in milliseconds (default: the protocol's, e.g.
+    /// Modbus RTU t3.5); 0 for a pty or a TCP server with no RS-485 line behind it.
+    #[arg(long, global = true, value_name = "MS")]
+    pub gap: Option<f64>,
     /// Output JSON.
     #[arg(long, global = true)]
     pub json: bool,
@@ -199,6 +203,12 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     let mut config = BusConfig::new(&protocol, baud, format);
     config.retries = t.retries;
     config.response_timeout = t.timeout.map(Duration::from_millis);
+    if let Some(gap) = t.gap {
+        if !(0.0..=1000.0).contains(&gap) {
+            return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));
+        }
+        config.gap = Some(Duration::from_secs_f64(gap / 1000.0));
+    }
     let label = format!("{family} drive {address} on {port}");
     Ok(Resolved { family, protocol, address, port, config, label })
 }

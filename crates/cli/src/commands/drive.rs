@@ -48,6 +48,13 @@ pub struct Target {
     /// Modbus RTU t3.5); 0 for a pty or a TCP server with no RS-485 line behind it.
     #[arg(long, global = true, value_name = "MS")]
     pub gap: Option<f64>,
+    /// RS-485 direction control on a serial port: off (the adapter switches by itself, as
+    /// most USB-RS485 adapters do), auto (the kernel's RS-485 mode, else RTS), kernel, rts.
+    #[arg(long, global = true, value_name = "MODE", default_value = "off")]
+    pub rs485: String,
+    /// Discard the local echo of our own requests (2-wire adapters that hear themselves).
+    #[arg(long, global = true)]
+    pub echo: bool,
     /// Output JSON.
     #[arg(long, global = true)]
     pub json: bool,
@@ -203,6 +210,8 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     let mut config = BusConfig::new(&protocol, baud, format);
     config.retries = t.retries;
     config.response_timeout = t.timeout.map(Duration::from_millis);
+    config.rs485 = t.rs485.parse().map_err(|e: String| fail(EXIT_USAGE, format!("--rs485: {e}")))?;
+    config.echo = t.echo;
     if let Some(gap) = t.gap {
         if !(0.0..=1000.0).contains(&gap) {
             return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));

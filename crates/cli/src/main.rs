@@ -56,6 +56,9 @@ enum Command {
     /// Find the drives on a line across addresses, baud rates and protocols (--drive auto for
     /// every family).
     Scan(commands::scan::ScanArgs),
+    /// Live view of one or more drives (repeat --address): state, trend of frequency and
+    /// current, link statistics; `q` quits. Prints lines instead when stdout is not a terminal.
+    Monitor(commands::monitor::MonitorArgs),
     /// Send bytes (hex) as one request and print the decoded reply.
     Raw {
         /// The request on the wire, in hex.
@@ -109,6 +112,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => commands::serve::run(&args),
         Command::Events(args) => commands::history::events(&args, &cli.target),
         Command::Trend(args) => commands::history::trend(&args, &cli.target),
+        Command::Monitor(args) => commands::monitor::run(&args, &cli.target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

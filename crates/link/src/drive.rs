@@ -121,7 +121,8 @@ pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
     let link = match port.strip_prefix("tcp://") {
         Some(addr) => AnyLink::Tcp(TcpLink::connect(addr).await.map_err(|e| BusError::Link(e.to_string()))?),
         None => AnyLink::Serial(
-            SerialLink::open(port, config.baud, config.format).map_err(|e| BusError::Link(e.to_string()))?,
+            SerialLink::open_rs485(port, config.baud, config.format, config.rs485)
+                .map_err(|e| BusError::Link(e.to_string()))?,
         ),
     };
     Ok(Bus::spawn(link, config)?)

@@ -14,5 +14,5 @@ pub mod drive;
 pub mod link;
 pub mod owner;
 
-pub use link::{Clock, Link, SerialLink, SimLink, TcpLink};
+pub use link::{Clock, Link, Rs485, SerialLink, SimLink, TcpLink};
 pub use owner::{Bus, BusConfig, BusError, BusStats, Health, Priority};

@@ -60,6 +60,46 @@ impl Default for Clock {
     }
 }
 
+/// How the RS-485 transceiver's driver is switched on for sending.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Rs485 {
+    /// Nothing to do: the adapter switches by itself (most USB-RS485 adapters), or the line
+    /// is RS-232, a pty or a TCP server.
+    #[default]
+    Off,
+    /// The kernel's RS-485 mode where the driver has it, else RTS toggled around each write.
+    Auto,
+    /// The kernel's RS-485 mode (Linux `TIOCSRS485`: RTS on while sending); an error where
+    /// the driver lacks it.
+    Kernel,
+    /// RTS on, write, wait until the last bit has left (`tcdrain`), RTS off.
+    Rts,
+}
+
+impl std::str::FromStr for Rs485 {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "off" => Ok(Rs485::Off),
+            "auto" => Ok(Rs485::Auto),
+            "kernel" => Ok(Rs485::Kernel),
+            "rts" => Ok(Rs485::Rts),
+            other => Err(format!("unknown RS-485 mode {other:?}: use off, auto, kernel or rts")),
+        }
+    }
+}
+
+/// What direction control a serial link ended up with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// None (the adapter does it, or it was not asked for).
+    None,
+    /// The kernel switches the driver.
+    Kernel,
+    /// drivebus toggles RTS around each write.
+    Rts,
+}
+
 /// A serial port (USB-RS485 adapter, on-board UART).
 pub struct SerialLink {
     path: String,
@@ -67,6 +107,58 @@ pub struct SerialLink {
     format: CharFormat,
     port: tokio_serial::SerialStream,
     clock: Clock,
+    rs485: Rs485,
+    direction: Direction,
+    /// The port has no modem lines (a pty): RTS toggles are skipped.
+    no_rts: bool,
+}
+
+/// Turns on the kernel's RS-485 mode (RTS on while sending, off after) on `fd`.
+#[cfg(target_os = "linux")]
+fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
+    /// `struct serial_rs485` of `<linux/serial.h>`.
+    #[repr(C)]
+    struct SerialRs485 {
+        flags: u32,
+        delay_rts_before_send: u32,
+        delay_rts_after_send: u32,
+        padding: [u32; 5],
+    }
+    const SER_RS485_ENABLED: u32 = 1 << 0;
+    const SER_RS485_RTS_ON_SEND: u32 = 1 << 1;
+    let conf = SerialRs485 {
+        flags: SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND,
+        delay_rts_before_send: 0,
+        delay_rts_after_send: 0,
+        padding: [0; 5],
+    };
+    // SAFETY: `fd` is an open descriptor owned by the caller's port for the whole call, and
+    // TIOCSRS485 reads exactly one `struct serial_rs485`, which `conf` is (repr(C), same
+    // fields and size: 32 bytes), alive until the call returns.
+    #[allow(unsafe_code)]
+    let r = unsafe { libc::ioctl(fd, libc::TIOCSRS485 as _, &conf as *const SerialRs485) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn kernel_rs485(_fd: i32) -> io::Result<()> {
+    Err(io::Error::new(io::ErrorKind::Unsupported, "the kernel's RS-485 mode is Linux only"))
+}
+
+/// True for errors that mean "this device has no such control" (a pty, a driver without
+/// RS-485 support), as opposed to a failing port.
+fn unsupported(e: &io::Error) -> bool {
+    let code = matches!(e.raw_os_error(), Some(c) if c == libc::ENOTTY || c == libc::EINVAL || c == libc::EOPNOTSUPP);
+    // serialport's errors carry the errno's text only (nix's wording for ENOTTY and EINVAL).
+    let text = e.to_string();
+    code || e.kind() == io::ErrorKind::Unsupported
+        || ["Not a typewriter", "Inappropriate ioctl", "Invalid argument", "not supported"]
+            .iter()
+            .any(|t| text.contains(t))
 }
 
 fn open_serial(path: &str, baud: u32, format: CharFormat) -> io::Result<tokio_serial::SerialStream> {
@@ -88,14 +180,78 @@ fn open_serial(path: &str, baud: u32, format: CharFormat) -> io::Result<tokio_se
 }
 
 impl SerialLink {
-    /// Opens `path` at `baud` with `format` (e.g. 9600 8E1).
+    /// Opens `path` at `baud` with `format` (e.g. 9600 8E1), with no direction control.
     pub fn open(path: &str, baud: u32, format: CharFormat) -> io::Result<Self> {
-        Ok(SerialLink {
+        Self::open_rs485(path, baud, format, Rs485::Off)
+    }
+
+    /// Opens `path` with RS-485 direction control `rs485`.
+    pub fn open_rs485(path: &str, baud: u32, format: CharFormat, rs485: Rs485) -> io::Result<Self> {
+        let mut link = SerialLink {
             path: path.to_string(),
             baud,
             format,
             port: open_serial(path, baud, format)?,
             clock: Clock::new(),
+            rs485,
+            direction: Direction::None,
+            no_rts: false,
+        };
+        link.setup_direction()?;
+        Ok(link)
+    }
+
+    /// The direction control in force.
+    pub fn direction(&self) -> Direction {
+        self.direction
+    }
+
+    fn setup_direction(&mut self) -> io::Result<()> {
+        use std::os::fd::AsRawFd;
+        use tokio_serial::SerialPort;
+        self.direction = Direction::None;
+        let kernel = match self.rs485 {
+            Rs485::Off => return Ok(()),
+            Rs485::Kernel | Rs485::Auto => kernel_rs485(self.port.as_raw_fd()),
+            Rs485::Rts => Err(io::Error::new(io::ErrorKind::Unsupported, "RTS asked for")),
+        };
+        match (kernel, self.rs485) {
+            (Ok(()), _) => self.direction = Direction::Kernel,
+            (Err(e), Rs485::Kernel) => {
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!(
+                        "{}: the driver has no kernel RS-485 mode ({e}): use --rs485 rts or auto",
+                        self.path
+                    ),
+                ))
+            }
+            (Err(_), _) => {
+                self.direction = Direction::Rts;
+                // Receive: RTS off. A port without modem lines (a pty) has nothing to switch.
+                if let Err(e) = self.port.write_request_to_send(false) {
+                    let e = io::Error::from(e);
+                    if !unsupported(&e) {
+                        return Err(io::Error::new(
+                            e.kind(),
+                            format!("{}: cannot switch RTS: {e}", self.path),
+                        ));
+                    }
+                    self.no_rts = true;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn set_rts(&mut self, on: bool) -> io::Result<()> {
+        use tokio_serial::SerialPort;
+        if self.no_rts {
+            return Ok(());
+        }
+        self.port.write_request_to_send(on).map_err(|e| {
+            let e = io::Error::from(e);
+            io::Error::new(e.kind(), format!("{}: cannot switch RTS: {e}", self.path))
         })
     }
 }
@@ -108,8 +264,20 @@ impl Link for SerialLink {
         self.clock
     }
     async fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
-        self.port.write_all(bytes).await?;
-        self.port.flush().await
+        if self.direction != Direction::Rts {
+            // No drain: the session knows the request's wire time, and waiting for the UART
+            // here would block the thread for it.
+            return self.port.write_all(bytes).await;
+        }
+        self.set_rts(true)?;
+        let r = async {
+            self.port.write_all(bytes).await?;
+            // Until the last bit has left the UART (tcdrain), then back to receive.
+            self.port.flush().await
+        }
+        .await;
+        let off = self.set_rts(false);
+        r.and(off)
     }
     async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         match self.port.read(buf).await? {
@@ -119,7 +287,8 @@ impl Link for SerialLink {
     }
     async fn reopen(&mut self) -> io::Result<()> {
         self.port = open_serial(&self.path, self.baud, self.format)?;
-        Ok(())
+        self.no_rts = false;
+        self.setup_direction()
     }
 }
 

@@ -40,6 +40,13 @@ pub struct BusConfig {
     pub offline_after: u32,
     /// Longest wait between probes of an offline drive.
     pub max_backoff: Duration,
+    /// The silence kept before each request; `None`: the protocol's (Modbus RTU t3.5, FC 2
+    /// characters, ...). `Some(ZERO)` for links with no line behind them (a pty to a
+    /// simulator, a TCP server that frames by itself).
+    pub gap: Option<Duration>,
+    /// RS-485 direction control on a serial port (off by default: USB-RS485 adapters switch
+    /// by themselves).
+    pub rs485: crate::link::Rs485,
 }
 
 impl BusConfig {
@@ -55,6 +62,8 @@ impl BusConfig {
             echo: false,
             offline_after: 3,
             max_backoff: Duration::from_secs(30),
+            gap: None,
+            rs485: crate::link::Rs485::Off,
         }
     }
 }
@@ -195,6 +204,9 @@ impl Bus {
             if let Some(rt) = config.response_timeout {
                 timing.response_timeout = rt;
             }
+            if let Some(gap) = config.gap {
+                timing.min_gap = gap;
+            }
             timing
         };
         match config.protocol.as_str() {
@@ -233,6 +245,7 @@ impl Bus {
             config,
             stats: stats.clone(),
             health: health.clone(),
+            rx_buf: Vec::new(),
         };
         tokio::spawn(owner.run(crx, prx));
         Bus { commands: ctx, polls: ptx, stats, health, name }
@@ -280,6 +293,8 @@ struct Owner<L: Link, P: Protocol> {
     config: BusConfig,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
+    /// The read buffer, kept between exchanges.
+    rx_buf: Vec<u8>,
 }
 
 /// How a session's exchange ended, owned (the session's event borrows it).
@@ -416,7 +431,18 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         }
         let char_time = self.timing.char_time;
         let mut echo_left: Vec<u8> = Vec::new();
-        let mut buf = vec![0u8; 1024];
+        let mut buf = std::mem::take(&mut self.rx_buf);
+        buf.resize(1024, 0);
+        let result = self.exchange(&mut buf, &mut echo_left, char_time).await;
+        self.rx_buf = buf;
+        result
+    }
+
+    async fn exchange(&mut self, buf: &mut [u8], echo_left: &mut Vec<u8>, char_time: Duration) -> Attempt {
+        // One timer for the whole exchange, moved when the session's deadline moves.
+        let mut armed: Option<Instant> = None;
+        let sleep = tokio::time::sleep(Duration::from_secs(3600));
+        tokio::pin!(sleep);
         loop {
             let now = self.link.now();
             if let Some(bytes) = self.session.poll_transmit(now) {
@@ -427,7 +453,8 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                     s.wire_seconds += wire;
                 });
                 if self.config.echo {
-                    echo_left = bytes.clone();
+                    echo_left.clear();
+                    echo_left.extend_from_slice(&bytes);
                 }
                 if let Err(e) = self.link.write(&bytes).await {
                     return Attempt::Link(format!("{}: {e}", self.link.name()));
@@ -465,9 +492,12 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 };
             }
             let deadline = self.session.poll_timeout().unwrap_or(now + Duration::from_secs(1));
-            let sleep = tokio::time::sleep_until(self.link.clock().tokio(deadline));
+            if armed != Some(deadline) {
+                sleep.as_mut().reset(self.link.clock().tokio(deadline));
+                armed = Some(deadline);
+            }
             tokio::select! {
-                r = self.link.read(&mut buf) => match r {
+                r = self.link.read(buf) => match r {
                     Ok(n) => {
                         let now = self.link.now();
                         let mut input = &buf[..n];
@@ -484,7 +514,8 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                     }
                     Err(e) => return Attempt::Link(format!("{}: {e}", self.link.name())),
                 },
-                _ = sleep => {
+                _ = &mut sleep => {
+                    armed = None;
                     let now = self.link.now();
                     self.session.handle_timeout(now);
                 }

@@ -279,9 +279,16 @@ impl<P: Protocol> MasterSession<P> {
                 *deadline = floor;
             }
         }
+        let awaiting = matches!(self.state, MasterState::Awaiting { .. });
         let MasterSession { proto, deframer, state, rx, rx_len, stats, .. } = self;
         let mut sink = Sink { proto, state, rx: rx.as_mut(), rx_len, stats };
         deframer.push(bytes, &mut |e| sink.on_event(e));
+        if awaiting && matches!(self.state, MasterState::Done(_)) {
+            // The answer has been heard whole, so the request is off the line: the next one
+            // may follow the gap after the answer's last byte, also where the link (a pty, a
+            // TCP server) brought the answer sooner than the request's own wire time.
+            self.ready_at = quiet;
+        }
     }
 
     /// The line has been silent for t3.5 (Modbus RTU): the bytes held are a whole frame.

@@ -144,6 +144,13 @@ impl VirtualLine {
         self.format
     }
 
+    /// With `pacing` (the default) every character takes its wire time; without, characters
+    /// arrive the moment they are sent (collisions cannot happen then). For benchmarks of
+    /// the programs on the other side of a pty or TCP port.
+    pub fn set_pacing(&mut self, pacing: bool) {
+        self.char_time = if pacing { self.format.char_time(self.baud) } else { Duration::ZERO };
+    }
+
     /// One character's wire time.
     pub fn char_time(&self) -> Duration {
         self.char_time
@@ -532,6 +539,25 @@ mod tests {
         while let Some(t) = line.next_deadline() {
             line.advance_to(t);
         }
+    }
+
+    #[test]
+    fn without_pacing_bytes_arrive_at_once() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        line.set_pacing(false);
+        let (dev, heard, _) = echo(0);
+        line.add_device(Box::new(dev));
+        let t = Instant::from_millis(3);
+        line.master_write(t, &[1, 2, 3]);
+        line.advance_to(t);
+        assert_eq!(*heard.lock().unwrap(), vec![(t, vec![1, 2, 3])]);
+        assert_eq!(line.stats().collisions, 0);
+        // The echo answers at the silence, and it is at the master at that instant.
+        let silence = line.next_deadline().unwrap();
+        line.advance_to(silence);
+        let mut out = Vec::new();
+        line.master_read(&mut out);
+        assert_eq!(out, [1, 2, 3]);
     }
 
     #[test]

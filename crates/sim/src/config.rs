@@ -4,6 +4,7 @@
 //! baud = 9600          # optional: the first drive's family default
 //! serial = "8N1"       # optional: idem
 //! seed = 1             # fault injection seed
+//! pacing = true        # false: bytes take no wire time (benchmarks over a pty or TCP)
 //!
 //! [faults]             # optional
 //! corrupt_rate = 0.0   # probability a byte arrives with a bit flipped
@@ -57,6 +58,9 @@ pub struct BusSpec {
     pub drives: Vec<DriveSpec>,
     /// Faults to inject from the start.
     pub faults: Faults,
+    /// True (the default): every byte takes its wire time at `baud`. False: bytes arrive at
+    /// once, so a client over a pty or TCP is measured, not the virtual line.
+    pub pacing: bool,
     /// Seed for fault injection.
     pub seed: u64,
 }
@@ -174,6 +178,8 @@ struct FileBus {
     serial: Option<String>,
     #[serde(default = "one")]
     seed: u64,
+    #[serde(default = "yes")]
+    pacing: bool,
     #[serde(default)]
     faults: FileFaults,
     #[serde(default, rename = "drive")]
@@ -182,6 +188,10 @@ struct FileBus {
 
 fn one() -> u64 {
     1
+}
+
+fn yes() -> bool {
+    true
 }
 
 #[derive(Deserialize, Default)]
@@ -222,6 +232,7 @@ impl BusSpec {
             format: format.unwrap_or(df),
             drives,
             faults: Faults::default(),
+            pacing: true,
             seed: 1,
         };
         spec.check()?;
@@ -280,6 +291,7 @@ impl BusSpec {
             extra_latency: Duration::from_millis(raw.faults.extra_latency_ms),
         };
         bus.seed = raw.seed;
+        bus.pacing = raw.pacing;
         Ok(bus)
     }
 
@@ -304,6 +316,16 @@ impl BusSpec {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn pacing_defaults_on_and_can_be_switched_off() {
+        let on = BusSpec::from_toml("b.toml", "[[drive]]\nkind = \"generic\"\naddress = 1\n").unwrap();
+        assert!(on.pacing);
+        let off =
+            BusSpec::from_toml("b.toml", "pacing = false\n[[drive]]\nkind = \"generic\"\naddress = 1\n")
+                .unwrap();
+        assert!(!off.pacing);
+    }
+
     use super::*;
 
     #[test]

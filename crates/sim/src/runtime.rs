@@ -53,6 +53,7 @@ impl Simulator {
         let mut line = VirtualLine::new(bus.baud, bus.format, Instant::ZERO);
         line.set_faults(bus.faults);
         line.seed(bus.seed);
+        line.set_pacing(bus.pacing);
         let mut protocols: Vec<String> = Vec::new();
         for spec in &bus.drives {
             let mut drive = crate::family::build(spec, Instant::ZERO)?;

@@ -25,9 +25,9 @@ pub struct Target {
     /// virtual bus as KIND@ADDR[:PROTOCOL], repeated for more drives.
     #[arg(long = "drive", global = true, value_name = "FAMILY | KIND@ADDR[:PROTOCOL]")]
     pub drive: Vec<String>,
-    /// The drive's address.
-    #[arg(long, global = true)]
-    pub address: Option<u8>,
+    /// The drive's address (`monitor` takes several: --address 1 --address 2).
+    #[arg(long, global = true, action = clap::ArgAction::Append)]
+    pub address: Vec<u8>,
     /// The protocol: for `decode` the wire format (modbus-rtu, modbus-ascii, toshiba-ascii,
     /// toshiba-binary, danfoss-fc, b800); for a drive, where its family speaks several.
     #[arg(long, short = 'p', global = true)]
@@ -44,6 +44,17 @@ pub struct Target {
     /// Retries after a timeout or a damaged reply.
     #[arg(long, global = true, default_value_t = 2)]
     pub retries: u8,
+    /// Silence kept before each request, in milliseconds (default: the protocol's, e.g.
+    /// Modbus RTU t3.5); 0 for a pty or a TCP server with no RS-485 line behind it.
+    #[arg(long, global = true, value_name = "MS")]
+    pub gap: Option<f64>,
+    /// RS-485 direction control on a serial port: off (the adapter switches by itself, as
+    /// most USB-RS485 adapters do), auto (the kernel's RS-485 mode, else RTS), kernel, rts.
+    #[arg(long, global = true, value_name = "MODE", default_value = "off")]
+    pub rs485: String,
+    /// Discard the local echo of our own requests (2-wire adapters that hear themselves).
+    #[arg(long, global = true)]
+    pub echo: bool,
     /// Output JSON.
     #[arg(long, global = true)]
     pub json: bool,
@@ -130,7 +141,8 @@ pub fn link_failure(message: impl Into<String>) -> anyhow::Error {
     fail(EXIT_LINK, message)
 }
 
-fn classify(e: Error, target: &str) -> anyhow::Error {
+/// Turns a drive or bus error into a failure with its exit status, naming `target`.
+pub(crate) fn classify(e: Error, target: &str) -> anyhow::Error {
     match e {
         Error::Drive(DriveError::Refused { .. }) => fail(EXIT_REFUSED, format!("{target}: {e}")),
         Error::Drive(DriveError::Protocol(_)) => fail(EXIT_LINK, format!("{target}: {e}")),
@@ -139,16 +151,27 @@ fn classify(e: Error, target: &str) -> anyhow::Error {
     }
 }
 
-struct Resolved {
-    family: Family,
-    protocol: String,
-    address: u8,
-    port: String,
-    config: BusConfig,
-    label: String,
+/// The target options resolved: family, protocol, port and bus settings.
+pub(crate) struct Resolved {
+    pub(crate) family: Family,
+    pub(crate) protocol: String,
+    pub(crate) address: u8,
+    pub(crate) port: String,
+    pub(crate) config: BusConfig,
+    pub(crate) label: String,
 }
 
 fn resolve(t: &Target) -> Result<Resolved> {
+    let address = match t.address.as_slice() {
+        [one] => *one,
+        [] => return Err(fail(EXIT_USAGE, "say which drive: --address N")),
+        _ => return Err(fail(EXIT_USAGE, "give one --address: this command talks to one drive")),
+    };
+    resolve_for(t, address)
+}
+
+/// Resolves the target options for the drive at `address`.
+pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     let port = t.port.clone().ok_or_else(|| {
         fail(EXIT_USAGE, "say where the drive is: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
     })?;
@@ -160,7 +183,6 @@ fn resolve(t: &Target) -> Result<Resolved> {
     let family: Family = family_s.parse().map_err(|_| {
         fail(EXIT_USAGE, format!("unknown drive family {family_s:?}: use generic, toshiba, danfoss or b800"))
     })?;
-    let address = t.address.ok_or_else(|| fail(EXIT_USAGE, "say which drive: --address N"))?;
     let protocols = drivebus_sim::config::protocols(family);
     let protocol = match &t.protocol {
         Some(p) if protocols.contains(&p.as_str()) || (family == Family::Generic && p == "modbus-ascii") => {
@@ -188,6 +210,14 @@ fn resolve(t: &Target) -> Result<Resolved> {
     let mut config = BusConfig::new(&protocol, baud, format);
     config.retries = t.retries;
     config.response_timeout = t.timeout.map(Duration::from_millis);
+    config.rs485 = t.rs485.parse().map_err(|e: String| fail(EXIT_USAGE, format!("--rs485: {e}")))?;
+    config.echo = t.echo;
+    if let Some(gap) = t.gap {
+        if !(0.0..=1000.0).contains(&gap) {
+            return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));
+        }
+        config.gap = Some(Duration::from_secs_f64(gap / 1000.0));
+    }
     let label = format!("{family} drive {address} on {port}");
     Ok(Resolved { family, protocol, address, port, config, label })
 }
@@ -200,7 +230,8 @@ async fn connect(t: &Target) -> Result<(Drive, String)> {
     Ok((Drive::new(bus, profile), r.label))
 }
 
-fn runtime() -> Result<tokio::runtime::Runtime> {
+/// A single-threaded tokio runtime for one command.
+pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_current_thread().enable_all().build()?)
 }
 

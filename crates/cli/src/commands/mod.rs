@@ -3,6 +3,7 @@
 pub mod decode;
 pub mod drive;
 pub mod history;
+pub mod monitor;
 pub mod scan;
 pub mod serve;
 pub mod simulate;

@@ -25,6 +25,13 @@ pub struct SimulateArgs {
     /// Serve the HTTP/JSON control interface (faults, load, trips, state) on HOST:PORT.
     #[arg(long, value_name = "HOST:PORT")]
     pub control: Option<SocketAddr>,
+    /// Bytes take no wire time (for benchmarks of clients over a pty or TCP); the default
+    /// paces every byte at --baud.
+    #[arg(long)]
+    pub no_pacing: bool,
+    /// Every drive's response time in microseconds (default: 5 ms, or the bus file's).
+    #[arg(long, value_name = "US")]
+    pub response_us: Option<u64>,
     /// Print each frame decoded, one line each.
     #[arg(short, long)]
     pub verbose: bool,
@@ -57,6 +64,18 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) ->
         }
         None => BusSpec::new(extra, target.baud, format)?,
     };
+    let mut bus = bus;
+    if args.no_pacing {
+        bus.pacing = false;
+    }
+    if let Some(us) = args.response_us {
+        if us > 10_000_000 {
+            bail!("--response-us {us} is over 10 s (10000000)");
+        }
+        for d in &mut bus.drives {
+            d.response = std::time::Duration::from_micros(us);
+        }
+    }
     bus.check()?;
     bus.drives.iter().try_for_each(|d| d.check())?;
     Ok(bus)
@@ -70,15 +89,16 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
         _ => bail!("say where the master connects: --pty PATH or --tcp HOST:PORT"),
     };
     let bus = bus_spec(args, target)?;
-    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     rt.block_on(async move {
         let sim = Simulator::new(&bus)?;
         println!(
-            "drivebus simulate: {} drive{} at {} baud {}: {}",
+            "drivebus simulate: {} drive{} at {} baud {}{}: {}",
             bus.drives.len(),
             if bus.drives.len() == 1 { "" } else { "s" },
             bus.baud,
             bus.format,
+            if bus.pacing { "" } else { " (no pacing)" },
             bus.drives
                 .iter()
                 .map(|d| format!(

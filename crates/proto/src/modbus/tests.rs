@@ -1080,6 +1080,29 @@ fn session_min_gap_is_respected() {
     assert!(master.poll_transmit(t_rx + Duration::from_nanos(4_010_417)).is_some());
 }
 
+/// A pty or a TCP server can bring the reply sooner than the request's own wire time: the
+/// next request waits for the gap after the reply, not for the request's computed end.
+#[test]
+fn session_reply_sooner_than_the_wire_time_allows_the_next_request_after_the_gap() {
+    let mut timing = rtu::timing(9600, CharFormat::EVEN_8E1);
+    timing.min_gap = Duration::ZERO;
+    let mut master = MasterSession::new(ModbusRtu, timing);
+    let t0 = Instant::from_millis(0);
+    let req = Request {
+        unit: UnitId(1),
+        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
+    };
+    master.send(t0, &req).unwrap();
+    master.poll_transmit(t0).unwrap();
+    // 8 characters at 9600 8E1 take 9.2 ms; the echo is here after 50 us.
+    let t_rx = t0 + Duration::from_micros(50);
+    master.handle_input(t_rx, &h("01 06 FA 01 17 70 E6 C6"));
+    assert!(matches!(master.poll_event(), Some(MasterEvent::Reply(_))));
+    master.send(t_rx, &req).unwrap();
+    assert_eq!(master.poll_timeout(), Some(t_rx));
+    assert!(master.poll_transmit(t_rx).is_some());
+}
+
 #[test]
 fn session_broadcast_gets_no_reply() {
     let timing = rtu::timing(19200, CharFormat::EVEN_8E1);

@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# Modbus RTU clients over a raw pty, same simulator, same read, same run: drivebus (its bus
+# owner, crates/link/examples/pty_read.rs), pymodbus, libmodbus and tokio-modbus each read
+# 2 registers at 2100H from drive 1 in a tight loop for SECONDS; prints reads/s and latency.
+#
+#   bench/pty_clients.sh [SECONDS]        (default 5; ROUNDS=3 repeats the set)
+#
+# The simulator runs with --no-pacing --response-us 0 (a pty has no baud rate: bytes take no
+# wire time) so the clients are measured, not the virtual line; drivebus runs with --gap 0
+# (no RS-485 line behind a pty, so no t3.5 silence to keep). Needs gcc, python3; installs
+# libmodbus-dev (apt) and pymodbus (pip) when missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT=$PWD
+SECS=${1:-5}
+ROUNDS=${ROUNDS:-1}
+WORK=$(mktemp -d)
+SIM_PID=
+cleanup() {
+    if [ -n "$SIM_PID" ]; then kill "$SIM_PID" 2>/dev/null || true; wait "$SIM_PID" 2>/dev/null || true; fi
+    rm -rf "$WORK"
+}
+trap cleanup EXIT
+
+echo "building (release) ..." >&2
+cargo build --release -q -p drivebus
+cargo build --release -q -p drivebus-link --example pty_read
+CARGO_TARGET_DIR=$ROOT/target cargo build --release -q --manifest-path bench/clients/tokio-modbus-client/Cargo.toml
+if ! pkg-config --exists libmodbus 2>/dev/null; then
+    echo "installing libmodbus-dev ..." >&2
+    (apt-get install -y -q libmodbus-dev >/dev/null 2>&1) || (apt-get update -q >/dev/null && apt-get install -y -q libmodbus-dev >/dev/null)
+fi
+gcc -O2 -o "$WORK/libmodbus_client" bench/clients/libmodbus_client.c $(pkg-config --cflags --libs libmodbus)
+if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
+    echo "installing pymodbus ..." >&2
+    python3 -m pip install -q pymodbus pyserial 2>/dev/null || python3 -m pip install -q --break-system-packages pymodbus pyserial
+fi
+
+PTY=$WORK/pty
+"$ROOT/target/release/drivebus" simulate --drive generic@1:modbus-rtu --baud 115200 --serial 8N1 \
+    --no-pacing --response-us 0 --pty "$PTY" >"$WORK/sim.log" 2>&1 &
+SIM_PID=$!
+for _ in $(seq 50); do grep -q "listening on" "$WORK/sim.log" && break; sleep 0.1; done
+grep -q "listening on" "$WORK/sim.log" || { echo "the simulator did not start: $(cat "$WORK/sim.log")" >&2; exit 2; }
+
+RESULTS=$WORK/results
+for round in $(seq "$ROUNDS"); do
+    echo "round $round/$ROUNDS: $SECS s per client ..." >&2
+    "$ROOT/target/release/examples/pty_read" "$PTY" "$SECS" 0 >>"$RESULTS"
+    python3 bench/clients/pymodbus_client.py "$PTY" "$SECS" >>"$RESULTS"
+    "$WORK/libmodbus_client" "$PTY" "$SECS" >>"$RESULTS"
+    "$ROOT/target/release/tokio-modbus-client" "$PTY" "$SECS" >>"$RESULTS"
+done
+
+python3 - "$RESULTS" "$SECS" "$ROUNDS" <<'PY'
+import sys, statistics
+rows = {}
+for line in open(sys.argv[1]):
+    name, *kv = line.split()
+    rows.setdefault(name, []).append({k: float(v) for k, v in (x.split("=") for x in kv)})
+print(f"Modbus RTU over a pty, read 2 registers at 2100H from drive 1, {sys.argv[2]} s per client, "
+      f"{sys.argv[3]} round(s), median of rounds; simulator --no-pacing --response-us 0")
+print()
+print("| client | reads/s | p50 latency µs | p99 latency µs | errors |")
+print("|---|---:|---:|---:|---:|")
+med = {}
+for name, rs in rows.items():
+    m = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
+    med[name] = m
+    print(f"| {name} | {m['reads_per_s']:.0f} | {m['p50_us']:.0f} | {m['p99_us']:.0f} | {m['errors']:.0f} |")
+others = {k: v for k, v in med.items() if k != "drivebus"}
+if "drivebus" in med and others:
+    best = max(others, key=lambda k: others[k]["reads_per_s"])
+    ratio = med["drivebus"]["reads_per_s"] / max(others[best]["reads_per_s"], 1)
+    print()
+    print(f"drivebus / best other ({best}): {ratio:.2f}x (target >= 1.20x)")
+PY

@@ -1,0 +1,73 @@
+//! Reads 2 registers at 2100H from drive 1 (Modbus RTU) in a tight loop through the bus owner
+//! for a number of seconds, and prints reads/s and latency percentiles: the drivebus client of
+//! `bench/pty_clients.sh`.
+//!
+//! ```text
+//! cargo run --release -p drivebus-link --example pty_read -- PORT SECONDS [GAP_MS]
+//! ```
+
+use std::time::{Duration, Instant};
+
+use drivebus_drive::profile::Exchange;
+use drivebus_link::drive::open_with;
+use drivebus_link::{BusConfig, Priority};
+use drivebus_proto::checksum::crc16_modbus;
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let (Some(port), Some(secs)) = (args.get(1), args.get(2).and_then(|s| s.parse::<f64>().ok())) else {
+        eprintln!("usage: pty_read PORT SECONDS [GAP_MS]");
+        std::process::exit(3);
+    };
+    let gap_ms = args.get(3).and_then(|s| s.parse::<f64>().ok()).unwrap_or(0.0);
+    let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("pty_read: cannot start a runtime: {e}");
+            std::process::exit(2);
+        }
+    };
+    let result = rt.block_on(async {
+        let mut config = BusConfig::new("modbus-rtu", 115_200, "8N1".parse().map_err(|e| format!("{e}"))?);
+        config.gap = Some(Duration::from_secs_f64(gap_ms / 1000.0));
+        config.retries = 0;
+        config.response_timeout = Some(Duration::from_millis(500));
+        let bus = open_with(port, config).await.map_err(|e| e.to_string())?;
+        let mut request = vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02];
+        let crc = crc16_modbus(&request);
+        request.extend_from_slice(&crc.to_le_bytes());
+        let mut latencies = Vec::with_capacity(1 << 20);
+        let mut errors = 0u64;
+        let start = Instant::now();
+        let end = start + Duration::from_secs_f64(secs);
+        while Instant::now() < end {
+            let t0 = Instant::now();
+            let ex = Exchange { request: request.clone(), expect_reply: true };
+            match bus.transact(1, ex, Priority::Command, None).await {
+                Ok(Some(reply)) if reply.len() == 9 && reply[2] == 4 => latencies.push(t0.elapsed()),
+                _ => errors += 1,
+            }
+        }
+        Ok::<_, String>((latencies, errors, start.elapsed()))
+    });
+    match result {
+        Ok((mut lat, errors, elapsed)) => {
+            lat.sort();
+            let pct = |p: f64| lat.get(((lat.len() as f64 * p) as usize).min(lat.len().saturating_sub(1)));
+            let us = |d: Option<&Duration>| d.map_or(0.0, |d| d.as_secs_f64() * 1e6);
+            println!(
+                "drivebus reads={} errors={} seconds={:.2} reads_per_s={:.0} p50_us={:.1} p99_us={:.1}",
+                lat.len(),
+                errors,
+                elapsed.as_secs_f64(),
+                lat.len() as f64 / elapsed.as_secs_f64(),
+                us(pct(0.50)),
+                us(pct(0.99)),
+            );
+        }
+        Err(e) => {
+            eprintln!("pty_read: {e}");
+            std::process::exit(2);
+        }
+    }
+}

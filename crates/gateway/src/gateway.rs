@@ -402,6 +402,8 @@ pub struct Counters {
     pub commands_failed: AtomicU64,
     /// Events that could not be written to the store.
     pub store_errors: AtomicU64,
+    /// The front ends' own counts (HTTP, Modbus TCP, MQTT).
+    pub front_ends: crate::metrics::FrontEndMetrics,
 }
 
 /// The gateway.
@@ -796,7 +798,7 @@ impl Gateway {
                     s.last_error = Some(e.to_string());
                     // A drive the bus owner still counts as online had one bad poll; offline is
                     // the owner's verdict after several in a row (or a dead port).
-                    let health_online = bus.bus.health().get(&d.config.address).is_none_or(|h| h.online);
+                    let health_online = bus.bus.health().get(&d.config.address).map_or(true, |h| h.online);
                     if !health_online || link_down {
                         if was_online != Some(false) {
                             events.push(event(EventKind::Offline, json!({ "error": e.to_string() })));

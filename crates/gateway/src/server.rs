@@ -35,6 +35,9 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
     let router = crate::http::router(gw.clone());
     let http_task = tokio::spawn(async move { axum::serve(http, router).await });
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
+    if let Some(m) = &cfg.mqtt {
+        crate::mqtt::spawn(gw.clone(), m)?;
+    }
     ready(&bound);
     let stop = async {
         let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the interop tests use as witnesses:
-# pymodbus (PyPI) and mbpoll (Debian). Idempotent.
+# pymodbus (PyPI), mbpoll and mosquitto (Debian). Idempotent.
 set -euo pipefail
 if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
   python3 -m pip install --quiet pymodbus pyserial
@@ -10,5 +10,13 @@ if ! command -v mbpoll >/dev/null; then
   [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get install -y -q mbpoll >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mbpoll >/dev/null; }
 fi
+# The MQTT broker the gateway's MQTT test starts on a free port (crates/gateway/tests/mqtt_mosquitto.rs).
+if ! command -v mosquitto >/dev/null && [ ! -x /usr/sbin/mosquitto ]; then
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get install -y -q mosquitto >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mosquitto >/dev/null; }
+fi
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 mbpoll -V 2>&1 | head -n 1
+MOSQUITTO="$(command -v mosquitto || echo /usr/sbin/mosquitto)"
+"$MOSQUITTO" -h 2>&1 | sed -n 1p || true  # -h exits 3 after printing its version

@@ -40,6 +40,9 @@ pub const MIN_INTERVAL: Duration = Duration::from_secs(1);
 /// Largest command payload accepted, bytes.
 pub const MAX_COMMAND_PAYLOAD: usize = 256;
 
+/// Most MQTT commands in progress at once; more are refused (`busy`) rather than queued.
+pub const MAX_COMMANDS_IN_FLIGHT: usize = 32;
+
 /// `(host, port)` of an `mqtt://HOST[:PORT]` URL; an error names what is wrong.
 pub fn parse_url(url: &str) -> Result<(String, u16), String> {
     let rest = url.strip_prefix("mqtt://").ok_or_else(|| format!("{url:?}: use mqtt://HOST:PORT"))?;
@@ -241,6 +244,7 @@ struct Publisher {
     s: Arc<Settings>,
     client: AsyncClient,
     connected: bool,
+    in_flight: Arc<tokio::sync::Semaphore>,
 }
 
 impl Publisher {
@@ -365,7 +369,10 @@ impl Publisher {
 
     fn on_message(&self, p: Publish) {
         let Some((topic, drive, cmd, verdict)) = self.check(&p) else { return };
-        let command = match verdict {
+        let permit = self.in_flight.clone().try_acquire_owned().map_err(|_| {
+            refuse("busy", format!("{MAX_COMMANDS_IN_FLIGHT} MQTT commands are in progress: try again"))
+        });
+        let (command, permit) = match verdict.and_then(|c| permit.map(|p| (c, p))) {
             Ok(c) => c,
             Err(r) => {
                 let body =
@@ -377,6 +384,7 @@ impl Publisher {
         let (gw, client) = (self.gw.clone(), self.client.clone());
         let actor = format!("mqtt:{}", self.s.client_id);
         tokio::spawn(async move {
+            let _permit = permit;
             let result = gw.command(&drive, command, &actor).await;
             let error = result
                 .as_ref()
@@ -503,7 +511,13 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
         }
     });
 
-    let mut p = Publisher { gw: gw.clone(), s, client, connected: false };
+    let mut p = Publisher {
+        gw: gw.clone(),
+        s,
+        client,
+        connected: false,
+        in_flight: Arc::new(tokio::sync::Semaphore::new(MAX_COMMANDS_IN_FLIGHT)),
+    };
     let mut changes = gw.subscribe();
     let mut throttle: HashMap<String, Throttle> = HashMap::new();
     let mut tick = tokio::time::interval(Duration::from_millis(250));

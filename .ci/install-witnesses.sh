@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the interop tests use as witnesses:
-# pymodbus (PyPI), mbpoll and curl (Debian) and, for the dashboard's browser test, Debian's chromium and
-# chromium-driver (chromedriver). Idempotent.
+# pymodbus (PyPI), mbpoll, curl and mosquitto (Debian) and, for the dashboard's browser test, Debian's
+# chromium and chromium-driver (chromedriver). Idempotent.
 set -euo pipefail
 if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
   python3 -m pip install --quiet pymodbus pyserial
@@ -23,8 +23,16 @@ if ! command -v chromedriver >/dev/null || ! { command -v chromium >/dev/null ||
   [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q chromium chromium-driver >/dev/null; }
 fi
+# The MQTT broker the gateway's MQTT test starts on a free port (crates/gateway/tests/mqtt_mosquitto.rs).
+if ! command -v mosquitto >/dev/null && [ ! -x /usr/sbin/mosquitto ]; then
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get install -y -q mosquitto >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mosquitto >/dev/null; }
+fi
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
 (chromium --version 2>/dev/null || chromium-browser --version) | head -n 1
 chromedriver --version | head -n 1
+MOSQUITTO="$(command -v mosquitto || echo /usr/sbin/mosquitto)"
+"$MOSQUITTO" -h 2>&1 | sed -n 1p || true  # -h exits 3 after printing its version

@@ -18,6 +18,10 @@
 //! [store]
 //! path = "drivebus.db"
 //!
+//! [mqtt]                                # optional (docs/mqtt.md)
+//! url = "mqtt://127.0.0.1:1883"
+//! allow_commands = ["line-1/*/stop"]    # command topics accepted: <bus>/<drive>/<command>, * = any
+//!
 //! [[token]]
 //! name = "scada"
 //! token = "change-me-0123456789"
@@ -229,10 +233,10 @@ pub struct Linkage {
     pub offset_hz: f64,
 }
 
-/// MQTT publishing.
+/// MQTT publishing (docs/mqtt.md).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MqttConfig {
-    /// `mqtt://HOST:PORT`.
+    /// `mqtt://HOST[:PORT]` (port 1883 when not given).
     pub url: String,
     /// Topic root (default `drivebus/<gateway>`).
     pub topic_prefix: Option<String>,
@@ -241,7 +245,8 @@ pub struct MqttConfig {
     /// Command topics accepted, as `<bus>/<drive>/<command>` patterns where `*` matches one level
     /// (empty: none).
     pub allow_commands: Vec<String>,
-    /// Token whose role authorizes MQTT commands (commands need a write token configured).
+    /// The MQTT client id (default `drivebus-<gateway>`); commands are audited as
+    /// `mqtt:<client id>`.
     pub client_id: Option<String>,
 }
 
@@ -343,12 +348,12 @@ struct FileLinkage {
 #[serde(deny_unknown_fields)]
 struct FileMqtt {
     url: Spanned<String>,
-    topic_prefix: Option<String>,
+    topic_prefix: Option<Spanned<String>>,
     #[serde(default)]
     discovery: bool,
     #[serde(default)]
-    allow_commands: Vec<String>,
-    client_id: Option<String>,
+    allow_commands: Vec<Spanned<String>>,
+    client_id: Option<Spanned<String>>,
 }
 
 struct Ctx<'a> {
@@ -609,15 +614,35 @@ impl GatewayConfig {
         let mqtt = match raw.mqtt {
             None => None,
             Some(m) => {
-                if !m.url.get_ref().starts_with("mqtt://") {
-                    return cx.err(m.url.span(), "mqtt.url", "use mqtt://HOST:PORT");
+                if let Err(e) = crate::mqtt::parse_url(m.url.get_ref()) {
+                    return cx.err(m.url.span(), "mqtt.url", e);
+                }
+                if let Some(p) = &m.topic_prefix {
+                    if let Err(e) = crate::mqtt::check_prefix(p.get_ref()) {
+                        return cx.err(p.span(), "mqtt.topic_prefix", e);
+                    }
+                }
+                for a in &m.allow_commands {
+                    if let Err(e) = crate::mqtt::Pattern::parse(a.get_ref()) {
+                        return cx.err(a.span(), "mqtt.allow_commands", e);
+                    }
+                }
+                if let Some(c) = &m.client_id {
+                    let c = c.get_ref();
+                    if c.is_empty() || c.len() > 64 || c.contains(['+', '#', '/']) {
+                        return cx.err(
+                            m.client_id.as_ref().map_or(m.url.span(), |c| c.span()),
+                            "mqtt.client_id",
+                            "use 1 to 64 characters without +, # or /",
+                        );
+                    }
                 }
                 Some(MqttConfig {
                     url: m.url.get_ref().clone(),
-                    topic_prefix: m.topic_prefix,
+                    topic_prefix: m.topic_prefix.map(|p| p.into_inner()),
                     discovery: m.discovery,
-                    allow_commands: m.allow_commands,
-                    client_id: m.client_id,
+                    allow_commands: m.allow_commands.into_iter().map(|a| a.into_inner()).collect(),
+                    client_id: m.client_id.map(|c| c.into_inner()),
                 })
             }
         };
@@ -681,6 +706,24 @@ mod tests {
         assert_eq!(e, "plant.toml:3: field `token.token`: a token needs at least 16 characters");
         let e = err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n");
         assert_eq!(e, "plant.toml:2: field `linkage.leader`: no drive is named \"a\"");
+    }
+
+    #[test]
+    fn mqtt_settings_are_checked() {
+        let ok = GatewayConfig::from_toml(
+            "p.toml",
+            "[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"line-1/*/stop\", \"*/*/*\"]\n",
+        )
+        .unwrap();
+        assert_eq!(ok.mqtt.unwrap().allow_commands.len(), 2);
+        let e = err("[mqtt]\nurl = \"tcp://x:1883\"\n");
+        assert!(e.starts_with("plant.toml:2: field `mqtt.url`: "), "{e}");
+        let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\n  \"line-1/*\",\n]\n");
+        assert!(e.starts_with("plant.toml:4: field `mqtt.allow_commands`: "), "{e}");
+        let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\"a/b/start\"]\n");
+        assert!(e.contains("start"), "{e}");
+        let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\ntopic_prefix = \"plant/#\"\n");
+        assert!(e.starts_with("plant.toml:3: field `mqtt.topic_prefix`: "), "{e}");
     }
 
     #[test]

@@ -402,6 +402,8 @@ pub struct Counters {
     pub commands_failed: AtomicU64,
     /// Events that could not be written to the store.
     pub store_errors: AtomicU64,
+    /// The front ends' own counts (HTTP, Modbus TCP, MQTT).
+    pub front_ends: crate::metrics::FrontEndMetrics,
 }
 
 /// The gateway.

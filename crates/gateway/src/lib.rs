@@ -19,7 +19,9 @@
 pub mod config;
 pub mod gateway;
 pub mod http;
+pub mod metrics;
 pub mod modbus_tcp;
+pub mod mqtt;
 pub mod port;
 pub mod server;
 

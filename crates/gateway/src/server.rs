@@ -37,6 +37,9 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
         axum::serve(http, router.into_make_service_with_connect_info::<SocketAddr>()).await
     });
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
+    if let Some(m) = &cfg.mqtt {
+        crate::mqtt::spawn(gw.clone(), m)?;
+    }
     ready(&bound);
     let stop = async {
         let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();

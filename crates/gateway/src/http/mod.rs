@@ -67,7 +67,9 @@ pub fn router(gw: Arc<Gateway>) -> Router {
     let max_body = gw.config().http.max_body;
     api_routes()
         .merge(dashboard::routes())
+        .merge(crate::metrics::routes())
         .fallback(api::fallback)
+        .layer(middleware::from_fn_with_state(gw.clone(), crate::metrics::track))
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::map_response(json_errors))
         .layer(middleware::from_fn_with_state(gw.clone(), guard))

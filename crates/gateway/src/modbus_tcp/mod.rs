@@ -271,14 +271,19 @@ impl Server {
                     break;
                 }
                 let frame = &buf[pos..pos + total];
+                let mut mark = out.len();
                 if !self.answer_cached(frame, &mut out) {
                     // The drive's answer takes a bus transaction: send the answers before it first.
                     if !out.is_empty() {
                         sock.write_all(&out).await?;
                         out.clear();
                     }
+                    mark = 0;
                     self.answer_drive(&mut conn, frame, &mut out).await;
                 }
+                // The answer's function code has bit 7 set for an exception.
+                let exception = out.get(mark + 7).is_some_and(|f| f & 0x80 != 0);
+                self.gw.counters.front_ends.modbus_request(frame[7], exception);
                 pos += total;
             }
             if !out.is_empty() {

@@ -1,0 +1,318 @@
+//! `GET /metrics`: the gateway for Prometheus (OpenMetrics text, `prometheus-client`).
+//!
+//! Drive and bus series are read from the cache and the bus owners at each scrape (nothing is
+//! polled for a scrape); the gateway's own counts (HTTP requests and latencies, Modbus TCP
+//! requests, MQTT publishes) accumulate in [`FrontEndMetrics`], held by
+//! [`Counters::front_ends`](crate::gateway::Counters::front_ends). docs/metrics.md lists the
+//! series.
+//!
+//! HTTP requests are counted by [`track`], an axum middleware:
+//!
+//! ```ignore
+//! router.layer(axum::middleware::from_fn_with_state(gw.clone(), drivebus_gateway::metrics::track))
+//! ```
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::extract::{MatchedPath, Request, State};
+use axum::http::{header, StatusCode};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use prometheus_client::encoding::text::encode;
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
+use prometheus_client::registry::{Registry, Unit};
+
+use crate::gateway::Gateway;
+
+/// The content type of the exposition.
+pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
+
+/// Labels of an HTTP request count.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct HttpLabels {
+    /// The route's pattern (`/api/drives/:id`), or `unmatched`.
+    pub route: String,
+    /// `GET`, `POST`, ...
+    pub method: String,
+    /// The response's status code.
+    pub status: u16,
+}
+
+/// Labels of an HTTP latency.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct RouteLabels {
+    /// The route's pattern, or `unmatched`.
+    pub route: String,
+}
+
+/// Labels of a Modbus TCP request count.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ModbusLabels {
+    /// The function code (decimal).
+    pub function: u8,
+    /// `ok`, or `exception` when the answer was an exception.
+    pub result: &'static str,
+}
+
+/// Labels of an MQTT publish count.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct MqttLabels {
+    /// `status`, `event`, `result`, `availability` or `discovery`.
+    pub kind: &'static str,
+}
+
+type LatencyFamily = Family<RouteLabels, Histogram, fn() -> Histogram>;
+
+fn latency_histogram() -> Histogram {
+    // 0.5 ms .. 8 s.
+    Histogram::new(exponential_buckets(0.0005, 4.0, 8))
+}
+
+/// The front ends' own counts (HTTP, Modbus TCP, MQTT), shared with every scrape.
+#[derive(Debug)]
+pub struct FrontEndMetrics {
+    http_requests: Family<HttpLabels, Counter>,
+    http_latency: LatencyFamily,
+    modbus_requests: Family<ModbusLabels, Counter>,
+    mqtt_publishes: Family<MqttLabels, Counter>,
+    mqtt_connections: Counter,
+}
+
+impl Default for FrontEndMetrics {
+    fn default() -> Self {
+        FrontEndMetrics {
+            http_requests: Family::default(),
+            http_latency: Family::new_with_constructor(latency_histogram as fn() -> Histogram),
+            modbus_requests: Family::default(),
+            mqtt_publishes: Family::default(),
+            mqtt_connections: Counter::default(),
+        }
+    }
+}
+
+impl FrontEndMetrics {
+    /// Counts an HTTP request that `route` answered with `status` after `seconds`.
+    pub fn http_request(&self, route: &str, method: &str, status: u16, seconds: f64) {
+        self.http_requests
+            .get_or_create(&HttpLabels { route: route.to_string(), method: method.to_string(), status })
+            .inc();
+        self.http_latency.get_or_create(&RouteLabels { route: route.to_string() }).observe(seconds);
+    }
+
+    /// Counts a Modbus TCP request with function code `function`; `exception` when it was
+    /// answered with an exception. For modbus_tcp.rs:
+    /// `gw.counters.front_ends.modbus_request(fc, exception.is_some())`.
+    pub fn modbus_request(&self, function: u8, exception: bool) {
+        let result = if exception { "exception" } else { "ok" };
+        self.modbus_requests.get_or_create(&ModbusLabels { function, result }).inc();
+    }
+
+    /// Counts an MQTT message handed to the client (`kind` as in [`MqttLabels`]).
+    pub fn mqtt_published(&self, kind: &'static str) {
+        self.mqtt_publishes.get_or_create(&MqttLabels { kind }).inc();
+    }
+
+    /// Counts a (re)connection to the MQTT broker.
+    pub fn mqtt_connected(&self) {
+        self.mqtt_connections.inc();
+    }
+
+    /// MQTT messages of `kind` handed to the client so far.
+    pub fn mqtt_publishes(&self, kind: &'static str) -> u64 {
+        self.mqtt_publishes.get_or_create(&MqttLabels { kind }).get()
+    }
+}
+
+/// Labels of a drive's series.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct DriveLabels {
+    bus: String,
+    drive: String,
+    family: String,
+}
+
+/// Labels of a bus's series.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct BusLabels {
+    bus: String,
+}
+
+/// Labels of the command count.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct ResultLabels {
+    result: &'static str,
+}
+
+type F64Gauge = Gauge<f64, std::sync::atomic::AtomicU64>;
+
+/// `GET /metrics`, to merge into the HTTP router.
+pub fn routes() -> Router<Arc<Gateway>> {
+    Router::new().route("/metrics", get(scrape))
+}
+
+async fn scrape(State(gw): State<Arc<Gateway>>) -> Response {
+    match render(&gw) {
+        Ok(text) => ([(header::CONTENT_TYPE, CONTENT_TYPE)], text).into_response(),
+        Err(e) => (
+            StatusCode::INTERNAL_SERVER_ERROR,
+            axum::Json(serde_json::json!({ "error": { "kind": "internal", "message": e } })),
+        )
+            .into_response(),
+    }
+}
+
+/// The exposition now, as `GET /metrics` serves it.
+pub fn render(gw: &Gateway) -> Result<String, String> {
+    let mut reg = Registry::with_prefix("drivebus");
+
+    // Per drive.
+    let output_hz = Family::<DriveLabels, F64Gauge>::default();
+    let setpoint_hz = Family::<DriveLabels, F64Gauge>::default();
+    let current_a = Family::<DriveLabels, F64Gauge>::default();
+    let running = Family::<DriveLabels, Gauge>::default();
+    let fault_code = Family::<DriveLabels, Gauge>::default();
+    let online = Family::<DriveLabels, Gauge>::default();
+    let age = Family::<DriveLabels, F64Gauge>::default();
+    let polls = Family::<DriveLabels, Counter>::default();
+    let poll_errors = Family::<DriveLabels, Counter>::default();
+    for d in gw.drives() {
+        let l = DriveLabels {
+            bus: d.bus.clone(),
+            drive: d.config.name.clone(),
+            family: d.config.family.as_str().to_string(),
+        };
+        let v = gw.drive_view(d);
+        let (n, errors, updated) = d.with_state(|s| (s.polls, s.poll_errors, s.updated));
+        polls.get_or_create(&l).inc_by(n);
+        poll_errors.get_or_create(&l).inc_by(errors);
+        // A value the drive has not given yet is absent, not zero.
+        if let Some(x) = v.output_hz {
+            output_hz.get_or_create(&l).set(x);
+        }
+        if let Some(x) = v.setpoint_hz {
+            setpoint_hz.get_or_create(&l).set(x);
+        }
+        if let Some(x) = v.current_a {
+            current_a.get_or_create(&l).set(x);
+        }
+        if let Some(x) = v.running {
+            running.get_or_create(&l).set(i64::from(x));
+        }
+        if v.online.is_some() || v.running.is_some() {
+            fault_code.get_or_create(&l).set(v.fault.as_ref().map_or(0, |f| i64::from(f.code)));
+        }
+        if let Some(x) = v.online {
+            online.get_or_create(&l).set(i64::from(x));
+        }
+        if let Some(t) = updated {
+            age.get_or_create(&l).set(t.elapsed().as_secs_f64());
+        }
+    }
+    reg.register("drive_output_hz", "Output frequency, Hz", output_hz);
+    reg.register(
+        "drive_setpoint_hz",
+        "Speed setpoint, Hz (the last commanded where the drive does not tell)",
+        setpoint_hz,
+    );
+    reg.register("drive_current_a", "Motor current, A", current_a);
+    reg.register("drive_running", "1 when the output is on", running);
+    reg.register("drive_fault_code", "The drive's code of the fault in force, 0 when none", fault_code);
+    reg.register("drive_online", "1 when the drive answers its polls", online);
+    reg.register_with_unit("drive_data_age", "Age of the cached values", Unit::Seconds, age);
+    reg.register("drive_polls", "Status polls made", polls);
+    reg.register("drive_poll_errors", "Status polls that failed", poll_errors);
+
+    // Per bus.
+    let transactions = Family::<BusLabels, Counter>::default();
+    let replies = Family::<BusLabels, Counter>::default();
+    let timeouts = Family::<BusLabels, Counter>::default();
+    let checksum = Family::<BusLabels, Counter>::default();
+    let retries = Family::<BusLabels, Counter>::default();
+    let utilization = Family::<BusLabels, F64Gauge>::default();
+    let bus_online = Family::<BusLabels, Gauge>::default();
+    for b in gw.buses() {
+        let l = BusLabels { bus: b.config.name.clone() };
+        let s = b.stats();
+        transactions.get_or_create(&l).inc_by(s.transactions);
+        replies.get_or_create(&l).inc_by(s.replies);
+        timeouts.get_or_create(&l).inc_by(s.timeouts);
+        checksum.get_or_create(&l).inc_by(s.checksum_errors);
+        retries.get_or_create(&l).inc_by(s.retries);
+        let u = s.utilization();
+        utilization.get_or_create(&l).set(if u.is_finite() { u } else { 0.0 });
+        bus_online.get_or_create(&l).set(i64::from(b.online()));
+    }
+    reg.register("bus_transactions", "Requests sent, retries included", transactions);
+    reg.register("bus_replies", "Replies received", replies);
+    reg.register("bus_timeouts", "Requests not answered in time", timeouts);
+    reg.register("bus_checksum_errors", "Damaged replies", checksum);
+    reg.register("bus_retries", "Retries after a timeout or a damaged reply", retries);
+    reg.register("bus_utilization", "Time on the wire over time elapsed (0..1)", utilization);
+    reg.register("bus_online", "1 unless the bus's port failed", bus_online);
+
+    // The gateway's own work.
+    let c = &gw.counters;
+    let commands = Family::<ResultLabels, Counter>::default();
+    commands.get_or_create(&ResultLabels { result: "ok" }).inc_by(c.commands_ok.load(Ordering::Relaxed));
+    commands
+        .get_or_create(&ResultLabels { result: "failed" })
+        .inc_by(c.commands_failed.load(Ordering::Relaxed));
+    reg.register("commands", "Commands confirmed by a drive (ok) or refused or failed", commands);
+    let store_errors = Counter::<u64>::default();
+    store_errors.inc_by(c.store_errors.load(Ordering::Relaxed));
+    reg.register("store_errors", "Events that could not be written to the store", store_errors);
+    let f = &c.front_ends;
+    reg.register(
+        "http_requests",
+        "HTTP requests answered, by route, method and status",
+        f.http_requests.clone(),
+    );
+    reg.register_with_unit(
+        "http_request_duration",
+        "Time to the response's head, by route",
+        Unit::Seconds,
+        f.http_latency.clone(),
+    );
+    reg.register(
+        "modbus_requests",
+        "Modbus TCP requests, by function code and result",
+        f.modbus_requests.clone(),
+    );
+    reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
+    reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
+
+    let mut out = String::new();
+    encode(&mut out, &reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
+    Ok(out)
+}
+
+/// Axum middleware counting each HTTP request by route, method and status, with its latency.
+/// Wire it with `Router::layer(axum::middleware::from_fn_with_state(gw, track))` after the
+/// routes so the matched route is known.
+pub async fn track(State(gw): State<Arc<Gateway>>, req: Request, next: Next) -> Response {
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_string(), |p| p.as_str().to_string());
+    let method = match req.method().as_str() {
+        m @ ("GET" | "HEAD" | "POST" | "PUT" | "PATCH" | "DELETE" | "OPTIONS") => m.to_string(),
+        _ => "other".to_string(),
+    };
+    let start = Instant::now();
+    let response = next.run(req).await;
+    gw.counters.front_ends.http_request(
+        &route,
+        &method,
+        response.status().as_u16(),
+        start.elapsed().as_secs_f64(),
+    );
+    response
+}

@@ -1,0 +1,604 @@
+//! MQTT: the gateway's drives on a broker (rumqttc), and commands from it.
+//!
+//! ```text
+//! <prefix>/status                          online | offline (retained; offline is the last will)
+//! <prefix>/<bus>/<drive>/status            the drive's DriveView as JSON (retained)
+//! <prefix>/<bus>/<drive>/events            each event of the drive as JSON
+//! <prefix>/<bus>/<drive>/set/<command>     run | stop | reverse | jog | reset | speed (40 or {"hz":40})
+//! <prefix>/<bus>/<drive>/result            {"command", "ok", "error"} for each command received
+//! ```
+//!
+//! The prefix is `drivebus/<gateway name>` unless configured. A drive's status is published
+//! when it changes, at most once a second, except that a change of running state, fault or
+//! link health is published at once; the latest value held back is published when its second
+//! is over. Commands go through [`Gateway::command`] (actor `mqtt:<client id>`) only where a
+//! `allow_commands` pattern matches; every other command topic gets a result saying why and
+//! reaches no drive. At each (re)connection the gateway says it is online, subscribes to its
+//! command topics, and publishes every drive's latest status (and the Home Assistant discovery
+//! messages when configured), so a broker that restarted empty has the whole state again.
+//! docs/mqtt.md is the user's description.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, Publish, QoS};
+use serde_json::{json, Value};
+use tokio::sync::{broadcast, mpsc};
+use tokio::time::Instant;
+
+use crate::config::MqttConfig;
+use crate::gateway::{Change, Command, CommandError, DriveView, Gateway};
+
+/// The commands accepted on `set/<command>` topics.
+pub const COMMANDS: [&str; 6] = ["run", "stop", "reverse", "jog", "reset", "speed"];
+
+/// A drive's status is published at most this often unless its running state, fault or link
+/// health changed.
+pub const MIN_INTERVAL: Duration = Duration::from_secs(1);
+
+/// Largest command payload accepted, bytes.
+pub const MAX_COMMAND_PAYLOAD: usize = 256;
+
+/// Most MQTT commands in progress at once; more are refused (`busy`) rather than queued.
+pub const MAX_COMMANDS_IN_FLIGHT: usize = 32;
+
+/// `(host, port)` of an `mqtt://HOST[:PORT]` URL; an error names what is wrong.
+pub fn parse_url(url: &str) -> Result<(String, u16), String> {
+    let rest = url.strip_prefix("mqtt://").ok_or_else(|| format!("{url:?}: use mqtt://HOST:PORT"))?;
+    let rest = rest.strip_suffix('/').unwrap_or(rest);
+    if rest.is_empty() || rest.contains(['/', '@', '?', '#']) {
+        return Err(format!("{url:?}: use mqtt://HOST:PORT"));
+    }
+    // [v6]:port, host:port, or a host alone.
+    let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
+        let (h, p) = v6.split_once(']').ok_or_else(|| format!("{url:?}: unclosed [ in the host"))?;
+        (h, p.strip_prefix(':'))
+    } else {
+        match rest.rsplit_once(':') {
+            Some((h, p)) => (h, Some(p)),
+            None => (rest, None),
+        }
+    };
+    if host.is_empty() {
+        return Err(format!("{url:?}: no host"));
+    }
+    let port = match port {
+        None => 1883,
+        Some(p) => {
+            p.parse::<u16>().ok().filter(|&p| p > 0).ok_or_else(|| format!("{url:?}: bad port {p:?}"))?
+        }
+    };
+    Ok((host.to_string(), port))
+}
+
+/// Checks a configured topic prefix: levels without wildcards, no leading or trailing `/`.
+pub fn check_prefix(prefix: &str) -> Result<(), String> {
+    if prefix.is_empty() || prefix.starts_with('/') || prefix.ends_with('/') || prefix.contains("//") {
+        return Err(format!("{prefix:?}: give levels separated by / (e.g. plant/hall-1)"));
+    }
+    if prefix.contains(['+', '#', '\0']) {
+        return Err(format!("{prefix:?}: + and # are wildcards, not allowed in a topic"));
+    }
+    Ok(())
+}
+
+/// The default topic prefix of gateway `name`: `drivebus/<name>` with every character other
+/// than letters, digits, `-`, `_` and `.` replaced by `_`.
+pub fn default_prefix(name: &str) -> String {
+    format!("drivebus/{}", safe_level(name))
+}
+
+fn safe_level(s: &str) -> String {
+    let s: String = s
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.') { c } else { '_' })
+        .collect();
+    if s.is_empty() {
+        "_".into()
+    } else {
+        s
+    }
+}
+
+/// An `allow_commands` pattern: `<bus>/<drive>/<command>`, `*` matching any one level.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Pattern([String; 3]);
+
+impl Pattern {
+    /// Parses a pattern; an error says what is wrong.
+    pub fn parse(s: &str) -> Result<Pattern, String> {
+        let parts: Vec<&str> = s.split('/').collect();
+        if parts.len() != 3 || parts.iter().any(|p| p.is_empty()) {
+            return Err(format!("{s:?}: use <bus>/<drive>/<command>, * for any (e.g. line-1/*/stop)"));
+        }
+        if parts.iter().any(|p| *p != "*" && p.contains(['*', '+', '#'])) {
+            return Err(format!("{s:?}: * stands alone for a whole level; + and # are not used"));
+        }
+        if parts[2] != "*" && !COMMANDS.contains(&parts[2]) {
+            return Err(format!("{s:?}: no command {:?}: use {} or *", parts[2], COMMANDS.join(", ")));
+        }
+        Ok(Pattern([parts[0].to_string(), parts[1].to_string(), parts[2].to_string()]))
+    }
+
+    /// Whether the pattern allows `command` on `drive` of `bus`.
+    pub fn matches(&self, bus: &str, drive: &str, command: &str) -> bool {
+        self.0.iter().zip([bus, drive, command]).all(|(p, v)| p == "*" || p == v)
+    }
+}
+
+/// Reads the payload of a `set/speed` message: a number of Hz (`40`, `40.5`) or `{"hz": 40}`.
+pub fn parse_speed(payload: &[u8]) -> Result<f64, String> {
+    let bad = || "speed wants a number of Hz: 40 or {\"hz\": 40}".to_string();
+    let text = std::str::from_utf8(payload).map_err(|_| bad())?.trim();
+    let hz = match serde_json::from_str::<Value>(text) {
+        Ok(Value::Number(n)) => n.as_f64(),
+        Ok(Value::Object(o)) if o.len() == 1 => o.get("hz").and_then(Value::as_f64),
+        _ => None,
+    };
+    match hz {
+        Some(hz) if hz.is_finite() => Ok(hz),
+        _ => Err(bad()),
+    }
+}
+
+/// Why a command message was not carried out before it reached the gateway.
+#[derive(Debug, PartialEq)]
+struct Refusal {
+    kind: &'static str,
+    message: String,
+}
+
+fn refuse(kind: &'static str, message: impl Into<String>) -> Refusal {
+    Refusal { kind, message: message.into() }
+}
+
+/// The settings in force.
+struct Settings {
+    host: String,
+    port: u16,
+    prefix: String,
+    client_id: String,
+    allow: Vec<Pattern>,
+    discovery: bool,
+    gateway: String,
+}
+
+impl Settings {
+    fn new(gw: &Gateway, cfg: &MqttConfig) -> Result<Settings, String> {
+        let (host, port) = parse_url(&cfg.url).map_err(|e| format!("MQTT: {e}"))?;
+        let prefix = match &cfg.topic_prefix {
+            Some(p) => {
+                check_prefix(p).map_err(|e| format!("MQTT topic prefix {e}"))?;
+                p.clone()
+            }
+            None => default_prefix(&gw.config().name),
+        };
+        let allow = cfg
+            .allow_commands
+            .iter()
+            .map(|a| Pattern::parse(a).map_err(|e| format!("MQTT allow_commands {e}")))
+            .collect::<Result<_, _>>()?;
+        Ok(Settings {
+            host,
+            port,
+            prefix,
+            client_id: cfg
+                .client_id
+                .clone()
+                .unwrap_or_else(|| format!("drivebus-{}", safe_level(&gw.config().name))),
+            allow,
+            discovery: cfg.discovery,
+            gateway: safe_level(&gw.config().name),
+        })
+    }
+
+    fn availability(&self) -> String {
+        format!("{}/status", self.prefix)
+    }
+
+    fn drive_topic(&self, bus: &str, drive: &str, leaf: &str) -> String {
+        format!("{}/{bus}/{drive}/{leaf}", self.prefix)
+    }
+
+    /// `(bus, drive, command)` of a command topic, `None` for any other topic.
+    fn command_topic<'t>(&self, topic: &'t str) -> Option<(&'t str, &'t str, &'t str)> {
+        let rest = topic.strip_prefix(self.prefix.as_str())?.strip_prefix('/')?;
+        let mut it = rest.split('/');
+        match (it.next(), it.next(), it.next(), it.next(), it.next()) {
+            (Some(bus), Some(drive), Some("set"), Some(cmd), None) => Some((bus, drive, cmd)),
+            _ => None,
+        }
+    }
+}
+
+/// Starts publishing `gw` to the broker of `cfg` on the current tokio runtime; returns at once
+/// (an error only for settings that cannot work). The task reconnects by itself forever.
+pub fn spawn(gw: Arc<Gateway>, cfg: &MqttConfig) -> Result<tokio::task::JoinHandle<()>, String> {
+    let settings = Settings::new(&gw, cfg)?;
+    Ok(tokio::spawn(run(gw, settings)))
+}
+
+enum FromBroker {
+    Connected,
+    Lost,
+    Message(Publish),
+}
+
+/// Per drive: when its status was last published, what it said, and what waits.
+#[derive(Default)]
+struct Throttle {
+    last: Option<(Instant, Key)>,
+    pending: Option<DriveView>,
+}
+
+/// What is published at once when it changes: link health, running state, fault code.
+type Key = (Option<bool>, Option<bool>, Option<u32>);
+
+fn key(v: &DriveView) -> Key {
+    (v.online, v.running, v.fault.as_ref().map(|f| f.code))
+}
+
+struct Publisher {
+    gw: Arc<Gateway>,
+    s: Arc<Settings>,
+    client: AsyncClient,
+    connected: bool,
+    in_flight: Arc<tokio::sync::Semaphore>,
+}
+
+impl Publisher {
+    /// Hands a message to the client without waiting: while the broker is away nothing is
+    /// queued (the state is republished at reconnection).
+    fn send(&self, kind: &'static str, topic: String, retain: bool, payload: Vec<u8>) {
+        if !self.connected {
+            return;
+        }
+        send(&self.gw, &self.client, kind, topic, retain, payload);
+    }
+
+    fn status(&self, v: &DriveView) {
+        let payload = serde_json::to_vec(v).unwrap_or_default();
+        self.send("status", self.s.drive_topic(&v.bus, &v.id, "status"), true, payload);
+    }
+
+    fn on_connect(&self, throttle: &mut HashMap<String, Throttle>) {
+        self.gw.counters.front_ends.mqtt_connected();
+        self.send("availability", self.s.availability(), true, b"online".to_vec());
+        let filter = format!("{}/+/+/set/+", self.s.prefix);
+        if let Err(e) = self.client.try_subscribe(filter, QoS::AtLeastOnce) {
+            eprintln!("drivebus serve: MQTT: cannot subscribe to the command topics: {e}");
+        }
+        if self.s.discovery {
+            for d in self.gw.drives() {
+                for (topic, payload) in discovery(&self.s, &self.gw.drive_view(d)) {
+                    self.send("discovery", topic, true, payload.to_string().into_bytes());
+                }
+            }
+        }
+        let now = Instant::now();
+        for d in self.gw.drives() {
+            let v = self.gw.drive_view(d);
+            self.status(&v);
+            throttle.insert(v.id.clone(), Throttle { last: Some((now, key(&v))), pending: None });
+        }
+    }
+
+    fn on_drive(&self, v: DriveView, t: &mut Throttle) {
+        let now = Instant::now();
+        let due = match &t.last {
+            None => true,
+            Some((at, k)) => *k != key(&v) || now.duration_since(*at) >= MIN_INTERVAL,
+        };
+        if due {
+            self.status(&v);
+            t.last = Some((now, key(&v)));
+            t.pending = None;
+        } else {
+            t.pending = Some(v);
+        }
+    }
+
+    fn flush(&self, throttle: &mut HashMap<String, Throttle>) {
+        let now = Instant::now();
+        for t in throttle.values_mut() {
+            let ready = t.last.as_ref().map_or(true, |(at, _)| now.duration_since(*at) >= MIN_INTERVAL);
+            if ready {
+                if let Some(v) = t.pending.take() {
+                    self.status(&v);
+                    t.last = Some((now, key(&v)));
+                }
+            }
+        }
+    }
+
+    fn on_event(&self, e: &drivebus_store::Event) {
+        let topic = match (&e.bus, &e.drive) {
+            (Some(b), Some(d)) => self.s.drive_topic(b, d, "events"),
+            (Some(b), None) => format!("{}/{b}/events", self.s.prefix),
+            _ => format!("{}/events", self.s.prefix),
+        };
+        self.send("event", topic, false, serde_json::to_vec(e).unwrap_or_default());
+    }
+
+    /// Checks a command message; `Ok` with what to send to the gateway.
+    fn check(&self, p: &Publish) -> Option<(String, String, String, Result<Command, Refusal>)> {
+        let (bus, drive, cmd) = self.s.command_topic(&p.topic)?;
+        if p.payload.is_empty() {
+            // How a retained message is cleared, not a command.
+            return None;
+        }
+        let result_topic = self.s.drive_topic(bus, drive, "result");
+        let verdict = (|| {
+            if p.retain {
+                return Err(refuse(
+                    "retained",
+                    "a retained command is refused (it would run again at every reconnection): \
+                     publish without the retain flag and clear the retained message",
+                ));
+            }
+            if !COMMANDS.contains(&cmd) {
+                return Err(refuse("invalid", format!("no command {cmd:?}: use {}", COMMANDS.join(", "))));
+            }
+            if !self.s.allow.iter().any(|a| a.matches(bus, drive, cmd)) {
+                return Err(refuse(
+                    "forbidden",
+                    format!("{bus}/{drive}/{cmd} is not allowed by [mqtt] allow_commands"),
+                ));
+            }
+            let d = self.gw.drive(drive).map_err(|e| refuse(e.kind(), e.to_string()))?;
+            if d.bus != bus {
+                return Err(refuse(
+                    "unknown_drive",
+                    format!("drive {drive:?} is on bus {:?}, not {bus:?}", d.bus),
+                ));
+            }
+            if p.payload.len() > MAX_COMMAND_PAYLOAD {
+                return Err(refuse(
+                    "too_large",
+                    format!("a command payload has at most {MAX_COMMAND_PAYLOAD} bytes"),
+                ));
+            }
+            if cmd == "speed" {
+                return parse_speed(&p.payload).map(Command::Speed).map_err(|m| refuse("invalid", m));
+            }
+            Command::from_name(cmd).ok_or_else(|| refuse("invalid", format!("no command {cmd:?}")))
+        })();
+        Some((result_topic, drive.to_string(), cmd.to_string(), verdict))
+    }
+
+    fn on_message(&self, p: Publish) {
+        let Some((topic, drive, cmd, verdict)) = self.check(&p) else { return };
+        let permit = self.in_flight.clone().try_acquire_owned().map_err(|_| {
+            refuse("busy", format!("{MAX_COMMANDS_IN_FLIGHT} MQTT commands are in progress: try again"))
+        });
+        let (command, permit) = match verdict.and_then(|c| permit.map(|p| (c, p))) {
+            Ok(c) => c,
+            Err(r) => {
+                let body =
+                    json!({ "command": cmd, "ok": false, "error": { "kind": r.kind, "message": r.message } });
+                self.send("result", topic, false, body.to_string().into_bytes());
+                return;
+            }
+        };
+        let (gw, client) = (self.gw.clone(), self.client.clone());
+        let actor = format!("mqtt:{}", self.s.client_id);
+        tokio::spawn(async move {
+            let _permit = permit;
+            let result = gw.command(&drive, command, &actor).await;
+            let error = result
+                .as_ref()
+                .err()
+                .map(|e: &CommandError| json!({ "kind": e.kind(), "message": e.to_string() }));
+            let body = json!({ "command": cmd, "ok": result.is_ok(), "error": error });
+            send(&gw, &client, "result", topic, false, body.to_string().into_bytes());
+        });
+    }
+}
+
+fn send(
+    gw: &Gateway,
+    client: &AsyncClient,
+    kind: &'static str,
+    topic: String,
+    retain: bool,
+    payload: Vec<u8>,
+) {
+    match client.try_publish(topic, QoS::AtLeastOnce, retain, payload) {
+        Ok(()) => gw.counters.front_ends.mqtt_published(kind),
+        Err(e) => eprintln!("drivebus serve: MQTT: a {kind} message was dropped: {e}"),
+    }
+}
+
+/// Home Assistant discovery messages of one drive: `(topic, config)`.
+fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
+    let state_topic = s.drive_topic(&v.bus, &v.id, "status");
+    let object = |value: &str| format!("{}_{}_{value}", s.gateway, v.id);
+    let device = json!({
+        "identifiers": [format!("drivebus_{}_{}", s.gateway, v.id)],
+        "name": v.id,
+        "manufacturer": "drivebus",
+        "model": format!("{} ({})", v.family, v.protocol),
+        "via_device": format!("drivebus_{}", s.gateway),
+    });
+    // (value, name, unit, device class, template)
+    type Sensor<'a> = (&'a str, &'a str, Option<&'a str>, Option<&'a str>, &'a str);
+    let sensors: [Sensor; 5] = [
+        ("output_hz", "output frequency", Some("Hz"), Some("frequency"), "{{ value_json.output_hz }}"),
+        ("setpoint_hz", "setpoint", Some("Hz"), Some("frequency"), "{{ value_json.setpoint_hz }}"),
+        ("current_a", "current", Some("A"), Some("current"), "{{ value_json.current_a }}"),
+        (
+            "state",
+            "state",
+            None,
+            None,
+            "{{ 'offline' if value_json.online == false else ('fault' if value_json.fault else ('running' if value_json.running else 'stopped')) }}",
+        ),
+        ("fault", "fault", None, None, "{{ value_json.fault.text if value_json.fault else 'none' }}"),
+    ];
+    sensors
+        .iter()
+        .map(|(value, name, unit, class, template)| {
+            let mut c = json!({
+                "name": name,
+                "object_id": object(value),
+                "unique_id": object(value),
+                "state_topic": state_topic,
+                "value_template": template,
+                "availability_topic": s.availability(),
+                "payload_available": "online",
+                "payload_not_available": "offline",
+                "device": device,
+            });
+            if let Some(u) = unit {
+                c["unit_of_measurement"] = json!(u);
+                c["state_class"] = json!("measurement");
+            }
+            if let Some(d) = class {
+                c["device_class"] = json!(d);
+            }
+            (format!("homeassistant/sensor/{}/config", object(value)), c)
+        })
+        .collect()
+}
+
+async fn run(gw: Arc<Gateway>, s: Settings) {
+    let s = Arc::new(s);
+    let mut opts = MqttOptions::new(s.client_id.clone(), s.host.clone(), s.port);
+    opts.set_keep_alive(Duration::from_secs(15));
+    opts.set_clean_session(true);
+    opts.set_last_will(LastWill::new(s.availability(), "offline", QoS::AtLeastOnce, true));
+    opts.set_max_packet_size(64 * 1024, 64 * 1024);
+    opts.set_request_channel_capacity(64 + 16 * gw.drives().len());
+    let (client, mut eventloop) = AsyncClient::new(opts, 64 + 16 * gw.drives().len());
+
+    // The event loop runs on its own so that publishing never waits for the network.
+    let (tx, mut from_broker) = mpsc::channel(256);
+    let endpoint = format!("{}:{}", s.host, s.port);
+    tokio::spawn(async move {
+        let mut backoff = Duration::from_millis(250);
+        let mut reported = false;
+        loop {
+            let msg = match eventloop.poll().await {
+                Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                    backoff = Duration::from_millis(250);
+                    if reported {
+                        eprintln!("drivebus serve: MQTT: connected again to {endpoint}");
+                    }
+                    reported = false;
+                    Some(FromBroker::Connected)
+                }
+                Ok(Event::Incoming(Packet::Publish(p))) => Some(FromBroker::Message(p)),
+                Ok(_) => None,
+                Err(e) => {
+                    if !reported {
+                        eprintln!("drivebus serve: MQTT: broker {endpoint}: {e}; retrying");
+                        reported = true;
+                    }
+                    if tx.send(FromBroker::Lost).await.is_err() {
+                        return;
+                    }
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(Duration::from_secs(5));
+                    None
+                }
+            };
+            if let Some(m) = msg {
+                if tx.send(m).await.is_err() {
+                    return;
+                }
+            }
+        }
+    });
+
+    let mut p = Publisher {
+        gw: gw.clone(),
+        s,
+        client,
+        connected: false,
+        in_flight: Arc::new(tokio::sync::Semaphore::new(MAX_COMMANDS_IN_FLIGHT)),
+    };
+    let mut changes = gw.subscribe();
+    let mut throttle: HashMap<String, Throttle> = HashMap::new();
+    let mut tick = tokio::time::interval(Duration::from_millis(250));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            m = from_broker.recv() => match m {
+                Some(FromBroker::Connected) => {
+                    p.connected = true;
+                    p.on_connect(&mut throttle);
+                }
+                Some(FromBroker::Lost) => p.connected = false,
+                Some(FromBroker::Message(m)) => p.on_message(m),
+                None => return,
+            },
+            c = changes.recv() => match c {
+                Ok(Change::Drive(v)) => {
+                    let t = throttle.entry(v.id.clone()).or_default();
+                    p.on_drive(v, t);
+                }
+                Ok(Change::Event(e)) => p.on_event(&e),
+                Ok(Change::Bus(_)) => {}
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => return,
+            },
+            _ = tick.tick() => p.flush(&mut throttle),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls() {
+        assert_eq!(parse_url("mqtt://10.0.0.9:1884").unwrap(), ("10.0.0.9".into(), 1884));
+        assert_eq!(parse_url("mqtt://broker").unwrap(), ("broker".into(), 1883));
+        assert_eq!(parse_url("mqtt://[::1]:1883").unwrap(), ("::1".into(), 1883));
+        for bad in ["tcp://x:1", "mqtt://", "mqtt://x:0", "mqtt://x:99999", "mqtt://x:1/a", "mqtt://:1883"] {
+            assert!(parse_url(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn patterns() {
+        let p = Pattern::parse("line-1/*/stop").unwrap();
+        assert!(p.matches("line-1", "pump-1", "stop"));
+        assert!(!p.matches("line-1", "pump-1", "run"));
+        assert!(!p.matches("line-2", "pump-1", "stop"));
+        assert!(Pattern::parse("*/*/*").unwrap().matches("a", "b", "speed"));
+        for bad in ["a/b", "a/b/c/d", "a//run", "a/b*/run", "a/+/run", "a/b/start", "#"] {
+            assert!(Pattern::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn speed_payloads() {
+        assert_eq!(parse_speed(b"40").unwrap(), 40.0);
+        assert_eq!(parse_speed(b" 40.5\n").unwrap(), 40.5);
+        assert_eq!(parse_speed(br#"{"hz": 35}"#).unwrap(), 35.0);
+        for bad in [
+            &b"fast"[..],
+            b"",
+            b"{\"hz\":\"40\"}",
+            b"{\"hz\":40,\"x\":1}",
+            b"[40]",
+            b"\xff",
+            b"NaN",
+            b"1e999",
+        ] {
+            assert!(parse_speed(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
+        }
+    }
+
+    #[test]
+    fn prefixes() {
+        assert_eq!(default_prefix("hall 1/a"), "drivebus/hall_1_a");
+        assert!(check_prefix("plant/hall-1").is_ok());
+        for bad in ["", "/a", "a/", "a//b", "a/+", "a/#"] {
+            assert!(check_prefix(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,203 @@
+//! `GET /metrics` through the router on a virtual clock: every line is an exposition line,
+//! the drive, bus and gateway series are there with plausible values, and the HTTP middleware
+//! counts requests by route.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode};
+use axum::routing::get;
+use axum::Router;
+use drivebus_gateway::gateway::Command;
+use drivebus_gateway::{Gateway, GatewayConfig};
+use tower::ServiceExt;
+
+/// One parsed sample line: `name{labels} value`.
+#[derive(Debug)]
+struct Sample {
+    name: String,
+    labels: HashMap<String, String>,
+    value: f64,
+}
+
+fn parse_line(line: &str) -> Result<Option<Sample>, String> {
+    if line == "# EOF" {
+        return Ok(None);
+    }
+    if let Some(rest) = line.strip_prefix("# ") {
+        let mut w = rest.splitn(3, ' ');
+        let kw = w.next().unwrap_or("");
+        let name = w.next().unwrap_or("");
+        if !["HELP", "TYPE", "UNIT"].contains(&kw) || !valid_name(name) {
+            return Err(format!("bad comment line: {line:?}"));
+        }
+        if kw == "TYPE" {
+            let t = w.next().unwrap_or("");
+            if !["counter", "gauge", "histogram", "info", "unknown", "stateset", "summary"].contains(&t) {
+                return Err(format!("bad type: {line:?}"));
+            }
+        }
+        return Ok(None);
+    }
+    let (series, value) = line.rsplit_once(' ').ok_or_else(|| format!("no value: {line:?}"))?;
+    let value: f64 = match value {
+        "+Inf" => f64::INFINITY,
+        "-Inf" => f64::NEG_INFINITY,
+        v => v.parse().map_err(|_| format!("bad value: {line:?}"))?,
+    };
+    let (name, labels) = match series.split_once('{') {
+        None => (series, HashMap::new()),
+        Some((name, rest)) => {
+            let body = rest.strip_suffix('}').ok_or_else(|| format!("unclosed labels: {line:?}"))?;
+            let mut labels = HashMap::new();
+            // Label values here never contain `,` or `"` (names are letters, digits, - and _).
+            for pair in body.split(',').filter(|p| !p.is_empty()) {
+                let (k, v) = pair.split_once('=').ok_or_else(|| format!("bad label: {line:?}"))?;
+                let v = v
+                    .strip_prefix('"')
+                    .and_then(|v| v.strip_suffix('"'))
+                    .ok_or_else(|| format!("unquoted label value: {line:?}"))?;
+                if !valid_name(k) {
+                    return Err(format!("bad label name: {line:?}"));
+                }
+                labels.insert(k.to_string(), v.to_string());
+            }
+            (name, labels)
+        }
+    };
+    if !valid_name(name) {
+        return Err(format!("bad metric name: {line:?}"));
+    }
+    Ok(Some(Sample { name: name.to_string(), labels, value }))
+}
+
+fn valid_name(n: &str) -> bool {
+    !n.is_empty()
+        && !n.starts_with(|c: char| c.is_ascii_digit())
+        && n.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == ':')
+}
+
+async fn get_text(app: &Router, uri: &str) -> (StatusCode, String, String) {
+    let resp = app.clone().oneshot(Request::get(uri).body(Body::empty()).unwrap()).await.unwrap();
+    let status = resp.status();
+    let ctype =
+        resp.headers().get("content-type").map(|v| v.to_str().unwrap().to_string()).unwrap_or_default();
+    let body = axum::body::to_bytes(resp.into_body(), 1 << 22).await.unwrap();
+    (status, ctype, String::from_utf8(body.to_vec()).unwrap())
+}
+
+fn find<'a>(samples: &'a [Sample], name: &str, labels: &[(&str, &str)]) -> Option<&'a Sample> {
+    samples.iter().find(|s| {
+        s.name == name && labels.iter().all(|(k, v)| s.labels.get(*k).map(String::as_str) == Some(*v))
+    })
+}
+
+fn app(gw: &Arc<Gateway>) -> Router {
+    Router::new()
+        .route("/api/ping", get(|| async { "pong" }))
+        .merge(drivebus_gateway::metrics::routes())
+        .layer(axum::middleware::from_fn_with_state(gw.clone(), drivebus_gateway::metrics::track))
+        .with_state(gw.clone())
+}
+
+#[tokio::test(start_paused = true)]
+async fn metrics_cover_drives_buses_and_the_gateway() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    gw.command("pump-1", Command::Speed(40.0), "test").await.unwrap();
+    gw.command("pump-1", Command::Run, "test").await.unwrap();
+    gw.command("pump-3", Command::Run, "test").await.unwrap_err(); // locked
+    gw.counters.front_ends.modbus_request(3, false);
+    gw.counters.front_ends.modbus_request(6, true);
+    tokio::time::sleep(Duration::from_secs(20)).await;
+
+    let app = app(&gw);
+    for _ in 0..3 {
+        assert_eq!(get_text(&app, "/api/ping").await.0, StatusCode::OK);
+    }
+    assert_eq!(get_text(&app, "/nowhere").await.0, StatusCode::NOT_FOUND);
+
+    let (status, ctype, text) = get_text(&app, "/metrics").await;
+    assert_eq!(status, StatusCode::OK);
+    assert!(ctype.starts_with("application/openmetrics-text"), "{ctype}");
+    assert!(text.ends_with("# EOF\n"), "no EOF marker");
+    let mut samples = Vec::new();
+    for line in text.lines() {
+        match parse_line(line) {
+            Ok(Some(s)) => samples.push(s),
+            Ok(None) => {}
+            Err(e) => panic!("{e}\n{text}"),
+        }
+    }
+
+    // Every demo drive has its link health and poll counts.
+    for d in gw.drives() {
+        let id = d.config.name.as_str();
+        let l = [("drive", id), ("bus", d.bus.as_str()), ("family", d.config.family.as_str())];
+        let online = find(&samples, "drivebus_drive_online", &l).unwrap_or_else(|| panic!("{id} online"));
+        assert_eq!(online.value, 1.0, "{id}");
+        let polls = find(&samples, "drivebus_drive_polls_total", &l).unwrap();
+        assert!(polls.value >= 5.0, "{id}: {} polls in 20 s", polls.value);
+        let age = find(&samples, "drivebus_drive_data_age_seconds", &l).unwrap();
+        assert!((0.0..5.0).contains(&age.value), "{id}: age {}", age.value);
+        assert!(find(&samples, "drivebus_drive_poll_errors_total", &l).is_some());
+        assert!(find(&samples, "drivebus_drive_fault_code", &l).is_some());
+    }
+    let pump = [("drive", "pump-1")];
+    let hz = find(&samples, "drivebus_drive_output_hz", &pump).unwrap().value;
+    assert!((hz - 40.0).abs() < 0.1, "pump-1 at {hz} Hz");
+    assert_eq!(find(&samples, "drivebus_drive_running", &pump).unwrap().value, 1.0);
+    assert_eq!(find(&samples, "drivebus_drive_setpoint_hz", &pump).unwrap().value, 40.0);
+    assert!(find(&samples, "drivebus_drive_current_a", &pump).unwrap().value > 0.0);
+    assert_eq!(find(&samples, "drivebus_drive_running", &[("drive", "pump-2")]).unwrap().value, 0.0);
+
+    // Buses: as many replies as the owner counted, and never more replies than requests.
+    for b in gw.buses() {
+        let l = [("bus", b.config.name.as_str())];
+        let tx = find(&samples, "drivebus_bus_transactions_total", &l).unwrap().value;
+        let rx = find(&samples, "drivebus_bus_replies_total", &l).unwrap().value;
+        assert!(tx > 0.0 && rx > 0.0 && rx <= tx, "{l:?}: {rx} replies to {tx} requests");
+        for n in ["timeouts_total", "checksum_errors_total", "retries_total"] {
+            assert!(find(&samples, &format!("drivebus_bus_{n}"), &l).is_some(), "{n}");
+        }
+        let u = find(&samples, "drivebus_bus_utilization", &l).unwrap().value;
+        assert!((0.0..=1.0).contains(&u) && u > 0.0, "utilization {u}");
+        assert_eq!(find(&samples, "drivebus_bus_online", &l).unwrap().value, 1.0);
+    }
+
+    // The gateway's own work.
+    assert_eq!(find(&samples, "drivebus_commands_total", &[("result", "ok")]).unwrap().value, 2.0);
+    assert_eq!(find(&samples, "drivebus_commands_total", &[("result", "failed")]).unwrap().value, 1.0);
+    let ping = [("route", "/api/ping"), ("method", "GET"), ("status", "200")];
+    assert_eq!(find(&samples, "drivebus_http_requests_total", &ping).unwrap().value, 3.0);
+    let missing = [("route", "unmatched"), ("status", "404")];
+    assert_eq!(find(&samples, "drivebus_http_requests_total", &missing).unwrap().value, 1.0);
+    let count = find(&samples, "drivebus_http_request_duration_seconds_count", &[("route", "/api/ping")]);
+    assert_eq!(count.unwrap().value, 3.0);
+    let inf = [("route", "/api/ping"), ("le", "+Inf")];
+    assert_eq!(find(&samples, "drivebus_http_request_duration_seconds_bucket", &inf).unwrap().value, 3.0);
+    let fc3 = [("function", "3"), ("result", "ok")];
+    assert_eq!(find(&samples, "drivebus_modbus_requests_total", &fc3).unwrap().value, 1.0);
+    let fc6 = [("function", "6"), ("result", "exception")];
+    assert_eq!(find(&samples, "drivebus_modbus_requests_total", &fc6).unwrap().value, 1.0);
+
+    // A second scrape counts the first.
+    let (_, _, again) = get_text(&app, "/metrics").await;
+    let line = again
+        .lines()
+        .find(|l| l.starts_with("drivebus_http_requests_total{") && l.contains("route=\"/metrics\""))
+        .expect("the first scrape is counted");
+    assert!(line.ends_with(" 1"), "{line}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn values_not_read_yet_are_absent_not_zero() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    // Before the first poll answered nothing is known of the drives.
+    let text = drivebus_gateway::metrics::render(&gw).unwrap();
+    let samples: Vec<Sample> = text.lines().filter_map(|l| parse_line(l).unwrap()).collect();
+    assert!(find(&samples, "drivebus_drive_output_hz", &[]).is_none(), "{text}");
+    assert!(find(&samples, "drivebus_drive_online", &[]).is_none(), "{text}");
+    assert!(find(&samples, "drivebus_drive_polls_total", &[("drive", "fan-1")]).is_some());
+}

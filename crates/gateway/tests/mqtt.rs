@@ -1,0 +1,223 @@
+//! MQTT against an in-process broker (rumqttd) on a free port: retained statuses, commands by
+//! topic (allowed, refused), the last will, a broker restart, Home Assistant discovery, and
+//! two gateways side by side on one broker. Real sockets and the real clock: the waits are
+//! generous and nothing asserts speed.
+
+mod mqtt_support;
+
+use std::collections::HashSet;
+
+use mqtt_support::*;
+use serde_json::Value;
+
+fn running_at(v: &Value, hz: f64) -> bool {
+    v["running"] == true
+        && v["setpoint_hz"].as_f64() == Some(hz)
+        && v["output_hz"].as_f64().is_some_and(|x| x > 1.0)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn statuses_are_retained_and_commands_move_a_drive() {
+    let broker = rumqttd().await;
+    let p = "drivebus/hall-a";
+    let watcher = Subscriber::start(broker, "watcher", &format!("{p}/#")).await;
+    // A retained command would run again at each reconnection of the gateway: refused.
+    watcher.publish(&format!("{p}/line-toshiba/pump-1/set/run"), "1", true).await;
+    watcher.wait("the broker to hold the retained command", |log| (!log.is_empty()).then_some(())).await;
+    let gw = demo_gateway(
+        "hall-a",
+        broker,
+        &["line-toshiba/pump-1/*", "*/*/stop", "line-toshiba/pump-3/run"],
+        false,
+    );
+    let r = watcher.wait_json(&format!("{p}/line-toshiba/pump-1/result"), |r| r["command"] == "run").await;
+    assert_eq!(r["error"]["kind"], "retained", "{r}");
+    // Clearing it (an empty retained message) is no command either: the next result is the
+    // answer to the next command.
+    watcher.publish(&format!("{p}/line-toshiba/pump-1/set/run"), "", true).await;
+
+    // A subscriber that comes later gets every drive's status, retained.
+    watcher.wait_json(&format!("{p}/line-toshiba/pump-2/status"), |v| v["online"] == true).await;
+    let late = Subscriber::start(broker, "late", &format!("{p}/#")).await;
+    wait_all_statuses(&late, p).await;
+    let availability = late
+        .wait(&format!("{p}/status"), |log| log.iter().find(|m| m.topic == format!("{p}/status")).cloned())
+        .await;
+    assert_eq!((availability.text.as_str(), availability.retain), ("online", true));
+    let pump = late.latest()[&format!("{p}/line-toshiba/pump-1/status")].clone();
+    let v: Value = serde_json::from_str(&pump.text).unwrap();
+    assert_eq!(
+        (v["family"].as_str(), v["unit_id"].as_u64(), v["running"].as_bool()),
+        (Some("toshiba"), Some(4), Some(false))
+    );
+
+    // Speed as {"hz": ..} and run: results say ok, the drive runs, its status says so.
+    watcher.publish(&format!("{p}/line-toshiba/pump-1/set/speed"), r#"{"hz": 35}"#, false).await;
+    let r = watcher.wait_json(&format!("{p}/line-toshiba/pump-1/result"), |r| r["command"] != "run").await;
+    assert_eq!((&r["command"], &r["ok"]), (&Value::from("speed"), &Value::from(true)), "{r}");
+    assert_eq!(r["error"], Value::Null);
+    watcher.publish(&format!("{p}/line-toshiba/pump-1/set/run"), "1", false).await;
+    watcher
+        .wait_json(&format!("{p}/line-toshiba/pump-1/result"), |r| r["command"] == "run" && r["ok"] == true)
+        .await;
+    watcher.wait_json(&format!("{p}/line-toshiba/pump-1/status"), |v| running_at(v, 35.0)).await;
+    // The command is in the audit trail with the MQTT actor, and on the events topic.
+    let e = watcher
+        .wait_json(&format!("{p}/line-toshiba/pump-1/events"), |e| {
+            e["kind"] == "command" && e["action"] == "run"
+        })
+        .await;
+    assert_eq!(e["actor"], "mqtt:drivebus-hall-a");
+    assert_eq!(e["result"], "ok");
+
+    // A plain number works too, and stop is allowed everywhere.
+    watcher.publish(&format!("{p}/line-toshiba/pump-1/set/speed"), "20", false).await;
+    watcher
+        .wait_json(&format!("{p}/line-toshiba/pump-1/status"), |v| v["setpoint_hz"].as_f64() == Some(20.0))
+        .await;
+    watcher.publish(&format!("{p}/line-toshiba/pump-1/set/stop"), "PRESS", false).await;
+    watcher.wait_json(&format!("{p}/line-toshiba/pump-1/status"), |v| v["running"] == false).await;
+
+    // Refusals: each gets a result with the reason, and nothing reaches a drive.
+    let ok_before = gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed);
+    let cases = [
+        ("line-generic/fan-1/set/run", "1", "forbidden"), // not in allow_commands
+        ("line-toshiba/pump-1/set/speed", "fast", "invalid"), // not a number
+        ("line-toshiba/pump-1/set/explode", "1", "invalid"), // no such command
+        ("line-generic/pump-1/set/stop", "1", "unknown_drive"), // wrong bus
+        ("line-generic/nobody/set/stop", "1", "unknown_drive"), // no such drive
+        ("line-toshiba/pump-3/set/run", "1", "locked"),   // allowed, but the drive is locked
+    ];
+    for (topic, payload, kind) in cases {
+        let full = format!("{p}/{topic}");
+        let result = format!("{}/result", full.rsplit_once("/set/").unwrap().0);
+        let command = topic.rsplit('/').next().unwrap();
+        watcher.publish(&full, payload, false).await;
+        let r = watcher.wait_json(&result, |r| r["command"] == command && r["error"]["kind"] == kind).await;
+        assert_eq!(r["ok"], false, "{topic}: {r}");
+        assert!(!r["error"]["message"].as_str().unwrap().is_empty(), "{r}");
+    }
+    assert_eq!(gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed), ok_before);
+    let fan = gw.drive_view(gw.drive("fan-1").unwrap());
+    assert_eq!(fan.running, Some(false));
+    let pump = gw.drive_view(gw.drive("pump-1").unwrap());
+    assert_eq!(pump.running, Some(false), "a refused command moved pump-1");
+    assert!(gw.counters.front_ends.mqtt_publishes("status") >= 10);
+    assert!(gw.counters.front_ends.mqtt_publishes("result") >= 10);
+
+    // Statuses are not published faster than once a second per drive (changes of running
+    // state aside): conveyor-1 is polled every 250 ms.
+    let topic = format!("{p}/line-generic/conveyor-1/status");
+    let before = watcher.log.lock().unwrap().iter().filter(|m| m.topic == topic).count();
+    tokio::time::sleep(std::time::Duration::from_secs(3)).await;
+    let after = watcher.log.lock().unwrap().iter().filter(|m| m.topic == topic).count();
+    assert!(after - before <= 4, "{} statuses of conveyor-1 in 3 s", after - before);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_broker_gets_the_state_again_and_the_will_says_offline() {
+    let first = rumqttd().await;
+    let relay = Relay::start(first).await;
+    let _gw = demo_gateway("hall-r", relay.addr, &[], false);
+    let p = "drivebus/hall-r";
+    let on_first = Subscriber::start(first, "on-first", &format!("{p}/#")).await;
+    on_first
+        .wait(&format!("{p}/status online"), |log| {
+            log.iter().any(|m| m.topic == format!("{p}/status") && m.text == "online").then_some(())
+        })
+        .await;
+    wait_all_statuses(&Subscriber::start(first, "late-first", &format!("{p}/#")).await, p).await;
+
+    // "Restart": every connection drops and the gateway finds an empty broker.
+    let second = rumqttd().await;
+    let on_second = Subscriber::start(second, "on-second", &format!("{p}/#")).await;
+    relay.switch(second);
+
+    // The first broker saw the gateway go away: its last will.
+    on_first
+        .wait(&format!("{p}/status offline"), |log| {
+            log.iter().any(|m| m.topic == format!("{p}/status") && m.text == "offline").then_some(())
+        })
+        .await;
+    // The gateway reconnected to the second and published its state there.
+    on_second
+        .wait(&format!("{p}/status online on the new broker"), |log| {
+            log.iter().any(|m| m.topic == format!("{p}/status") && m.text == "online").then_some(())
+        })
+        .await;
+    let drives = demo_drives();
+    on_second
+        .wait("every drive's status on the new broker", |log| {
+            drives
+                .iter()
+                .all(|(b, d)| log.iter().any(|m| m.topic == format!("{p}/{b}/{d}/status")))
+                .then_some(())
+        })
+        .await;
+    // ...retained, for whoever comes later.
+    let later = Subscriber::start(second, "later", &format!("{p}/#")).await;
+    wait_all_statuses(&later, p).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_gateways_side_by_side_on_one_broker() {
+    let broker = rumqttd().await;
+    let _a = demo_gateway("hall-a", broker, &["*/*/*"], false);
+    let _b = demo_gateway("hall-b", broker, &[], false);
+    let plant = Subscriber::start(broker, "plant", "drivebus/#").await;
+    plant
+        .wait("both gateways online", |log| {
+            let online: HashSet<&str> = log
+                .iter()
+                .filter(|m| m.topic.ends_with("/status") && m.text == "online")
+                .map(|m| m.topic.as_str())
+                .collect();
+            (online.contains("drivebus/hall-a/status") && online.contains("drivebus/hall-b/status"))
+                .then_some(())
+        })
+        .await;
+    let late = Subscriber::start(broker, "plant-late", "drivebus/#").await;
+    wait_all_statuses(&late, "drivebus/hall-a").await;
+    wait_all_statuses(&late, "drivebus/hall-b").await;
+    // The same drive name in two halls: two topics, two drives.
+    let latest = late.latest();
+    assert!(latest.contains_key("drivebus/hall-a/line-toshiba/pump-1/status"));
+    assert!(latest.contains_key("drivebus/hall-b/line-toshiba/pump-1/status"));
+
+    // A command to hall-a's pump-1 moves that one only; hall-b allows no commands at all.
+    plant.publish("drivebus/hall-a/line-toshiba/pump-1/set/run", "1", false).await;
+    plant.publish("drivebus/hall-b/line-toshiba/pump-1/set/run", "1", false).await;
+    plant.wait_json("drivebus/hall-a/line-toshiba/pump-1/status", |v| v["running"] == true).await;
+    let r = plant.wait_json("drivebus/hall-b/line-toshiba/pump-1/result", |r| r["command"] == "run").await;
+    assert_eq!(r["error"]["kind"], "forbidden", "{r}");
+    assert_eq!(_b.drive_view(_b.drive("pump-1").unwrap()).running, Some(false));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn home_assistant_discovery() {
+    let broker = rumqttd().await;
+    let _gw = demo_gateway("hall-d", broker, &[], true);
+    let first = Subscriber::start(broker, "ha-first", "homeassistant/#").await;
+    first.wait_json("homeassistant/sensor/hall-d_mixer-2_fault/config", |_| true).await;
+    // Home Assistant subscribing later (or restarting) finds them retained.
+    let ha = Subscriber::start(broker, "ha", "homeassistant/#").await;
+    let config = ha
+        .wait_json("homeassistant/sensor/hall-d_pump-1_output_hz/config", |c| {
+            c["unit_of_measurement"] == "Hz"
+        })
+        .await;
+    assert_eq!(config["state_topic"], "drivebus/hall-d/line-toshiba/pump-1/status");
+    assert_eq!(config["availability_topic"], "drivebus/hall-d/status");
+    assert_eq!(config["unique_id"], "hall-d_pump-1_output_hz");
+    let drives = demo_drives();
+    ha.wait("a state sensor per drive", |log| {
+        drives
+            .iter()
+            .all(|(_, d)| {
+                log.iter()
+                    .any(|m| m.topic == format!("homeassistant/sensor/hall-d_{d}_state/config") && m.retain)
+            })
+            .then_some(())
+    })
+    .await;
+}

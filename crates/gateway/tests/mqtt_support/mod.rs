@@ -1,0 +1,244 @@
+//! Shared by the MQTT tests: an in-process broker (rumqttd) on a free port, a TCP relay that
+//! can cut its connections and switch brokers (a broker restart as the gateway sees it), and a
+//! subscriber that keeps what it receives.
+#![allow(dead_code)]
+
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use drivebus_gateway::config::MqttConfig;
+use drivebus_gateway::{Gateway, GatewayConfig};
+use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::task::JoinHandle;
+
+/// Generous: only a broken gateway takes this long.
+pub const PATIENCE: Duration = Duration::from_secs(60);
+
+/// A port nobody listens on now.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// Starts a rumqttd broker (MQTT 3.1.1) on a free loopback port; it lives until the test
+/// process ends.
+pub async fn rumqttd() -> SocketAddr {
+    use rumqttd::{Broker, Config, ConnectionSettings, RouterConfig, ServerSettings};
+    let addr: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    let server = ServerSettings {
+        name: "v4".into(),
+        listen: addr,
+        tls: None,
+        next_connection_delay_ms: 1,
+        connections: ConnectionSettings {
+            connection_timeout_ms: 60_000,
+            max_payload_size: 64 * 1024,
+            max_inflight_count: 500,
+            auth: None,
+            external_auth: None,
+            dynamic_filters: true,
+        },
+    };
+    let config = Config {
+        router: RouterConfig {
+            max_connections: 100,
+            max_outgoing_packet_count: 1000,
+            max_segment_size: 16 * 1024 * 1024,
+            max_segment_count: 10,
+            ..Default::default()
+        },
+        v4: Some(HashMap::from([("1".to_string(), server)])),
+        ..Default::default()
+    };
+    std::thread::spawn(move || {
+        let mut broker = Broker::new(config);
+        if let Err(e) = broker.start() {
+            eprintln!("rumqttd: {e}");
+        }
+    });
+    wait_listening(addr).await;
+    addr
+}
+
+/// Waits until something accepts connections on `addr`.
+pub async fn wait_listening(addr: SocketAddr) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while TcpStream::connect(addr).await.is_err() {
+        assert!(tokio::time::Instant::now() < deadline, "nothing listens on {addr}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// A TCP relay to a broker: [`Relay::switch`] drops every connection and sends new ones to
+/// another broker, as a broker restart looks to its clients.
+pub struct Relay {
+    /// Where clients connect.
+    pub addr: SocketAddr,
+    upstream: Arc<Mutex<SocketAddr>>,
+    conns: Arc<Mutex<Vec<JoinHandle<()>>>>,
+}
+
+impl Relay {
+    /// A relay on a free port to `upstream`.
+    pub async fn start(upstream: SocketAddr) -> Relay {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let up = Arc::new(Mutex::new(upstream));
+        let conns: Arc<Mutex<Vec<JoinHandle<()>>>> = Arc::default();
+        let (up2, conns2) = (up.clone(), conns.clone());
+        tokio::spawn(async move {
+            loop {
+                let Ok((mut client, _)) = listener.accept().await else { return };
+                let target = *up2.lock().unwrap();
+                let task = tokio::spawn(async move {
+                    if let Ok(mut server) = TcpStream::connect(target).await {
+                        let _ = tokio::io::copy_bidirectional(&mut client, &mut server).await;
+                    }
+                });
+                conns2.lock().unwrap().push(task);
+            }
+        });
+        Relay { addr, upstream: up, conns }
+    }
+
+    /// Drops every relayed connection; new ones go to `upstream`.
+    pub fn switch(&self, upstream: SocketAddr) {
+        *self.upstream.lock().unwrap() = upstream;
+        for c in self.conns.lock().unwrap().drain(..) {
+            c.abort();
+        }
+    }
+}
+
+/// One message as a subscriber received it.
+#[derive(Clone, Debug)]
+pub struct Msg {
+    /// Its topic.
+    pub topic: String,
+    /// Its payload as text.
+    pub text: String,
+    /// Whether it came as a retained message.
+    pub retain: bool,
+}
+
+/// A client subscribed to `filter`, keeping every message.
+pub struct Subscriber {
+    /// What came, in order.
+    pub log: Arc<Mutex<Vec<Msg>>>,
+    /// The client, to publish with.
+    pub client: AsyncClient,
+}
+
+impl Subscriber {
+    /// Connects to `broker` as `id` and subscribes to `filter`.
+    pub async fn start(broker: SocketAddr, id: &str, filter: &str) -> Subscriber {
+        let mut opts = MqttOptions::new(id, broker.ip().to_string(), broker.port());
+        opts.set_keep_alive(Duration::from_secs(30));
+        opts.set_max_packet_size(64 * 1024, 64 * 1024);
+        let (client, mut eventloop) = AsyncClient::new(opts, 100);
+        client.subscribe(filter, QoS::AtLeastOnce).await.unwrap();
+        let log: Arc<Mutex<Vec<Msg>>> = Arc::default();
+        let log2 = log.clone();
+        tokio::spawn(async move {
+            loop {
+                match eventloop.poll().await {
+                    Ok(Event::Incoming(Packet::Publish(p))) => log2.lock().unwrap().push(Msg {
+                        topic: p.topic.clone(),
+                        text: String::from_utf8_lossy(&p.payload).into_owned(),
+                        retain: p.retain,
+                    }),
+                    Ok(_) => {}
+                    Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+                }
+            }
+        });
+        Subscriber { log, client }
+    }
+
+    /// The last message on each topic.
+    pub fn latest(&self) -> HashMap<String, Msg> {
+        self.log.lock().unwrap().iter().map(|m| (m.topic.clone(), m.clone())).collect()
+    }
+
+    /// Waits (at most [`PATIENCE`]) until `f` finds what it wants in the messages received.
+    pub async fn wait<T>(&self, what: &str, mut f: impl FnMut(&[Msg]) -> Option<T>) -> T {
+        let deadline = tokio::time::Instant::now() + PATIENCE;
+        loop {
+            if let Some(t) = f(&self.log.lock().unwrap()) {
+                return t;
+            }
+            if tokio::time::Instant::now() > deadline {
+                let log = self.log.lock().unwrap();
+                let tail: Vec<_> = log.iter().rev().take(20).collect();
+                panic!("waited {PATIENCE:?} for {what}; last messages: {tail:#?}");
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+
+    /// Waits for the latest message on `topic` to satisfy `f`; returns its JSON.
+    pub async fn wait_json(
+        &self,
+        topic: &str,
+        mut f: impl FnMut(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        self.wait(topic, |log| {
+            log.iter()
+                .rev()
+                .find(|m| m.topic == topic)
+                .and_then(|m| serde_json::from_str::<serde_json::Value>(&m.text).ok())
+                .filter(|v| f(v))
+        })
+        .await
+    }
+
+    /// Publishes `payload` on `topic`.
+    pub async fn publish(&self, topic: &str, payload: &str, retain: bool) {
+        self.client.publish(topic, QoS::AtLeastOnce, retain, payload.as_bytes().to_vec()).await.unwrap();
+    }
+}
+
+/// The demo as gateway `name`, publishing to `broker` with `allow` as its command rules.
+pub fn demo_gateway(name: &str, broker: SocketAddr, allow: &[&str], discovery: bool) -> Arc<Gateway> {
+    let mut config = GatewayConfig::demo();
+    config.name = name.to_string();
+    config.store = None;
+    let mqtt = MqttConfig {
+        url: format!("mqtt://{broker}"),
+        topic_prefix: None,
+        discovery,
+        allow_commands: allow.iter().map(|s| s.to_string()).collect(),
+        client_id: None,
+    };
+    let gw = Gateway::start(config, None).unwrap();
+    drivebus_gateway::mqtt::spawn(gw.clone(), &mqtt).unwrap();
+    gw
+}
+
+/// The demo's drives as `(bus, drive)`.
+pub fn demo_drives() -> Vec<(String, String)> {
+    GatewayConfig::demo().drives().map(|(b, d)| (b.name.clone(), d.name.clone())).collect()
+}
+
+/// Waits until `sub` holds a retained status of every demo drive under `prefix` (what a
+/// broker keeps for whoever subscribes) and the latest status of each says online.
+pub async fn wait_all_statuses(sub: &Subscriber, prefix: &str) {
+    let drives = demo_drives();
+    sub.wait(&format!("every drive's retained status under {prefix}"), |log| {
+        let ok = drives.iter().all(|(bus, drive)| {
+            let topic = format!("{prefix}/{bus}/{drive}/status");
+            let json = |m: &Msg| serde_json::from_str::<serde_json::Value>(&m.text).ok();
+            let retained = log.iter().any(|m| {
+                m.topic == topic
+                    && m.retain
+                    && json(m).is_some_and(|v| v["id"] == drive.as_str() && v["bus"] == bus.as_str())
+            });
+            let latest = log.iter().rev().find(|m| m.topic == topic).and_then(json);
+            retained && latest.is_some_and(|v| v["online"] == true)
+        });
+        ok.then_some(())
+    })
+    .await
+}

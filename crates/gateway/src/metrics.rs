@@ -6,11 +6,9 @@
 //! [`Counters::front_ends`](crate::gateway::Counters::front_ends). docs/metrics.md lists the
 //! series.
 //!
-//! HTTP requests are counted by [`track`], an axum middleware:
-//!
-//! ```ignore
-//! router.layer(axum::middleware::from_fn_with_state(gw.clone(), drivebus_gateway::metrics::track))
-//! ```
+//! HTTP requests are counted by [`track`], an axum middleware that
+//! [`http::router`](crate::http::router) layers over every route:
+//! `router.layer(axum::middleware::from_fn_with_state(gw.clone(), metrics::track))`.
 
 use std::sync::atomic::Ordering;
 use std::sync::Arc;

@@ -655,6 +655,25 @@ impl Gateway {
         result
     }
 
+    /// Records a write that was refused before it became a command (a client not allowed to
+    /// write, a read-only listener, a locked drive), so the audit trail shows every attempt.
+    pub async fn audit_refusal(self: &Arc<Self>, id: &str, actor: &str, action: &str, why: &str) {
+        let bus = self.drive(id).ok().map(|d| d.bus.clone());
+        self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
+        self.record_async(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Command,
+            bus,
+            drive: Some(id.to_string()),
+            actor: Some(actor.to_string()),
+            action: Some(action.to_string()),
+            result: Some(why.to_string()),
+            detail: json!({}),
+        })
+        .await;
+    }
+
     async fn execute(&self, d: &DriveEntry, command: &Command) -> Result<(), CommandError> {
         let modbus = d.protocol.starts_with("modbus");
         let map = |e| CommandError::from_link(e, modbus);

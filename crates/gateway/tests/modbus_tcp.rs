@@ -236,7 +236,8 @@ async fn setpoint_and_run_reach_the_drive_and_the_cache_follows() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_exception_says_what_was_wrong() {
-    let (_gw, addr) = demo().await;
+    let (gw, addr) = demo().await;
+    let mut changes = gw.subscribe();
     let mut c = Client::connect(addr).await;
     // No drive with unit id 42 (nor 0).
     assert_eq!(c.input(42, 0, 1).await, Err(0x0B));
@@ -265,9 +266,20 @@ async fn every_exception_says_what_was_wrong() {
     // Values: bits the command word does not have; a speed the drive cannot do.
     assert_eq!(c.write1(1, 0, 0x0100).await, Err(0x03));
     assert_eq!(c.write1(3, 1, 50000).await, Err(0x03));
-    // pump-3 is locked.
+    // pump-3 is locked; the refusal is in the audit trail with the client.
     assert_eq!(c.write1(6, 0, 1).await, Err(0x01));
     assert_eq!(c.write1(6, 1, 1000).await, Err(0x01));
+    let mut refused = 0;
+    while let Ok(change) = changes.try_recv() {
+        if let drivebus_gateway::gateway::Change::Event(e) = change {
+            if e.drive.as_deref() == Some("pump-3") {
+                assert!(e.result.as_deref().unwrap_or("").starts_with("locked: "), "{e:?}");
+                assert!(e.actor.as_deref().unwrap_or("").starts_with("modbus:127.0.0.1:"), "{e:?}");
+                refused += 1;
+            }
+        }
+    }
+    assert_eq!(refused, 2, "both refused writes are audited");
     // The connection is still good after all of that.
     assert_eq!(c.input(1, 8, 1).await, Ok(vec![1]));
 }

@@ -108,6 +108,13 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  dashboard   http://{}/", bound.http);
             println!("  HTTP API    http://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
+            if let Some(m) = &gw.config().mqtt {
+                let prefix = m
+                    .topic_prefix
+                    .clone()
+                    .unwrap_or_else(|| drivebus_gateway::mqtt::default_prefix(&gw.config().name));
+                println!("  MQTT        {} (topics under {prefix}/, docs/mqtt.md)", m.url);
+            }
             match &db {
                 Some(p) => println!("  event store {}", p.display()),
                 None => println!("  event store off"),

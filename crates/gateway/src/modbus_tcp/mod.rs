@@ -476,10 +476,20 @@ impl Server {
         addr: u16,
         values: Regs<'_>,
     ) -> Result<(), u8> {
+        let n = values.len();
         if !conn.may_write || d.locked() {
+            let why = if !conn.may_write && self.config.read_only {
+                "forbidden: the Modbus TCP listener is read-only ([modbus] read_only)".to_string()
+            } else if !conn.may_write {
+                format!("forbidden: client {} may not write ([modbus] allow)", conn.peer.ip())
+            } else {
+                format!("locked: {}", CommandError::Locked(d.config.name.clone()))
+            };
+            let actor = conn.actor.get_or_insert_with(|| format!("modbus:{}", conn.peer)).clone();
+            let action = format!("modbus write of {n} register(s) at {addr}");
+            self.gw.audit_refusal(&d.config.name, &actor, &action, &why).await;
             return Err(ILLEGAL_FUNCTION);
         }
-        let n = values.len();
         if addr <= HR_SETPOINT {
             if addr as usize + n > 2 {
                 return Err(ILLEGAL_ADDRESS);

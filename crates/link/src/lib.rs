@@ -13,6 +13,7 @@
 pub mod drive;
 pub mod link;
 pub mod owner;
+pub mod timer;
 
 pub use link::{Clock, Link, Rs485, SerialLink, SimLink, TcpLink};
 pub use owner::{Bus, BusConfig, BusError, BusStats, Health, Priority};

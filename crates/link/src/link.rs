@@ -408,7 +408,7 @@ impl Link for SimLink {
                 return Ok(n);
             }
             match next {
-                Some(t) if t > now => tokio::time::sleep_until(self.clock.tokio(t)).await,
+                Some(t) if t > now => crate::timer::sleep_until(self.clock.tokio(t)).await,
                 Some(_) => tokio::task::yield_now().await,
                 // Nothing on the line: wait a while (a write from us is the only way out, and
                 // the caller cancels this read to write).

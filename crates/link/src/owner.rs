@@ -441,8 +441,9 @@ impl<L: Link, P: Protocol> Owner<L, P> {
     async fn exchange(&mut self, buf: &mut [u8], echo_left: &mut Vec<u8>, char_time: Duration) -> Attempt {
         // One timer for the whole exchange, moved when the session's deadline moves.
         let mut armed: Option<Instant> = None;
-        let sleep = tokio::time::sleep(Duration::from_secs(3600));
-        tokio::pin!(sleep);
+        // Session deadlines (the gap before a request, the response timeout) to the microsecond:
+        // tokio's own timer would end each on the next whole millisecond.
+        let mut sleep = crate::timer::sleep_until(tokio::time::Instant::now() + Duration::from_secs(3600));
         loop {
             let now = self.link.now();
             if let Some(bytes) = self.session.poll_transmit(now) {
@@ -493,7 +494,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             }
             let deadline = self.session.poll_timeout().unwrap_or(now + Duration::from_secs(1));
             if armed != Some(deadline) {
-                sleep.as_mut().reset(self.link.clock().tokio(deadline));
+                sleep.reset(self.link.clock().tokio(deadline));
                 armed = Some(deadline);
             }
             tokio::select! {

@@ -183,6 +183,8 @@ pub struct BusConfig {
     pub retries: u8,
     /// Remove the local echo of 2-wire adapters.
     pub echo: bool,
+    /// Modbus RTU: discard replies with a silence over t1.5 inside (on-board UARTs only).
+    pub strict_t15: bool,
     /// The drives.
     pub drives: Vec<DriveConfig>,
 }
@@ -317,6 +319,8 @@ struct FileBus {
     retries: Option<u8>,
     #[serde(default)]
     echo: bool,
+    #[serde(default)]
+    strict_t15: bool,
     #[serde(default)]
     drive: Vec<FileDrive>,
 }
@@ -582,6 +586,7 @@ impl GatewayConfig {
                 timeout: b.timeout_ms.map(Duration::from_millis),
                 retries: b.retries.unwrap_or(2),
                 echo: b.echo,
+                strict_t15: b.strict_t15,
                 drives,
             });
         }

@@ -430,6 +430,7 @@ impl Gateway {
             owner.response_timeout = b.timeout;
             owner.retries = b.retries;
             owner.echo = b.echo;
+            owner.strict_t15 = b.strict_t15;
             let (bus, line) = match b.port {
                 Port::Virtual => {
                     let line = virtual_line(b)?;

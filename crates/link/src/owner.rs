@@ -47,6 +47,11 @@ pub struct BusConfig {
     /// RS-485 direction control on a serial port (off by default: USB-RS485 adapters switch
     /// by themselves).
     pub rs485: crate::link::Rs485,
+    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes, as the
+    /// Modbus serial-line specification says. Off by default: USB adapters and device servers
+    /// deliver bytes in bursts with gaps of their own (an FTDI chip's latency timer is 16 ms),
+    /// and would lose good replies. For on-board UARTs where a frame's bytes come as sent.
+    pub strict_t15: bool,
 }
 
 impl BusConfig {
@@ -64,6 +69,7 @@ impl BusConfig {
             max_backoff: Duration::from_secs(30),
             gap: None,
             rs485: crate::link::Rs485::Off,
+            strict_t15: false,
         }
     }
 }
@@ -206,6 +212,9 @@ impl Bus {
             }
             if let Some(gap) = config.gap {
                 timing.min_gap = gap;
+            }
+            if config.strict_t15 && config.protocol == "modbus-rtu" {
+                timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
             }
             timing
         };

@@ -92,6 +92,10 @@ pub struct Timing {
     pub inter_char_timeout: Duration,
     /// One character's time on the wire, to know when a request has left.
     pub char_time: Duration,
+    /// Modbus RTU's t1.5: a silence longer than this between two bytes of a reply makes it
+    /// incomplete, and it is discarded. `None` (the default): not enforced, because USB
+    /// adapters and device servers deliver bytes in bursts with gaps of their own.
+    pub max_char_gap: Option<Duration>,
 }
 
 impl Timing {
@@ -105,6 +109,7 @@ impl Timing {
             min_gap: gap,
             inter_char_timeout: (char_time * 8).max(Duration::from_millis(20)),
             char_time,
+            max_char_gap: None,
         }
     }
 }
@@ -170,6 +175,8 @@ pub struct MasterSession<P: Protocol> {
     state: MasterState<P::Pending>,
     ready_at: Instant,
     stats: MasterStats,
+    /// When the last bytes of the reply in progress were heard.
+    last_rx: Option<Instant>,
 }
 
 impl<P: Protocol> MasterSession<P> {
@@ -187,6 +194,7 @@ impl<P: Protocol> MasterSession<P> {
             state: MasterState::Idle,
             ready_at: Instant::ZERO,
             stats: MasterStats::default(),
+            last_rx: None,
         }
     }
 
@@ -229,6 +237,7 @@ impl<P: Protocol> MasterSession<P> {
         }
         let len = self.proto.emit_request(req, self.tx.as_mut())?;
         self.tx_len = len;
+        self.last_rx = None;
         self.state = MasterState::Queued { pending: self.proto.pending(req) };
         Ok(())
     }
@@ -280,6 +289,20 @@ impl<P: Protocol> MasterSession<P> {
             }
         }
         let awaiting = matches!(self.state, MasterState::Awaiting { .. });
+        let MasterSession { proto, deframer, state, rx, rx_len, stats, .. } = self;
+        let mut sink = Sink { proto, state, rx: rx.as_mut(), rx_len, stats };
+        if let (Some(gap), Some(last)) = (self.timing.max_char_gap, self.last_rx) {
+            // Modbus over serial line: "If a silent interval of more than 1.5 character times
+            // occurs between two characters, the message frame is declared incomplete".
+            if awaiting && deframer.buffered() > 0 && now.saturating_since(last) > gap {
+                deframer.finish(&mut |e| sink.on_event(e));
+            }
+        }
+        self.last_rx = Some(now);
+        if !matches!(self.state, MasterState::Awaiting { .. }) && awaiting {
+            // The reply in progress was declared incomplete: the exchange has ended.
+            return;
+        }
         let MasterSession { proto, deframer, state, rx, rx_len, stats, .. } = self;
         let mut sink = Sink { proto, state, rx: rx.as_mut(), rx_len, stats };
         deframer.push(bytes, &mut |e| sink.on_event(e));
@@ -342,6 +365,7 @@ impl<P: Protocol> MasterSession<P> {
     /// Abandons the transaction in flight (the caller gave up); the line gap still applies.
     pub fn abort(&mut self) {
         self.state = MasterState::Idle;
+        self.last_rx = None;
     }
 }
 

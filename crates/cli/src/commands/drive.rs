@@ -52,6 +52,10 @@ pub struct Target {
     /// most USB-RS485 adapters do), auto (the kernel's RS-485 mode, else RTS), kernel, rts.
     #[arg(long, global = true, value_name = "MODE", default_value = "off")]
     pub rs485: String,
+    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes (on-board
+    /// UARTs; USB adapters deliver bytes in bursts and would lose good replies).
+    #[arg(long, global = true)]
+    pub strict_t15: bool,
     /// Discard the local echo of our own requests (2-wire adapters that hear themselves).
     #[arg(long, global = true)]
     pub echo: bool,
@@ -212,6 +216,7 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     config.response_timeout = t.timeout.map(Duration::from_millis);
     config.rs485 = t.rs485.parse().map_err(|e: String| fail(EXIT_USAGE, format!("--rs485: {e}")))?;
     config.echo = t.echo;
+    config.strict_t15 = t.strict_t15;
     if let Some(gap) = t.gap {
         if !(0.0..=1000.0).contains(&gap) {
             return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));

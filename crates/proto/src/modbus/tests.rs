@@ -1310,3 +1310,36 @@ fn monitor_diagnoses_at_silence() {
         )]
     );
 }
+
+/// Modbus RTU's t1.5 where it is asked for: a silence longer than 1.5 characters inside a reply
+/// makes it incomplete; shorter gaps, or the rule off (the default), keep the frame.
+#[test]
+fn session_t15_inside_a_reply_declares_it_incomplete_when_enforced() {
+    let req = Request {
+        unit: UnitId(1),
+        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
+    };
+    let reply = h("01 06 FA 01 17 70 E6 C6");
+    let (t15, _) = crate::line::modbus_t15_t35(9600);
+    let run = |enforce: bool, gap: Duration| {
+        let mut timing = rtu::timing(9600, CharFormat::EVEN_8E1);
+        timing.max_char_gap = enforce.then_some(t15);
+        let mut master = MasterSession::new(ModbusRtu, timing);
+        let t0 = Instant::from_millis(0);
+        master.send(t0, &req).unwrap();
+        master.poll_transmit(t0).unwrap();
+        let t1 = Instant::from_millis(20);
+        master.handle_input(t1, &reply[..3]);
+        master.handle_input(t1 + gap, &reply[3..]);
+        match master.poll_event() {
+            Some(MasterEvent::Reply(_)) => "reply".to_string(),
+            Some(MasterEvent::Corrupt(e)) => format!("incomplete: {e}"),
+            other => format!("{other:?}"),
+        }
+    };
+    // 1.5 characters of 11 bits at 9600 baud: 1.719 ms.
+    assert_eq!(run(true, Duration::from_micros(1500)), "reply");
+    let cut = run(true, Duration::from_micros(2000));
+    assert!(cut.starts_with("incomplete: "), "{cut}");
+    assert_eq!(run(false, Duration::from_millis(5)), "reply");
+}

@@ -58,6 +58,7 @@ mod family;
 mod param;
 mod store;
 
+pub mod docgen;
 pub mod profile;
 pub mod registers;
 

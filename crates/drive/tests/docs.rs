@@ -97,20 +97,12 @@ fn render() -> String {
 
 #[test]
 fn docs_parameters_md_lists_every_catalog() {
-    let path = doc_path();
-    let current = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let Some(at) = current.find(MARKER) else {
-        panic!("{} has no marker line {MARKER:?}", path.display());
-    };
-    let marker_end = current[at..].find("-->").map(|i| at + i + 3).unwrap_or(current.len());
-    let expected = format!("{}\n{}", &current[..marker_end], render());
-    if std::env::var_os("DRIVEBUS_BLESS").is_some() {
-        std::fs::write(&path, &expected).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-        return;
+    if let Err(e) = drivebus_drive::docgen::check_section(
+        &doc_path(),
+        MARKER,
+        &render(),
+        "DRIVEBUS_BLESS=1 cargo test -p drivebus-drive --test docs",
+    ) {
+        panic!("{e}");
     }
-    assert!(
-        current == expected,
-        "docs/parameters.md is out of date with the catalogs; run \
-         DRIVEBUS_BLESS=1 cargo test -p drivebus-drive --test docs"
-    );
 }

@@ -90,7 +90,14 @@ fn main() -> ExitCode {
             }
             // One line: clap's message without its usage block.
             let msg = e.to_string();
-            let first = msg.lines().next().unwrap_or("bad usage").trim_start_matches("error: ");
+            // The lines before the usage block, joined (a missing argument is named on the
+            // line after "the following required arguments were not provided:").
+            let said: Vec<&str> = msg
+                .lines()
+                .take_while(|l| !l.trim().is_empty() && !l.starts_with("Usage:"))
+                .map(|l| l.trim().trim_start_matches("error: "))
+                .collect();
+            let first = if said.is_empty() { "bad usage".to_string() } else { said.join(" ") };
             eprintln!("drivebus: {first} (see drivebus --help)");
             return ExitCode::from(EXIT_USAGE);
         }

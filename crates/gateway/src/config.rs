@@ -386,7 +386,9 @@ impl GatewayConfig {
     pub fn from_toml(file: &str, text: &str) -> Result<Self, ConfigError> {
         let cx = Ctx { file, text };
         let raw: FileConfig = toml::from_str(text).map_err(|e| {
-            let msg = e.message().trim().to_string();
+            // toml's messages may take several lines: one line here ("invalid table header:
+            // duplicate key `modbus` in document root").
+            let msg = e.message().trim().lines().map(str::trim).collect::<Vec<_>>().join(": ");
             match e.span() {
                 Some(s) => ConfigError(format!("{file}:{}: {msg}", cx.line(s))),
                 None => ConfigError(format!("{file}: {msg}")),
@@ -780,5 +782,55 @@ mod tests {
         assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
         let e = err("[modbus]\nallow = [\"plc\"]\n");
         assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
+    }
+
+    #[test]
+    fn damaged_files_are_errors_never_panics() {
+        // Deterministic damage to the demo file: characters replaced, lines dropped or doubled.
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let lines: Vec<&str> = DEMO.lines().collect();
+        for _ in 0..2000 {
+            let mut text = String::new();
+            for l in &lines {
+                match next() % 40 {
+                    0 => {}
+                    1 => {
+                        text.push_str(l);
+                        text.push('\n');
+                        text.push_str(l);
+                        text.push('\n');
+                    }
+                    2 => {
+                        let mut b: Vec<char> = l.chars().collect();
+                        if !b.is_empty() {
+                            let i = (next() as usize) % b.len();
+                            b[i] = {
+                                const DAMAGE: &[u8] = b" =\"[]x0-9.,#\\\t";
+                                DAMAGE[(next() as usize) % DAMAGE.len()]
+                            } as char;
+                        }
+                        text.extend(b);
+                        text.push('\n');
+                    }
+                    _ => {
+                        text.push_str(l);
+                        text.push('\n');
+                    }
+                }
+            }
+            let r = std::panic::catch_unwind(|| GatewayConfig::from_toml("d.toml", &text));
+            let r = r.unwrap_or_else(|_| panic!("from_toml panicked on:\n{text}"));
+            if let Err(e) = r {
+                let e = e.to_string();
+                assert!(e.starts_with("d.toml"), "{e}");
+                assert!(!e.contains('\n'), "one line: {e:?}");
+            }
+        }
     }
 }

@@ -243,7 +243,7 @@ impl BusSpec {
     pub fn from_toml(file: &str, text: &str) -> Result<Self, ConfigError> {
         let raw: FileBus = toml::from_str(text).map_err(|e| {
             let line = e.span().map(|s| text[..s.start.min(text.len())].lines().count().max(1));
-            let msg = e.message().to_string();
+            let msg = e.message().trim().lines().map(str::trim).collect::<Vec<_>>().join(": ");
             match line {
                 Some(l) => ConfigError(format!("{file}:{l}: {msg}")),
                 None => ConfigError(format!("{file}: {msg}")),

@@ -63,8 +63,12 @@ fn free_port() -> u16 {
 
 /// `drivebus serve --demo` on free loopback ports: its HTTP address and the demo write token.
 fn start_serve() -> (Proc, SocketAddr, String) {
+    // A store of its own, so the page's event log and trends also come from it.
+    let db =
+        std::env::temp_dir().join(format!("drivebus-dashboard-{}-{}.db", std::process::id(), free_port()));
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-store"])
+        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--db"])
+        .arg(&db)
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -466,6 +470,14 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
 
     let dir = artifacts_dir();
     browser.screenshot(&dir.join("dashboard.png"));
+
+    // After a reload the command is still in the event log: read back from the store.
+    browser.call("POST", "/refresh", Some(json!({})));
+    browser.wait_for(
+        "the run command in the stored event log after a reload",
+        "return [...document.querySelectorAll('#event-rows tr')].some(r => r.dataset.kind === 'command' && r.textContent.includes('mixer-1') && r.textContent.includes('run'));",
+        "return document.getElementById('event-rows').innerText;",
+    );
 
     // A phone: 360 CSS px wide, nothing wider than the screen.
     browser.call("POST", "/window/rect", Some(json!({ "width": 360, "height": 800 })));

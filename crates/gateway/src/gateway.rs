@@ -417,6 +417,7 @@ pub struct Gateway {
     store: Option<Store>,
     /// Counters for metrics.
     pub counters: Counters,
+    log_events: AtomicBool,
 }
 
 impl Gateway {
@@ -486,6 +487,7 @@ impl Gateway {
             changes,
             store,
             counters: Counters::default(),
+            log_events: AtomicBool::new(false),
         });
         gw.record(Event {
             id: 0,
@@ -608,8 +610,16 @@ impl Gateway {
                 }
             }
         }
+        if self.log_events.load(Ordering::Relaxed) {
+            eprintln!("{}", log_line(&event));
+        }
         let _ = self.changes.send(Change::Event(event.clone()));
         event
+    }
+
+    /// Prints every event as one line on stderr (what `drivebus serve` does).
+    pub fn log_events(&self, on: bool) {
+        self.log_events.store(on, Ordering::Relaxed);
     }
 
     async fn record_async(self: &Arc<Self>, event: Event) -> Event {
@@ -882,4 +892,28 @@ impl Gateway {
     pub fn family(d: &DriveEntry) -> Family {
         d.config.family
     }
+}
+
+/// An event as one log line: `2026-11-22T00:06:01.123Z trip line-1/pump-1 {"code":3,...}`.
+pub fn log_line(e: &Event) -> String {
+    let mut line = format!("{} {}", drivebus_store::time::format_rfc3339(e.time_ms), e.kind.as_str());
+    match (&e.bus, &e.drive) {
+        (Some(b), Some(d)) => line.push_str(&format!(" {b}/{d}")),
+        (Some(b), None) => line.push_str(&format!(" {b}")),
+        (None, Some(d)) => line.push_str(&format!(" {d}")),
+        (None, None) => {}
+    }
+    if let Some(a) = &e.action {
+        line.push_str(&format!(" {a}"));
+    }
+    if let Some(who) = e.actor.as_deref().filter(|w| *w != "gateway") {
+        line.push_str(&format!(" by {who}"));
+    }
+    if let Some(r) = &e.result {
+        line.push_str(&format!(": {r}"));
+    }
+    if !e.detail.is_null() && e.detail.as_object().map_or(true, |o| !o.is_empty()) {
+        line.push_str(&format!(" {}", e.detail));
+    }
+    line
 }

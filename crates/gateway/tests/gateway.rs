@@ -97,3 +97,25 @@ async fn parameters_read_from_the_drive() {
     let e = gw.read_param("ahu-1", "99-99").await.unwrap_err();
     assert_eq!(e.http_status(), 422, "{e}");
 }
+
+#[test]
+fn events_log_as_one_line() {
+    use drivebus_gateway::gateway::log_line;
+    use drivebus_store::{Event, EventKind};
+    let mut e = Event::new(1_795_301_254_481, EventKind::Command);
+    e.bus = Some("line-1".into());
+    e.drive = Some("pump-1".into());
+    e.actor = Some("http:scada@10.0.0.9".into());
+    e.action = Some("speed 40 Hz".into());
+    e.result = Some("ok".into());
+    assert_eq!(
+        log_line(&e),
+        "2026-11-21T22:47:34.481Z command line-1/pump-1 speed 40 Hz by http:scada@10.0.0.9: ok"
+    );
+    let mut t = Event::new(1_795_301_254_481, EventKind::Trip);
+    t.bus = Some("line-1".into());
+    t.drive = Some("pump-1".into());
+    t.actor = Some("gateway".into());
+    t.detail = serde_json::json!({ "code": 3 });
+    assert_eq!(log_line(&t), "2026-11-21T22:47:34.481Z trip line-1/pump-1 {\"code\":3}");
+}

@@ -103,6 +103,8 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     rt.block_on(async move {
         let db = config.store.clone();
         let gw = Gateway::start(config, store).map_err(|e| Failure { code: 3, message: e })?;
+        // Events (trips, drives and buses going offline and back, commands) one line each.
+        gw.log_events(true);
         drivebus_gateway::server::run(gw.clone(), |bound| {
             println!("drivebus serve: {} buses, {} drives", gw.buses().len(), gw.drives().len());
             println!("  dashboard   http://{}/", bound.http);

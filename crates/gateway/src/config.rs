@@ -250,6 +250,8 @@ pub struct MqttConfig {
     /// The MQTT client id (default `drivebus-<gateway>`); commands are audited as
     /// `mqtt:<client id>`.
     pub client_id: Option<String>,
+    /// User name and password for brokers that ask for them.
+    pub credentials: Option<(String, String)>,
 }
 
 // ---- the file as written -------------------------------------------------------------------
@@ -358,6 +360,9 @@ struct FileMqtt {
     #[serde(default)]
     allow_commands: Vec<Spanned<String>>,
     client_id: Option<Spanned<String>>,
+    username: Option<Spanned<String>>,
+    password: Option<Spanned<String>>,
+    password_env: Option<Spanned<String>>,
 }
 
 struct Ctx<'a> {
@@ -644,12 +649,41 @@ impl GatewayConfig {
                         );
                     }
                 }
+                let password = match (&m.password, &m.password_env) {
+                    (Some(p), None) => Some(p.get_ref().clone()),
+                    (None, Some(var)) => Some(std::env::var(var.get_ref()).or_else(|_| {
+                        cx.err(
+                            var.span(),
+                            "mqtt.password_env",
+                            format!("the environment variable {:?} is not set", var.get_ref()),
+                        )
+                    })?),
+                    (Some(p), Some(_)) => {
+                        return cx.err(p.span(), "mqtt.password", "give password or password_env, not both")
+                    }
+                    (None, None) => None,
+                };
+                let credentials = match (&m.username, password) {
+                    (Some(u), Some(p)) => Some((u.get_ref().clone(), p)),
+                    (None, None) => None,
+                    (Some(u), None) => {
+                        return cx.err(
+                            u.span(),
+                            "mqtt.username",
+                            "give a password (or password_env) with the user name",
+                        )
+                    }
+                    (None, Some(_)) => {
+                        return cx.err(m.url.span(), "mqtt.username", "a password needs a user name")
+                    }
+                };
                 Some(MqttConfig {
                     url: m.url.get_ref().clone(),
                     topic_prefix: m.topic_prefix.map(|p| p.into_inner()),
                     discovery: m.discovery,
                     allow_commands: m.allow_commands.into_iter().map(|a| a.into_inner()).collect(),
                     client_id: m.client_id.map(|c| c.into_inner()),
+                    credentials,
                 })
             }
         };
@@ -782,6 +816,23 @@ mod tests {
         assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
         let e = err("[modbus]\nallow = [\"plc\"]\n");
         assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
+    }
+
+    #[test]
+    fn mqtt_credentials_come_whole_or_not_at_all() {
+        let base = "[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\n";
+        let c =
+            GatewayConfig::from_toml("p.toml", &format!("{base}username = \"plant\"\npassword = \"pw\"\n"))
+                .unwrap();
+        assert_eq!(c.mqtt.unwrap().credentials, Some(("plant".into(), "pw".into())));
+        assert_eq!(
+            err(&format!("{base}username = \"plant\"\n")),
+            "plant.toml:3: field `mqtt.username`: give a password (or password_env) with the user name"
+        );
+        assert_eq!(
+            err(&format!("{base}username = \"plant\"\npassword_env = \"DRIVEBUS_TEST_NO_SUCH_VARIABLE\"\n")),
+            "plant.toml:4: field `mqtt.password_env`: the environment variable \"DRIVEBUS_TEST_NO_SUCH_VARIABLE\" is not set"
+        );
     }
 
     #[test]

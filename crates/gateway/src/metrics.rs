@@ -123,6 +123,11 @@ impl FrontEndMetrics {
         self.mqtt_connections.inc();
     }
 
+    /// Connections made to the MQTT broker so far.
+    pub fn mqtt_connections(&self) -> u64 {
+        self.mqtt_connections.get()
+    }
+
     /// MQTT messages of `kind` handed to the client so far.
     pub fn mqtt_publishes(&self, kind: &'static str) -> u64 {
         self.mqtt_publishes.get_or_create(&MqttLabels { kind }).get()

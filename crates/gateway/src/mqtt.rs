@@ -162,6 +162,7 @@ struct Settings {
     allow: Vec<Pattern>,
     discovery: bool,
     gateway: String,
+    credentials: Option<(String, String)>,
 }
 
 impl Settings {
@@ -190,6 +191,7 @@ impl Settings {
             allow,
             discovery: cfg.discovery,
             gateway: safe_level(&gw.config().name),
+            credentials: cfg.credentials.clone(),
         })
     }
 
@@ -469,6 +471,9 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
     opts.set_clean_session(true);
     opts.set_last_will(LastWill::new(s.availability(), "offline", QoS::AtLeastOnce, true));
     opts.set_max_packet_size(64 * 1024, 64 * 1024);
+    if let Some((user, password)) = &s.credentials {
+        opts.set_credentials(user.clone(), password.clone());
+    }
     opts.set_request_channel_capacity(64 + 16 * gw.drives().len());
     let (client, mut eventloop) = AsyncClient::new(opts, 64 + 16 * gw.drives().len());
 

@@ -28,12 +28,17 @@ struct Mosquitto {
 
 impl Mosquitto {
     async fn start(bin: &Path, port: u16) -> Mosquitto {
+        Mosquitto::start_with(bin, port, "allow_anonymous true\n").await
+    }
+
+    /// Starts with `extra` lines of configuration (the listener and persistence are set here).
+    async fn start_with(bin: &Path, port: u16, extra: &str) -> Mosquitto {
         let dir = std::env::temp_dir().join(format!("drivebus-mosquitto-{}-{port}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let conf = dir.join("mosquitto.conf");
         std::fs::write(
             &conf,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_dest stderr\n"),
+            format!("listener {port} 127.0.0.1\n{extra}persistence false\nlog_dest stderr\n"),
         )
         .unwrap();
         let child = Command::new(bin)
@@ -108,4 +113,54 @@ async fn mosquitto_statuses_commands_and_restart() {
     wait_all_statuses(&Subscriber::start(broker.addr, "after", &format!("{p}/#")).await, p).await;
     let pump = again.wait_json(&format!("{p}/line-toshiba/pump-1/status"), |v| v["running"] == true).await;
     assert_eq!(pump["setpoint_hz"], 30.0);
+}
+
+/// A broker that asks for a user name and password: the gateway logs in with the configured
+/// credentials; with a wrong password it is refused and connects never.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mosquitto_with_a_password() {
+    let (Some(bin), Some(passwd)) = (mosquitto_binary(), which("mosquitto_passwd")) else {
+        assert!(
+            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
+            "mosquitto and mosquitto_passwd are required in CI but missing: apt-get install mosquitto"
+        );
+        eprintln!("NOT RUN: mosquitto or mosquitto_passwd is not installed; .ci/run installs them");
+        return;
+    };
+    let port = free_port();
+    let dir = std::env::temp_dir().join(format!("drivebus-mosquitto-auth-{}-{port}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("passwords");
+    let made = Command::new(&passwd)
+        .args(["-b", "-c"])
+        .arg(&file)
+        .args(["plant", "s3cret-Passw0rd"])
+        .status()
+        .expect("run mosquitto_passwd");
+    assert!(made.success());
+    let _broker = Mosquitto::start_with(
+        &bin,
+        port,
+        &format!("allow_anonymous false\npassword_file {}\n", file.display()),
+    )
+    .await;
+    let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+    let good = demo_gateway_with("hall-auth", addr, &[], false, Some(("plant", "s3cret-Passw0rd")));
+    let bad = demo_gateway_with("hall-bad", addr, &[], false, Some(("plant", "wrong")));
+    let start = std::time::Instant::now();
+    while good.counters.front_ends.mqtt_connections() == 0 {
+        assert!(start.elapsed() < std::time::Duration::from_secs(60), "the gateway never logged in");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    // The wrong password has had as long and several retries: still not connected.
+    tokio::time::sleep(std::time::Duration::from_millis(1500)).await;
+    assert_eq!(bad.counters.front_ends.mqtt_connections(), 0, "a wrong password was accepted");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn which(name: &str) -> Option<PathBuf> {
+    let mut dirs: Vec<PathBuf> =
+        std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect()).unwrap_or_default();
+    dirs.extend(["/usr/bin", "/usr/sbin"].map(PathBuf::from));
+    dirs.into_iter().map(|d| d.join(name)).find(|p| p.is_file())
 }

@@ -77,6 +77,7 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             discovery: false,
             allow_commands: Vec::new(),
             client_id: None,
+            credentials: None,
         });
         m.url = url.clone();
         config.mqtt = Some(m);

@@ -202,6 +202,17 @@ impl Subscriber {
 
 /// The demo as gateway `name`, publishing to `broker` with `allow` as its command rules.
 pub fn demo_gateway(name: &str, broker: SocketAddr, allow: &[&str], discovery: bool) -> Arc<Gateway> {
+    demo_gateway_with(name, broker, allow, discovery, None)
+}
+
+/// [`demo_gateway`] logging in with `credentials`.
+pub fn demo_gateway_with(
+    name: &str,
+    broker: SocketAddr,
+    allow: &[&str],
+    discovery: bool,
+    credentials: Option<(&str, &str)>,
+) -> Arc<Gateway> {
     let mut config = GatewayConfig::demo();
     config.name = name.to_string();
     config.store = None;
@@ -211,6 +222,7 @@ pub fn demo_gateway(name: &str, broker: SocketAddr, allow: &[&str], discovery: b
         discovery,
         allow_commands: allow.iter().map(|s| s.to_string()).collect(),
         client_id: None,
+        credentials: credentials.map(|(u, p)| (u.to_string(), p.to_string())),
     };
     let gw = Gateway::start(config, None).unwrap();
     drivebus_gateway::mqtt::spawn(gw.clone(), &mqtt).unwrap();

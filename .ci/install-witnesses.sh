@@ -4,7 +4,15 @@
 # chromium and chromium-driver (chromedriver). Idempotent.
 set -euo pipefail
 if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
-  python3 -m pip install --quiet pymodbus pyserial
+  # Debian marks its Python "externally managed": fall back to --break-system-packages, and
+  # install pip itself first where it is missing.
+  python3 -m pip --version >/dev/null 2>&1 || {
+    SUDO=""
+    [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+    $SUDO apt-get install -y -q python3-pip >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q python3-pip >/dev/null; }
+  }
+  python3 -m pip install --quiet pymodbus pyserial 2>/dev/null \
+    || python3 -m pip install --quiet --break-system-packages pymodbus pyserial
 fi
 if ! command -v mbpoll >/dev/null; then
   SUDO=""

@@ -11,8 +11,8 @@ if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
     [ "$(id -u)" -eq 0 ] || SUDO="sudo"
     $SUDO apt-get install -y -q python3-pip >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q python3-pip >/dev/null; }
   }
-  python3 -m pip install --quiet pymodbus pyserial 2>/dev/null \
-    || python3 -m pip install --quiet --break-system-packages pymodbus pyserial
+  python3 -m pip install --quiet "pymodbus==3.16.1" pyserial 2>/dev/null \
+    || python3 -m pip install --quiet --break-system-packages "pymodbus==3.16.1" pyserial
 fi
 if ! command -v mbpoll >/dev/null; then
   SUDO=""

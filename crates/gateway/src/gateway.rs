@@ -624,9 +624,15 @@ impl Gateway {
 
     async fn record_async(self: &Arc<Self>, event: Event) -> Event {
         let gw = self.clone();
+        let kept = event.clone();
         match tokio::task::spawn_blocking(move || gw.record(event)).await {
             Ok(e) => e,
-            Err(e) => panic!("event writer task failed: {e}"),
+            // The runtime is shutting down: the event is not stored, say so rather than panic.
+            Err(e) => {
+                self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
+                eprintln!("drivebus serve: event not stored ({e}): {}", log_line(&kept));
+                kept
+            }
         }
     }
 

@@ -26,8 +26,21 @@ fn run_in(dir: &Path, args: &[&str]) -> Run {
     }
 }
 
-/// 2026-11-21T10:00:00Z
-const T0: i64 = 1_795_255_200_000;
+/// The fixture's start: the last whole hour at least an hour ago. Trends of 1 s are kept for a
+/// day of wall-clock time (the store prunes them when it opens), so a fixed date would age out.
+/// Taken once per test binary, so every test sees the same start.
+fn t0() -> i64 {
+    static T0: std::sync::OnceLock<i64> = std::sync::OnceLock::new();
+    *T0.get_or_init(|| {
+        let now = drivebus_store::time::now_ms();
+        now - now.rem_euclid(3_600_000) - 3_600_000
+    })
+}
+
+/// `t0() + offset_ms` as the CLI prints it (RFC 3339, UTC).
+fn at(offset_ms: i64) -> String {
+    drivebus_store::time::format_rfc3339(t0() + offset_ms)
+}
 
 fn event(time_ms: i64, kind: EventKind, drive: &str, actor: &str, action: &str, result: &str) -> Event {
     Event {
@@ -46,16 +59,16 @@ fn event(time_ms: i64, kind: EventKind, drive: &str, actor: &str, action: &str, 
 /// A store in `dir/drivebus.db` with five events and two minutes of one drive's trend.
 fn fixture(dir: &Path) {
     let store = Store::open(&dir.join("drivebus.db")).unwrap();
-    store.record(&event(T0, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "run", "ok")).unwrap();
+    store.record(&event(t0(), EventKind::Command, "pump-1", "http:ops@127.0.0.1", "run", "ok")).unwrap();
     store
-        .record(&event(T0 + 1_000, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "speed 40 Hz", "ok"))
+        .record(&event(t0() + 1_000, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "speed 40 Hz", "ok"))
         .unwrap();
-    let mut trip = event(T0 + 60_000, EventKind::Trip, "fan-2", "", "", "");
+    let mut trip = event(t0() + 60_000, EventKind::Trip, "fan-2", "", "", "");
     trip.detail = json!({"code": 7, "text": "overcurrent"});
     store.record(&trip).unwrap();
     store
         .record(&event(
-            T0 + 120_000,
+            t0() + 120_000,
             EventKind::Command,
             "fan-2",
             "modbus:127.0.0.1:5555",
@@ -63,13 +76,13 @@ fn fixture(dir: &Path) {
             "refused: locked",
         ))
         .unwrap();
-    let mut gw = Event::new(T0 + 180_000, EventKind::Started);
+    let mut gw = Event::new(t0() + 180_000, EventKind::Started);
     gw.actor = Some("gateway".into());
     store.record(&gw).unwrap();
     for i in 0..120 {
         let hz = if i < 60 { i as f64 } else { 50.0 };
         store.sample(Sample {
-            time_ms: T0 + i * 1000,
+            time_ms: t0() + i * 1000,
             drive: "pump-1".into(),
             output_hz: Some(hz),
             current_a: Some(2.0),
@@ -95,12 +108,9 @@ fn events_table_lists_every_column() {
         assert!(lines[0].contains(col), "{}", lines[0]);
     }
     let first: Vec<&str> = lines[1].split_whitespace().collect();
-    assert_eq!(
-        first,
-        ["2026-11-21T10:00:00Z", "command", "line-1", "pump-1", "http:ops@127.0.0.1", "run", "ok"]
-    );
+    assert_eq!(first, [at(0).as_str(), "command", "line-1", "pump-1", "http:ops@127.0.0.1", "run", "ok"]);
     assert!(lines[2].contains("speed 40 Hz"), "{}", lines[2]);
-    assert!(lines[3].contains("2026-11-21T10:01:00Z") && lines[3].contains("trip"), "{}", lines[3]);
+    assert!(lines[3].contains(at(60_000).as_str()) && lines[3].contains("trip"), "{}", lines[3]);
     assert!(lines[4].contains("refused: locked"), "{}", lines[4]);
     assert!(lines[5].contains("started") && lines[5].contains("gateway"), "{}", lines[5]);
 }
@@ -116,22 +126,18 @@ fn events_filters_reach_the_store() {
         assert_eq!(r.code, 0, "{args:?}: {}", r.stderr);
         json_lines(&r.stdout)
             .iter()
-            .map(|e| format!("{}@{}", e["kind"].as_str().unwrap(), e["time_ms"].as_i64().unwrap() - T0))
+            .map(|e| format!("{}@{}", e["kind"].as_str().unwrap(), e["time_ms"].as_i64().unwrap() - t0()))
             .collect::<Vec<_>>()
     };
     assert_eq!(kinds(&["--drive", "fan-2"]), ["trip@60000", "command@120000"]);
     assert_eq!(kinds(&["--kind", "command"]), ["command@0", "command@1000", "command@120000"]);
     assert_eq!(kinds(&["--kind", "command", "--drive", "pump-1", "--limit", "1"]), ["command@1000"]);
-    assert_eq!(
-        kinds(&["--since", "2026-11-21T10:01:00Z", "--until", "2026-11-21T10:03:00Z"]),
-        ["trip@60000", "command@120000"]
-    );
-    let ms = (T0 + 120_000).to_string();
+    assert_eq!(kinds(&["--since", &at(60_000), "--until", &at(180_000)]), ["trip@60000", "command@120000"]);
+    let ms = (t0() + 120_000).to_string();
     assert_eq!(kinds(&["--since", &ms]), ["command@120000", "started@180000"]);
-    // relative times: the fixture is in 2026-11, so "-1d" from now finds it only before then
-    let recent = kinds(&["--since", "-1d"]);
-    let now = drivebus_store::time::now_ms();
-    assert_eq!(recent.len(), if now - 86_400_000 <= T0 { 5 } else { 0 });
+    // relative times: the fixture starts one to two hours ago
+    assert_eq!(kinds(&["--since", "-1d"]).len(), 5);
+    assert_eq!(kinds(&["--since", "-1s"]).len(), 0);
 }
 
 #[test]
@@ -144,7 +150,7 @@ fn events_json_is_the_stored_event() {
     assert_eq!(got.len(), 1);
     assert_eq!(
         got[0],
-        json!({"id": 3, "time_ms": T0 + 60_000, "kind": "trip", "bus": "line-1", "drive": "fan-2", "actor": null,
+        json!({"id": 3, "time_ms": t0() + 60_000, "kind": "trip", "bus": "line-1", "drive": "fan-2", "actor": null,
                "action": null, "result": null, "detail": {"code": 7, "text": "overcurrent"}})
     );
     let e: Event = serde_json::from_value(got[0].clone()).unwrap();
@@ -167,7 +173,8 @@ fn events_with_db_elsewhere_and_none_matching() {
 fn trend_table_and_json() {
     let dir = tempfile::tempdir().unwrap();
     fixture(dir.path());
-    let range = ["--since", "2026-11-21T10:00:00Z", "--until", "2026-11-21T10:02:00Z"];
+    let (since, until) = (at(0), at(120_000));
+    let range = ["--since", since.as_str(), "--until", until.as_str()];
     let mut args = vec!["trend", "--drive", "pump-1", "--resolution", "1m"];
     args.extend_from_slice(&range);
     let r = run_in(dir.path(), &args);
@@ -176,9 +183,9 @@ fn trend_table_and_json() {
     assert_eq!(lines.len(), 3, "{}", r.stdout);
     assert!(lines[0].contains("OUTPUT HZ") && lines[0].contains("MAX HZ"), "{}", lines[0]);
     let row: Vec<&str> = lines[1].split_whitespace().collect();
-    assert_eq!(row, ["2026-11-21T10:00:00Z", "29.50", "0.00", "59.00", "2.00", "50.00", "60"]);
+    assert_eq!(row, [at(0).as_str(), "29.50", "0.00", "59.00", "2.00", "50.00", "60"]);
     let row: Vec<&str> = lines[2].split_whitespace().collect();
-    assert_eq!(row, ["2026-11-21T10:01:00Z", "50.00", "50.00", "50.00", "2.00", "50.00", "60"]);
+    assert_eq!(row, [at(60_000).as_str(), "50.00", "50.00", "50.00", "2.00", "50.00", "60"]);
 
     // 1 s resolution, JSON: one point per second; explicit --resolution beats the default
     let mut args = vec!["trend", "--drive", "pump-1", "--resolution", "1s", "--json"];
@@ -187,7 +194,7 @@ fn trend_table_and_json() {
     assert_eq!(r.code, 0, "{}", r.stderr);
     let pts = json_lines(&r.stdout);
     assert_eq!(pts.len(), 120);
-    assert_eq!(pts[30]["time_ms"], json!(T0 + 30_000));
+    assert_eq!(pts[30]["time_ms"], json!(t0() + 30_000));
     assert_eq!(pts[30]["output_hz"], json!(30.0));
     assert_eq!(pts[30]["samples"], json!(1));
 }
@@ -280,7 +287,7 @@ fn reads_while_a_writer_has_the_store_open() {
     let dir = tempfile::tempdir().unwrap();
     fixture(dir.path());
     let writer = Store::open(&dir.path().join("drivebus.db")).unwrap();
-    writer.record(&event(T0 + 240_000, EventKind::Offline, "pump-1", "", "", "")).unwrap();
+    writer.record(&event(t0() + 240_000, EventKind::Offline, "pump-1", "", "", "")).unwrap();
     let r = run_in(dir.path(), &["events", "--json", "--kind", "offline"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert_eq!(json_lines(&r.stdout).len(), 1);

@@ -209,3 +209,53 @@ fn serve_demo_runs_a_drive_over_http_and_audits_it_through_kill_9() {
         assert!(after.iter().any(|a| a == action), "{action} lost after kill -9: {after:?}");
     }
 }
+
+/// `serve --config` with a file of `tokens`: its stderr up to the line that says the listeners
+/// are bound (the process is killed there).
+fn serve_config_stderr(dir: &std::path::Path, tokens: &str) -> String {
+    let cfg = dir.join("plant.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "name = \"t\"\n[store]\ndisabled = true\n{tokens}\n[[bus]]\nname = \"l\"\nport = \"virtual\"\n\
+             protocol = \"modbus-rtu\"\n[[bus.drive]]\nname = \"d\"\nfamily = \"generic\"\naddress = 1\n"
+        ),
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .args([
+            "--http",
+            &format!("127.0.0.1:{}", free_port()),
+            "--modbus",
+            &format!("127.0.0.1:{}", free_port()),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start drivebus serve");
+    // The listeners line on stdout comes after every startup warning on stderr.
+    let out = BufReader::new(child.stdout.take().unwrap());
+    let said: Vec<String> =
+        out.lines().map_while(Result::ok).take_while(|l| !l.contains("Modbus TCP")).collect();
+    let _ = child.kill();
+    let mut err = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+    let _ = child.wait();
+    assert!(said.iter().any(|l| l.contains("1 buses, 1 drives")), "{said:?} {err}");
+    err
+}
+
+#[test]
+fn serve_warns_when_no_token_can_read_or_write() {
+    let dir = tempfile::tempdir().unwrap();
+    let err = serve_config_stderr(dir.path(), "");
+    assert!(err.contains("no [[token]] and anonymous_read = false") && err.contains("401"), "{err}");
+    let read_only = "[[token]]\nname = \"hmi\"\ntoken = \"a-read-token-of-16-chars\"\nrole = \"read\"\n";
+    let err = serve_config_stderr(dir.path(), read_only);
+    assert!(err.contains("no [[token]] with role = \"write\"") && err.contains("403"), "{err}");
+    let write = "[[token]]\nname = \"scada\"\ntoken = \"a-write-token-of-16-chars\"\nrole = \"write\"\n";
+    let err = serve_config_stderr(dir.path(), write);
+    assert!(!err.contains("warning") && !err.contains("note:"), "{err}");
+}

@@ -65,15 +65,30 @@ fn modbus_request(tid: u16, unit: u8) -> [u8; 12] {
 }
 
 /// One Modbus read of ten input registers; Ok when the answer is a 29-byte FC 04 reply.
+///
+/// The reply is read with as few `read` calls as the kernel allows (one, when it arrived whole):
+/// a read shorter than the buffer tells tokio the socket is drained, so the next request waits
+/// on epoll instead of trying a read that fails with EAGAIN. Two `read_exact` calls (header,
+/// then body) made three reads per request, and the generator, not the server, was the limit.
 async fn modbus_read(s: &mut TcpStream, tid: u16, unit: u8, buf: &mut [u8; 64]) -> std::io::Result<bool> {
     s.write_all(&modbus_request(tid, unit)).await?;
-    s.read_exact(&mut buf[..9]).await?;
-    let len = u16::from_be_bytes([buf[4], buf[5]]) as usize;
-    if !(2..=60).contains(&len) {
-        return Ok(false);
+    let mut got = 0;
+    let mut want = 9;
+    while got < want {
+        let n = s.read(&mut buf[got..]).await?;
+        if n == 0 {
+            return Err(std::io::ErrorKind::UnexpectedEof.into());
+        }
+        got += n;
+        if want == 9 && got >= 6 {
+            let len = u16::from_be_bytes([buf[4], buf[5]]) as usize;
+            if !(2..=58).contains(&len) {
+                return Ok(false);
+            }
+            want = 6 + len;
+        }
     }
-    s.read_exact(&mut buf[9..6 + len]).await?;
-    Ok(buf[7] == 4 && buf[8] == 20 && u16::from_be_bytes([buf[0], buf[1]]) == tid)
+    Ok(got == want && buf[7] == 4 && buf[8] == 20 && u16::from_be_bytes([buf[0], buf[1]]) == tid)
 }
 
 async fn modbus_client(addr: SocketAddr, unit: u8, stop: Instant, h: Rc<RefCell<Histogram>>) {

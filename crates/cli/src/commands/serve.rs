@@ -91,6 +91,20 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     if let Some(t) = &token {
         config.tokens.push(Token { name: "demo".into(), secret: t.clone(), role: Role::Write });
     }
+    // A configuration that locks everyone out of the HTTP API is legal (Modbus TCP and MQTT
+    // still work) but almost never meant: say so at start, not with a 401 later.
+    if !config.http.anonymous_read && config.tokens.is_empty() {
+        eprintln!(
+            "drivebus serve: warning: no [[token]] and anonymous_read = false: every HTTP request \
+             (dashboard included) will be refused with 401; add a [[token]] or set \
+             [http] anonymous_read = true (docs/gateway.md)"
+        );
+    } else if !config.tokens.iter().any(|t| t.role == Role::Write) {
+        eprintln!(
+            "drivebus serve: note: no [[token]] with role = \"write\": HTTP commands and \
+             parameter writes will be refused with 403"
+        );
+    }
     let store = match &config.store {
         Some(path) => {
             Some(drivebus_store::Store::open(path).map_err(|e| Failure { code: 2, message: e.to_string() })?)

@@ -1,7 +1,10 @@
 #!/usr/bin/env bash
-# Modbus RTU clients over a raw pty, same simulator, same read, same run: drivebus (its bus
-# owner, crates/link/examples/pty_read.rs), pymodbus, libmodbus and tokio-modbus each read
-# 2 registers at 2100H from drive 1 in a tight loop for SECONDS; prints reads/s and latency.
+# Modbus RTU clients over a raw pty, same simulator, same read, same run: drivebus (its
+# blocking bus, and as drivebus-async its bus owner task; crates/link/examples/pty_read.rs),
+# pymodbus, libmodbus and tokio-modbus each read 2 registers at 2100H from drive 1 in a tight
+# loop for SECONDS; prints reads/s and latency. With two cores or more the simulator is pinned
+# to core 0 and every client to core 1 (PIN=0 turns this off), so all of them see the same
+# placement and the scheduler's moves do not decide the result.
 #
 #   bench/pty_clients.sh [SECONDS]        (default 5; ROUNDS=3 repeats the set)
 #
@@ -36,8 +39,15 @@ if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
     python3 -m pip install -q pymodbus pyserial 2>/dev/null || python3 -m pip install -q --break-system-packages pymodbus pyserial
 fi
 
+SIM_CPU=()
+CLIENT_CPU=()
+if [ "${PIN:-1}" = 1 ] && [ "$(nproc)" -ge 2 ] && command -v taskset >/dev/null; then
+    SIM_CPU=(taskset -c 0)
+    CLIENT_CPU=(taskset -c 1)
+fi
+
 PTY=$WORK/pty
-"$ROOT/target/release/drivebus" simulate --drive generic@1:modbus-rtu --baud 115200 --serial 8N1 \
+"${SIM_CPU[@]}" "$ROOT/target/release/drivebus" simulate --drive generic@1:modbus-rtu --baud 115200 --serial 8N1 \
     --no-pacing --response-us 0 --pty "$PTY" >"$WORK/sim.log" 2>&1 &
 SIM_PID=$!
 for _ in $(seq 50); do grep -q "listening on" "$WORK/sim.log" && break; sleep 0.1; done
@@ -46,20 +56,23 @@ grep -q "listening on" "$WORK/sim.log" || { echo "the simulator did not start: $
 RESULTS=$WORK/results
 for round in $(seq "$ROUNDS"); do
     echo "round $round/$ROUNDS: $SECS s per client ..." >&2
-    "$ROOT/target/release/examples/pty_read" "$PTY" "$SECS" 0 >>"$RESULTS"
-    python3 bench/clients/pymodbus_client.py "$PTY" "$SECS" >>"$RESULTS"
-    "$WORK/libmodbus_client" "$PTY" "$SECS" >>"$RESULTS"
-    "$ROOT/target/release/tokio-modbus-client" "$PTY" "$SECS" >>"$RESULTS"
+    "${CLIENT_CPU[@]}" "$ROOT/target/release/examples/pty_read" "$PTY" "$SECS" 0 blocking >>"$RESULTS"
+    "${CLIENT_CPU[@]}" "$ROOT/target/release/examples/pty_read" "$PTY" "$SECS" 0 async >>"$RESULTS"
+    "${CLIENT_CPU[@]}" python3 bench/clients/pymodbus_client.py "$PTY" "$SECS" >>"$RESULTS"
+    "${CLIENT_CPU[@]}" "$WORK/libmodbus_client" "$PTY" "$SECS" >>"$RESULTS"
+    "${CLIENT_CPU[@]}" "$ROOT/target/release/tokio-modbus-client" "$PTY" "$SECS" >>"$RESULTS"
 done
 
-python3 - "$RESULTS" "$SECS" "$ROUNDS" <<'PY'
+PLACEMENT="unpinned"
+[ ${#SIM_CPU[@]} -gt 0 ] && PLACEMENT="simulator on core 0, clients on core 1"
+python3 - "$RESULTS" "$SECS" "$ROUNDS" "$PLACEMENT" <<'PY'
 import sys, statistics
 rows = {}
 for line in open(sys.argv[1]):
     name, *kv = line.split()
     rows.setdefault(name, []).append({k: float(v) for k, v in (x.split("=") for x in kv)})
 print(f"Modbus RTU over a pty, read 2 registers at 2100H from drive 1, {sys.argv[2]} s per client, "
-      f"{sys.argv[3]} round(s), median of rounds; simulator --no-pacing --response-us 0")
+      f"{sys.argv[3]} round(s), median of rounds; simulator --no-pacing --response-us 0; {sys.argv[4]}")
 print()
 print("| client | reads/s | p50 latency µs | p99 latency µs | errors |")
 print("|---|---:|---:|---:|---:|")
@@ -68,7 +81,7 @@ for name, rs in rows.items():
     m = {k: statistics.median(r[k] for r in rs) for k in rs[0]}
     med[name] = m
     print(f"| {name} | {m['reads_per_s']:.0f} | {m['p50_us']:.0f} | {m['p99_us']:.0f} | {m['errors']:.0f} |")
-others = {k: v for k, v in med.items() if k != "drivebus"}
+others = {k: v for k, v in med.items() if not k.startswith("drivebus")}
 if "drivebus" in med and others:
     best = max(others, key=lambda k: others[k]["reads_per_s"])
     ratio = med["drivebus"]["reads_per_s"] / max(others[best]["reads_per_s"], 1)

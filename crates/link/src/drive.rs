@@ -25,6 +25,7 @@
 
 use std::fmt;
 use std::io;
+use std::sync::Mutex;
 use std::time::Duration;
 
 use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Profile, Step};
@@ -32,8 +33,9 @@ use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::Instant;
 
+use crate::blocking::BlockingBus;
 use crate::link::{Clock, Link, SerialLink, TcpLink};
-use crate::owner::{Bus, BusConfig, BusError, Priority};
+use crate::owner::{Bus, BusConfig, BusError, BusStats, Priority};
 
 /// Why an operation on a drive failed.
 #[derive(Debug)]
@@ -237,14 +239,16 @@ impl Drive {
     }
 }
 
-/// The same API without async, for scripts: owns a small runtime.
+/// The same API without async, for scripts and single-threaded programs: runs on a
+/// [`BlockingBus`] in the calling thread (no runtime).
 pub struct BlockingDrive {
-    rt: tokio::runtime::Runtime,
-    drive: Drive,
+    bus: Mutex<BlockingBus>,
+    profile: Box<dyn Profile>,
+    timeout: Option<Duration>,
 }
 
 impl BlockingDrive {
-    /// Opens `port` and speaks to drive `address` of `family` with `protocol`.
+    /// Opens `port` and speaks to the drive at `address` of `family` with `protocol`.
     pub fn open(
         port: &str,
         family: Family,
@@ -253,59 +257,92 @@ impl BlockingDrive {
         baud: u32,
         format: CharFormat,
     ) -> Result<Self, Error> {
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-            .map_err(|e| BusError::Link(e.to_string()))?;
         let profile = drivebus_drive::profile::for_drive(family, protocol, address)?;
-        let bus = rt.block_on(open(port, protocol, baud, format))?;
-        Ok(BlockingDrive { rt, drive: Drive::new(bus, profile) })
+        let bus = BlockingBus::open(port, BusConfig::new(protocol, baud, format))?;
+        Ok(Self::new(bus, profile))
     }
 
-    /// Wraps an async drive with its runtime.
-    pub fn from_parts(rt: tokio::runtime::Runtime, drive: Drive) -> Self {
-        BlockingDrive { rt, drive }
+    /// A drive with `profile` on `bus`.
+    pub fn new(bus: BlockingBus, profile: Box<dyn Profile>) -> Self {
+        BlockingDrive { bus: Mutex::new(bus), profile, timeout: None }
     }
 
-    /// The async drive.
-    pub fn inner(&self) -> &Drive {
-        &self.drive
+    /// This drive's response timeout instead of the bus's.
+    pub fn with_timeout(mut self, timeout: Duration) -> Self {
+        self.timeout = Some(timeout);
+        self
+    }
+
+    /// The drive's profile.
+    pub fn profile(&self) -> &dyn Profile {
+        self.profile.as_ref()
+    }
+
+    /// The bus's counts so far.
+    pub fn stats(&self) -> BusStats {
+        self.bus.lock().unwrap_or_else(|p| p.into_inner()).stats()
+    }
+
+    /// Runs `op` to its end: one transaction after another, as the profile plans them.
+    pub fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
+        let mut plan = self.profile.plan(op)?;
+        let mut reply: Option<Vec<u8>> = None;
+        let mut bus = self.bus.lock().unwrap_or_else(|p| p.into_inner());
+        loop {
+            match plan.step(reply.as_deref())? {
+                Step::Done(outcome) => return Ok(outcome),
+                Step::Send(exchange) => {
+                    reply =
+                        bus.transact(self.profile.address(), &exchange, Priority::Command, self.timeout)?;
+                }
+            }
+        }
     }
 
     /// See [`Drive::status`].
     pub fn status(&self) -> Result<DriveStatus, Error> {
-        self.rt.block_on(self.drive.status())
+        match self.execute(&Operation::Status)? {
+            Outcome::Status(s) => Ok(s),
+            other => Err(DriveError::Protocol(format!("a status read gave {other:?}")).into()),
+        }
     }
     /// See [`Drive::run`].
     pub fn run(&self) -> Result<(), Error> {
-        self.rt.block_on(self.drive.run())
+        self.execute(&Operation::Run).map(|_| ())
     }
     /// See [`Drive::stop`].
     pub fn stop(&self) -> Result<(), Error> {
-        self.rt.block_on(self.drive.stop())
+        self.execute(&Operation::Stop).map(|_| ())
     }
     /// See [`Drive::reverse`].
     pub fn reverse(&self) -> Result<(), Error> {
-        self.rt.block_on(self.drive.reverse())
+        self.execute(&Operation::Reverse).map(|_| ())
     }
     /// See [`Drive::jog`].
     pub fn jog(&self) -> Result<(), Error> {
-        self.rt.block_on(self.drive.jog())
+        self.execute(&Operation::Jog).map(|_| ())
     }
     /// See [`Drive::reset`].
     pub fn reset(&self) -> Result<(), Error> {
-        self.rt.block_on(self.drive.reset())
+        self.execute(&Operation::Reset).map(|_| ())
     }
     /// See [`Drive::set_speed`].
     pub fn set_speed(&self, hz: f64) -> Result<(), Error> {
-        self.rt.block_on(self.drive.set_speed(hz))
+        self.execute(&Operation::SetSpeed(hz)).map(|_| ())
     }
     /// See [`Drive::read_param`].
     pub fn read_param(&self, name: &str) -> Result<(i64, ParamDef), Error> {
-        self.rt.block_on(self.drive.read_param(name))
+        let def = self.profile.param(name)?.clone();
+        match self.execute(&Operation::ReadParam(name.to_string()))? {
+            Outcome::Param(raw) => Ok((raw, def)),
+            other => Err(DriveError::Protocol(format!("a parameter read gave {other:?}")).into()),
+        }
     }
     /// See [`Drive::write_param`].
     pub fn write_param(&self, name: &str, value: &str, storage: Storage) -> Result<i64, Error> {
-        self.rt.block_on(self.drive.write_param(name, value, storage))
+        let def = self.profile.param(name)?;
+        let raw = def.parse_value(value).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
+        self.execute(&Operation::WriteParam { name: name.to_string(), raw, storage })?;
+        Ok(raw)
     }
 }

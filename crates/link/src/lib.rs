@@ -7,10 +7,17 @@
 //!
 //! ```text
 //! Drive (profile: operation -> frames)  ──transact──►  Bus (queue) ──► owner task
-//!                                                           MasterSession<P> + Link
+//!                                                           Engine<P> + Link (async)
+//! BlockingDrive                         ──transact──►  BlockingBus: Engine<P> + blocking port,
+//!                                                      in the calling thread
 //! ```
+//!
+//! The engine (`MasterSession` plus retries, echo removal, statistics and drive health) never
+//! waits; the async owner and the blocking bus ([`blocking`]) wait for it, each their way.
 
+pub mod blocking;
 pub mod drive;
+mod engine;
 pub mod link;
 pub mod owner;
 pub mod timer;

@@ -115,7 +115,7 @@ pub struct SerialLink {
 
 /// Turns on the kernel's RS-485 mode (RTS on while sending, off after) on `fd`.
 #[cfg(target_os = "linux")]
-fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
+pub(crate) fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
     /// `struct serial_rs485` of `<linux/serial.h>`.
     #[repr(C)]
     struct SerialRs485 {
@@ -145,13 +145,13 @@ fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
 }
 
 #[cfg(not(target_os = "linux"))]
-fn kernel_rs485(_fd: i32) -> io::Result<()> {
+pub(crate) fn kernel_rs485(_fd: i32) -> io::Result<()> {
     Err(io::Error::new(io::ErrorKind::Unsupported, "the kernel's RS-485 mode is Linux only"))
 }
 
 /// True for errors that mean "this device has no such control" (a pty, a driver without
 /// RS-485 support), as opposed to a failing port.
-fn unsupported(e: &io::Error) -> bool {
+pub(crate) fn unsupported(e: &io::Error) -> bool {
     let code = matches!(e.raw_os_error(), Some(c) if c == libc::ENOTTY || c == libc::EINVAL || c == libc::EOPNOTSUPP);
     // serialport's errors carry the errno's text only (nix's wording for ENOTTY and EINVAL).
     let text = e.to_string();

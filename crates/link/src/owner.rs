@@ -15,10 +15,11 @@ use std::time::Duration;
 
 use drivebus_drive::profile::Exchange;
 use drivebus_proto::line::CharFormat;
-use drivebus_proto::session::{MasterEvent, MasterSession, Protocol, Timing};
-use drivebus_proto::{b800, fc, modbus, toshiba, Instant};
+use drivebus_proto::session::Protocol;
+use drivebus_proto::Instant;
 use tokio::sync::{mpsc, oneshot};
 
+use crate::engine::{with_engine, Action, Attempt, Engine};
 use crate::link::Link;
 
 /// How a bus is run.
@@ -181,8 +182,8 @@ pub struct Health {
     pub transactions: u64,
     /// Transactions that failed.
     pub errors: u64,
-    backoff: Duration,
-    next_probe: Option<Instant>,
+    pub(crate) backoff: Duration,
+    pub(crate) next_probe: Option<Instant>,
 }
 
 struct Job {
@@ -205,59 +206,15 @@ pub struct Bus {
 impl Bus {
     /// Starts the owner task for `link` with `config` on the current tokio runtime.
     pub fn spawn<L: Link>(link: L, config: BusConfig) -> Result<Bus, BusError> {
-        let t = |f: fn(u32, CharFormat) -> Timing| {
-            let mut timing = f(config.baud, config.format);
-            if let Some(rt) = config.response_timeout {
-                timing.response_timeout = rt;
-            }
-            if let Some(gap) = config.gap {
-                timing.min_gap = gap;
-            }
-            if config.strict_t15 && config.protocol == "modbus-rtu" {
-                timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
-            }
-            timing
-        };
-        match config.protocol.as_str() {
-            "modbus-rtu" => Ok(Self::spawn_typed(link, modbus::rtu::ModbusRtu, t(modbus::rtu::timing), config)),
-            "modbus-ascii" => Ok(Self::spawn_typed(link, modbus::ascii::ModbusAscii, t(modbus::ascii::timing), config)),
-            "toshiba-ascii" => Ok(Self::spawn_typed(link, toshiba::ascii::TipAscii::default(), t(toshiba::timing), config)),
-            "toshiba-binary" => Ok(Self::spawn_typed(link, toshiba::binary::TipBinary::default(), t(toshiba::timing), config)),
-            "danfoss-fc" => Ok(Self::spawn_typed(link, fc::Fc::default(), t(fc::timing), config)),
-            "b800" => Ok(Self::spawn_typed(link, b800::B800, t(b800::timing), config)),
-            other => Err(BusError::BadRequest(format!(
-                "unknown protocol {other:?}: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800"
-            ))),
-        }
-    }
-
-    fn spawn_typed<L: Link, P: Protocol + Send + 'static>(
-        link: L,
-        proto: P,
-        timing: Timing,
-        config: BusConfig,
-    ) -> Bus
-    where
-        P::Pending: Send,
-        P::ReplyScanner: Send,
-        P::RequestScanner: Send,
-    {
-        let (ctx, crx) = mpsc::unbounded_channel();
-        let (ptx, prx) = mpsc::unbounded_channel();
         let stats = Arc::new(Mutex::new(BusStats::default()));
         let health = Arc::new(Mutex::new(HashMap::new()));
+        let (ctx, crx) = mpsc::unbounded_channel();
+        let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
-        let owner = Owner {
-            link,
-            session: MasterSession::new(proto, timing),
-            timing,
-            config,
-            stats: stats.clone(),
-            health: health.clone(),
-            rx_buf: Vec::new(),
-        };
-        tokio::spawn(owner.run(crx, prx));
-        Bus { commands: ctx, polls: ptx, stats, health, name }
+        with_engine!(config, stats.clone(), health.clone(), |engine| {
+            tokio::spawn(Owner { link, engine, rx_buf: Vec::new() }.run(crx, prx));
+        })?;
+        Ok(Bus { commands: ctx, polls: ptx, stats, health, name })
     }
 
     /// The link's name.
@@ -297,29 +254,9 @@ impl Bus {
 
 struct Owner<L: Link, P: Protocol> {
     link: L,
-    session: MasterSession<P>,
-    timing: Timing,
-    config: BusConfig,
-    stats: Arc<Mutex<BusStats>>,
-    health: Arc<Mutex<HashMap<u8, Health>>>,
+    engine: Engine<P>,
     /// The read buffer, kept between exchanges.
     rx_buf: Vec<u8>,
-}
-
-/// How a session's exchange ended, owned (the session's event borrows it).
-enum Ended {
-    Reply,
-    BroadcastDone,
-    Timeout,
-    Damaged(String),
-}
-
-enum Attempt {
-    Reply(Vec<u8>),
-    NoneDue,
-    Timeout,
-    Damaged(String),
-    Link(String),
 }
 
 impl<L: Link, P: Protocol> Owner<L, P> {
@@ -342,34 +279,14 @@ impl<L: Link, P: Protocol> Owner<L, P> {
     }
 
     async fn job(&mut self, job: &Job, priority: Priority) -> Result<Option<Vec<u8>>, BusError> {
-        let now = self.link.now();
         let broadcast = !job.exchange.expect_reply;
-        if !broadcast {
-            let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
-            let h = health.entry(job.address).or_insert_with(|| Health { online: true, ..Health::default() });
-            if !h.online && priority == Priority::Poll && h.next_probe.is_some_and(|t| now < t) {
-                return Err(BusError::Offline { address: job.address });
-            }
-        }
-        let mut timing = self.timing;
-        if let Some(t) = job.timeout {
-            timing.response_timeout = t;
-        }
-        self.session.set_timing(timing);
-        // An offline drive gets one probe, not the retries.
-        let offline = self
-            .health
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .get(&job.address)
-            .is_some_and(|h| !h.online);
-        let attempts = if offline || broadcast { 1 } else { 1 + self.config.retries };
+        let attempts = self.engine.admit(self.link.now(), job.address, broadcast, priority, job.timeout)?;
         let mut last = Attempt::Timeout;
         for i in 0..attempts {
-            if i > 0 {
-                self.stat(|s| s.retries += 1);
-            }
-            last = self.attempt(&job.exchange.request).await;
+            last = match self.engine.start(self.link.now(), &job.exchange.request, i) {
+                Ok(()) => self.attempt().await,
+                Err(damaged) => damaged,
+            };
             match last {
                 Attempt::Reply(_) | Attempt::NoneDue => break,
                 Attempt::Link(_) => {
@@ -381,153 +298,47 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 Attempt::Timeout | Attempt::Damaged(_) => {}
             }
         }
-        let link = self.link.name();
-        let result = match last {
-            Attempt::Reply(bytes) => Ok(Some(bytes)),
-            Attempt::NoneDue => Ok(None),
-            Attempt::Timeout => Err(BusError::Timeout { link, address: job.address, attempts }),
-            Attempt::Damaged(error) => Err(BusError::Corrupt { link, error }),
-            Attempt::Link(e) => Err(BusError::Link(e)),
-        };
-        if !broadcast {
-            self.record(job.address, result.is_ok());
-        }
-        result
+        let (now, link) = (self.link.now(), self.link.name());
+        self.engine.finish(now, link, job.address, broadcast, attempts, last)
     }
 
-    fn record(&mut self, address: u8, ok: bool) {
-        let now = self.link.now();
-        let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
-        let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
-        h.transactions += 1;
-        if ok {
-            h.online = true;
-            h.failures_in_row = 0;
-            h.backoff = Duration::ZERO;
-            h.next_probe = None;
-            h.last_seen_s = Some(now.as_nanos() as f64 / 1e9);
-        } else {
-            h.errors += 1;
-            h.failures_in_row += 1;
-            if h.failures_in_row >= self.config.offline_after {
-                h.online = false;
-                h.backoff = if h.backoff.is_zero() {
-                    Duration::from_millis(500)
-                } else {
-                    (h.backoff * 2).min(self.config.max_backoff)
-                };
-                h.next_probe = Some(now + h.backoff);
-            }
-        }
-    }
-
-    fn stat(&self, f: impl FnOnce(&mut BusStats)) {
-        let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
-        f(&mut s);
-        s.elapsed_seconds = self.link.now().as_nanos() as f64 / 1e9;
-    }
-
-    async fn attempt(&mut self, frame: &[u8]) -> Attempt {
-        let now = self.link.now();
-        self.session.abort();
-        // The typed request borrows the frame; it must not live across an await.
-        let sent = match self.session.protocol().parse_request(frame) {
-            Ok(req) => self.session.send(now, &req).map_err(|e| e.to_string()),
-            Err(e) => Err(format!("the request is not a valid frame: {e}")),
-        };
-        if let Err(e) = sent {
-            return Attempt::Damaged(e);
-        }
-        let char_time = self.timing.char_time;
-        let mut echo_left: Vec<u8> = Vec::new();
+    async fn attempt(&mut self) -> Attempt {
         let mut buf = std::mem::take(&mut self.rx_buf);
         buf.resize(1024, 0);
-        let result = self.exchange(&mut buf, &mut echo_left, char_time).await;
+        let result = self.exchange(&mut buf).await;
         self.rx_buf = buf;
         result
     }
 
-    async fn exchange(&mut self, buf: &mut [u8], echo_left: &mut Vec<u8>, char_time: Duration) -> Attempt {
+    async fn exchange(&mut self, buf: &mut [u8]) -> Attempt {
         // One timer for the whole exchange, moved when the session's deadline moves.
         let mut armed: Option<Instant> = None;
         // Session deadlines (the gap before a request, the response timeout) to the microsecond:
         // tokio's own timer would end each on the next whole millisecond.
         let mut sleep = crate::timer::sleep_until(tokio::time::Instant::now() + Duration::from_secs(3600));
         loop {
-            let now = self.link.now();
-            if let Some(bytes) = self.session.poll_transmit(now) {
-                let bytes = bytes.to_vec();
-                let wire = (char_time * bytes.len() as u32).as_secs_f64();
-                self.stat(|s| {
-                    s.transactions += 1;
-                    s.wire_seconds += wire;
-                });
-                if self.config.echo {
-                    echo_left.clear();
-                    echo_left.extend_from_slice(&bytes);
+            let deadline = match self.engine.poll(self.link.now()) {
+                Action::Transmit => {
+                    if let Err(e) = self.link.write(self.engine.outgoing()).await {
+                        return Attempt::Link(format!("{}: {e}", self.link.name()));
+                    }
+                    continue;
                 }
-                if let Err(e) = self.link.write(&bytes).await {
-                    return Attempt::Link(format!("{}: {e}", self.link.name()));
-                }
-            }
-            let event = self.session.poll_event().map(|e| match e {
-                MasterEvent::Reply(_) => Ended::Reply,
-                MasterEvent::BroadcastDone => Ended::BroadcastDone,
-                MasterEvent::Timeout => Ended::Timeout,
-                MasterEvent::Corrupt(e) | MasterEvent::Invalid(e) => Ended::Damaged(e.to_string()),
-            });
-            if let Some(event) = event {
-                return match event {
-                    Ended::Reply => {
-                        let bytes = self.session.reply_bytes().to_vec();
-                        let wire = (char_time * bytes.len() as u32).as_secs_f64();
-                        self.stat(|s| {
-                            s.replies += 1;
-                            s.wire_seconds += wire;
-                        });
-                        Attempt::Reply(bytes)
-                    }
-                    Ended::BroadcastDone => {
-                        self.stat(|s| s.broadcasts += 1);
-                        Attempt::NoneDue
-                    }
-                    Ended::Timeout => {
-                        self.stat(|s| s.timeouts += 1);
-                        Attempt::Timeout
-                    }
-                    Ended::Damaged(e) => {
-                        self.stat(|s| s.checksum_errors += 1);
-                        Attempt::Damaged(e)
-                    }
-                };
-            }
-            let deadline = self.session.poll_timeout().unwrap_or(now + Duration::from_secs(1));
+                Action::Done(attempt) => return attempt,
+                Action::Wait(deadline) => deadline,
+            };
             if armed != Some(deadline) {
                 sleep.reset(self.link.clock().tokio(deadline));
                 armed = Some(deadline);
             }
             tokio::select! {
                 r = self.link.read(buf) => match r {
-                    Ok(n) => {
-                        let now = self.link.now();
-                        let mut input = &buf[..n];
-                        // Strip the local echo of our own request.
-                        while let (Some(&e), Some(&b)) = (echo_left.first(), input.first()) {
-                            if e != b {
-                                echo_left.clear();
-                                break;
-                            }
-                            echo_left.remove(0);
-                            input = &input[1..];
-                        }
-                        self.session.handle_input(now, input);
-                    }
+                    Ok(n) => self.engine.input(self.link.now(), &buf[..n]),
                     Err(e) => return Attempt::Link(format!("{}: {e}", self.link.name())),
                 },
                 _ = &mut sleep => {
                     armed = None;
-                    let now = self.link.now();
-                    self.session.handle_timeout(now);
+                    self.engine.timeout(self.link.now());
                 }
             }
         }

@@ -1,0 +1,479 @@
+//! A bus master without a runtime: the calling thread writes the request and blocks in the
+//! kernel until the reply's bytes arrive or the session's deadline passes.
+//!
+//! The same [`Engine`](crate::engine) as the async bus owner keeps the protocol's timing,
+//! retries, echo stripping, statistics and drive health; only the waiting differs. For a
+//! program that talks to one bus from one thread (a commissioning script, a test rig, a
+//! product's service loop) it is the shortest path from request to reply: one `write` and, on
+//! a serial port, one `read` per reply burst: no reactor, no wake-up of another thread.
+//!
+//! ```no_run
+//! use drivebus_drive::profile::Exchange;
+//! use drivebus_link::blocking::BlockingBus;
+//! use drivebus_link::{BusConfig, Priority};
+//! let mut bus = BlockingBus::open("/dev/ttyUSB0", BusConfig::new("modbus-rtu", 9600, "8E1".parse().unwrap()))?;
+//! // Read 2 registers at 2100H from drive 1.
+//! let request = vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37];
+//! let reply = bus.transact(1, &Exchange { request, expect_reply: true }, Priority::Command, None)?;
+//! # Ok::<(), drivebus_link::BusError>(())
+//! ```
+//!
+//! Waiting: with a deadline 100 ms away or more, a serial port is read with the termios
+//! `VMIN = 0, VTIME = n` rule (the read returns at the first bytes, or after n tenths of a
+//! second with none), so a reply costs one `read`; closer deadlines (the silence before a
+//! request, the last stretch of a response timeout) are kept to the microsecond with `ppoll`.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{self, Read, Write};
+use std::net::TcpStream;
+use std::os::fd::{AsFd, AsRawFd, FromRawFd, IntoRawFd, OwnedFd};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use drivebus_drive::profile::Exchange;
+use drivebus_proto::line::{CharFormat, Parity};
+use drivebus_proto::session::Protocol;
+use drivebus_proto::Instant;
+
+use crate::engine::{with_engine, Action, Attempt, Engine};
+use crate::link::{kernel_rs485, unsupported, Direction, Rs485};
+use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
+
+/// A bus run from the calling thread: one transaction per call, no runtime.
+pub struct BlockingBus {
+    port: Port,
+    master: Box<dyn Master>,
+    clock: SyncClock,
+    stats: Arc<Mutex<BusStats>>,
+    health: Arc<Mutex<HashMap<u8, Health>>>,
+    buf: Vec<u8>,
+}
+
+impl BlockingBus {
+    /// Opens `port` (a serial device, or `tcp://HOST:PORT` for a serial device server) and
+    /// runs `config`'s protocol on it.
+    pub fn open(port: &str, config: BusConfig) -> Result<Self, BusError> {
+        let port = match port.strip_prefix("tcp://") {
+            Some(addr) => Port::Tcp(TcpPort::connect(addr).map_err(|e| BusError::Link(e.to_string()))?),
+            None => Port::Serial(
+                SerialPort::open(port, config.baud, config.format, config.rs485)
+                    .map_err(|e| BusError::Link(e.to_string()))?,
+            ),
+        };
+        let stats = Arc::new(Mutex::new(BusStats::default()));
+        let health = Arc::new(Mutex::new(HashMap::new()));
+        let master: Box<dyn Master> =
+            with_engine!(config, stats.clone(), health.clone(), |engine| Box::new(engine)
+                as Box<dyn Master>)?;
+        Ok(BlockingBus { port, master, clock: SyncClock::new(), stats, health, buf: vec![0; 1024] })
+    }
+
+    /// Where the bus goes (`/dev/ttyUSB0`, `tcp://10.0.0.5:4001`).
+    pub fn name(&self) -> String {
+        self.port.name()
+    }
+
+    /// The RS-485 direction control in force (serial ports; `None` over TCP).
+    pub fn direction(&self) -> Direction {
+        match &self.port {
+            Port::Serial(s) => s.direction,
+            Port::Tcp(_) => Direction::None,
+        }
+    }
+
+    /// Sends `exchange` to drive `address` and waits for the reply frame (`None` when no reply
+    /// is due), with the bus's retries. `timeout` overrides the response timeout; a `Poll`
+    /// to an offline drive is refused at once until its next probe is due.
+    pub fn transact(
+        &mut self,
+        address: u8,
+        exchange: &Exchange,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Result<Option<Vec<u8>>, BusError> {
+        self.master.job(&mut self.port, &self.clock, &mut self.buf, address, exchange, priority, timeout)
+    }
+
+    /// The bus's counts so far.
+    pub fn stats(&self) -> BusStats {
+        self.stats.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Each drive's link health.
+    pub fn health(&self) -> HashMap<u8, Health> {
+        self.health.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+}
+
+/// Session time from a std instant.
+struct SyncClock {
+    epoch: std::time::Instant,
+}
+
+impl SyncClock {
+    fn new() -> Self {
+        SyncClock { epoch: std::time::Instant::now() }
+    }
+    fn now(&self) -> Instant {
+        Instant::from_nanos(self.epoch.elapsed().as_nanos().min(u64::MAX as u128) as u64)
+    }
+    fn at(&self, t: Instant) -> std::time::Instant {
+        self.epoch + Duration::from_nanos(t.as_nanos())
+    }
+}
+
+/// An engine of some protocol, run with blocking I/O.
+trait Master: Send {
+    #[allow(clippy::too_many_arguments)]
+    fn job(
+        &mut self,
+        port: &mut Port,
+        clock: &SyncClock,
+        buf: &mut [u8],
+        address: u8,
+        exchange: &Exchange,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Result<Option<Vec<u8>>, BusError>;
+}
+
+impl<P: Protocol> Master for Engine<P>
+where
+    Engine<P>: Send,
+{
+    fn job(
+        &mut self,
+        port: &mut Port,
+        clock: &SyncClock,
+        buf: &mut [u8],
+        address: u8,
+        exchange: &Exchange,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Result<Option<Vec<u8>>, BusError> {
+        let broadcast = !exchange.expect_reply;
+        let attempts = self.admit(clock.now(), address, broadcast, priority, timeout)?;
+        let mut last = Attempt::Timeout;
+        for i in 0..attempts {
+            last = match self.start(clock.now(), &exchange.request, i) {
+                Ok(()) => run_attempt(self, port, clock, buf),
+                Err(damaged) => damaged,
+            };
+            match last {
+                Attempt::Reply(_) | Attempt::NoneDue => break,
+                // The port may have gone and come back: reopen once, then give up.
+                Attempt::Link(_) if port.reopen(self.config()).is_err() => break,
+                _ => {}
+            }
+        }
+        self.finish(clock.now(), port.name(), address, broadcast, attempts, last)
+    }
+}
+
+fn run_attempt<P: Protocol>(
+    engine: &mut Engine<P>,
+    port: &mut Port,
+    clock: &SyncClock,
+    buf: &mut [u8],
+) -> Attempt {
+    loop {
+        match engine.poll(clock.now()) {
+            Action::Transmit => {
+                if let Err(e) = port.write(engine.outgoing()) {
+                    return Attempt::Link(format!("{}: {e}", port.name()));
+                }
+            }
+            Action::Done(attempt) => return attempt,
+            Action::Wait(deadline) => match port.read(buf, clock.at(deadline)) {
+                Ok(0) => engine.timeout(clock.now()),
+                Ok(n) => engine.input(clock.now(), &buf[..n]),
+                Err(e) => return Attempt::Link(format!("{}: {e}", port.name())),
+            },
+        }
+    }
+}
+
+enum Port {
+    Serial(SerialPort),
+    Tcp(TcpPort),
+}
+
+impl Port {
+    fn name(&self) -> String {
+        match self {
+            Port::Serial(s) => s.path.clone(),
+            Port::Tcp(t) => format!("tcp://{}", t.addr),
+        }
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
+        match self {
+            Port::Serial(s) => s.write(bytes),
+            Port::Tcp(t) => t.write(bytes),
+        }
+    }
+
+    /// Reads what arrives before `deadline`: `Ok(0)` when the deadline passed with nothing.
+    fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
+        match self {
+            Port::Serial(s) => s.read(buf, deadline),
+            Port::Tcp(t) => t.read(buf, deadline),
+        }
+    }
+
+    fn reopen(&mut self, config: &BusConfig) -> io::Result<()> {
+        match self {
+            Port::Serial(s) => {
+                *s = SerialPort::open(&s.path, config.baud, config.format, s.rs485)?;
+                Ok(())
+            }
+            Port::Tcp(t) => {
+                t.stream = None;
+                t.stream = Some(TcpPort::dial(&t.addr)?);
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Waits until `fd` is readable or `deadline` passes; true when readable (or hung up: the
+/// read that follows tells).
+fn wait_readable(fd: impl AsFd, deadline: std::time::Instant) -> io::Result<bool> {
+    use nix::poll::{ppoll, PollFd, PollFlags};
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            return Ok(false);
+        }
+        let mut fds = [PollFd::new(fd.as_fd(), PollFlags::POLLIN)];
+        match ppoll(&mut fds, Some(left.into()), None) {
+            Ok(0) => continue,
+            Ok(_) => return Ok(true),
+            Err(nix::errno::Errno::EINTR) => continue,
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+/// A serial port read and written with plain blocking system calls.
+struct SerialPort {
+    path: String,
+    file: File,
+    rs485: Rs485,
+    direction: Direction,
+    /// The port has no modem lines (a pty): RTS toggles are skipped.
+    no_rts: bool,
+    /// The `VTIME` (tenths of a second) in force for reads.
+    vtime: Option<u8>,
+}
+
+impl SerialPort {
+    fn open(path: &str, baud: u32, format: CharFormat, rs485: Rs485) -> io::Result<Self> {
+        use tokio_serial::{DataBits, FlowControl, StopBits};
+        let data_bits = if format.data_bits == 7 { DataBits::Seven } else { DataBits::Eight };
+        let parity = match format.parity {
+            Parity::None => tokio_serial::Parity::None,
+            Parity::Even => tokio_serial::Parity::Even,
+            Parity::Odd => tokio_serial::Parity::Odd,
+        };
+        let stop_bits = if format.stop_bits == 2 { StopBits::Two } else { StopBits::One };
+        // serialport sets the line up (raw mode, baud, format, exclusive access) and leaves the
+        // descriptor blocking.
+        let tty = tokio_serial::new(path, baud)
+            .data_bits(data_bits)
+            .parity(parity)
+            .stop_bits(stop_bits)
+            .flow_control(FlowControl::None)
+            .open_native()
+            .map_err(|e| {
+                io::Error::new(io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
+            })?;
+        // SAFETY: `into_raw_fd` hands over an open descriptor that nothing else owns or closes
+        // (the port forgets it), so the `OwnedFd` is its only owner.
+        #[allow(unsafe_code)]
+        let fd = unsafe { OwnedFd::from_raw_fd(tty.into_raw_fd()) };
+        let mut port = SerialPort {
+            path: path.to_string(),
+            file: File::from(fd),
+            rs485,
+            direction: Direction::None,
+            no_rts: false,
+            vtime: None,
+        };
+        port.setup_direction()?;
+        Ok(port)
+    }
+
+    fn setup_direction(&mut self) -> io::Result<()> {
+        let kernel = match self.rs485 {
+            Rs485::Off => return Ok(()),
+            Rs485::Kernel | Rs485::Auto => kernel_rs485(self.file.as_raw_fd()),
+            Rs485::Rts => Err(io::Error::new(io::ErrorKind::Unsupported, "RTS asked for")),
+        };
+        match (kernel, self.rs485) {
+            (Ok(()), _) => self.direction = Direction::Kernel,
+            (Err(e), Rs485::Kernel) => {
+                return Err(io::Error::new(
+                    e.kind(),
+                    format!(
+                        "{}: the driver has no kernel RS-485 mode ({e}): use --rs485 rts or auto",
+                        self.path
+                    ),
+                ))
+            }
+            (Err(_), _) => {
+                self.direction = Direction::Rts;
+                if let Err(e) = set_rts(self.file.as_raw_fd(), false) {
+                    if !unsupported(&e) {
+                        return Err(io::Error::new(
+                            e.kind(),
+                            format!("{}: cannot switch RTS: {e}", self.path),
+                        ));
+                    }
+                    self.no_rts = true;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
+        if self.direction != Direction::Rts || self.no_rts {
+            return self.file.write_all(bytes);
+        }
+        let fd = self.file.as_raw_fd();
+        set_rts(fd, true)?;
+        let r = self.file.write_all(bytes).and_then(|()| {
+            // Until the last bit has left the UART, then back to receive.
+            nix::sys::termios::tcdrain(&self.file).map_err(io::Error::from)
+        });
+        let off = set_rts(fd, false);
+        r.and(off)
+    }
+
+    fn set_vtime(&mut self, tenths: u8) -> io::Result<()> {
+        use nix::sys::termios::{tcgetattr, tcsetattr, SetArg, SpecialCharacterIndices};
+        if self.vtime == Some(tenths) {
+            return Ok(());
+        }
+        let mut t = tcgetattr(&self.file)?;
+        t.control_chars[SpecialCharacterIndices::VMIN as usize] = 0;
+        t.control_chars[SpecialCharacterIndices::VTIME as usize] = tenths;
+        tcsetattr(&self.file, SetArg::TCSANOW, &t)?;
+        self.vtime = Some(tenths);
+        Ok(())
+    }
+
+    fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
+        loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if left.is_zero() {
+                return Ok(0);
+            }
+            if left >= Duration::from_millis(100) {
+                // One read that returns at the first bytes, or empty after `tenths`.
+                let tenths = (left.as_millis() / 100).min(255) as u8;
+                self.set_vtime(tenths)?;
+            } else if !wait_readable(&self.file, deadline)? {
+                return Ok(0);
+            }
+            match self.file.read(buf) {
+                // VTIME passed with nothing (or a hang-up after readiness: the deadline ends it).
+                Ok(0) => {
+                    if left < Duration::from_millis(100) {
+                        // Readable but empty: do not spin on a hung-up line until the deadline.
+                        std::thread::sleep(left.min(Duration::from_millis(1)));
+                    }
+                    continue;
+                }
+                Ok(n) => return Ok(n),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            }
+        }
+    }
+}
+
+/// Switches RTS on or off (`TIOCMBIS` / `TIOCMBIC`).
+fn set_rts(fd: std::os::fd::RawFd, on: bool) -> io::Result<()> {
+    let bits: libc::c_int = libc::TIOCM_RTS;
+    let request = if on { libc::TIOCMBIS } else { libc::TIOCMBIC };
+    // SAFETY: `fd` is an open descriptor owned by the caller for the whole call; TIOCMBIS and
+    // TIOCMBIC read one `int` through the pointer, which points at `bits`, alive until return.
+    #[allow(unsafe_code)]
+    let r = unsafe { libc::ioctl(fd, request as _, &bits as *const libc::c_int) };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(io::Error::last_os_error())
+    }
+}
+
+/// Raw bytes over TCP to a serial device server.
+struct TcpPort {
+    addr: String,
+    stream: Option<TcpStream>,
+}
+
+impl TcpPort {
+    fn connect(addr: &str) -> io::Result<Self> {
+        Ok(TcpPort { addr: addr.to_string(), stream: Some(Self::dial(addr)?) })
+    }
+
+    fn dial(addr: &str) -> io::Result<TcpStream> {
+        use std::net::ToSocketAddrs;
+        let mut last = io::Error::new(io::ErrorKind::NotFound, format!("tcp://{addr}: no such host"));
+        for a in addr
+            .to_socket_addrs()
+            .map_err(|e| io::Error::new(e.kind(), format!("cannot resolve tcp://{addr}: {e}")))?
+        {
+            match TcpStream::connect_timeout(&a, Duration::from_secs(3)) {
+                Ok(s) => {
+                    s.set_nodelay(true)?;
+                    return Ok(s);
+                }
+                Err(e) => last = io::Error::new(e.kind(), format!("cannot connect to tcp://{addr}: {e}")),
+            }
+        }
+        Err(last)
+    }
+
+    fn stream(&mut self) -> io::Result<&mut TcpStream> {
+        let addr = &self.addr;
+        self.stream.as_mut().ok_or_else(|| {
+            io::Error::new(io::ErrorKind::NotConnected, format!("tcp://{addr} is not connected"))
+        })
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
+        let r = self.stream()?.write_all(bytes);
+        if r.is_err() {
+            self.stream = None;
+        }
+        r
+    }
+
+    fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
+        let addr = self.addr.clone();
+        let stream = self.stream()?;
+        loop {
+            if !wait_readable(&*stream, deadline)? {
+                return Ok(0);
+            }
+            let r = match stream.read(buf) {
+                Ok(0) => Err(io::Error::new(
+                    io::ErrorKind::UnexpectedEof,
+                    format!("tcp://{addr} closed the connection"),
+                )),
+                Ok(n) => Ok(n),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => Err(e),
+            };
+            if r.is_err() {
+                self.stream = None;
+            }
+            return r;
+        }
+    }
+}

@@ -1,0 +1,314 @@
+//! The part of a bus master that never waits: admission of a job (offline drives, retries),
+//! one attempt at a time on the protocol's `MasterSession`, local echo stripping, statistics
+//! and per-drive health. The async bus owner ([`crate::owner`]) and the blocking bus
+//! ([`crate::blocking`]) drive it with their own I/O: it says what to write, until when to
+//! wait, and how the attempt ended.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::session::{MasterEvent, MasterSession, Protocol, Timing};
+use drivebus_proto::Instant;
+
+use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
+
+/// How one attempt ended.
+pub(crate) enum Attempt {
+    /// The drive's reply frame.
+    Reply(Vec<u8>),
+    /// A broadcast: no reply is due.
+    NoneDue,
+    /// No (whole) reply in time.
+    Timeout,
+    /// A damaged reply (or a request that is not a frame).
+    Damaged(String),
+    /// The link failed.
+    Link(String),
+}
+
+/// What the driver of an engine does next.
+pub(crate) enum Action {
+    /// Write [`Engine::outgoing`] to the link.
+    Transmit,
+    /// Read until bytes arrive or this session time, then call [`Engine::input`] or
+    /// [`Engine::timeout`].
+    Wait(Instant),
+    /// The attempt is over.
+    Done(Attempt),
+}
+
+/// How a session's exchange ended, owned (the session's event borrows it).
+enum Ended {
+    Reply,
+    BroadcastDone,
+    Timeout,
+    Damaged(String),
+}
+
+/// A bus master's state without I/O: the session, timing, counters and health.
+pub(crate) struct Engine<P: Protocol> {
+    session: MasterSession<P>,
+    timing: Timing,
+    config: BusConfig,
+    stats: Arc<Mutex<BusStats>>,
+    health: Arc<Mutex<HashMap<u8, Health>>>,
+    /// Bytes of our own request still expected back as local echo.
+    echo_left: Vec<u8>,
+    /// The bytes to write on [`Action::Transmit`].
+    out: Vec<u8>,
+}
+
+/// Calls `$body` with an engine of the protocol named in `$config`, or evaluates to a
+/// `BusError::BadRequest` for an unknown protocol.
+macro_rules! with_engine {
+    ($config:expr, $stats:expr, $health:expr, |$engine:ident| $body:expr) => {{
+        let config: $crate::owner::BusConfig = $config;
+        let t = |f: fn(u32, drivebus_proto::line::CharFormat) -> drivebus_proto::session::Timing| {
+            $crate::engine::timing_of(&config, f)
+        };
+        use drivebus_proto::{b800, fc, modbus, toshiba};
+        match config.protocol.as_str() {
+            "modbus-rtu" => {
+                let $engine = $crate::engine::Engine::new(modbus::rtu::ModbusRtu, t(modbus::rtu::timing), config.clone(), $stats, $health);
+                Ok($body)
+            }
+            "modbus-ascii" => {
+                let $engine = $crate::engine::Engine::new(modbus::ascii::ModbusAscii, t(modbus::ascii::timing), config.clone(), $stats, $health);
+                Ok($body)
+            }
+            "toshiba-ascii" => {
+                let $engine = $crate::engine::Engine::new(toshiba::ascii::TipAscii::default(), t(toshiba::timing), config.clone(), $stats, $health);
+                Ok($body)
+            }
+            "toshiba-binary" => {
+                let $engine = $crate::engine::Engine::new(toshiba::binary::TipBinary::default(), t(toshiba::timing), config.clone(), $stats, $health);
+                Ok($body)
+            }
+            "danfoss-fc" => {
+                let $engine = $crate::engine::Engine::new(fc::Fc::default(), t(fc::timing), config.clone(), $stats, $health);
+                Ok($body)
+            }
+            "b800" => {
+                let $engine = $crate::engine::Engine::new(b800::B800, t(b800::timing), config.clone(), $stats, $health);
+                Ok($body)
+            }
+            other => Err($crate::owner::BusError::BadRequest(format!(
+                "unknown protocol {other:?}: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800"
+            ))),
+        }
+    }};
+}
+pub(crate) use with_engine;
+
+/// The protocol's timing `f` with the configuration's overrides.
+pub(crate) fn timing_of(config: &BusConfig, f: fn(u32, CharFormat) -> Timing) -> Timing {
+    let mut timing = f(config.baud, config.format);
+    if let Some(rt) = config.response_timeout {
+        timing.response_timeout = rt;
+    }
+    if let Some(gap) = config.gap {
+        timing.min_gap = gap;
+    }
+    if config.strict_t15 && config.protocol == "modbus-rtu" {
+        timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
+    }
+    timing
+}
+
+impl<P: Protocol> Engine<P> {
+    /// An engine for `proto` with `timing`, counting into `stats` and `health`.
+    pub(crate) fn new(
+        proto: P,
+        timing: Timing,
+        config: BusConfig,
+        stats: Arc<Mutex<BusStats>>,
+        health: Arc<Mutex<HashMap<u8, Health>>>,
+    ) -> Self {
+        Engine {
+            session: MasterSession::new(proto, timing),
+            timing,
+            config,
+            stats,
+            health,
+            echo_left: Vec::new(),
+            out: Vec::with_capacity(64),
+        }
+    }
+
+    /// The bus configuration.
+    pub(crate) fn config(&self) -> &BusConfig {
+        &self.config
+    }
+
+    /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or
+    /// `Offline` when the drive is offline and its next probe is not due (polls only).
+    pub(crate) fn admit(
+        &mut self,
+        now: Instant,
+        address: u8,
+        broadcast: bool,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Result<u8, BusError> {
+        let mut offline = false;
+        if !broadcast {
+            let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
+            let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
+            if !h.online && priority == Priority::Poll && h.next_probe.is_some_and(|t| now < t) {
+                return Err(BusError::Offline { address });
+            }
+            offline = !h.online;
+        }
+        let mut timing = self.timing;
+        if let Some(t) = timeout {
+            timing.response_timeout = t;
+        }
+        self.session.set_timing(timing);
+        // An offline drive gets one probe, not the retries.
+        Ok(if offline || broadcast { 1 } else { 1 + self.config.retries })
+    }
+
+    /// Starts attempt number `i` (0 for the first) of sending `frame`.
+    pub(crate) fn start(&mut self, now: Instant, frame: &[u8], i: u8) -> Result<(), Attempt> {
+        if i > 0 {
+            self.stat(now, |s| s.retries += 1);
+        }
+        self.session.abort();
+        self.echo_left.clear();
+        // The typed request borrows the frame.
+        let sent = match self.session.protocol().parse_request(frame) {
+            Ok(req) => self.session.send(now, &req).map_err(|e| e.to_string()),
+            Err(e) => Err(format!("the request is not a valid frame: {e}")),
+        };
+        sent.map_err(Attempt::Damaged)
+    }
+
+    /// What to do next at session time `now`.
+    pub(crate) fn poll(&mut self, now: Instant) -> Action {
+        if let Some(bytes) = self.session.poll_transmit(now) {
+            self.out.clear();
+            self.out.extend_from_slice(bytes);
+            let wire = (self.timing.char_time * self.out.len() as u32).as_secs_f64();
+            self.stat(now, |s| {
+                s.transactions += 1;
+                s.wire_seconds += wire;
+            });
+            if self.config.echo {
+                self.echo_left.clear();
+                self.echo_left.extend_from_slice(&self.out);
+            }
+            return Action::Transmit;
+        }
+        let event = self.session.poll_event().map(|e| match e {
+            MasterEvent::Reply(_) => Ended::Reply,
+            MasterEvent::BroadcastDone => Ended::BroadcastDone,
+            MasterEvent::Timeout => Ended::Timeout,
+            MasterEvent::Corrupt(e) | MasterEvent::Invalid(e) => Ended::Damaged(e.to_string()),
+        });
+        match event {
+            Some(Ended::Reply) => {
+                let bytes = self.session.reply_bytes().to_vec();
+                let wire = (self.timing.char_time * bytes.len() as u32).as_secs_f64();
+                self.stat(now, |s| {
+                    s.replies += 1;
+                    s.wire_seconds += wire;
+                });
+                Action::Done(Attempt::Reply(bytes))
+            }
+            Some(Ended::BroadcastDone) => {
+                self.stat(now, |s| s.broadcasts += 1);
+                Action::Done(Attempt::NoneDue)
+            }
+            Some(Ended::Timeout) => {
+                self.stat(now, |s| s.timeouts += 1);
+                Action::Done(Attempt::Timeout)
+            }
+            Some(Ended::Damaged(e)) => {
+                self.stat(now, |s| s.checksum_errors += 1);
+                Action::Done(Attempt::Damaged(e))
+            }
+            None => Action::Wait(self.session.poll_timeout().unwrap_or(now + Duration::from_secs(1))),
+        }
+    }
+
+    /// The bytes to write after [`Action::Transmit`].
+    pub(crate) fn outgoing(&self) -> &[u8] {
+        &self.out
+    }
+
+    /// Bytes read from the link at session time `now`.
+    pub(crate) fn input(&mut self, now: Instant, mut input: &[u8]) {
+        // Strip the local echo of our own request.
+        while let (Some(&e), Some(&b)) = (self.echo_left.first(), input.first()) {
+            if e != b {
+                self.echo_left.clear();
+                break;
+            }
+            self.echo_left.remove(0);
+            input = &input[1..];
+        }
+        self.session.handle_input(now, input);
+    }
+
+    /// The deadline of [`Action::Wait`] has passed.
+    pub(crate) fn timeout(&mut self, now: Instant) {
+        self.session.handle_timeout(now);
+    }
+
+    /// Ends a job after `attempts` attempts whose last ended as `last`: the job's result, and
+    /// the drive's health updated.
+    pub(crate) fn finish(
+        &mut self,
+        now: Instant,
+        link: String,
+        address: u8,
+        broadcast: bool,
+        attempts: u8,
+        last: Attempt,
+    ) -> Result<Option<Vec<u8>>, BusError> {
+        let result = match last {
+            Attempt::Reply(bytes) => Ok(Some(bytes)),
+            Attempt::NoneDue => Ok(None),
+            Attempt::Timeout => Err(BusError::Timeout { link, address, attempts }),
+            Attempt::Damaged(error) => Err(BusError::Corrupt { link, error }),
+            Attempt::Link(e) => Err(BusError::Link(e)),
+        };
+        if !broadcast {
+            self.record(now, address, result.is_ok());
+        }
+        result
+    }
+
+    fn record(&mut self, now: Instant, address: u8, ok: bool) {
+        let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
+        let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
+        h.transactions += 1;
+        if ok {
+            h.online = true;
+            h.failures_in_row = 0;
+            h.backoff = Duration::ZERO;
+            h.next_probe = None;
+            h.last_seen_s = Some(now.as_nanos() as f64 / 1e9);
+        } else {
+            h.errors += 1;
+            h.failures_in_row += 1;
+            if h.failures_in_row >= self.config.offline_after {
+                h.online = false;
+                h.backoff = if h.backoff.is_zero() {
+                    Duration::from_millis(500)
+                } else {
+                    (h.backoff * 2).min(self.config.max_backoff)
+                };
+                h.next_probe = Some(now + h.backoff);
+            }
+        }
+    }
+
+    fn stat(&self, now: Instant, f: impl FnOnce(&mut BusStats)) {
+        let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
+        f(&mut s);
+        s.elapsed_seconds = now.as_nanos() as f64 / 1e9;
+    }
+}

@@ -4,7 +4,8 @@
 #  1. `drivebus serve --demo` pinned to core 0, the load generator (crates/gateway/examples/
 #     loadgen.rs, one thread) pinned to core 1: 128 Modbus TCP clients reading 10 input
 #     registers in a loop, alone and then together with 64 keep-alive HTTP clients
-#     (GET $HTTP_PATH), $SECS s each: requests/s and latency percentiles.
+#     (GET $HTTP_PATH), $SECS s each: requests/s and latency percentiles; and the 128 clients
+#     at $RATE requests/s together (default 50 000), for the latency below saturation.
 #  2. The same 128 Modbus clients against libmodbus' TCP server (bench/libmodbus_server.c,
 #     compiled here) and pymodbus' TCP server (bench/pymodbus_server.py), same pinning, same run.
 #  3. 10 000 concurrent connections to the gateway: all connected, then each reads once.
@@ -18,6 +19,8 @@ HTTP_PATH=${HTTP_PATH:-/api/drives}
 CONNS=${CONNS:-10000}
 SERVER_CORE=${SERVER_CORE:-0}
 CLIENT_CORE=${CLIENT_CORE:-1}
+# The rate of the unsaturated run (requests/s from all 128 clients together).
+RATE=${RATE:-50000}
 
 cargo build --release -q -p drivebus
 cargo build --release -q -p drivebus-gateway --example loadgen
@@ -52,6 +55,8 @@ taskset -c "$SERVER_CORE" "$BIN" serve --demo --no-store --modbus "127.0.0.1:$MP
 GW=$!; PIDS+=("$GW")
 wait_port "$MP"; wait_port "$HP"; sleep 2
 load --modbus "127.0.0.1:$MP" --clients 128 --units 1-10
+echo "-- the same 128 clients at $RATE requests/s together (not saturated)"
+load --modbus "127.0.0.1:$MP" --clients 128 --units 1-10 --rate "$RATE"
 load --modbus "127.0.0.1:$MP" --clients 128 --units 1-10 --http "127.0.0.1:$HP" --http-clients 64 --path "$HTTP_PATH"
 stop "$GW"
 
@@ -65,6 +70,8 @@ else
   LM=$!; PIDS+=("$LM")
   wait_port "$LP"
   load --modbus "127.0.0.1:$LP" --clients 128 --units 1
+  echo "-- the same 128 clients at $RATE requests/s together (not saturated)"
+  load --modbus "127.0.0.1:$LP" --clients 128 --units 1 --rate "$RATE"
   stop "$LM"
 fi
 

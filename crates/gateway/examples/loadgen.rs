@@ -2,13 +2,17 @@
 //! thread, requests/s and latency percentiles; and a many-connections test.
 //!
 //! ```text
-//! loadgen load  --modbus HOST:PORT [--clients 128] [--units 1-10] [--http HOST:PORT --http-clients 64
-//!               --path /api/drives] [--secs 10]
+//! loadgen load  --modbus HOST:PORT [--clients 128] [--units 1-10] [--rate R] [--http HOST:PORT
+//!               --http-clients 64 --path /api/drives] [--secs 10]
 //! loadgen conns --modbus HOST:PORT --n 10000 [--units 1-10]
 //! ```
 //!
 //! Each Modbus client reads the ten input registers (FC 04, address 0, count 10) of a unit in a
 //! loop, one request outstanding; each HTTP client sends keep-alive `GET <path>` in a loop.
+//! With `--rate R` the Modbus clients together send R requests/s on a schedule (each client
+//! every `clients / R` seconds, staggered) instead of back to back: the latency of a server
+//! that is not saturated. tokio's timer ends waits on whole milliseconds, so requests leave in
+//! bursts of about R / 1000 at each tick: a harder load than the same rate spread evenly.
 //! Latency is measured from the write of a request to the end of its answer.
 
 use std::cell::RefCell;
@@ -91,7 +95,19 @@ async fn modbus_read(s: &mut TcpStream, tid: u16, unit: u8, buf: &mut [u8; 64]) 
     Ok(got == want && buf[7] == 4 && buf[8] == 20 && u16::from_be_bytes([buf[0], buf[1]]) == tid)
 }
 
-async fn modbus_client(addr: SocketAddr, unit: u8, stop: Instant, h: Rc<RefCell<Histogram>>) {
+/// Every `period` from `first` on, or back to back without one.
+struct Schedule {
+    next: Instant,
+    period: Duration,
+}
+
+async fn modbus_client(
+    addr: SocketAddr,
+    unit: u8,
+    stop: Instant,
+    mut schedule: Option<Schedule>,
+    h: Rc<RefCell<Histogram>>,
+) {
     let Ok(mut s) = TcpStream::connect(addr).await else {
         h.borrow_mut().errors += 1;
         return;
@@ -100,6 +116,15 @@ async fn modbus_client(addr: SocketAddr, unit: u8, stop: Instant, h: Rc<RefCell<
     let mut buf = [0u8; 64];
     let mut tid = 0u16;
     while Instant::now() < stop {
+        if let Some(sch) = schedule.as_mut() {
+            tokio::time::sleep_until(sch.next.into()).await;
+            sch.next += sch.period;
+            // Behind (a slow answer): start again from now rather than catch up in a burst.
+            let now = Instant::now();
+            if sch.next < now {
+                sch.next = now;
+            }
+        }
         tid = tid.wrapping_add(1);
         let t = Instant::now();
         match modbus_read(&mut s, tid, unit, &mut buf).await {
@@ -186,6 +211,7 @@ async fn load(args: &[String]) {
     let clients: usize = arg(args, "--clients").map_or(128, |s| s.parse().expect("--clients"));
     let http_clients: usize = arg(args, "--http-clients").map_or(64, |s| s.parse().expect("--http-clients"));
     let path = arg(args, "--path").unwrap_or_else(|| "/api/drives".into());
+    let rate: Option<f64> = arg(args, "--rate").map(|s| s.parse().expect("--rate REQUESTS_PER_S"));
     let mh = Rc::new(RefCell::new(Histogram::new()));
     let hh = Rc::new(RefCell::new(Histogram::new()));
     let start = Instant::now();
@@ -193,10 +219,15 @@ async fn load(args: &[String]) {
     let mut tasks = Vec::new();
     if let Some(addr) = modbus {
         for i in 0..clients {
+            let schedule = rate.map(|r| {
+                let period = Duration::from_secs_f64(clients as f64 / r);
+                Schedule { next: start + period.mul_f64(i as f64 / clients as f64), period }
+            });
             tasks.push(tokio::task::spawn_local(modbus_client(
                 addr,
                 units[i % units.len()],
                 stop,
+                schedule,
                 mh.clone(),
             )));
         }

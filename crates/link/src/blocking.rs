@@ -32,12 +32,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use drivebus_drive::profile::Exchange;
-use drivebus_proto::line::{CharFormat, Parity};
+use drivebus_proto::line::CharFormat;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
 
 use crate::engine::{with_engine, Action, Attempt, Engine};
-use crate::link::{kernel_rs485, unsupported, Direction, Rs485};
+use crate::link::{choose_direction, open_error, serial_builder, Direction, Rs485};
 use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
 
 /// A bus run from the calling thread: one transaction per call, no runtime.
@@ -270,72 +270,17 @@ struct SerialPort {
 
 impl SerialPort {
     fn open(path: &str, baud: u32, format: CharFormat, rs485: Rs485) -> io::Result<Self> {
-        use tokio_serial::{DataBits, FlowControl, StopBits};
-        let data_bits = if format.data_bits == 7 { DataBits::Seven } else { DataBits::Eight };
-        let parity = match format.parity {
-            Parity::None => tokio_serial::Parity::None,
-            Parity::Even => tokio_serial::Parity::Even,
-            Parity::Odd => tokio_serial::Parity::Odd,
-        };
-        let stop_bits = if format.stop_bits == 2 { StopBits::Two } else { StopBits::One };
         // serialport sets the line up (raw mode, baud, format, exclusive access) and leaves the
         // descriptor blocking.
-        let tty = tokio_serial::new(path, baud)
-            .data_bits(data_bits)
-            .parity(parity)
-            .stop_bits(stop_bits)
-            .flow_control(FlowControl::None)
-            .open_native()
-            .map_err(|e| {
-                io::Error::new(io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
-            })?;
+        let tty = serial_builder(path, baud, format).open_native().map_err(|e| open_error(path, e))?;
         // SAFETY: `into_raw_fd` hands over an open descriptor that nothing else owns or closes
         // (the port forgets it), so the `OwnedFd` is its only owner.
         #[allow(unsafe_code)]
         let fd = unsafe { OwnedFd::from_raw_fd(tty.into_raw_fd()) };
-        let mut port = SerialPort {
-            path: path.to_string(),
-            file: File::from(fd),
-            rs485,
-            direction: Direction::None,
-            no_rts: false,
-            vtime: None,
-        };
-        port.setup_direction()?;
-        Ok(port)
-    }
-
-    fn setup_direction(&mut self) -> io::Result<()> {
-        let kernel = match self.rs485 {
-            Rs485::Off => return Ok(()),
-            Rs485::Kernel | Rs485::Auto => kernel_rs485(self.file.as_raw_fd()),
-            Rs485::Rts => Err(io::Error::new(io::ErrorKind::Unsupported, "RTS asked for")),
-        };
-        match (kernel, self.rs485) {
-            (Ok(()), _) => self.direction = Direction::Kernel,
-            (Err(e), Rs485::Kernel) => {
-                return Err(io::Error::new(
-                    e.kind(),
-                    format!(
-                        "{}: the driver has no kernel RS-485 mode ({e}): use --rs485 rts or auto",
-                        self.path
-                    ),
-                ))
-            }
-            (Err(_), _) => {
-                self.direction = Direction::Rts;
-                if let Err(e) = set_rts(self.file.as_raw_fd(), false) {
-                    if !unsupported(&e) {
-                        return Err(io::Error::new(
-                            e.kind(),
-                            format!("{}: cannot switch RTS: {e}", self.path),
-                        ));
-                    }
-                    self.no_rts = true;
-                }
-            }
-        }
-        Ok(())
+        let file = File::from(fd);
+        let raw = file.as_raw_fd();
+        let (direction, no_rts) = choose_direction(path, raw, rs485, || set_rts(raw, false))?;
+        Ok(SerialPort { path: path.to_string(), file, rs485, direction, no_rts, vtime: None })
     }
 
     fn write(&mut self, bytes: &[u8]) -> io::Result<()> {

@@ -115,7 +115,7 @@ pub struct SerialLink {
 
 /// Turns on the kernel's RS-485 mode (RTS on while sending, off after) on `fd`.
 #[cfg(target_os = "linux")]
-pub(crate) fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
+fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
     /// `struct serial_rs485` of `<linux/serial.h>`.
     #[repr(C)]
     struct SerialRs485 {
@@ -145,13 +145,13 @@ pub(crate) fn kernel_rs485(fd: std::os::fd::RawFd) -> io::Result<()> {
 }
 
 #[cfg(not(target_os = "linux"))]
-pub(crate) fn kernel_rs485(_fd: i32) -> io::Result<()> {
+fn kernel_rs485(_fd: i32) -> io::Result<()> {
     Err(io::Error::new(io::ErrorKind::Unsupported, "the kernel's RS-485 mode is Linux only"))
 }
 
 /// True for errors that mean "this device has no such control" (a pty, a driver without
 /// RS-485 support), as opposed to a failing port.
-pub(crate) fn unsupported(e: &io::Error) -> bool {
+fn unsupported(e: &io::Error) -> bool {
     let code = matches!(e.raw_os_error(), Some(c) if c == libc::ENOTTY || c == libc::EINVAL || c == libc::EOPNOTSUPP);
     // serialport's errors carry the errno's text only (nix's wording for ENOTTY and EINVAL).
     let text = e.to_string();
@@ -161,8 +161,9 @@ pub(crate) fn unsupported(e: &io::Error) -> bool {
             .any(|t| text.contains(t))
 }
 
-fn open_serial(path: &str, baud: u32, format: CharFormat) -> io::Result<tokio_serial::SerialStream> {
-    use tokio_serial::{DataBits, FlowControl, SerialPortBuilderExt, StopBits};
+/// The serialport builder for `path` at `baud` with `format`, no flow control.
+pub(crate) fn serial_builder(path: &str, baud: u32, format: CharFormat) -> tokio_serial::SerialPortBuilder {
+    use tokio_serial::{DataBits, FlowControl, StopBits};
     let data_bits = if format.data_bits == 7 { DataBits::Seven } else { DataBits::Eight };
     let parity = match format.parity {
         Parity::None => tokio_serial::Parity::None,
@@ -175,8 +176,46 @@ fn open_serial(path: &str, baud: u32, format: CharFormat) -> io::Result<tokio_se
         .parity(parity)
         .stop_bits(stop_bits)
         .flow_control(FlowControl::None)
-        .open_native_async()
-        .map_err(|e| io::Error::new(io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}")))
+}
+
+/// The error of a serial port that would not open.
+pub(crate) fn open_error(path: &str, e: tokio_serial::Error) -> io::Error {
+    io::Error::new(io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
+}
+
+fn open_serial(path: &str, baud: u32, format: CharFormat) -> io::Result<tokio_serial::SerialStream> {
+    use tokio_serial::SerialPortBuilderExt;
+    serial_builder(path, baud, format).open_native_async().map_err(|e| open_error(path, e))
+}
+
+/// Chooses the direction control `rs485` asks for on the port `fd` (named `path`): the
+/// kernel's RS-485 mode where asked for and present, else RTS toggling, with RTS switched off
+/// for receiving by `rts_off`. Returns the direction and whether the port has no modem lines
+/// (a pty: its RTS toggles are then skipped).
+pub(crate) fn choose_direction(
+    path: &str,
+    fd: std::os::fd::RawFd,
+    rs485: Rs485,
+    rts_off: impl FnOnce() -> io::Result<()>,
+) -> io::Result<(Direction, bool)> {
+    let kernel = match rs485 {
+        Rs485::Off => return Ok((Direction::None, false)),
+        Rs485::Kernel | Rs485::Auto => kernel_rs485(fd),
+        Rs485::Rts => Err(io::Error::new(io::ErrorKind::Unsupported, "RTS asked for")),
+    };
+    match (kernel, rs485) {
+        (Ok(()), _) => Ok((Direction::Kernel, false)),
+        (Err(e), Rs485::Kernel) => Err(io::Error::new(
+            e.kind(),
+            format!("{path}: the driver has no kernel RS-485 mode ({e}): use --rs485 rts or auto"),
+        )),
+        // Receive: RTS off. A port without modem lines (a pty) has nothing to switch.
+        (Err(_), _) => match rts_off() {
+            Ok(()) => Ok((Direction::Rts, false)),
+            Err(e) if unsupported(&e) => Ok((Direction::Rts, true)),
+            Err(e) => Err(io::Error::new(e.kind(), format!("{path}: cannot switch RTS: {e}"))),
+        },
+    }
 }
 
 impl SerialLink {
@@ -209,38 +248,13 @@ impl SerialLink {
     fn setup_direction(&mut self) -> io::Result<()> {
         use std::os::fd::AsRawFd;
         use tokio_serial::SerialPort;
-        self.direction = Direction::None;
-        let kernel = match self.rs485 {
-            Rs485::Off => return Ok(()),
-            Rs485::Kernel | Rs485::Auto => kernel_rs485(self.port.as_raw_fd()),
-            Rs485::Rts => Err(io::Error::new(io::ErrorKind::Unsupported, "RTS asked for")),
-        };
-        match (kernel, self.rs485) {
-            (Ok(()), _) => self.direction = Direction::Kernel,
-            (Err(e), Rs485::Kernel) => {
-                return Err(io::Error::new(
-                    e.kind(),
-                    format!(
-                        "{}: the driver has no kernel RS-485 mode ({e}): use --rs485 rts or auto",
-                        self.path
-                    ),
-                ))
-            }
-            (Err(_), _) => {
-                self.direction = Direction::Rts;
-                // Receive: RTS off. A port without modem lines (a pty) has nothing to switch.
-                if let Err(e) = self.port.write_request_to_send(false) {
-                    let e = io::Error::from(e);
-                    if !unsupported(&e) {
-                        return Err(io::Error::new(
-                            e.kind(),
-                            format!("{}: cannot switch RTS: {e}", self.path),
-                        ));
-                    }
-                    self.no_rts = true;
-                }
-            }
-        }
+        let fd = self.port.as_raw_fd();
+        let port = &mut self.port;
+        let (direction, no_rts) = choose_direction(&self.path, fd, self.rs485, || {
+            port.write_request_to_send(false).map_err(io::Error::from)
+        })?;
+        self.direction = direction;
+        self.no_rts = no_rts;
         Ok(())
     }
 

@@ -157,3 +157,23 @@ fn a_missing_port_is_a_clear_error() {
         Ok(_) => panic!("no such protocol"),
     }
 }
+
+#[test]
+fn rs485_auto_falls_back_to_rts_on_a_pty_and_kernel_mode_is_refused() {
+    use drivebus_link::link::Direction;
+    use drivebus_link::Rs485;
+    let port = simulator(&["generic@1:modbus-rtu"], 9600, pty_path("rs485"));
+    let mut config = BusConfig::new("modbus-rtu", 9600, "8N2".parse().unwrap());
+    config.rs485 = Rs485::Kernel;
+    match BlockingBus::open(&port, config.clone()) {
+        Err(BusError::Link(e)) => assert!(e.contains("no kernel RS-485 mode"), "{e}"),
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("a pty has no kernel RS-485 mode"),
+    }
+    config.rs485 = Rs485::Auto;
+    let mut bus = BlockingBus::open(&port, config).expect("auto opens a pty");
+    assert_eq!(bus.direction(), Direction::Rts);
+    let ex = Exchange { request: vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37], expect_reply: true };
+    let reply = bus.transact(1, &ex, Priority::Command, None).expect("a reply through RTS toggling");
+    assert_eq!(&reply.expect("a reply is due")[..3], &[0x01, 0x03, 0x04]);
+}

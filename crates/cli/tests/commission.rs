@@ -93,6 +93,22 @@ fn commission(port: &str, family: &str, protocol: Option<&str>, address: u8) {
         }
     }
     assert!(rising >= 2, "{family}: the output ramps");
+    let o = drivebus(port, family, protocol, address, &["reverse"]);
+    if family == "b800" {
+        // Keypad mode (F-12 = 1): the drive answers e 93, a refusal with what to change.
+        assert_eq!(o.code, 1, "b800 reverse: {}{}", o.stdout, o.stderr);
+        assert!(o.stderr.contains("0x93") && o.stderr.contains("F-12 = 2"), "{}", o.stderr);
+    } else {
+        ok(&o, "reverse");
+    }
+    let o = drivebus(port, family, protocol, address, &["jog"]);
+    if family == "b800" {
+        assert_eq!(o.code, 3, "the B800 protocol has no jog: {}{}", o.stdout, o.stderr);
+        assert!(o.stderr.contains("no jog"), "{}", o.stderr);
+    } else {
+        ok(&o, "jog");
+    }
+    ok(&drivebus(port, family, protocol, address, &["reset"]), "reset");
     ok(&drivebus(port, family, protocol, address, &["stop"]), "stop");
     let o = drivebus(port, family, protocol, address, &["speed", "5000"]);
     assert_eq!(o.code, 3, "{family}: out of range: {}{}", o.stdout, o.stderr);
@@ -131,6 +147,24 @@ fn generic_over_tcp_and_pty() {
     let sim = simulate("generic@2:modbus-rtu", &["--pty", &pty_s]);
     commission(&pty_s, "generic", Some("modbus-rtu"), 2);
     drop(sim);
+}
+
+#[test]
+fn every_other_family_and_protocol_over_a_pty() {
+    for (drive, family, protocol, address) in [
+        ("generic@3:modbus-ascii", "generic", Some("modbus-ascii"), 3),
+        ("toshiba@1", "toshiba", Some("toshiba-binary"), 1),
+        ("toshiba@1", "toshiba", Some("toshiba-ascii"), 1),
+        ("toshiba@1:modbus-rtu", "toshiba", Some("modbus-rtu"), 1),
+        ("danfoss@3", "danfoss", None, 3),
+        ("b800@5", "b800", None, 5),
+    ] {
+        let pty = std::env::temp_dir().join(format!("drivebus-commission-{family}-{}", std::process::id()));
+        let pty_s = pty.to_string_lossy().to_string();
+        let sim = simulate(drive, &["--pty", &pty_s]);
+        commission(&pty_s, family, protocol, address);
+        drop(sim);
+    }
 }
 
 #[test]
@@ -250,6 +284,23 @@ fn scan_finds_the_drives_on_a_mixed_line() {
     );
     assert!(list.iter().any(|f| f["family"] == "b800" && f["address"] == 5), "{found}");
     assert!(!list.iter().any(|f| f["address"] == 1 || f["address"] == 2), "{found}");
+    // Every character format listed is tried (a pty or TCP line carries any of them).
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["scan", "--port", &port, "--drive", "generic", "--protocol", "modbus-rtu", "--addresses", "3"])
+        .args(["--formats", "8N1,8E1", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let found: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let formats: Vec<&str> = found.as_array().unwrap().iter().filter_map(|f| f["serial"].as_str()).collect();
+    assert_eq!(formats, ["8N1", "8E1"], "{found}");
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["scan", "--port", &port, "--drive", "generic", "--formats", "8X1"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(3), "a bad format is a usage error");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("8X1") && err.lines().count() == 1, "{err}");
     // --first stops at the first; nothing at 10-12 is exit 2.
     let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["scan", "--port", &port, "--drive", "b800", "--addresses", "10-12"])

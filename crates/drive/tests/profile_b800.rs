@@ -228,7 +228,10 @@ fn reverse_needs_f12_host_run_stop_and_a_running_drive() {
     run(&mut line, &b, Operation::SetSpeed(20.0));
     run(&mut line, &b, Operation::Run);
     let (e, sent) = fail(&mut line, &b, Operation::Reverse);
-    assert!(matches!(e, DriveError::Unsupported(ref s) if s.contains("F-12 = 2")), "{e}");
+    assert!(
+        matches!(e, DriveError::Refused { code: 0x93, ref meaning } if meaning.contains("F-12 = 2")),
+        "{e}"
+    );
     assert_eq!(sent, "TR");
     assert_eq!(model(&mut line, 1).rotation(), Rotation::Forward);
 

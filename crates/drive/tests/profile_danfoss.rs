@@ -165,8 +165,8 @@ fn first_status_reads_the_scale_then_one_telegram() {
     let mut line = line_with(&[7]);
     let fc = DanfossProfile::new(7).expect("profile");
     let (outcome, sent) = run(&mut line, &fc, Operation::Status);
-    // 3-00, 3-02, 3-03, then 16-14.
-    assert_eq!(sent, 4);
+    // 3-00, 3-02, 3-03, 16-02 (nothing commanded yet: the reference the drive holds), 16-14.
+    assert_eq!(sent, 5);
     let Outcome::Status(s) = outcome else { panic!("{outcome:?}") };
     assert_eq!(
         s,
@@ -175,11 +175,12 @@ fn first_status_reads_the_scale_then_one_telegram() {
             running: false,
             direction: None,
             output_hz: Some(0.0),
-            setpoint_hz: None,
+            setpoint_hz: Some(0.0),
             current_a: Some(0.0),
             fault: None
         }
     );
+    // The setpoint is known now: one telegram per status.
     assert_eq!(run(&mut line, &fc, Operation::Status).1, 1);
     // 4-14 is read before the first set speed only.
     assert_eq!(fc.reference_range(), None);
@@ -543,4 +544,15 @@ fn a_fresh_profile_keeps_the_reference_the_drive_holds() {
     let m = model(&mut line, 1);
     assert_eq!(m.state(), RunState::Running);
     assert!((m.output_hz() - 30.0).abs() < 0.05, "{} Hz", m.output_hz());
+}
+
+#[test]
+fn a_fresh_profile_reads_the_setpoint_the_drive_holds() {
+    let mut line = line_with(&[7]);
+    let first = DanfossProfile::new(7).expect("profile");
+    assert_eq!(run(&mut line, &first, Operation::SetSpeed(30.0)).0, Outcome::Done);
+    // Another program, which has commanded nothing, reads the drive's reference (16-02).
+    let fresh = DanfossProfile::new(7).expect("profile");
+    let s = status(&mut line, &fresh);
+    assert_eq!(s.setpoint_hz, Some(30.0), "{s:?}");
 }

@@ -1,4 +1,5 @@
-//! `drivebus scan`: find the drives on a line across addresses, baud rates and protocols.
+//! `drivebus scan`: find the drives on a line across addresses, baud rates, character formats
+//! and protocols.
 
 use std::time::Duration;
 
@@ -24,6 +25,9 @@ pub struct ScanArgs {
     /// Baud rates to try, e.g. 9600,19200 (default: --baud, or the family's).
     #[arg(long, value_name = "LIST")]
     pub bauds: Option<String>,
+    /// Character formats to try, e.g. 8N1,8E1,8O1,8N2 (default: --serial, or the family's).
+    #[arg(long, value_name = "LIST")]
+    pub formats: Option<String>,
     /// Stop at the first drive that answers.
     #[arg(long)]
     pub first: bool,
@@ -109,11 +113,20 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 (None, Some(b)) => vec![b],
                 (None, None) => vec![db],
             };
-            let format = match &t.serial {
-                Some(s) => s
+            let formats: Vec<CharFormat> = match (&args.formats, &t.serial) {
+                (Some(list), _) => list
+                    .split(',')
+                    .map(str::trim)
+                    .filter(|f| !f.is_empty())
+                    .map(|f| {
+                        f.parse::<CharFormat>()
+                            .map_err(|e| crate::commands::drive::usage(format!("--formats: {f:?}: {e}")))
+                    })
+                    .collect::<Result<_>>()?,
+                (None, Some(s)) => vec![s
                     .parse::<CharFormat>()
-                    .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?,
-                None => df,
+                    .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?],
+                (None, None) => vec![df],
             };
             let (lo, hi) = family_range(family, &protocol);
             let addresses: Vec<u8> = match &args.addresses {
@@ -124,16 +137,18 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                     .collect(),
                 None => (lo..=hi).collect(),
             };
-            for &baud in &bauds {
-                for &address in &addresses {
-                    combos.push((family, protocol.clone(), baud, format, address));
+            for &format in &formats {
+                for &baud in &bauds {
+                    for &address in &addresses {
+                        combos.push((family, protocol.clone(), baud, format, address));
+                    }
                 }
             }
         }
     }
     if combos.is_empty() {
         return Err(crate::commands::drive::usage(
-            "nothing to scan: check --drive, --protocol and --addresses",
+            "nothing to scan: check --drive, --protocol, --addresses, --bauds and --formats",
         ));
     }
     let timeout = Duration::from_millis(t.timeout.unwrap_or(60));

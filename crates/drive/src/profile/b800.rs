@@ -11,7 +11,7 @@
 //! | Status | `T`, then `Z` and `A` while running | stopped, tripped or without hardware enable the output is off: 0 Hz, 0 A |
 //! | Run | `T`, then `R` unless already running | with F-12 = 2, `R` to a running drive reverses it: the profile never sends it to one |
 //! | Stop | `S` | `e 02` "drive in standby" is success |
-//! | Reverse | `T`, then `R` to a running drive | reverses only with F-12 = 2; keypad mode (`e 93`) and a stopped drive are `Unsupported` |
+//! | Reverse | `T`, then `R` to a running drive | reverses only with F-12 = 2; keypad mode (`e 93`) is `Refused`, a stopped drive `Unsupported` |
 //! | Jog | none | `Unsupported`: the protocol has no jog |
 //! | Reset | `T`, then `S` if tripped | see below |
 //! | SetSpeed | `P`, 60 x Hz | keypad mode only: `e 91` otherwise |
@@ -401,11 +401,14 @@ impl B800Plan {
         match (purpose, code) {
             // seed 000: 02 "Drive in Standby (status information)": nothing to stop.
             (Purpose::Stop, ErrorCode::STANDBY) => Ok(()),
-            (Purpose::Reverse, ErrorCode::RUNNING) => Err(DriveError::Unsupported(
-                "the drive answered 93 (running: command cannot be carried out): it is in keypad mode \
-                 (F-12 = 1), and the B800 protocol reverses a running drive only with F-12 = 2"
-                    .to_string(),
-            )),
+            // The drive said no: a refusal (exit 1 on the command line), with what to change.
+            (Purpose::Reverse, ErrorCode::RUNNING) => Err(DriveError::Refused {
+                code: u32::from(code.0),
+                meaning:
+                    "running: command cannot be carried out; the drive is in keypad mode (F-12 = 1), and \
+                          the B800 protocol reverses a running drive only with F-12 = 2"
+                        .to_string(),
+            }),
             (Purpose::Reset, ErrorCode::TRIPPED) => Err(DriveError::Refused {
                 code: u32::from(code.0),
                 meaning: "tripped: the trip is still in force after S, its cause persists".to_string(),

@@ -44,8 +44,9 @@
 //! (running = bit 11 "in operation", trip = bit 03) and MAV (output frequency, signed by
 //! direction; the profile's first status reads 3-00, 3-02 and 3-03 before it, to scale MAV).
 //! A tripped drive costs one more read, 15-30 Alarm Log element 0, for the alarm number.
-//! The setpoint is the one this profile last commanded (the FC catalog has no reference
-//! readout).
+//! The setpoint is the one this profile last commanded; until it has commanded one, the
+//! status reads 16-02 Reference [%] first (once, while the setpoint is unknown) and scales it
+//! with 3-02..3-03.
 //!
 //! ## Refusals
 //!
@@ -393,6 +394,10 @@ impl DanfossProfile {
                 }
                 plan.goal = Goal::Status;
                 plan.read_scale(false);
+                if inner.memory().setpoint_hz.is_none() {
+                    // Nothing commanded yet: the reference the drive holds (16-02).
+                    plan.push(Action::read(REFERENCE_PCT, 0, Why::SyncReference));
+                }
                 plan.push(Action::read(MOTOR_CURRENT, 0, Why::Current));
             }
             Operation::Run | Operation::Jog => {
@@ -801,7 +806,9 @@ impl FcPlan {
                         let reference = Reference::from_percent(raw as f64 / 10.0);
                         let mut memory = self.inner.memory();
                         memory.reference = reference;
-                        memory.setpoint_hz = memory.known.scale().map(|range| range.hz(reference));
+                        // 16-02 has 0.1 % steps (0.05 Hz of 50 Hz): hundredths say all it knows.
+                        memory.setpoint_hz =
+                            memory.known.scale().map(|range| (range.hz(reference) * 100.0).round() / 100.0);
                     }
                     Why::Current => {
                         self.current_a = Some(self.inner.def(pnu)?.from_raw(raw));

@@ -60,6 +60,14 @@ pub struct ModbusLabels {
     pub result: &'static str,
 }
 
+/// Labels of a Modbus TCP latency.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ModbusPathLabels {
+    /// `cache` for answers from the state cache, `bus` for those that took a bus transaction
+    /// (writes, parameter reads).
+    pub path: &'static str,
+}
+
 /// Labels of an MQTT publish count.
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct MqttLabels {
@@ -68,6 +76,12 @@ pub struct MqttLabels {
 }
 
 type LatencyFamily = Family<RouteLabels, Histogram, fn() -> Histogram>;
+type ModbusLatencyFamily = Family<ModbusPathLabels, Histogram, fn() -> Histogram>;
+
+fn modbus_latency_histogram() -> Histogram {
+    // 10 us .. 2.6 s: cached answers take microseconds, bus transactions milliseconds.
+    Histogram::new(exponential_buckets(0.00001, 4.0, 10))
+}
 
 fn latency_histogram() -> Histogram {
     // 0.5 ms .. 8 s.
@@ -80,6 +94,7 @@ pub struct FrontEndMetrics {
     http_requests: Family<HttpLabels, Counter>,
     http_latency: LatencyFamily,
     modbus_requests: Family<ModbusLabels, Counter>,
+    modbus_latency: ModbusLatencyFamily,
     mqtt_publishes: Family<MqttLabels, Counter>,
     mqtt_connections: Counter,
 }
@@ -90,6 +105,7 @@ impl Default for FrontEndMetrics {
             http_requests: Family::default(),
             http_latency: Family::new_with_constructor(latency_histogram as fn() -> Histogram),
             modbus_requests: Family::default(),
+            modbus_latency: Family::new_with_constructor(modbus_latency_histogram as fn() -> Histogram),
             mqtt_publishes: Family::default(),
             mqtt_connections: Counter::default(),
         }
@@ -111,6 +127,13 @@ impl FrontEndMetrics {
     pub fn modbus_request(&self, function: u8, exception: bool) {
         let result = if exception { "exception" } else { "ok" };
         self.modbus_requests.get_or_create(&ModbusLabels { function, result }).inc();
+    }
+
+    /// Records the time a Modbus TCP request took to answer: from the state cache (`bus` false)
+    /// or through a bus transaction.
+    pub fn modbus_latency(&self, bus: bool, seconds: f64) {
+        let path = if bus { "bus" } else { "cache" };
+        self.modbus_latency.get_or_create(&ModbusPathLabels { path }).observe(seconds);
     }
 
     /// Counts an MQTT message handed to the client (`kind` as in [`MqttLabels`]).
@@ -161,7 +184,9 @@ pub fn routes() -> Router<Arc<Gateway>> {
     Router::new().route("/metrics", get(scrape))
 }
 
-async fn scrape(State(gw): State<Arc<Gateway>>) -> Response {
+/// Needs a read token unless `[http] anonymous_read`, as every other read does: the series carry
+/// every drive's values.
+async fn scrape(_access: crate::http::auth::ReadAccess, State(gw): State<Arc<Gateway>>) -> Response {
     match render(&gw) {
         Ok(text) => ([(header::CONTENT_TYPE, CONTENT_TYPE)], text).into_response(),
         Err(e) => (
@@ -288,6 +313,12 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         "modbus_requests",
         "Modbus TCP requests, by function code and result",
         f.modbus_requests.clone(),
+    );
+    reg.register_with_unit(
+        "modbus_request_duration",
+        "Time to answer a Modbus TCP request, from the cache or through the bus",
+        Unit::Seconds,
+        f.modbus_latency.clone(),
     );
     reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
     reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());

@@ -201,3 +201,37 @@ async fn values_not_read_yet_are_absent_not_zero() {
     assert!(find(&samples, "drivebus_drive_online", &[]).is_none(), "{text}");
     assert!(find(&samples, "drivebus_drive_polls_total", &[("drive", "fan-1")]).is_some());
 }
+
+#[tokio::test(start_paused = true)]
+async fn metrics_need_a_read_token_when_reads_do() {
+    let mut config = GatewayConfig::demo();
+    config.http.anonymous_read = false;
+    let token = "a-reader-secret".to_string();
+    config.tokens.push(drivebus_gateway::config::Token {
+        name: "historian".into(),
+        secret: token.clone(),
+        role: drivebus_gateway::config::Role::Read,
+    });
+    let gw = Gateway::start(config, None).unwrap();
+    let app = app(&gw);
+    let (status, _, body) = get_text(&app, "/metrics").await;
+    assert_eq!(status, StatusCode::UNAUTHORIZED, "{body}");
+    assert!(!body.contains("drivebus_drive_output_hz"), "no drive values leak: {body}");
+    let resp = app
+        .clone()
+        .oneshot(
+            Request::get("/metrics")
+                .header("authorization", format!("Bearer {token}"))
+                .body(Body::empty())
+                .unwrap(),
+        )
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), StatusCode::OK);
+    // Modbus TCP latencies are there once a request was answered.
+    gw.counters.front_ends.modbus_latency(false, 20e-6);
+    gw.counters.front_ends.modbus_latency(true, 0.030);
+    let text = drivebus_gateway::metrics::render(&gw).unwrap();
+    assert!(text.contains("drivebus_modbus_request_duration_seconds_count{path=\"cache\"} 1"), "{text}");
+    assert!(text.contains("drivebus_modbus_request_duration_seconds_count{path=\"bus\"} 1"), "{text}");
+}

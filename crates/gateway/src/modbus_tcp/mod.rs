@@ -272,7 +272,10 @@ impl Server {
                 }
                 let frame = &buf[pos..pos + total];
                 let mut mark = out.len();
+                let started = std::time::Instant::now();
+                let mut via_bus = false;
                 if !self.answer_cached(frame, &mut out) {
+                    via_bus = true;
                     // The drive's answer takes a bus transaction: send the answers before it first.
                     if !out.is_empty() {
                         sock.write_all(&out).await?;
@@ -283,7 +286,9 @@ impl Server {
                 }
                 // The answer's function code has bit 7 set for an exception.
                 let exception = out.get(mark + 7).is_some_and(|f| f & 0x80 != 0);
-                self.gw.counters.front_ends.modbus_request(frame[7], exception);
+                let front = &self.gw.counters.front_ends;
+                front.modbus_request(frame[7], exception);
+                front.modbus_latency(via_bus, started.elapsed().as_secs_f64());
                 pos += total;
             }
             if !out.is_empty() {

@@ -34,6 +34,10 @@ pub struct ServeArgs {
     /// Keep no events or trends.
     #[arg(long, conflicts_with = "db")]
     pub no_store: bool,
+    /// The gateway's name, instead of the configuration's (`demo` with --demo): the MQTT topic
+    /// level and client id, so that two gateways on one broker stay apart.
+    #[arg(long, value_name = "NAME")]
+    pub name: Option<String>,
 }
 
 fn demo_token() -> String {
@@ -61,6 +65,14 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
         }
         None => GatewayConfig::demo(),
     };
+    if let Some(name) = &args.name {
+        if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+            return Err(anyhow!(
+                "--name {name:?}: use letters, digits, '-' and '_' (it is an MQTT topic level)"
+            ));
+        }
+        config.name = name.clone();
+    }
     if let Some(a) = args.http {
         config.http.listen = a;
     }

@@ -479,6 +479,24 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
         "return document.getElementById('event-rows').innerText;",
     );
 
+    // The Kind filter: only commands, then everything again (the gateway's start is back).
+    browser.js(
+        "const s = document.getElementById('event-kind'); s.value = 'command'; s.dispatchEvent(new Event('change')); return true;",
+    );
+    browser.wait_for(
+        "only commands in the event log",
+        "const rows = [...document.querySelectorAll('#event-rows tr')]; return rows.length > 0 && rows.every(r => r.dataset.kind === 'command');",
+        "return document.getElementById('event-rows').innerText;",
+    );
+    browser.js(
+        "const s = document.getElementById('event-kind'); s.value = ''; s.dispatchEvent(new Event('change')); return true;",
+    );
+    browser.wait_for(
+        "every kind in the event log again",
+        "const rows = [...document.querySelectorAll('#event-rows tr')]; return rows.some(r => r.dataset.kind === 'started') && rows.some(r => r.dataset.kind === 'command');",
+        "return document.getElementById('event-rows').innerText;",
+    );
+
     // A phone: 360 CSS px wide, nothing wider than the screen.
     browser.call("POST", "/window/rect", Some(json!({ "width": 360, "height": 800 })));
     browser.wait_for(

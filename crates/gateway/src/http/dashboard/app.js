@@ -643,8 +643,10 @@
   function init() {
     updateTokenButton();
     wireTokenDialog();
-    $('#event-drive').addEventListener('change', () => { state.events = []; state.eventIds.clear(); loadEvents(); });
-    $('#event-kind').addEventListener('change', () => { state.events = []; state.eventIds.clear(); loadEvents(); });
+    // The list is filtered here (renderEvents); the store is asked for more of the new filter.
+    // Nothing is cleared: without a store the live events are all there is.
+    $('#event-drive').addEventListener('change', () => { renderEvents(); loadEvents(); });
+    $('#event-kind').addEventListener('change', () => { renderEvents(); loadEvents(); });
     setInterval(() => { for (const d of state.drives.values()) updateAge(d); }, 500);
     start();
   }

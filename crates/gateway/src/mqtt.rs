@@ -421,7 +421,9 @@ fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
         "name": v.id,
         "manufacturer": "drivebus",
         "model": format!("{} ({})", v.family, v.protocol),
-        "via_device": format!("drivebus_{}", s.gateway),
+        // No "via_device": the gateway itself is not announced as a device, and Home Assistant
+        // warns about a via_device it does not know.
+        "suggested_area": s.gateway,
     });
     // (value, name, unit, device class, template)
     type Sensor<'a> = (&'a str, &'a str, Option<&'a str>, Option<&'a str>, &'a str);

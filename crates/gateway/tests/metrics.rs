@@ -235,3 +235,32 @@ async fn metrics_need_a_read_token_when_reads_do() {
     assert!(text.contains("drivebus_modbus_request_duration_seconds_count{path=\"cache\"} 1"), "{text}");
     assert!(text.contains("drivebus_modbus_request_duration_seconds_count{path=\"bus\"} 1"), "{text}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn bus_errors_on_a_noisy_line_are_counted() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    let noisy = gw.buses().iter().find(|b| b.config.name == "line-generic").expect("the demo's generic bus");
+    let line = noisy.line.as_ref().expect("a virtual bus");
+    line.lock().unwrap().set_faults(drivebus_sim::bus::Faults {
+        corrupt_rate: 0.02,
+        drop_rate: 0.02,
+        ..Default::default()
+    });
+    tokio::time::sleep(Duration::from_secs(60)).await;
+
+    let text = drivebus_gateway::metrics::render(&gw).unwrap();
+    let samples: Vec<Sample> = text.lines().filter_map(|l| parse_line(l).unwrap()).collect();
+    let value = |name: &str, bus: &str| {
+        find(&samples, name, &[("bus", bus)]).unwrap_or_else(|| panic!("{name}")).value
+    };
+    for n in
+        ["drivebus_bus_timeouts_total", "drivebus_bus_checksum_errors_total", "drivebus_bus_retries_total"]
+    {
+        assert!(value(n, "line-generic") > 0.0, "{n} counts the noise: {}", value(n, "line-generic"));
+        assert_eq!(value(n, "line-toshiba"), 0.0, "{n} on a quiet line");
+    }
+    // The same counts as the bus owner's, which /api/buses shows too.
+    let stats = noisy.stats();
+    assert_eq!(value("drivebus_bus_checksum_errors_total", "line-generic"), stats.checksum_errors as f64);
+    assert_eq!(value("drivebus_bus_timeouts_total", "line-generic"), stats.timeouts as f64);
+}

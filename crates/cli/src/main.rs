@@ -79,6 +79,20 @@ enum Command {
 /// Exit status for bad usage (unknown option, value out of range).
 pub const EXIT_USAGE: u8 = 3;
 
+/// SIGPIPE back to its default action (end the process), which Rust's runtime sets to ignore.
+#[cfg(unix)]
+fn default_sigpipe() {
+    // SAFETY: setting a signal's disposition to SIG_DFL, before any other thread exists, has no
+    // memory-safety condition: no handler runs Rust code.
+    #[allow(unsafe_code)]
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
+#[cfg(not(unix))]
+fn default_sigpipe() {}
+
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
@@ -102,6 +116,12 @@ fn main() -> ExitCode {
             return ExitCode::from(EXIT_USAGE);
         }
     };
+    // A reader that stops early (`drivebus events | head -1`) ends a printing command quietly,
+    // as it ends any Unix tool, instead of a panic in println!. The two services keep SIGPIPE
+    // ignored: for them a closed socket or pipe is an error to report, not their end.
+    if !matches!(cli.command, Command::Serve(_) | Command::Simulate(_)) {
+        default_sigpipe();
+    }
     let result = match cli.command {
         Command::Decode(args) => commands::decode::run(&args, &cli.target),
         Command::Simulate(args) => commands::simulate::run(&args, &cli.target),

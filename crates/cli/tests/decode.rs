@@ -317,3 +317,33 @@ fn bad_usage_exits_3_with_one_line() {
     let r = decode(&["-p", "modbus-rtu", "01 02 03"]);
     assert_eq!(r.code, 1, "no valid frame: {}", r.stdout);
 }
+
+/// A reader that stops early (`drivebus decode ... | head -1`) ends the command quietly: no
+/// panic from a print to a closed pipe.
+#[test]
+#[cfg(unix)]
+fn a_reader_that_stops_early_ends_the_command_without_a_panic() {
+    use std::io::{BufRead, BufReader};
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::{Command, Stdio};
+    // 40 000 frames, several MB of output: far more than a pipe holds.
+    let chunk = "7E 30 31 37 32 33 35 7F ".repeat(2000);
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["decode", "--protocol", "b800"]);
+    for _ in 0..20 {
+        cmd.arg(&chunk);
+    }
+    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    assert!(first.starts_with("frame 1"), "{first}");
+    drop(out);
+    let result = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_ne!(result.status.code(), Some(101), "a panic's exit status: {stderr}");
+    // Ended by SIGPIPE as any Unix tool, or done before the pipe closed.
+    const SIGPIPE: i32 = 13;
+    assert!(result.status.signal() == Some(SIGPIPE) || result.status.success(), "{:?}", result.status);
+}

@@ -293,3 +293,41 @@ fn reads_while_a_writer_has_the_store_open() {
     assert_eq!(json_lines(&r.stdout).len(), 1);
     drop(writer);
 }
+
+/// `drivebus events | head -1`: the command ends quietly when its reader stops (it panicked
+/// in println! before).
+#[test]
+#[cfg(unix)]
+fn events_to_a_reader_that_stops_early_end_without_a_panic() {
+    use std::io::{BufRead, BufReader};
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open(&dir.path().join("drivebus.db")).unwrap();
+    let many: Vec<Event> = (0..5000)
+        .map(|i| event(t0() + i, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "speed 40 Hz", "ok"))
+        .collect();
+    store.record_batch(&many).unwrap();
+    drop(store);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .current_dir(dir.path())
+        .args(["events", "--limit", "5000"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    assert!(first.contains("TIME"), "{first}");
+    drop(out);
+    let result = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    const SIGPIPE: i32 = 13;
+    assert!(
+        result.status.signal() == Some(SIGPIPE) || result.status.success(),
+        "{:?} {stderr}",
+        result.status
+    );
+}

@@ -280,7 +280,7 @@ struct FileConfig {
 struct FileHttp {
     listen: Option<Spanned<String>>,
     anonymous_read: Option<bool>,
-    max_body: Option<usize>,
+    max_body: Option<Spanned<usize>>,
 }
 
 #[derive(Deserialize, Default)]
@@ -290,7 +290,7 @@ struct FileModbus {
     allow: Option<Vec<Spanned<String>>>,
     #[serde(default)]
     read_only: bool,
-    max_connections: Option<usize>,
+    max_connections: Option<Spanned<usize>>,
 }
 
 #[derive(Deserialize, Default)]
@@ -378,6 +378,30 @@ impl Ctx<'_> {
     fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
         Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
     }
+
+    /// The field a value at `span` belongs to (`bus.drive.address`): the key before `=` on its
+    /// line, under the last table header above it. `None` when the span is not at a `key =
+    /// value` line (a header, a syntax error).
+    fn field_at(&self, span: Range<usize>) -> Option<String> {
+        let start = span.start.min(self.text.len());
+        let line_start = self.text[..start].rfind('\n').map_or(0, |i| i + 1);
+        let line_end = self.text[start..].find('\n').map_or(self.text.len(), |i| start + i);
+        let (key, _) = self.text[line_start..line_end].split_once('=')?;
+        let key = key.trim().trim_matches('"');
+        if key.is_empty() || key.starts_with('[') || key.starts_with('#') {
+            return None;
+        }
+        let table = self.text[..line_start]
+            .lines()
+            .rev()
+            .map(str::trim)
+            .find(|l| l.starts_with('['))
+            .map(|h| h.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+        Some(match table {
+            Some(t) if !t.is_empty() => format!("{t}.{key}"),
+            _ => key.to_string(),
+        })
+    }
 }
 
 impl GatewayConfig {
@@ -395,7 +419,11 @@ impl GatewayConfig {
             // duplicate key `modbus` in document root").
             let msg = e.message().trim().lines().map(str::trim).collect::<Vec<_>>().join(": ");
             match e.span() {
-                Some(s) => ConfigError(format!("{file}:{}: {msg}", cx.line(s))),
+                // A value of the wrong type or range: name its field as the other checks do.
+                Some(s) => match cx.field_at(s.clone()) {
+                    Some(field) => ConfigError(format!("{file}:{}: field `{field}`: {msg}", cx.line(s))),
+                    None => ConfigError(format!("{file}:{}: {msg}", cx.line(s))),
+                },
                 None => ConfigError(format!("{file}: {msg}")),
             }
         })?;
@@ -416,7 +444,17 @@ impl GatewayConfig {
         let http = HttpConfig {
             listen: addr(&raw.http.listen, "http.listen", "127.0.0.1:8080")?,
             anonymous_read: raw.http.anonymous_read.unwrap_or(false),
-            max_body: raw.http.max_body.unwrap_or(64 * 1024),
+            max_body: match &raw.http.max_body {
+                Some(m) if !(256..=16 << 20).contains(m.get_ref()) => {
+                    return cx.err(
+                        m.span(),
+                        "http.max_body",
+                        format!("{} is outside 256..16777216 bytes", m.get_ref()),
+                    )
+                }
+                Some(m) => *m.get_ref(),
+                None => 64 * 1024,
+            },
         };
         let allow = match &raw.modbus.allow {
             None => vec![IpAddr::from([127, 0, 0, 1]), IpAddr::from(std::net::Ipv6Addr::LOCALHOST)],
@@ -434,10 +472,10 @@ impl GatewayConfig {
             listen: addr(&raw.modbus.listen, "modbus.listen", "127.0.0.1:5020")?,
             allow,
             read_only: raw.modbus.read_only,
-            max_connections: raw.modbus.max_connections.unwrap_or(16_384),
+            max_connections: raw.modbus.max_connections.as_ref().map_or(16_384, |m| *m.get_ref()),
         };
-        if modbus.max_connections == 0 {
-            return Err(ConfigError(format!("{file}: field `modbus.max_connections`: use 1 or more")));
+        if let Some(m) = raw.modbus.max_connections.as_ref().filter(|m| *m.get_ref() == 0) {
+            return cx.err(m.span(), "modbus.max_connections", "use 1 or more");
         }
 
         let mut tokens = Vec::new();
@@ -562,10 +600,29 @@ impl GatewayConfig {
                     return cx.err(b.name.span(), "bus.protocol", "give the bus's protocol or a drive")
                 }
             };
-            for d in &drives {
+            for (d, raw_drive) in drives.iter().zip(&b.drive) {
                 if let Err(e) = drivebus_drive::profile::for_drive(d.family, &protocol, d.address) {
                     let span = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
                     return cx.err(span, "bus.protocol", format!("drive {:?}: {e}", d.name));
+                }
+                // A polled drive has an address of its own: never the broadcast address, which
+                // every drive obeys and none answers (a lock on one drive would not hold).
+                let (lo, hi) = drivebus_drive::profile::address_range(d.family, &protocol);
+                if d.address < lo || d.address > hi {
+                    return cx.err(
+                        raw_drive.address.span(),
+                        "bus.drive.address",
+                        format!(
+                            "drive {:?}: a {} drive on {protocol} has an address in {lo}..{hi}{}",
+                            d.name,
+                            d.family,
+                            if d.address == 0 {
+                                " (0 is the broadcast address: every drive obeys it)"
+                            } else {
+                                ""
+                            }
+                        ),
+                    );
                 }
             }
             let (db, df) = first.map_or((9600, CharFormat::NONE_8N1), |f| {
@@ -609,6 +666,32 @@ impl GatewayConfig {
             }
             if l.leader.get_ref() == l.follower.get_ref() {
                 return cx.err(span, "linkage.follower", "a drive cannot follow itself");
+            }
+            if linkage.iter().any(|x: &Linkage| &x.follower == l.follower.get_ref()) {
+                return cx.err(
+                    l.follower.span(),
+                    "linkage.follower",
+                    format!(
+                        "{:?} already follows another drive: one rule per follower",
+                        l.follower.get_ref()
+                    ),
+                );
+            }
+            // A chain that comes back to its start would feed each setpoint from itself.
+            let mut leader = l.leader.get_ref().as_str();
+            while let Some(up) = linkage.iter().find(|x: &&Linkage| x.follower == leader) {
+                if &up.leader == l.follower.get_ref() {
+                    return cx.err(
+                        l.follower.span(),
+                        "linkage.follower",
+                        format!(
+                            "{:?} following {:?} closes a loop of linkage rules: each setpoint would feed itself",
+                            l.follower.get_ref(),
+                            l.leader.get_ref()
+                        ),
+                    );
+                }
+                leader = up.leader.as_str();
             }
             let ratio = l.ratio.unwrap_or(1.0);
             let offset_hz = l.offset_hz.unwrap_or(0.0);
@@ -737,7 +820,7 @@ mod tests {
         let e = err("[http]\nlisten = \"localhost\"\n");
         assert!(e.starts_with("plant.toml:2: field `http.listen`"), "{e}");
         let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nspeed = 3\n");
-        assert!(e.starts_with("plant.toml:4: unknown field `speed`"), "{e}");
+        assert!(e.starts_with("plant.toml:4: field `bus.speed`: unknown field `speed`"), "{e}");
         let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"b800\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"danfoss\"\naddress = 1\n");
         assert!(
             e.starts_with("plant.toml:4: field `bus.protocol`: drive \"x\": a danfoss drive does not speak"),
@@ -765,6 +848,53 @@ mod tests {
         assert!(e.contains("start"), "{e}");
         let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\ntopic_prefix = \"plant/#\"\n");
         assert!(e.starts_with("plant.toml:3: field `mqtt.topic_prefix`: "), "{e}");
+    }
+
+    #[test]
+    fn values_of_the_wrong_type_name_their_field() {
+        let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = \"fast\"\n");
+        assert!(e.starts_with("plant.toml:4: field `bus.baud`: invalid type"), "{e}");
+        let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 300\n");
+        assert!(e.starts_with("plant.toml:7: field `bus.drive.address`: "), "{e}");
+        let e = err("[http]\nmax_body = 0\n");
+        assert_eq!(e, "plant.toml:2: field `http.max_body`: 0 is outside 256..16777216 bytes");
+        let e = err("[modbus]\nmax_connections = 0\n");
+        assert_eq!(e, "plant.toml:2: field `modbus.max_connections`: use 1 or more");
+    }
+
+    #[test]
+    fn a_polled_drive_never_has_the_broadcast_address() {
+        let bus = |family: &str, protocol: &str, address: u8| {
+            format!("[[bus]]\nname = \"a\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"{protocol}\"\n[[bus.drive]]\nname = \"all\"\nfamily = \"{family}\"\naddress = {address}\n")
+        };
+        let e = err(&bus("generic", "modbus-rtu", 0));
+        assert_eq!(
+            e,
+            "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..247 (0 is the broadcast address: every drive obeys it)"
+        );
+        assert!(err(&bus("generic", "modbus-rtu", 250)).contains("1..247"));
+        let e = err(&bus("danfoss", "danfoss-fc", 127));
+        assert!(e.starts_with("plant.toml:") && e.contains("127"), "{e}");
+        assert!(err(&bus("b800", "b800", 0)).contains("1..63"));
+        assert!(
+            GatewayConfig::from_toml("p.toml", &bus("toshiba", "toshiba-binary", 0)).is_ok(),
+            "TIP drive 0 exists"
+        );
+        assert!(err(&bus("toshiba", "toshiba-binary", 64)).contains("0..63"));
+    }
+
+    #[test]
+    fn linkage_loops_and_second_rules_are_refused() {
+        let drives = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"d1\"\nfamily = \"generic\"\naddress = 1\n[[bus.drive]]\nname = \"d2\"\nfamily = \"generic\"\naddress = 2\n[[bus.drive]]\nname = \"d3\"\nfamily = \"generic\"\naddress = 3\n";
+        let rule = |l: &str, f: &str| format!("[[linkage]]\nleader = \"{l}\"\nfollower = \"{f}\"\n");
+        let ok = format!("{drives}{}{}", rule("d1", "d2"), rule("d2", "d3"));
+        assert_eq!(GatewayConfig::from_toml("p.toml", &ok).unwrap().linkage.len(), 2, "a chain is fine");
+        let e = err(&format!("{drives}{}{}", rule("d1", "d2"), rule("d2", "d1")));
+        assert!(e.contains("field `linkage.follower`") && e.contains("closes a loop"), "{e}");
+        let e = err(&format!("{drives}{}{}{}", rule("d1", "d2"), rule("d2", "d3"), rule("d3", "d1")));
+        assert!(e.contains("closes a loop"), "{e}");
+        let e = err(&format!("{drives}{}{}", rule("d1", "d3"), rule("d2", "d3")));
+        assert!(e.contains("already follows another drive"), "{e}");
     }
 
     #[test]

@@ -181,6 +181,14 @@ async fn bad_requests_are_one_line_json_errors_and_reach_no_drive() {
         assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": 40, "hertz": 1}"#)).await, 422, "invalid");
     assert!(m.contains("hertz"), "{m}");
     assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": "fast"}"#)).await, 422, "invalid");
+    // An array is not the object (serde would read it as the fields in order).
+    let m = assert_error(&call(&app, "POST", speed, w, Some("[25]")).await, 422, "invalid");
+    assert!(m.contains("JSON object"), "{m}");
+    assert_error(
+        &call(&app, "PUT", "/api/drives/ahu-1/params/4-14", w, Some(r#"["55", true]"#)).await,
+        422,
+        "invalid",
+    );
     // Out of range: refused before the drive, setpoint unchanged.
     let before = call(&app, "GET", "/api/drives/fan-1", None, None).await.json["setpoint_hz"].clone();
     assert_error(&call(&app, "POST", speed, w, Some(r#"{"hz": 500}"#)).await, 422, "invalid");

@@ -62,17 +62,6 @@ fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
     Ok(out)
 }
 
-fn family_range(family: Family, protocol: &str) -> (u8, u8) {
-    match (family, protocol) {
-        (Family::Generic, _) => (1, 247),
-        (Family::Toshiba, "modbus-rtu") => (1, 247),
-        (Family::Toshiba, "toshiba-binary") => (0, 63),
-        (Family::Toshiba, _) => (0, 99),
-        (Family::Danfoss, _) => (1, 126),
-        (Family::B800, _) => (1, 63),
-    }
-}
-
 /// Runs `drivebus scan`; exit 0 when a drive answered, 2 when none did.
 pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
     let port = t.port.clone().ok_or_else(|| {
@@ -128,7 +117,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                     .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?],
                 (None, None) => vec![df],
             };
-            let (lo, hi) = family_range(family, &protocol);
+            let (lo, hi) = drivebus_drive::profile::address_range(family, &protocol);
             let addresses: Vec<u8> = match &args.addresses {
                 Some(r) => parse_list(r, "address")?
                     .into_iter()

@@ -165,6 +165,18 @@ pub trait Profile: Send + Sync {
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError>;
 }
 
+/// The addresses one drive of `family` can have on `protocol` (a codec name), broadcast
+/// addresses excluded: Modbus 1..247, TIP binary 0..63, TIP ASCII 0..99, FC 1..126, B800 1..63.
+pub fn address_range(family: Family, protocol: &str) -> (u8, u8) {
+    match (family, protocol) {
+        (Family::Generic, _) | (Family::Toshiba, "modbus-rtu") => (1, 247),
+        (Family::Toshiba, "toshiba-binary") => (0, 63),
+        (Family::Toshiba, _) => (0, 99),
+        (Family::Danfoss, _) => (1, 126),
+        (Family::B800, _) => (1, 63),
+    }
+}
+
 /// The profile for drive `address` of `family` spoken in `protocol` (a codec name).
 pub fn for_drive(family: Family, protocol: &str, address: u8) -> Result<Box<dyn Profile>, DriveError> {
     let wrong = || {

@@ -57,7 +57,7 @@ fn parse_json<T: DeserializeOwned>(bytes: &[u8], example: &str) -> Result<T, Api
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return Err(ApiError::bad_json(format!("the body is empty: send JSON like {example}")));
     }
-    serde_json::from_slice(bytes).map_err(|e| {
+    let value: Value = serde_json::from_slice(bytes).map_err(|e| {
         use serde_json::error::Category;
         match e.classify() {
             Category::Data => ApiError::invalid(format!("{e}: send JSON like {example}")),
@@ -65,7 +65,13 @@ fn parse_json<T: DeserializeOwned>(bytes: &[u8], example: &str) -> Result<T, Api
                 ApiError::bad_json(format!("the body is not JSON ({e}): send JSON like {example}"))
             }
         }
-    })
+    })?;
+    // serde would take an array for the fields in order (`[25]` for `{"hz": 25}`): only the
+    // documented object is a request.
+    if !value.is_object() {
+        return Err(ApiError::invalid(format!("the body must be a JSON object like {example}")));
+    }
+    serde_json::from_value(value).map_err(|e| ApiError::invalid(format!("{e}: send JSON like {example}")))
 }
 
 async fn run_command(gw: &Arc<Gateway>, id: &str, command: Command, actor: &str) -> ApiResult<Value> {

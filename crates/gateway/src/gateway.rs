@@ -870,14 +870,46 @@ impl Gateway {
                 continue;
             }
             let gw = self.clone();
+            let actor = format!("linkage:{}", rule.leader);
             tokio::spawn(async move {
                 let f = &gw.drives[fi];
-                match f.command.set_speed(target).await {
-                    Ok(()) => f.state.write().unwrap_or_else(|p| p.into_inner()).commanded_hz = Some(target),
+                // The audit trail has the linkage taking hold, failing and recovering; not each
+                // setpoint it writes (one per leader poll).
+                let (first, failing) = f.with_state(|s| {
+                    (
+                        s.commanded_hz.is_none(),
+                        s.last_error.as_deref().is_some_and(|e| e.starts_with("linkage:")),
+                    )
+                });
+                let result = f.command.set_speed(target).await;
+                let audit = match &result {
+                    Ok(()) => {
+                        let mut s = f.state.write().unwrap_or_else(|p| p.into_inner());
+                        s.commanded_hz = Some(target);
+                        if failing {
+                            s.last_error = None;
+                        }
+                        (first || failing).then(|| "ok".to_string())
+                    }
                     Err(e) => {
                         f.state.write().unwrap_or_else(|p| p.into_inner()).last_error =
-                            Some(format!("linkage: {e}"))
+                            Some(format!("linkage: {e}"));
+                        (!failing).then(|| format!("error: {e}"))
                     }
+                };
+                if let Some(result) = audit {
+                    gw.record_async(Event {
+                        id: 0,
+                        time_ms: unix_ms(),
+                        kind: EventKind::Command,
+                        bus: Some(f.bus.clone()),
+                        drive: Some(f.config.name.clone()),
+                        actor: Some(actor),
+                        action: Some(Command::Speed(target).action()),
+                        result: Some(result),
+                        detail: json!({}),
+                    })
+                    .await;
                 }
                 f.linking.store(false, Ordering::Relaxed);
             });

@@ -119,3 +119,25 @@ fn events_log_as_one_line() {
     t.detail = serde_json::json!({ "code": 3 });
     assert_eq!(log_line(&t), "2026-11-21T22:47:34.481Z trip line-1/pump-1 {\"code\":3}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn linkage_taking_hold_is_audited_once_not_per_poll() {
+    let path = std::env::temp_dir().join(format!("drivebus-linkage-audit-{}.db", std::process::id()));
+    let _ = std::fs::remove_file(&path);
+    let store = drivebus_store::Store::open(&path).unwrap();
+    let gw = Gateway::start(GatewayConfig::demo(), Some(store)).unwrap();
+    gw.command("conveyor-1", Command::Speed(30.0), "test").await.unwrap();
+    gw.command("conveyor-1", Command::Run, "test").await.unwrap();
+    settle(30).await;
+    // conveyor-2 follows conveyor-1 through many polls while it ramps: one audit record.
+    let filter =
+        drivebus_store::EventFilter { drive: Some("conveyor-2".into()), limit: 1000, ..Default::default() };
+    let events = gw.store().unwrap().events(&filter).unwrap();
+    let linkage: Vec<_> =
+        events.iter().filter(|e| e.actor.as_deref() == Some("linkage:conveyor-1")).collect();
+    assert_eq!(linkage.len(), 1, "{events:?}");
+    assert_eq!(linkage[0].result.as_deref(), Some("ok"));
+    assert!(linkage[0].action.as_deref().is_some_and(|a| a.starts_with("speed ")), "{:?}", linkage[0]);
+    drop(gw);
+    let _ = std::fs::remove_file(&path);
+}

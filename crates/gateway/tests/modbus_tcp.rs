@@ -451,3 +451,30 @@ async fn read_write_multiple_writes_then_reads() {
     assert_eq!(c.holding(mixer, 1000, 2).await, Err(0x01));
     assert_eq!(c.write1(mixer, 0, 0x0008).await, Err(0x01));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_drive_is_0b_and_a_drives_refusal_is_04() {
+    let (gw, addr) = demo().await;
+    all_online(addr, 10).await;
+    let mut c = Client::connect(addr).await;
+    let unit = |name: &str| gw.drive(name).unwrap().config.unit_id;
+
+    // mixer-2 (B800, keypad mode F-12 = 1) told to run in reverse: it runs (run goes first on a
+    // B800), then refuses the reverse with its error 93: exception 04, the drive still runs.
+    let mixer = unit("mixer-2");
+    assert_eq!(c.write1(mixer, 0, 3).await, Err(0x04));
+    let dl = Deadline::new();
+    while c.input(mixer, 0, 1).await.unwrap()[0] & 0x01 == 0 {
+        dl.tick("mixer-2 running").await;
+    }
+
+    // conveyor-1 stops answering: a write that needs the drive is 0B (no answer), and the
+    // setpoint is not shown as written.
+    let conveyor = unit("conveyor-1");
+    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap();
+    bus.line.as_ref().unwrap().lock().unwrap().set_silent(1, true);
+    assert_eq!(c.write1(conveyor, 1, 2500).await, Err(0x0B));
+    assert_ne!(c.holding(conveyor, 1, 1).await, Ok(vec![2500]), "a write nobody confirmed");
+    bus.line.as_ref().unwrap().lock().unwrap().set_silent(1, false);
+    assert_eq!(c.write1(conveyor, 1, 2500).await, Ok(()));
+}

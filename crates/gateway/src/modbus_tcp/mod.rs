@@ -559,11 +559,15 @@ impl Server {
             (None, _) => (s.status.as_ref().is_some_and(|x| x.running), is_reverse(s)),
         });
         let plan = plan_command(word, written.word, running, reverse);
+        // Reverse, then run: the drive starts in the new direction. A B800 reverses only while
+        // running (R to a running drive), so it runs first.
+        let b800 = d.config.family == drivebus_drive::Family::B800;
         let steps = [
             (plan.reset, Command::Reset),
             (plan.stop, Command::Stop),
-            (plan.reverse, Command::Reverse),
+            (plan.reverse && !b800, Command::Reverse),
             (plan.run, Command::Run),
+            (plan.reverse && b800, Command::Reverse),
             (plan.jog, Command::Jog),
         ];
         for (due, cmd) in steps {

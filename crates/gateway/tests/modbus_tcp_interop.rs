@@ -134,4 +134,31 @@ async fn mbpoll_reads_input_registers() {
     cmd.args(["-m", "tcp", "-p", &port, "-a", "42", "-t", "3", "-r", "1", "-c", "1", "-1", "127.0.0.1"]);
     let out = run(cmd).await.unwrap_or_else(|e| e);
     assert!(out.to_lowercase().contains("target device failed to respond"), "{out}");
+
+    // Writes: fan-1's (unit 3) setpoint to 35.00 Hz (FC 06, answered when the drive confirmed),
+    // read back from holding register 1; then command word and setpoint together (FC 16).
+    let mbpoll = |args: &[&str]| {
+        let mut cmd = Command::new("mbpoll");
+        cmd.args(["-m", "tcp", "-p", &port]).args(args);
+        cmd
+    };
+    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "2", "127.0.0.1", "3500"]))
+        .await
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(out.contains("Written 1 references"), "{out}");
+    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "2", "-c", "1", "-1", "127.0.0.1"]))
+        .await
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(mbpoll_values(&out), vec![(2, 3500)], "{out}");
+    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "1", "127.0.0.1", "1", "3000"]))
+        .await
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(out.contains("Written 2 references"), "{out}");
+    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "1", "-c", "2", "-1", "127.0.0.1"]))
+        .await
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(mbpoll_values(&out), vec![(1, 1), (2, 3000)], "{out}");
+    // pump-3 (unit 6) is locked: mbpoll shows the exception.
+    let out = run(mbpoll(&["-a", "6", "-t", "4", "-r", "1", "127.0.0.1", "1"])).await.unwrap_or_else(|e| e);
+    assert!(out.to_lowercase().contains("illegal function"), "{out}");
 }

@@ -116,7 +116,12 @@ pub enum CommandError {
 impl std::fmt::Display for CommandError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            CommandError::UnknownDrive(id) => write!(f, "no drive {id:?}: GET /api/drives lists them"),
+            CommandError::UnknownDrive(id) => {
+                // A name is short; a client that sends a page of text gets its start back.
+                let shown: String = id.chars().take(64).collect();
+                let more = if shown.len() < id.len() { "..." } else { "" };
+                write!(f, "no drive {shown:?}{more}: GET /api/drives lists them")
+            }
             CommandError::Locked(id) => {
                 write!(f, "drive {id:?} is locked against writes: unlock it in the configuration")
             }

@@ -29,9 +29,9 @@ pub struct EventsArgs {
     /// bus_offline, started, stopped.
     #[arg(long, value_name = "KIND")]
     pub kind: Option<String>,
-    /// At most N events, the newest.
-    #[arg(long, value_name = "N", default_value_t = 1000)]
-    pub limit: usize,
+    /// At most N events, the newest (1 or more).
+    #[arg(long, value_name = "N", default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub limit: u64,
 }
 
 /// Arguments of `drivebus trend` (with the global --drive ID, required, and --json).
@@ -130,7 +130,7 @@ pub fn events(args: &EventsArgs, target: &Target) -> Result<u8> {
         after_id: None,
         drive: one_drive(target)?,
         kind,
-        limit: args.limit,
+        limit: usize::try_from(args.limit).unwrap_or(usize::MAX),
     };
     let store = open(&args.db)?;
     let events = store.events(&filter).map_err(|e| store_failure(&e))?;

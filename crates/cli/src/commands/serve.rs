@@ -103,6 +103,12 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     if let Some(t) = &token {
         config.tokens.push(Token { name: "demo".into(), secret: t.clone(), role: Role::Write });
     }
+    if config.buses.is_empty() {
+        eprintln!(
+            "drivebus serve: warning: the configuration has no [[bus]]: nothing will be polled \
+             (docs/gateway.md shows a bus with its drives)"
+        );
+    }
     // A configuration that locks everyone out of the HTTP API is legal (Modbus TCP and MQTT
     // still work) but almost never meant: say so at start, not with a 401 later.
     if !config.http.anonymous_read && config.tokens.is_empty() {

@@ -48,10 +48,12 @@ impl ApiError {
 
     /// 404 `not_found`: no such path.
     pub fn not_found(path: &str) -> Self {
+        let shown: String = path.chars().take(200).collect();
+        let more = if shown.len() < path.len() { "..." } else { "" };
         ApiError::new(
             StatusCode::NOT_FOUND,
             "not_found",
-            format!("no route {path}: GET /api/openapi.json lists them"),
+            format!("no route {shown}{more}: GET /api/openapi.json lists them"),
         )
     }
 

@@ -61,11 +61,32 @@ fn free_port() -> u16 {
     TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("a free loopback port").port()
 }
 
+/// Four minutes of mixer-2 at 12.5 Hz, from 5 to 1 minute ago: what a trend can only show when
+/// the page reads the store's history (the live stream starts when the page opens).
+fn seed_history(db: &Path) {
+    let now_ms = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_millis() as i64)
+        .unwrap_or(0);
+    let store = drivebus_store::Store::open(db).expect("a store file in the temp dir");
+    for i in 0..240 {
+        store.sample(drivebus_store::Sample {
+            time_ms: now_ms - 300_000 + i * 1000,
+            drive: "mixer-2".into(),
+            output_hz: Some(12.5),
+            current_a: Some(1.5),
+            setpoint_hz: Some(12.5),
+        });
+    }
+    store.flush().expect("the samples are written");
+}
+
 /// `drivebus serve --demo` on free loopback ports: its HTTP address and the demo write token.
 fn start_serve() -> (Proc, SocketAddr, String) {
     // A store of its own, so the page's event log and trends also come from it.
     let db =
         std::env::temp_dir().join(format!("drivebus-dashboard-{}-{}.db", std::process::id(), free_port()));
+    seed_history(&db);
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--db"])
         .arg(&db)
@@ -459,6 +480,20 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
         "const p = document.querySelector('[data-drive=\"mixer-1\"] .trend-hz').getAttribute('points');
          return p.trim().split(' ').length >= 2;",
         "return document.querySelector('[data-drive=\"mixer-1\"] [data-field=trend]').outerHTML;",
+    );
+
+    // mixer-2's trend opens with the store's history: 200 points or more within 15 s of opening
+    // it, the first at the window's left edge. Live points alone come one per poll from when the
+    // page opened, so past those 15 s the condition can no longer become true.
+    browser.js("window.__trendOpened = Date.now(); return true;");
+    browser.click(&tile("mixer-2", "[data-action=trend]"));
+    browser.wait_for(
+        "mixer-2's trend starting with the stored history",
+        "const p = document.querySelector('[data-drive=\"mixer-2\"] .trend-hz').getAttribute('points').trim();
+         if (!p || Date.now() - window.__trendOpened > 15000) return false;
+         const pts = p.split(' ');
+         return pts.length >= 200 && parseFloat(pts[0].split(',')[0]) < 20;",
+        "return document.querySelector('[data-drive=\"mixer-2\"] .trend-hz').getAttribute('points').slice(0, 200);",
     );
 
     // The event log shows the commands (stored or live).

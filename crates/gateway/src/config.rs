@@ -404,6 +404,12 @@ impl Ctx<'_> {
     }
 }
 
+/// True for a name of a gateway, bus or drive: letters, digits, `-` and `_`, so it can be an MQTT
+/// topic level, a URL path segment and a Prometheus label as it is.
+pub fn valid_name(name: &str) -> bool {
+    !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
 impl GatewayConfig {
     /// The embedded demo configuration.
     pub fn demo() -> Self {
@@ -500,7 +506,7 @@ impl GatewayConfig {
         let mut next_unit = 1u8;
         for b in &raw.bus {
             let name = b.name.get_ref().trim().to_string();
-            if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+            if !valid_name(&name) {
                 return cx.err(b.name.span(), "bus.name", "use letters, digits, - and _ only");
             }
             if buses.iter().any(|x: &BusConfig| x.name == name) {
@@ -524,9 +530,7 @@ impl GatewayConfig {
                     cx.err(d.family.span(), "bus.drive.family", "use generic, toshiba, danfoss or b800")
                 })?;
                 let dname = d.name.get_ref().trim().to_string();
-                if dname.is_empty()
-                    || !dname.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
-                {
+                if !valid_name(&dname) {
                     return cx.err(d.name.span(), "bus.drive.name", "use letters, digits, - and _ only");
                 }
                 if !names.insert(dname.clone()) {

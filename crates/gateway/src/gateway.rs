@@ -659,22 +659,35 @@ impl Gateway {
             Ok(()) => self.counters.commands_ok.fetch_add(1, Ordering::Relaxed),
             Err(_) => self.counters.commands_failed.fetch_add(1, Ordering::Relaxed),
         };
+        let outcome = match &result {
+            Ok(()) => "ok".to_string(),
+            Err(e) => format!("{}: {e}", e.kind()),
+        };
+        self.audit(Some(d.bus.clone()), id, actor, &command.action(), outcome).await;
+        result
+    }
+
+    /// Puts a command in the audit trail: who, on which drive, what, and how it ended.
+    async fn audit(
+        self: &Arc<Self>,
+        bus: Option<String>,
+        drive: &str,
+        actor: &str,
+        action: &str,
+        result: String,
+    ) {
         self.record_async(Event {
             id: 0,
             time_ms: unix_ms(),
             kind: EventKind::Command,
-            bus: Some(d.bus.clone()),
-            drive: Some(id.to_string()),
+            bus,
+            drive: Some(drive.to_string()),
             actor: Some(actor.to_string()),
-            action: Some(command.action()),
-            result: Some(match &result {
-                Ok(()) => "ok".to_string(),
-                Err(e) => format!("{}: {e}", e.kind()),
-            }),
+            action: Some(action.to_string()),
+            result: Some(result),
             detail: json!({}),
         })
         .await;
-        result
     }
 
     /// Records a write that was refused before it became a command (a client not allowed to
@@ -682,18 +695,7 @@ impl Gateway {
     pub async fn audit_refusal(self: &Arc<Self>, id: &str, actor: &str, action: &str, why: &str) {
         let bus = self.drive(id).ok().map(|d| d.bus.clone());
         self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
-        self.record_async(Event {
-            id: 0,
-            time_ms: unix_ms(),
-            kind: EventKind::Command,
-            bus,
-            drive: Some(id.to_string()),
-            actor: Some(actor.to_string()),
-            action: Some(action.to_string()),
-            result: Some(why.to_string()),
-            detail: json!({}),
-        })
-        .await;
+        self.audit(bus, id, actor, action, why.to_string()).await;
     }
 
     async fn execute(&self, d: &DriveEntry, command: &Command) -> Result<(), CommandError> {
@@ -903,17 +905,13 @@ impl Gateway {
                     }
                 };
                 if let Some(result) = audit {
-                    gw.record_async(Event {
-                        id: 0,
-                        time_ms: unix_ms(),
-                        kind: EventKind::Command,
-                        bus: Some(f.bus.clone()),
-                        drive: Some(f.config.name.clone()),
-                        actor: Some(actor),
-                        action: Some(Command::Speed(target).action()),
-                        result: Some(result),
-                        detail: json!({}),
-                    })
+                    gw.audit(
+                        Some(f.bus.clone()),
+                        &f.config.name,
+                        &actor,
+                        &Command::Speed(target).action(),
+                        result,
+                    )
                     .await;
                 }
                 f.linking.store(false, Ordering::Relaxed);

@@ -42,11 +42,16 @@ use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
 
 /// A bus run from the calling thread: one transaction per call, no runtime.
 pub struct BlockingBus {
-    port: Port,
+    io: Io,
     master: Box<dyn Master>,
-    clock: SyncClock,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
+}
+
+/// What an engine waits with: the port, the clock and the read buffer.
+struct Io {
+    port: Port,
+    clock: SyncClock,
     buf: Vec<u8>,
 }
 
@@ -66,17 +71,22 @@ impl BlockingBus {
         let master: Box<dyn Master> =
             with_engine!(config, stats.clone(), health.clone(), |engine| Box::new(engine)
                 as Box<dyn Master>)?;
-        Ok(BlockingBus { port, master, clock: SyncClock::new(), stats, health, buf: vec![0; 1024] })
+        Ok(BlockingBus {
+            io: Io { port, clock: SyncClock::new(), buf: vec![0; 1024] },
+            master,
+            stats,
+            health,
+        })
     }
 
     /// Where the bus goes (`/dev/ttyUSB0`, `tcp://10.0.0.5:4001`).
     pub fn name(&self) -> String {
-        self.port.name()
+        self.io.port.name()
     }
 
     /// The RS-485 direction control in force (serial ports; `None` over TCP).
     pub fn direction(&self) -> Direction {
-        match &self.port {
+        match &self.io.port {
             Port::Serial(s) => s.direction,
             Port::Tcp(_) => Direction::None,
         }
@@ -92,7 +102,7 @@ impl BlockingBus {
         priority: Priority,
         timeout: Option<Duration>,
     ) -> Result<Option<Vec<u8>>, BusError> {
-        self.master.job(&mut self.port, &self.clock, &mut self.buf, address, exchange, priority, timeout)
+        self.master.job(&mut self.io, address, exchange, priority, timeout)
     }
 
     /// The bus's counts so far.
@@ -125,12 +135,9 @@ impl SyncClock {
 
 /// An engine of some protocol, run with blocking I/O.
 trait Master: Send {
-    #[allow(clippy::too_many_arguments)]
     fn job(
         &mut self,
-        port: &mut Port,
-        clock: &SyncClock,
-        buf: &mut [u8],
+        io: &mut Io,
         address: u8,
         exchange: &Exchange,
         priority: Priority,
@@ -144,30 +151,29 @@ where
 {
     fn job(
         &mut self,
-        port: &mut Port,
-        clock: &SyncClock,
-        buf: &mut [u8],
+        io: &mut Io,
         address: u8,
         exchange: &Exchange,
         priority: Priority,
         timeout: Option<Duration>,
     ) -> Result<Option<Vec<u8>>, BusError> {
+        let clock = &io.clock;
         let broadcast = !exchange.expect_reply;
         let attempts = self.admit(clock.now(), address, broadcast, priority, timeout)?;
         let mut last = Attempt::Timeout;
         for i in 0..attempts {
             last = match self.start(clock.now(), &exchange.request, i) {
-                Ok(()) => run_attempt(self, port, clock, buf),
+                Ok(()) => run_attempt(self, &mut io.port, clock, &mut io.buf),
                 Err(damaged) => damaged,
             };
             match last {
                 Attempt::Reply(_) | Attempt::NoneDue => break,
                 // The port may have gone and come back: reopen once, then give up.
-                Attempt::Link(_) if port.reopen(self.config()).is_err() => break,
+                Attempt::Link(_) if io.port.reopen(self.config()).is_err() => break,
                 _ => {}
             }
         }
-        self.finish(clock.now(), port.name(), address, broadcast, attempts, last)
+        self.finish(clock.now(), io.port.name(), address, broadcast, attempts, last)
     }
 }
 
@@ -316,21 +322,27 @@ impl SerialPort {
             if left.is_zero() {
                 return Ok(0);
             }
+            // With VTIME: the shortest time an empty read can take unless the line hung up.
+            let mut vtime_floor = None;
             if left >= Duration::from_millis(100) {
                 // One read that returns at the first bytes, or empty after `tenths`.
                 let tenths = (left.as_millis() / 100).min(255) as u8;
                 self.set_vtime(tenths)?;
+                vtime_floor = Some(Duration::from_millis(50 * u64::from(tenths)));
             } else if !wait_readable(&self.file, deadline)? {
                 return Ok(0);
             }
+            let started = std::time::Instant::now();
             match self.file.read(buf) {
-                // VTIME passed with nothing (or a hang-up after readiness: the deadline ends it).
+                // VTIME passed with nothing: look at the deadline again.
+                Ok(0) if vtime_floor.is_some_and(|f| started.elapsed() >= f) => continue,
+                // Readable (or VTIME cut short), yet nothing to read: the line hung up (a pty's
+                // other side closed).
                 Ok(0) => {
-                    if left < Duration::from_millis(100) {
-                        // Readable but empty: do not spin on a hung-up line until the deadline.
-                        std::thread::sleep(left.min(Duration::from_millis(1)));
-                    }
-                    continue;
+                    return Err(io::Error::new(
+                        io::ErrorKind::UnexpectedEof,
+                        format!("{} hung up", self.path),
+                    ))
                 }
                 Ok(n) => return Ok(n),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,

@@ -51,8 +51,9 @@ fn a_generic_drive_over_a_pty_is_set_run_and_read_back() {
         .expect("open the pty");
     drive.set_speed(40.0).expect("40 Hz is within the limits");
     drive.run().expect("run");
+    // Status reads back to back (each takes its wire time) until the output has moved.
     let mut last = 0.0;
-    for _ in 0..100 {
+    for _ in 0..1000 {
         let s = drive.status().expect("status");
         assert!(s.running, "{s:?}");
         assert_eq!(s.setpoint_hz, Some(40.0));
@@ -60,7 +61,6 @@ fn a_generic_drive_over_a_pty_is_set_run_and_read_back() {
         if last > 0.0 {
             break;
         }
-        std::thread::sleep(Duration::from_millis(20));
     }
     assert!(last > 0.0 && last <= 40.0, "the output ramps towards 40 Hz: {last}");
     // Out of range: refused before anything is sent.
@@ -176,4 +176,24 @@ fn rs485_auto_falls_back_to_rts_on_a_pty_and_kernel_mode_is_refused() {
     let ex = Exchange { request: vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37], expect_reply: true };
     let reply = bus.transact(1, &ex, Priority::Command, None).expect("a reply through RTS toggling");
     assert_eq!(&reply.expect("a reply is due")[..3], &[0x01, 0x03, 0x04]);
+}
+
+#[test]
+fn a_line_that_hangs_up_is_a_link_error_at_once_not_a_timeout() {
+    use std::os::fd::AsFd;
+    let pair = nix::pty::openpty(None, None).expect("a pty");
+    let path = nix::unistd::ttyname(pair.slave.as_fd()).expect("its name");
+    let mut config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+    config.response_timeout = Some(Duration::from_secs(5));
+    config.retries = 0;
+    let mut bus = BlockingBus::open(&path.to_string_lossy(), config).expect("open the pty");
+    drop(pair.master);
+    drop(pair.slave);
+    let ex = Exchange { request: vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37], expect_reply: true };
+    let t0 = std::time::Instant::now();
+    match bus.transact(1, &ex, Priority::Command, None) {
+        Err(BusError::Link(e)) => assert!(e.contains(&*path.to_string_lossy()), "{e}"),
+        other => panic!("a hung-up line is a link error: {other:?}"),
+    }
+    assert!(t0.elapsed() < Duration::from_secs(2), "not the 5 s response timeout: {:?}", t0.elapsed());
 }

@@ -66,7 +66,7 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
         None => GatewayConfig::demo(),
     };
     if let Some(name) = &args.name {
-        if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_') {
+        if !drivebus_gateway::config::valid_name(name) {
             return Err(anyhow!(
                 "--name {name:?}: use letters, digits, '-' and '_' (it is an MQTT topic level)"
             ));

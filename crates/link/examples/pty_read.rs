@@ -69,12 +69,18 @@ fn blocking_loop(port: &str, config: BusConfig, secs: f64) -> Result<(Vec<Durati
     let mut errors = 0u64;
     let start = Instant::now();
     let end = start + Duration::from_secs_f64(secs);
-    while Instant::now() < end {
-        let t0 = Instant::now();
-        match bus.transact(1, &ex, Priority::Command, None) {
-            Ok(Some(reply)) if reply.len() == 9 && reply[2] == 4 => latencies.push(t0.elapsed()),
-            _ => errors += 1,
+    // One clock reading per read: the end of one is the start of the next.
+    let mut t0 = start;
+    while t0 < end {
+        let ok = matches!(bus.transact(1, &ex, Priority::Command, None),
+            Ok(Some(reply)) if reply.len() == 9 && reply[2] == 4);
+        let t1 = Instant::now();
+        if ok {
+            latencies.push(t1 - t0);
+        } else {
+            errors += 1;
         }
+        t0 = t1;
     }
     Ok((latencies, errors, start.elapsed()))
 }

@@ -159,11 +159,14 @@ where
     ) -> Result<Option<Vec<u8>>, BusError> {
         let clock = &io.clock;
         let broadcast = !exchange.expect_reply;
-        let attempts = self.admit(clock.now(), address, broadcast, priority, timeout)?;
+        // One reading of the clock per step that can take time (the start, each wait), shared
+        // by the engine calls between them.
+        let mut now = clock.now();
+        let attempts = self.admit(now, address, broadcast, priority, timeout)?;
         let mut last = Attempt::Timeout;
         for i in 0..attempts {
-            last = match self.start(clock.now(), &exchange.request, i) {
-                Ok(()) => run_attempt(self, &mut io.port, clock, &mut io.buf),
+            last = match self.start(now, &exchange.request, i) {
+                Ok(()) => run_attempt(self, &mut io.port, clock, &mut io.buf, &mut now),
                 Err(damaged) => damaged,
             };
             match last {
@@ -172,30 +175,37 @@ where
                 Attempt::Link(_) if io.port.reopen(self.config()).is_err() => break,
                 _ => {}
             }
+            now = clock.now();
         }
-        self.finish(clock.now(), io.port.name(), address, broadcast, attempts, last)
+        self.finish(now, io.port.name(), address, broadcast, attempts, last)
     }
 }
 
+/// Runs one attempt from session time `now`, which it keeps up to date across its waits.
 fn run_attempt<P: Protocol>(
     engine: &mut Engine<P>,
     port: &mut Port,
     clock: &SyncClock,
     buf: &mut [u8],
+    now: &mut Instant,
 ) -> Attempt {
     loop {
-        match engine.poll(clock.now()) {
+        match engine.poll(*now) {
             Action::Transmit => {
                 if let Err(e) = port.write(engine.outgoing()) {
                     return Attempt::Link(format!("{}: {e}", port.name()));
                 }
             }
             Action::Done(attempt) => return attempt,
-            Action::Wait(deadline) => match port.read(buf, clock.at(deadline)) {
-                Ok(0) => engine.timeout(clock.now()),
-                Ok(n) => engine.input(clock.now(), &buf[..n]),
-                Err(e) => return Attempt::Link(format!("{}: {e}", port.name())),
-            },
+            Action::Wait(deadline) => {
+                let read = port.read(buf, clock.at(deadline));
+                *now = clock.now();
+                match read {
+                    Ok(0) => engine.timeout(*now),
+                    Ok(n) => engine.input(*now, &buf[..n]),
+                    Err(e) => return Attempt::Link(format!("{}: {e}", port.name())),
+                }
+            }
         }
     }
 }
@@ -318,7 +328,8 @@ impl SerialPort {
 
     fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
         loop {
-            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            let started = std::time::Instant::now();
+            let left = deadline.saturating_duration_since(started);
             if left.is_zero() {
                 return Ok(0);
             }
@@ -332,7 +343,6 @@ impl SerialPort {
             } else if !wait_readable(&self.file, deadline)? {
                 return Ok(0);
             }
-            let started = std::time::Instant::now();
             match self.file.read(buf) {
                 // VTIME passed with nothing: look at the deadline again.
                 Ok(0) if vtime_floor.is_some_and(|f| started.elapsed() >= f) => continue,

@@ -7,7 +7,9 @@
 #     (GET $HTTP_PATH), $SECS s each: requests/s and latency percentiles; and the 128 clients
 #     at $RATE requests/s together (default 50 000), for the latency below saturation.
 #  2. The same 128 Modbus clients against libmodbus' TCP server (bench/libmodbus_server.c,
-#     compiled here) and pymodbus' TCP server (bench/pymodbus_server.py), same pinning, same run.
+#     compiled here), pymodbus' TCP server (bench/pymodbus_server.py) and a server that does
+#     the least a server can (bench/modbus_floor_server.c: one epoll loop, a recv and a send
+#     per request), same pinning, same run.
 #  3. 10 000 concurrent connections to the gateway: all connected, then each reads once.
 #  4. RSS of `drivebus serve` with 1000 simulated drives on 32 virtual buses, after 10 s.
 #
@@ -74,6 +76,15 @@ else
   load --modbus "127.0.0.1:$LP" --clients 128 --units 1 --rate "$RATE"
   stop "$LM"
 fi
+
+echo "== the least a server can do (bench/modbus_floor_server.c, epoll) on core $SERVER_CORE"
+cc -O2 -o "$TMP/modbus_floor_server" bench/modbus_floor_server.c
+FP=$(free_port)
+taskset -c "$SERVER_CORE" "$TMP/modbus_floor_server" "$FP" >"$TMP/floor.log" 2>&1 &
+FS=$!; PIDS+=("$FS")
+wait_port "$FP"
+load --modbus "127.0.0.1:$FP" --clients 128 --units 1
+stop "$FS"
 
 echo "== pymodbus $(python3 -c 'import pymodbus; print(pymodbus.__version__)' 2>/dev/null || echo '?') TCP server on core $SERVER_CORE"
 if ! python3 -c 'import pymodbus' 2>/dev/null; then

@@ -259,7 +259,7 @@ pub struct MqttConfig {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct FileConfig {
-    name: Option<String>,
+    name: Option<Spanned<String>>,
     #[serde(default)]
     http: FileHttp,
     #[serde(default)]
@@ -500,6 +500,20 @@ impl GatewayConfig {
             tokens.push(Token { name: t.name.get_ref().clone(), secret: t.token.get_ref().clone(), role });
         }
 
+        let gateway_name = match &raw.name {
+            None => "drivebus".to_string(),
+            Some(n) => {
+                let name = n.get_ref().trim().to_string();
+                if !valid_name(&name) {
+                    return cx.err(
+                        n.span(),
+                        "name",
+                        "use letters, digits, - and _ only (it is the MQTT topic level and client id)",
+                    );
+                }
+                name
+            }
+        };
         let mut buses = Vec::new();
         let mut names = HashSet::new();
         let mut units = HashSet::new();
@@ -780,16 +794,7 @@ impl GatewayConfig {
         } else {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
-        Ok(GatewayConfig {
-            name: raw.name.unwrap_or_else(|| "drivebus".to_string()),
-            http,
-            modbus,
-            store,
-            tokens,
-            buses,
-            linkage,
-            mqtt,
-        })
+        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt })
     }
 
     /// Every drive, in configuration order, with its bus.
@@ -864,6 +869,18 @@ mod tests {
         assert_eq!(e, "plant.toml:2: field `http.max_body`: 0 is outside 256..16777216 bytes");
         let e = err("[modbus]\nmax_connections = 0\n");
         assert_eq!(e, "plant.toml:2: field `modbus.max_connections`: use 1 or more");
+    }
+
+    #[test]
+    fn the_gateway_name_follows_the_name_rule() {
+        let e = err("name = \"hall 3/west\"\n");
+        assert_eq!(
+            e,
+            "plant.toml:1: field `name`: use letters, digits, - and _ only (it is the MQTT topic level and client id)"
+        );
+        let ok = GatewayConfig::from_toml("p.toml", "name = \" hall-3_west \"\n").unwrap();
+        assert_eq!(ok.name, "hall-3_west");
+        assert_eq!(GatewayConfig::from_toml("p.toml", "").unwrap().name, "drivebus");
     }
 
     #[test]

@@ -2,7 +2,10 @@
 //! WebDriver (chromedriver). The page must show a tile for every demo drive, ask for the token
 //! when a command is first sent, say clearly when a token is not accepted, show a locked drive's
 //! refusal, run `mixer-1` (state running, output frequency above 0), and fit a 360 px wide screen.
-//! Screenshots go to `target/artifacts/dashboard.png` and `dashboard-phone.png`.
+//! Then a second gateway, on a configuration of its own, shows a tripped drive (a `drivebus
+//! simulate` process tripped through its control interface) with its fault code and text, and a
+//! drive whose port does not exist as offline. Screenshots go to `target/artifacts/dashboard.png`,
+//! `dashboard-faults.png` and `dashboard-phone.png`.
 //!
 //! `.ci/run` installs Debian's chromium and chromium-driver and sets `DRIVEBUS_REQUIRE_BROWSER=1`,
 //! so in CI a missing browser is a failure. Locally, without them, the test says it did not run.
@@ -113,6 +116,72 @@ fn start_serve() -> (Proc, SocketAddr, String) {
     }
     std::thread::spawn(move || for _ in lines {});
     (proc, http.unwrap(), token.unwrap())
+}
+
+/// Reads `child`'s stdout until `want` has matched a line for each of its prefixes (events, not
+/// sleeps); the rest of each matching line, in the order of `want`. The rest of the output is
+/// drained in the background.
+fn wait_for_lines(child: &mut Child, what: &str, want: &[&str]) -> Vec<String> {
+    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+    let mut found: Vec<Option<String>> = vec![None; want.len()];
+    while found.iter().any(Option::is_none) {
+        let line = match lines.next() {
+            Some(Ok(l)) => l,
+            _ => panic!("{what} ended before printing {want:?}"),
+        };
+        for (i, prefix) in want.iter().enumerate() {
+            if let Some(rest) = line.trim().strip_prefix(prefix) {
+                found[i].get_or_insert_with(|| rest.trim().to_string());
+            }
+        }
+    }
+    std::thread::spawn(move || for _ in lines {});
+    found.into_iter().flatten().collect()
+}
+
+/// A plant with trouble: a generic drive on a `drivebus simulate` process over TCP, tripped
+/// through the simulator's control interface, and a drive on a serial port that does not exist.
+/// Returns the processes and the gateway's HTTP address.
+fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr) {
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
+        .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start drivebus simulate");
+    let at = wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
+    let sim = Proc(sim);
+    let control: SocketAddr = at[1].trim_end_matches("/drives").parse().expect("the control address");
+    let (status, answer) =
+        http_json(control, "POST", "/drives/1", Some(&json!({ "trip": "over-current" }))).expect("trip");
+    assert_eq!(status, 200, "tripping the simulated drive: {answer}");
+
+    let config = dir.join("faulted.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"faulted\"\n[http]\nanonymous_read = true\n[store]\ndisabled = true\n\
+             [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
+             [[bus.drive]]\nname = \"press-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n\
+             [[bus]]\nname = \"line-b\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
+             [[bus.drive]]\nname = \"press-2\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
+            at[0],
+            dir.join("ttyUSB-unplugged").display()
+        ),
+    )
+    .expect("write the configuration");
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--config"])
+        .arg(&config)
+        .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start drivebus serve --config");
+    let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
+    let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
+    (sim, Proc(serve), http)
 }
 
 /// One HTTP/1.1 request with a JSON body; the status and the JSON answer.
@@ -503,8 +572,8 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
         "return document.getElementById('event-rows').innerText;",
     );
 
-    let dir = artifacts_dir();
-    browser.screenshot(&dir.join("dashboard.png"));
+    let dir_artifacts = artifacts_dir();
+    browser.screenshot(&dir_artifacts.join("dashboard.png"));
 
     // After a reload the command is still in the event log: read back from the store.
     browser.call("POST", "/refresh", Some(json!({})));
@@ -532,6 +601,44 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
         "return document.getElementById('event-rows').innerText;",
     );
 
+    // A tripped drive and a drive that cannot be reached, as a second gateway shows them.
+    let dir = std::env::temp_dir().join(format!("drivebus-dashboard-faults-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temp dir");
+    let (_sim, _faulted, faulted_http) = start_faulted_plant(&dir);
+    browser.goto(&format!("http://{faulted_http}/"));
+    let fault = q(&tile("press-1", "[data-field=fault]"));
+    browser.wait_for(
+        "press-1 tripped, with the fault's code and text",
+        &format!(
+            "const t = document.querySelector('[data-drive=\"press-1\"]'); const f = document.querySelector({fault});
+             return !!t && t.dataset.state === 'tripped' && !f.hidden && /^fault \\d+: \\S/.test(f.textContent);"
+        ),
+        "const t = document.querySelector('[data-drive=\"press-1\"]'); return t ? t.innerText : document.body.innerText.slice(0, 300);",
+    );
+    let fault_text = browser.text(&tile("press-1", "[data-field=fault]"));
+    assert!(
+        fault_text.to_lowercase().contains("over"),
+        "the over-current trip by its manual text: {fault_text}"
+    );
+    browser.wait_for(
+        "press-2 and its bus offline",
+        "const t = document.querySelector('[data-drive=\"press-2\"]');
+         const b = document.querySelector('[data-bus=\"line-b\"] [data-field=online]');
+         return !!t && t.dataset.state === 'offline' && !!b && b.dataset.state === 'offline';",
+        "const t = document.querySelector('[data-drive=\"press-2\"]'); return t ? t.innerText : document.body.innerText.slice(0, 300);",
+    );
+    // The drive on the live line stays online: one dead port takes nothing else down.
+    assert_eq!(browser.text(&tile("press-1", "[data-field=state]")), "tripped");
+    // Nothing left through the missing port, and no line is busier than the time that passed.
+    let bus_field = |bus: &str, f: &str| browser.text(&format!("[data-bus=\"{bus}\"] [data-field={f}]"));
+    assert_eq!(bus_field("line-b", "transactions"), "0");
+    assert_eq!(bus_field("line-b", "utilization"), "0.0 %");
+    let busy = bus_field("line-a", "utilization");
+    let pct: f64 = busy.trim_end_matches('%').trim().parse().unwrap_or(f64::NAN);
+    assert!((0.0..=100.0).contains(&pct), "line-a utilization {busy}");
+    browser.screenshot(&dir_artifacts.join("dashboard-faults.png"));
+    let _ = std::fs::remove_dir_all(&dir);
+
     // A phone: 360 CSS px wide, nothing wider than the screen.
     browser.call("POST", "/window/rect", Some(json!({ "width": 360, "height": 800 })));
     browser.wait_for(
@@ -544,5 +651,5 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
         overflow.as_i64().is_some_and(|o| o <= 0),
         "the page is wider than a phone screen by {overflow} px"
     );
-    browser.screenshot(&dir.join("dashboard-phone.png"));
+    browser.screenshot(&dir_artifacts.join("dashboard-phone.png"));
 }

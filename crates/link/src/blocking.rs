@@ -195,6 +195,7 @@ fn run_attempt<P: Protocol>(
                 if let Err(e) = port.write(engine.outgoing()) {
                     return Attempt::Link(format!("{}: {e}", port.name()));
                 }
+                engine.sent(*now);
             }
             Action::Done(attempt) => return attempt,
             Action::Wait(deadline) => {

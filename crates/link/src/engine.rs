@@ -15,6 +15,7 @@ use drivebus_proto::Instant;
 use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
 
 /// How one attempt ended.
+#[derive(Debug)]
 pub(crate) enum Attempt {
     /// The drive's reply frame.
     Reply(Vec<u8>),
@@ -190,11 +191,6 @@ impl<P: Protocol> Engine<P> {
         if let Some(bytes) = self.session.poll_transmit(now) {
             self.out.clear();
             self.out.extend_from_slice(bytes);
-            let wire = (self.timing.char_time * self.out.len() as u32).as_secs_f64();
-            self.stat(now, |s| {
-                s.transactions += 1;
-                s.wire_seconds += wire;
-            });
             if self.config.echo {
                 self.echo_left.clear();
                 self.echo_left.extend_from_slice(&self.out);
@@ -231,6 +227,18 @@ impl<P: Protocol> Engine<P> {
             }
             None => Action::Wait(self.session.poll_timeout().unwrap_or(now + Duration::from_secs(1))),
         }
+    }
+
+    /// The bytes of [`Action::Transmit`] went out at session time `now`: counted as a
+    /// transaction, and their wire time as time on the line (a write that failed is neither).
+    pub(crate) fn sent(&mut self, now: Instant) {
+        let wire = (self.timing.char_time * self.out.len() as u32).as_secs_f64();
+        let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
+        s.transactions += 1;
+        s.wire_seconds += wire;
+        // The request is on the line until its last character: elapsed time runs to there, so
+        // the line is never busier than the time that has passed.
+        s.elapsed_seconds = s.elapsed_seconds.max(now.as_nanos() as f64 / 1e9 + wire);
     }
 
     /// The bytes to write after [`Action::Transmit`].
@@ -309,6 +317,63 @@ impl<P: Protocol> Engine<P> {
     fn stat(&self, now: Instant, f: impl FnOnce(&mut BusStats)) {
         let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
         f(&mut s);
-        s.elapsed_seconds = now.as_nanos() as f64 / 1e9;
+        s.elapsed_seconds = s.elapsed_seconds.max(now.as_nanos() as f64 / 1e9);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use drivebus_proto::modbus::rtu::{self, ModbusRtu};
+
+    fn engine() -> (Engine<ModbusRtu>, Arc<Mutex<BusStats>>) {
+        let config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+        let stats = Arc::new(Mutex::new(BusStats::default()));
+        let timing = timing_of(&config, rtu::timing);
+        let e = Engine::new(ModbusRtu, timing, config, stats.clone(), Default::default());
+        (e, stats)
+    }
+
+    const READ: [u8; 8] = [0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37];
+
+    /// The first request with the line's silence kept: `Transmit`, and when.
+    fn first_transmit(e: &mut Engine<ModbusRtu>) -> Instant {
+        let mut now = Instant::ZERO;
+        e.start(now, &READ, 0).unwrap();
+        loop {
+            match e.poll(now) {
+                Action::Transmit => return now,
+                Action::Wait(t) => now = t,
+                Action::Done(a) => panic!("ended before sending: {a:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_request_that_never_left_is_not_counted() {
+        let (mut e, stats) = engine();
+        first_transmit(&mut e);
+        // The write failed (no port): nothing was on the line.
+        let s = stats.lock().unwrap().clone();
+        assert_eq!((s.transactions, s.wire_seconds, s.utilization()), (0, 0.0, 0.0));
+    }
+
+    #[test]
+    fn the_line_is_never_busier_than_the_time_that_passed() {
+        let (mut e, stats) = engine();
+        let at = first_transmit(&mut e);
+        e.sent(at);
+        // Read while the request is still on the wire (8 characters at 9600 baud, 8.3 ms).
+        let s = stats.lock().unwrap().clone();
+        assert_eq!(s.transactions, 1);
+        assert!(s.wire_seconds > 0.008, "{s:?}");
+        let u = s.utilization();
+        assert!(u > 0.0 && u <= 1.0, "utilization {u} from {s:?}");
+    }
+
+    #[test]
+    fn utilization_stops_at_one_on_a_link_faster_than_its_baud_rate() {
+        let s = BusStats { wire_seconds: 2.0, elapsed_seconds: 1.0, ..BusStats::default() };
+        assert_eq!(s.utilization(), 1.0);
     }
 }

@@ -159,10 +159,12 @@ pub struct BusStats {
 }
 
 impl BusStats {
-    /// Time on the wire divided by elapsed time.
+    /// Time on the wire divided by elapsed time, 0..=1. Wire time is reckoned at the baud rate,
+    /// so a link that carries bytes faster than that (a pty, a simulator without pacing) could
+    /// reckon more than the time that passed: the figure stops at 1.
     pub fn utilization(&self) -> f64 {
         if self.elapsed_seconds > 0.0 {
-            self.wire_seconds / self.elapsed_seconds
+            (self.wire_seconds / self.elapsed_seconds).min(1.0)
         } else {
             0.0
         }
@@ -319,9 +321,11 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         loop {
             let deadline = match self.engine.poll(self.link.now()) {
                 Action::Transmit => {
+                    let at = self.link.now();
                     if let Err(e) = self.link.write(self.engine.outgoing()).await {
                         return Attempt::Link(format!("{}: {e}", self.link.name()));
                     }
+                    self.engine.sent(at);
                     continue;
                 }
                 Action::Done(attempt) => return attempt,

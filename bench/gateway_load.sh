@@ -50,6 +50,15 @@ wait_port() {
 }
 stop() { kill "$1" 2>/dev/null || true; wait "$1" 2>/dev/null || true; }
 load() { taskset -c "$CLIENT_CORE" "$LOADGEN" load --secs "$SECS" "$@"; }
+# serve_other NAME PROGRAM ARGS...: starts a server on the server core with a free port as its
+# last argument, waits until it listens, and sets SRV_PORT and SRV_PID.
+serve_other() {
+  local name=$1; shift
+  SRV_PORT=$(free_port)
+  taskset -c "$SERVER_CORE" "$@" "$SRV_PORT" >"$TMP/$name.log" 2>&1 &
+  SRV_PID=$!; PIDS+=("$SRV_PID")
+  wait_port "$SRV_PORT"
+}
 
 echo "== gateway: drivebus serve --demo on core $SERVER_CORE, load generator on core $CLIENT_CORE, ${SECS} s per run"
 MP=$(free_port); HP=$(free_port)
@@ -67,35 +76,26 @@ if ! pkg-config --exists libmodbus; then
   echo "libmodbus-dev is missing: apt-get install libmodbus-dev" >&2
 else
   cc -O2 -o "$TMP/libmodbus_server" bench/libmodbus_server.c $(pkg-config --cflags --libs libmodbus)
-  LP=$(free_port)
-  taskset -c "$SERVER_CORE" "$TMP/libmodbus_server" "$LP" >"$TMP/lm.log" 2>&1 &
-  LM=$!; PIDS+=("$LM")
-  wait_port "$LP"
-  load --modbus "127.0.0.1:$LP" --clients 128 --units 1
+  serve_other libmodbus "$TMP/libmodbus_server"
+  load --modbus "127.0.0.1:$SRV_PORT" --clients 128 --units 1
   echo "-- the same 128 clients at $RATE requests/s together (not saturated)"
-  load --modbus "127.0.0.1:$LP" --clients 128 --units 1 --rate "$RATE"
-  stop "$LM"
+  load --modbus "127.0.0.1:$SRV_PORT" --clients 128 --units 1 --rate "$RATE"
+  stop "$SRV_PID"
 fi
 
 echo "== the least a server can do (bench/modbus_floor_server.c, epoll) on core $SERVER_CORE"
 cc -O2 -o "$TMP/modbus_floor_server" bench/modbus_floor_server.c
-FP=$(free_port)
-taskset -c "$SERVER_CORE" "$TMP/modbus_floor_server" "$FP" >"$TMP/floor.log" 2>&1 &
-FS=$!; PIDS+=("$FS")
-wait_port "$FP"
-load --modbus "127.0.0.1:$FP" --clients 128 --units 1
-stop "$FS"
+serve_other floor "$TMP/modbus_floor_server"
+load --modbus "127.0.0.1:$SRV_PORT" --clients 128 --units 1
+stop "$SRV_PID"
 
 echo "== pymodbus $(python3 -c 'import pymodbus; print(pymodbus.__version__)' 2>/dev/null || echo '?') TCP server on core $SERVER_CORE"
 if ! python3 -c 'import pymodbus' 2>/dev/null; then
   echo "pymodbus is missing: python3 -m pip install pymodbus" >&2
 else
-  PP=$(free_port)
-  taskset -c "$SERVER_CORE" python3 bench/pymodbus_server.py "$PP" >"$TMP/pm.log" 2>&1 &
-  PM=$!; PIDS+=("$PM")
-  wait_port "$PP"
-  load --modbus "127.0.0.1:$PP" --clients 128 --units 1
-  stop "$PM"
+  serve_other pymodbus python3 bench/pymodbus_server.py
+  load --modbus "127.0.0.1:$SRV_PORT" --clients 128 --units 1
+  stop "$SRV_PID"
 fi
 
 echo "== $CONNS concurrent connections to the gateway"

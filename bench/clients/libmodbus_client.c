@@ -8,7 +8,6 @@
 
 #include "timing.h"
 
-
 int main(int argc, char **argv) {
     if (argc < 3) {
         fprintf(stderr, "usage: libmodbus_client PORT SECONDS\n");

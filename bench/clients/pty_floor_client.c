@@ -11,7 +11,6 @@
 
 #include "timing.h"
 
-
 int main(int argc, char **argv) {
     if (argc < 3) {
         fprintf(stderr, "usage: pty_floor_client PORT SECONDS\n");

@@ -246,6 +246,7 @@ async fn bus_errors_on_a_noisy_line_are_counted() {
         drop_rate: 0.02,
         ..Default::default()
     });
+    // A minute of polling on tokio's paused clock (virtual time; the test takes well under a second).
     tokio::time::sleep(Duration::from_secs(60)).await;
 
     let text = drivebus_gateway::metrics::render(&gw).unwrap();

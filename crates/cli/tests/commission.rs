@@ -265,6 +265,31 @@ fn the_generic_profile_drives_a_pymodbus_server() {
     assert!(text.contains("2500") || text.contains("09C4"), "{text}");
 }
 
+/// `raw` with bytes that are not one valid request is bad usage (exit 3) that names what is
+/// wrong, checksum included: nothing is sent (the session would send its own encoding).
+#[test]
+fn raw_refuses_a_request_that_is_not_a_valid_frame() {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", "generic@1:modbus-rtu", "--tcp", "127.0.0.1:0"]);
+    let sim = Proc::start(cmd, "listening on ");
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    // The right CRC of this read is CF CB.
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 20 00 00 02 00 00"]);
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+    assert!(
+        o.stderr.contains("not a valid modbus-rtu request") && o.stderr.contains("CF CB"),
+        "{}",
+        o.stderr
+    );
+    // Two requests at once, or bytes beyond one, are not one request either.
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 20 00 00 02 CF CB 01"]);
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert!(o.stderr.contains("not one modbus-rtu request"), "{}", o.stderr);
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 20 00 00 02 CF CB"]);
+    ok(&o, "raw with the right CRC");
+}
+
 #[test]
 fn scan_finds_the_drives_on_a_mixed_line() {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));

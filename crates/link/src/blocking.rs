@@ -88,7 +88,7 @@ impl BlockingBus {
     pub fn direction(&self) -> Direction {
         match &self.io.port {
             Port::Serial(s) => s.direction,
-            Port::Tcp(_) => Direction::None,
+            Port::Closed { .. } | Port::Tcp(_) => Direction::None,
         }
     }
 
@@ -165,17 +165,20 @@ where
         let attempts = self.admit(now, address, broadcast, priority, timeout)?;
         let mut last = Attempt::Timeout;
         for i in 0..attempts {
-            last = match self.start(now, &exchange.request, i) {
-                Ok(()) => run_attempt(self, &mut io.port, clock, &mut io.buf, &mut now),
-                Err(damaged) => damaged,
-            };
+            self.start(now, &exchange.request, i)?;
+            last = run_attempt(self, &mut io.port, clock, &mut io.buf, &mut now);
             match last {
                 Attempt::Reply(_) | Attempt::NoneDue => break,
-                // The port may have gone and come back: reopen once, then give up.
-                Attempt::Link(_) if io.port.reopen(self.config()).is_err() => break,
-                _ => {}
+                Attempt::Link(_) => {
+                    // The port may have gone and come back: reopen once, then give up.
+                    let reopened = io.port.reopen(self.config());
+                    now = clock.now();
+                    if reopened.is_err() {
+                        break;
+                    }
+                }
+                Attempt::Timeout | Attempt::Damaged(_) => now = clock.now(),
             }
-            now = clock.now();
         }
         self.finish(now, io.port.name(), address, broadcast, attempts, last)
     }
@@ -213,13 +216,18 @@ fn run_attempt<P: Protocol>(
 
 enum Port {
     Serial(SerialPort),
+    /// A serial port whose reopening failed: closed, to be opened again on the next attempt.
+    Closed {
+        path: String,
+        rs485: Rs485,
+    },
     Tcp(TcpPort),
 }
 
 impl Port {
     fn name(&self) -> String {
         match self {
-            Port::Serial(s) => s.path.clone(),
+            Port::Serial(SerialPort { path, .. }) | Port::Closed { path, .. } => path.clone(),
             Port::Tcp(t) => format!("tcp://{}", t.addr),
         }
     }
@@ -227,6 +235,7 @@ impl Port {
     fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
         match self {
             Port::Serial(s) => s.write(bytes),
+            Port::Closed { path, .. } => Err(not_open(path)),
             Port::Tcp(t) => t.write(bytes),
         }
     }
@@ -235,14 +244,18 @@ impl Port {
     fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
         match self {
             Port::Serial(s) => s.read(buf, deadline),
+            Port::Closed { path, .. } => Err(not_open(path)),
             Port::Tcp(t) => t.read(buf, deadline),
         }
     }
 
     fn reopen(&mut self, config: &BusConfig) -> io::Result<()> {
         match self {
-            Port::Serial(s) => {
-                *s = SerialPort::open(&s.path, config.baud, config.format, s.rs485)?;
+            Port::Serial(SerialPort { path, rs485, .. }) | Port::Closed { path, rs485 } => {
+                let (path, rs485) = (std::mem::take(path), *rs485);
+                // Close first: opened for exclusive use, the device refuses a second open.
+                *self = Port::Closed { path: path.clone(), rs485 };
+                *self = Port::Serial(SerialPort::open(&path, config.baud, config.format, rs485)?);
                 Ok(())
             }
             Port::Tcp(t) => {
@@ -252,6 +265,11 @@ impl Port {
             }
         }
     }
+}
+
+/// The error for a serial port whose reopening failed.
+fn not_open(path: &str) -> io::Error {
+    io::Error::new(io::ErrorKind::NotConnected, format!("{path} is not open (reopening it failed)"))
 }
 
 /// Waits until `fd` is readable or `deadline` passes; true when readable (or hung up: the
@@ -423,8 +441,13 @@ impl TcpPort {
     }
 
     fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
-        let addr = self.addr.clone();
-        let stream = self.stream()?;
+        let TcpPort { addr, stream: slot } = self;
+        let Some(stream) = slot.as_mut() else {
+            return Err(io::Error::new(
+                io::ErrorKind::NotConnected,
+                format!("tcp://{addr} is not connected"),
+            ));
+        };
         loop {
             if !wait_readable(&*stream, deadline)? {
                 return Ok(0);
@@ -439,9 +462,49 @@ impl TcpPort {
                 Err(e) => Err(e),
             };
             if r.is_err() {
-                self.stream = None;
+                *slot = None;
             }
             return r;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A pty whose slave is reached through a symlink in a temp dir; the master stays open.
+    fn pty(tag: &str) -> (OwnedFd, std::path::PathBuf, std::path::PathBuf) {
+        let pair = nix::pty::openpty(None, None).expect("a pty");
+        let device = nix::unistd::ttyname(pair.slave.as_fd()).expect("its name");
+        let link = std::env::temp_dir().join(format!("drivebus-reopen-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_file(&link);
+        std::os::unix::fs::symlink(&device, &link).expect("a symlink");
+        (pair.master, device, link)
+    }
+
+    #[test]
+    fn a_serial_port_reopens_on_the_same_device_and_stays_closed_while_it_cannot() {
+        let (_master, device, link) = pty("blocking");
+        let path = link.to_str().unwrap().to_string();
+        let config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+        let mut port =
+            Port::Serial(SerialPort::open(&path, config.baud, config.format, Rs485::Off).expect("open"));
+        // Opened for exclusive use: without closing first, the second open of the device fails.
+        port.reopen(&config).expect("reopen the same device");
+        assert!(matches!(port, Port::Serial(_)));
+
+        std::fs::remove_file(&link).unwrap();
+        assert!(port.reopen(&config).is_err(), "the device is gone");
+        assert!(matches!(port, Port::Closed { .. }));
+        let e = port.write(&[1, 2, 3]).unwrap_err();
+        assert_eq!(e.to_string(), format!("{path} is not open (reopening it failed)"));
+        assert_eq!(port.name(), path);
+
+        std::os::unix::fs::symlink(&device, &link).unwrap();
+        port.reopen(&config).expect("the device is back");
+        assert!(matches!(port, Port::Serial(_)));
+        port.write(&[1, 2, 3]).expect("a write to the reopened port");
+        let _ = std::fs::remove_file(&link);
     }
 }

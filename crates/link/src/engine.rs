@@ -171,19 +171,21 @@ impl<P: Protocol> Engine<P> {
         Ok(if offline || broadcast { 1 } else { 1 + self.config.retries })
     }
 
-    /// Starts attempt number `i` (0 for the first) of sending `frame`.
-    pub(crate) fn start(&mut self, now: Instant, frame: &[u8], i: u8) -> Result<(), Attempt> {
-        if i > 0 {
-            self.stat(now, |s| s.retries += 1);
-        }
+    /// Starts attempt number `i` (0 for the first) of sending `frame`. A frame that is not a
+    /// valid request of the bus's protocol is the caller's error: nothing is sent or counted,
+    /// and the drive's health is left alone.
+    pub(crate) fn start(&mut self, now: Instant, frame: &[u8], i: u8) -> Result<(), BusError> {
         self.session.abort();
         self.echo_left.clear();
         // The typed request borrows the frame.
-        let sent = match self.session.protocol().parse_request(frame) {
-            Ok(req) => self.session.send(now, &req).map_err(|e| e.to_string()),
-            Err(e) => Err(format!("the request is not a valid frame: {e}")),
-        };
-        sent.map_err(Attempt::Damaged)
+        match self.session.protocol().parse_request(frame) {
+            Ok(req) => self.session.send(now, &req).map_err(|e| BusError::BadRequest(e.to_string()))?,
+            Err(e) => return Err(BusError::BadRequest(format!("the request is not a valid frame: {e}"))),
+        }
+        if i > 0 {
+            self.stat(now, |s| s.retries += 1);
+        }
+        Ok(())
     }
 
     /// What to do next at session time `now`.
@@ -369,6 +371,22 @@ mod tests {
         assert!(s.wire_seconds > 0.008, "{s:?}");
         let u = s.utilization();
         assert!(u > 0.0 && u <= 1.0, "utilization {u} from {s:?}");
+    }
+
+    #[test]
+    fn a_request_that_is_not_a_valid_frame_is_the_callers_error() {
+        let (mut e, stats) = engine();
+        // Too short to be a Modbus RTU request at all.
+        let bad = &READ[..3];
+        for i in 0..3 {
+            match e.start(Instant::ZERO, bad, i) {
+                Err(BusError::BadRequest(m)) => assert!(m.contains("not a valid frame"), "{m}"),
+                other => panic!("{other:?}"),
+            }
+        }
+        assert!(!matches!(e.poll(Instant::ZERO), Action::Transmit), "nothing to send");
+        let s = stats.lock().unwrap().clone();
+        assert_eq!((s.transactions, s.retries, s.checksum_errors), (0, 0, 0));
     }
 
     #[test]

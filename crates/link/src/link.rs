@@ -105,7 +105,9 @@ pub struct SerialLink {
     path: String,
     baud: u32,
     format: CharFormat,
-    port: tokio_serial::SerialStream,
+    /// `None` after a reopen that failed: the old descriptor is closed before the device is
+    /// opened again, since a port open for exclusive use cannot be opened a second time.
+    port: Option<tokio_serial::SerialStream>,
     clock: Clock,
     rs485: Rs485,
     direction: Direction,
@@ -230,7 +232,7 @@ impl SerialLink {
             path: path.to_string(),
             baud,
             format,
-            port: open_serial(path, baud, format)?,
+            port: Some(open_serial(path, baud, format)?),
             clock: Clock::new(),
             rs485,
             direction: Direction::None,
@@ -248,8 +250,8 @@ impl SerialLink {
     fn setup_direction(&mut self) -> io::Result<()> {
         use std::os::fd::AsRawFd;
         use tokio_serial::SerialPort;
-        let fd = self.port.as_raw_fd();
-        let port = &mut self.port;
+        let Some(port) = self.port.as_mut() else { return Err(not_open(&self.path)) };
+        let fd = port.as_raw_fd();
         let (direction, no_rts) = choose_direction(&self.path, fd, self.rs485, || {
             port.write_request_to_send(false).map_err(io::Error::from)
         })?;
@@ -263,11 +265,26 @@ impl SerialLink {
         if self.no_rts {
             return Ok(());
         }
-        self.port.write_request_to_send(on).map_err(|e| {
+        let Some(port) = self.port.as_mut() else { return Err(not_open(&self.path)) };
+        port.write_request_to_send(on).map_err(|e| {
             let e = io::Error::from(e);
             io::Error::new(e.kind(), format!("{}: cannot switch RTS: {e}", self.path))
         })
     }
+}
+
+impl SerialLink {
+    fn port(&mut self) -> io::Result<&mut tokio_serial::SerialStream> {
+        match &mut self.port {
+            Some(p) => Ok(p),
+            None => Err(not_open(&self.path)),
+        }
+    }
+}
+
+/// The error for a port whose reopening failed.
+fn not_open(path: &str) -> io::Error {
+    io::Error::new(io::ErrorKind::NotConnected, format!("{path} is not open (reopening it failed)"))
 }
 
 impl Link for SerialLink {
@@ -281,26 +298,29 @@ impl Link for SerialLink {
         if self.direction != Direction::Rts {
             // No drain: the session knows the request's wire time, and waiting for the UART
             // here would block the thread for it.
-            return self.port.write_all(bytes).await;
+            return self.port()?.write_all(bytes).await;
         }
         self.set_rts(true)?;
         let r = async {
-            self.port.write_all(bytes).await?;
+            let port = self.port()?;
+            port.write_all(bytes).await?;
             // Until the last bit has left the UART (tcdrain), then back to receive.
-            self.port.flush().await
+            port.flush().await
         }
         .await;
         let off = self.set_rts(false);
         r.and(off)
     }
     async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        match self.port.read(buf).await? {
+        match self.port()?.read(buf).await? {
             0 => Err(io::Error::new(io::ErrorKind::UnexpectedEof, format!("{} closed", self.path))),
             n => Ok(n),
         }
     }
     async fn reopen(&mut self) -> io::Result<()> {
-        self.port = open_serial(&self.path, self.baud, self.format)?;
+        // Close first: opened for exclusive use, the device refuses a second open.
+        self.port = None;
+        self.port = Some(open_serial(&self.path, self.baud, self.format)?);
         self.no_rts = false;
         self.setup_direction()
     }
@@ -432,5 +452,23 @@ impl Link for SimLink {
     }
     async fn reopen(&mut self) -> io::Result<()> {
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::fd::AsFd;
+
+    #[tokio::test]
+    async fn a_serial_link_reopens_on_the_same_device() {
+        let pair = nix::pty::openpty(None, None).expect("a pty");
+        let device = nix::unistd::ttyname(pair.slave.as_fd()).expect("its name");
+        let path = device.to_str().unwrap();
+        let mut link = SerialLink::open(path, 9600, "8N1".parse().unwrap()).expect("open");
+        // Opened for exclusive use: without closing first, the second open of the device fails.
+        link.reopen().await.expect("reopen the same device");
+        link.write(&[1, 2, 3]).await.expect("a write to the reopened port");
+        drop(pair.master);
     }
 }

@@ -285,10 +285,8 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         let attempts = self.engine.admit(self.link.now(), job.address, broadcast, priority, job.timeout)?;
         let mut last = Attempt::Timeout;
         for i in 0..attempts {
-            last = match self.engine.start(self.link.now(), &job.exchange.request, i) {
-                Ok(()) => self.attempt().await,
-                Err(damaged) => damaged,
-            };
+            self.engine.start(self.link.now(), &job.exchange.request, i)?;
+            last = self.attempt().await;
             match last {
                 Attempt::Reply(_) | Attempt::NoneDue => break,
                 Attempt::Link(_) => {

@@ -8,7 +8,7 @@ use clap::{Args, Subcommand};
 use drivebus_drive::profile::{DriveError, DriveStatus};
 use drivebus_drive::{Family, Storage};
 use drivebus_link::drive::{open_with, Drive, Error};
-use drivebus_link::owner::BusConfig;
+use drivebus_link::owner::{BusConfig, BusError};
 use drivebus_link::Priority;
 use drivebus_proto::line::CharFormat;
 use serde_json::{json, Map, Value};
@@ -151,6 +151,7 @@ pub(crate) fn classify(e: Error, target: &str) -> anyhow::Error {
         Error::Drive(DriveError::Refused { .. }) => fail(EXIT_REFUSED, format!("{target}: {e}")),
         Error::Drive(DriveError::Protocol(_)) => fail(EXIT_LINK, format!("{target}: {e}")),
         Error::Drive(_) => fail(EXIT_USAGE, format!("{target}: {e}")),
+        Error::Bus(BusError::BadRequest(_)) => fail(EXIT_USAGE, format!("{target}: {e}")),
         Error::Bus(_) => fail(EXIT_LINK, e.to_string()),
     }
 }
@@ -465,10 +466,35 @@ pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
 }
 
 /// `raw <HEX>`: sends the bytes as one request and prints the decoded reply.
+/// `raw`'s bytes must be one valid request of the bus's protocol, as a drive would check it
+/// (checksum included): the session would otherwise send its own encoding of them.
+fn check_raw_request(
+    name: crate::commands::decode::ProtocolName,
+    protocol: &str,
+    bytes: &[u8],
+) -> Result<()> {
+    use crate::commands::decode::Item;
+    let (_, items) =
+        crate::commands::decode::decode_by_name(name, bytes, Some(drivebus_proto::Direction::Master));
+    let not_one = || {
+        fail(EXIT_USAGE, format!("the bytes are not one {protocol} request: check them with drivebus decode --protocol {protocol} --from master"))
+    };
+    match items.as_slice() {
+        [Item::Frame(f)] if f.bytes.len() == bytes.len() => match &f.error {
+            None => Ok(()),
+            Some(e) => Err(fail(EXIT_USAGE, format!("not a valid {protocol} request: {e}"))),
+        },
+        _ => Err(not_one()),
+    }
+}
+
 pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
     let bytes = parse_hex_args(hex).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let r = resolve(t)?;
     let protocol = r.protocol.clone();
+    let name = crate::commands::decode::ProtocolName::from_codec(&protocol)
+        .ok_or_else(|| anyhow!("no decoder for {protocol}"))?;
+    check_raw_request(name, &protocol, &bytes)?;
     runtime()?.block_on(async move {
         let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
         let exchange = drivebus_drive::profile::Exchange { request: bytes, expect_reply: true };
@@ -478,8 +504,6 @@ pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
             .map_err(|e| classify(Error::Bus(e), &r.label))?;
         match reply {
             Some(reply) => {
-                let name = crate::commands::decode::ProtocolName::from_codec(&protocol)
-                    .ok_or_else(|| anyhow!("no decoder for {protocol}"))?;
                 let (p, items) = crate::commands::decode::decode_by_name(
                     name,
                     &reply,

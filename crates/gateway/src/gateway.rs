@@ -8,7 +8,7 @@
 //! bus owner and writes the audit trail before it answers.
 
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -249,7 +249,18 @@ pub struct DriveEntry {
     locked: AtomicBool,
     poll_now: AtomicBool,
     linking: AtomicBool,
+    /// How the linkage's last write to this follower went: [`LINKAGE_NONE`], [`LINKAGE_HOLDS`]
+    /// or [`LINKAGE_FAILS`]. Only the linkage changes it, so polls and operators' commands do
+    /// not make a failing linkage look new.
+    linkage: AtomicU8,
 }
+
+/// No linkage write to the drive yet.
+const LINKAGE_NONE: u8 = 0;
+/// The linkage's last write to the drive was confirmed.
+const LINKAGE_HOLDS: u8 = 1;
+/// The linkage's last write to the drive failed.
+const LINKAGE_FAILS: u8 = 2;
 
 impl DriveEntry {
     /// A copy of the cached state.
@@ -467,6 +478,7 @@ impl Gateway {
                     locked: AtomicBool::new(d.locked),
                     poll_now: AtomicBool::new(false),
                     linking: AtomicBool::new(false),
+                    linkage: AtomicU8::new(LINKAGE_NONE),
                 });
             }
             buses.push(BusEntry {
@@ -882,26 +894,22 @@ impl Gateway {
                 let f = &gw.drives[fi];
                 // The audit trail has the linkage taking hold, failing and recovering; not each
                 // setpoint it writes (one per leader poll).
-                let (first, failing) = f.with_state(|s| {
-                    (
-                        s.commanded_hz.is_none(),
-                        s.last_error.as_deref().is_some_and(|e| e.starts_with("linkage:")),
-                    )
-                });
                 let result = f.command.set_speed(target).await;
+                let now = if result.is_ok() { LINKAGE_HOLDS } else { LINKAGE_FAILS };
+                let changed = f.linkage.swap(now, Ordering::Relaxed) != now;
                 let audit = match &result {
                     Ok(()) => {
                         let mut s = f.state.write().unwrap_or_else(|p| p.into_inner());
                         s.commanded_hz = Some(target);
-                        if failing {
+                        if s.last_error.as_deref().is_some_and(|e| e.starts_with("linkage:")) {
                             s.last_error = None;
                         }
-                        (first || failing).then(|| "ok".to_string())
+                        changed.then(|| "ok".to_string())
                     }
                     Err(e) => {
                         f.state.write().unwrap_or_else(|p| p.into_inner()).last_error =
                             Some(format!("linkage: {e}"));
-                        (!failing).then(|| format!("error: {e}"))
+                        changed.then(|| format!("error: {e}"))
                     }
                 };
                 if let Some(result) = audit {

@@ -120,6 +120,45 @@ fn events_log_as_one_line() {
     assert_eq!(log_line(&t), "2026-11-21T22:47:34.481Z trip line-1/pump-1 {\"code\":3}");
 }
 
+/// A follower that answers its polls but cannot take the linkage's setpoint once the leader is
+/// past 16.7 Hz (three times that is above its 50 Hz limit): the audit trail has the linkage
+/// taking hold (at 0 Hz) and failing, not one record per leader poll; polls and an operator's
+/// command in between do not make the failure look new.
+#[tokio::test(start_paused = true)]
+async fn a_failing_linkage_is_audited_once_while_the_follower_polls_fine() {
+    let path = std::env::temp_dir().join(format!("drivebus-linkage-fail-{}.db", std::process::id()));
+    let _ = std::fs::remove_file(&path);
+    let store = drivebus_store::Store::open(&path).unwrap();
+    let text = "[store]\ndisabled = true\n\
+        [[bus]]\nname = \"line\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n\
+        [[bus.drive]]\nname = \"lead\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 250\n\
+        [[bus.drive]]\nname = \"follow\"\nfamily = \"generic\"\naddress = 2\npoll_ms = 250\n\
+        [[linkage]]\nleader = \"lead\"\nfollower = \"follow\"\nratio = 3.0\n";
+    let gw = Gateway::start(GatewayConfig::from_toml("t.toml", text).unwrap(), Some(store)).unwrap();
+    gw.command("lead", Command::Speed(30.0), "test").await.unwrap();
+    gw.command("lead", Command::Run, "test").await.unwrap();
+    settle(30).await;
+    let view = gw.drive_view(gw.drive("follow").unwrap());
+    assert_eq!(view.online, Some(true), "the follower answers its polls");
+    let filter =
+        drivebus_store::EventFilter { drive: Some("follow".into()), limit: 1000, ..Default::default() };
+    let linkage = || {
+        let events = gw.store().unwrap().events(&filter).unwrap();
+        events.into_iter().filter(|e| e.actor.as_deref() == Some("linkage:lead")).collect::<Vec<_>>()
+    };
+    let results = || -> Vec<String> { linkage().iter().filter_map(|e| e.result.clone()).collect() };
+    let seen = results();
+    assert_eq!(seen.len(), 2, "{seen:?}");
+    assert_eq!(seen[0], "ok", "taking hold at 0 Hz: {seen:?}");
+    assert!(seen[1].starts_with("error: ") && seen[1].contains("upper limit"), "{seen:?}");
+    // An operator's command to the follower is not the linkage recovering.
+    gw.command("follow", Command::Speed(10.0), "test").await.unwrap();
+    settle(10).await;
+    assert_eq!(results().len(), 2, "{:?}", results());
+    drop(gw);
+    let _ = std::fs::remove_file(&path);
+}
+
 #[tokio::test(start_paused = true)]
 async fn linkage_taking_hold_is_audited_once_not_per_poll() {
     let path = std::env::temp_dir().join(format!("drivebus-linkage-audit-{}.db", std::process::id()));

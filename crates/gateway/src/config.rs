@@ -619,9 +619,10 @@ impl GatewayConfig {
                 }
             };
             for (d, raw_drive) in drives.iter().zip(&b.drive) {
-                if let Err(e) = drivebus_drive::profile::for_drive(d.family, &protocol, d.address) {
-                    let span = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
-                    return cx.err(span, "bus.protocol", format!("drive {:?}: {e}", d.name));
+                let profile = drivebus_drive::profile::for_drive(d.family, &protocol, d.address);
+                let protocol_span = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
+                if let Err(e @ drivebus_drive::profile::DriveError::Unsupported(_)) = &profile {
+                    return cx.err(protocol_span, "bus.protocol", format!("drive {:?}: {e}", d.name));
                 }
                 // A polled drive has an address of its own: never the broadcast address, which
                 // every drive obeys and none answers (a lock on one drive would not hold).
@@ -641,6 +642,9 @@ impl GatewayConfig {
                             }
                         ),
                     );
+                }
+                if let Err(e) = profile {
+                    return cx.err(protocol_span, "bus.protocol", format!("drive {:?}: {e}", d.name));
                 }
             }
             let (db, df) = first.map_or((9600, CharFormat::NONE_8N1), |f| {
@@ -894,14 +898,21 @@ mod tests {
             "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..247 (0 is the broadcast address: every drive obeys it)"
         );
         assert!(err(&bus("generic", "modbus-rtu", 250)).contains("1..247"));
+        // Out of range for the protocol: the address's line and field, whatever the family.
         let e = err(&bus("danfoss", "danfoss-fc", 127));
-        assert!(e.starts_with("plant.toml:") && e.contains("127"), "{e}");
+        assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("1..126"), "{e}");
+        let e = err(&bus("b800", "b800", 64));
+        assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("1..63"), "{e}");
         assert!(err(&bus("b800", "b800", 0)).contains("1..63"));
+        // A family that does not speak the protocol: the protocol's line.
+        let e = err(&bus("b800", "modbus-rtu", 1));
+        assert!(e.starts_with("plant.toml:4: field `bus.protocol`: "), "{e}");
         assert!(
             GatewayConfig::from_toml("p.toml", &bus("toshiba", "toshiba-binary", 0)).is_ok(),
             "TIP drive 0 exists"
         );
-        assert!(err(&bus("toshiba", "toshiba-binary", 64)).contains("0..63"));
+        let e = err(&bus("toshiba", "toshiba-binary", 64));
+        assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("0..63"), "{e}");
     }
 
     #[test]

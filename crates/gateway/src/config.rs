@@ -478,11 +478,14 @@ impl GatewayConfig {
             listen: addr(&raw.modbus.listen, "modbus.listen", "127.0.0.1:5020")?,
             allow,
             read_only: raw.modbus.read_only,
-            max_connections: raw.modbus.max_connections.as_ref().map_or(16_384, |m| *m.get_ref()),
+            max_connections: match &raw.modbus.max_connections {
+                None => 16_384,
+                Some(m) if *m.get_ref() == 0 => {
+                    return cx.err(m.span(), "modbus.max_connections", "use 1 or more")
+                }
+                Some(m) => *m.get_ref(),
+            },
         };
-        if let Some(m) = raw.modbus.max_connections.as_ref().filter(|m| *m.get_ref() == 0) {
-            return cx.err(m.span(), "modbus.max_connections", "use 1 or more");
-        }
 
         let mut tokens = Vec::new();
         for t in &raw.token {

@@ -95,8 +95,8 @@ pub struct FrontEndMetrics {
     http_latency: LatencyFamily,
     modbus_requests: Family<ModbusLabels, Counter>,
     modbus_latency: ModbusLatencyFamily,
-    /// The family's two series, taken once: observing them on the request path is two atomic
-    /// adds, no lock and no label hashing.
+    /// The family's two series, taken once: observing one on the request path takes that
+    /// histogram's own lock, with no label hashing and no lock on the family.
     modbus_latency_cache: Histogram,
     modbus_latency_bus: Histogram,
     mqtt_publishes: Family<MqttLabels, Counter>,

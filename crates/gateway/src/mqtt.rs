@@ -422,8 +422,8 @@ fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
         "manufacturer": "drivebus",
         "model": format!("{} ({})", v.family, v.protocol),
         // No "via_device": the gateway itself is not announced as a device, and Home Assistant
-        // warns about a via_device it does not know.
-        "suggested_area": s.gateway,
+        // warns about a via_device it does not know. No "suggested_area" either: a gateway's
+        // name is not a room, and Home Assistant would create an area of that name.
     });
     // (value, name, unit, device class, template)
     type Sensor<'a> = (&'a str, &'a str, Option<&'a str>, Option<&'a str>, &'a str);

@@ -85,6 +85,25 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             })
             .collect::<Result<_>>()?,
     };
+    // The lists given, read once (a typo is reported before anything is sent).
+    let bauds = args.bauds.as_deref().map(|l| parse_list(l, "baud")).transpose()?;
+    let addresses = args.addresses.as_deref().map(|l| parse_list(l, "address")).transpose()?;
+    let formats: Option<Vec<CharFormat>> = match (&args.formats, &t.serial) {
+        (Some(list), _) => Some(
+            list.split(',')
+                .map(str::trim)
+                .filter(|f| !f.is_empty())
+                .map(|f| {
+                    f.parse::<CharFormat>()
+                        .map_err(|e| crate::commands::drive::usage(format!("--formats: {f:?}: {e}")))
+                })
+                .collect::<Result<_>>()?,
+        ),
+        (None, Some(s)) => Some(vec![s
+            .parse::<CharFormat>()
+            .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?]),
+        (None, None) => None,
+    };
     // Every (family, protocol, baud, format, address) to try.
     let mut combos = Vec::new();
     for &family in &families {
@@ -97,30 +116,20 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 continue;
             }
             let (db, df) = drivebus_sim::config::serial_default(family, Some(&protocol));
-            let bauds = match (&args.bauds, t.baud) {
-                (Some(list), _) => parse_list(list, "baud")?,
+            let bauds = match (&bauds, t.baud) {
+                (Some(list), _) => list.clone(),
                 (None, Some(b)) => vec![b],
                 (None, None) => vec![db],
             };
-            let formats: Vec<CharFormat> = match (&args.formats, &t.serial) {
-                (Some(list), _) => list
-                    .split(',')
-                    .map(str::trim)
-                    .filter(|f| !f.is_empty())
-                    .map(|f| {
-                        f.parse::<CharFormat>()
-                            .map_err(|e| crate::commands::drive::usage(format!("--formats: {f:?}: {e}")))
-                    })
-                    .collect::<Result<_>>()?,
-                (None, Some(s)) => vec![s
-                    .parse::<CharFormat>()
-                    .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?],
-                (None, None) => vec![df],
+            let formats = match &formats {
+                Some(list) => list.clone(),
+                None => vec![df],
             };
             let (lo, hi) = drivebus_drive::profile::address_range(family, &protocol);
-            let addresses: Vec<u8> = match &args.addresses {
-                Some(r) => parse_list(r, "address")?
-                    .into_iter()
+            let addresses: Vec<u8> = match &addresses {
+                Some(list) => list
+                    .iter()
+                    .copied()
                     .filter(|&a| a >= lo as u32 && a <= hi as u32)
                     .map(|a| a as u8)
                     .collect(),

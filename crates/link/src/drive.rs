@@ -185,10 +185,7 @@ impl Drive {
 
     /// The drive's state.
     pub async fn status(&self) -> Result<DriveStatus, Error> {
-        match self.execute(&Operation::Status).await? {
-            Outcome::Status(s) => Ok(s),
-            other => Err(DriveError::Protocol(format!("a status read gave {other:?}")).into()),
-        }
+        status_of(self.execute(&Operation::Status).await?)
     }
 
     /// Starts the motor.
@@ -224,17 +221,13 @@ impl Drive {
     /// Reads a parameter by the manual's name: its raw value and definition.
     pub async fn read_param(&self, name: &str) -> Result<(i64, ParamDef), Error> {
         let def = self.profile.param(name)?.clone();
-        match self.execute(&Operation::ReadParam(name.to_string())).await? {
-            Outcome::Param(raw) => Ok((raw, def)),
-            other => Err(DriveError::Protocol(format!("a parameter read gave {other:?}")).into()),
-        }
+        param_of(self.execute(&Operation::ReadParam(name.to_string())).await?, def)
     }
 
     /// Writes a parameter from a value in its unit (`"50"`, `"50 Hz"`, a choice's number).
     pub async fn write_param(&self, name: &str, value: &str, storage: Storage) -> Result<i64, Error> {
-        let def = self.profile.param(name)?;
-        let raw = def.parse_value(value).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
-        self.execute(&Operation::WriteParam { name: name.to_string(), raw, storage }).await?;
+        let (op, raw) = param_write(self.profile.as_ref(), name, value, storage)?;
+        self.execute(&op).await?;
         Ok(raw)
     }
 }
@@ -301,10 +294,7 @@ impl BlockingDrive {
 
     /// See [`Drive::status`].
     pub fn status(&self) -> Result<DriveStatus, Error> {
-        match self.execute(&Operation::Status)? {
-            Outcome::Status(s) => Ok(s),
-            other => Err(DriveError::Protocol(format!("a status read gave {other:?}")).into()),
-        }
+        status_of(self.execute(&Operation::Status)?)
     }
     /// See [`Drive::run`].
     pub fn run(&self) -> Result<(), Error> {
@@ -333,16 +323,40 @@ impl BlockingDrive {
     /// See [`Drive::read_param`].
     pub fn read_param(&self, name: &str) -> Result<(i64, ParamDef), Error> {
         let def = self.profile.param(name)?.clone();
-        match self.execute(&Operation::ReadParam(name.to_string()))? {
-            Outcome::Param(raw) => Ok((raw, def)),
-            other => Err(DriveError::Protocol(format!("a parameter read gave {other:?}")).into()),
-        }
+        param_of(self.execute(&Operation::ReadParam(name.to_string()))?, def)
     }
     /// See [`Drive::write_param`].
     pub fn write_param(&self, name: &str, value: &str, storage: Storage) -> Result<i64, Error> {
-        let def = self.profile.param(name)?;
-        let raw = def.parse_value(value).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
-        self.execute(&Operation::WriteParam { name: name.to_string(), raw, storage })?;
+        let (op, raw) = param_write(self.profile.as_ref(), name, value, storage)?;
+        self.execute(&op)?;
         Ok(raw)
     }
+}
+
+/// The status in the outcome of [`Operation::Status`].
+fn status_of(outcome: Outcome) -> Result<DriveStatus, Error> {
+    match outcome {
+        Outcome::Status(s) => Ok(s),
+        other => Err(DriveError::Protocol(format!("a status read gave {other:?}")).into()),
+    }
+}
+
+/// The raw value in the outcome of [`Operation::ReadParam`], with the parameter's definition.
+fn param_of(outcome: Outcome, def: ParamDef) -> Result<(i64, ParamDef), Error> {
+    match outcome {
+        Outcome::Param(raw) => Ok((raw, def)),
+        other => Err(DriveError::Protocol(format!("a parameter read gave {other:?}")).into()),
+    }
+}
+
+/// The write of `value` (in the parameter's unit) to parameter `name`, and its raw value.
+fn param_write(
+    profile: &dyn Profile,
+    name: &str,
+    value: &str,
+    storage: Storage,
+) -> Result<(Operation, i64), Error> {
+    let def = profile.param(name)?;
+    let raw = def.parse_value(value).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
+    Ok((Operation::WriteParam { name: name.to_string(), raw, storage }, raw))
 }

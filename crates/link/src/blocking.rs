@@ -493,6 +493,10 @@ mod tests {
         // Opened for exclusive use: without closing first, the second open of the device fails.
         port.reopen(&config).expect("reopen the same device");
         assert!(matches!(port, Port::Serial(_)));
+        // Another program holding the port is named as such.
+        let e = SerialPort::open(&path, config.baud, config.format, Rs485::Off).err().expect("in use");
+        assert_eq!(e.kind(), io::ErrorKind::ResourceBusy, "{e}");
+        assert!(e.to_string().contains("another program has it open"), "{e}");
 
         std::fs::remove_file(&link).unwrap();
         assert!(port.reopen(&config).is_err(), "the device is gone");

@@ -182,7 +182,20 @@ pub(crate) fn serial_builder(path: &str, baud: u32, format: CharFormat) -> tokio
 
 /// The error of a serial port that would not open.
 pub(crate) fn open_error(path: &str, e: tokio_serial::Error) -> io::Error {
-    io::Error::new(io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
+    let busy = e.description.contains("lock on serial port")
+        || matches!(e.kind, tokio_serial::ErrorKind::Io(io::ErrorKind::ResourceBusy));
+    if busy {
+        // Another program holds the port (the exclusive lock, or TIOCEXCL's EBUSY).
+        return io::Error::new(
+            io::ErrorKind::ResourceBusy,
+            format!("cannot open serial port {path}: another program has it open (close it; fuser -v {path} shows which)"),
+        );
+    }
+    let kind = match e.kind {
+        tokio_serial::ErrorKind::Io(kind) => kind,
+        _ => io::ErrorKind::NotFound,
+    };
+    io::Error::new(kind, format!("cannot open serial port {path}: {e}"))
 }
 
 fn open_serial(path: &str, baud: u32, format: CharFormat) -> io::Result<tokio_serial::SerialStream> {

@@ -495,7 +495,6 @@ mod tests {
         assert!(matches!(port, Port::Serial(_)));
         // Another program holding the port is named as such.
         let e = SerialPort::open(&path, config.baud, config.format, Rs485::Off).err().expect("in use");
-        assert_eq!(e.kind(), io::ErrorKind::ResourceBusy, "{e}");
         assert!(e.to_string().contains("another program has it open"), "{e}");
 
         std::fs::remove_file(&link).unwrap();

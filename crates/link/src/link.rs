@@ -182,14 +182,13 @@ pub(crate) fn serial_builder(path: &str, baud: u32, format: CharFormat) -> tokio
 
 /// The error of a serial port that would not open.
 pub(crate) fn open_error(path: &str, e: tokio_serial::Error) -> io::Error {
-    let busy = e.description.contains("lock on serial port")
-        || matches!(e.kind, tokio_serial::ErrorKind::Io(io::ErrorKind::ResourceBusy));
+    // ErrorKind::ResourceBusy is newer than the crate's minimum Rust: EBUSY is told by its text.
+    let busy = e.description.contains("lock on serial port") || e.description.contains("busy");
     if busy {
         // Another program holds the port (the exclusive lock, or TIOCEXCL's EBUSY).
-        return io::Error::new(
-            io::ErrorKind::ResourceBusy,
-            format!("cannot open serial port {path}: another program has it open (close it; fuser -v {path} shows which)"),
-        );
+        return io::Error::other(format!(
+            "cannot open serial port {path}: another program has it open (close it; fuser -v {path} shows which)"
+        ));
     }
     let kind = match e.kind {
         tokio_serial::ErrorKind::Io(kind) => kind,

@@ -211,7 +211,13 @@ async fn load(args: &[String]) {
     let clients: usize = arg(args, "--clients").map_or(128, |s| s.parse().expect("--clients"));
     let http_clients: usize = arg(args, "--http-clients").map_or(64, |s| s.parse().expect("--http-clients"));
     let path = arg(args, "--path").unwrap_or_else(|| "/api/drives".into());
-    let rate: Option<f64> = arg(args, "--rate").map(|s| s.parse().expect("--rate REQUESTS_PER_S"));
+    let rate: Option<f64> = arg(args, "--rate").map(|s| match s.parse::<f64>() {
+        Ok(r) if r.is_finite() && r > 0.0 => r,
+        _ => {
+            eprintln!("loadgen: --rate {s:?}: give the requests per second, a number above 0");
+            std::process::exit(3)
+        }
+    });
     let mh = Rc::new(RefCell::new(Histogram::new()));
     let hh = Rc::new(RefCell::new(Histogram::new()));
     let start = Instant::now();

@@ -118,8 +118,7 @@ impl std::fmt::Display for CommandError {
         match self {
             CommandError::UnknownDrive(id) => {
                 // A name is short; a client that sends a page of text gets its start back.
-                let shown: String = id.chars().take(64).collect();
-                let more = if shown.len() < id.len() { "..." } else { "" };
+                let (shown, more) = crate::http::error::cut(id, 64);
                 write!(f, "no drive {shown:?}{more}: GET /api/drives lists them")
             }
             CommandError::Locked(id) => {

@@ -250,14 +250,14 @@ impl<P: Protocol> Engine<P> {
 
     /// Bytes read from the link at session time `now`.
     pub(crate) fn input(&mut self, now: Instant, mut input: &[u8]) {
-        // Strip the local echo of our own request.
-        while let (Some(&e), Some(&b)) = (self.echo_left.first(), input.first()) {
-            if e != b {
-                self.echo_left.clear();
-                break;
-            }
-            self.echo_left.remove(0);
-            input = &input[1..];
+        // Strip the local echo of our own request: as much of it as these bytes repeat.
+        let same = self.echo_left.iter().zip(input).take_while(|(e, b)| e == b).count();
+        input = &input[same..];
+        if same < self.echo_left.len() && !input.is_empty() {
+            // Something else than the echo came: there is no more echo to expect.
+            self.echo_left.clear();
+        } else {
+            self.echo_left.drain(..same);
         }
         self.session.handle_input(now, input);
     }
@@ -387,6 +387,50 @@ mod tests {
         assert!(!matches!(e.poll(Instant::ZERO), Action::Transmit), "nothing to send");
         let s = stats.lock().unwrap().clone();
         assert_eq!((s.transactions, s.retries, s.checksum_errors), (0, 0, 0));
+    }
+
+    /// The reply to [`READ`]: registers 1 and 2.
+    fn read_reply() -> Vec<u8> {
+        let mut r = vec![0x01, 0x03, 0x04, 0x00, 0x01, 0x00, 0x02];
+        let crc = drivebus_proto::checksum::crc16_modbus(&r);
+        r.extend_from_slice(&crc.to_le_bytes());
+        r
+    }
+
+    fn echo_engine() -> Engine<ModbusRtu> {
+        let mut config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+        config.echo = true;
+        let timing = timing_of(&config, rtu::timing);
+        Engine::new(ModbusRtu, timing, config, Default::default(), Default::default())
+    }
+
+    /// Feeds `chunks` after the request went out; the attempt's end.
+    fn feed(e: &mut Engine<ModbusRtu>, chunks: &[&[u8]]) -> Option<Attempt> {
+        let at = first_transmit(e);
+        e.sent(at);
+        let mut now = at;
+        for c in chunks {
+            now = now + Duration::from_millis(1);
+            e.input(now, c);
+        }
+        match e.poll(now + Duration::from_millis(5)) {
+            Action::Done(a) => Some(a),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn the_local_echo_is_stripped_however_the_bytes_are_cut() {
+        let reply = read_reply();
+        let mut both = READ.to_vec();
+        both.extend_from_slice(&reply);
+        for cut in [1, 3, 8, 9, 12] {
+            let mut e = echo_engine();
+            match feed(&mut e, &[&both[..cut], &both[cut..]]) {
+                Some(Attempt::Reply(r)) => assert_eq!(r, reply, "cut at {cut}"),
+                other => panic!("cut at {cut}: {other:?}"),
+            }
+        }
     }
 
     #[test]

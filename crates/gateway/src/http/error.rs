@@ -48,8 +48,7 @@ impl ApiError {
 
     /// 404 `not_found`: no such path.
     pub fn not_found(path: &str) -> Self {
-        let shown: String = path.chars().take(200).collect();
-        let more = if shown.len() < path.len() { "..." } else { "" };
+        let (shown, more) = cut(path, 200);
         ApiError::new(
             StatusCode::NOT_FOUND,
             "not_found",
@@ -115,5 +114,13 @@ impl IntoResponse for ApiError {
             r.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
         }
         r
+    }
+}
+
+/// The first `max` characters of `text` to show in a message, and `"..."` when it was cut.
+pub(crate) fn cut(text: &str, max: usize) -> (&str, &'static str) {
+    match text.char_indices().nth(max) {
+        Some((at, _)) => (&text[..at], "..."),
+        None => (text, ""),
     }
 }

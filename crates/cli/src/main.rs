@@ -13,7 +13,7 @@ use clap::{Parser, Subcommand};
 
 /// Talk to variable-frequency drives over RS-485.
 #[derive(Parser, Debug)]
-#[command(name = "drivebus", version, about, long_about = None)]
+#[command(name = "drivebus", version = VERSION, about, long_about = None)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -71,10 +71,16 @@ enum Command {
     /// List the gateway's event log (drivebus.db): commands with who, what and the result,
     /// trips, fault resets, drives and buses going online and offline. --drive ID narrows it.
     Events(commands::history::EventsArgs),
+    /// Check a gateway configuration without running it.
+    #[command(subcommand)]
+    Config(commands::config::ConfigCmd),
     /// Show one drive's trend (--drive ID) from the gateway's store: output Hz (average, min,
     /// max), current and setpoint per second or per minute.
     Trend(commands::history::TrendArgs),
 }
+
+/// The version and the commit it was built from (`0.1.0 (commit 1a2b3c4)`; build.rs).
+const VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), " (commit ", env!("DRIVEBUS_COMMIT"), ")");
 
 /// Exit status for bad usage (unknown option, value out of range).
 pub const EXIT_USAGE: u8 = 3;
@@ -137,6 +143,7 @@ fn main() -> ExitCode {
         Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
         Command::Scan(args) => commands::scan::run(&args, &cli.target),
         Command::Serve(args) => commands::serve::run(&args),
+        Command::Config(cmd) => commands::config::run(&cmd),
         Command::Events(args) => commands::history::events(&args, &cli.target),
         Command::Trend(args) => commands::history::trend(&args, &cli.target),
         Command::Monitor(args) => commands::monitor::run(&args, &cli.target),

@@ -78,7 +78,7 @@ impl fmt::Display for ConfigError {
 impl std::error::Error for ConfigError {}
 
 /// A whole gateway.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct GatewayConfig {
     /// The gateway's name.
     pub name: String,
@@ -99,7 +99,7 @@ pub struct GatewayConfig {
 }
 
 /// The HTTP listener.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct HttpConfig {
     /// Where to listen.
     pub listen: SocketAddr,
@@ -110,7 +110,7 @@ pub struct HttpConfig {
 }
 
 /// The Modbus TCP listener.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct ModbusConfig {
     /// Where to listen.
     pub listen: SocketAddr,
@@ -133,7 +133,7 @@ pub enum Role {
 }
 
 /// A bearer token.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Token {
     /// Who holds it (shown in the audit trail).
     pub name: String,
@@ -165,7 +165,7 @@ impl fmt::Display for Port {
 }
 
 /// One bus.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct BusConfig {
     /// Its name (unique).
     pub name: String,
@@ -201,7 +201,7 @@ pub enum PollPriority {
 }
 
 /// One drive.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct DriveConfig {
     /// Its id in the gateway (unique across buses).
     pub name: String,

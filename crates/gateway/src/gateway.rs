@@ -238,15 +238,17 @@ pub struct DriveEntry {
     pub config: DriveConfig,
     /// The bus's name.
     pub bus: String,
-    /// The bus's index.
-    pub bus_index: usize,
     /// The bus's protocol.
     pub protocol: String,
+    /// Commands (ahead of polls); shares its profile with `poll`, so what a command teaches the
+    /// profile (a Danfoss setpoint or 3-03 scaling) shows in the next poll.
     command: Drive,
     poll: Drive,
     state: RwLock<DriveState>,
     locked: AtomicBool,
     poll_now: AtomicBool,
+    /// Wakes the bus's poll scheduler (shared with the bus entry).
+    wake: Arc<Notify>,
     linking: AtomicBool,
     /// How the linkage's last write to this follower went: [`LINKAGE_NONE`], [`LINKAGE_HOLDS`]
     /// or [`LINKAGE_FAILS`]. Only the linkage changes it, so polls and operators' commands do
@@ -294,7 +296,13 @@ pub struct BusEntry {
     pub config: BusConfig,
     bus: Bus,
     online: AtomicBool,
-    wake: Notify,
+    wake: Arc<Notify>,
+    /// The drives its scheduler polls; replaced by a reload that adds or removes drives.
+    members: RwLock<Vec<Arc<DriveEntry>>>,
+    /// Bumped when `members` changes, so the scheduler picks the new list up.
+    generation: AtomicU64,
+    /// Set when a reload removed or replaced the bus: its scheduler ends and the port closes.
+    retired: AtomicBool,
     /// The simulated drives of a virtual bus.
     pub line: Option<Arc<Mutex<VirtualLine>>>,
 }
@@ -421,90 +429,62 @@ pub struct Counters {
     pub front_ends: crate::metrics::FrontEndMetrics,
 }
 
-/// The gateway.
-pub struct Gateway {
-    config: GatewayConfig,
-    drives: Vec<DriveEntry>,
+/// What the gateway runs: its configuration and the buses and drives built from it. A reload
+/// ([`Gateway::reload`]) puts a new one in place; entries of what did not change are carried
+/// over as they are (same bus owner, same statistics, same cache).
+pub struct Topology {
+    /// The configuration.
+    pub config: Arc<GatewayConfig>,
+    /// Every drive, in configuration order.
+    pub drives: Arc<[Arc<DriveEntry>]>,
+    /// Every bus, in configuration order.
+    pub buses: Arc<[Arc<BusEntry>]>,
     index: HashMap<String, usize>,
     units: Vec<Option<usize>>,
-    buses: Vec<BusEntry>,
+}
+
+impl Topology {
+    fn new(config: GatewayConfig, buses: Vec<Arc<BusEntry>>) -> Topology {
+        let drives: Vec<Arc<DriveEntry>> =
+            buses.iter().flat_map(|b| b.members.read().unwrap_or_else(|p| p.into_inner()).clone()).collect();
+        let index = drives.iter().enumerate().map(|(i, d)| (d.config.name.clone(), i)).collect();
+        let mut units = vec![None; 256];
+        for (i, d) in drives.iter().enumerate().filter(|(_, d)| d.config.unit_id != 0) {
+            units[d.config.unit_id as usize] = Some(i);
+        }
+        Topology { config: Arc::new(config), drives: drives.into(), buses: buses.into(), index, units }
+    }
+}
+
+/// The gateway.
+pub struct Gateway {
+    topology: RwLock<Arc<Topology>>,
+    /// Serializes reloads (one SIGHUP at a time).
+    reloading: tokio::sync::Mutex<()>,
     changes: broadcast::Sender<Change>,
     store: Option<Store>,
     /// Counters for metrics.
     pub counters: Counters,
     log_events: AtomicBool,
+    health: crate::health::Health,
 }
 
 impl Gateway {
     /// Builds every bus and drive of `config` and starts polling (on the current tokio runtime).
     /// `store` receives events and trends.
     pub fn start(config: GatewayConfig, store: Option<Store>) -> Result<Arc<Gateway>, String> {
-        let mut buses = Vec::new();
-        let mut drives = Vec::new();
-        for (bi, b) in config.buses.iter().enumerate() {
-            let mut owner = OwnerConfig::new(&b.protocol, b.baud, b.format);
-            owner.response_timeout = b.timeout;
-            owner.retries = b.retries;
-            owner.echo = b.echo;
-            owner.strict_t15 = b.strict_t15;
-            let (bus, line) = match b.port {
-                Port::Virtual => {
-                    let line = virtual_line(b)?;
-                    let link = sim_link(line.clone(), &format!("virtual:{}", b.name));
-                    (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
-                }
-                _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
-            };
-            for d in &b.drives {
-                let profile = |a| {
-                    drivebus_drive::profile::for_drive(d.family, &b.protocol, a)
-                        .map_err(|e| format!("drive {}: {e}", d.name))
-                };
-                let mut command = Drive::new(bus.clone(), profile(d.address)?);
-                let mut poll = Drive::new(bus.clone(), profile(d.address)?).polling();
-                if let Some(t) = b.timeout {
-                    command = command.with_timeout(t);
-                    poll = poll.with_timeout(t);
-                }
-                drives.push(DriveEntry {
-                    config: d.clone(),
-                    bus: b.name.clone(),
-                    bus_index: bi,
-                    protocol: b.protocol.clone(),
-                    command,
-                    poll,
-                    state: RwLock::new(DriveState::default()),
-                    locked: AtomicBool::new(d.locked),
-                    poll_now: AtomicBool::new(false),
-                    linking: AtomicBool::new(false),
-                    linkage: AtomicU8::new(LINKAGE_NONE),
-                });
-            }
-            buses.push(BusEntry {
-                config: b.clone(),
-                bus,
-                online: AtomicBool::new(true),
-                wake: Notify::new(),
-                line,
-            });
-        }
-        let index = drives.iter().enumerate().map(|(i, d)| (d.config.name.clone(), i)).collect();
-        let mut units = vec![None; 256];
-        for (i, d) in drives.iter().enumerate().filter(|(_, d)| d.config.unit_id != 0) {
-            units[d.config.unit_id as usize] = Some(i);
-        }
+        let buses = config.buses.iter().map(build_bus).collect::<Result<Vec<_>, _>>()?;
         let (changes, _) = broadcast::channel(1024);
         let gw = Arc::new(Gateway {
-            config,
-            drives,
-            index,
-            units,
-            buses,
+            topology: RwLock::new(Arc::new(Topology::new(config, buses))),
+            reloading: tokio::sync::Mutex::new(()),
             changes,
             store,
             counters: Counters::default(),
             log_events: AtomicBool::new(false),
+            health: crate::health::Health::default(),
         });
+        let topo = gw.topology();
         gw.record(Event {
             id: 0,
             time_ms: unix_ms(),
@@ -514,38 +494,151 @@ impl Gateway {
             actor: Some("gateway".into()),
             action: None,
             result: None,
-            detail: json!({ "buses": gw.buses.len(), "drives": gw.drives.len() }),
+            detail: json!({ "buses": topo.buses.len(), "drives": topo.drives.len() }),
         });
-        for bi in 0..gw.buses.len() {
-            tokio::spawn(gw.clone().poll_bus(bi));
+        for b in topo.buses.iter() {
+            tokio::spawn(gw.clone().poll_bus(b.clone()));
         }
         tokio::spawn(gw.clone().publish_buses());
         Ok(gw)
     }
 
-    /// The configuration it runs.
-    pub fn config(&self) -> &GatewayConfig {
-        &self.config
+    /// What runs now (configuration, buses, drives): one consistent snapshot.
+    pub fn topology(&self) -> Arc<Topology> {
+        self.topology.read().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
+    /// Puts `new` in place of the running configuration, restarting only what changed: a bus
+    /// added, removed or changed (port, protocol, baud, format, timing; any drive of a virtual
+    /// bus) is opened or closed; drives added or removed; tokens, allow lists, locks and linkage
+    /// rules apply at once. Buses that did not change keep polling without a gap and keep their
+    /// statistics and cache. What only a restart can change (listeners, store, MQTT, name) is
+    /// listed in [`Reload::needs_restart`]. The reload is an event in the audit trail, by `actor`.
+    pub async fn reload(self: &Arc<Self>, new: GatewayConfig, actor: &str) -> Result<Reload, String> {
+        let _one = self.reloading.lock().await;
+        let old = self.topology();
+        let plan = crate::reload::plan(&old.config, &new);
+        // Build first: a bus that cannot be built leaves everything as it was.
+        let mut built = HashMap::new();
+        for name in plan.buses_added.iter().chain(&plan.buses_changed) {
+            let b = new.buses.iter().find(|b| &b.name == name).expect("planned from new");
+            built.insert(name.clone(), build_bus(b)?);
+        }
+        let mut buses = Vec::new();
+        let mut fresh = Vec::new();
+        for b in &new.buses {
+            if let Some(entry) = built.remove(&b.name) {
+                fresh.push(entry.clone());
+                buses.push(entry);
+                continue;
+            }
+            let kept = old.buses.iter().find(|x| x.config.name == b.name).expect("kept bus").clone();
+            let members = kept.members.read().unwrap_or_else(|p| p.into_inner()).clone();
+            let mut next = Vec::new();
+            for d in &b.drives {
+                match members.iter().find(|m| m.config.name == d.name) {
+                    Some(m) if crate::reload::same_drive(&m.config, d) => {
+                        // A lock changed in the file applies at once (and only then: a lock
+                        // set otherwise stays).
+                        let was = old.config.drives().find(|(_, o)| o.name == d.name).map(|(_, o)| o.locked);
+                        if was != Some(d.locked) {
+                            m.locked.store(d.locked, Ordering::Relaxed);
+                        }
+                        next.push(m.clone());
+                    }
+                    _ => next.push(Arc::new(drive_entry(b, d, &kept.bus, &kept.wake)?)),
+                }
+            }
+            let changed =
+                next.len() != members.len() || next.iter().zip(&members).any(|(a, b)| !Arc::ptr_eq(a, b));
+            if changed {
+                *kept.members.write().unwrap_or_else(|p| p.into_inner()) = next;
+                kept.generation.fetch_add(1, Ordering::Relaxed);
+                kept.wake.notify_one();
+            }
+            buses.push(kept);
+        }
+        for b in old.buses.iter() {
+            if !buses.iter().any(|x| Arc::ptr_eq(x, b)) {
+                b.retired.store(true, Ordering::Relaxed);
+                b.wake.notify_one();
+            }
+        }
+        let topo = Arc::new(Topology::new(new, buses));
+        *self.topology.write().unwrap_or_else(|p| p.into_inner()) = topo;
+        for b in fresh {
+            tokio::spawn(self.clone().poll_bus(b));
+        }
+        let reload = Reload {
+            summary: plan.summary(),
+            needs_restart: plan.needs_restart.clone(),
+            changed: !plan.is_empty(),
+        };
+        self.record_async(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Reload,
+            bus: None,
+            drive: None,
+            actor: Some(actor.to_string()),
+            action: Some("reload".into()),
+            result: Some("ok".into()),
+            detail: plan.to_json(),
+        })
+        .await;
+        Ok(reload)
+    }
+
+    /// Records a reload that was refused (the new configuration did not check): the old one
+    /// keeps running.
+    pub async fn reload_refused(self: &Arc<Self>, actor: &str, why: &str) {
+        self.record_async(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Reload,
+            bus: None,
+            drive: None,
+            actor: Some(actor.to_string()),
+            action: Some("reload".into()),
+            result: Some(format!("error: {why}")),
+            detail: json!({}),
+        })
+        .await;
+    }
+
+    /// The configuration it runs now.
+    pub fn config(&self) -> Arc<GatewayConfig> {
+        self.topology().config.clone()
     }
 
     /// Every drive, in configuration order.
-    pub fn drives(&self) -> &[DriveEntry] {
-        &self.drives
+    pub fn drives(&self) -> Arc<[Arc<DriveEntry>]> {
+        self.topology().drives.clone()
     }
 
     /// Every bus.
-    pub fn buses(&self) -> &[BusEntry] {
-        &self.buses
+    pub fn buses(&self) -> Arc<[Arc<BusEntry>]> {
+        self.topology().buses.clone()
     }
 
     /// The drive with id `id`.
-    pub fn drive(&self, id: &str) -> Result<&DriveEntry, CommandError> {
-        self.index.get(id).map(|&i| &self.drives[i]).ok_or_else(|| CommandError::UnknownDrive(id.to_string()))
+    pub fn drive(&self, id: &str) -> Result<Arc<DriveEntry>, CommandError> {
+        let topo = self.topology();
+        topo.index
+            .get(id)
+            .map(|&i| topo.drives[i].clone())
+            .ok_or_else(|| CommandError::UnknownDrive(id.to_string()))
     }
 
     /// The drive with Modbus TCP unit id `unit`.
-    pub fn drive_by_unit(&self, unit: u8) -> Option<&DriveEntry> {
-        self.units[unit as usize].map(|i| &self.drives[i])
+    pub fn drive_by_unit(&self, unit: u8) -> Option<Arc<DriveEntry>> {
+        let topo = self.topology();
+        topo.units[unit as usize].map(|i| topo.drives[i].clone())
+    }
+
+    /// What the health checks know (listeners up, store writable, reloads).
+    pub fn health(&self) -> &crate::health::Health {
+        &self.health
     }
 
     /// The store, if configured.
@@ -606,7 +699,7 @@ impl Gateway {
             retries: s.retries,
             utilization: s.utilization(),
             drives: self
-                .drives
+                .drives()
                 .iter()
                 .filter(|d| d.bus == b.config.name)
                 .map(|d| d.config.name.clone())
@@ -622,12 +715,12 @@ impl Gateway {
                 Ok(id) => event.id = id,
                 Err(e) => {
                     self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
-                    eprintln!("drivebus serve: event not stored: {e}");
+                    crate::log::warn(&format!("event not stored: {e}"));
                 }
             }
         }
         if self.log_events.load(Ordering::Relaxed) {
-            eprintln!("{}", log_line(&event));
+            crate::log::event(&event);
         }
         let _ = self.changes.send(Change::Event(event.clone()));
         event
@@ -646,7 +739,7 @@ impl Gateway {
             // The runtime is shutting down: the event is not stored, say so rather than panic.
             Err(e) => {
                 self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
-                eprintln!("drivebus serve: event not stored ({e}): {}", log_line(&kept));
+                crate::log::warn(&format!("event not stored ({e}): {}", log_line(&kept)));
                 kept
             }
         }
@@ -664,7 +757,7 @@ impl Gateway {
         let result = if d.locked() {
             Err(CommandError::Locked(id.to_string()))
         } else {
-            self.execute(d, &command).await
+            self.execute(&d, &command).await
         };
         match &result {
             Ok(()) => self.counters.commands_ok.fetch_add(1, Ordering::Relaxed),
@@ -732,7 +825,7 @@ impl Gateway {
         }
         // Refresh the cache now rather than at the next poll.
         d.poll_now.store(true, Ordering::Relaxed);
-        self.buses[d.bus_index].wake.notify_one();
+        d.wake.notify_one();
         Ok(())
     }
 
@@ -751,39 +844,56 @@ impl Gateway {
         })
     }
 
-    async fn poll_bus(self: Arc<Self>, bi: usize) {
-        let mine: Vec<usize> = (0..self.drives.len()).filter(|&i| self.drives[i].bus_index == bi).collect();
-        if mine.is_empty() {
-            return;
-        }
-        let start = tokio::time::Instant::now();
-        let mut due: Vec<tokio::time::Instant> = mine.iter().map(|_| start).collect();
+    async fn poll_bus(self: Arc<Self>, bus: Arc<BusEntry>) {
+        let mut generation = u64::MAX;
+        let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
+        let mut due: Vec<tokio::time::Instant> = Vec::new();
         loop {
+            if bus.retired.load(Ordering::Relaxed) {
+                return;
+            }
+            // A reload changed the drives: keep the kept drives' schedule, poll new ones now.
+            let now_gen = bus.generation.load(Ordering::Relaxed);
+            if now_gen != generation {
+                generation = now_gen;
+                let next = bus.members.read().unwrap_or_else(|p| p.into_inner()).clone();
+                let now = tokio::time::Instant::now();
+                due = next
+                    .iter()
+                    .map(|d| mine.iter().position(|m| Arc::ptr_eq(m, d)).map_or(now, |k| due[k]))
+                    .collect();
+                mine = next;
+            }
+            let wake = bus.wake.notified();
+            if mine.is_empty() {
+                wake.await;
+                continue;
+            }
             // A drive whose command just went through is polled at once.
-            for (k, &i) in mine.iter().enumerate() {
-                if self.drives[i].poll_now.swap(false, Ordering::Relaxed) {
+            for (k, d) in mine.iter().enumerate() {
+                if d.poll_now.swap(false, Ordering::Relaxed) {
                     due[k] = tokio::time::Instant::now();
                 }
             }
-            let k = (0..mine.len())
-                .min_by_key(|&k| (due[k], self.drives[mine[k]].config.priority))
-                .expect("a bus with drives");
-            let wake = self.buses[bi].wake.notified();
+            let k = (0..mine.len()).min_by_key(|&k| (due[k], mine[k].config.priority)).expect("not empty");
             tokio::select! {
                 _ = tokio::time::sleep_until(due[k]) => {}
                 _ = wake => continue,
             }
-            let i = mine[k];
-            let result = self.drives[i].poll.status().await;
-            self.update(i, result).await;
-            let next = due[k] + self.drives[i].config.poll;
+            let d = mine[k].clone();
+            let result = d.poll.status().await;
+            self.update(&bus, &d, result).await;
+            let next = due[k] + d.config.poll;
             due[k] = next.max(tokio::time::Instant::now());
         }
     }
 
-    async fn update(self: &Arc<Self>, i: usize, result: Result<DriveStatus, LinkError>) {
-        let d = &self.drives[i];
-        let bus = &self.buses[d.bus_index];
+    async fn update(
+        self: &Arc<Self>,
+        bus: &BusEntry,
+        d: &Arc<DriveEntry>,
+        result: Result<DriveStatus, LinkError>,
+    ) {
         let now_ms = unix_ms();
         let mut events = Vec::new();
         let event = |kind, detail| Event {
@@ -867,18 +977,19 @@ impl Gateway {
         }
         let _ = self.changes.send(Change::Drive(self.drive_view(d)));
         if let Some(hz) = linked {
-            self.follow(i, hz);
+            self.follow(d, hz);
         }
     }
 
     /// Applies the linkage rules whose leader is drive `i`, now at `hz`.
-    fn follow(self: &Arc<Self>, leader: usize, hz: f64) {
-        for rule in &self.config.linkage {
-            if rule.leader != self.drives[leader].config.name {
+    fn follow(self: &Arc<Self>, leader: &DriveEntry, hz: f64) {
+        let topo = self.topology();
+        for rule in &topo.config.linkage {
+            if rule.leader != leader.config.name {
                 continue;
             }
-            let Some(&fi) = self.index.get(&rule.follower) else { continue };
-            let f = &self.drives[fi];
+            let Some(&fi) = topo.index.get(&rule.follower) else { continue };
+            let f = topo.drives[fi].clone();
             let target = ((hz * rule.ratio + rule.offset_hz).max(0.0) * 100.0).round() / 100.0;
             let current = f.with_state(|s| s.commanded_hz);
             if current.is_some_and(|c| (c - target).abs() < 0.005) || f.locked() {
@@ -890,7 +1001,6 @@ impl Gateway {
             let gw = self.clone();
             let actor = format!("linkage:{}", rule.leader);
             tokio::spawn(async move {
-                let f = &gw.drives[fi];
                 // The audit trail has the linkage taking hold, failing and recovering; not each
                 // setpoint it writes (one per leader poll).
                 let result = f.command.set_speed(target).await;
@@ -930,7 +1040,7 @@ impl Gateway {
         let mut tick = tokio::time::interval(Duration::from_secs(1));
         loop {
             tick.tick().await;
-            for b in &self.buses {
+            for b in self.buses().iter() {
                 let _ = self.changes.send(Change::Bus(self.bus_view(b)));
             }
         }
@@ -964,4 +1074,69 @@ pub fn log_line(e: &Event) -> String {
         line.push_str(&format!(" {}", e.detail));
     }
     line
+}
+
+/// What a reload did, for the log and the caller.
+#[derive(Clone, Debug)]
+pub struct Reload {
+    /// One line: what was added, removed and changed (`no change` when nothing).
+    pub summary: String,
+    /// Settings that changed but take effect only at the next start.
+    pub needs_restart: Vec<String>,
+    /// Whether anything changed.
+    pub changed: bool,
+}
+
+/// Builds a bus of the configuration (owner, link, drives); its poll scheduler is not started.
+fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
+    let mut owner = OwnerConfig::new(&b.protocol, b.baud, b.format);
+    owner.response_timeout = b.timeout;
+    owner.retries = b.retries;
+    owner.echo = b.echo;
+    owner.strict_t15 = b.strict_t15;
+    let (bus, line) = match b.port {
+        Port::Virtual => {
+            let line = virtual_line(b)?;
+            let link = sim_link(line.clone(), &format!("virtual:{}", b.name));
+            (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
+        }
+        _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
+    };
+    let wake = Arc::new(Notify::new());
+    let members =
+        b.drives.iter().map(|d| drive_entry(b, d, &bus, &wake).map(Arc::new)).collect::<Result<_, _>>()?;
+    Ok(Arc::new(BusEntry {
+        config: b.clone(),
+        bus,
+        online: AtomicBool::new(true),
+        wake,
+        members: RwLock::new(members),
+        generation: AtomicU64::new(0),
+        retired: AtomicBool::new(false),
+        line,
+    }))
+}
+
+/// A drive of bus `b`, reached through `bus`, with one profile for its commands and polls.
+fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus, wake: &Arc<Notify>) -> Result<DriveEntry, String> {
+    let profile = drivebus_drive::profile::for_drive(d.family, &b.protocol, d.address)
+        .map_err(|e| format!("drive {}: {e}", d.name))?;
+    let mut command = Drive::new(bus.clone(), profile);
+    if let Some(t) = b.timeout {
+        command = command.with_timeout(t);
+    }
+    let poll = command.polling_twin();
+    Ok(DriveEntry {
+        config: d.clone(),
+        bus: b.name.clone(),
+        protocol: b.protocol.clone(),
+        command,
+        poll,
+        state: RwLock::new(DriveState::default()),
+        locked: AtomicBool::new(d.locked),
+        poll_now: AtomicBool::new(false),
+        wake: wake.clone(),
+        linking: AtomicBool::new(false),
+        linkage: AtomicU8::new(LINKAGE_NONE),
+    })
 }

@@ -18,11 +18,14 @@
 
 pub mod config;
 pub mod gateway;
+pub mod health;
 pub mod http;
+pub mod log;
 pub mod metrics;
 pub mod modbus_tcp;
 pub mod mqtt;
 pub mod port;
+pub mod reload;
 pub mod server;
 
 pub use config::GatewayConfig;

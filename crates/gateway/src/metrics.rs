@@ -190,6 +190,12 @@ struct ResultLabels {
     result: &'static str,
 }
 
+/// Labels of a listener's series.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct ListenerLabels {
+    listener: String,
+}
+
 type F64Gauge = Gauge<f64, std::sync::atomic::AtomicU64>;
 
 /// `GET /metrics`, to merge into the HTTP router.
@@ -224,7 +230,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let age = Family::<DriveLabels, F64Gauge>::default();
     let polls = Family::<DriveLabels, Counter>::default();
     let poll_errors = Family::<DriveLabels, Counter>::default();
-    for d in gw.drives() {
+    for d in gw.drives().iter() {
         let l = DriveLabels {
             bus: d.bus.clone(),
             drive: d.config.name.clone(),
@@ -279,7 +285,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let retries = Family::<BusLabels, Counter>::default();
     let utilization = Family::<BusLabels, F64Gauge>::default();
     let bus_online = Family::<BusLabels, Gauge>::default();
-    for b in gw.buses() {
+    for b in gw.buses().iter() {
         let l = BusLabels { bus: b.config.name.clone() };
         let s = b.stats();
         transactions.get_or_create(&l).inc_by(s.transactions);
@@ -335,6 +341,35 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     );
     reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
     reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
+
+    // Health (the facts of /readyz) and reloads.
+    let h = gw.health();
+    let why = crate::health::not_ready(gw);
+    let ready = Gauge::<i64>::default();
+    ready.set(i64::from(why.is_empty()));
+    reg.register("ready", "1 when every configured listener is up and the store is writable", ready);
+    let listener_up = Family::<ListenerLabels, Gauge>::default();
+    for l in h.listeners() {
+        listener_up.get_or_create(&ListenerLabels { listener: l.name }).set(i64::from(l.up));
+    }
+    reg.register("listener_up", "1 when the listener accepts connections", listener_up);
+    if let Some(path) = &gw.config().store {
+        let writable = Gauge::<i64>::default();
+        writable.set(i64::from(crate::health::store_writable(path).is_ok()));
+        reg.register("store_writable", "1 when the store's folder and file take writes", writable);
+    }
+    let (ok, failed) = h.reloads();
+    let reloads = Family::<ResultLabels, Counter>::default();
+    reloads.get_or_create(&ResultLabels { result: "ok" }).inc_by(ok);
+    reloads.get_or_create(&ResultLabels { result: "failed" }).inc_by(failed);
+    reg.register("config_reloads", "Configuration reloads applied (ok) or refused (failed)", reloads);
+    let reload_failed = Gauge::<i64>::default();
+    reload_failed.set(i64::from(h.last_reload_error().is_some()));
+    reg.register(
+        "config_reload_failed",
+        "1 while the last reload was refused (the previous configuration runs)",
+        reload_failed,
+    );
 
     let mut out = String::new();
     encode(&mut out, &reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;

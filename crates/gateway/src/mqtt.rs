@@ -269,17 +269,17 @@ impl Publisher {
         self.send("availability", self.s.availability(), true, b"online".to_vec());
         let filter = format!("{}/+/+/set/+", self.s.prefix);
         if let Err(e) = self.client.try_subscribe(filter, QoS::AtLeastOnce) {
-            eprintln!("drivebus serve: MQTT: cannot subscribe to the command topics: {e}");
+            crate::log::warn(&format!("MQTT: cannot subscribe to the command topics: {e}"));
         }
         if self.s.discovery {
-            for d in self.gw.drives() {
+            for d in self.gw.drives().iter() {
                 for (topic, payload) in discovery(&self.s, &self.gw.drive_view(d)) {
                     self.send("discovery", topic, true, payload.to_string().into_bytes());
                 }
             }
         }
         let now = Instant::now();
-        for d in self.gw.drives() {
+        for d in self.gw.drives().iter() {
             let v = self.gw.drive_view(d);
             self.status(&v);
             throttle.insert(v.id.clone(), Throttle { last: Some((now, key(&v))), pending: None });
@@ -408,7 +408,7 @@ fn send(
 ) {
     match client.try_publish(topic, QoS::AtLeastOnce, retain, payload) {
         Ok(()) => gw.counters.front_ends.mqtt_published(kind),
-        Err(e) => eprintln!("drivebus serve: MQTT: a {kind} message was dropped: {e}"),
+        Err(e) => crate::log::warn(&format!("MQTT: a {kind} message was dropped: {e}")),
     }
 }
 
@@ -490,7 +490,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                 Ok(Event::Incoming(Packet::ConnAck(_))) => {
                     backoff = Duration::from_millis(250);
                     if reported {
-                        eprintln!("drivebus serve: MQTT: connected again to {endpoint}");
+                        crate::log::info(&format!("MQTT: connected again to {endpoint}"));
                     }
                     reported = false;
                     Some(FromBroker::Connected)
@@ -499,7 +499,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                 Ok(_) => None,
                 Err(e) => {
                     if !reported {
-                        eprintln!("drivebus serve: MQTT: broker {endpoint}: {e}; retrying");
+                        crate::log::warn(&format!("MQTT: broker {endpoint}: {e}; retrying"));
                         reported = true;
                     }
                     if tx.send(FromBroker::Lost).await.is_err() {

@@ -1,11 +1,14 @@
-//! `drivebus serve`: the gateway and its listeners in one process, until Ctrl-C or SIGTERM.
+//! `drivebus serve`: the gateway and its listeners in one process, until Ctrl-C or SIGTERM;
+//! SIGHUP reloads the configuration ([`Gateway::reload`]).
 
 use std::net::SocketAddr;
 use std::sync::Arc;
 
 use tokio::net::TcpListener;
 
+use crate::config::GatewayConfig;
 use crate::gateway::Gateway;
+use crate::log;
 
 /// Where the service listens, once bound.
 #[derive(Clone, Debug)]
@@ -16,6 +19,10 @@ pub struct Bound {
     pub modbus: SocketAddr,
 }
 
+/// Reads the configuration again for a reload (the file, with the command line's overrides);
+/// `Err` is the one-line reason it cannot be used.
+pub type Loader = Box<dyn Fn() -> Result<GatewayConfig, String> + Send + Sync>;
+
 async fn bind(addr: SocketAddr, what: &str, option: &str) -> Result<TcpListener, String> {
     TcpListener::bind(addr).await.map_err(|e| {
         format!("cannot listen for {what} on {addr}: {e}: give another address with {option} HOST:PORT")
@@ -23,15 +30,20 @@ async fn bind(addr: SocketAddr, what: &str, option: &str) -> Result<TcpListener,
 }
 
 /// Binds the listeners of `gw`'s configuration, calls `ready` with them, and serves until the
-/// process is asked to stop; then flushes the store.
-pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), String> {
-    let cfg = gw.config().clone();
+/// process is asked to stop; then flushes the store. With a `loader`, SIGHUP reloads the
+/// configuration through it.
+pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&Bound)) -> Result<(), String> {
+    let cfg = gw.config();
+    gw.health().listener("http", cfg.http.listen, false);
+    gw.health().listener("modbus", cfg.modbus.listen, false);
     let http = bind(cfg.http.listen, "HTTP", "--http").await?;
     let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus").await?;
     let bound = Bound {
         http: http.local_addr().map_err(|e| e.to_string())?,
         modbus: modbus.local_addr().map_err(|e| e.to_string())?,
     };
+    gw.health().listener("http", bound.http, true);
+    gw.health().listener("modbus", bound.modbus, true);
     let router = crate::http::router(gw.clone());
     let http_task = tokio::spawn(async move {
         axum::serve(http, router.into_make_service_with_connect_info::<SocketAddr>()).await
@@ -39,6 +51,9 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
     if let Some(m) = &cfg.mqtt {
         crate::mqtt::spawn(gw.clone(), m)?;
+    }
+    if let Some(loader) = loader {
+        tokio::spawn(reload_on_hangup(gw.clone(), loader));
     }
     ready(&bound);
     let stop = async {
@@ -50,11 +65,51 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
     };
     let result = tokio::select! {
         _ = stop => Ok(()),
-        r = http_task => Err(format!("the HTTP server stopped: {r:?}")),
-        r = modbus_task => Err(format!("the Modbus TCP server stopped: {r:?}")),
+        r = http_task => {
+            gw.health().listener("http", bound.http, false);
+            Err(format!("the HTTP server stopped: {r:?}"))
+        }
+        r = modbus_task => {
+            gw.health().listener("modbus", bound.modbus, false);
+            Err(format!("the Modbus TCP server stopped: {r:?}"))
+        }
     };
     if let Some(store) = gw.store() {
         store.flush().map_err(|e| e.to_string())?;
     }
     result
+}
+
+/// Reloads the configuration on each SIGHUP (`systemctl reload drivebus`).
+async fn reload_on_hangup(gw: Arc<Gateway>, loader: Loader) {
+    let Ok(mut hup) = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup()) else {
+        log::warn("cannot catch SIGHUP: the configuration cannot be reloaded without a restart");
+        return;
+    };
+    let loader = Arc::new(loader);
+    while hup.recv().await.is_some() {
+        let load = loader.clone();
+        let next = tokio::task::spawn_blocking(move || load()).await.unwrap_or_else(|e| Err(e.to_string()));
+        reload_with(&gw, next, "signal").await;
+    }
+}
+
+/// Applies a configuration read for a reload, or keeps the running one when it did not check:
+/// logs the outcome, counts it for the metrics and puts it in the audit trail.
+pub async fn reload_with(gw: &Arc<Gateway>, next: Result<GatewayConfig, String>, actor: &str) {
+    let result = match next {
+        Ok(config) => gw.reload(config, actor).await,
+        Err(e) => Err(e),
+    };
+    match result {
+        Ok(r) => {
+            gw.health().reloaded(Ok(()));
+            log::info(&format!("configuration reloaded: {}", r.summary));
+        }
+        Err(e) => {
+            gw.health().reloaded(Err(&e));
+            log::warn(&format!("configuration not reloaded, the running one stays: {e}"));
+            gw.reload_refused(actor, &e).await;
+        }
+    }
 }

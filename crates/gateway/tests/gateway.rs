@@ -15,7 +15,7 @@ async fn settle(secs: u64) {
 async fn the_demo_polls_every_drive_and_runs_one() {
     let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
     settle(3).await;
-    for d in gw.drives() {
+    for d in gw.drives().iter() {
         let v = gw.drive_view(d);
         assert_eq!(v.online, Some(true), "{} not online: {:?}", v.id, v.last_error);
         assert_eq!(v.running, Some(false), "{}", v.id);
@@ -24,11 +24,11 @@ async fn the_demo_polls_every_drive_and_runs_one() {
     gw.command("pump-1", Command::Speed(40.0), "test").await.unwrap();
     gw.command("pump-1", Command::Run, "test").await.unwrap();
     settle(20).await;
-    let v = gw.drive_view(gw.drive("pump-1").unwrap());
+    let v = gw.drive_view(&gw.drive("pump-1").unwrap());
     assert_eq!(v.running, Some(true));
     let hz = v.output_hz.unwrap();
     assert!((hz - 40.0).abs() < 0.05, "pump-1 at {hz} Hz");
-    for b in gw.buses() {
+    for b in gw.buses().iter() {
         let s = gw.bus_view(b);
         assert!(s.transactions > 0 && s.online, "{s:?}");
     }
@@ -43,13 +43,13 @@ async fn every_family_runs_to_its_setpoint() {
     }
     settle(30).await;
     for id in ["conveyor-1", "pump-2", "ahu-1", "mixer-1"] {
-        let v = gw.drive_view(gw.drive(id).unwrap());
+        let v = gw.drive_view(&gw.drive(id).unwrap());
         assert_eq!(v.running, Some(true), "{id}");
         let hz = v.output_hz.unwrap();
         assert!((hz - 30.0).abs() < 0.1, "{id} at {hz} Hz");
     }
     // conveyor-2 follows conveyor-1: 30 * 0.5 + 5 = 20 Hz setpoint.
-    let v = gw.drive_view(gw.drive("conveyor-2").unwrap());
+    let v = gw.drive_view(&gw.drive("conveyor-2").unwrap());
     assert_eq!(v.setpoint_hz, Some(20.0), "{v:?}");
 }
 
@@ -138,7 +138,7 @@ async fn a_failing_linkage_is_audited_once_while_the_follower_polls_fine() {
     gw.command("lead", Command::Speed(30.0), "test").await.unwrap();
     gw.command("lead", Command::Run, "test").await.unwrap();
     settle(30).await;
-    let view = gw.drive_view(gw.drive("follow").unwrap());
+    let view = gw.drive_view(&gw.drive("follow").unwrap());
     assert_eq!(view.online, Some(true), "the follower answers its polls");
     let filter =
         drivebus_store::EventFilter { drive: Some("follow".into()), limit: 1000, ..Default::default() };

@@ -132,7 +132,7 @@ async fn metrics_cover_drives_buses_and_the_gateway() {
     }
 
     // Every demo drive has its link health and poll counts.
-    for d in gw.drives() {
+    for d in gw.drives().iter() {
         let id = d.config.name.as_str();
         let l = [("drive", id), ("bus", d.bus.as_str()), ("family", d.config.family.as_str())];
         let online = find(&samples, "drivebus_drive_online", &l).unwrap_or_else(|| panic!("{id} online"));
@@ -153,7 +153,7 @@ async fn metrics_cover_drives_buses_and_the_gateway() {
     assert_eq!(find(&samples, "drivebus_drive_running", &[("drive", "pump-2")]).unwrap().value, 0.0);
 
     // Buses: as many replies as the owner counted, and never more replies than requests.
-    for b in gw.buses() {
+    for b in gw.buses().iter() {
         let l = [("bus", b.config.name.as_str())];
         let tx = find(&samples, "drivebus_bus_transactions_total", &l).unwrap().value;
         let rx = find(&samples, "drivebus_bus_replies_total", &l).unwrap().value;
@@ -239,7 +239,8 @@ async fn metrics_need_a_read_token_when_reads_do() {
 #[tokio::test(start_paused = true)]
 async fn bus_errors_on_a_noisy_line_are_counted() {
     let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
-    let noisy = gw.buses().iter().find(|b| b.config.name == "line-generic").expect("the demo's generic bus");
+    let noisy =
+        gw.buses().iter().find(|b| b.config.name == "line-generic").expect("the demo's generic bus").clone();
     let line = noisy.line.as_ref().expect("a virtual bus");
     line.lock().unwrap().set_faults(drivebus_sim::bus::Faults {
         corrupt_rate: 0.02,

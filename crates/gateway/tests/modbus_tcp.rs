@@ -166,7 +166,7 @@ async fn every_unit_shows_its_drive_from_the_cache() {
     let (gw, addr) = demo().await;
     all_online(addr, 10).await;
     let mut c = Client::connect(addr).await;
-    for d in gw.drives() {
+    for d in gw.drives().iter() {
         let unit = d.config.unit_id;
         let r = c.input(unit, 0, 10).await.unwrap();
         let status = r[0];
@@ -210,7 +210,7 @@ async fn setpoint_and_run_reach_the_drive_and_the_cache_follows() {
         dl.tick("fan-1 runs toward 30 Hz").await;
     }
     assert_eq!(c.holding(unit, 0, 2).await.unwrap(), vec![0x0001, 3000]);
-    let v = gw.drive_view(gw.drive("fan-1").unwrap());
+    let v = gw.drive_view(&gw.drive("fan-1").unwrap());
     assert_eq!((v.running, v.setpoint_hz), (Some(true), Some(30.0)));
     // The audit trail names the client.
     let mut actors = Vec::new();
@@ -442,7 +442,7 @@ async fn read_write_multiple_writes_then_reads() {
     assert_eq!(p[..2], [0x17, 4]);
     assert_eq!(u16::from_be_bytes([p[4], p[5]]), 2500);
     let dl = Deadline::new();
-    while gw.drive_view(gw.drive("fan-1").unwrap()).setpoint_hz != Some(25.0) {
+    while gw.drive_view(&gw.drive("fan-1").unwrap()).setpoint_hz != Some(25.0) {
         dl.tick("the cache shows fan-1's new setpoint").await;
     }
     assert_eq!(c.input(3, 2, 1).await, Ok(vec![2500]));
@@ -471,7 +471,7 @@ async fn a_silent_drive_is_0b_and_a_drives_refusal_is_04() {
     // conveyor-1 stops answering: a write that needs the drive is 0B (no answer), and the
     // setpoint is not shown as written.
     let conveyor = unit("conveyor-1");
-    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap();
+    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap().clone();
     bus.line.as_ref().unwrap().lock().unwrap().set_silent(1, true);
     assert_eq!(c.write1(conveyor, 1, 2500).await, Err(0x0B));
     assert_ne!(c.holding(conveyor, 1, 1).await, Ok(vec![2500]), "a write nobody confirmed");

@@ -98,9 +98,9 @@ async fn statuses_are_retained_and_commands_move_a_drive() {
         assert!(!r["error"]["message"].as_str().unwrap().is_empty(), "{r}");
     }
     assert_eq!(gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed), ok_before);
-    let fan = gw.drive_view(gw.drive("fan-1").unwrap());
+    let fan = gw.drive_view(&gw.drive("fan-1").unwrap());
     assert_eq!(fan.running, Some(false));
-    let pump = gw.drive_view(gw.drive("pump-1").unwrap());
+    let pump = gw.drive_view(&gw.drive("pump-1").unwrap());
     assert_eq!(pump.running, Some(false), "a refused command moved pump-1");
     assert!(gw.counters.front_ends.mqtt_publishes("status") >= 10);
     assert!(gw.counters.front_ends.mqtt_publishes("result") >= 10);
@@ -190,7 +190,7 @@ async fn two_gateways_side_by_side_on_one_broker() {
     plant.wait_json("drivebus/hall-a/line-toshiba/pump-1/status", |v| v["running"] == true).await;
     let r = plant.wait_json("drivebus/hall-b/line-toshiba/pump-1/result", |r| r["command"] == "run").await;
     assert_eq!(r["error"]["kind"], "forbidden", "{r}");
-    assert_eq!(_b.drive_view(_b.drive("pump-1").unwrap()).running, Some(false));
+    assert_eq!(_b.drive_view(&_b.drive("pump-1").unwrap()).running, Some(false));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -95,7 +95,7 @@ async fn mosquitto_statuses_commands_and_restart() {
     live.publish(&format!("{p}/line-toshiba/pump-2/set/run"), "1", false).await;
     let r = live.wait_json(&format!("{p}/line-toshiba/pump-2/result"), |r| r["command"] == "run").await;
     assert_eq!(r["error"]["kind"], "forbidden", "{r}");
-    assert_eq!(gw.drive_view(gw.drive("pump-2").unwrap()).running, Some(false));
+    assert_eq!(gw.drive_view(&gw.drive("pump-2").unwrap()).running, Some(false));
 
     // A real restart: the broker goes away and comes back empty on the same port.
     broker.stop();

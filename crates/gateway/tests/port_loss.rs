@@ -40,8 +40,8 @@ async fn a_lost_port_goes_offline_and_comes_back() {
         pty.display()
     );
     let gw = Gateway::start(GatewayConfig::from_toml("t.toml", &text).unwrap(), None).unwrap();
-    let m1 = || gw.drive_view(gw.drive("m1").unwrap());
-    let m2_polls = || gw.drive_view(gw.drive("m2").unwrap()).polls;
+    let m1 = || gw.drive_view(&gw.drive("m1").unwrap());
+    let m2_polls = || gw.drive_view(&gw.drive("m2").unwrap()).polls;
     wait_for("m1 online", Duration::from_secs(10), || m1().online == Some(true)).await;
 
     // The port goes away.
@@ -85,15 +85,15 @@ async fn a_port_missing_at_start_is_an_offline_bus_not_a_failure() {
          [[bus.drive]]\nname = \"m2\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n";
     let gw = Gateway::start(GatewayConfig::from_toml("t.toml", text).unwrap(), None).unwrap();
     wait_for("m1 offline", Duration::from_secs(10), || {
-        gw.drive_view(gw.drive("m1").unwrap()).online == Some(false)
+        gw.drive_view(&gw.drive("m1").unwrap()).online == Some(false)
     })
     .await;
     wait_for("m2 online", Duration::from_secs(10), || {
-        gw.drive_view(gw.drive("m2").unwrap()).online == Some(true)
+        gw.drive_view(&gw.drive("m2").unwrap()).online == Some(true)
     })
     .await;
     let bus = gw.bus_view(&gw.buses()[0]);
     assert!(!bus.online, "{bus:?}");
-    let err = gw.drive_view(gw.drive("m1").unwrap()).last_error.unwrap();
+    let err = gw.drive_view(&gw.drive("m1").unwrap()).last_error.unwrap();
     assert!(err.contains("/dev/drivebus-no-such-port"), "{err}");
 }

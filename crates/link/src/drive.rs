@@ -25,7 +25,7 @@
 
 use std::fmt;
 use std::io;
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Profile, Step};
@@ -131,9 +131,10 @@ pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
 }
 
 /// One drive on a bus, spoken to through its family's profile.
+#[derive(Clone)]
 pub struct Drive {
     bus: Bus,
-    profile: Box<dyn Profile>,
+    profile: Arc<dyn Profile>,
     timeout: Option<Duration>,
     priority: Priority,
 }
@@ -141,7 +142,13 @@ pub struct Drive {
 impl Drive {
     /// A drive reached through `bus` with `profile`.
     pub fn new(bus: Bus, profile: Box<dyn Profile>) -> Self {
-        Drive { bus, profile, timeout: None, priority: Priority::Command }
+        Drive { bus, profile: Arc::from(profile), timeout: None, priority: Priority::Command }
+    }
+
+    /// The same drive, with the same profile (so what a command teaches it, a setpoint or a
+    /// scaling, shows in the next poll), whose requests are polls that wait behind commands.
+    pub fn polling_twin(&self) -> Self {
+        Drive { priority: Priority::Poll, ..self.clone() }
     }
 
     /// Sets this drive's response timeout (the bus default otherwise).

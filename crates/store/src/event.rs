@@ -71,11 +71,13 @@ pub enum EventKind {
     Started,
     /// The gateway stopped.
     Stopped,
+    /// The configuration was reloaded (or a reload was refused: see the result).
+    Reload,
 }
 
 impl EventKind {
     /// Every kind, in declaration order.
-    pub const ALL: [EventKind; 9] = [
+    pub const ALL: [EventKind; 10] = [
         EventKind::Command,
         EventKind::Trip,
         EventKind::FaultReset,
@@ -85,10 +87,11 @@ impl EventKind {
         EventKind::BusOffline,
         EventKind::Started,
         EventKind::Stopped,
+        EventKind::Reload,
     ];
 
     /// The name stored and printed: `"command"`, `"trip"`, `"fault_reset"`, `"online"`,
-    /// `"offline"`, `"bus_online"`, `"bus_offline"`, `"started"`, `"stopped"`.
+    /// `"offline"`, `"bus_online"`, `"bus_offline"`, `"started"`, `"stopped"`, `"reload"`.
     pub fn as_str(self) -> &'static str {
         match self {
             EventKind::Command => "command",
@@ -100,6 +103,7 @@ impl EventKind {
             EventKind::BusOffline => "bus_offline",
             EventKind::Started => "started",
             EventKind::Stopped => "stopped",
+            EventKind::Reload => "reload",
         }
     }
 }

@@ -11,7 +11,7 @@ use drivebus_gateway::{Gateway, GatewayConfig};
 use crate::commands::drive::Failure;
 
 /// Arguments of `drivebus serve`.
-#[derive(Args, Debug)]
+#[derive(Args, Clone, Debug)]
 pub struct ServeArgs {
     /// The gateway's TOML configuration (see docs/gateway.md).
     #[arg(long, value_name = "FILE", required_unless_present = "demo", conflicts_with = "demo")]
@@ -38,6 +38,10 @@ pub struct ServeArgs {
     /// level and client id, so that two gateways on one broker stay apart.
     #[arg(long, value_name = "NAME")]
     pub name: Option<String>,
+    /// How log lines on stderr are written: `text` (one sentence each) or `json` (one object
+    /// each, for log shippers reading the journal).
+    #[arg(long, value_name = "FORMAT", default_value = "text")]
+    pub log_format: drivebus_gateway::log::Format,
 }
 
 fn demo_token() -> String {
@@ -55,14 +59,18 @@ fn demo_token() -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// Runs `drivebus serve`.
-pub fn run(args: &ServeArgs) -> Result<u8> {
+/// Reads a configuration file as `serve` does; errors name the file, the line and the field.
+pub fn read_config(path: &std::path::Path) -> Result<GatewayConfig> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read the configuration {}", path.display()))?;
+    Ok(GatewayConfig::from_toml(&path.display().to_string(), &text)?)
+}
+
+/// The configuration `serve` runs: the file (or the demo) with the command line's overrides and
+/// the demo's token. Read again, the same way, on each reload.
+fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
     let mut config = match &args.config {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read the configuration {}", path.display()))?;
-            GatewayConfig::from_toml(&path.display().to_string(), &text)?
-        }
+        Some(path) => read_config(path)?,
         None => GatewayConfig::demo(),
     };
     if let Some(name) = &args.name {
@@ -99,10 +107,17 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     } else if let Some(db) = &args.db {
         config.store = Some(db.clone());
     }
-    let token = args.demo.then(demo_token);
-    if let Some(t) = &token {
-        config.tokens.push(Token { name: "demo".into(), secret: t.clone(), role: Role::Write });
+    if let Some(t) = demo_token {
+        config.tokens.push(Token { name: "demo".into(), secret: t.to_string(), role: Role::Write });
     }
+    Ok(config)
+}
+
+/// Runs `drivebus serve`.
+pub fn run(args: &ServeArgs) -> Result<u8> {
+    drivebus_gateway::log::set_format(args.log_format);
+    let token = args.demo.then(demo_token);
+    let config = load(args, token.as_deref())?;
     if config.buses.is_empty() {
         eprintln!(
             "drivebus serve: warning: the configuration has no [[bus]]: nothing will be polled \
@@ -138,7 +153,14 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
         let gw = Gateway::start(config, store).map_err(|e| Failure { code: 3, message: e })?;
         // Events (trips, drives and buses going offline and back, commands) one line each.
         gw.log_events(true);
-        drivebus_gateway::server::run(gw.clone(), |bound| {
+        // SIGHUP reads the file again, with the same overrides (the demo has no file).
+        let loader: Option<drivebus_gateway::server::Loader> = args.config.is_some().then(|| {
+            let args = args.clone();
+            let token = token.clone();
+            Box::new(move || load(&args, token.as_deref()).map_err(|e| format!("{e:#}")))
+                as drivebus_gateway::server::Loader
+        });
+        drivebus_gateway::server::run(gw.clone(), loader, |bound| {
             println!("drivebus serve: {} buses, {} drives", gw.buses().len(), gw.drives().len());
             println!("  dashboard   http://{}/", bound.http);
             println!("  HTTP API    http://{}/api/drives", bound.http);

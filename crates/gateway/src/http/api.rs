@@ -38,7 +38,7 @@ pub async fn drive(
     Path(id): Path<String>,
 ) -> ApiResult<DriveView> {
     let d = gw.drive(&id)?;
-    Ok(Json(gw.drive_view(d)))
+    Ok(Json(gw.drive_view(&d)))
 }
 
 /// `GET /api/buses`.
@@ -77,7 +77,7 @@ fn parse_json<T: DeserializeOwned>(bytes: &[u8], example: &str) -> Result<T, Api
 async fn run_command(gw: &Arc<Gateway>, id: &str, command: Command, actor: &str) -> ApiResult<Value> {
     gw.command(id, command, actor).await?;
     let d = gw.drive(id)?;
-    Ok(Json(json!({ "ok": true, "drive": gw.drive_view(d) })))
+    Ok(Json(json!({ "ok": true, "drive": gw.drive_view(&d) })))
 }
 
 /// `POST /api/drives/{id}/run|stop|reverse|jog|reset` (no body; one is ignored within

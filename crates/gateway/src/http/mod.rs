@@ -68,6 +68,7 @@ pub fn router(gw: Arc<Gateway>) -> Router {
     api_routes()
         .merge(dashboard::routes())
         .merge(crate::metrics::routes())
+        .merge(crate::health::routes())
         .fallback(api::fallback)
         .layer(middleware::from_fn_with_state(gw.clone(), crate::metrics::track))
         .layer(DefaultBodyLimit::max(max_body))

@@ -50,6 +50,7 @@ struct Written {
 
 struct Server {
     gw: Arc<Gateway>,
+    /// The listener's settings at start (`max_connections`); the write rules are read live.
     config: ModbusConfig,
     active: AtomicUsize,
     /// One per unit id; held across a write so concurrent writers to a drive are serialized.
@@ -91,7 +92,7 @@ pub fn raise_nofile_limit() -> std::io::Result<u64> {
 /// process ends.
 pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<()> {
     if let Err(e) = raise_nofile_limit() {
-        eprintln!("drivebus serve: Modbus TCP: cannot raise the open files limit: {e}");
+        crate::log::warn(&format!("Modbus TCP: cannot raise the open files limit: {e}"));
     }
     let config = gw.config().modbus.clone();
     let server = Arc::new(Server {
@@ -108,7 +109,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
             Err(e) => {
                 // Out of descriptors or a connection reset before accept: keep serving the others.
                 if !WARNED.swap(true, Ordering::Relaxed) {
-                    eprintln!("drivebus serve: Modbus TCP: accept failed: {e} (retrying)");
+                    crate::log::warn(&format!("Modbus TCP: accept failed: {e} (retrying)"));
                 }
                 tokio::time::sleep(std::time::Duration::from_millis(20)).await;
                 continue;
@@ -246,8 +247,7 @@ impl Server {
             IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
             v4 => v4,
         };
-        let may_write = !self.config.read_only && self.config.allow.contains(&ip);
-        let mut conn = Conn { may_write, actor: None, peer };
+        let mut conn = Conn { ip, actor: None, peer };
         let mut buf = vec![0u8; IN_BUF];
         let mut len = 0;
         let mut out: Vec<u8> = Vec::with_capacity(512);
@@ -328,7 +328,7 @@ impl Server {
                     return true;
                 };
                 let mut regs = [0u16; INPUT_COUNT as usize];
-                input_registers(d, &mut regs);
+                input_registers(&d, &mut regs);
                 let start = begin(out, header);
                 out.extend_from_slice(&[fc, (count * 2) as u8]);
                 push_regs(out, regs[addr as usize..=last as usize].iter().copied());
@@ -340,7 +340,7 @@ impl Server {
                     exception(out, header, fc, ILLEGAL_ADDRESS);
                     return true;
                 }
-                let regs = self.holding(d, header[6]);
+                let regs = self.holding(&d, header[6]);
                 let start = begin(out, header);
                 out.extend_from_slice(&[fc, (count * 2) as u8]);
                 push_regs(out, regs[addr as usize..(addr + count) as usize].iter().copied());
@@ -391,7 +391,7 @@ impl Server {
             Ok(Request::Read { addr, count, .. }) => {
                 let start = begin(out, header);
                 out.extend_from_slice(&[fc, (count * 2) as u8]);
-                match self.read_window(d, addr, count, out).await {
+                match self.read_window(&d, addr, count, out).await {
                     Ok(()) => {
                         end(out, start);
                         return;
@@ -402,33 +402,35 @@ impl Server {
                     }
                 }
             }
-            Ok(Request::Write { addr, values }) => match self.write(conn, header[6], d, addr, values).await {
-                Ok(()) => {
-                    let start = begin(out, header);
-                    if fc == 0x06 {
-                        out.extend_from_slice(pdu);
-                    } else {
-                        out.push(fc);
-                        out.extend_from_slice(&addr.to_be_bytes());
-                        out.extend_from_slice(&(values.len() as u16).to_be_bytes());
+            Ok(Request::Write { addr, values }) => {
+                match self.write(conn, header[6], &d, addr, values).await {
+                    Ok(()) => {
+                        let start = begin(out, header);
+                        if fc == 0x06 {
+                            out.extend_from_slice(pdu);
+                        } else {
+                            out.push(fc);
+                            out.extend_from_slice(&addr.to_be_bytes());
+                            out.extend_from_slice(&(values.len() as u16).to_be_bytes());
+                        }
+                        end(out, start);
+                        return;
                     }
-                    end(out, start);
-                    return;
+                    Err(code) => Err(code),
                 }
-                Err(code) => Err(code),
-            },
+            }
             Ok(Request::ReadWrite { addr, count, waddr, values }) => {
-                match self.write(conn, header[6], d, waddr, values).await {
+                match self.write(conn, header[6], &d, waddr, values).await {
                     Err(code) => Err(code),
                     Ok(()) => {
                         let start = begin(out, header);
                         out.extend_from_slice(&[fc, (count * 2) as u8]);
                         let read = if addr >= PARAM_BASE {
-                            self.read_window(d, addr, count, out).await
+                            self.read_window(&d, addr, count, out).await
                         } else if u32::from(addr) + u32::from(count) > 2 {
                             Err(ILLEGAL_ADDRESS)
                         } else {
-                            let regs = self.holding(d, header[6]);
+                            let regs = self.holding(&d, header[6]);
                             push_regs(out, regs[addr as usize..(addr + count) as usize].iter().copied());
                             Ok(())
                         };
@@ -484,10 +486,13 @@ impl Server {
         values: Regs<'_>,
     ) -> Result<(), u8> {
         let n = values.len();
-        if !conn.may_write || d.locked() {
-            let why = if !conn.may_write && self.config.read_only {
+        // The rules as configured now: a reload changes them for open connections too.
+        let rules = self.gw.config();
+        let may_write = !rules.modbus.read_only && rules.modbus.allow.contains(&conn.ip);
+        if !may_write || d.locked() {
+            let why = if !may_write && rules.modbus.read_only {
                 "forbidden: the Modbus TCP listener is read-only ([modbus] read_only)".to_string()
-            } else if !conn.may_write {
+            } else if !may_write {
                 format!("forbidden: client {} may not write ([modbus] allow)", conn.peer.ip())
             } else {
                 format!("locked: {}", CommandError::Locked(d.config.name.clone()))
@@ -596,7 +601,8 @@ impl Server {
 
 /// A client connection's standing.
 struct Conn {
-    may_write: bool,
+    /// The client's address (IPv4-mapped IPv6 as IPv4), checked against `[modbus] allow`.
+    ip: IpAddr,
     actor: Option<String>,
     peer: SocketAddr,
 }

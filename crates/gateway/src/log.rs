@@ -1,0 +1,92 @@
+//! The service's log on stderr, one line per message or event: plain text (what a person
+//! reads, the default) or JSON (`--log-format json`, for log shippers reading the journal).
+//!
+//! Text: `drivebus serve: MQTT: broker 127.0.0.1:1883: ...` and events as
+//! [`log_line`](crate::gateway::log_line) writes them. JSON: one object per line,
+//! `{"time": "...Z", "level": "info"|"warn", "message": "..."}`, and for an event the event's
+//! fields (`kind`, `bus`, `drive`, `actor`, `action`, `result`, `detail`) beside them.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use drivebus_store::Event;
+use serde_json::{json, Value};
+
+static JSON: AtomicBool = AtomicBool::new(false);
+
+/// How log lines are written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// One sentence per line.
+    Text,
+    /// One JSON object per line.
+    Json,
+}
+
+impl std::str::FromStr for Format {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "text" => Ok(Format::Text),
+            "json" => Ok(Format::Json),
+            other => Err(format!("{other:?}: use text or json")),
+        }
+    }
+}
+
+/// Sets the format of every line from now on (the process's whole log).
+pub fn set_format(f: Format) {
+    JSON.store(f == Format::Json, Ordering::Relaxed);
+}
+
+fn now() -> String {
+    drivebus_store::time::format_rfc3339(crate::gateway::unix_ms())
+}
+
+fn message(level: &str, msg: &str) {
+    if JSON.load(Ordering::Relaxed) {
+        eprintln!("{}", json!({ "time": now(), "level": level, "message": msg }));
+    } else {
+        eprintln!("drivebus serve: {msg}");
+    }
+}
+
+/// Something an operator may want to know (a reload applied, a broker back).
+pub fn info(msg: &str) {
+    message("info", msg);
+}
+
+/// Something that went wrong and that the service works around (a dropped message, a refused
+/// reload, a failed accept).
+pub fn warn(msg: &str) {
+    message("warn", msg);
+}
+
+/// An event (trip, command, reload, ...) as one line.
+pub fn event(e: &Event) {
+    if JSON.load(Ordering::Relaxed) {
+        let mut v = json!({
+            "time": drivebus_store::time::format_rfc3339(e.time_ms),
+            "level": "info",
+            "message": crate::gateway::log_line(e),
+            "kind": e.kind.as_str(),
+        });
+        let o = v.as_object_mut().expect("an object");
+        for (k, x) in [
+            ("bus", &e.bus),
+            ("drive", &e.drive),
+            ("actor", &e.actor),
+            ("action", &e.action),
+            ("result", &e.result),
+        ] {
+            if let Some(x) = x {
+                o.insert(k.into(), Value::String(x.clone()));
+            }
+        }
+        if !e.detail.is_null() {
+            o.insert("detail".into(), e.detail.clone());
+        }
+        eprintln!("{v}");
+    } else {
+        eprintln!("{}", crate::gateway::log_line(e));
+    }
+}

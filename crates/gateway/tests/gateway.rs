@@ -180,3 +180,28 @@ async fn linkage_taking_hold_is_audited_once_not_per_poll() {
     drop(gw);
     let _ = std::fs::remove_file(&path);
 }
+
+/// One profile per drive: what a command teaches the profile shows in the next poll. The
+/// Danfoss profile keeps the reference it sends in every telegram; a second profile for polls
+/// reported 0 Hz after `speed 33` and `run` (the drive ran at 33 Hz).
+#[tokio::test(start_paused = true)]
+async fn a_speed_set_shows_as_the_setpoint_in_the_next_poll_for_every_family() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    settle(2).await;
+    for id in ["conveyor-1", "pump-1", "ahu-1", "mixer-1"] {
+        let mut changes = gw.subscribe();
+        gw.command(id, Command::Speed(33.0), "test").await.unwrap_or_else(|e| panic!("{id}: {e}"));
+        gw.command(id, Command::Run, "test").await.unwrap_or_else(|e| panic!("{id}: {e}"));
+        // A poll already on the wire when the command was confirmed may answer first: the poll
+        // after it is the first that started after the command.
+        let p0 = gw.drive(id).unwrap().state().polls;
+        let polled = loop {
+            match changes.recv().await {
+                Ok(Change::Drive(v)) if v.id == id && v.polls >= p0 + 2 => break v,
+                Ok(_) => {}
+                Err(e) => panic!("{id}: {e}"),
+            }
+        };
+        assert_eq!(polled.setpoint_hz, Some(33.0), "{id}: {polled:?}");
+    }
+}

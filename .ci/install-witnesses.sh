@@ -1,42 +1,61 @@
 #!/usr/bin/env bash
-# Installs the programs nobody here wrote that the interop tests use as witnesses:
-# pymodbus (PyPI), mbpoll, curl and mosquitto (Debian) and, for the dashboard's browser test, Debian's
-# chromium and chromium-driver (chromedriver). Idempotent.
+# Installs the programs nobody here wrote that the tests use as witnesses: pymodbus (PyPI), and
+# from Debian mbpoll, curl, mosquitto, chromium + chromium-driver (the dashboard's browser test)
+# and systemd (systemd-analyze, for the package check); and cargo-deb (crates.io) to build the
+# Debian package. Idempotent: each is installed only when missing.
 set -euo pipefail
-if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
-  # Debian marks its Python "externally managed": fall back to --break-system-packages, and
-  # install pip itself first where it is missing.
-  python3 -m pip --version >/dev/null 2>&1 || {
-    SUDO=""
-    [ "$(id -u)" -eq 0 ] || SUDO="sudo"
-    $SUDO apt-get install -y -q python3-pip >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q python3-pip >/dev/null; }
-  }
-  python3 -m pip install --quiet "pymodbus==3.16.1" pyserial 2>/dev/null \
-    || python3 -m pip install --quiet --break-system-packages "pymodbus==3.16.1" pyserial
-fi
-if ! command -v mbpoll >/dev/null; then
-  SUDO=""
-  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
-  $SUDO apt-get install -y -q mbpoll >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mbpoll >/dev/null; }
-fi
-if ! command -v curl >/dev/null; then
-  # curl drives `drivebus serve` in crates/cli/tests/serve.rs (it falls back to plain HTTP/1.1).
-  SUDO=""
-  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
-  $SUDO apt-get install -y -q curl >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q curl >/dev/null; }
-fi
-if ! command -v chromedriver >/dev/null || ! { command -v chromium >/dev/null || command -v chromium-browser >/dev/null; }; then
-  # Headless Chromium and its WebDriver run the dashboard's browser test (crates/cli/tests/dashboard.rs).
-  SUDO=""
-  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
-  $SUDO apt-get install -y -q chromium chromium-driver >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q chromium chromium-driver >/dev/null; }
-fi
+
+SUDO=""
+[ "$(id -u)" -eq 0 ] || SUDO="sudo"
+APT_UPDATED=""
+
+# apt_install COMMAND PACKAGE...: installs PACKAGE... from Debian unless COMMAND is already on
+# PATH (or in /usr/sbin); updates the package lists once, on the first install that needs it.
+apt_install() {
+  local cmd="$1"
+  shift
+  if command -v "$cmd" >/dev/null || [ -x "/usr/sbin/$cmd" ]; then
+    return 0
+  fi
+  if [ -z "$APT_UPDATED" ] && ! $SUDO apt-get install -y -q "$@" >/dev/null 2>&1; then
+    $SUDO apt-get update -q >/dev/null
+    APT_UPDATED=1
+    $SUDO apt-get install -y -q "$@" >/dev/null
+  elif [ -n "$APT_UPDATED" ]; then
+    $SUDO apt-get install -y -q "$@" >/dev/null
+  fi
+}
+
+# pip_install MODULE REQUIREMENT...: installs the pinned REQUIREMENT... from PyPI unless Python can
+# import MODULE. Debian marks its Python "externally managed": fall back to
+# --break-system-packages, and install pip itself first where it is missing.
+pip_install() {
+  local module="$1"
+  shift
+  if python3 -c "import $module" 2>/dev/null; then
+    return 0
+  fi
+  python3 -m pip --version >/dev/null 2>&1 || apt_install pip3 python3-pip
+  python3 -m pip install --quiet "$@" 2>/dev/null \
+    || python3 -m pip install --quiet --break-system-packages "$@"
+}
+
+pip_install "pymodbus, serial" "pymodbus==3.16.1" pyserial
+apt_install mbpoll mbpoll
+# curl drives `drivebus serve` in crates/cli/tests/serve.rs (it falls back to plain HTTP/1.1).
+apt_install curl curl
+# Headless Chromium and its WebDriver run the dashboard's browser test (crates/cli/tests/dashboard.rs).
+command -v chromium-browser >/dev/null || apt_install chromium chromium chromium-driver
+apt_install chromedriver chromium-driver
 # The MQTT broker the gateway's MQTT test starts on a free port (crates/gateway/tests/mqtt_mosquitto.rs).
-if ! command -v mosquitto >/dev/null && [ ! -x /usr/sbin/mosquitto ]; then
-  SUDO=""
-  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
-  $SUDO apt-get install -y -q mosquitto >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mosquitto >/dev/null; }
+apt_install mosquitto mosquitto
+# systemd-analyze verifies the packaged unit (.ci/package.sh).
+apt_install systemd-analyze systemd
+# cargo-deb builds the Debian package (.ci/package.sh).
+if ! cargo deb --version >/dev/null 2>&1; then
+  cargo install cargo-deb --locked --version 3.8.0 --quiet
 fi
+
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
@@ -44,3 +63,5 @@ curl --version | head -n 1
 chromedriver --version | head -n 1
 MOSQUITTO="$(command -v mosquitto || echo /usr/sbin/mosquitto)"
 "$MOSQUITTO" -h 2>&1 | sed -n 1p || true  # -h exits 3 after printing its version
+systemd-analyze --version | head -n 1
+cargo deb --version

@@ -15,6 +15,12 @@
 //! bus owner ahead of polling, and records the audit event before it answers. A `port =
 //! "virtual"` bus runs simulated drives (drivebus-sim) on a paced virtual line in this process:
 //! that is `drivebus serve --demo`.
+//!
+//! What runs (configuration, buses, drives) is one [`gateway::Topology`], swapped whole by
+//! [`gateway::Gateway::reload`] on SIGHUP: [`reload`] compares the running configuration with
+//! the new one, and entries that did not change are carried over as they are (same bus owner,
+//! statistics and cache), so their polling never stops. [`health`] answers `/healthz` and
+//! `/readyz`; [`log`] writes the service's log lines as text or JSON.
 
 pub mod config;
 pub mod gateway;

@@ -91,7 +91,7 @@ fn start_serve() -> (Proc, SocketAddr, String) {
         std::env::temp_dir().join(format!("drivebus-dashboard-{}-{}.db", std::process::id(), free_port()));
     seed_history(&db);
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--db"])
+        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-opcua", "--db"])
         .arg(&db)
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
@@ -172,7 +172,7 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr) {
     )
     .expect("write the configuration");
     let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--config"])
+        .args(["serve", "--no-opcua", "--config"])
         .arg(&config)
         .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
         .stdout(Stdio::piped())

@@ -51,6 +51,7 @@ impl Gateway {
         let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
             .args([
                 "serve",
+                "--no-opcua",
                 "--log-format",
                 "json",
                 "--http",

@@ -39,7 +39,7 @@ impl Serve {
         let http: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
         let modbus = format!("127.0.0.1:{}", free_port());
         let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-            .args(["serve", "--demo", "--http", &http.to_string(), "--modbus", &modbus, "--db"])
+            .args(["serve", "--demo", "--no-opcua", "--http", &http.to_string(), "--modbus", &modbus, "--db"])
             .arg(dir.join("x.db"))
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -194,7 +194,7 @@ fn serve_config_stderr(dir: &std::path::Path, tokens: &str) -> String {
     )
     .unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--config"])
+        .args(["serve", "--no-opcua", "--config"])
         .arg(&cfg)
         .args([
             "--http",

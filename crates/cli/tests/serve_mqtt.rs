@@ -21,7 +21,7 @@ impl Drop for Serve {
 
 fn serve(name: &str, broker: SocketAddr) -> Serve {
     let child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--no-store", "--name", name])
+        .args(["serve", "--demo", "--no-opcua", "--no-store", "--name", name])
         .args(["--http", &format!("127.0.0.1:{}", free_port())])
         .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
         .args(["--mqtt", &format!("mqtt://{broker}")])
@@ -67,7 +67,7 @@ async fn two_gateway_processes_side_by_side_on_one_broker() {
 #[test]
 fn a_name_that_cannot_be_a_topic_level_is_refused() {
     let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--no-store", "--name", "hall/1"])
+        .args(["serve", "--demo", "--no-opcua", "--no-store", "--name", "hall/1"])
         .output()
         .expect("run drivebus serve");
     assert_eq!(out.status.code(), Some(3));

@@ -96,6 +96,22 @@ pub struct GatewayConfig {
     pub linkage: Vec<Linkage>,
     /// MQTT publishing, if configured.
     pub mqtt: Option<MqttConfig>,
+    /// The OPC UA server (`None`: off).
+    pub opcua: Option<OpcUaConfig>,
+}
+
+/// The OPC UA server (docs/opcua.md).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OpcUaConfig {
+    /// Where to listen (`opc.tcp://` there).
+    pub listen: SocketAddr,
+    /// Whether anonymous sessions may read (default: `[http] anonymous_read`).
+    pub anonymous_read: bool,
+    /// The server's certificate, key and trusted client certificates (default: `pki` beside the
+    /// store).
+    pub pki_dir: Option<PathBuf>,
+    /// Client certificates (DER files) trusted for signed and encrypted sessions.
+    pub trusted_clients: Vec<PathBuf>,
 }
 
 /// The HTTP listener.
@@ -273,6 +289,20 @@ struct FileConfig {
     #[serde(default)]
     linkage: Vec<Spanned<FileLinkage>>,
     mqtt: Option<FileMqtt>,
+    #[serde(default)]
+    opcua: FileOpcUa,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileOpcUa {
+    listen: Option<Spanned<String>>,
+    #[serde(default)]
+    disabled: bool,
+    anonymous_read: Option<bool>,
+    pki_dir: Option<String>,
+    #[serde(default)]
+    trusted_clients: Vec<String>,
 }
 
 #[derive(Deserialize, Default)]
@@ -402,6 +432,23 @@ impl Ctx<'_> {
             _ => key.to_string(),
         })
     }
+}
+
+/// `[opcua]`: on unless `disabled = true`; anonymous reads as `[http]` unless said.
+fn opcua_section(
+    raw: &FileOpcUa,
+    http: &HttpConfig,
+    addr: &dyn Fn(&Option<Spanned<String>>, &str, &str) -> Result<SocketAddr, ConfigError>,
+) -> Result<Option<OpcUaConfig>, ConfigError> {
+    if raw.disabled {
+        return Ok(None);
+    }
+    Ok(Some(OpcUaConfig {
+        listen: addr(&raw.listen, "opcua.listen", "127.0.0.1:4840")?,
+        anonymous_read: raw.anonymous_read.unwrap_or(http.anonymous_read),
+        pki_dir: raw.pki_dir.as_ref().map(PathBuf::from),
+        trusted_clients: raw.trusted_clients.iter().map(PathBuf::from).collect(),
+    }))
 }
 
 /// True for a name of a gateway, bus or drive: letters, digits, `-` and `_`, so it can be an MQTT
@@ -801,7 +848,8 @@ impl GatewayConfig {
         } else {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
-        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt })
+        let opcua = opcua_section(&raw.opcua, &http, &addr)?;
+        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt, opcua })
     }
 
     /// Every drive, in configuration order, with its bus.

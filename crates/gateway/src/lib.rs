@@ -30,6 +30,7 @@ pub mod log;
 pub mod metrics;
 pub mod modbus_tcp;
 pub mod mqtt;
+pub mod opcua;
 pub mod port;
 pub mod reload;
 pub mod server;

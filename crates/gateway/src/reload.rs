@@ -109,6 +109,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("modbus.max_connections", old.modbus.max_connections != new.modbus.max_connections),
         ("store", old.store != new.store),
         ("mqtt", old.mqtt != new.mqtt),
+        ("opcua", old.opcua != new.opcua),
         ("name", old.name != new.name),
     ];
     p.needs_restart = restart.iter().filter(|(_, c)| *c).map(|(n, _)| n.to_string()).collect();

@@ -17,6 +17,8 @@ pub struct Bound {
     pub http: SocketAddr,
     /// The Modbus TCP listener.
     pub modbus: SocketAddr,
+    /// The OPC UA listener, when configured.
+    pub opcua: Option<SocketAddr>,
 }
 
 /// Reads the configuration again for a reload (the file, with the command line's overrides);
@@ -36,11 +38,27 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     let cfg = gw.config();
     gw.health().listener("http", cfg.http.listen, false);
     gw.health().listener("modbus", cfg.modbus.listen, false);
+    if let Some(o) = &cfg.opcua {
+        gw.health().listener("opcua", o.listen, false);
+    }
     let http = bind(cfg.http.listen, "HTTP", "--http").await?;
     let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus").await?;
+    // OPC UA is on by default: a box where 4840 is taken (another OPC UA server) still gets its
+    // gateway, with the listener reported down (log, /readyz, metrics) instead of no gateway.
+    let opcua = match &cfg.opcua {
+        Some(o) => match bind(o.listen, "OPC UA", "--opcua").await {
+            Ok(l) => Some(l),
+            Err(e) => {
+                log::warn(&format!("{e}, or --no-opcua; serving without OPC UA"));
+                None
+            }
+        },
+        None => None,
+    };
     let bound = Bound {
         http: http.local_addr().map_err(|e| e.to_string())?,
         modbus: modbus.local_addr().map_err(|e| e.to_string())?,
+        opcua: opcua.as_ref().map(|l| l.local_addr()).transpose().map_err(|e| e.to_string())?,
     };
     gw.health().listener("http", bound.http, true);
     gw.health().listener("modbus", bound.modbus, true);
@@ -51,6 +69,17 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
     if let Some(m) = &cfg.mqtt {
         crate::mqtt::spawn(gw.clone(), m)?;
+    }
+    if let (Some(o), Some(listener), Some(addr)) = (&cfg.opcua, opcua, bound.opcua) {
+        let serve = crate::opcua::start(gw.clone(), o, listener)?;
+        gw.health().listener("opcua", addr, true);
+        let gw2 = gw.clone();
+        tokio::spawn(async move {
+            if let Err(e) = serve.await {
+                gw2.health().listener("opcua", addr, false);
+                log::warn(&e);
+            }
+        });
     }
     if let Some(loader) = loader {
         tokio::spawn(reload_on_hangup(gw.clone(), loader));

@@ -25,6 +25,12 @@ pub struct ServeArgs {
     /// Listen for Modbus TCP on HOST:PORT (default 127.0.0.1:5020).
     #[arg(long, value_name = "HOST:PORT")]
     pub modbus: Option<SocketAddr>,
+    /// Serve OPC UA on HOST:PORT (default 127.0.0.1:4840; docs/opcua.md).
+    #[arg(long, value_name = "HOST:PORT", conflicts_with = "no_opcua")]
+    pub opcua: Option<SocketAddr>,
+    /// No OPC UA server.
+    #[arg(long)]
+    pub no_opcua: bool,
     /// Publish to an MQTT broker, mqtt://HOST:PORT.
     #[arg(long, value_name = "URL")]
     pub mqtt: Option<String>,
@@ -86,6 +92,20 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
     }
     if let Some(a) = args.modbus {
         config.modbus.listen = a;
+    }
+    if args.no_opcua {
+        config.opcua = None;
+    } else if let Some(a) = args.opcua {
+        let http = config.http.anonymous_read;
+        config
+            .opcua
+            .get_or_insert(drivebus_gateway::config::OpcUaConfig {
+                listen: a,
+                anonymous_read: http,
+                pki_dir: None,
+                trusted_clients: Vec::new(),
+            })
+            .listen = a;
     }
     if let Some(url) = &args.mqtt {
         if !url.starts_with("mqtt://") {
@@ -165,6 +185,9 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  dashboard   http://{}/", bound.http);
             println!("  HTTP API    http://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
+            if let Some(a) = bound.opcua {
+                println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");
+            }
             if let Some(m) = &gw.config().mqtt {
                 let prefix = m
                     .topic_prefix

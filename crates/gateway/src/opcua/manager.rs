@@ -1,0 +1,270 @@
+//! The node manager of `urn:drivebus`: reads of cache variables come from the address space
+//! (kept current by [`super::publish`]), reads of parameters go to the drive, writes and method
+//! calls become gateway commands, answered when the drive confirmed, with a status code that
+//! says why not.
+
+use std::sync::Arc;
+
+use async_trait::async_trait;
+use opcua::server::address_space::AddressSpace;
+use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::node_manager::memory::InMemoryNodeManagerImpl;
+use opcua::server::node_manager::{MethodCall, ParsedReadValueId, RequestContext, ServerContext, WriteNode};
+use opcua::sync::RwLock;
+use opcua::types::{
+    AttributeId, DataValue, DateTime, DiagnosticInfo, StatusCode, TimestampsToReturn, UAString, Variant,
+};
+
+use super::nodes::{Ids, Target};
+use crate::config::Role;
+use crate::gateway::{Command, CommandError, Gateway};
+
+/// The node manager's own part: the gateway and the namespace's index.
+pub struct DriveNodes {
+    gw: Arc<Gateway>,
+    ids: Ids,
+    namespace: NamespaceMetadata,
+    /// Told once the address space is built, so the publisher starts filling it.
+    built: Arc<tokio::sync::Notify>,
+}
+
+impl DriveNodes {
+    /// A node manager for `gw` in `namespace` (its index already assigned).
+    pub fn new(gw: Arc<Gateway>, namespace: NamespaceMetadata) -> Self {
+        DriveNodes {
+            gw,
+            ids: Ids { ns: namespace.namespace_index },
+            namespace,
+            built: Arc::new(tokio::sync::Notify::new()),
+        }
+    }
+
+    /// Wakes (once) when the address space is built.
+    pub fn built(&self) -> Arc<tokio::sync::Notify> {
+        self.built.clone()
+    }
+}
+
+/// A command's failure in OPC UA's words (docs/opcua.md, "Status codes").
+pub fn status_of(e: &CommandError) -> StatusCode {
+    match e {
+        CommandError::UnknownDrive(_) => StatusCode::BadNodeIdUnknown,
+        CommandError::Locked(_) => StatusCode::BadNotWritable,
+        CommandError::Invalid(_) => StatusCode::BadOutOfRange,
+        CommandError::Refused { .. } => StatusCode::BadInvalidState,
+        CommandError::Unsupported(_) => StatusCode::BadNotSupported,
+        CommandError::NoAnswer(_) => StatusCode::BadTimeout,
+        CommandError::LinkDown(_) => StatusCode::BadNoCommunication,
+        CommandError::Protocol(_) => StatusCode::BadCommunicationError,
+    }
+}
+
+fn diagnostics(why: &str) -> DiagnosticInfo {
+    DiagnosticInfo { additional_info: Some(UAString::from(why)), ..Default::default() }
+}
+
+/// The audit trail's actor of a request: `opcua:<user>@<client>`, where the client is the
+/// application URI the client gave for its session (async-opcua does not hand node managers the
+/// peer's address).
+fn actor(context: &RequestContext) -> String {
+    let session = context.session().read();
+    let app = session.application_description().application_uri.as_ref().to_string();
+    let client = if app.is_empty() { format!("session-{}", context.session_id()) } else { app };
+    let user = &context.user_token().0;
+    let user = if user == super::auth::ANONYMOUS { "anonymous" } else { user.as_str() };
+    format!("opcua:{user}@{client}")
+}
+
+/// `Ok` when the session's user may write; the status code and a sentence otherwise.
+fn may_write(gw: &Gateway, context: &RequestContext) -> Result<(), (StatusCode, String)> {
+    match super::auth::role(gw, context.user_token()) {
+        Some(Role::Write) => Ok(()),
+        Some(Role::Read) => Err((StatusCode::BadUserAccessDenied, "this user's token has role read".into())),
+        None => Err((
+            StatusCode::BadUserAccessDenied,
+            "log in with a write token to write or call methods".into(),
+        )),
+    }
+}
+
+/// A Double from a written or passed value; `BadTypeMismatch` for any other type.
+fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
+    match v {
+        Some(Variant::Double(x)) => Ok(*x),
+        Some(Variant::Float(x)) => Ok(f64::from(*x)),
+        _ => Err(StatusCode::BadTypeMismatch),
+    }
+}
+
+impl DriveNodes {
+    async fn read_parameter(&self, drive: &str, name: &str) -> DataValue {
+        match self.gw.read_param(drive, name).await {
+            Ok(r) => {
+                let now = DateTime::now();
+                DataValue {
+                    value: Some(Variant::Double(r.value)),
+                    status: Some(StatusCode::Good),
+                    source_timestamp: Some(now),
+                    server_timestamp: Some(now),
+                    ..Default::default()
+                }
+            }
+            Err(e) => DataValue {
+                status: Some(status_of(&e)),
+                server_timestamp: Some(DateTime::now()),
+                ..Default::default()
+            },
+        }
+    }
+
+    /// Runs `command` for the session; the status code says how it ended.
+    async fn run(
+        &self,
+        context: &RequestContext,
+        drive: &str,
+        command: Command,
+    ) -> Result<(), (StatusCode, String)> {
+        let who = actor(context);
+        if let Err((code, why)) = may_write(&self.gw, context) {
+            self.gw.audit_refusal(drive, &who, &command.action(), &format!("forbidden: {why}")).await;
+            return Err((code, why));
+        }
+        self.gw.command(drive, command, &who).await.map_err(|e| (status_of(&e), e.to_string()))
+    }
+}
+
+#[async_trait]
+impl InMemoryNodeManagerImpl for DriveNodes {
+    async fn init(&self, space: &mut AddressSpace, _context: ServerContext) {
+        super::nodes::build(space, &self.ids, &self.gw.drives(), &self.gw.buses());
+        self.built.notify_one();
+    }
+
+    fn name(&self) -> &str {
+        "drivebus"
+    }
+
+    fn namespaces(&self) -> Vec<NamespaceMetadata> {
+        vec![self.namespace.clone()]
+    }
+
+    async fn read_values(
+        &self,
+        context: &RequestContext,
+        address_space: &RwLock<AddressSpace>,
+        nodes: &[&ParsedReadValueId],
+        max_age: f64,
+        timestamps_to_return: TimestampsToReturn,
+    ) -> Vec<DataValue> {
+        let mut out = Vec::with_capacity(nodes.len());
+        for n in nodes {
+            let param = match (&n.attribute_id, self.ids.target(&n.node_id)) {
+                (AttributeId::Value, Target::Parameter { drive, name }) => Some((drive, name)),
+                _ => None,
+            };
+            match param {
+                // A parameter is read from the drive when it is read: never a stale value.
+                Some((drive, name)) => out.push(self.read_parameter(&drive, &name).await),
+                None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
+            }
+        }
+        out
+    }
+
+    async fn write(
+        &self,
+        context: &RequestContext,
+        address_space: &RwLock<AddressSpace>,
+        nodes_to_write: &mut [&mut WriteNode],
+    ) -> Result<(), StatusCode> {
+        for w in nodes_to_write.iter_mut() {
+            let value = w.value();
+            if value.attribute_id != AttributeId::Value {
+                w.set_status(StatusCode::BadNotWritable);
+                continue;
+            }
+            if address_space.read().find(&value.node_id).is_none() {
+                w.set_status(StatusCode::BadNodeIdUnknown);
+                continue;
+            }
+            let command = match self.ids.target(&value.node_id) {
+                Target::DriveVariable { drive, variable } if variable == "Setpoint" => {
+                    double(value.value.value.as_ref()).map(|hz| (drive, Command::Speed(hz)))
+                }
+                Target::Parameter { drive, name } => {
+                    let read_only =
+                        self.gw.drive(&drive).ok().and_then(|d| d.param(&name).ok().map(|p| p.read_only));
+                    match read_only {
+                        Some(false) => double(value.value.value.as_ref()).map(|x| {
+                            (drive, Command::SetParam { name, value: format!("{x}"), eeprom: false })
+                        }),
+                        _ => Err(StatusCode::BadNotWritable),
+                    }
+                }
+                _ => Err(StatusCode::BadNotWritable),
+            };
+            let status = match command {
+                Err(code) => code,
+                Ok((drive, command)) => match self.run(context, &drive, command).await {
+                    Ok(()) => StatusCode::Good,
+                    Err((code, why)) => {
+                        w.set_diagnostic_info(diagnostics(&why));
+                        code
+                    }
+                },
+            };
+            w.set_status(status);
+        }
+        Ok(())
+    }
+
+    async fn call(
+        &self,
+        context: &RequestContext,
+        _address_space: &RwLock<AddressSpace>,
+        methods_to_call: &mut [&mut &mut MethodCall],
+    ) -> Result<(), StatusCode> {
+        for m in methods_to_call.iter_mut() {
+            let Target::Method { drive, method } = self.ids.target(m.method_id()) else {
+                m.set_status(StatusCode::BadMethodInvalid);
+                continue;
+            };
+            if self.ids.drive(&drive) != *m.object_id() {
+                m.set_status(StatusCode::BadMethodInvalid);
+                continue;
+            }
+            let command = match method.as_str() {
+                "Run" => Ok(Command::Run),
+                "Stop" => Ok(Command::Stop),
+                "Reverse" => Ok(Command::Reverse),
+                "Reset" => Ok(Command::Reset),
+                "SetSpeed" => match m.arguments() {
+                    [hz] => match double(Some(hz)) {
+                        Ok(hz) => Ok(Command::Speed(hz)),
+                        Err(code) => {
+                            m.set_argument_error(vec![code]);
+                            continue;
+                        }
+                    },
+                    [] => Err(StatusCode::BadArgumentsMissing),
+                    _ => Err(StatusCode::BadTooManyArguments),
+                },
+                _ => Err(StatusCode::BadMethodInvalid),
+            };
+            match command {
+                Err(code) => m.set_status(code),
+                Ok(command) => match self.run(context, &drive, command).await {
+                    Ok(()) => {
+                        m.set_outputs(Vec::new());
+                        m.set_status(StatusCode::Good);
+                    }
+                    Err((code, why)) => {
+                        m.set_diagnostic_info(diagnostics(&why));
+                        m.set_status(code);
+                    }
+                },
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,369 @@
+//! The OPC UA front end (async-opcua): every drive and bus of the gateway as objects in the
+//! namespace `urn:drivebus` ([`nodes`]), values from the cache with the time the drive answered
+//! and a status that tells the truth ([`publish`]), writes and methods as gateway commands
+//! ([`manager`]), the gateway's tokens as users ([`auth`]). docs/opcua.md describes it for
+//! integrators.
+//!
+//! Subscriptions cost no bus traffic: the publisher moves each poll's values into the address
+//! space once, and async-opcua notifies the monitored items of the values that changed.
+
+pub mod auth;
+pub mod manager;
+pub mod nodes;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use opcua::crypto::SecurityPolicy;
+use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder};
+use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken, SubscriptionCache};
+use opcua::types::{
+    BuildInfo, ByteString, DataValue, DateTime, LocalizedText, MessageSecurityMode, NodeId, ObjectId,
+    StatusCode, UAString, Variant,
+};
+use tokio::net::TcpListener;
+
+use crate::config::OpcUaConfig;
+use crate::gateway::{BusView, Change, DriveView, Gateway};
+use manager::DriveNodes;
+use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
+
+/// The placeholder user that lets endpoints offer user name logins (the users themselves are
+/// the gateway's tokens, checked by [`auth::TokenAuth`]).
+const TOKEN_USERS: &str = "tokens";
+
+/// Where the server's certificate, key and trusted client certificates live: `[opcua] pki_dir`,
+/// else `pki` beside the store, else `pki` in the working directory.
+pub fn pki_dir(gw: &Gateway, cfg: &OpcUaConfig) -> PathBuf {
+    if let Some(p) = &cfg.pki_dir {
+        return p.clone();
+    }
+    match gw.config().store.as_ref().and_then(|s| s.parent().map(|p| p.to_path_buf())) {
+        Some(dir) if !dir.as_os_str().is_empty() => dir.join("pki"),
+        _ => PathBuf::from("pki"),
+    }
+}
+
+/// Copies the client certificates of `[opcua] trusted_clients` into `pki/trusted`, where
+/// the server looks for them. Returns how many.
+pub fn trust_clients(pki: &std::path::Path, certs: &[PathBuf]) -> Result<usize, String> {
+    let dir = pki.join("trusted");
+    std::fs::create_dir_all(&dir).map_err(|e| format!("OPC UA: cannot make {}: {e}", dir.display()))?;
+    for c in certs {
+        let bytes = std::fs::read(c).map_err(|e| {
+            format!(
+                "OPC UA: cannot read the client certificate {} ([opcua] trusted_clients): {e}",
+                c.display()
+            )
+        })?;
+        // The server finds a trusted certificate by its own file name for it (subject and
+        // thumbprint), so a DER file that does not parse is refused here, with its path.
+        let cert = opcua::crypto::X509::from_der(&bytes).map_err(|e| {
+            format!("OPC UA: {} is not a DER certificate ([opcua] trusted_clients): {e}", c.display())
+        })?;
+        let name = opcua::crypto::CertificateStore::cert_file_name(&cert);
+        std::fs::write(dir.join(&name), bytes)
+            .map_err(|e| format!("OPC UA: cannot write {}: {e}", dir.join(&name).display()))?;
+    }
+    Ok(certs.len())
+}
+
+/// Builds the OPC UA server for `listener` (creating its certificate on first start; errors
+/// here stop `serve` at start, with the reason) and returns what serves it until the process
+/// ends, keeping the address space current from the cache.
+pub fn start(
+    gw: Arc<Gateway>,
+    cfg: &OpcUaConfig,
+    listener: TcpListener,
+) -> Result<impl std::future::Future<Output = Result<(), String>>, String> {
+    let addr = listener.local_addr().map_err(|e| e.to_string())?;
+    let pki = pki_dir(&gw, cfg);
+    trust_clients(&pki, &cfg.trusted_clients)?;
+    let (server, handle) = build(&gw, addr, &pki)?;
+    let ns = handle
+        .get_namespace_index(nodes::NAMESPACE)
+        .ok_or_else(|| "OPC UA: the namespace urn:drivebus is missing".to_string())?;
+    let manager = handle
+        .node_managers()
+        .get_of_type::<InMemoryNodeManager<DriveNodes>>()
+        .ok_or_else(|| "OPC UA: the drive node manager is missing".to_string())?;
+    let built = manager.inner().built();
+    Ok(async move {
+        tokio::spawn(async move {
+            built.notified().await;
+            publish(gw.clone(), Ids { ns }, manager, handle.clone()).await
+        });
+        server.run_with(listener).await.map_err(|e| format!("OPC UA server stopped: {e}"))
+    })
+}
+
+/// The server and its handle: endpoints (None; Basic256Sha256 Sign and SignAndEncrypt), the
+/// certificate in `pki` (made on first start), the tokens as users, the drive node manager.
+fn build(
+    gw: &Arc<Gateway>,
+    addr: std::net::SocketAddr,
+    pki: &std::path::Path,
+) -> Result<(opcua::server::Server, ServerHandle), String> {
+    let gw_nodes = gw.clone();
+    let users = [TOKEN_USERS.to_string(), auth::ANONYMOUS.to_string()];
+    let endpoints = [
+        ("none", ServerEndpoint::new_none("/", &users)),
+        (
+            "basic256sha256_sign",
+            ServerEndpoint::new("/", SecurityPolicy::Basic256Sha256, MessageSecurityMode::Sign, &users),
+        ),
+        (
+            "basic256sha256_sign_encrypt",
+            ServerEndpoint::new(
+                "/",
+                SecurityPolicy::Basic256Sha256,
+                MessageSecurityMode::SignAndEncrypt,
+                &users,
+            ),
+        ),
+    ];
+    let mut builder = ServerBuilder::new()
+        .application_name("drivebus gateway")
+        .application_uri(format!("urn:drivebus:gateway:{}", gw.config().name))
+        .product_uri("urn:drivebus")
+        .build_info(BuildInfo {
+            product_uri: "urn:drivebus".into(),
+            manufacturer_name: "drivebus".into(),
+            product_name: "drivebus gateway".into(),
+            software_version: env!("CARGO_PKG_VERSION").into(),
+            build_number: "0".into(),
+            build_date: DateTime::now(),
+        })
+        .host(addr.ip().to_string())
+        .discovery_urls(vec![format!("opc.tcp://{addr}/")])
+        .port(addr.port())
+        .pki_dir(pki)
+        .create_sample_keypair(true)
+        .trust_client_certs(false)
+        .add_user_token(TOKEN_USERS, ServerUserToken::user_pass(TOKEN_USERS, ""))
+        .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone())))
+        .with_node_manager(InMemoryNodeManagerBuilder::new(
+            move |context: opcua::server::node_manager::ServerContext,
+                  space: &mut opcua::server::address_space::AddressSpace| {
+                let index = context.type_tree.write().namespaces_mut().add_namespace(nodes::NAMESPACE);
+                space.add_namespace(nodes::NAMESPACE, index);
+                DriveNodes::new(
+                    gw_nodes,
+                    NamespaceMetadata {
+                        namespace_uri: nodes::NAMESPACE.to_string(),
+                        namespace_index: index,
+                        ..Default::default()
+                    },
+                )
+            },
+        ));
+    for (id, e) in endpoints {
+        builder = builder.add_endpoint(id, e);
+    }
+    builder = builder.default_endpoint("none");
+    builder.build().map_err(|e| format!("OPC UA: cannot start the server: {e}"))
+}
+
+/// Unix milliseconds as an OPC UA DateTime (100 ns ticks since 1601).
+pub fn datetime_ms(ms: i64) -> DateTime {
+    DateTime::from(ms.saturating_mul(10_000).saturating_add(116_444_736_000_000_000))
+}
+
+/// The status of a drive's values: Good while fresh, Uncertain when older than three poll
+/// intervals, Bad_NoCommunication while the drive or its bus is offline, Bad_WaitingForInitialData
+/// before the first answer. Never a stale value marked Good.
+pub fn quality(v: &DriveView, bus_online: bool) -> StatusCode {
+    if v.online == Some(false) || !bus_online {
+        StatusCode::BadNoCommunication
+    } else if v.last_seen_ms.is_none() {
+        StatusCode::BadWaitingForInitialData
+    } else if v.age_ms.is_some_and(|a| a > 3 * v.poll_ms) {
+        StatusCode::UncertainLastUsableValue
+    } else {
+        StatusCode::Good
+    }
+}
+
+/// A drive's variables as values, in [`DRIVE_VARIABLES`] order. `Online`, `AgeMs` and
+/// `ErrorRate` are the gateway's own knowledge and always Good.
+pub fn drive_values(v: &DriveView, bus_online: bool) -> Vec<(Variant, StatusCode)> {
+    let q = quality(v, bus_online);
+    let opt = |x: Option<f64>| x.map_or(Variant::Empty, Variant::Double);
+    DRIVE_VARIABLES
+        .iter()
+        .map(|def| match def.name {
+            "OutputFrequency" => (opt(v.output_hz), q),
+            "Setpoint" => (opt(v.setpoint_hz), q),
+            "Current" => (opt(v.current_a), q),
+            "Running" => (v.running.map_or(Variant::Empty, Variant::Boolean), q),
+            "Direction" => (Variant::String(UAString::from(v.direction.clone().unwrap_or_default())), q),
+            "FaultCode" => (Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)), q),
+            "FaultText" => (
+                Variant::String(UAString::from(v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default())),
+                q,
+            ),
+            "Online" => (Variant::Boolean(v.online == Some(true) && bus_online), StatusCode::Good),
+            "AgeMs" => (v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)), StatusCode::Good),
+            _ => (Variant::Double(v.error_rate), StatusCode::Good),
+        })
+        .collect()
+}
+
+/// A bus's variables as values, in [`BUS_VARIABLES`] order.
+pub fn bus_values(b: &BusView) -> Vec<Variant> {
+    BUS_VARIABLES
+        .iter()
+        .map(|def| match def.name {
+            "Transactions" => Variant::UInt64(b.transactions),
+            "Timeouts" => Variant::UInt64(b.timeouts),
+            "ChecksumErrors" => Variant::UInt64(b.checksum_errors),
+            "Retries" => Variant::UInt64(b.retries),
+            "Utilization" => Variant::Double(b.utilization),
+            _ => Variant::Boolean(b.online),
+        })
+        .collect()
+}
+
+/// What was last put in the address space per node: a poll that changes nothing publishes
+/// nothing.
+type Last = std::collections::HashMap<NodeId, (Variant, StatusCode)>;
+
+fn publish_drive(
+    manager: &InMemoryNodeManager<DriveNodes>,
+    subs: &SubscriptionCache,
+    ids: &Ids,
+    last: &mut Last,
+    v: &DriveView,
+    bus_online: bool,
+) {
+    let source = v.last_seen_ms.map(datetime_ms);
+    let now = DateTime::now();
+    let mut changed = Vec::new();
+    for (def, (value, status)) in DRIVE_VARIABLES.iter().zip(drive_values(v, bus_online)) {
+        let id = ids.drive_member(&v.id, def.name);
+        if last.get(&id).is_some_and(|(lv, ls)| *lv == value && *ls == status) {
+            continue;
+        }
+        last.insert(id.clone(), (value.clone(), status));
+        let dv = DataValue {
+            value: Some(value),
+            status: Some(status),
+            source_timestamp: source.or(Some(now)),
+            server_timestamp: Some(now),
+            ..Default::default()
+        };
+        changed.push((id, dv));
+    }
+    if !changed.is_empty()
+        && manager.set_values(subs, changed.iter().map(|(id, dv)| (id, None, dv.clone()))).is_err()
+    {
+        // Not in the address space (yet): publish it in full next time.
+        for (id, _) in &changed {
+            last.remove(id);
+        }
+    }
+}
+
+fn publish_bus(
+    manager: &InMemoryNodeManager<DriveNodes>,
+    subs: &SubscriptionCache,
+    ids: &Ids,
+    last: &mut Last,
+    b: &BusView,
+) {
+    let now = DateTime::now();
+    let mut changed = Vec::new();
+    for (def, value) in BUS_VARIABLES.iter().zip(bus_values(b)) {
+        let id = ids.bus_member(&b.name, def.name);
+        if last.get(&id).is_some_and(|(lv, _)| *lv == value) {
+            continue;
+        }
+        last.insert(id.clone(), (value.clone(), StatusCode::Good));
+        changed.push((id, DataValue::new_at(value, now)));
+    }
+    if !changed.is_empty() {
+        let _ = manager.set_values(subs, changed.iter().map(|(id, dv)| (id, None, dv.clone())));
+    }
+}
+
+/// Raises an event of the audit trail (trip, fault reset, online, offline, bus online or
+/// offline) on its drive or bus object and on the Server object.
+fn raise(subs: &SubscriptionCache, ids: &Ids, gw: &Gateway, e: &drivebus_store::Event) {
+    use drivebus_store::EventKind as K;
+    let severity = match e.kind {
+        K::Trip => 800,
+        K::Offline | K::BusOffline => 600,
+        K::FaultReset | K::Online | K::BusOnline => 300,
+        _ => return,
+    };
+    let (source, name) = match (&e.drive, &e.bus) {
+        (Some(d), _) if gw.drive(d).is_ok() => (ids.drive(d), d.clone()),
+        (None, Some(b)) => (ids.bus(b), b.clone()),
+        _ => return,
+    };
+    let event_id = ByteString::from(format!("{}-{}-{}", e.kind.as_str(), name, e.time_ms).into_bytes());
+    let event = opcua::server::address_space::BaseEventType::new(
+        opcua::types::ObjectTypeId::BaseEventType,
+        event_id,
+        LocalizedText::from(crate::gateway::log_line(e).as_str()),
+        datetime_ms(e.time_ms),
+    )
+    .set_source_node(source.clone())
+    .set_source_name(UAString::from(name.as_str()))
+    .set_severity(severity);
+    let server: NodeId = ObjectId::Server.into();
+    let folder = if e.drive.is_some() { ids.drives() } else { ids.buses() };
+    subs.notify_events(
+        [
+            (&event as &dyn opcua::server::address_space::Event, &source),
+            (&event as &dyn opcua::server::address_space::Event, &folder),
+            (&event as &dyn opcua::server::address_space::Event, &server),
+        ]
+        .into_iter(),
+    );
+}
+
+/// Keeps the address space current: each drive refresh and bus statistic from the gateway's
+/// changes, the audit trail's events as OPC UA events, and once a second the ages (values that
+/// go stale turn Uncertain even when no poll comes).
+async fn publish(
+    gw: Arc<Gateway>,
+    ids: Ids,
+    manager: Arc<InMemoryNodeManager<DriveNodes>>,
+    handle: ServerHandle,
+) {
+    let subs = handle.subscriptions().clone();
+    let mut changes = gw.subscribe();
+    let mut last = Last::new();
+    let bus_online =
+        |gw: &Gateway, bus: &str| gw.buses().iter().find(|b| b.config.name == bus).is_none_or(|b| b.online());
+    for d in gw.drives().iter() {
+        let v = gw.drive_view(d);
+        publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
+    }
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    loop {
+        tokio::select! {
+            c = changes.recv() => match c {
+                Ok(Change::Drive(v)) => {
+                    if gw.drive(&v.id).is_ok() {
+                        publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
+                    }
+                }
+                Ok(Change::Bus(b)) => publish_bus(&manager, &subs, &ids, &mut last, &b),
+                Ok(Change::Event(e)) => raise(&subs, &ids, &gw, &e),
+                // Fell behind: the next tick and polls bring every value back.
+                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
+            },
+            _ = tick.tick() => {
+                for d in gw.drives().iter() {
+                    let v = gw.drive_view(d);
+                    publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,419 @@
+//! The address space in the namespace `urn:drivebus`: string node ids built from names, so they
+//! stay the same across restarts (`ns=<urn:drivebus>;s=Drives/pump-1/OutputFrequency`).
+//!
+//! ```text
+//! Objects
+//! ├─ Drives                       folder
+//! │  └─ <drive id>                DriveType; events: trips, resets, online/offline
+//! │     ├─ OutputFrequency ...    variables from the cache (see DRIVE_VARIABLES)
+//! │     ├─ Run Stop Reverse Reset SetSpeed(hz)   methods
+//! │     └─ Parameters/<name>      every catalog parameter, read from the drive when read
+//! └─ Buses                        folder
+//!    └─ <bus name>                BusType; events: bus offline/online
+//!       └─ Transactions ...       the bus owner's statistics (see BUS_VARIABLES)
+//! ```
+
+use opcua::server::address_space::{
+    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, ObjectTypeBuilder, VariableBuilder,
+};
+use opcua::types::{
+    DataTypeId, EUInformation, LocalizedText, NodeId, ObjectId, ObjectTypeId, QualifiedName, Range,
+    ReferenceTypeId, UAString, VariableTypeId, Variant,
+};
+
+use crate::gateway::{BusEntry, DriveEntry};
+
+/// The namespace of every node of the gateway.
+pub const NAMESPACE: &str = "urn:drivebus";
+
+/// An engineering unit of UNECE Recommendation 20, as OPC UA's EUInformation names it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Unit {
+    /// The common code (`HTZ`).
+    pub code: &'static str,
+    /// The symbol shown (`Hz`).
+    pub symbol: &'static str,
+    /// The unit's name.
+    pub name: &'static str,
+}
+
+/// Hertz.
+pub const HERTZ: Unit = Unit { code: "HTZ", symbol: "Hz", name: "hertz" };
+/// Ampere.
+pub const AMPERE: Unit = Unit { code: "AMP", symbol: "A", name: "ampere" };
+/// Millisecond.
+pub const MILLISECOND: Unit = Unit { code: "C26", symbol: "ms", name: "millisecond" };
+
+impl Unit {
+    /// The unit as OPC UA's EUInformation: UnitId is the common code's three characters, one
+    /// byte each (OPC UA Part 8, 5.6.3).
+    pub fn eu_information(&self) -> EUInformation {
+        let id = self.code.bytes().fold(0i32, |acc, b| (acc << 8) | i32::from(b));
+        EUInformation {
+            namespace_uri: UAString::from("http://www.opcfoundation.org/UA/units/un/cefact"),
+            unit_id: id,
+            display_name: LocalizedText::new("", self.symbol),
+            description: LocalizedText::new("", self.name),
+        }
+    }
+
+    /// The unit of a catalog parameter's unit text (`Hz`, `A`, `ms`), if it is one of these.
+    pub fn from_symbol(symbol: &str) -> Option<Unit> {
+        [HERTZ, AMPERE, MILLISECOND].into_iter().find(|u| u.symbol == symbol)
+    }
+}
+
+/// One variable of a drive or bus object.
+#[derive(Clone, Copy, Debug)]
+pub struct VariableDef {
+    /// Its browse name.
+    pub name: &'static str,
+    /// Its data type.
+    pub data_type: DataTypeId,
+    /// Its unit, if it has one.
+    pub unit: Option<Unit>,
+    /// Its range (EURange), where known.
+    pub range: Option<(f64, f64)>,
+    /// Whether a client may write it (with a write token).
+    pub writable: bool,
+}
+
+const fn var(name: &'static str, data_type: DataTypeId, unit: Option<Unit>) -> VariableDef {
+    VariableDef { name, data_type, unit, range: None, writable: false }
+}
+
+/// The variables of a drive, from the cache.
+pub const DRIVE_VARIABLES: &[VariableDef] = &[
+    var("OutputFrequency", DataTypeId::Double, Some(HERTZ)),
+    VariableDef { writable: true, ..var("Setpoint", DataTypeId::Double, Some(HERTZ)) },
+    var("Current", DataTypeId::Double, Some(AMPERE)),
+    var("Running", DataTypeId::Boolean, None),
+    var("Direction", DataTypeId::String, None),
+    var("FaultCode", DataTypeId::UInt32, None),
+    var("FaultText", DataTypeId::String, None),
+    var("Online", DataTypeId::Boolean, None),
+    var("AgeMs", DataTypeId::Double, Some(MILLISECOND)),
+    VariableDef { range: Some((0.0, 1.0)), ..var("ErrorRate", DataTypeId::Double, None) },
+];
+
+/// The variables of a bus, from the bus owner's statistics.
+pub const BUS_VARIABLES: &[VariableDef] = &[
+    var("Transactions", DataTypeId::UInt64, None),
+    var("Timeouts", DataTypeId::UInt64, None),
+    var("ChecksumErrors", DataTypeId::UInt64, None),
+    var("Retries", DataTypeId::UInt64, None),
+    VariableDef { range: Some((0.0, 1.0)), ..var("Utilization", DataTypeId::Double, None) },
+    var("Online", DataTypeId::Boolean, None),
+];
+
+/// The methods of a drive; `SetSpeed` takes one Double argument, `hz`.
+pub const DRIVE_METHODS: &[&str] = &["Run", "Stop", "Reverse", "Reset", "SetSpeed"];
+
+/// Node ids of the gateway's namespace (index `ns` on this server).
+#[derive(Clone, Copy, Debug)]
+pub struct Ids {
+    /// The namespace index of `urn:drivebus`.
+    pub ns: u16,
+}
+
+impl Ids {
+    fn id(&self, path: impl Into<String>) -> NodeId {
+        NodeId::new(self.ns, path.into())
+    }
+    /// `Drives`.
+    pub fn drives(&self) -> NodeId {
+        self.id("Drives")
+    }
+    /// `Buses`.
+    pub fn buses(&self) -> NodeId {
+        self.id("Buses")
+    }
+    /// `DriveType`.
+    pub fn drive_type(&self) -> NodeId {
+        self.id("DriveType")
+    }
+    /// `BusType`.
+    pub fn bus_type(&self) -> NodeId {
+        self.id("BusType")
+    }
+    /// `Drives/<drive>`.
+    pub fn drive(&self, drive: &str) -> NodeId {
+        self.id(format!("Drives/{drive}"))
+    }
+    /// `Drives/<drive>/<member>` (a variable or a method).
+    pub fn drive_member(&self, drive: &str, member: &str) -> NodeId {
+        self.id(format!("Drives/{drive}/{member}"))
+    }
+    /// `Drives/<drive>/Parameters/<name>`.
+    pub fn parameter(&self, drive: &str, name: &str) -> NodeId {
+        self.id(format!("Drives/{drive}/Parameters/{name}"))
+    }
+    /// `Buses/<bus>`.
+    pub fn bus(&self, bus: &str) -> NodeId {
+        self.id(format!("Buses/{bus}"))
+    }
+    /// `Buses/<bus>/<member>`.
+    pub fn bus_member(&self, bus: &str, member: &str) -> NodeId {
+        self.id(format!("Buses/{bus}/{member}"))
+    }
+}
+
+/// What a node of the namespace is, from its id.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Target {
+    /// A drive's cache variable (`Drives/<drive>/<variable>`).
+    DriveVariable {
+        /// The drive's id.
+        drive: String,
+        /// The variable's name.
+        variable: String,
+    },
+    /// A drive's method (`Drives/<drive>/<method>`).
+    Method {
+        /// The drive's id.
+        drive: String,
+        /// The method's name.
+        method: String,
+    },
+    /// A catalog parameter (`Drives/<drive>/Parameters/<name>`).
+    Parameter {
+        /// The drive's id.
+        drive: String,
+        /// The manual's name.
+        name: String,
+    },
+    /// Anything else of the namespace.
+    Other,
+}
+
+impl Ids {
+    /// What `id` names, if it is of this namespace.
+    pub fn target(&self, id: &NodeId) -> Target {
+        if id.namespace != self.ns {
+            return Target::Other;
+        }
+        let opcua::types::Identifier::String(s) = &id.identifier else { return Target::Other };
+        let s = s.as_ref();
+        let Some(rest) = s.strip_prefix("Drives/") else { return Target::Other };
+        let mut parts = rest.splitn(3, '/');
+        let (Some(drive), Some(member)) = (parts.next(), parts.next()) else { return Target::Other };
+        let drive = drive.to_string();
+        match (member, parts.next()) {
+            ("Parameters", Some(name)) => Target::Parameter { drive, name: name.to_string() },
+            (m, None) if DRIVE_METHODS.contains(&m) => Target::Method { drive, method: m.to_string() },
+            (v, None) if DRIVE_VARIABLES.iter().any(|d| d.name == v) => {
+                Target::DriveVariable { drive, variable: v.to_string() }
+            }
+            _ => Target::Other,
+        }
+    }
+}
+
+impl Ids {
+    /// A browse name in the gateway's namespace.
+    pub fn name(&self, name: &str) -> QualifiedName {
+        QualifiedName::new(self.ns, name)
+    }
+}
+
+fn add_variable(space: &mut AddressSpace, ids: &Ids, id: &NodeId, parent: &NodeId, def: &VariableDef) {
+    let mut b = VariableBuilder::new(id, ids.name(def.name), def.name)
+        .data_type(def.data_type)
+        .value(Variant::Empty)
+        .has_type_definition(if def.unit.is_some() || def.range.is_some() {
+            VariableTypeId::AnalogItemType
+        } else {
+            VariableTypeId::BaseDataVariableType
+        })
+        .component_of(parent.clone());
+    if def.writable {
+        b = b.writable();
+    }
+    b.insert(space);
+    if let Some(unit) = def.unit {
+        let eu = ids.id(format!("{}/EngineeringUnits", id_path(id)));
+        VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
+            .data_type(DataTypeId::EUInformation)
+            .value(unit.eu_information())
+            .has_type_definition(VariableTypeId::PropertyType)
+            .property_of(id.clone())
+            .insert(space);
+    }
+    if let Some((low, high)) = def.range {
+        let r = ids.id(format!("{}/EURange", id_path(id)));
+        VariableBuilder::new(&r, QualifiedName::new(0, "EURange"), "EURange")
+            .data_type(DataTypeId::Range)
+            .value(Range { low, high })
+            .has_type_definition(VariableTypeId::PropertyType)
+            .property_of(id.clone())
+            .insert(space);
+    }
+}
+
+fn id_path(id: &NodeId) -> String {
+    match &id.identifier {
+        opcua::types::Identifier::String(s) => s.as_ref().to_string(),
+        other => other.to_string(),
+    }
+}
+
+/// Builds the types, the `Drives` and `Buses` folders and every drive and bus.
+pub fn build(
+    space: &mut AddressSpace,
+    ids: &Ids,
+    drives: &[std::sync::Arc<DriveEntry>],
+    buses: &[std::sync::Arc<BusEntry>],
+) {
+    ObjectTypeBuilder::new(&ids.drive_type(), ids.name("DriveType"), "DriveType")
+        .subtype_of(ObjectTypeId::BaseObjectType)
+        .generates_event(ObjectTypeId::BaseEventType)
+        .description("A variable-frequency drive on an RS-485 bus, as the gateway sees it")
+        .insert(space);
+    ObjectTypeBuilder::new(&ids.bus_type(), ids.name("BusType"), "BusType")
+        .subtype_of(ObjectTypeId::BaseObjectType)
+        .generates_event(ObjectTypeId::BaseEventType)
+        .description("An RS-485 bus and its statistics")
+        .insert(space);
+    // The types' members, so a client browsing DriveType sees what every drive has.
+    for def in DRIVE_VARIABLES {
+        let id = ids.id(format!("DriveType/{}", def.name));
+        add_variable(space, ids, &id, &ids.drive_type(), def);
+        space.insert_reference(
+            &id,
+            &NodeId::from(ObjectId::ModellingRule_Mandatory),
+            ReferenceTypeId::HasModellingRule,
+        );
+    }
+    for def in BUS_VARIABLES {
+        let id = ids.id(format!("BusType/{}", def.name));
+        add_variable(space, ids, &id, &ids.bus_type(), def);
+        space.insert_reference(
+            &id,
+            &NodeId::from(ObjectId::ModellingRule_Mandatory),
+            ReferenceTypeId::HasModellingRule,
+        );
+    }
+    ObjectBuilder::new(&ids.drives(), ids.name("Drives"), "Drives")
+        .is_folder()
+        .organized_by(ObjectId::ObjectsFolder)
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+        .insert(space);
+    ObjectBuilder::new(&ids.buses(), ids.name("Buses"), "Buses")
+        .is_folder()
+        .organized_by(ObjectId::ObjectsFolder)
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+        .insert(space);
+    for d in drives {
+        add_drive(space, ids, d);
+    }
+    for b in buses {
+        add_bus(space, ids, b);
+    }
+}
+
+/// Adds one drive: its object, variables, methods and parameters.
+pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) {
+    let name = d.config.name.as_str();
+    let obj = ids.drive(name);
+    ObjectBuilder::new(&obj, ids.name(name), name)
+        .has_type_definition(ids.drive_type())
+        .organized_by(ids.drives())
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+        .description(format!("{} drive at address {} on bus {}", d.config.family, d.config.address, d.bus))
+        .insert(space);
+    for def in DRIVE_VARIABLES {
+        add_variable(space, ids, &ids.drive_member(name, def.name), &obj, def);
+    }
+    for m in DRIVE_METHODS {
+        let id = ids.drive_member(name, m);
+        let mut b = MethodBuilder::new(&id, ids.name(m), *m)
+            .component_of(obj.clone())
+            .executable(true)
+            .user_executable(true);
+        if *m == "SetSpeed" {
+            b = b.input_args(
+                space,
+                &ids.drive_member(name, "SetSpeed/InputArguments"),
+                &[("hz", DataTypeId::Double).into()],
+            );
+        }
+        b.insert(space);
+    }
+    let params = ids.drive_member(name, "Parameters");
+    ObjectBuilder::new(&params, ids.name("Parameters"), "Parameters")
+        .is_folder()
+        .component_of(obj.clone())
+        .insert(space);
+    for p in d.catalog().iter() {
+        let id = ids.parameter(name, &p.name);
+        let mut b = VariableBuilder::new(&id, ids.name(&p.name), p.name.as_str())
+            .data_type(DataTypeId::Double)
+            .value(Variant::Empty)
+            .description(p.title.as_str())
+            .has_type_definition(VariableTypeId::BaseDataVariableType)
+            .component_of(params.clone());
+        if !p.read_only {
+            b = b.writable();
+        }
+        b.insert(space);
+        if let Some(unit) = Unit::from_symbol(&p.unit) {
+            let eu = ids.id(format!("{}/EngineeringUnits", id_path(&id)));
+            VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
+                .data_type(DataTypeId::EUInformation)
+                .value(unit.eu_information())
+                .has_type_definition(VariableTypeId::PropertyType)
+                .property_of(id.clone())
+                .insert(space);
+        }
+    }
+}
+
+/// Adds one bus: its object and variables.
+pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) {
+    let name = b.config.name.as_str();
+    let obj = ids.bus(name);
+    ObjectBuilder::new(&obj, ids.name(name), name)
+        .has_type_definition(ids.bus_type())
+        .organized_by(ids.buses())
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+        .description(format!(
+            "{} on {} at {} {}",
+            b.config.protocol, b.config.port, b.config.baud, b.config.format
+        ))
+        .insert(space);
+    for def in BUS_VARIABLES {
+        add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unit_ids_are_the_common_codes_bytes() {
+        // OPC UA Part 8: "HTZ" -> 0x48545A.
+        assert_eq!(HERTZ.eu_information().unit_id, 0x48_54_5A);
+        assert_eq!(AMPERE.eu_information().unit_id, 0x41_4D_50);
+    }
+
+    #[test]
+    fn node_ids_name_what_they_are() {
+        let ids = Ids { ns: 2 };
+        assert_eq!(
+            ids.target(&ids.drive_member("pump-1", "Setpoint")),
+            Target::DriveVariable { drive: "pump-1".into(), variable: "Setpoint".into() }
+        );
+        assert_eq!(
+            ids.target(&ids.drive_member("pump-1", "SetSpeed")),
+            Target::Method { drive: "pump-1".into(), method: "SetSpeed".into() }
+        );
+        assert_eq!(
+            ids.target(&ids.parameter("ahu-1", "4-14")),
+            Target::Parameter { drive: "ahu-1".into(), name: "4-14".into() }
+        );
+        assert_eq!(ids.target(&ids.drive("pump-1")), Target::Other);
+        assert_eq!(ids.target(&NodeId::new(3, "Drives/pump-1/Setpoint")), Target::Other);
+        assert_eq!(ids.target(&ids.drive_member("pump-1", "Nope")), Target::Other);
+    }
+}

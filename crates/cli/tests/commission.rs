@@ -309,6 +309,8 @@ fn scan_finds_the_drives_on_a_mixed_line() {
     );
     assert!(list.iter().any(|f| f["family"] == "b800" && f["address"] == 5), "{found}");
     assert!(!list.iter().any(|f| f["address"] == 1 || f["address"] == 2), "{found}");
+    // The generic drive refuses the Toshiba map's status read: that is not a Toshiba drive.
+    assert!(!list.iter().any(|f| f["family"] == "toshiba"), "{found}");
     // Every character format listed is tried (a pty or TCP line carries any of them).
     let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["scan", "--port", &port, "--drive", "generic", "--protocol", "modbus-rtu", "--addresses", "3"])
@@ -332,4 +334,41 @@ fn scan_finds_the_drives_on_a_mixed_line() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
+}
+
+/// On a pty the port is closed before it is opened with the next protocol, baud rate or
+/// format (its exclusive lock is drivebus's own); every family and format is tried.
+#[test]
+fn scan_over_a_pty_tries_every_family_and_format() {
+    let pty = std::env::temp_dir().join(format!("drivebus-scan-{}", std::process::id()));
+    let pty_s = pty.to_string_lossy().to_string();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", "generic@3:modbus-rtu", "--drive", "b800@5", "--pty", &pty_s]);
+    let _sim = Proc::start(cmd, "listening on ");
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["--port", &pty_s, "--drive", "auto", "scan", "--addresses", "1-6", "--formats", "7N2,8N2"])
+        .args(["--timeout", "100", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let found: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut seen: Vec<(String, u64, String)> = found
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            (
+                f["family"].as_str().unwrap().to_string(),
+                f["address"].as_u64().unwrap(),
+                f["serial"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    seen.sort();
+    let want: Vec<(String, u64, String)> =
+        [("b800", 5, "7N2"), ("b800", 5, "8N2"), ("generic", 3, "7N2"), ("generic", 3, "8N2")]
+            .iter()
+            .map(|(f, a, s)| (f.to_string(), *a, s.to_string()))
+            .collect();
+    assert_eq!(seen, want, "{found}");
 }

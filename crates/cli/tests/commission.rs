@@ -213,7 +213,9 @@ fn params_backup_restore_diff_between_two_drives() {
     let file = dir.join("drive1.json");
     let f = file.to_string_lossy().to_string();
     ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "backup", &f]), "backup");
-    ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "diff", &f]), "diff equal");
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "diff", &f]);
+    ok(&o, "diff equal");
+    assert!(o.stdout.contains("no differences"), "{}", o.stdout);
     ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["param", "set", "P0.02", "12.5"]), "change");
     let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "diff", &f]);
     assert_eq!(o.code, 1, "{}", o.stdout);
@@ -371,4 +373,84 @@ fn scan_over_a_pty_tries_every_family_and_format() {
             .map(|(f, a, s)| (f.to_string(), *a, s.to_string()))
             .collect();
     assert_eq!(seen, want, "{found}");
+}
+
+/// A backup of drive 1 restored onto drive 2 on the same pty line: drive 2 takes drive 1's
+/// settings but keeps its own address (communication settings only with --include-comm), the
+/// restore says whose backup it is, and both drives still answer at their own addresses.
+#[test]
+fn a_backup_restored_onto_another_drive_keeps_its_address() {
+    let pty = std::env::temp_dir().join(format!("drivebus-restore-{}", std::process::id()));
+    let pty_s = pty.to_string_lossy().to_string();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args([
+        "simulate",
+        "--drive",
+        "generic@1:modbus-rtu",
+        "--drive",
+        "generic@2:modbus-rtu",
+        "--pty",
+        &pty_s,
+    ]);
+    let _sim = Proc::start(cmd, "listening on ");
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("d1.json");
+    let f = file.to_string_lossy().to_string();
+    let rtu = Some("modbus-rtu");
+    ok(&drivebus(&pty_s, "generic", rtu, 1, &["param", "set", "P0.02", "12.5"]), "change drive 1");
+    ok(&drivebus(&pty_s, "generic", rtu, 1, &["params", "backup", &f]), "backup drive 1");
+    let saved: Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    assert_eq!(saved["family"], "generic", "{saved}");
+    assert_eq!(saved["address"], 1, "{saved}");
+    assert!(saved["model"].as_str().is_some_and(|m| !m.is_empty()), "{saved}");
+    // Asked for, the communication settings would be written: shown, not sent.
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["params", "restore", &f, "--include-comm", "--dry-run"]);
+    ok(&o, "dry run with --include-comm");
+    assert!(o.stdout.contains("P3.11: 2 -> 1 (dry run)"), "{}", o.stdout);
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["params", "restore", &f]);
+    ok(&o, "restore onto drive 2");
+    assert!(
+        o.stdout.contains("backup of generic drive 1") && o.stdout.contains("onto drive 2"),
+        "{}",
+        o.stdout
+    );
+    assert!(o.stdout.contains("P0.02:"), "{}", o.stdout);
+    assert!(!o.stdout.contains("P3.11:"), "the address is not restored: {}", o.stdout);
+    assert!(o.stdout.contains("kept as they are: P3.11"), "{}", o.stdout);
+    for address in [1, 2] {
+        let s = status(&pty_s, "generic", rtu, address);
+        assert_eq!(s["address"], address, "{s}");
+    }
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["param", "get", "P0.02", "--json"]);
+    ok(&o, "P0.02 on drive 2");
+    let v: Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(v["raw"], 1250, "{v}");
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["param", "get", "P3.11", "--json"]);
+    ok(&o, "P3.11 on drive 2");
+    let v: Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(v["raw"], 2, "{v}");
+}
+
+/// The B800 protocol has no parameter access: a backup says so and fails (no empty file), and
+/// `param set` says only that, with where to set it, without an EEPROM-wear note first.
+#[test]
+fn b800_parameters_are_refused_with_what_to_do() {
+    let sim = simulate("b800@5", &["--tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("b800.json");
+    let o = drivebus(&port, "b800", None, 5, &["params", "backup", &file.to_string_lossy()]);
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+    assert!(o.stderr.contains("nothing to back up") && o.stderr.contains("keypad"), "{}", o.stderr);
+    assert!(!file.exists(), "no empty backup is written");
+    let o = drivebus(&port, "b800", None, 5, &["param", "set", "F-12", "2"]);
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+    assert!(o.stderr.contains("no parameter access") && o.stderr.contains("keypad"), "{}", o.stderr);
+    assert!(!o.stderr.contains("EEPROM"), "{}", o.stderr);
+    // The link line counts in plain plurals.
+    let o = drivebus(&port, "b800", None, 5, &["status"]);
+    ok(&o, "status");
+    assert!(o.stdout.contains("1 transaction,") && !o.stdout.contains("(s)"), "{}", o.stdout);
 }

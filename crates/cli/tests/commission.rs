@@ -4,26 +4,40 @@
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
-use serde_json::Value;
+use serde_json::{json, Value};
+
+#[path = "support/http.rs"]
+mod http;
 
 /// A background process killed on drop, with the line it printed when ready.
 struct Proc {
     child: Child,
     ready: String,
+    /// The lines printed before the ready line.
+    before: Vec<String>,
 }
 
 impl Proc {
     fn start(mut cmd: Command, ready_prefix: &str) -> Proc {
         let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start");
         let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        let mut before = Vec::new();
         let ready = loop {
             let line = lines.next().expect("ready line").expect("utf-8");
             if let Some(rest) = line.strip_prefix(ready_prefix) {
                 break rest.trim().to_string();
             }
+            before.push(line);
         };
         std::thread::spawn(move || for _ in lines {});
-        Proc { child, ready }
+        Proc { child, ready, before }
+    }
+
+    /// The simulator's control interface (`--control`), from the line it printed.
+    fn control(&self) -> std::net::SocketAddr {
+        let line =
+            self.before.iter().find_map(|l| l.strip_prefix("control http://")).expect("a control line");
+        line.trim_end_matches("/drives").parse().expect("the control address")
     }
 }
 
@@ -453,4 +467,44 @@ fn b800_parameters_are_refused_with_what_to_do() {
     let o = drivebus(&port, "b800", None, 5, &["status"]);
     ok(&o, "status");
     assert!(o.stdout.contains("1 transaction,") && !o.stdout.contains("(s)"), "{}", o.stdout);
+}
+
+/// Polls `status` until `done` holds for it, with a generous deadline (the ramp's pace is the
+/// simulator's, not a speed claim of this test).
+fn wait_status(port: &str, family: &str, address: u8, what: &str, done: impl Fn(&Value) -> bool) -> Value {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        let s = status(port, family, None, address);
+        if done(&s) {
+            return s;
+        }
+        assert!(std::time::Instant::now() < deadline, "{what}: {s}");
+    }
+}
+
+/// Danfoss, each command a separate process: `speed 30; run; stop; run` reaches 30 Hz (every
+/// telegram carries the drive's reference, read from it, not 0); `run` to a tripped drive that
+/// still holds a start is refused with exit 1 and the alarm.
+#[test]
+fn danfoss_commands_from_separate_processes() {
+    let sim = simulate("danfoss@3", &["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    for cmd in [&["speed", "30"][..], &["run"], &["stop"]] {
+        ok(&drivebus(&port, "danfoss", None, 3, cmd), cmd[0]);
+    }
+    wait_status(&port, "danfoss", 3, "stopped", |s| s["running"] == false);
+    ok(&drivebus(&port, "danfoss", None, 3, &["run"]), "run again");
+    let s = wait_status(&port, "danfoss", 3, "30 Hz", |s| {
+        s["output_hz"].as_f64().is_some_and(|hz| (hz - 30.0).abs() < 0.1)
+    });
+    assert_eq!(s["running"], true, "{s}");
+
+    let (code, v) =
+        http::http_json(sim.control(), "POST", "/drives/1", Some(&json!({"trip": "over-current"})))
+            .expect("trip");
+    assert_eq!(code, 200, "{v}");
+    let o = drivebus(&port, "danfoss", None, 3, &["run"]);
+    assert_eq!(o.code, 1, "run while tripped: {}{}", o.stdout, o.stderr);
+    assert!(o.stderr.contains("tripped") && o.stderr.contains("over current"), "{}", o.stderr);
+    assert!(!o.stdout.contains("done"), "{}", o.stdout);
 }

@@ -1,0 +1,97 @@
+//! A small HTTP/1.1 client for the tests: one request with a JSON body, the status and the JSON
+//! answer (the simulator's control interface, the gateway, chromedriver).
+
+use std::io::{Read, Write};
+use std::net::{SocketAddr, TcpStream};
+use std::time::Duration;
+
+use serde_json::Value;
+
+/// How long an answer may take.
+const PATIENCE: Duration = Duration::from_secs(90);
+
+/// One HTTP/1.1 request with a JSON body; the status and the JSON answer.
+pub fn http_json(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    body: Option<&Value>,
+) -> Result<(u16, Value), String> {
+    let mut s = TcpStream::connect_timeout(&addr, Duration::from_secs(5)).map_err(|e| e.to_string())?;
+    s.set_read_timeout(Some(PATIENCE)).map_err(|e| e.to_string())?;
+    let body = body.map(|b| b.to_string()).unwrap_or_default();
+    let req = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json; charset=utf-8\r\n\
+         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    s.write_all(req.as_bytes()).map_err(|e| e.to_string())?;
+    // chromedriver keeps the connection open whatever the request says: read by the head's length.
+    let mut raw = Vec::new();
+    let mut buf = [0u8; 16384];
+    let (head, body_start) = loop {
+        if let Some(i) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+            break (String::from_utf8_lossy(&raw[..i]).to_string(), i + 4);
+        }
+        let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+        if n == 0 {
+            return Err(format!("{method} {path}: the connection closed before the answer"));
+        }
+        raw.extend_from_slice(&buf[..n]);
+    };
+    let status: u16 = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .ok_or_else(|| format!("bad status line: {head}"))?;
+    let header = |name: &str| {
+        head.lines().skip(1).find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.trim().eq_ignore_ascii_case(name).then(|| v.trim().to_ascii_lowercase())
+        })
+    };
+    let mut content = raw.split_off(body_start);
+    if header("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
+        while !content.windows(5).any(|w| w == b"0\r\n\r\n") {
+            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+            if n == 0 {
+                break;
+            }
+            content.extend_from_slice(&buf[..n]);
+        }
+        content = dechunk(&content)?;
+    } else if let Some(len) = header("content-length").and_then(|v| v.parse::<usize>().ok()) {
+        while content.len() < len {
+            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+            if n == 0 {
+                return Err(format!("{method} {path}: short body"));
+            }
+            content.extend_from_slice(&buf[..n]);
+        }
+        content.truncate(len);
+    } else {
+        s.read_to_end(&mut content).map_err(|e| format!("{method} {path}: {e}"))?;
+    }
+    let value = if content.is_empty() {
+        Value::Null
+    } else {
+        serde_json::from_slice(&content).map_err(|e| format!("{method} {path}: not JSON ({e})"))?
+    };
+    Ok((status, value))
+}
+
+fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    loop {
+        let eol = b.windows(2).position(|w| w == b"\r\n").ok_or("bad chunk")?;
+        let size_text = String::from_utf8_lossy(&b[..eol]).to_string();
+        let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
+            .map_err(|_| format!("bad chunk size {size_text:?}"))?;
+        b = &b[eol + 2..];
+        if size == 0 {
+            return Ok(out);
+        }
+        out.extend_from_slice(b.get(..size).ok_or("short chunk")?);
+        b = b.get(size + 2..).ok_or("short chunk")?;
+    }
+}

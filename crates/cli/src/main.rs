@@ -68,7 +68,7 @@ enum Command {
     /// Run the gateway: every bus polled, one view over Modbus TCP, HTTP/JSON and the dashboard
     /// (`--demo` runs simulated drives with nothing attached).
     Serve(commands::serve::ServeArgs),
-    /// List the gateway's event log (drivebus.db): commands with who, what and the result,
+    /// List the gateway's event log (drivebus.db, or the demo's drivebus-demo.db): commands with who, what and the result,
     /// trips, fault resets, drives and buses going online and offline. --drive ID narrows it.
     Events(commands::history::EventsArgs),
     /// Show one drive's trend (--drive ID) from the gateway's store: output Hz (average, min,

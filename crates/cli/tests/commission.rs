@@ -471,10 +471,17 @@ fn b800_parameters_are_refused_with_what_to_do() {
 
 /// Polls `status` until `done` holds for it, with a generous deadline (the ramp's pace is the
 /// simulator's, not a speed claim of this test).
-fn wait_status(port: &str, family: &str, address: u8, what: &str, done: impl Fn(&Value) -> bool) -> Value {
+fn wait_status(
+    port: &str,
+    family: &str,
+    protocol: Option<&str>,
+    address: u8,
+    what: &str,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
     loop {
-        let s = status(port, family, None, address);
+        let s = status(port, family, protocol, address);
         if done(&s) {
             return s;
         }
@@ -492,9 +499,9 @@ fn danfoss_commands_from_separate_processes() {
     for cmd in [&["speed", "30"][..], &["run"], &["stop"]] {
         ok(&drivebus(&port, "danfoss", None, 3, cmd), cmd[0]);
     }
-    wait_status(&port, "danfoss", 3, "stopped", |s| s["running"] == false);
+    wait_status(&port, "danfoss", None, 3, "stopped", |s| s["running"] == false);
     ok(&drivebus(&port, "danfoss", None, 3, &["run"]), "run again");
-    let s = wait_status(&port, "danfoss", 3, "30 Hz", |s| {
+    let s = wait_status(&port, "danfoss", None, 3, "30 Hz", |s| {
         s["output_hz"].as_f64().is_some_and(|hz| (hz - 30.0).abs() < 0.1)
     });
     assert_eq!(s["running"], true, "{s}");
@@ -507,4 +514,24 @@ fn danfoss_commands_from_separate_processes() {
     assert_eq!(o.code, 1, "run while tripped: {}{}", o.stdout, o.stderr);
     assert!(o.stderr.contains("tripped") && o.stderr.contains("over current"), "{}", o.stderr);
     assert!(!o.stdout.contains("done"), "{}", o.stdout);
+}
+
+/// A command to address 0 reaches every drive and nobody confirms it: it says so instead of
+/// "done".
+#[test]
+fn a_broadcast_says_it_is_unconfirmed() {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", "generic@1:modbus-rtu", "--drive", "generic@2:modbus-rtu"]);
+    cmd.args(["--tcp", "127.0.0.1:0"]);
+    let sim = Proc::start(cmd, "listening on ");
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 0, &["run"]);
+    ok(&o, "broadcast run");
+    assert!(o.stdout.contains("run sent to all drives (broadcast: no confirmation)"), "{}", o.stdout);
+    assert!(!o.stdout.contains("done"), "{}", o.stdout);
+    for address in [1, 2] {
+        wait_status(&port, "generic", Some("modbus-rtu"), address, "running after the broadcast", |s| {
+            s["running"] == true
+        });
+    }
 }

@@ -308,8 +308,13 @@ pub fn command(t: &Target, what: &str, hz: Option<f64>) -> Result<u8> {
             _ => drive.set_speed(hz.unwrap_or(0.0)).await,
         };
         r.map_err(|e| classify(e, &label))?;
+        // Address 0: every drive takes it and none answers, so nothing confirms it.
+        let broadcast = drive.profile().address() == 0;
         if t.json {
-            println!("{}", json!({"ok": true, "command": what, "hz": hz}));
+            println!("{}", json!({"ok": true, "command": what, "hz": hz, "broadcast": broadcast}));
+        } else if broadcast {
+            let what = hz.map_or(what.to_string(), |hz| format!("speed {hz} Hz"));
+            println!("{}: {what} sent to all drives (broadcast: no confirmation)", drive.bus().name());
         } else {
             match hz {
                 Some(hz) => println!("{label}: speed set to {hz} Hz"),

@@ -819,7 +819,7 @@ impl FcPlan {
                         memory.reference = reference;
                         // 16-02 has 0.1 % steps (0.05 Hz of 50 Hz): hundredths say all it knows.
                         memory.setpoint_hz =
-                            memory.known.scale().map(|range| (range.hz(reference) * 100.0).round() / 100.0);
+                            memory.known.scale().map(|range| super::round_to(range.hz(reference), 2));
                     }
                     Why::Current => {
                         self.current_a = Some(self.inner.def(pnu)?.from_raw(raw));
@@ -972,7 +972,7 @@ impl FcPlan {
                     address: self.inner.address,
                     running: stw.in_operation(),
                     direction: direction.map(str::to_string),
-                    output_hz: hz.map(|h| (h.abs() * 1000.0).round() / 1000.0),
+                    output_hz: hz.map(|h| super::round_to(h.abs(), 3)),
                     setpoint_hz: memory.setpoint_hz,
                     current_a: self.current_a,
                     fault,

@@ -550,7 +550,7 @@ fn check_raw_request(
 ) -> Result<()> {
     use crate::commands::decode::Item;
     let (_, items) =
-        crate::commands::decode::decode_by_name(name, bytes, Some(drivebus_proto::Direction::Master));
+        crate::commands::decode::decode_by_name(name, bytes, Some(drivebus_proto::Direction::Master), None);
     let not_one = || {
         fail(EXIT_USAGE, format!("the bytes are not one {protocol} request: check them with drivebus decode --protocol {protocol} --from master"))
     };
@@ -583,6 +583,7 @@ pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
                     name,
                     &reply,
                     Some(drivebus_proto::Direction::Drive),
+                    Some(r.family),
                 );
                 for (i, item) in items.iter().enumerate() {
                     if t.json {

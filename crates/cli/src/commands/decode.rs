@@ -54,7 +54,7 @@ pub enum From {
     Drive,
 }
 
-/// Arguments of `drivebus decode` (with the global `--protocol` and `--json`).
+/// Arguments of `drivebus decode` (with `--protocol`, `--drive` and `--json` from `crate::options`).
 #[derive(Args, Debug)]
 pub struct DecodeArgs {
     /// Who sent the bytes, where the protocol cannot tell (a Modbus request and its reply).

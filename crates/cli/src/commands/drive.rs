@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
-use clap::{Args, Subcommand};
+use clap::Subcommand;
 use drivebus_drive::profile::{DriveError, DriveStatus};
 use drivebus_drive::{Family, Storage};
 use drivebus_link::drive::{open_with, Drive, Error};
@@ -15,52 +15,36 @@ use serde_json::{json, Map, Value};
 
 use crate::hexarg::parse_hex_args;
 
-/// Where the drive is and how to speak to it (options before or after the command).
-#[derive(Args, Debug, Clone)]
+/// Where the drive is and how to speak to it, as given before or after the command (see
+/// `crate::options`, which declares them for each command).
+#[derive(Debug, Clone, Default)]
 pub struct Target {
     /// Serial device (/dev/ttyUSB0, a pty) or tcp://HOST:PORT of a serial device server.
-    #[arg(long, global = true, value_name = "DEVICE|tcp://HOST:PORT")]
     pub port: Option<String>,
-    /// The drive family (generic, toshiba, danfoss, b800); for `simulate`, a drive on the
-    /// virtual bus as KIND@ADDR[:PROTOCOL], repeated for more drives.
-    #[arg(long = "drive", global = true, value_name = "FAMILY | KIND@ADDR[:PROTOCOL]")]
+    /// The drive family (generic, toshiba, danfoss, b800, auto for scan); for `simulate`, a
+    /// drive on the virtual bus as KIND@ADDR[:PROTOCOL]; for `events` and `trend` a drive's name.
     pub drive: Vec<String>,
     /// The drive's address (`monitor` takes several: --address 1 --address 2).
-    #[arg(long, global = true, action = clap::ArgAction::Append)]
     pub address: Vec<u8>,
-    /// The protocol: for `decode` the wire format (modbus-rtu, modbus-ascii, toshiba-ascii,
-    /// toshiba-binary, danfoss-fc, b800); for a drive, where its family speaks several.
-    #[arg(long, short = 'p', global = true)]
+    /// The protocol: for `decode` the wire format; for a drive, where its family speaks several.
     pub protocol: Option<String>,
     /// Baud rate (default: the family's).
-    #[arg(long, global = true)]
     pub baud: Option<u32>,
     /// Character format such as 8E1 (default: the family's).
-    #[arg(long, global = true, value_name = "FORMAT")]
     pub serial: Option<String>,
     /// Response timeout in milliseconds (default: the protocol's).
-    #[arg(long, global = true, value_name = "MS")]
     pub timeout: Option<u64>,
     /// Retries after a timeout or a damaged reply.
-    #[arg(long, global = true, default_value_t = 2)]
     pub retries: u8,
-    /// Silence kept before each request, in milliseconds (default: the protocol's, e.g.
-    /// Modbus RTU t3.5); 0 for a pty or a TCP server with no RS-485 line behind it.
-    #[arg(long, global = true, value_name = "MS")]
+    /// Silence kept before each request, in milliseconds (default: the protocol's).
     pub gap: Option<f64>,
-    /// RS-485 direction control on a serial port: off (the adapter switches by itself, as
-    /// most USB-RS485 adapters do), auto (the kernel's RS-485 mode, else RTS), kernel, rts.
-    #[arg(long, global = true, value_name = "MODE", default_value = "off")]
+    /// RS-485 direction control on a serial port: off, auto, kernel, rts.
     pub rs485: String,
-    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes (on-board
-    /// UARTs; USB adapters deliver bytes in bursts and would lose good replies).
-    #[arg(long, global = true)]
+    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes.
     pub strict_t15: bool,
-    /// Discard the local echo of our own requests (2-wire adapters that hear themselves).
-    #[arg(long, global = true)]
+    /// Discard the local echo of our own requests.
     pub echo: bool,
     /// Output JSON.
-    #[arg(long, global = true)]
     pub json: bool,
 }
 

@@ -29,7 +29,7 @@ fn store_path(db: Option<&Path>) -> PathBuf {
     }
 }
 
-/// Arguments of `drivebus events` (with the global --drive ID and --json).
+/// Arguments of `drivebus events` (with --drive ID and --json from `crate::options`).
 #[derive(Args, Debug)]
 pub struct EventsArgs {
     /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
@@ -51,7 +51,7 @@ pub struct EventsArgs {
     pub limit: u64,
 }
 
-/// Arguments of `drivebus trend` (with the global --drive ID, required, and --json).
+/// Arguments of `drivebus trend` (with --drive ID, required, and --json from `crate::options`).
 #[derive(Args, Debug)]
 pub struct TrendArgs {
     /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's

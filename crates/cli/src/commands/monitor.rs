@@ -31,7 +31,7 @@ use crate::commands::drive::{classify, link_failure, resolve_for, runtime, usage
 /// Samples kept per drive for the trend.
 pub const HISTORY: usize = 240;
 
-/// Arguments of `drivebus monitor` (with the global --port, --drive, one or more --address,
+/// Arguments of `drivebus monitor` (with `crate::options`' --port, --drive, one or more --address,
 /// --protocol, --baud, --serial, --timeout, --retries, --json).
 #[derive(Args, Debug)]
 pub struct MonitorArgs {

@@ -15,7 +15,7 @@ use serde_json::json;
 
 use crate::commands::drive::Target;
 
-/// Arguments of `drivebus scan` (with the global --port, --drive FAMILY|auto, --protocol,
+/// Arguments of `drivebus scan` (with `crate::options`' --port, --drive FAMILY|auto, --protocol,
 /// --baud, --serial, --timeout, --json).
 #[derive(Args, Debug)]
 pub struct ScanArgs {

@@ -9,7 +9,7 @@ use drivebus_proto::line::CharFormat;
 use drivebus_sim::config::{BusSpec, DriveSpec};
 use drivebus_sim::runtime::{Endpoint, Simulator};
 
-/// Arguments of `drivebus simulate`, with the global `--drive KIND@ADDR[:PROTOCOL]` (one per
+/// Arguments of `drivebus simulate`, with `crate::options`' `--drive KIND@ADDR[:PROTOCOL]` (one per
 /// drive: generic@1:modbus-rtu, toshiba@2, danfoss@3, b800@5), `--baud` and `--serial`.
 #[derive(Args, Debug)]
 pub struct SimulateArgs {

@@ -601,3 +601,19 @@ fn a_fresh_run_to_a_tripped_drive_holding_a_start_is_refused() {
     // 16-02, 16-00 (its reply's status word shows the trip), 15-30 [0].
     assert_eq!(sent, 3);
 }
+
+/// A fresh profile's run to a drive that holds a start but no longer takes the bus control word
+/// (8-01 Control Site changed on the panel) is refused, not "done".
+#[test]
+fn a_fresh_run_to_a_drive_without_bus_control_is_refused() {
+    let mut line = line_with(&[1]);
+    let first = DanfossProfile::new(1).expect("profile");
+    run(&mut line, &first, Operation::SetSpeed(30.0));
+    run(&mut line, &first, Operation::Run);
+    run(&mut line, &first, write("8-01", 1, Storage::Ram));
+    let fresh = DanfossProfile::new(1).expect("profile");
+    let (result, _) = execute(&mut line, fresh.plan(&Operation::Run).expect("plan"));
+    let (code, meaning) = refusal(result);
+    assert_eq!(code & 0x0200, 0);
+    assert!(meaning.contains("bit 09"), "{meaning}");
+}

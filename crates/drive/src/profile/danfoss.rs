@@ -860,8 +860,12 @@ impl FcPlan {
             // as a run to it is (the status word of the 16-00 reply says so).
             Some(Action::Command(Command::Run)) if started => {
                 self.queue.pop_front();
-                if let Some((stw, _)) = self.observed.filter(|(stw, _)| stw.trip()) {
-                    self.queue.push_front(Action::read(ALARM_LOG, 0, Why::Refusal(Refusal::Tripped(stw))));
+                match self.observed {
+                    Some((stw, _)) if !stw.bus_control() => return Err(no_bus_control(stw)),
+                    Some((stw, _)) if stw.trip() => {
+                        self.queue.push_front(Action::read(ALARM_LOG, 0, Why::Refusal(Refusal::Tripped(stw))))
+                    }
+                    _ => {}
                 }
             }
             _ => {}
@@ -908,13 +912,7 @@ impl FcPlan {
     /// The reply's status word after a command: remember it, or refuse.
     fn commanded(&mut self, sent: Sent, command: Command, stw: StatusWord) -> Result<(), DriveError> {
         if !stw.bus_control() {
-            return Err(DriveError::Refused {
-                code: u32::from(stw.0),
-                meaning: format!(
-                    "the drive ignores the bus control word: status word {stw} has bit 09 \"bus control\" = 0 \
-                     (8-02 Control Source, 8-01 Control Site)"
-                ),
-            });
+            return Err(no_bus_control(stw));
         }
         self.remember(sent);
         match command {
@@ -979,6 +977,17 @@ impl FcPlan {
                 }))
             }
         }
+    }
+}
+
+/// The refusal of a command to a drive that does not take the bus control word.
+fn no_bus_control(stw: StatusWord) -> DriveError {
+    DriveError::Refused {
+        code: u32::from(stw.0),
+        meaning: format!(
+            "the drive ignores the bus control word: status word {stw} has bit 09 \"bus control\" = 0 \
+             (8-02 Control Source, 8-01 Control Site)"
+        ),
     }
 }
 

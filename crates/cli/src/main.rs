@@ -99,6 +99,16 @@ fn usage_exit(e: &clap::Error) -> ExitCode {
         let _ = e.print();
         return ExitCode::SUCCESS;
     }
+    if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        // The command given so far, from the help's usage line ("Usage: drivebus param <COMMAND>").
+        let help = e.to_string();
+        let usage = help.lines().find_map(|l| l.strip_prefix("Usage: ")).unwrap_or("drivebus");
+        let given: Vec<&str> =
+            usage.split_whitespace().take_while(|w| !w.starts_with('<') && !w.starts_with('[')).collect();
+        let given = given.join(" ");
+        eprintln!("drivebus: say which command: {given} <COMMAND> (see {given} --help)");
+        return ExitCode::from(EXIT_USAGE);
+    }
     // One line: clap's message without its usage block.
     let msg = e.to_string();
     // The lines before the usage block, joined (a missing argument is named on the line after

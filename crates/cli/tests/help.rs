@@ -107,3 +107,17 @@ fn options_go_before_or_after_the_command() {
     assert_eq!(code, 0, "{err}");
     assert!(out.contains("\"protocol\":\"b800\""), "{out}");
 }
+
+#[test]
+fn no_command_is_one_line_saying_so() {
+    let (code, out, err) = drivebus(&[]);
+    assert_eq!(code, 3);
+    assert!(out.is_empty(), "{out}");
+    assert_eq!(err.trim(), "drivebus: say which command: drivebus <COMMAND> (see drivebus --help)");
+    let (code, _, err) = drivebus(&["params"]);
+    assert_eq!(code, 3);
+    assert_eq!(
+        err.trim(),
+        "drivebus: say which command: drivebus params <COMMAND> (see drivebus params --help)"
+    );
+}

@@ -304,6 +304,14 @@ fn raw_refuses_a_request_that_is_not_a_valid_frame() {
     assert!(o.stderr.contains("not one modbus-rtu request"), "{}", o.stderr);
     let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 20 00 00 02 CF CB"]);
     ok(&o, "raw with the right CRC");
+    // The reply is decoded as the answer to the request: 2103H is the output frequency, 0002H
+    // P0.02, each in Hz.
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 21 03 00 01 7E 36"]);
+    ok(&o, "raw read of 2103H");
+    assert!(o.stdout.contains("drive 1 to master") && o.stdout.contains(" Hz"), "{}", o.stdout);
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 00 02 00 01 25 CA"]);
+    ok(&o, "raw read of P0.02");
+    assert!(o.stdout.contains(" Hz"), "{}", o.stdout);
 }
 
 #[test]

@@ -377,6 +377,24 @@ pub fn decode_by_name(
     }
 }
 
+/// Decodes `reply` as the drive's answer to `request` (one valid request): a read reply's
+/// values named and scaled by the request's starting address. Only the reply's items.
+pub fn decode_reply(
+    name: ProtocolName,
+    request: &[u8],
+    reply: &[u8],
+    family: Option<Family>,
+) -> (&'static str, Vec<Item>) {
+    let (_, mut items) = decode_by_name(name, request, Some(Direction::Master), family);
+    let (protocol, answer) = decode_by_name(name, reply, Some(Direction::Drive), family);
+    let asked = items.len();
+    items.extend(answer);
+    if matches!(name, ProtocolName::ModbusRtu | ProtocolName::ModbusAscii) {
+        name_registers(&mut items, family);
+    }
+    (protocol, items.split_off(asked))
+}
+
 /// A register as the catalogs know it: one family's parameter, or several that share the
 /// number (a generic Pgg.nn and a Toshiba communication number).
 enum Known {

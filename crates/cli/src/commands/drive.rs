@@ -524,7 +524,6 @@ pub(crate) fn plural(n: u64, one: &'static str, many: &'static str) -> &'static 
     }
 }
 
-/// `raw <HEX>`: sends the bytes as one request and prints the decoded reply.
 /// `raw`'s bytes must be one valid request of the bus's protocol, as a drive would check it
 /// (checksum included): the session would otherwise send its own encoding of them.
 fn check_raw_request(
@@ -547,6 +546,7 @@ fn check_raw_request(
     }
 }
 
+/// `raw`: sends the bytes as one request and prints the reply, decoded as its answer.
 pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
     let bytes = parse_hex_args(hex).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let r = resolve(t)?;
@@ -556,19 +556,14 @@ pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
     check_raw_request(name, &protocol, &bytes)?;
     runtime()?.block_on(async move {
         let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
-        let exchange = drivebus_drive::profile::Exchange { request: bytes, expect_reply: true };
+        let exchange = drivebus_drive::profile::Exchange { request: bytes.clone(), expect_reply: true };
         let reply = bus
             .transact(r.address, exchange, Priority::Command, None)
             .await
             .map_err(|e| classify(Error::Bus(e), &r.label))?;
         match reply {
             Some(reply) => {
-                let (p, items) = crate::commands::decode::decode_by_name(
-                    name,
-                    &reply,
-                    Some(drivebus_proto::Direction::Drive),
-                    Some(r.family),
-                );
+                let (p, items) = crate::commands::decode::decode_reply(name, &bytes, &reply, Some(r.family));
                 for (i, item) in items.iter().enumerate() {
                     if t.json {
                         if let Some(v) = crate::commands::decode::render_json(p, item) {

@@ -6,10 +6,11 @@
 
 mod commands;
 mod hexarg;
+mod options;
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 /// Talk to variable-frequency drives over RS-485.
 #[derive(Parser, Debug)]
@@ -17,8 +18,6 @@ use clap::{Parser, Subcommand};
 struct Cli {
     #[command(subcommand)]
     command: Command,
-    #[command(flatten)]
-    target: commands::drive::Target,
 }
 
 #[derive(Subcommand, Debug)]
@@ -68,7 +67,7 @@ enum Command {
     /// Run the gateway: every bus polled, one view over Modbus TCP, HTTP/JSON and the dashboard
     /// (`--demo` runs simulated drives with nothing attached).
     Serve(commands::serve::ServeArgs),
-    /// List the gateway's event log (drivebus.db): commands with who, what and the result,
+    /// List the gateway's event log (drivebus.db, or the demo's drivebus-demo.db): commands with who, what and the result,
     /// trips, fault resets, drives and buses going online and offline. --drive ID narrows it.
     Events(commands::history::EventsArgs),
     /// Check a gateway configuration without running it.
@@ -99,26 +98,51 @@ fn default_sigpipe() {
 #[cfg(not(unix))]
 fn default_sigpipe() {}
 
+/// What clap said, as one line on stderr and exit 3 (help and version: printed, exit 0).
+fn usage_exit(e: &clap::Error) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+        let _ = e.print();
+        return ExitCode::SUCCESS;
+    }
+    if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        // The command given so far, from the help's usage line ("Usage: drivebus param <COMMAND>").
+        let help = e.to_string();
+        let usage = help.lines().find_map(|l| l.strip_prefix("Usage: ")).unwrap_or("drivebus");
+        let given: Vec<&str> =
+            usage.split_whitespace().take_while(|w| !w.starts_with('<') && !w.starts_with('[')).collect();
+        let given = given.join(" ");
+        eprintln!("drivebus: say which command: {given} <COMMAND> (see {given} --help)");
+        return ExitCode::from(EXIT_USAGE);
+    }
+    // One line: clap's message without its usage block.
+    let msg = e.to_string();
+    // The lines before the usage block, joined (a missing argument is named on the line after
+    // "the following required arguments were not provided:").
+    let said: Vec<&str> = msg
+        .lines()
+        .take_while(|l| !l.trim().is_empty() && !l.starts_with("Usage:"))
+        .map(|l| l.trim().trim_start_matches("error: "))
+        .collect();
+    let first = if said.is_empty() { "bad usage".to_string() } else { said.join(" ") };
+    eprintln!("drivebus: {first} (see drivebus --help)");
+    ExitCode::from(EXIT_USAGE)
+}
+
 fn main() -> ExitCode {
-    let cli = match Cli::try_parse() {
+    // The command, and the target options given before or after it.
+    let matches = match options::add_to(Cli::command()).try_get_matches() {
+        Ok(m) => m,
+        Err(e) => return usage_exit(&e),
+    };
+    let cli = match Cli::from_arg_matches(&matches) {
         Ok(cli) => cli,
+        Err(e) => return usage_exit(&e),
+    };
+    let target = match options::target(&matches) {
+        Ok(t) => t,
         Err(e) => {
-            use clap::error::ErrorKind;
-            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
-                let _ = e.print();
-                return ExitCode::SUCCESS;
-            }
-            // One line: clap's message without its usage block.
-            let msg = e.to_string();
-            // The lines before the usage block, joined (a missing argument is named on the
-            // line after "the following required arguments were not provided:").
-            let said: Vec<&str> = msg
-                .lines()
-                .take_while(|l| !l.trim().is_empty() && !l.starts_with("Usage:"))
-                .map(|l| l.trim().trim_start_matches("error: "))
-                .collect();
-            let first = if said.is_empty() { "bad usage".to_string() } else { said.join(" ") };
-            eprintln!("drivebus: {first} (see drivebus --help)");
+            eprintln!("drivebus: {e}");
             return ExitCode::from(EXIT_USAGE);
         }
     };
@@ -129,24 +153,24 @@ fn main() -> ExitCode {
         default_sigpipe();
     }
     let result = match cli.command {
-        Command::Decode(args) => commands::decode::run(&args, &cli.target),
-        Command::Simulate(args) => commands::simulate::run(&args, &cli.target),
-        Command::Status => commands::drive::status(&cli.target),
-        Command::Run => commands::drive::command(&cli.target, "run", None),
-        Command::Stop => commands::drive::command(&cli.target, "stop", None),
-        Command::Reverse => commands::drive::command(&cli.target, "reverse", None),
-        Command::Jog => commands::drive::command(&cli.target, "jog", None),
-        Command::Reset => commands::drive::command(&cli.target, "reset", None),
-        Command::Speed { hz } => commands::drive::command(&cli.target, "speed", Some(hz)),
-        Command::Param(cmd) => commands::drive::param(&cli.target, &cmd),
-        Command::Params(cmd) => commands::drive::params(&cli.target, &cmd),
-        Command::Raw { hex } => commands::drive::raw(&cli.target, &hex),
-        Command::Scan(args) => commands::scan::run(&args, &cli.target),
+        Command::Decode(args) => commands::decode::run(&args, &target),
+        Command::Simulate(args) => commands::simulate::run(&args, &target),
+        Command::Status => commands::drive::status(&target),
+        Command::Run => commands::drive::command(&target, "run", None),
+        Command::Stop => commands::drive::command(&target, "stop", None),
+        Command::Reverse => commands::drive::command(&target, "reverse", None),
+        Command::Jog => commands::drive::command(&target, "jog", None),
+        Command::Reset => commands::drive::command(&target, "reset", None),
+        Command::Speed { hz } => commands::drive::command(&target, "speed", Some(hz)),
+        Command::Param(cmd) => commands::drive::param(&target, &cmd),
+        Command::Params(cmd) => commands::drive::params(&target, &cmd),
+        Command::Raw { hex } => commands::drive::raw(&target, &hex),
+        Command::Scan(args) => commands::scan::run(&args, &target),
         Command::Serve(args) => commands::serve::run(&args),
         Command::Config(cmd) => commands::config::run(&cmd),
-        Command::Events(args) => commands::history::events(&args, &cli.target),
-        Command::Trend(args) => commands::history::trend(&args, &cli.target),
-        Command::Monitor(args) => commands::monitor::run(&args, &cli.target),
+        Command::Events(args) => commands::history::events(&args, &target),
+        Command::Trend(args) => commands::history::trend(&args, &target),
+        Command::Monitor(args) => commands::monitor::run(&args, &target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

@@ -4,26 +4,40 @@
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
-use serde_json::Value;
+use serde_json::{json, Value};
+
+#[path = "support/http.rs"]
+mod http;
 
 /// A background process killed on drop, with the line it printed when ready.
 struct Proc {
     child: Child,
     ready: String,
+    /// The lines printed before the ready line.
+    before: Vec<String>,
 }
 
 impl Proc {
     fn start(mut cmd: Command, ready_prefix: &str) -> Proc {
         let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start");
         let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        let mut before = Vec::new();
         let ready = loop {
             let line = lines.next().expect("ready line").expect("utf-8");
             if let Some(rest) = line.strip_prefix(ready_prefix) {
                 break rest.trim().to_string();
             }
+            before.push(line);
         };
         std::thread::spawn(move || for _ in lines {});
-        Proc { child, ready }
+        Proc { child, ready, before }
+    }
+
+    /// The simulator's control interface (`--control`), from the line it printed.
+    fn control(&self) -> std::net::SocketAddr {
+        let line =
+            self.before.iter().find_map(|l| l.strip_prefix("control http://")).expect("a control line");
+        line.trim_end_matches("/drives").parse().expect("the control address")
     }
 }
 
@@ -213,7 +227,9 @@ fn params_backup_restore_diff_between_two_drives() {
     let file = dir.join("drive1.json");
     let f = file.to_string_lossy().to_string();
     ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "backup", &f]), "backup");
-    ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "diff", &f]), "diff equal");
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "diff", &f]);
+    ok(&o, "diff equal");
+    assert!(o.stdout.contains("no differences"), "{}", o.stdout);
     ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["param", "set", "P0.02", "12.5"]), "change");
     let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["params", "diff", &f]);
     assert_eq!(o.code, 1, "{}", o.stdout);
@@ -288,6 +304,14 @@ fn raw_refuses_a_request_that_is_not_a_valid_frame() {
     assert!(o.stderr.contains("not one modbus-rtu request"), "{}", o.stderr);
     let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 20 00 00 02 CF CB"]);
     ok(&o, "raw with the right CRC");
+    // The reply is decoded as the answer to the request: 2103H is the output frequency, 0002H
+    // P0.02, each in Hz.
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 21 03 00 01 7E 36"]);
+    ok(&o, "raw read of 2103H");
+    assert!(o.stdout.contains("drive 1 to master") && o.stdout.contains(" Hz"), "{}", o.stdout);
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 00 02 00 01 25 CA"]);
+    ok(&o, "raw read of P0.02");
+    assert!(o.stdout.contains(" Hz"), "{}", o.stdout);
 }
 
 #[test]
@@ -309,6 +333,8 @@ fn scan_finds_the_drives_on_a_mixed_line() {
     );
     assert!(list.iter().any(|f| f["family"] == "b800" && f["address"] == 5), "{found}");
     assert!(!list.iter().any(|f| f["address"] == 1 || f["address"] == 2), "{found}");
+    // The generic drive refuses the Toshiba map's status read: that is not a Toshiba drive.
+    assert!(!list.iter().any(|f| f["family"] == "toshiba"), "{found}");
     // Every character format listed is tried (a pty or TCP line carries any of them).
     let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["scan", "--port", &port, "--drive", "generic", "--protocol", "modbus-rtu", "--addresses", "3"])
@@ -332,4 +358,188 @@ fn scan_finds_the_drives_on_a_mixed_line() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(2));
+}
+
+/// On a pty the port is closed before it is opened with the next protocol, baud rate or
+/// format (its exclusive lock is drivebus's own); every family and format is tried.
+#[test]
+fn scan_over_a_pty_tries_every_family_and_format() {
+    let pty = std::env::temp_dir().join(format!("drivebus-scan-{}", std::process::id()));
+    let pty_s = pty.to_string_lossy().to_string();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", "generic@3:modbus-rtu", "--drive", "b800@5", "--pty", &pty_s]);
+    let _sim = Proc::start(cmd, "listening on ");
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["--port", &pty_s, "--drive", "auto", "scan", "--addresses", "1-6", "--formats", "7N2,8N2"])
+        .args(["--timeout", "100", "--json"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let found: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let mut seen: Vec<(String, u64, String)> = found
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            (
+                f["family"].as_str().unwrap().to_string(),
+                f["address"].as_u64().unwrap(),
+                f["serial"].as_str().unwrap().to_string(),
+            )
+        })
+        .collect();
+    seen.sort();
+    let want: Vec<(String, u64, String)> =
+        [("b800", 5, "7N2"), ("b800", 5, "8N2"), ("generic", 3, "7N2"), ("generic", 3, "8N2")]
+            .iter()
+            .map(|(f, a, s)| (f.to_string(), *a, s.to_string()))
+            .collect();
+    assert_eq!(seen, want, "{found}");
+}
+
+/// A backup of drive 1 restored onto drive 2 on the same pty line: drive 2 takes drive 1's
+/// settings but keeps its own address (communication settings only with --include-comm), the
+/// restore says whose backup it is, and both drives still answer at their own addresses.
+#[test]
+fn a_backup_restored_onto_another_drive_keeps_its_address() {
+    let pty = std::env::temp_dir().join(format!("drivebus-restore-{}", std::process::id()));
+    let pty_s = pty.to_string_lossy().to_string();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args([
+        "simulate",
+        "--drive",
+        "generic@1:modbus-rtu",
+        "--drive",
+        "generic@2:modbus-rtu",
+        "--pty",
+        &pty_s,
+    ]);
+    let _sim = Proc::start(cmd, "listening on ");
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("d1.json");
+    let f = file.to_string_lossy().to_string();
+    let rtu = Some("modbus-rtu");
+    ok(&drivebus(&pty_s, "generic", rtu, 1, &["param", "set", "P0.02", "12.5"]), "change drive 1");
+    ok(&drivebus(&pty_s, "generic", rtu, 1, &["params", "backup", &f]), "backup drive 1");
+    let saved: Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+    assert_eq!(saved["family"], "generic", "{saved}");
+    assert_eq!(saved["address"], 1, "{saved}");
+    assert!(saved["model"].as_str().is_some_and(|m| !m.is_empty()), "{saved}");
+    // Asked for, the communication settings would be written: shown, not sent.
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["params", "restore", &f, "--include-comm", "--dry-run"]);
+    ok(&o, "dry run with --include-comm");
+    assert!(o.stdout.contains("P3.11: 2 -> 1 (dry run)"), "{}", o.stdout);
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["params", "restore", &f]);
+    ok(&o, "restore onto drive 2");
+    assert!(
+        o.stdout.contains("backup of generic drive 1") && o.stdout.contains("onto drive 2"),
+        "{}",
+        o.stdout
+    );
+    assert!(o.stdout.contains("P0.02:"), "{}", o.stdout);
+    assert!(!o.stdout.contains("P3.11:"), "the address is not restored: {}", o.stdout);
+    assert!(o.stdout.contains("kept as they are: P3.11"), "{}", o.stdout);
+    for address in [1, 2] {
+        let s = status(&pty_s, "generic", rtu, address);
+        assert_eq!(s["address"], address, "{s}");
+    }
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["param", "get", "P0.02", "--json"]);
+    ok(&o, "P0.02 on drive 2");
+    let v: Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(v["raw"], 1250, "{v}");
+    let o = drivebus(&pty_s, "generic", rtu, 2, &["param", "get", "P3.11", "--json"]);
+    ok(&o, "P3.11 on drive 2");
+    let v: Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(v["raw"], 2, "{v}");
+}
+
+/// The B800 protocol has no parameter access: a backup says so and fails (no empty file), and
+/// `param set` says only that, with where to set it, without an EEPROM-wear note first.
+#[test]
+fn b800_parameters_are_refused_with_what_to_do() {
+    let sim = simulate("b800@5", &["--tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("b800.json");
+    let o = drivebus(&port, "b800", None, 5, &["params", "backup", &file.to_string_lossy()]);
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+    assert!(o.stderr.contains("nothing to back up") && o.stderr.contains("keypad"), "{}", o.stderr);
+    assert!(!file.exists(), "no empty backup is written");
+    let o = drivebus(&port, "b800", None, 5, &["param", "set", "F-12", "2"]);
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+    assert!(o.stderr.contains("no parameter access") && o.stderr.contains("keypad"), "{}", o.stderr);
+    assert!(!o.stderr.contains("EEPROM"), "{}", o.stderr);
+    // The link line counts in plain plurals.
+    let o = drivebus(&port, "b800", None, 5, &["status"]);
+    ok(&o, "status");
+    assert!(o.stdout.contains("1 transaction,") && !o.stdout.contains("(s)"), "{}", o.stdout);
+}
+
+/// Polls `status` until `done` holds for it, with a generous deadline (the ramp's pace is the
+/// simulator's, not a speed claim of this test).
+fn wait_status(
+    port: &str,
+    family: &str,
+    protocol: Option<&str>,
+    address: u8,
+    what: &str,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        let s = status(port, family, protocol, address);
+        if done(&s) {
+            return s;
+        }
+        assert!(std::time::Instant::now() < deadline, "{what}: {s}");
+    }
+}
+
+/// Danfoss, each command a separate process: `speed 30; run; stop; run` reaches 30 Hz (every
+/// telegram carries the drive's reference, read from it, not 0); `run` to a tripped drive that
+/// still holds a start is refused with exit 1 and the alarm.
+#[test]
+fn danfoss_commands_from_separate_processes() {
+    let sim = simulate("danfoss@3", &["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    for cmd in [&["speed", "30"][..], &["run"], &["stop"]] {
+        ok(&drivebus(&port, "danfoss", None, 3, cmd), cmd[0]);
+    }
+    wait_status(&port, "danfoss", None, 3, "stopped", |s| s["running"] == false);
+    ok(&drivebus(&port, "danfoss", None, 3, &["run"]), "run again");
+    let s = wait_status(&port, "danfoss", None, 3, "30 Hz", |s| {
+        s["output_hz"].as_f64().is_some_and(|hz| (hz - 30.0).abs() < 0.1)
+    });
+    assert_eq!(s["running"], true, "{s}");
+
+    let (code, v) =
+        http::http_json(sim.control(), "POST", "/drives/1", Some(&json!({"trip": "over-current"})))
+            .expect("trip");
+    assert_eq!(code, 200, "{v}");
+    let o = drivebus(&port, "danfoss", None, 3, &["run"]);
+    assert_eq!(o.code, 1, "run while tripped: {}{}", o.stdout, o.stderr);
+    assert!(o.stderr.contains("tripped") && o.stderr.contains("over current"), "{}", o.stderr);
+    assert!(!o.stdout.contains("done"), "{}", o.stdout);
+}
+
+/// A command to address 0 reaches every drive and nobody confirms it: it says so instead of
+/// "done".
+#[test]
+fn a_broadcast_says_it_is_unconfirmed() {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", "generic@1:modbus-rtu", "--drive", "generic@2:modbus-rtu"]);
+    cmd.args(["--tcp", "127.0.0.1:0"]);
+    let sim = Proc::start(cmd, "listening on ");
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let o = drivebus(&port, "generic", Some("modbus-rtu"), 0, &["run"]);
+    ok(&o, "broadcast run");
+    assert!(o.stdout.contains("run sent to all drives (broadcast: no confirmation)"), "{}", o.stdout);
+    assert!(!o.stdout.contains("done"), "{}", o.stdout);
+    for address in [1, 2] {
+        wait_status(&port, "generic", Some("modbus-rtu"), address, "running after the broadcast", |s| {
+            s["running"] == true
+        });
+    }
 }

@@ -13,8 +13,8 @@
 //! The WebDriver client is a few lines over `std::net::TcpStream` (JSON with serde_json): the
 //! protocol is plain HTTP/1.1 on loopback, and no crate is needed for it.
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::io::{BufRead, BufReader, Write};
+use std::net::{SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -23,6 +23,10 @@ use serde_json::{json, Value};
 
 /// How long anything may take before the test gives up (a generous bound, not a speed claim).
 const PATIENCE: Duration = Duration::from_secs(90);
+
+#[path = "support/http.rs"]
+mod http;
+use http::http_json;
 
 const DEMO_DRIVES: [&str; 10] = [
     "conveyor-1",
@@ -182,92 +186,6 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr) {
     let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
     let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
     (sim, Proc(serve), http)
-}
-
-/// One HTTP/1.1 request with a JSON body; the status and the JSON answer.
-fn http_json(
-    addr: SocketAddr,
-    method: &str,
-    path: &str,
-    body: Option<&Value>,
-) -> Result<(u16, Value), String> {
-    let mut s = TcpStream::connect_timeout(&addr, Duration::from_secs(5)).map_err(|e| e.to_string())?;
-    s.set_read_timeout(Some(PATIENCE)).map_err(|e| e.to_string())?;
-    let body = body.map(|b| b.to_string()).unwrap_or_default();
-    let req = format!(
-        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\nContent-Type: application/json; charset=utf-8\r\n\
-         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
-        body.len()
-    );
-    s.write_all(req.as_bytes()).map_err(|e| e.to_string())?;
-    // chromedriver keeps the connection open whatever the request says: read by the head's length.
-    let mut raw = Vec::new();
-    let mut buf = [0u8; 16384];
-    let (head, body_start) = loop {
-        if let Some(i) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
-            break (String::from_utf8_lossy(&raw[..i]).to_string(), i + 4);
-        }
-        let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
-        if n == 0 {
-            return Err(format!("{method} {path}: the connection closed before the answer"));
-        }
-        raw.extend_from_slice(&buf[..n]);
-    };
-    let status: u16 = head
-        .split_whitespace()
-        .nth(1)
-        .and_then(|s| s.parse().ok())
-        .ok_or_else(|| format!("bad status line: {head}"))?;
-    let header = |name: &str| {
-        head.lines().skip(1).find_map(|l| {
-            let (k, v) = l.split_once(':')?;
-            k.trim().eq_ignore_ascii_case(name).then(|| v.trim().to_ascii_lowercase())
-        })
-    };
-    let mut content = raw.split_off(body_start);
-    if header("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
-        while !content.windows(5).any(|w| w == b"0\r\n\r\n") {
-            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
-            if n == 0 {
-                break;
-            }
-            content.extend_from_slice(&buf[..n]);
-        }
-        content = dechunk(&content)?;
-    } else if let Some(len) = header("content-length").and_then(|v| v.parse::<usize>().ok()) {
-        while content.len() < len {
-            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
-            if n == 0 {
-                return Err(format!("{method} {path}: short body"));
-            }
-            content.extend_from_slice(&buf[..n]);
-        }
-        content.truncate(len);
-    } else {
-        s.read_to_end(&mut content).map_err(|e| format!("{method} {path}: {e}"))?;
-    }
-    let value = if content.is_empty() {
-        Value::Null
-    } else {
-        serde_json::from_slice(&content).map_err(|e| format!("{method} {path}: not JSON ({e})"))?
-    };
-    Ok((status, value))
-}
-
-fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
-    let mut out = Vec::new();
-    loop {
-        let eol = b.windows(2).position(|w| w == b"\r\n").ok_or("bad chunk")?;
-        let size_text = String::from_utf8_lossy(&b[..eol]).to_string();
-        let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
-            .map_err(|_| format!("bad chunk size {size_text:?}"))?;
-        b = &b[eol + 2..];
-        if size == 0 {
-            return Ok(out);
-        }
-        out.extend_from_slice(b.get(..size).ok_or("short chunk")?);
-        b = b.get(size + 2..).ok_or("short chunk")?;
-    }
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -529,20 +447,51 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
     );
     assert!(browser.js("return document.getElementById('token-dialog').hidden;") == json!(true));
 
-    // A locked drive's refusal is shown as the API words it.
-    browser.click(&tile("pump-3", "[data-action=run]"));
-    let pmsg = q(&tile("pump-3", "[data-field=message]"));
-    browser.wait_for(
-        "pump-3's refusal",
-        &format!(
-            "const m = document.querySelector({pmsg});
-             return m.dataset.kind === 'error' && m.textContent.includes('locked');"
-        ),
-        &format!("return document.querySelector({pmsg}).textContent;"),
+    // B800: the gateway knows the speed it set, and the tile shows it; the protocol reports no
+    // direction, and the tile says so.
+    assert_eq!(browser.text(&tile("mixer-1", "[data-field=setpoint_hz]")), "30.00");
+    assert_eq!(
+        browser.text(&tile("mixer-1", "[data-field=direction]")),
+        "direction not reported (B800 protocol)"
     );
-    assert!(browser.text(&tile("pump-3", "[data-field=message]")).contains("\"pump-3\" is locked"));
+    // Danfoss: a direction, or a dash while the drive has not told it.
+    let ahu = browser.text(&tile("ahu-1", "[data-field=direction]"));
+    assert!(["forward", "reverse", "direction –"].contains(&ahu.as_str()), "{ahu}");
 
-    // The live trend opens with points from the stream.
+    // A locked drive's command controls are disabled and say why; its Trend button is not.
+    let locked = browser.js(&format!(
+        "const t = document.querySelector({});
+         return [...t.querySelectorAll('.controls button, .controls input')].map(b => [b.dataset.action || 'speed-field', b.disabled, b.title]);",
+        q("[data-drive=\"pump-3\"]")
+    ));
+    for control in locked.as_array().expect("a list") {
+        let (name, disabled, title) = (&control[0], &control[1], control[2].as_str().unwrap_or(""));
+        if name == "trend" {
+            assert_eq!(disabled, &json!(false), "{control}");
+        } else {
+            assert_eq!(disabled, &json!(true), "{control}");
+            assert!(title.starts_with("locked:"), "{control}");
+        }
+    }
+    assert!(browser.text(&tile("pump-3", "[data-field=locked-why]")).contains("locked = true"));
+    // An unlocked drive's are live.
+    assert_eq!(
+        browser.js(&format!(
+            "return document.querySelector({}).disabled;",
+            q(&tile("pump-2", "[data-action=run]"))
+        )),
+        json!(false)
+    );
+
+    // The live trend opens with points from the stream, under a time axis; the tiles beside it
+    // keep their height.
+    let height = |id: &str| {
+        browser.js(&format!(
+            "return document.querySelector({}).getBoundingClientRect().height;",
+            q(&format!("[data-drive=\"{id}\"]"))
+        ))
+    };
+    let neighbour_before = height("mixer-2");
     browser.click(&tile("mixer-1", "[data-action=trend]"));
     browser.wait_for(
         "mixer-1's trend with points",
@@ -550,6 +499,17 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
          return p.trim().split(' ').length >= 2;",
         "return document.querySelector('[data-drive=\"mixer-1\"] [data-field=trend]').outerHTML;",
     );
+    assert_eq!(height("mixer-2"), neighbour_before, "opening mixer-1's trend stretched mixer-2");
+    let axis: Vec<String> = serde_json::from_value(browser.js(
+        "return [...document.querySelectorAll('[data-drive=\"mixer-1\"] .trend-axis span')].map(s => s.textContent);",
+    ))
+    .unwrap();
+    assert_eq!(axis.len(), 5, "{axis:?}");
+    assert!(
+        axis.iter().all(|t| t.len() == 8 && t.as_bytes()[2] == b':' && t.as_bytes()[5] == b':'),
+        "clock times: {axis:?}"
+    );
+    assert!(axis.first() < axis.last(), "{axis:?}");
 
     // mixer-2's trend opens with the store's history: 200 points or more within 15 s of opening
     // it, the first at the window's left edge. Live points alone come one per poll from when the
@@ -636,6 +596,13 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
     let busy = bus_field("line-a", "utilization");
     let pct: f64 = busy.trim_end_matches('%').trim().parse().unwrap_or(f64::NAN);
     assert!((0.0..=100.0).contains(&pct), "line-a utilization {busy}");
+    // This gateway's configuration says [store] disabled = true: the event log says that, not
+    // to drop a command-line flag it was not given.
+    browser.wait_for(
+        "the event log saying why there are no stored events",
+        "return document.getElementById('event-status').textContent.includes('disabled = true');",
+        "return document.getElementById('event-status').textContent;",
+    );
     browser.screenshot(&dir_artifacts.join("dashboard-faults.png"));
     let _ = std::fs::remove_dir_all(&dir);
 
@@ -652,4 +619,129 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
         "the page is wider than a phone screen by {overflow} px"
     );
     browser.screenshot(&dir_artifacts.join("dashboard-phone.png"));
+}
+
+/// The bench's plant (bench/gateway_load.sh): 1000 simulated generic drives on 32 virtual buses.
+fn start_plant_of_1000(dir: &Path) -> (Proc, SocketAddr) {
+    let mut toml = String::from("name = \"plant\"\n[http]\nanonymous_read = true\n");
+    let mut n = 0;
+    for b in 1..=32 {
+        let per = if b <= 8 { 32 } else { 31 };
+        toml += &format!(
+            "[[bus]]\nname = \"line-{b}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n"
+        );
+        for a in 1..=per {
+            n += 1;
+            toml += &format!("[[bus.drive]]\nname = \"vfd-{n}\"\nfamily = \"generic\"\naddress = {a}\n");
+        }
+    }
+    assert_eq!(n, 1000);
+    let config = dir.join("plant.toml");
+    std::fs::write(&config, toml).expect("write the configuration");
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--config"])
+        .arg(&config)
+        .args(["--no-store", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start drivebus serve --config");
+    let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
+    let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
+    (Proc(serve), http)
+}
+
+/// A hall's worth of drives: the page opens on the table (drive, bus, state, output and set Hz,
+/// current, fault, age), sorts it, filters it by bus and state and searches it by name; the
+/// cards, when chosen, fill the width of a wide window. The times the page took are printed.
+#[test]
+fn the_table_view_holds_a_plant_of_1000_drives() {
+    let (Some(chromium), Some(chromedriver)) =
+        (find_program(&["chromium", "chromium-browser"]), find_program(&["chromedriver"]))
+    else {
+        assert!(
+            std::env::var_os("DRIVEBUS_REQUIRE_BROWSER").is_none(),
+            "DRIVEBUS_REQUIRE_BROWSER is set but chromium/chromedriver not found: .ci/install-witnesses.sh installs them"
+        );
+        let _ =
+            writeln!(std::io::stderr(), "dashboard plant test did not run: chromium/chromedriver not found");
+        return;
+    };
+    let dir = tempfile::tempdir().expect("a temp dir");
+    let (_serve, http) = start_plant_of_1000(dir.path());
+    let browser = Browser::start(&chromium, &chromedriver);
+    browser.call("POST", "/window/rect", Some(json!({ "width": 1900, "height": 1200 })));
+    browser.goto(&format!("http://{http}/"));
+    browser.wait_for(
+        "the table with every drive polled",
+        "const rows = document.querySelectorAll('#dense-rows tr');
+         return !document.getElementById('dense').hidden && rows.length === 1000
+             && [...rows].every(r => r.cells[2].textContent !== 'unknown');",
+        "return [document.getElementById('dense-count').textContent, document.querySelectorAll('#dense-rows tr').length];",
+    );
+    assert_eq!(browser.text("#dense-count"), "1000 of 1000 drives");
+    assert_eq!(
+        browser.js("return document.querySelectorAll('[data-drive]').length;"),
+        json!(0),
+        "no cards made"
+    );
+    let names = |n: usize| -> Vec<String> {
+        serde_json::from_value(browser.js(&format!(
+            "return [...document.querySelectorAll('#dense-rows tr')].slice(0, {n}).map(r => r.cells[0].textContent);"
+        )))
+        .unwrap()
+    };
+    assert_eq!(names(3), ["vfd-1", "vfd-2", "vfd-3"], "sorted by name, numbers as numbers");
+    let timed = |script: &str| -> f64 {
+        browser
+            .js(&format!("const t0 = performance.now(); {script}; return performance.now() - t0;"))
+            .as_f64()
+            .unwrap_or(f64::NAN)
+    };
+    let sort_ms = timed("document.querySelector('#dense-table th[data-sort=id]').click()");
+    assert_eq!(names(2), ["vfd-1000", "vfd-999"], "the second click sorts the other way");
+    let by_bus_ms = timed("const s = document.getElementById('dense-bus'); s.value = 'line-3'; s.dispatchEvent(new Event('change'))");
+    let buses: Vec<String> = serde_json::from_value(
+        browser
+            .js("return [...document.querySelectorAll('#dense-rows tr')].map(r => r.cells[1].textContent);"),
+    )
+    .unwrap();
+    assert_eq!(buses.len(), 32);
+    assert!(buses.iter().all(|b| b == "line-3"), "{buses:?}");
+    browser.js("const s = document.getElementById('dense-bus'); s.value = ''; s.dispatchEvent(new Event('change')); return true;");
+    browser.js("const s = document.getElementById('dense-state'); s.value = 'running'; s.dispatchEvent(new Event('change')); return true;");
+    assert_eq!(browser.text("#dense-count"), "0 of 1000 drives");
+    browser.js("const s = document.getElementById('dense-state'); s.value = 'stopped'; s.dispatchEvent(new Event('change')); return true;");
+    assert_eq!(browser.text("#dense-count"), "1000 of 1000 drives");
+    browser.js("const s = document.getElementById('dense-state'); s.value = ''; s.dispatchEvent(new Event('change')); return true;");
+    browser.click("#dense-table th[data-sort=id]");
+    browser.type_into("#dense-search", "vfd-10");
+    let mut found = names(20);
+    found.sort();
+    let mut want: Vec<String> = ["vfd-10", "vfd-1000"].iter().map(|s| s.to_string()).collect();
+    want.extend((100..=109).map(|n| format!("vfd-{n}")));
+    want.sort();
+    assert_eq!(found, want);
+    // The sort by output frequency puts every drive in order (the stopped ones all at 0.00 Hz,
+    // then by name).
+    browser.type_into("#dense-search", "");
+    browser.click("#dense-table th[data-sort=output_hz]");
+    assert_eq!(
+        browser.js("return document.querySelector('#dense-table th[data-sort=output_hz]').getAttribute('aria-sort');"),
+        json!("ascending")
+    );
+    browser.screenshot(&artifacts_dir().join("dashboard-table.png"));
+
+    // The cards, chosen: a tile per drive, as many to a row as the window holds.
+    let cards_ms = timed("document.querySelector('[data-view=cards]').click()");
+    assert_eq!(browser.js("return document.querySelectorAll('[data-drive]').length;"), json!(1000));
+    let per_row = browser
+        .js("const t = [...document.querySelectorAll('[data-bus=\"line-1\"] [data-drive]')];
+         return t.filter(e => e.offsetTop === t[0].offsetTop).length;");
+    assert!(per_row.as_i64().is_some_and(|n| n >= 5), "{per_row} cards to a row in a 1900 px window");
+    let _ = writeln!(
+        std::io::stderr(),
+        "dashboard with 1000 drives: sort {sort_ms:.1} ms, filter by bus {by_bus_ms:.1} ms, \
+         switch to 1000 cards {cards_ms:.1} ms; {per_row} cards to a row at 1900 px"
+    );
 }

@@ -337,3 +337,63 @@ fn a_reader_that_stops_early_ends_the_command_without_a_panic() {
     let first = closed_pipe::first_line_then_close(cmd);
     assert!(first.starts_with("frame 1"), "{first}");
 }
+
+// ---- Requests and replies read together; registers named from the catalogs ----
+
+/// A Toshiba Modbus read of FD00 and its reply, without --from: the reply is drive 1's and its
+/// value is scaled by the register its request named (17 70 = 60.00 Hz).
+#[test]
+fn a_reply_is_read_with_its_request() {
+    valid(
+        &["-p", "modbus-rtu", "01 03 FD 00 00 01 B5 A6", "01 03 02 17 70 B6 50"],
+        &[
+            "frame 2 at byte 8: drive 1 to master: 03 read holding registers",
+            "register value 1770 = 60.00 Hz",
+        ],
+    );
+    let (_, frames) = json(&["-p", "modbus-rtu", "01 03 FD 00 00 01 B5 A6 01 03 02 17 70 B6 50"]);
+    assert_eq!(frames[1]["direction"], "drive");
+    assert_eq!(frames[1]["fields"]["register value"]["value"], 60.0, "{}", frames[1]);
+    assert_eq!(frames[1]["fields"]["register value"]["unit"], "Hz");
+    // Alone, the reply's value has no register to be read by.
+    let r = decode(&["-p", "modbus-rtu", "--from", "drive", "01 03 02 17 70 B6 50"]);
+    assert!(r.stdout.contains("register value 1770\n"), "{}", r.stdout);
+}
+
+/// The generic VFD's P0.02 at 0002H in Hz, and the values of its 2000H command named.
+#[test]
+fn generic_parameters_and_command_values_are_named() {
+    valid(
+        &["-p", "modbus-rtu", "01 06 00 02 13 88 25 5C"],
+        &["register address 0002 (P0.02 ", "(generic)", "register value 1388 = 50.00 Hz"],
+    );
+    valid(&["-p", "modbus-ascii", "3A 30 31 30 36 30 30 30 32 31 33 38 38 35 43 0D 0A"], &["= 50.00 Hz"]);
+    valid(&["-p", "modbus-rtu", "01 06 20 00 00 01 43 CA"], &["register value 0001 (run)"]);
+    let (_, frames) = json(&["-p", "modbus-rtu", "01 06 20 00 00 07 C3 C8"]);
+    assert_eq!(frames[0]["fields"]["register value"]["meaning"], "decelerate to stop", "{}", frames[0]);
+}
+
+/// A register both Modbus families have (generic P0.10 and Toshiba 0010 at 0010H) is named
+/// as both until --drive says which; with it, the value is in that parameter's unit.
+#[test]
+fn a_register_two_families_share_is_named_by_drive() {
+    // 01 06 0010 0064: 100 raw.
+    let r = decode(&["-p", "modbus-rtu", "01 06 00 10 00 64 89 E4"]);
+    assert_eq!(r.code, 0, "{}{}", r.stdout, r.stderr);
+    assert!(r.stdout.contains(" or toshiba 0010 ") && r.stdout.contains("--drive FAMILY"), "{}", r.stdout);
+    valid(&["-p", "modbus-rtu", "--drive", "toshiba", "01 06 00 10 00 64 89 E4"], &["(0010 ", "= 10.0 s"]);
+    let r = decode(&["-p", "modbus-rtu", "--drive", "danfos", "01 06 00 10 00 64 89 E4"]);
+    assert_eq!(r.code, 3, "{}", r.stderr);
+}
+
+/// A Danfoss reply with AK 1 (a value) or AK F (a text), without --from, is the drive's.
+#[test]
+fn danfoss_replies_without_from_are_the_drives() {
+    // 02 0E 81 | PKE 11CE (AK 1, PNU 462 = 4-14... any) IND 0000 PWE 0000028A | STW 0607 MAV 0000
+    let mut t =
+        vec![0x02, 0x0E, 0x81, 0x11, 0x9E, 0x00, 0x00, 0x00, 0x00, 0x02, 0x8A, 0x06, 0x07, 0x00, 0x00];
+    t.push(t.iter().fold(0, |a, b| a ^ b));
+    let hex: Vec<String> = t.iter().map(|b| format!("{b:02X}")).collect();
+    let hex = hex.join(" ");
+    valid(&["-p", "danfoss-fc", &hex], &["drive 1 to master: 01 parameter value transferred (word)"]);
+}

@@ -62,7 +62,12 @@ fn event(time_ms: i64, kind: EventKind, drive: &str, actor: &str, action: &str, 
 
 /// A store in `dir/drivebus.db` with five events and two minutes of one drive's trend.
 fn fixture(dir: &Path) {
-    let store = Store::open(&dir.join("drivebus.db")).unwrap();
+    fixture_named(dir, "drivebus.db");
+}
+
+/// The same store in `dir/name`.
+fn fixture_named(dir: &Path, name: &str) {
+    let store = Store::open(&dir.join(name)).unwrap();
     store.record(&event(t0(), EventKind::Command, "pump-1", "http:ops@127.0.0.1", "run", "ok")).unwrap();
     store
         .record(&event(t0() + 1_000, EventKind::Command, "pump-1", "http:ops@127.0.0.1", "speed 40 Hz", "ok"))
@@ -314,4 +319,24 @@ fn events_to_a_reader_that_stops_early_end_without_a_panic() {
     cmd.current_dir(dir.path()).args(["events", "--limit", "5000"]);
     let first = closed_pipe::first_line_then_close(cmd);
     assert!(first.contains("TIME"), "{first}");
+}
+
+/// In the folder where `drivebus serve --demo` ran (its store is drivebus-demo.db), the
+/// README's `events` and `trend` lines find the demo's store without --db.
+#[test]
+fn events_and_trend_find_the_demos_store() {
+    let dir = tempfile::tempdir().unwrap();
+    fixture_named(dir.path(), "drivebus-demo.db");
+    let r = run_in(dir.path(), &["events", "--since", "0", "--kind", "trip"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stdout.contains("fan-2") && r.stdout.contains("trip"), "{}", r.stdout);
+    let since = t0().to_string();
+    let r = run_in(dir.path(), &["trend", "--drive", "pump-1", "--since", &since]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stdout.lines().count() > 100, "{}", r.stdout);
+    // A drivebus.db of its own (empty here) is read first.
+    drop(Store::open(&dir.path().join("drivebus.db")).unwrap());
+    let r = run_in(dir.path(), &["events"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stderr.contains("no events match in drivebus.db"), "{}", r.stderr);
 }

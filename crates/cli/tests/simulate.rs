@@ -164,3 +164,27 @@ fn bad_options_exit_3_with_one_line() {
         assert_eq!(err.lines().count(), 1, "{args:?}: one line: {err}");
     }
 }
+
+/// Stopped by SIGTERM (as `kill` or a service manager stops it) or SIGINT (Ctrl-C), the
+/// simulator removes its pty symlink.
+#[test]
+fn a_stopped_simulator_removes_its_pty_link() {
+    for signal in ["-TERM", "-INT"] {
+        let link = std::env::temp_dir().join(format!("drivebus-sim-signal{signal}-{}", std::process::id()));
+        let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["simulate", "--drive", "generic@1:modbus-rtu", "--pty"])
+            .arg(&link)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start drivebus simulate");
+        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        while !lines.next().expect("a ready line").expect("utf-8").starts_with("listening on pty") {}
+        assert!(link.symlink_metadata().is_ok(), "the link is there while it runs");
+        let sent = Command::new("kill").args([signal, &child.id().to_string()]).status().expect("kill");
+        assert!(sent.success());
+        let status = child.wait().expect("wait");
+        assert!(status.success(), "{signal}: {status}");
+        assert!(link.symlink_metadata().is_err(), "{signal}: {} is left behind", link.display());
+    }
+}

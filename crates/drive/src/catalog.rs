@@ -298,6 +298,7 @@ const PARAM_FIELDS: &[&str] = &[
     "choices",
     "array",
     "while_running",
+    "comm",
     "note",
 ];
 
@@ -426,6 +427,7 @@ fn parse_param(file: &str, family: Family, position: &str, table: &Table) -> Res
     }
     let read_only = f.bool("read_only")?;
     let while_running = if table.contains_key("while_running") { f.bool("while_running")? } else { true };
+    let comm = if table.contains_key("comm") { f.bool("comm")? } else { false };
     let array = if table.contains_key("array") {
         let n = f.int_in("array", 1, 255)?;
         Some(u16::try_from(n).map_err(|_| f.error("array", "does not fit"))?)
@@ -451,6 +453,7 @@ fn parse_param(file: &str, family: Family, position: &str, table: &Table) -> Res
         choices,
         array,
         while_running,
+        comm,
         note,
     })
 }

@@ -33,6 +33,16 @@ impl Family {
         }
     }
 
+    /// The drive model the family's catalog follows, as a backup file records it.
+    pub fn model(self) -> &'static str {
+        match self {
+            Family::Generic => "generic VFD (2000H/2100H Modbus map)",
+            Family::Toshiba => "Toshiba VF-AS1",
+            Family::Danfoss => "Danfoss VLT FC series",
+            Family::B800 => "B800 series",
+        }
+    }
+
     /// The seed manual this family's protocol and catalog come from, as `seeds/<file>`.
     pub fn manual(self) -> &'static str {
         match self {

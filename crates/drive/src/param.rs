@@ -99,6 +99,9 @@ pub struct ParamDef {
     pub array: Option<u16>,
     /// `false` if the drive refuses writes while the motor runs (maximum frequency, motor data).
     pub while_running: bool,
+    /// A communication setting (bus address, baud rate, character format, protocol, time-outs):
+    /// copying it from another drive's backup would move this drive on the bus.
+    pub comm: bool,
     /// A remark from the catalog: where a value comes from, what is unconfirmed.
     pub note: Option<String>,
 }

@@ -47,6 +47,9 @@ fn notes(p: &ParamDef) -> String {
     if !p.while_running {
         parts.push("not while running".to_string());
     }
+    if p.comm {
+        parts.push("communication setting (restored only with --include-comm)".to_string());
+    }
     if !p.choices.is_empty() {
         let list: Vec<String> = p.choices.iter().map(|c| format!("{} {}", c.value, c.text)).collect();
         parts.push(list.join(", "));

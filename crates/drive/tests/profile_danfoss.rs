@@ -323,8 +323,9 @@ fn a_reset_that_leaves_the_trip_is_refused() {
         m.set_supply(0.5);
         m.trip_now(Trip::UnderVoltage);
     }
+    // A fresh profile: 16-02 and 16-00 first, then the two reset telegrams and 15-30.
     let (result, sent) = execute(&mut line, fc.plan(&Operation::Reset).expect("plan"));
-    assert_eq!(sent, 3);
+    assert_eq!(sent, 5);
     let (code, meaning) = refusal(result);
     assert_eq!(code, 8);
     assert!(meaning.contains("DC under voltage"), "{meaning}");
@@ -491,11 +492,17 @@ fn address_format_1_to_31() {
     let mut line = line_with(&[22]);
     let fc = DanfossProfile::with_address_format(22, AddressFormat::OneTo31).expect("profile");
     let mut plan = fc.plan(&Operation::Stop).expect("plan");
-    let Ok(Step::Send(x)) = plan.step(None) else { panic!("a telegram") };
-    // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
-    assert_eq!(x.request[2], 0x16);
-    let reply = transact(&mut line, &x.request, true);
-    assert_eq!(plan.step(reply.as_deref()), Ok(Step::Done(Outcome::Done)));
+    let mut reply = None;
+    let mut sent = 0;
+    // A fresh profile's stop: 16-02, 16-00, then the stop; every one to ADR 16.
+    while let Ok(Step::Send(x)) = plan.step(reply.as_deref()) {
+        // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
+        assert_eq!(x.request[2], 0x16);
+        reply = transact(&mut line, &x.request, true);
+        sent += 1;
+    }
+    assert_eq!(sent, 3);
+    assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
     assert!(DanfossProfile::with_address_format(32, AddressFormat::OneTo31).is_err());
     assert_eq!(
         DanfossProfile::new(127).err(),
@@ -555,4 +562,58 @@ fn a_fresh_profile_reads_the_setpoint_the_drive_holds() {
     let fresh = DanfossProfile::new(7).expect("profile");
     let s = status(&mut line, &fresh);
     assert_eq!(s.setpoint_hz, Some(30.0), "{s:?}");
+}
+
+/// `speed 30; run; stop; run`, each from a fresh profile (a separate process): every command
+/// carries the reference the drive holds, so the last run reaches 30 Hz, not 0 Hz.
+#[test]
+fn stop_then_run_from_fresh_profiles_keeps_the_speed() {
+    let mut line = line_with(&[4]);
+    for op in [Operation::SetSpeed(30.0), Operation::Run, Operation::Stop] {
+        run(&mut line, &DanfossProfile::new(4).expect("profile"), op);
+        wait(&mut line, Duration::from_secs(1));
+    }
+    assert!((model(&mut line, 1).setpoint_hz() - 30.0).abs() < 0.01, "the stop kept the reference");
+    wait(&mut line, Duration::from_secs(20));
+    assert_eq!(model(&mut line, 1).state(), RunState::Stopped);
+    run(&mut line, &DanfossProfile::new(4).expect("profile"), Operation::Run);
+    wait(&mut line, Duration::from_secs(20));
+    let m = model(&mut line, 1);
+    assert_eq!(m.state(), RunState::Running);
+    assert!((m.output_hz() - 30.0).abs() < 0.05, "{} Hz", m.output_hz());
+}
+
+/// A fresh profile's run to a tripped drive whose last control word holds a start sends no
+/// start (one is in force) and is still refused, with the alarm, as any run to a tripped drive.
+#[test]
+fn a_fresh_run_to_a_tripped_drive_holding_a_start_is_refused() {
+    let mut line = line_with(&[1]);
+    let first = DanfossProfile::new(1).expect("profile");
+    run(&mut line, &first, Operation::SetSpeed(30.0));
+    run(&mut line, &first, Operation::Run);
+    wait(&mut line, Duration::from_secs(1));
+    line.drive_mut(1).expect("drive").core_mut().model.trip_now(Trip::OverCurrent);
+    let fresh = DanfossProfile::new(1).expect("profile");
+    let (result, sent) = execute(&mut line, fresh.plan(&Operation::Run).expect("plan"));
+    let (code, meaning) = refusal(result);
+    assert_eq!(code, 13);
+    assert_eq!(meaning, "the drive is tripped: reset it first (alarm 13: over current)");
+    // 16-02, 16-00 (its reply's status word shows the trip), 15-30 [0].
+    assert_eq!(sent, 3);
+}
+
+/// A fresh profile's run to a drive that holds a start but no longer takes the bus control word
+/// (8-01 Control Site changed on the panel) is refused, not "done".
+#[test]
+fn a_fresh_run_to_a_drive_without_bus_control_is_refused() {
+    let mut line = line_with(&[1]);
+    let first = DanfossProfile::new(1).expect("profile");
+    run(&mut line, &first, Operation::SetSpeed(30.0));
+    run(&mut line, &first, Operation::Run);
+    run(&mut line, &first, write("8-01", 1, Storage::Ram));
+    let fresh = DanfossProfile::new(1).expect("profile");
+    let (result, _) = execute(&mut line, fresh.plan(&Operation::Run).expect("plan"));
+    let (code, meaning) = refusal(result);
+    assert_eq!(code & 0x0200, 0);
+    assert!(meaning.contains("bit 09"), "{meaning}");
 }

@@ -17,7 +17,7 @@ use drivebus_drive::profile::Exchange;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, watch};
 
 use crate::engine::{with_engine, Action, Attempt, Engine};
 use crate::link::Link;
@@ -203,6 +203,8 @@ pub struct Bus {
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
     name: String,
+    /// Closed (its sender dropped) when the owner task has ended and released the link.
+    ended: watch::Receiver<()>,
 }
 
 impl Bus {
@@ -213,10 +215,22 @@ impl Bus {
         let (ctx, crx) = mpsc::unbounded_channel();
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
+        let (ended_tx, ended) = watch::channel(());
         with_engine!(config, stats.clone(), health.clone(), |engine| {
-            tokio::spawn(Owner { link, engine, rx_buf: Vec::new() }.run(crx, prx));
+            tokio::spawn(Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx }.run(crx, prx));
         })?;
-        Ok(Bus { commands: ctx, polls: ptx, stats, health, name })
+        Ok(Bus { commands: ctx, polls: ptx, stats, health, name, ended })
+    }
+
+    /// Drops this handle and waits until the owner task has ended and closed the link (the
+    /// serial port free for another open). The owner ends once every clone of the handle is
+    /// dropped, so drop the others (and the [`crate::drive::Drive`]s holding them) first.
+    pub async fn close(self) {
+        let Bus { commands, polls, mut ended, .. } = self;
+        drop(commands);
+        drop(polls);
+        // Err once the owner has dropped its sender, that is ended.
+        while ended.changed().await.is_ok() {}
     }
 
     /// The link's name.
@@ -259,6 +273,8 @@ struct Owner<L: Link, P: Protocol> {
     engine: Engine<P>,
     /// The read buffer, kept between exchanges.
     rx_buf: Vec<u8>,
+    /// Dropped after the link (fields drop in order): tells [`Bus::close`] the link is closed.
+    _ended: watch::Sender<()>,
 }
 
 impl<L: Link, P: Protocol> Owner<L, P> {

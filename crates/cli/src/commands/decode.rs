@@ -6,6 +6,7 @@ use std::io::Write as _;
 use anyhow::Result;
 use clap::{Args, ValueEnum};
 
+use drivebus_drive::Family;
 use drivebus_proto::describe::{CodeStyle, Raw};
 use drivebus_proto::{Codec, Deframer, Describe, Direction, Event, Target};
 use serde_json::{json, Map, Value};
@@ -53,7 +54,7 @@ pub enum From {
     Drive,
 }
 
-/// Arguments of `drivebus decode` (with the global `--protocol` and `--json`).
+/// Arguments of `drivebus decode` (with `--protocol`, `--drive` and `--json` from `crate::options`).
 #[derive(Args, Debug)]
 pub struct DecodeArgs {
     /// Who sent the bytes, where the protocol cannot tell (a Modbus request and its reply).
@@ -112,10 +113,16 @@ pub struct FrameReport {
 }
 
 /// Decodes `bytes` as a stream of frames of codec `C`.
+///
+/// Without `from`, a frame that reads as a request or as a reply alike (a Modbus 03 answer, an
+/// FC telegram with AK 1 or F) right after a request to drive N is read as drive N's reply,
+/// as on the wire: a master waits for the answer before it sends again.
 pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Item> {
     let mut items = Vec::new();
     let mut deframer = Deframer::new(C::scanner(from));
     let mut next = 0u64;
+    // The drive the last request went to, while its reply is due.
+    let mut awaiting: Option<Target> = None;
     let mut on_event = |e: Event<'_>| {
         let (frame, position, error) = match e {
             Event::Frame { bytes, position } => (bytes, position, None),
@@ -126,6 +133,9 @@ pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Ite
             items.push(Item::Noise { offset: next, bytes: noise });
         }
         next = next.max(position + frame.len() as u64);
+        if error.is_some() {
+            awaiting = None;
+        }
         let report = match error {
             Some(error) => FrameReport {
                 offset: position,
@@ -137,8 +147,15 @@ pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Ite
                 fields: Vec::new(),
                 error: Some(error),
             },
-            None => match C::parse(frame, from) {
-                Ok(parsed) => describe(position, frame, &parsed),
+            None => match reply_to::<C>(awaiting.take(), frame, from)
+                .map_or_else(|| C::parse(frame, from), Ok::<_, drivebus_proto::FrameError>)
+            {
+                Ok(parsed) => {
+                    if parsed.direction() == Direction::Master && matches!(parsed.target(), Target::Unit(_)) {
+                        awaiting = Some(parsed.target());
+                    }
+                    describe(position, frame, &parsed)
+                }
                 Err(error) => FrameReport {
                     offset: position,
                     bytes: frame.to_vec(),
@@ -159,6 +176,19 @@ pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Ite
         items.push(Item::Noise { offset: next, bytes: input[next as usize..].to_vec() });
     }
     items
+}
+
+/// `frame` read as the reply of the drive `awaiting` names, where it reads as one and no
+/// direction was given.
+fn reply_to<C: Codec>(
+    awaiting: Option<Target>,
+    frame: &[u8],
+    from: Option<Direction>,
+) -> Option<C::Frame<'_>> {
+    let drive = awaiting.filter(|_| from.is_none())?;
+    C::parse(frame, Some(Direction::Drive))
+        .ok()
+        .filter(|reply| reply.direction() == Direction::Drive && reply.target() == drive)
 }
 
 fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
@@ -316,19 +346,25 @@ pub fn render_json(protocol: &str, item: &Item) -> Option<Value> {
     Some(Value::Object(o))
 }
 
-/// Decodes with the codec `name`.
+/// Decodes with the codec `name`; Modbus registers are named from the catalog of `family`
+/// (generic or toshiba), or of whichever of the two has the register when `None`.
 pub fn decode_by_name(
     name: ProtocolName,
     bytes: &[u8],
     from: Option<Direction>,
+    family: Option<Family>,
 ) -> (&'static str, Vec<Item>) {
     use drivebus_proto::{b800, fc, modbus, toshiba};
     match name {
         ProtocolName::ModbusRtu => {
-            (modbus::rtu::ModbusRtu::NAME, decode_stream::<modbus::rtu::ModbusRtu>(bytes, from))
+            let mut items = decode_stream::<modbus::rtu::ModbusRtu>(bytes, from);
+            name_registers(&mut items, family);
+            (modbus::rtu::ModbusRtu::NAME, items)
         }
         ProtocolName::ModbusAscii => {
-            (modbus::ascii::ModbusAscii::NAME, decode_stream::<modbus::ascii::ModbusAscii>(bytes, from))
+            let mut items = decode_stream::<modbus::ascii::ModbusAscii>(bytes, from);
+            name_registers(&mut items, family);
+            (modbus::ascii::ModbusAscii::NAME, items)
         }
         ProtocolName::ToshibaAscii => {
             (toshiba::ascii::AsciiCodec::NAME, decode_stream::<toshiba::ascii::AsciiCodec>(bytes, from))
@@ -339,6 +375,129 @@ pub fn decode_by_name(
         ProtocolName::DanfossFc => (fc::DanfossFc::NAME, decode_stream::<fc::DanfossFc>(bytes, from)),
         ProtocolName::B800 => (b800::B800::NAME, decode_stream::<b800::B800>(bytes, from)),
     }
+}
+
+/// Decodes `reply` as the drive's answer to `request` (one valid request): a read reply's
+/// values named and scaled by the request's starting address. Only the reply's items.
+pub fn decode_reply(
+    name: ProtocolName,
+    request: &[u8],
+    reply: &[u8],
+    family: Option<Family>,
+) -> (&'static str, Vec<Item>) {
+    let (_, mut items) = decode_by_name(name, request, Some(Direction::Master), family);
+    let (protocol, answer) = decode_by_name(name, reply, Some(Direction::Drive), family);
+    let asked = items.len();
+    items.extend(answer);
+    if matches!(name, ProtocolName::ModbusRtu | ProtocolName::ModbusAscii) {
+        name_registers(&mut items, family);
+    }
+    (protocol, items.split_off(asked))
+}
+
+/// A register as the catalogs know it: one family's parameter, or several that share the
+/// number (a generic Pgg.nn and a Toshiba communication number).
+enum Known {
+    One(Family, drivebus_drive::ParamDef),
+    Several(String),
+}
+
+/// The Modbus families' catalog entries at register `address` (only `family`'s when given).
+fn known_register(address: u16, family: Option<Family>) -> Option<Known> {
+    let families: Vec<Family> = match family {
+        Some(f) => vec![f],
+        None => vec![Family::Generic, Family::Toshiba],
+    };
+    let mut found: Vec<(Family, drivebus_drive::ParamDef)> = families
+        .into_iter()
+        .filter_map(|f| {
+            Some((f, drivebus_drive::Catalog::load(f).ok()?.by_number(u32::from(address))?.clone()))
+        })
+        .collect();
+    match found.len() {
+        0 => None,
+        1 => found.pop().map(|(f, def)| Known::One(f, def)),
+        _ => Some(Known::Several(format!(
+            "{}: --drive FAMILY says which",
+            found.iter().map(|(f, d)| format!("{f} {} {}", d.name, d.title)).collect::<Vec<_>>().join(" or ")
+        ))),
+    }
+}
+
+/// Adds what the proto tables leave out to Modbus frames: a read reply's values named and
+/// scaled by its request's starting address (the frame before it, to the same drive), and
+/// registers the catalogs know (generic P0.02 at 0002H, the 2000H command values).
+fn name_registers(items: &mut [Item], family: Option<Family>) {
+    // The drive and starting address of the last read request (03 or 04).
+    let mut read: Option<(Option<Target>, u16)> = None;
+    for item in items.iter_mut() {
+        let Item::Frame(f) = item else {
+            read = None;
+            continue;
+        };
+        if f.error.is_some() {
+            read = None;
+            continue;
+        }
+        let function = f.command.as_ref().and_then(|(_, code, _)| code.as_u64());
+        let is_read = matches!(function, Some(3 | 4));
+        // A read reply's values start at its request's address.
+        let mut at = match (f.direction, read.take()) {
+            (Some(Direction::Drive), Some((target, start))) if is_read && target == f.target => Some(start),
+            _ => None,
+        };
+        for field in &mut f.fields {
+            let Some(raw) = field.json["raw"].as_u64().and_then(|r| u16::try_from(r).ok()) else { continue };
+            match field.name.split('[').next().unwrap_or_default() {
+                "starting address" | "register address" => {
+                    at = Some(raw);
+                    if is_read && f.direction == Some(Direction::Master) {
+                        read = Some((f.target, raw));
+                    }
+                    if field.json.get("meaning").is_none() {
+                        let meaning = match known_register(raw, family) {
+                            Some(Known::One(fam, def)) => format!("{} {} ({fam})", def.name, def.title),
+                            Some(Known::Several(text)) => text,
+                            None => continue,
+                        };
+                        field.text = format!("{} ({meaning})", field.text);
+                        field.json["meaning"] = json!(meaning);
+                    }
+                }
+                "register value" => {
+                    let Some(address) = at else { continue };
+                    at = Some(address.wrapping_add(1));
+                    if field.json.get("value").is_some() || field.json.get("meaning").is_some() {
+                        continue;
+                    }
+                    if let Some((unit, scale, decimals)) = drivebus_proto::modbus::register_info(
+                        drivebus_proto::modbus::RegisterAddress(address),
+                    )
+                    .and_then(|i| i.unit)
+                    {
+                        set_quantity(field, f64::from(raw) * scale, unit, usize::from(decimals));
+                    } else if let Some(Known::One(_, def)) = known_register(address, family) {
+                        if let Some(choice) = def.choice(i64::from(raw)) {
+                            field.text = format!("{} ({choice})", field.text);
+                            field.json["meaning"] = json!(choice);
+                        } else if !def.unit.is_empty() {
+                            let decimals = usize::try_from(def.scale.max(0)).unwrap_or(0);
+                            set_quantity(field, def.from_raw(i64::from(raw)), &def.unit, decimals);
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
+/// Adds a value in a unit to a field, as the proto's own quantities show.
+fn set_quantity(field: &mut FieldReport, value: f64, unit: &str, decimals: usize) {
+    let shown = format!("{value:.decimals$}");
+    field.text = format!("{} = {shown} {unit}", field.text);
+    field.json["value"] = json!(shown.parse::<f64>().unwrap_or(value));
+    field.json["unit"] = json!(unit);
 }
 
 /// Runs `drivebus decode`; returns the exit status (0 a valid frame was found, 1 none).
@@ -355,7 +514,16 @@ pub fn run(args: &DecodeArgs, target: &crate::commands::drive::Target) -> Result
         From::Master => Direction::Master,
         From::Drive => Direction::Drive,
     });
-    let (protocol, items) = decode_by_name(protocol, &bytes, from);
+    let family = match target.drive.as_slice() {
+        [] => None,
+        [one] => Some(one.parse::<Family>().map_err(|_| {
+            crate::commands::drive::usage(format!(
+                "unknown drive family {one:?}: use generic or toshiba to name Modbus registers"
+            ))
+        })?),
+        _ => return Err(crate::commands::drive::usage("give one --drive FAMILY to name the registers by")),
+    };
+    let (protocol, items) = decode_by_name(protocol, &bytes, from, family);
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     let mut valid = 0;

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{anyhow, Context, Result};
-use clap::{Args, Subcommand};
+use clap::Subcommand;
 use drivebus_drive::profile::{DriveError, DriveStatus};
 use drivebus_drive::{Family, Storage};
 use drivebus_link::drive::{open_with, Drive, Error};
@@ -15,52 +15,36 @@ use serde_json::{json, Map, Value};
 
 use crate::hexarg::parse_hex_args;
 
-/// Where the drive is and how to speak to it (options before or after the command).
-#[derive(Args, Debug, Clone)]
+/// Where the drive is and how to speak to it, as given before or after the command (see
+/// `crate::options`, which declares them for each command).
+#[derive(Debug, Clone, Default)]
 pub struct Target {
     /// Serial device (/dev/ttyUSB0, a pty) or tcp://HOST:PORT of a serial device server.
-    #[arg(long, global = true, value_name = "DEVICE|tcp://HOST:PORT")]
     pub port: Option<String>,
-    /// The drive family (generic, toshiba, danfoss, b800); for `simulate`, a drive on the
-    /// virtual bus as KIND@ADDR[:PROTOCOL], repeated for more drives.
-    #[arg(long = "drive", global = true, value_name = "FAMILY | KIND@ADDR[:PROTOCOL]")]
+    /// The drive family (generic, toshiba, danfoss, b800, auto for scan); for `simulate`, a
+    /// drive on the virtual bus as KIND@ADDR[:PROTOCOL]; for `events` and `trend` a drive's name.
     pub drive: Vec<String>,
     /// The drive's address (`monitor` takes several: --address 1 --address 2).
-    #[arg(long, global = true, action = clap::ArgAction::Append)]
     pub address: Vec<u8>,
-    /// The protocol: for `decode` the wire format (modbus-rtu, modbus-ascii, toshiba-ascii,
-    /// toshiba-binary, danfoss-fc, b800); for a drive, where its family speaks several.
-    #[arg(long, short = 'p', global = true)]
+    /// The protocol: for `decode` the wire format; for a drive, where its family speaks several.
     pub protocol: Option<String>,
     /// Baud rate (default: the family's).
-    #[arg(long, global = true)]
     pub baud: Option<u32>,
     /// Character format such as 8E1 (default: the family's).
-    #[arg(long, global = true, value_name = "FORMAT")]
     pub serial: Option<String>,
     /// Response timeout in milliseconds (default: the protocol's).
-    #[arg(long, global = true, value_name = "MS")]
     pub timeout: Option<u64>,
     /// Retries after a timeout or a damaged reply.
-    #[arg(long, global = true, default_value_t = 2)]
     pub retries: u8,
-    /// Silence kept before each request, in milliseconds (default: the protocol's, e.g.
-    /// Modbus RTU t3.5); 0 for a pty or a TCP server with no RS-485 line behind it.
-    #[arg(long, global = true, value_name = "MS")]
+    /// Silence kept before each request, in milliseconds (default: the protocol's).
     pub gap: Option<f64>,
-    /// RS-485 direction control on a serial port: off (the adapter switches by itself, as
-    /// most USB-RS485 adapters do), auto (the kernel's RS-485 mode, else RTS), kernel, rts.
-    #[arg(long, global = true, value_name = "MODE", default_value = "off")]
+    /// RS-485 direction control on a serial port: off, auto, kernel, rts.
     pub rs485: String,
-    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes (on-board
-    /// UARTs; USB adapters deliver bytes in bursts and would lose good replies).
-    #[arg(long, global = true)]
+    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes.
     pub strict_t15: bool,
-    /// Discard the local echo of our own requests (2-wire adapters that hear themselves).
-    #[arg(long, global = true)]
+    /// Discard the local echo of our own requests.
     pub echo: bool,
     /// Output JSON.
-    #[arg(long, global = true)]
     pub json: bool,
 }
 
@@ -99,6 +83,10 @@ pub enum ParamsCmd {
         /// Only show what would be written.
         #[arg(long)]
         dry_run: bool,
+        /// Restore the communication settings too (bus address, baud rate, format, protocol,
+        /// time-outs): only onto the drive the backup came from, or to clone its place.
+        #[arg(long)]
+        include_comm: bool,
     },
     /// Compare the drive with FILE: exit 0 when equal, 1 with the list when not.
     Diff {
@@ -277,8 +265,14 @@ pub fn status(t: &Target) -> Result<u8> {
             }
             let st = drive.bus().stats();
             println!(
-                "  link       {} transaction(s), {} retr(y/ies), {} timeout(s), {} damaged",
-                st.transactions, st.retries, st.timeouts, st.checksum_errors
+                "  link       {} {}, {} {}, {} {}, {} damaged",
+                st.transactions,
+                plural(st.transactions, "transaction", "transactions"),
+                st.retries,
+                plural(st.retries, "retry", "retries"),
+                st.timeouts,
+                plural(st.timeouts, "timeout", "timeouts"),
+                st.checksum_errors
             );
         }
         Ok(0)
@@ -298,8 +292,13 @@ pub fn command(t: &Target, what: &str, hz: Option<f64>) -> Result<u8> {
             _ => drive.set_speed(hz.unwrap_or(0.0)).await,
         };
         r.map_err(|e| classify(e, &label))?;
+        // Address 0: every drive takes it and none answers, so nothing confirms it.
+        let broadcast = drive.profile().address() == 0;
         if t.json {
-            println!("{}", json!({"ok": true, "command": what, "hz": hz}));
+            println!("{}", json!({"ok": true, "command": what, "hz": hz, "broadcast": broadcast}));
+        } else if broadcast {
+            let what = hz.map_or(what.to_string(), |hz| format!("speed {hz} Hz"));
+            println!("{}: {what} sent to all drives (broadcast: no confirmation)", drive.bus().name());
         } else {
             match hz {
                 Some(hz) => println!("{label}: speed set to {hz} Hz"),
@@ -333,6 +332,8 @@ pub fn param(t: &Target, cmd: &ParamCmd) -> Result<u8> {
                 } else {
                     def.storage
                 };
+                let raw = drive.write_param(name, value, storage).await.map_err(|e| classify(e, &label))?;
+                // Told once the write is done: a protocol without parameter access says only that.
                 if storage == Storage::Eeprom {
                     let why = if *eeprom {
                         "as asked".to_string()
@@ -341,7 +342,6 @@ pub fn param(t: &Target, cmd: &ParamCmd) -> Result<u8> {
                     };
                     eprintln!("drivebus: note: {name} is written to EEPROM ({why}; about 10 000 writes per parameter over the drive's life)");
                 }
-                let raw = drive.write_param(name, value, storage).await.map_err(|e| classify(e, &label))?;
                 let def = drive.profile().param(name).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
                 if t.json {
                     println!("{}", json!({"name": def.name, "raw": raw, "value": def.from_raw(raw), "unit": def.unit, "storage": if *eeprom {"eeprom"} else {"ram"}}));
@@ -360,24 +360,44 @@ fn can_choose_storage(family: Family, protocol: &str) -> bool {
     matches!((family, protocol), (Family::Toshiba, "toshiba-ascii" | "toshiba-binary") | (Family::Danfoss, _))
 }
 
+/// Reads every setting (writable, stored in EEPROM) the protocol can reach. A protocol without
+/// parameter access (B800) has nothing to back up: that is an error, not an empty set.
 async fn read_all(drive: &Drive, label: &str) -> Result<Map<String, Value>> {
     let family = drive.profile().family();
     let catalog = drivebus_drive::Catalog::load(family).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let mut out = Map::new();
+    let mut unsupported = false;
     // The drive's settings: stored in EEPROM and writable (not commands, setpoints, monitors).
     for def in catalog.iter().filter(|d| !d.read_only && d.storage == Storage::Eeprom) {
         match drive.read_param(&def.name).await {
             Ok((raw, def)) => {
                 out.insert(def.name.clone(), json!({"raw": raw, "value": def.format(raw)}));
             }
-            Err(Error::Drive(DriveError::Unsupported(_))) => {}
+            Err(Error::Drive(DriveError::Unsupported(_))) => unsupported = true,
             Err(e) => return Err(classify(e, label)),
         }
+    }
+    if unsupported && out.is_empty() {
+        return Err(fail(
+            EXIT_USAGE,
+            format!(
+                "{label}: nothing to back up or compare: the {} protocol has no parameter access (read and set the parameters on the drive's keypad)",
+                drive.profile().protocol()
+            ),
+        ));
     }
     Ok(out)
 }
 
-fn load_backup(file: &PathBuf) -> Result<(String, Map<String, Value>)> {
+/// A backup file: whose it is (family, address, model) and its parameters.
+struct Backup {
+    family: String,
+    address: Option<u64>,
+    model: Option<String>,
+    params: Map<String, Value>,
+}
+
+fn load_backup(file: &PathBuf) -> Result<Backup> {
     let text = std::fs::read_to_string(file)
         .with_context(|| format!("cannot read {}", file.display()))
         .map_err(|e| fail(EXIT_USAGE, format!("{e:#}")))?;
@@ -388,7 +408,12 @@ fn load_backup(file: &PathBuf) -> Result<(String, Map<String, Value>)> {
         .as_object()
         .cloned()
         .ok_or_else(|| fail(EXIT_USAGE, format!("{}: no \"params\" object", file.display())))?;
-    Ok((family, params))
+    Ok(Backup {
+        family,
+        address: v["address"].as_u64(),
+        model: v["model"].as_str().map(str::to_string),
+        params,
+    })
 }
 
 fn differences(
@@ -423,19 +448,35 @@ pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
             ParamsCmd::Backup { file } => {
                 let params = read_all(&drive, &label).await?;
                 let n = params.len();
-                let doc = json!({"family": family, "protocol": drive.profile().protocol(), "address": drive.profile().address(), "params": params});
+                let p = drive.profile();
+                let doc = json!({"family": family, "model": p.family().model(), "protocol": p.protocol(), "address": p.address(), "params": params});
                 let text = serde_json::to_string_pretty(&doc)?;
                 std::fs::write(file, text + "\n").map_err(|e| fail(EXIT_USAGE, format!("cannot write {}: {e}", file.display())))?;
-                println!("{label}: {n} parameters saved to {}", file.display());
+                println!("{label}: {n} {} saved to {}", plural(n as u64, "parameter", "parameters"), file.display());
                 Ok(0)
             }
-            ParamsCmd::Restore { file, dry_run } => {
-                let (ffam, wanted) = load_backup(file)?;
-                if ffam != family {
+            ParamsCmd::Restore { file, dry_run, include_comm } => {
+                let backup = load_backup(file)?;
+                let ffam = &backup.family;
+                if *ffam != family {
                     return Err(fail(EXIT_USAGE, format!("{} holds {ffam} parameters; this is a {family} drive", file.display())));
                 }
+                let address = drive.profile().address();
+                match backup.address {
+                    Some(from) if from != u64::from(address) => println!(
+                        "{label}: {} is the backup of {ffam} drive {from}{}, restored onto drive {address}",
+                        file.display(),
+                        backup.model.as_deref().map(|m| format!(" ({m})")).unwrap_or_default()
+                    ),
+                    _ => {}
+                }
+                let catalog = drivebus_drive::Catalog::load(drive.profile().family()).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
                 let have = read_all(&drive, &label).await?;
-                let diffs = differences(&have, &wanted);
+                // Communication settings stay as they are unless asked: another drive's address
+                // or baud rate would move this one on the bus.
+                let (diffs, kept): (Vec<_>, Vec<_>) = differences(&have, &backup.params)
+                    .into_iter()
+                    .partition(|(name, ..)| *include_comm || !catalog.get(name).is_some_and(|d| d.comm));
                 for (name, _, want, hv, wv) in &diffs {
                     println!("{name}: {hv} -> {wv}{}", if *dry_run { " (dry run)" } else { "" });
                     if !dry_run {
@@ -445,15 +486,24 @@ pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
                             .map_err(|e| classify(e, &label))?;
                     }
                 }
-                println!("{label}: {} parameter(s) {}", diffs.len(), if *dry_run { "would be written" } else { "written to EEPROM" });
+                if !kept.is_empty() {
+                    let names: Vec<&str> = kept.iter().map(|(n, ..)| n.as_str()).collect();
+                    println!(
+                        "{label}: communication settings kept as they are: {} (--include-comm restores them)",
+                        names.join(", ")
+                    );
+                }
+                println!("{label}: {} {} {}", diffs.len(), plural(diffs.len() as u64, "parameter", "parameters"), if *dry_run { "would be written" } else { "written to EEPROM" });
                 Ok(0)
             }
             ParamsCmd::Diff { file } => {
-                let (_, wanted) = load_backup(file)?;
+                let backup = load_backup(file)?;
                 let have = read_all(&drive, &label).await?;
-                let diffs = differences(&have, &wanted);
+                let diffs = differences(&have, &backup.params);
                 if t.json {
                     println!("{}", json!(diffs.iter().map(|(n, h, w, _, _)| json!({"name": n, "drive": h, "file": w})).collect::<Vec<_>>()));
+                } else if diffs.is_empty() {
+                    println!("{label}: no differences from {}", file.display());
                 } else {
                     for (name, _, _, hv, wv) in &diffs {
                         println!("{name}: drive {hv}, file {wv}");
@@ -465,7 +515,15 @@ pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
     })
 }
 
-/// `raw <HEX>`: sends the bytes as one request and prints the decoded reply.
+/// `one` for a count of 1, else `many` ("1 transaction", "2 transactions").
+pub(crate) fn plural(n: u64, one: &'static str, many: &'static str) -> &'static str {
+    if n == 1 {
+        one
+    } else {
+        many
+    }
+}
+
 /// `raw`'s bytes must be one valid request of the bus's protocol, as a drive would check it
 /// (checksum included): the session would otherwise send its own encoding of them.
 fn check_raw_request(
@@ -475,7 +533,7 @@ fn check_raw_request(
 ) -> Result<()> {
     use crate::commands::decode::Item;
     let (_, items) =
-        crate::commands::decode::decode_by_name(name, bytes, Some(drivebus_proto::Direction::Master));
+        crate::commands::decode::decode_by_name(name, bytes, Some(drivebus_proto::Direction::Master), None);
     let not_one = || {
         fail(EXIT_USAGE, format!("the bytes are not one {protocol} request: check them with drivebus decode --protocol {protocol} --from master"))
     };
@@ -488,6 +546,7 @@ fn check_raw_request(
     }
 }
 
+/// `raw`: sends the bytes as one request and prints the reply, decoded as its answer.
 pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
     let bytes = parse_hex_args(hex).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let r = resolve(t)?;
@@ -497,18 +556,14 @@ pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
     check_raw_request(name, &protocol, &bytes)?;
     runtime()?.block_on(async move {
         let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
-        let exchange = drivebus_drive::profile::Exchange { request: bytes, expect_reply: true };
+        let exchange = drivebus_drive::profile::Exchange { request: bytes.clone(), expect_reply: true };
         let reply = bus
             .transact(r.address, exchange, Priority::Command, None)
             .await
             .map_err(|e| classify(Error::Bus(e), &r.label))?;
         match reply {
             Some(reply) => {
-                let (p, items) = crate::commands::decode::decode_by_name(
-                    name,
-                    &reply,
-                    Some(drivebus_proto::Direction::Drive),
-                );
+                let (p, items) = crate::commands::decode::decode_reply(name, &bytes, &reply, Some(r.family));
                 for (i, item) in items.iter().enumerate() {
                     if t.json {
                         if let Some(v) = crate::commands::decode::render_json(p, item) {

@@ -1,7 +1,7 @@
 //! `drivebus events` and `drivebus trend`: read the gateway's store (drivebus-store) from the
 //! command line, also while `drivebus serve` is writing it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use clap::Args;
@@ -13,12 +13,29 @@ use crate::commands::drive::{link_failure, usage, Target};
 /// The store file both the gateway and these commands use when not told otherwise.
 pub const DEFAULT_DB: &str = "drivebus.db";
 
-/// Arguments of `drivebus events` (with the global --drive ID and --json).
+/// The store to read: `--db`, else drivebus.db, else the store `drivebus serve --demo` writes
+/// (drivebus-demo.db) when only that one is in the working directory.
+fn store_path(db: Option<&Path>) -> PathBuf {
+    if let Some(db) = db {
+        return db.to_path_buf();
+    }
+    let default = PathBuf::from(DEFAULT_DB);
+    if default.exists() {
+        return default;
+    }
+    match drivebus_gateway::config::GatewayConfig::demo().store {
+        Some(demo) if demo.exists() => demo,
+        _ => default,
+    }
+}
+
+/// Arguments of `drivebus events` (with --drive ID and --json from `crate::options`).
 #[derive(Args, Debug)]
 pub struct EventsArgs {
-    /// The store file written by `drivebus serve`.
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_DB)]
-    pub db: PathBuf,
+    /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
+    /// drivebus-demo.db when only that one is here).
+    #[arg(long, value_name = "FILE")]
+    pub db: Option<PathBuf>,
     /// Events at or after TIME: RFC 3339 (2026-11-21T10:00:00Z), unix ms, or -10m, -2h, -1d.
     #[arg(long, value_name = "TIME", allow_hyphen_values = true)]
     pub since: Option<String>,
@@ -34,12 +51,13 @@ pub struct EventsArgs {
     pub limit: u64,
 }
 
-/// Arguments of `drivebus trend` (with the global --drive ID, required, and --json).
+/// Arguments of `drivebus trend` (with --drive ID, required, and --json from `crate::options`).
 #[derive(Args, Debug)]
 pub struct TrendArgs {
-    /// The store file written by `drivebus serve`.
-    #[arg(long, value_name = "FILE", default_value = DEFAULT_DB)]
-    pub db: PathBuf,
+    /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
+    /// drivebus-demo.db when only that one is here).
+    #[arg(long, value_name = "FILE")]
+    pub db: Option<PathBuf>,
     /// Buckets from TIME (default: an hour ago at 1s, a day ago at 1m): RFC 3339, unix ms, or
     /// -10m, -2h, -1d.
     #[arg(long, value_name = "TIME", allow_hyphen_values = true)]
@@ -132,7 +150,8 @@ pub fn events(args: &EventsArgs, target: &Target) -> Result<u8> {
         kind,
         limit: usize::try_from(args.limit).unwrap_or(usize::MAX),
     };
-    let store = open(&args.db)?;
+    let db = store_path(args.db.as_deref());
+    let store = open(&db)?;
     let events = store.events(&filter).map_err(|e| store_failure(&e))?;
     if target.json {
         for e in &events {
@@ -141,7 +160,7 @@ pub fn events(args: &EventsArgs, target: &Target) -> Result<u8> {
         return Ok(0);
     }
     if events.is_empty() {
-        eprintln!("no events match in {}", args.db.display());
+        eprintln!("no events match in {}", db.display());
         return Ok(0);
     }
     let rows: Vec<Vec<String>> = events
@@ -183,7 +202,8 @@ pub fn trend(args: &TrendArgs, target: &Target) -> Result<u8> {
     if since_ms >= until_ms {
         return Err(usage("--since must be before --until"));
     }
-    let store = open(&args.db)?;
+    let db = store_path(args.db.as_deref());
+    let store = open(&db)?;
     let points = store
         .trend(&TrendQuery { drive: drive.clone(), since_ms, until_ms, resolution })
         .map_err(|e| store_failure(&e))?;
@@ -198,7 +218,7 @@ pub fn trend(args: &TrendArgs, target: &Target) -> Result<u8> {
             "no {resolution} trend for drive {drive} from {} to {} in {}",
             format_rfc3339(since_ms),
             format_rfc3339(until_ms),
-            args.db.display()
+            db.display()
         );
         return Ok(0);
     }

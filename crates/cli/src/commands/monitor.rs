@@ -31,7 +31,7 @@ use crate::commands::drive::{classify, link_failure, resolve_for, runtime, usage
 /// Samples kept per drive for the trend.
 pub const HISTORY: usize = 240;
 
-/// Arguments of `drivebus monitor` (with the global --port, --drive, one or more --address,
+/// Arguments of `drivebus monitor` (with `crate::options`' --port, --drive, one or more --address,
 /// --protocol, --baud, --serial, --timeout, --retries, --json).
 #[derive(Args, Debug)]
 pub struct MonitorArgs {
@@ -160,8 +160,10 @@ pub fn plain_line(state: &MonitorState, d: &DriveView) -> String {
 /// One JSON object per drive, as `--plain --json` prints it.
 pub fn plain_json(state: &MonitorState, d: &DriveView) -> serde_json::Value {
     let s = d.status.as_ref();
+    // Times to the millisecond: the monitor's own clock, no finer.
+    let ms = |s: f64| drivebus_drive::profile::round_to(s, 3);
     json!({
-        "t": state.now_s,
+        "t": ms(state.now_s),
         "address": d.address,
         "state": d.state(),
         "running": s.map(|s| s.running),
@@ -171,7 +173,7 @@ pub fn plain_json(state: &MonitorState, d: &DriveView) -> serde_json::Value {
         "current_a": s.and_then(|s| s.current_a),
         "fault": s.and_then(|s| s.fault.as_ref()).map(|f| json!({"code": f.code, "text": f.text})),
         "online": d.online,
-        "age_s": d.age(state.now_s),
+        "age_s": d.age(state.now_s).map(ms),
         "error": d.error,
     })
 }
@@ -179,12 +181,14 @@ pub fn plain_json(state: &MonitorState, d: &DriveView) -> serde_json::Value {
 /// Draws the whole view into `area` of `frame`.
 pub fn render(frame: &mut Frame, state: &MonitorState) {
     let area = frame.area();
-    let table_h = state.drives.len() as u16 + 3;
+    let fault_w = fault_width(area.width);
+    let rows: u16 = state.drives.iter().map(|d| wrap(&fault_text(d), fault_w).len() as u16).sum();
+    let table_h = rows + 3;
     let [head, table, trends, bus, foot] = Layout::vertical([
         Constraint::Length(1),
         Constraint::Length(table_h),
         Constraint::Min(4),
-        Constraint::Length(4),
+        Constraint::Length(5),
         Constraint::Length(1),
     ])
     .areas(area);
@@ -205,9 +209,65 @@ pub fn render(frame: &mut Frame, state: &MonitorState) {
     );
 }
 
+/// The table's fixed columns (drive, state, dir, out Hz, set Hz, current A, link, age); the
+/// fault column takes the rest of the width, its text wrapped onto more lines where needed.
+const FIXED_COLUMNS: [u16; 8] = [5, 7, 7, 6, 6, 5, 7, 6];
+
+/// The fault column's width in a table `width` columns wide (borders and spacing taken off).
+fn fault_width(width: u16) -> u16 {
+    let fixed: u16 = FIXED_COLUMNS.iter().sum::<u16>() + FIXED_COLUMNS.len() as u16 + 2;
+    width.saturating_sub(fixed).max(8)
+}
+
+/// What the fault column says: the fault in force, else the last error, else "-".
+fn fault_text(d: &DriveView) -> String {
+    match (d.status.as_ref().and_then(|s| s.fault.as_ref()), &d.error) {
+        (Some(f), _) => format!("{} {}", f.code, f.text),
+        (None, Some(e)) => e.clone(),
+        (None, None) => "-".into(),
+    }
+}
+
+/// `text` cut into lines of at most `width` characters, at spaces where it can be.
+fn wrap(text: &str, width: u16) -> Vec<String> {
+    let width = usize::from(width.max(1));
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in text.split(' ') {
+        let mut word = word.to_string();
+        loop {
+            let len = line.chars().count();
+            let sep = usize::from(len > 0);
+            if len + sep + word.chars().count() <= width {
+                if sep == 1 {
+                    line.push(' ');
+                }
+                line.push_str(&word);
+                break;
+            }
+            if len > 0 {
+                lines.push(std::mem::take(&mut line));
+                continue;
+            }
+            // A word longer than the line: cut it.
+            let head: String = word.chars().take(width).collect();
+            word = word.chars().skip(width).collect();
+            lines.push(head);
+            if word.is_empty() {
+                break;
+            }
+        }
+    }
+    if !line.is_empty() || lines.is_empty() {
+        lines.push(line);
+    }
+    lines
+}
+
 fn render_table(frame: &mut Frame, area: Rect, state: &MonitorState) {
-    let header = Row::new(["drive", "state", "dir", "out Hz", "set Hz", "current A", "fault", "link", "age"])
+    let header = Row::new(["drive", "state", "dir", "out Hz", "set Hz", "cur A", "fault", "link", "age"])
         .style(Style::new().add_modifier(Modifier::BOLD));
+    let fault_w = fault_width(area.width);
     let rows = state.drives.iter().map(|d| {
         let s = d.status.as_ref();
         let state_style = match d.state() {
@@ -215,11 +275,8 @@ fn render_table(frame: &mut Frame, area: Rect, state: &MonitorState) {
             "fault" => Style::new().fg(Color::Red),
             _ => Style::new(),
         };
-        let fault = match (s.and_then(|s| s.fault.as_ref()), &d.error) {
-            (Some(f), _) => format!("{} {}", f.code, f.text),
-            (None, Some(e)) => e.clone(),
-            (None, None) => "-".into(),
-        };
+        let fault = wrap(&fault_text(d), fault_w);
+        let height = fault.len() as u16;
         Row::new(vec![
             Cell::from(d.address.to_string()),
             Cell::from(d.state()).style(state_style),
@@ -227,7 +284,7 @@ fn render_table(frame: &mut Frame, area: Rect, state: &MonitorState) {
             Cell::from(hz(s.and_then(|s| s.output_hz))),
             Cell::from(hz(s.and_then(|s| s.setpoint_hz))),
             Cell::from(s.and_then(|s| s.current_a).map_or("-".into(), |a| format!("{a:.1}"))),
-            Cell::from(fault),
+            Cell::from(fault.into_iter().map(Line::from).collect::<Vec<_>>()),
             Cell::from(if d.online { "online" } else { "OFFLINE" }).style(if d.online {
                 Style::new()
             } else {
@@ -235,18 +292,10 @@ fn render_table(frame: &mut Frame, area: Rect, state: &MonitorState) {
             }),
             Cell::from(d.age(state.now_s).map_or("-".into(), |a| format!("{a:.1} s"))),
         ])
+        .height(height)
     });
-    let widths = [
-        Constraint::Length(5),
-        Constraint::Length(8),
-        Constraint::Length(8),
-        Constraint::Length(7),
-        Constraint::Length(7),
-        Constraint::Length(9),
-        Constraint::Min(12),
-        Constraint::Length(7),
-        Constraint::Length(7),
-    ];
+    let [drive, st, dir, out, set, amps, link, age] = FIXED_COLUMNS.map(Constraint::Length);
+    let widths = [drive, st, dir, out, set, amps, Constraint::Min(fault_w), link, age];
     frame.render_widget(
         Table::new(rows, widths).header(header).block(Block::new().borders(Borders::ALL).title(" drives ")),
         area,
@@ -257,15 +306,22 @@ fn render_trends(frame: &mut Frame, area: Rect, state: &MonitorState) {
     let block = Block::new().borders(Borders::ALL).title(" trend: output Hz and current A ");
     let inner = block.inner(area);
     frame.render_widget(block, area);
-    if state.drives.is_empty() || inner.height == 0 {
+    if state.drives.is_empty() || inner.height < 2 {
         return;
     }
+    let columns = |r: Rect| {
+        Layout::horizontal([Constraint::Length(22), Constraint::Fill(1), Constraint::Fill(1)]).areas(r)
+    };
+    // Each half named over its column.
+    let [heading, inner] = Layout::vertical([Constraint::Length(1), Constraint::Fill(1)]).areas(inner);
+    let [_, hz_head, amp_head] = columns(heading);
+    let dim = Style::new().fg(Color::DarkGray);
+    frame.render_widget(Paragraph::new("output Hz").style(dim), hz_head);
+    frame.render_widget(Paragraph::new("current A").style(dim), amp_head);
     let rows = Layout::vertical(vec![Constraint::Ratio(1, state.drives.len() as u32); state.drives.len()])
         .split(inner);
     for (d, row) in state.drives.iter().zip(rows.iter()) {
-        let [label, hz_area, amp_area] =
-            Layout::horizontal([Constraint::Length(22), Constraint::Fill(1), Constraint::Fill(1)])
-                .areas(*row);
+        let [label, hz_area, amp_area] = columns(*row);
         let last_hz = d.hz.back().copied();
         let last_a = d.amps.back().copied();
         frame.render_widget(
@@ -293,13 +349,15 @@ fn spark(frame: &mut Frame, area: Rect, history: &VecDeque<f64>, scale: f64, col
 
 fn render_bus(frame: &mut Frame, area: Rect, state: &MonitorState) {
     let s = &state.stats;
+    // Three short lines: each fits an 80-column terminal whole.
     let lines = vec![
         Line::from(format!(
-            "transactions {}  replies {}  timeouts {}  checksum errors {}  retries {}  broadcasts {}",
-            s.transactions, s.replies, s.timeouts, s.checksum_errors, s.retries, s.broadcasts
+            "transactions {}  replies {}  timeouts {}  retries {}",
+            s.transactions, s.replies, s.timeouts, s.retries
         )),
+        Line::from(format!("checksum errors {}  broadcasts {}", s.checksum_errors, s.broadcasts)),
         Line::from(format!(
-            "utilization {:.1} %  ({:.2} s on the wire in {:.1} s)  drives online {}/{}",
+            "utilization {:.1} % ({:.2} s on the wire in {:.1} s)  drives online {}/{}",
             s.utilization() * 100.0,
             s.wire_seconds,
             s.elapsed_seconds,
@@ -307,7 +365,12 @@ fn render_bus(frame: &mut Frame, area: Rect, state: &MonitorState) {
             state.drives.len()
         )),
     ];
-    frame.render_widget(Paragraph::new(lines).block(Block::new().borders(Borders::ALL).title(" bus ")), area);
+    frame.render_widget(
+        Paragraph::new(lines)
+            .wrap(ratatui::widgets::Wrap { trim: true })
+            .block(Block::new().borders(Borders::ALL).title(" bus ")),
+        area,
+    );
 }
 
 /// Reads every drive once and brings `state` up to date.
@@ -556,6 +619,38 @@ mod tests {
     }
 
     #[test]
+    fn at_80_columns_nothing_is_cut() {
+        let mut st = sample();
+        let long = "heat sink over temperature: let the drive cool and check its fan";
+        st.drives[1].record(4.2, Ok(status(7, 0.0, 0.0, Some(Fault { code: 29, text: long.into() }))), None);
+        let lines = screen(&st, 80, 30);
+        let text = lines.join("\n");
+        // The fault text whole, over as many lines of its column as it needs.
+        let fault_col = lines.iter().filter(|l| l.starts_with('│')).cloned().collect::<Vec<_>>().join(" ");
+        let want = format!("29 {long}");
+        for w in want.split(' ') {
+            assert!(fault_col.contains(w), "{w:?} is cut:\n{text}");
+        }
+        for needed in [
+            "transactions 123  replies 120  timeouts 3  retries 2",
+            "checksum errors 1  broadcasts 0",
+            "utilization 25.0 % (1.00 s on the wire in 4.0 s)  drives online 2/2",
+            "output Hz",
+            "current A",
+        ] {
+            assert!(text.contains(needed), "{needed:?} is missing or cut:\n{text}");
+        }
+    }
+
+    #[test]
+    fn wrap_cuts_at_spaces_and_long_words() {
+        assert_eq!(wrap("2 over-current", 20), ["2 over-current"]);
+        assert_eq!(wrap("a bb ccc", 4), ["a bb", "ccc"]);
+        assert_eq!(wrap("abcdefghij", 4), ["abcd", "efgh", "ij"]);
+        assert_eq!(wrap("", 4), [""]);
+    }
+
+    #[test]
     fn small_terminals_do_not_panic() {
         for (w, h) in [(1, 1), (20, 5), (40, 10), (200, 3)] {
             let _ = screen(&sample(), w, h);
@@ -586,5 +681,14 @@ mod tests {
         }
         assert_eq!(v.hz.len(), HISTORY);
         assert_eq!(v.hz.front().copied(), Some(5.0));
+    }
+
+    #[test]
+    fn json_times_carry_no_float_noise() {
+        let mut st = sample();
+        st.drives[0].record(4.5000039, Ok(status(1, 30.0, 1.0, None)), None);
+        st.now_s = 4.5000078;
+        let j = plain_json(&st, &st.drives[0]);
+        assert_eq!((j["t"].as_f64(), j["age_s"].as_f64()), (Some(4.5), Some(0.0)), "{j}");
     }
 }

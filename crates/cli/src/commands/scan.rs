@@ -15,7 +15,7 @@ use serde_json::json;
 
 use crate::commands::drive::Target;
 
-/// Arguments of `drivebus scan` (with the global --port, --drive FAMILY|auto, --protocol,
+/// Arguments of `drivebus scan` (with `crate::options`' --port, --drive FAMILY|auto, --protocol,
 /// --baud, --serial, --timeout, --json).
 #[derive(Args, Debug)]
 pub struct ScanArgs {
@@ -40,6 +40,23 @@ struct Found {
     baud: u32,
     format: CharFormat,
     note: String,
+    /// A refusal on a protocol several families speak (Modbus): the drive may be another
+    /// family's, refusing this family's map. Listed only when no family read its status.
+    tentative: bool,
+}
+
+impl Found {
+    /// The protocol and address: one drive whatever family is tried there (a pty or a serial
+    /// server answers at any baud rate and format).
+    fn spot(&self) -> (String, u8) {
+        (self.protocol.clone(), self.address)
+    }
+}
+
+/// Whether `protocol` is spoken by more than one of the families (a refusal there may come
+/// from another family's drive).
+fn shared(protocol: &str) -> bool {
+    Family::ALL.iter().filter(|&&f| drivebus_sim::config::protocols(f).contains(&protocol)).count() > 1
 }
 
 fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
@@ -156,7 +173,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-    let found: Vec<Found> = rt.block_on(async {
+    let mut found: Vec<Found> = rt.block_on(async {
         let mut found = Vec::new();
         let mut current: Option<((String, u32, CharFormat), drivebus_link::Bus)> = None;
         for (family, protocol, baud, format, address) in combos {
@@ -164,6 +181,10 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             bar.inc(1);
             let key = (protocol.clone(), baud, format);
             if current.as_ref().map(|(k, _)| k) != Some(&key) {
+                // The port is ours alone: close it before opening it with the next settings.
+                if let Some((_, old)) = current.take() {
+                    old.close().await;
+                }
                 let mut config = BusConfig::new(&protocol, baud, format);
                 config.retries = 0;
                 config.response_timeout = Some(timeout);
@@ -176,28 +197,52 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             let Some((_, bus)) = &current else { continue };
             let Ok(profile) = for_drive(family, &protocol, address) else { continue };
             let drive = Drive::new(bus.clone(), profile);
-            let note = match drive.status().await {
-                Ok(s) => format!(
-                    "{}{}",
-                    if s.running { "running" } else { "stopped" },
-                    s.output_hz.map(|h| format!(" at {h:.2} Hz")).unwrap_or_default()
+            let (note, refused) = match drive.status().await {
+                Ok(s) => (
+                    format!(
+                        "{}{}",
+                        if s.running { "running" } else { "stopped" },
+                        s.output_hz.map(|h| format!(" at {h:.2} Hz")).unwrap_or_default()
+                    ),
+                    false,
                 ),
                 // A refusal is an answer: something with this address speaks the protocol.
                 Err(Error::Drive(DriveError::Refused { code, meaning })) => {
-                    format!("answers (refused status: {code}, {meaning})")
+                    (format!("answers (refused status: {code}, {meaning})"), true)
                 }
-                Err(Error::Drive(DriveError::Protocol(e))) => format!("answers oddly: {e}"),
+                Err(Error::Drive(DriveError::Protocol(e))) => (format!("answers oddly: {e}"), false),
                 Err(_) => continue,
             };
-            bar.println(format!("found {family} drive {address} ({protocol}, {baud} {format}): {note}"));
-            found.push(Found { family, protocol, address, baud, format, note });
+            drop(drive);
+            let tentative = refused && shared(&protocol);
+            let f = Found { family, protocol, address, baud, format, note, tentative };
+            if f.tentative {
+                // Told at the end, if no family reads a status there.
+                found.push(f);
+                continue;
+            }
+            bar.println(format!(
+                "found {family} drive {address} ({}, {baud} {format}): {}",
+                f.protocol, f.note
+            ));
+            found.push(f);
             if args.first {
                 break;
             }
         }
+        if let Some((_, bus)) = current.take() {
+            bus.close().await;
+        }
         Ok::<_, anyhow::Error>(found)
     })?;
     bar.finish_and_clear();
+    // A refusal in one family's map where another family's status was read is that other
+    // family's drive, not a find.
+    let read: Vec<_> = found.iter().filter(|f| !f.tentative).map(Found::spot).collect();
+    found.retain(|f| !f.tentative || !read.contains(&f.spot()));
+    if args.first && found.iter().any(|f| !f.tentative) {
+        found.retain(|f| !f.tentative);
+    }
     if t.json {
         let list: Vec<_> = found
             .iter()

@@ -9,7 +9,7 @@ use drivebus_proto::line::CharFormat;
 use drivebus_sim::config::{BusSpec, DriveSpec};
 use drivebus_sim::runtime::{Endpoint, Simulator};
 
-/// Arguments of `drivebus simulate`, with the global `--drive KIND@ADDR[:PROTOCOL]` (one per
+/// Arguments of `drivebus simulate`, with `crate::options`' `--drive KIND@ADDR[:PROTOCOL]` (one per
 /// drive: generic@1:modbus-rtu, toshiba@2, danfoss@3, b800@5), `--baud` and `--serial`.
 #[derive(Args, Debug)]
 pub struct SimulateArgs {
@@ -119,13 +119,15 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
             tokio::spawn(async move { axum_serve(listener, s).await });
         }
         let verbose = args.verbose;
+        // Listened for before the ready line is printed: a signal right after it is not lost.
+        let mut stop = StopSignals::new()?;
         let serve = sim.clone().serve(endpoint.clone(), verbose, |at| println!("listening on {at}"));
         tokio::select! {
             r = serve => r.with_context(|| match &endpoint {
                 Endpoint::Pty(p) => format!("pty {}", p.display()),
                 Endpoint::Tcp(a) => format!("tcp {a}"),
             })?,
-            _ = tokio::signal::ctrl_c() => {}
+            _ = stop.wait() => {}
         }
         if let Endpoint::Pty(p) = &endpoint {
             let _ = std::fs::remove_file(p);
@@ -133,6 +135,38 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
         Ok::<_, anyhow::Error>(())
     })?;
     Ok(0)
+}
+
+/// SIGINT (Ctrl-C) and SIGTERM (`kill`, a service manager stopping it), listened for from
+/// creation on: either ends the simulator the same way, its pty link removed.
+struct StopSignals {
+    #[cfg(unix)]
+    int: tokio::signal::unix::Signal,
+    #[cfg(unix)]
+    term: tokio::signal::unix::Signal,
+}
+
+impl StopSignals {
+    fn new() -> Result<StopSignals> {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            Ok(StopSignals { int: signal(SignalKind::interrupt())?, term: signal(SignalKind::terminate())? })
+        }
+        #[cfg(not(unix))]
+        Ok(StopSignals {})
+    }
+
+    /// Resolves at the first of the two signals.
+    async fn wait(&mut self) {
+        #[cfg(unix)]
+        tokio::select! {
+            _ = self.int.recv() => {}
+            _ = self.term.recv() => {}
+        }
+        #[cfg(not(unix))]
+        let _ = tokio::signal::ctrl_c().await;
+    }
 }
 
 async fn axum_serve(listener: tokio::net::TcpListener, sim: std::sync::Arc<Simulator>) {

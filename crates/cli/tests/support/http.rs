@@ -1,46 +1,126 @@
-//! A plain HTTP/1.1 client for the tests that drive `drivebus serve` (no curl needed).
+//! A small HTTP/1.1 client for the tests (the simulator's control interface, the gateway,
+//! chromedriver): JSON in and out ([`http_json`]), or a token and text ([`request`]).
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::time::Duration;
 
-/// `method path` over plain HTTP/1.1 (one connection, `Connection: close`) with an optional
-/// bearer token and JSON body: (status, body), chunked bodies joined.
+use serde_json::Value;
+
+/// How long an answer may take.
+const PATIENCE: Duration = Duration::from_secs(90);
+
+/// One HTTP/1.1 request: the status and the body (chunked bodies joined). Reads by the head's
+/// length, since chromedriver keeps the connection open whatever the request says.
+fn exchange(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    headers: &str,
+    body: &str,
+) -> Result<(u16, Vec<u8>), String> {
+    let mut s = TcpStream::connect_timeout(&addr, Duration::from_secs(5)).map_err(|e| e.to_string())?;
+    s.set_read_timeout(Some(PATIENCE)).map_err(|e| e.to_string())?;
+    let req = format!(
+        "{method} {path} HTTP/1.1\r\nHost: {addr}\r\n{headers}Content-Type: application/json; charset=utf-8\r\n\
+         Content-Length: {}\r\nConnection: close\r\n\r\n{body}",
+        body.len()
+    );
+    s.write_all(req.as_bytes()).map_err(|e| e.to_string())?;
+    let mut raw = Vec::new();
+    let mut buf = [0u8; 16384];
+    let (head, body_start) = loop {
+        if let Some(i) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+            break (String::from_utf8_lossy(&raw[..i]).to_string(), i + 4);
+        }
+        let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+        if n == 0 {
+            return Err(format!("{method} {path}: the connection closed before the answer"));
+        }
+        raw.extend_from_slice(&buf[..n]);
+    };
+    let status: u16 = head
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .ok_or_else(|| format!("bad status line: {head}"))?;
+    let header = |name: &str| {
+        head.lines().skip(1).find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.trim().eq_ignore_ascii_case(name).then(|| v.trim().to_ascii_lowercase())
+        })
+    };
+    let mut content = raw.split_off(body_start);
+    if header("transfer-encoding").is_some_and(|v| v.contains("chunked")) {
+        while !content.windows(5).any(|w| w == b"0\r\n\r\n") {
+            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+            if n == 0 {
+                break;
+            }
+            content.extend_from_slice(&buf[..n]);
+        }
+        content = dechunk(&content)?;
+    } else if let Some(len) = header("content-length").and_then(|v| v.parse::<usize>().ok()) {
+        while content.len() < len {
+            let n = s.read(&mut buf).map_err(|e| format!("{method} {path}: {e}"))?;
+            if n == 0 {
+                return Err(format!("{method} {path}: short body"));
+            }
+            content.extend_from_slice(&buf[..n]);
+        }
+        content.truncate(len);
+    } else {
+        s.read_to_end(&mut content).map_err(|e| format!("{method} {path}: {e}"))?;
+    }
+    Ok((status, content))
+}
+
+/// One HTTP/1.1 request with a JSON body; the status and the JSON answer.
+#[allow(dead_code)]
+pub fn http_json(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    body: Option<&Value>,
+) -> Result<(u16, Value), String> {
+    let body = body.map(|b| b.to_string()).unwrap_or_default();
+    let (status, content) = exchange(addr, method, path, "", &body)?;
+    let value = if content.is_empty() {
+        Value::Null
+    } else {
+        serde_json::from_slice(&content).map_err(|e| format!("{method} {path}: not JSON ({e})"))?
+    };
+    Ok((status, value))
+}
+
+/// `method path` with an optional bearer token and body: the status and the body as text.
+/// Panics (the test fails) when the gateway cannot be reached.
+#[allow(dead_code)]
 pub fn request(
-    http: SocketAddr,
+    addr: SocketAddr,
     method: &str,
     path: &str,
     token: Option<&str>,
     body: Option<&str>,
 ) -> (u16, String) {
-    let mut s = TcpStream::connect(http).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    let body = body.unwrap_or("");
-    let mut req = format!("{method} {path} HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n");
-    if let Some(t) = token {
-        req.push_str(&format!("Authorization: Bearer {t}\r\n"));
-    }
-    req.push_str(&format!("Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}", body.len()));
-    s.write_all(req.as_bytes()).unwrap();
-    let mut answer = String::new();
-    s.read_to_string(&mut answer).unwrap();
-    let (head, rest) = answer.split_once("\r\n\r\n").unwrap();
-    let status = head.split(' ').nth(1).unwrap().parse().unwrap();
-    let chunked = head.to_ascii_lowercase().contains("transfer-encoding: chunked");
-    let body = if chunked {
-        let mut out = String::new();
-        let mut rest = rest;
-        while let Some((size, tail)) = rest.split_once("\r\n") {
-            let n = usize::from_str_radix(size.trim(), 16).unwrap();
-            if n == 0 {
-                break;
-            }
-            out.push_str(&tail[..n]);
-            rest = &tail[n + 2..];
+    let auth = token.map(|t| format!("Authorization: Bearer {t}\r\n")).unwrap_or_default();
+    let (status, content) =
+        exchange(addr, method, path, &auth, body.unwrap_or("")).unwrap_or_else(|e| panic!("{e}"));
+    (status, String::from_utf8_lossy(&content).to_string())
+}
+
+fn dechunk(mut b: &[u8]) -> Result<Vec<u8>, String> {
+    let mut out = Vec::new();
+    loop {
+        let eol = b.windows(2).position(|w| w == b"\r\n").ok_or("bad chunk")?;
+        let size_text = String::from_utf8_lossy(&b[..eol]).to_string();
+        let size = usize::from_str_radix(size_text.split(';').next().unwrap_or("").trim(), 16)
+            .map_err(|_| format!("bad chunk size {size_text:?}"))?;
+        b = &b[eol + 2..];
+        if size == 0 {
+            return Ok(out);
         }
-        out
-    } else {
-        rest.to_string()
-    };
-    (status, body)
+        out.extend_from_slice(b.get(..size).ok_or("short chunk")?);
+        b = b.get(size + 2..).ok_or("short chunk")?;
+    }
 }

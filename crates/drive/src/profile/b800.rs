@@ -439,7 +439,7 @@ impl B800Plan {
             address: self.address,
             running: state == DriveState::Running,
             direction: None,
-            output_hz: if off { Some(0.0) } else { self.output_hz.map(|hz| (hz * 1000.0).round() / 1000.0) },
+            output_hz: if off { Some(0.0) } else { self.output_hz.map(|hz| super::round_to(hz, 3)) },
             setpoint_hz: *self.setpoint(),
             current_a: if off { Some(0.0) } else { self.current_a },
             fault,

@@ -19,12 +19,12 @@
 //! Reset leaves the drive stopped (with a start held through the reset edge, the motor would
 //! restart at once): Run again after it.
 //!
-//! A profile that has commanded nothing yet reads 16-00 Control Word (the last control word the
-//! drive acted on) before its first Run, Jog, Reverse or SetSpeed, and builds on it: a SetSpeed
-//! keeps a started drive started, in its direction; a Run to a drive that holds a start already
-//! sends nothing. The bus reference cannot be read back (the FC catalog has no reference
-//! readout), so until its first SetSpeed such a profile's Run starts at reference 0 (3-02
-//! Minimum Reference, 0 Hz by default) and its Reverse of a running drive is `Unsupported`.
+//! A profile that has commanded nothing yet reads 16-02 Reference [%] and 16-00 Control Word
+//! (the last control word the drive acted on) before its first command (Run, Stop, Jog,
+//! Reverse, Reset, SetSpeed), and builds on them: every command carries the drive's reference,
+//! so a stop and then a run from separate processes runs at the speed set before; a SetSpeed
+//! keeps a started drive started, in its direction; a Run to a drive that holds a start
+//! already sends nothing, and is refused like any run if the drive is tripped.
 //!
 //! ## Reference and speed
 //!
@@ -288,11 +288,12 @@ impl Inner {
 /// use drivebus_drive::profile::danfoss::DanfossProfile;
 /// use drivebus_drive::profile::{Operation, Profile, Step};
 ///
-/// let fc = DanfossProfile::new(4)?;
+/// // Broadcast: every drive, no reply (a profile for one drive reads its reference first).
+/// let fc = DanfossProfile::new(0)?;
 /// let mut plan = fc.plan(&Operation::Stop)?;
 /// let Step::Send(x) = plan.step(None)? else { panic!("a stop sends a telegram") };
-/// // A process block to ADR 84: control word 043C (ramp stop), reference 0.
-/// assert_eq!(x.request, [0x02, 0x06, 0x84, 0x04, 0x3C, 0x00, 0x00, 0xB8]);
+/// // A process block to ADR 80: control word 043C (ramp stop), reference 0.
+/// assert_eq!(x.request, [0x02, 0x06, 0x80, 0x04, 0x3C, 0x00, 0x00, 0xBC]);
 /// # Ok::<(), drivebus_drive::profile::DriveError>(())
 /// ```
 #[derive(Debug)]
@@ -407,7 +408,14 @@ impl DanfossProfile {
                 }
                 plan.push(Action::Command(command));
             }
-            Operation::Stop => plan.push(Action::Command(Command::Stop)),
+            Operation::Stop => {
+                // A fresh profile keeps the drive's reference (the telegram carries one): a
+                // stop with reference 0 would make the next run start at 0 Hz.
+                if !known_ctw && !broadcast {
+                    plan.sync();
+                }
+                plan.push(Action::Command(Command::Stop));
+            }
             Operation::Reverse => {
                 if !known_ctw {
                     if broadcast {
@@ -418,6 +426,9 @@ impl DanfossProfile {
                 plan.push(Action::Command(Command::Reverse));
             }
             Operation::Reset => {
+                if !known_ctw && !broadcast {
+                    plan.sync();
+                }
                 plan.push(Action::Command(Command::ResetArm));
                 plan.push(Action::Command(Command::ResetEdge));
             }
@@ -808,7 +819,7 @@ impl FcPlan {
                         memory.reference = reference;
                         // 16-02 has 0.1 % steps (0.05 Hz of 50 Hz): hundredths say all it knows.
                         memory.setpoint_hz =
-                            memory.known.scale().map(|range| (range.hz(reference) * 100.0).round() / 100.0);
+                            memory.known.scale().map(|range| super::round_to(range.hz(reference), 2));
                     }
                     Why::Current => {
                         self.current_a = Some(self.inner.def(pnu)?.from_raw(raw));
@@ -845,9 +856,17 @@ impl FcPlan {
         self.drive_ctw = Some(word);
         let started = word.start() && !word.jog();
         match self.queue.front() {
-            // Already started: a start with the unknown reference replaced by 0 would slow it.
+            // Already started: nothing to send. A tripped drive did not take the start: refused
+            // as a run to it is (the status word of the 16-00 reply says so).
             Some(Action::Command(Command::Run)) if started => {
                 self.queue.pop_front();
+                match self.observed {
+                    Some((stw, _)) if !stw.bus_control() => return Err(no_bus_control(stw)),
+                    Some((stw, _)) if stw.trip() => {
+                        self.queue.push_front(Action::read(ALARM_LOG, 0, Why::Refusal(Refusal::Tripped(stw))))
+                    }
+                    _ => {}
+                }
             }
             _ => {}
         }
@@ -893,13 +912,7 @@ impl FcPlan {
     /// The reply's status word after a command: remember it, or refuse.
     fn commanded(&mut self, sent: Sent, command: Command, stw: StatusWord) -> Result<(), DriveError> {
         if !stw.bus_control() {
-            return Err(DriveError::Refused {
-                code: u32::from(stw.0),
-                meaning: format!(
-                    "the drive ignores the bus control word: status word {stw} has bit 09 \"bus control\" = 0 \
-                     (8-02 Control Source, 8-01 Control Site)"
-                ),
-            });
+            return Err(no_bus_control(stw));
         }
         self.remember(sent);
         match command {
@@ -957,13 +970,24 @@ impl FcPlan {
                     address: self.inner.address,
                     running: stw.in_operation(),
                     direction: direction.map(str::to_string),
-                    output_hz: hz.map(|h| (h.abs() * 1000.0).round() / 1000.0),
+                    output_hz: hz.map(|h| super::round_to(h.abs(), 3)),
                     setpoint_hz: memory.setpoint_hz,
                     current_a: self.current_a,
                     fault,
                 }))
             }
         }
+    }
+}
+
+/// The refusal of a command to a drive that does not take the bus control word.
+fn no_bus_control(stw: StatusWord) -> DriveError {
+    DriveError::Refused {
+        code: u32::from(stw.0),
+        meaning: format!(
+            "the drive ignores the bus control word: status word {stw} has bit 09 \"bus control\" = 0 \
+             (8-02 Control Source, 8-01 Control Site)"
+        ),
     }
 }
 

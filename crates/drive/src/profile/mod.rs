@@ -73,6 +73,13 @@ pub struct DriveStatus {
     pub fault: Option<Fault>,
 }
 
+/// `x` rounded to `places` decimals: a value at the resolution the drive reports it, without
+/// the noise of scaling in binary floating point (14.25025 A from 0.01 % of 14.5 A is 14.25 A).
+pub fn round_to(x: f64, places: i32) -> f64 {
+    let f = 10f64.powi(places);
+    (x * f).round() / f
+}
+
 /// A drive's fault: its code and the manual's text for it.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Fault {

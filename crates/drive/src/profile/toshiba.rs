@@ -906,8 +906,9 @@ fn status_of(address: u8, m: &Monitors, rated_current: u32) -> DriveStatus {
         direction: Some(if reverse { "reverse" } else { "forward" }.to_string()),
         output_hz: Some(f64::from(m.fd00) / 100.0),
         setpoint_hz: Some(f64::from(m.fe02) / 100.0),
-        // FE03 is 0.01 % of FE70 (0.1 A).
-        current_a: (rated_current > 0).then(|| f64::from(m.fe03) * f64::from(rated_current) / 100_000.0),
+        // FE03 is 0.01 % of FE70 (0.1 A): 0.01 A is as fine as the product means anything.
+        current_a: (rated_current > 0)
+            .then(|| super::round_to(f64::from(m.fe03) * f64::from(rated_current) / 100_000.0, 2)),
         fault: (tripped || code != 0).then(|| Fault { code: u32::from(code), text: trip_text(code) }),
     }
 }
@@ -952,5 +953,19 @@ impl fmt::Debug for ToshibaPlan {
             .field("link", &self.link)
             .field("job", &self.job)
             .finish_non_exhaustive()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_current_is_given_at_the_drives_resolution() {
+        // 98.28 % of 14.5 A is 14.2506 A in binary floating point's approximation.
+        let m = Monitors { fd01: 0, fd00: 0, fe02: 0, fe03: 9828, fc90: None };
+        assert_eq!(status_of(1, &m, 145).current_a, Some(14.25));
+        let m = Monitors { fe03: 1915, ..m };
+        assert_eq!(status_of(1, &m, 100).current_a, Some(1.92));
     }
 }

@@ -61,7 +61,8 @@ impl ApiError {
         ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,
             "no_store",
-            "this gateway keeps no events or trends: configure [store] path (or drop --no-store)",
+            "this gateway keeps no events or trends (it was started with --no-store, or its \
+             configuration says [store] disabled = true): give it a [store] path and start it without either",
         )
     }
 

@@ -30,12 +30,18 @@ pub struct Frame<'a> {
 }
 
 /// Who sent `raw`: AK 7 only comes from a drive, AK 4, D and E only from the master; ADR is
-/// echoed, so it tells nothing. Otherwise `from`, and the master by default.
+/// echoed, so it tells nothing. Otherwise `from`; without it, what the block carries: AK 1
+/// with a value in PWE is a drive's "value transferred" (a read request carries none), AK F
+/// with text after IND 04xx is a drive's "text transferred" (a read-text request carries
+/// none). Else the master.
 pub fn infer_direction(raw: &RawTelegram<'_>, from: Option<Direction>) -> Direction {
-    match raw.ak() {
-        Some(0x7) => Direction::Drive,
-        Some(0x4 | 0xD | 0xE) => Direction::Master,
-        _ => from.unwrap_or(Direction::Master),
+    match (raw.ak(), from, &raw.block) {
+        (Some(0x7), _, _) => Direction::Drive,
+        (Some(0x4 | 0xD | 0xE), _, _) => Direction::Master,
+        (_, Some(from), _) => from,
+        (Some(0x1), None, Block::Parameter(p)) if p.pwe != 0 => Direction::Drive,
+        (Some(0xF), None, Block::Text(t)) if t.ind >> 8 == 0x04 && !t.text.is_empty() => Direction::Drive,
+        _ => Direction::Master,
     }
 }
 

@@ -854,3 +854,23 @@ fn a_reply_cut_short_is_corrupt_at_the_deadline() {
         other => panic!("{other:?}"),
     }
 }
+
+/// Without `from`, a telegram that carries what only a reply can (a value after AK 1, a text
+/// after AK F with IND 04xx) is the drive's; the same AK empty is the master's request.
+#[test]
+fn replies_with_ak_1_or_f_are_told_by_what_they_carry() {
+    let adr = Adr::new(1, AddressFormat::OneTo126).unwrap();
+    let rep = emit_rep(&Reply::value_word(adr, pnu("4-14"), 0, 650));
+    assert_eq!(decode(&rep, None).direction(), Direction::Drive);
+    let req = emit_req(&Request::read(adr, pnu("4-14"), 0));
+    assert_eq!(decode(&req, None).direction(), Direction::Master);
+    let rep = emit_rep(&Reply::text(adr, ParameterResponse::Text, pnu("0-37"), 0x0400, b"PUMP 1"));
+    assert_eq!(decode(&rep, None).direction(), Direction::Drive);
+    let req = emit_req(&Request::read_text(adr, pnu("0-37"), 0x0400));
+    assert_eq!(decode(&req, None).direction(), Direction::Master);
+    // A write of text (IND 05xx) is the master's, text and all.
+    let req = emit_req(&Request::write_text(adr, pnu("0-37"), 0, b"PUMP 1"));
+    assert_eq!(decode(&req, None).direction(), Direction::Master);
+    // `from` is taken where the bytes allow either reading.
+    assert_eq!(decode(&rep, Some(Direction::Master)).direction(), Direction::Master);
+}

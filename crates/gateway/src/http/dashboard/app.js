@@ -12,14 +12,25 @@
   const $ = (sel, root) => (root || document).querySelector(sel);
   const field = (root, name) => root.querySelector(`[data-field="${name}"]`);
 
+  const VIEW_KEY = 'drivebus.view';
+  // Above this many drives the page opens on the table: a card per drive would be a long scroll.
+  const TABLE_FROM = 60;
+
   const state = {
-    drives: new Map(), // id -> { view, receivedAt, tile, samples: [{t, hz, a}], trendOpen, history }
+    // id -> { view, receivedAt, tile (made when the cards are first shown), row, samples: [{t, hz, a}],
+    //         trendOpen, history }
+    drives: new Map(),
     buses: new Map(), // name -> { view, el }
     events: [],
     eventIds: new Set(),
     streaming: false,
     pollTimer: null,
     pendingAfterToken: null,
+    view: null, // 'cards' or 'table'
+    dirty: new Set(), // drives whose values changed since the page last showed them
+    flushTimer: null,
+    denseStale: true, // the table's rows must be filtered and sorted again
+    sort: { key: 'id', dir: 1 },
   };
 
   // ---------- token ----------
@@ -152,6 +163,14 @@
     return `${d.getFullYear()}-${pad(d.getMonth() + 1)}-${pad(d.getDate())} ${hms}`;
   }
 
+  // The direction as the drive reports it; the B800 protocol has no direction readout.
+  function directionText(v) {
+    if (v.direction) return v.direction;
+    return v.family === 'b800' ? 'direction not reported (B800 protocol)' : 'direction –';
+  }
+
+  const LOCKED_WHY = 'the gateway refuses commands to this drive (locked = true in its configuration)';
+
   function driveState(v) {
     if (v.online === false) return 'offline';
     if (v.fault) return 'tripped';
@@ -203,8 +222,9 @@
     field(el, 'utilization').textContent = num(v.utilization * 100, 1) + ' %';
     for (const id of v.drives || []) {
       const d = state.drives.get(id);
-      if (d && d.tile.parentElement !== $('.tiles', el)) $('.tiles', el).appendChild(d.tile);
+      if (d && d.tile && d.tile.parentElement !== $('.tiles', el)) $('.tiles', el).appendChild(d.tile);
     }
+    addBusOption(v.name);
   }
 
   // ---------- drives ----------
@@ -224,16 +244,50 @@
     return tile;
   }
 
+  // A drive's new values: kept at once, shown with the next flush (at most every 50 ms), so that
+  // a plant's worth of updates costs one pass over the page, not one per message.
   function updateDrive(v, receivedAt) {
     let d = state.drives.get(v.id);
     if (!d) {
-      d = { view: v, receivedAt: 0, tile: createTile(v), samples: [], trendOpen: false, history: [] };
+      d = { view: v, receivedAt: 0, tile: null, row: null, samples: [], trendOpen: false, history: [] };
       state.drives.set(v.id, d);
-      $('.tiles', busSection(v.bus).el).appendChild(d.tile);
       addDriveOption(v.id);
+      addBusOption(v.bus);
+      state.denseStale = true;
     }
+    if (d.view && driveState(d.view) !== driveState(v)) state.denseStale = true;
     d.view = v;
     d.receivedAt = receivedAt || performance.now();
+    if (typeof v.output_hz === 'number' || typeof v.current_a === 'number') {
+      const ts = v.last_seen_ms || Date.now();
+      const last = d.samples[d.samples.length - 1];
+      if (!last || last.t < ts) d.samples.push({ t: ts, hz: v.output_hz, a: v.current_a });
+      const cut = Date.now() - TREND_SPAN_MS;
+      while (d.samples.length && d.samples[0].t < cut) d.samples.shift();
+    }
+    state.dirty.add(v.id);
+    if (!state.flushTimer) state.flushTimer = setTimeout(flush, 50);
+  }
+
+  function flush() {
+    state.flushTimer = null;
+    if (!state.view) chooseView();
+    const ids = [...state.dirty];
+    state.dirty.clear();
+    if (state.view === 'cards') {
+      for (const id of ids) renderTile(state.drives.get(id));
+    } else {
+      for (const id of ids) renderRow(state.drives.get(id));
+      if (state.denseStale) renderDense();
+    }
+  }
+
+  function renderTile(d) {
+    const v = d.view;
+    if (!d.tile) {
+      d.tile = createTile(v);
+      $('.tiles', busSection(v.bus).el).appendChild(d.tile);
+    }
     const t = d.tile;
     const st = driveState(v);
     const stEl = field(t, 'state');
@@ -241,13 +295,16 @@
     stEl.dataset.state = st;
     t.dataset.state = st;
     field(t, 'family').textContent = `${v.family} · ${v.protocol} #${v.address}`;
-    field(t, 'locked').hidden = !v.locked;
+    const lock = field(t, 'locked');
+    lock.hidden = !v.locked;
+    lock.title = v.locked ? 'locked: ' + LOCKED_WHY : '';
+    applyLock(d);
     const hz = field(t, 'output_hz');
     hz.textContent = num(v.output_hz, 2);
     hz.dataset.value = v.output_hz == null ? '' : String(v.output_hz);
     field(t, 'setpoint_hz').textContent = num(v.setpoint_hz, 2);
     field(t, 'current_a').textContent = num(v.current_a, 2);
-    field(t, 'direction').textContent = v.direction ? v.direction : '';
+    field(t, 'direction').textContent = directionText(v);
     const f = field(t, 'fault');
     if (v.fault) {
       f.textContent = `fault ${v.fault.code}: ${v.fault.text}`;
@@ -262,26 +319,38 @@
     link.title = v.last_error || '';
     updateGauge(t, v);
     updateAge(d);
-    if (typeof v.output_hz === 'number' || typeof v.current_a === 'number') {
-      const ts = v.last_seen_ms || Date.now();
-      const last = d.samples[d.samples.length - 1];
-      if (!last || last.t < ts) d.samples.push({ t: ts, hz: v.output_hz, a: v.current_a });
-      const cut = Date.now() - TREND_SPAN_MS;
-      while (d.samples.length && d.samples[0].t < cut) d.samples.shift();
-    }
     if (d.trendOpen) drawTrend(d);
   }
 
-  function updateAge(d) {
-    const v = d.view;
-    const el = field(d.tile, 'age');
-    if (v.age_ms == null) {
-      el.textContent = '–';
-      return;
+  // A locked drive's command controls are disabled, and say why; Trend stays.
+  function applyLock(d) {
+    const locked = !!d.view.locked;
+    for (const el of d.tile.querySelectorAll('.controls button:not([data-action="trend"]), .controls input')) {
+      el.disabled = locked || d.sending === true;
+      el.title = locked ? 'locked: ' + LOCKED_WHY : '';
     }
-    const age = v.age_ms + (performance.now() - d.receivedAt);
-    el.textContent = ageText(age);
-    d.tile.classList.toggle('stale', age > Math.max(3 * v.poll_ms, 3000));
+    const why = field(d.tile, 'locked-why');
+    why.hidden = !locked;
+    why.textContent = locked ? 'Commands are off: ' + LOCKED_WHY + '.' : '';
+  }
+
+  // The values' age now: as the gateway gave it, plus the time since it arrived.
+  function ageNow(d) {
+    return d.view.age_ms == null ? null : d.view.age_ms + (performance.now() - d.receivedAt);
+  }
+
+  function updateAge(d) {
+    const age = ageNow(d);
+    const stale = age != null && age > Math.max(3 * d.view.poll_ms, 3000);
+    if (state.view === 'cards' && d.tile) {
+      field(d.tile, 'age').textContent = ageText(age);
+      d.tile.classList.toggle('stale', stale);
+    } else if (state.view === 'table' && d.row) {
+      const cell = d.row.cells[7];
+      const text = ageText(age);
+      if (cell.textContent !== text) cell.textContent = text;
+      d.row.classList.toggle('stale', stale);
+    }
   }
 
   // ---------- gauge ----------
@@ -380,13 +449,16 @@
     field(t, 'trend-a-max').textContent = `≤ ${num(aMax, 1)}`;
     const spanText = span >= TREND_SPAN_MS ? 'last 10 min' : `last ${Math.round(span / 1000)} s`;
     field(t, 'trend-span').textContent = d.historyNote ? `· ${spanText} · ${d.historyNote}` : `· ${spanText}`;
+    // The time axis: the clock time at the left edge, a quarter, the middle, three quarters, now.
+    const ticks = $('.trend-axis', t).children;
+    for (let i = 0; i < ticks.length; i++) ticks[i].textContent = timeText(from + (span * i) / (ticks.length - 1));
   }
 
   // ---------- commands ----------
 
   function tileMessage(id, text, kind) {
     const d = state.drives.get(id);
-    if (!d) return;
+    if (!d || !d.tile) return;
     const m = field(d.tile, 'message');
     m.textContent = text;
     m.dataset.kind = kind;
@@ -420,8 +492,8 @@
       askToken(`A write token is needed to send "${label}" to ${id}.`, () => sendCommand(id, action));
       return;
     }
-    const buttons = d.tile.querySelectorAll('.controls button:not([data-action="trend"])');
-    buttons.forEach((b) => { b.disabled = true; });
+    d.sending = true;
+    applyLock(d);
     tileMessage(id, `${label}: sent, waiting for the drive…`, 'pending');
     try {
       const res = await api('POST', `/api/drives/${encodeURIComponent(id)}/${action}`, body);
@@ -440,8 +512,158 @@
         tileMessage(id, `${label}: ${e.message}`, 'error');
       }
     } finally {
-      buttons.forEach((b) => { b.disabled = false; });
+      d.sending = false;
+      applyLock(d);
     }
+  }
+
+  // ---------- the table of all drives ----------
+
+  function addBusOption(name) {
+    const sel = $('#dense-bus');
+    for (const o of sel.options) if (o.value === name) return;
+    const o = document.createElement('option');
+    o.value = name;
+    o.textContent = name;
+    sel.appendChild(o);
+  }
+
+  function createRow(d) {
+    const tr = document.createElement('tr');
+    tr.dataset.row = d.view.id;
+    for (let i = 0; i < 8; i++) tr.appendChild(document.createElement('td'));
+    const show = document.createElement('button');
+    show.type = 'button';
+    show.className = 'link-button';
+    show.textContent = d.view.id;
+    show.title = 'show its card';
+    show.addEventListener('click', () => showCard(d.view.id));
+    tr.cells[0].appendChild(show);
+    for (const i of [3, 4, 5, 7]) tr.cells[i].className = 'num';
+    const badge = document.createElement('span');
+    badge.className = 'state';
+    tr.cells[2].appendChild(badge);
+    return tr;
+  }
+
+  function setCell(cell, text) {
+    if (cell.textContent !== text) cell.textContent = text;
+  }
+
+  function renderRow(d) {
+    if (!d.row) d.row = createRow(d);
+    const v = d.view;
+    const c = d.row.cells;
+    setCell(c[1], v.bus);
+    const st = driveState(v);
+    const badge = c[2].firstChild;
+    setCell(badge, st);
+    badge.dataset.state = st;
+    setCell(c[3], num(v.output_hz, 2));
+    setCell(c[4], num(v.setpoint_hz, 2));
+    setCell(c[5], num(v.current_a, 2));
+    setCell(c[6], v.fault ? `${v.fault.code}: ${v.fault.text}` : '');
+    d.row.classList.toggle('locked', !!v.locked);
+    updateAge(d);
+  }
+
+  const collator = new Intl.Collator(undefined, { numeric: true });
+
+  function sortValue(d, key) {
+    const v = d.view;
+    switch (key) {
+      case 'state': return driveState(v);
+      case 'fault': return v.fault ? v.fault.text : null;
+      case 'age': return ageNow(d);
+      default: return v[key];
+    }
+  }
+
+  // By `key` in `dir`, unknown values last whatever the direction, then by name.
+  function compareBy(a, b, key, dir) {
+    const x = sortValue(a, key);
+    const y = sortValue(b, key);
+    const byName = collator.compare(a.view.id, b.view.id);
+    if (x == null || y == null) return x == null && y == null ? byName : x == null ? 1 : -1;
+    const c = typeof x === 'number' && typeof y === 'number' ? x - y : collator.compare(String(x), String(y));
+    return dir * c || byName;
+  }
+
+  // Filters, sorts and lays out the rows: on a filter, a sort, a new drive or a change of state.
+  function renderDense() {
+    state.denseStale = false;
+    const bus = $('#dense-bus').value;
+    const want = $('#dense-state').value;
+    const search = $('#dense-search').value.trim().toLowerCase();
+    const { key, dir } = state.sort;
+    const shown = [];
+    for (const d of state.drives.values()) {
+      const v = d.view;
+      if (bus && v.bus !== bus) continue;
+      if (want && driveState(v) !== want) continue;
+      if (search && !v.id.toLowerCase().includes(search)) continue;
+      if (!d.row) renderRow(d);
+      shown.push(d);
+    }
+    shown.sort((a, b) => compareBy(a, b, key, dir));
+    $('#dense-rows').replaceChildren(...shown.map((d) => d.row));
+    $('#dense-count').textContent = `${shown.length} of ${state.drives.size} drives`;
+    for (const th of document.querySelectorAll('#dense-table th[data-sort]')) {
+      th.setAttribute('aria-sort', th.dataset.sort === key ? (dir > 0 ? 'ascending' : 'descending') : 'none');
+    }
+  }
+
+  function wireDense() {
+    for (const th of document.querySelectorAll('#dense-table th[data-sort]')) {
+      th.addEventListener('click', () => {
+        const key = th.dataset.sort;
+        state.sort = { key, dir: state.sort.key === key ? -state.sort.dir : 1 };
+        renderDense();
+      });
+    }
+    $('#dense-bus').addEventListener('change', renderDense);
+    $('#dense-state').addEventListener('change', renderDense);
+    $('#dense-search').addEventListener('input', renderDense);
+  }
+
+  // ---------- cards or table ----------
+
+  function chooseView() {
+    let saved = null;
+    try {
+      saved = sessionStorage.getItem(VIEW_KEY);
+    } catch (_) {
+      saved = null;
+    }
+    setView(saved === 'cards' || saved === 'table' ? saved : state.drives.size > TABLE_FROM ? 'table' : 'cards', false);
+  }
+
+  function setView(view, remember) {
+    state.view = view;
+    if (remember) {
+      try {
+        sessionStorage.setItem(VIEW_KEY, view);
+      } catch (_) {
+        // Not kept: the choice lasts until the page reloads.
+      }
+    }
+    $('#buses').hidden = view !== 'cards';
+    $('#dense').hidden = view !== 'table';
+    for (const b of document.querySelectorAll('[data-view]')) b.setAttribute('aria-pressed', String(b.dataset.view === view));
+    state.dirty.clear();
+    if (view === 'cards') {
+      for (const d of state.drives.values()) renderTile(d);
+      for (const b of state.buses.values()) if (b.view) updateBus(b.view);
+    } else {
+      for (const d of state.drives.values()) renderRow(d);
+      renderDense();
+    }
+  }
+
+  function showCard(id) {
+    setView('cards', true);
+    const d = state.drives.get(id);
+    if (d && d.tile) d.tile.scrollIntoView({ block: 'center' });
   }
 
   // ---------- events ----------
@@ -643,11 +865,17 @@
   function init() {
     updateTokenButton();
     wireTokenDialog();
+    wireDense();
+    for (const b of document.querySelectorAll('[data-view]')) b.addEventListener('click', () => setView(b.dataset.view, true));
     // The list is filtered here (renderEvents); the store is asked for more of the new filter.
     // Nothing is cleared: without a store the live events are all there is.
     $('#event-drive').addEventListener('change', () => { renderEvents(); loadEvents(); });
     $('#event-kind').addEventListener('change', () => { renderEvents(); loadEvents(); });
-    setInterval(() => { for (const d of state.drives.values()) updateAge(d); }, 500);
+    setInterval(() => {
+      for (const d of state.drives.values()) updateAge(d);
+      // Sorted by a value that changes by itself (age, output, current): keep the order true.
+      if (state.view === 'table' && !['id', 'bus'].includes(state.sort.key)) renderDense();
+    }, 1000);
     start();
   }
 

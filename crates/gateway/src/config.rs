@@ -434,11 +434,14 @@ impl Ctx<'_> {
     }
 }
 
+/// Reads a listener's `HOST:PORT` field (value, field name, default) with its file position.
+type ListenerField<'a> = dyn Fn(&Option<Spanned<String>>, &str, &str) -> Result<SocketAddr, ConfigError> + 'a;
+
 /// `[opcua]`: on unless `disabled = true`; anonymous reads as `[http]` unless said.
 fn opcua_section(
     raw: &FileOpcUa,
     http: &HttpConfig,
-    addr: &dyn Fn(&Option<Spanned<String>>, &str, &str) -> Result<SocketAddr, ConfigError>,
+    addr: &ListenerField<'_>,
 ) -> Result<Option<OpcUaConfig>, ConfigError> {
     if raw.disabled {
         return Ok(None);

@@ -337,8 +337,9 @@ async fn publish(
     let subs = handle.subscriptions().clone();
     let mut changes = gw.subscribe();
     let mut last = Last::new();
-    let bus_online =
-        |gw: &Gateway, bus: &str| gw.buses().iter().find(|b| b.config.name == bus).is_none_or(|b| b.online());
+    let bus_online = |gw: &Gateway, bus: &str| {
+        gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
+    };
     for d in gw.drives().iter() {
         let v = gw.drive_view(d);
         publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));

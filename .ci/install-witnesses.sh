@@ -1,8 +1,7 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the tests use as witnesses: pymodbus and asyncua
-# (PyPI), and
-# from Debian mbpoll, curl, mosquitto, chromium + chromium-driver (the dashboard's browser test)
-# and systemd (systemd-analyze, for the package check); and cargo-deb (crates.io) to build the
+# (PyPI); from Debian mbpoll, curl, mosquitto, chromium + chromium-driver (the dashboard's
+# browser test) and systemd (systemd-analyze, for the package check); and cargo-deb (crates.io) to build the
 # Debian package. Idempotent: each is installed only when missing.
 set -euo pipefail
 

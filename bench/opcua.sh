@@ -1,0 +1,87 @@
+#!/usr/bin/env bash
+# The OPC UA front end under load (issue 15), not run in CI.
+#
+# `drivebus serve` (release, pinned to core 0) with 1000 simulated drives on 32 virtual buses,
+# every drive ramping between speeds set over HTTP every few seconds so values keep changing.
+# Then, for each client count in $CLIENTS (default "1 20"), that many asyncua sessions
+# (bench/opcua_subscriber.py, core 1) subscribe to 6 variables of every drive (6000 monitored
+# items each) with sampling $SAMPLE_MS (default 1000) and publishing $PUBLISH_MS (default 1000):
+#   - the gateway's CPU over $SECS s, against the same window with no client (baseline);
+#   - notifications/s and their latency from the drive's answer (source timestamp) to arrival;
+#   - the gateway's RSS per client.
+#
+# SECS=20 CLIENTS="1 20" PUBLISH_MS=100 bench/opcua.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+. bench/lib/plant.sh
+SECS=${SECS:-20}
+CLIENTS=${CLIENTS:-"1 20"}
+PUBLISH_MS=${PUBLISH_MS:-1000}
+SAMPLE_MS=${SAMPLE_MS:-1000}
+TOKEN=bench-opcua-token-0123456789
+
+cargo build --release -q -p drivebus
+BIN=target/release/drivebus
+TMP=$(mktemp -d)
+PIDS=()
+cleanup() {
+  for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
+  wait 2>/dev/null || true
+  rm -rf "$TMP"
+}
+trap cleanup EXIT
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+ticks() { awk '{print $14 + $15}' "/proc/$1/stat"; }
+rss_kb() { awk '/VmRSS/ {print $2}' "/proc/$1/status"; }
+HZ=$(getconf CLK_TCK)
+
+write_plant "$TMP/plant.toml" bench "$(printf '[store]\ndisabled = true\n[[token]]\nname = "bench"\ntoken = "%s"\nrole = "write"\n' "$TOKEN")"
+HP=$(free_port); MP=$(free_port); OP=$(free_port)
+taskset -c 0 "$BIN" serve --config "$TMP/plant.toml" --http "127.0.0.1:$HP" --modbus "127.0.0.1:$MP" \
+  --opcua "127.0.0.1:$OP" >"$TMP/gw.log" 2>&1 &
+GW=$!; PIDS+=("$GW")
+until grep -q "OPC UA" "$TMP/gw.log"; do sleep 0.2; done
+URL="opc.tcp://127.0.0.1:$OP"
+
+# Every drive running, its speed changed every 4 s (all values keep changing while they ramp).
+python3 - "$HP" "$TOKEN" >"$TMP/stir.log" 2>&1 <<'PY' &
+import http.client, json, random, sys, time
+port, token = int(sys.argv[1]), sys.argv[2]
+conn = http.client.HTTPConnection("127.0.0.1", port)
+def post(path, body=None):
+    conn.request("POST", path, body=json.dumps(body) if body else None,
+                 headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"})
+    conn.getresponse().read()
+for i in range(1, 1001):
+    post(f"/api/drives/vfd-{i}/speed", {"hz": 30})
+    post(f"/api/drives/vfd-{i}/run")
+while True:
+    for i in range(1, 1001):
+        post(f"/api/drives/vfd-{i}/speed", {"hz": random.choice([20, 30, 40, 50])})
+    time.sleep(4)
+PY
+PIDS+=("$!")
+sleep 15
+
+measure() {  # measure SECS: the gateway's CPU over SECS s, in % of one core
+  local t0 t1
+  t0=$(ticks "$GW"); sleep "$1"; t1=$(ticks "$GW")
+  python3 -c "print(round(($t1 - $t0) * 100 / ($HZ * $1), 1))"
+}
+echo "== baseline: no OPC UA client, $SECS s"
+BASE=$(measure "$SECS")
+RSS0=$(rss_kb "$GW")
+echo "gateway CPU ${BASE} % of a core, RSS ${RSS0} kB"
+
+for n in $CLIENTS; do
+  echo "== $n client(s) x 6000 monitored items (publishing ${PUBLISH_MS} ms, sampling ${SAMPLE_MS} ms), $SECS s"
+  taskset -c 1 python3 bench/opcua_subscriber.py "$URL" "$n" "$SECS" "$PUBLISH_MS" "$SAMPLE_MS" 1000 >"$TMP/sub.log" 2>&1 &
+  SUB=$!
+  until grep -q '"ready"' "$TMP/sub.log" 2>/dev/null || ! kill -0 "$SUB" 2>/dev/null; do sleep 0.5; done
+  head -n 1 "$TMP/sub.log"
+  CPU=$(measure "$SECS")
+  RSS=$(rss_kb "$GW")
+  wait "$SUB" || true
+  tail -n 1 "$TMP/sub.log"
+  python3 -c "print(f'gateway CPU {$CPU} % of a core: {round($CPU - $BASE, 1)} % above the baseline; RSS {$RSS} kB, {round(($RSS - $RSS0) / $n)} kB per client')"
+done

@@ -1,0 +1,74 @@
+#!/usr/bin/env python3
+"""OPC UA subscribers for bench/opcua.sh (asyncua).
+
+    opcua_subscriber.py URL CLIENTS SECS PUBLISH_MS SAMPLE_MS DRIVES
+
+Opens CLIENTS sessions; each subscribes to 6 variables of every drive vfd-1..vfd-DRIVES
+(OutputFrequency, Setpoint, Current, Running, FaultCode, Online) with the given publishing and
+sampling intervals, then counts notifications for SECS seconds. The latency of a notification is
+the time it arrived minus its source timestamp (the time the drive answered the poll that
+changed the value; same host, same clock); the first publishes after subscribing (initial
+values) are not counted. Prints one JSON line.
+"""
+
+import asyncio
+import json
+import sys
+import time
+
+from asyncua import Client
+
+VARS = ["OutputFrequency", "Setpoint", "Current", "Running", "FaultCode", "Online"]
+
+
+class Handler:
+    def __init__(self):
+        self.latencies = []
+        self.counting = False
+
+    def datachange_notification(self, node, val, data):
+        if not self.counting:
+            return
+        ts = data.monitored_item.Value.SourceTimestamp
+        if ts is not None:
+            self.latencies.append(time.time() - ts.timestamp())
+
+
+async def client(url, drives, publish_ms, sample_ms, handler, ready):
+    c = Client(url, timeout=120)
+    await c.connect()
+    ns = await c.get_namespace_index("urn:drivebus")
+    sub = await c.create_subscription(publish_ms, handler)
+    nodes = [c.get_node(f"ns={ns};s=Drives/vfd-{i}/{v}") for i in range(1, drives + 1) for v in VARS]
+    for k in range(0, len(nodes), 1000):
+        await sub.subscribe_data_change(nodes[k:k + 1000], sampling_interval=sample_ms)
+    ready.append(c)
+    return c
+
+
+async def main(url, clients, secs, publish_ms, sample_ms, drives):
+    handler = Handler()
+    ready = []
+    t0 = time.monotonic()
+    await asyncio.gather(*(client(url, drives, publish_ms, sample_ms, handler, ready) for _ in range(clients)))
+    setup = time.monotonic() - t0
+    # The first publishes carry every item's initial value (old source timestamps): not counted.
+    await asyncio.sleep(3 * publish_ms / 1000 + 1)
+    print(json.dumps({"ready": True, "setup_s": round(setup, 1)}), flush=True)
+    handler.counting = True
+    await asyncio.sleep(secs)
+    handler.counting = False
+    lat = sorted(handler.latencies)
+    pct = lambda p: round(lat[min(len(lat) - 1, int(p * len(lat)))] * 1000, 1) if lat else None
+    print(json.dumps({
+        "clients": clients, "items": clients * drives * len(VARS), "secs": secs,
+        "notifications": len(lat), "per_s": round(len(lat) / secs),
+        "latency_ms_p50": pct(0.50), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0),
+    }), flush=True)
+    for c in ready:
+        await c.disconnect()
+
+
+if __name__ == "__main__":
+    url, clients, secs, pub, samp, drives = sys.argv[1:7]
+    asyncio.run(main(url, int(clients), float(secs), float(pub), float(samp), int(drives)))

@@ -75,13 +75,28 @@ echo "gateway CPU ${BASE} % of a core, RSS ${RSS0} kB"
 
 for n in $CLIENTS; do
   echo "== $n client(s) x 6000 monitored items (publishing ${PUBLISH_MS} ms, sampling ${SAMPLE_MS} ms), $SECS s"
-  taskset -c 1 python3 bench/opcua_subscriber.py "$URL" "$n" "$SECS" "$PUBLISH_MS" "$SAMPLE_MS" 1000 >"$TMP/sub.log" 2>&1 &
-  SUB=$!
-  until grep -q '"ready"' "$TMP/sub.log" 2>/dev/null || ! kill -0 "$SUB" 2>/dev/null; do sleep 0.5; done
-  head -n 1 "$TMP/sub.log"
+  # One process per client (one asyncua session each), all on core 1.
+  SUBS=()
+  for i in $(seq 1 "$n"); do
+    taskset -c 1 python3 bench/opcua_subscriber.py "$URL" 1 "$SECS" "$PUBLISH_MS" "$SAMPLE_MS" 1000 "$TMP/lat-$i.json" \
+      >"$TMP/sub-$i.log" 2>&1 &
+    SUBS+=("$!")
+  done
+  for i in $(seq 1 "$n"); do
+    until grep -q '"ready"' "$TMP/sub-$i.log" 2>/dev/null || ! kill -0 "${SUBS[$((i - 1))]}" 2>/dev/null; do sleep 0.5; done
+  done
   CPU=$(measure "$SECS")
   RSS=$(rss_kb "$GW")
-  wait "$SUB" || true
-  tail -n 1 "$TMP/sub.log"
+  for p in "${SUBS[@]}"; do wait "$p" || true; done
+  python3 - "$TMP" "$n" "$SECS" <<'PY'
+import glob, json, sys
+tmp, n, secs = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+lat = sorted(x for f in glob.glob(f"{tmp}/lat-*.json") for x in json.load(open(f)))
+done = len(glob.glob(f"{tmp}/lat-*.json"))
+pct = lambda p: round(lat[min(len(lat) - 1, int(p * len(lat)))] * 1000, 1) if lat else None
+print(json.dumps({"clients": n, "clients_done": done, "notifications": len(lat), "per_s": round(len(lat) / secs),
+                  "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0)}))
+PY
+  rm -f "$TMP"/lat-*.json
   python3 -c "print(f'gateway CPU {$CPU} % of a core: {round($CPU - $BASE, 1)} % above the baseline; RSS {$RSS} kB, {round(($RSS - $RSS0) / $n)} kB per client')"
 done

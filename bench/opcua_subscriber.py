@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
 """OPC UA subscribers for bench/opcua.sh (asyncua).
 
-    opcua_subscriber.py URL CLIENTS SECS PUBLISH_MS SAMPLE_MS DRIVES
+    opcua_subscriber.py URL CLIENTS SECS PUBLISH_MS SAMPLE_MS DRIVES [LATENCIES_FILE]
 
 Opens CLIENTS sessions; each subscribes to 6 variables of every drive vfd-1..vfd-DRIVES
 (OutputFrequency, Setpoint, Current, Running, FaultCode, Online) with the given publishing and
 sampling intervals, then counts notifications for SECS seconds. The latency of a notification is
 the time it arrived minus its source timestamp (the time the drive answered the poll that
 changed the value; same host, same clock); the first publishes after subscribing (initial
-values) are not counted. Prints one JSON line.
+values) are not counted. Prints one JSON line; with LATENCIES_FILE, also writes every latency
+(seconds, JSON list) there, for bench/opcua.sh to merge the runs of several processes.
 """
 
 import asyncio
@@ -46,7 +47,7 @@ async def client(url, drives, publish_ms, sample_ms, handler, ready):
     return c
 
 
-async def main(url, clients, secs, publish_ms, sample_ms, drives):
+async def main(url, clients, secs, publish_ms, sample_ms, drives, out=None):
     handler = Handler()
     ready = []
     t0 = time.monotonic()
@@ -65,10 +66,14 @@ async def main(url, clients, secs, publish_ms, sample_ms, drives):
         "notifications": len(lat), "per_s": round(len(lat) / secs),
         "latency_ms_p50": pct(0.50), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0),
     }), flush=True)
+    if out:
+        with open(out, "w") as f:
+            json.dump(lat, f)
     for c in ready:
         await c.disconnect()
 
 
 if __name__ == "__main__":
     url, clients, secs, pub, samp, drives = sys.argv[1:7]
-    asyncio.run(main(url, int(clients), float(secs), float(pub), float(samp), int(drives)))
+    out = sys.argv[7] if len(sys.argv) > 7 else None
+    asyncio.run(main(url, int(clients), float(secs), float(pub), float(samp), int(drives), out))

@@ -26,6 +26,8 @@ pub struct DriveNodes {
     namespace: NamespaceMetadata,
     /// Told once the address space is built, so the publisher starts filling it.
     built: Arc<tokio::sync::Notify>,
+    /// The nodes made for each drive and bus, kept for a reload that removes them.
+    made: std::sync::Mutex<(super::nodes::Made, super::nodes::Made)>,
 }
 
 impl DriveNodes {
@@ -36,6 +38,7 @@ impl DriveNodes {
             ids: Ids { ns: namespace.namespace_index },
             namespace,
             built: Arc::new(tokio::sync::Notify::new()),
+            made: Default::default(),
         }
     }
 
@@ -97,6 +100,47 @@ fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
 }
 
 impl DriveNodes {
+    /// Brings the address space in line with the gateway's drives and buses after a reload:
+    /// adds those it lacks, removes those that are gone. Returns whether anything changed.
+    pub fn sync(&self, space: &RwLock<AddressSpace>) -> bool {
+        let mut made = self.made.lock().unwrap_or_else(|p| p.into_inner());
+        let (drives, buses) = (self.gw.drives(), self.gw.buses());
+        let same = drives.len() == made.0.len()
+            && buses.len() == made.1.len()
+            && drives.iter().all(|d| made.0.contains_key(&d.config.name))
+            && buses.iter().all(|b| made.1.contains_key(&b.config.name));
+        if same {
+            return false;
+        }
+        let mut space = space.write();
+        let (made_drives, made_buses) = &mut *made;
+        made_drives.retain(|name, nodes| {
+            let keep = drives.iter().any(|d| &d.config.name == name);
+            if !keep {
+                super::nodes::remove(&mut space, nodes);
+            }
+            keep
+        });
+        made_buses.retain(|name, nodes| {
+            let keep = buses.iter().any(|b| &b.config.name == name);
+            if !keep {
+                super::nodes::remove(&mut space, nodes);
+            }
+            keep
+        });
+        for b in buses.iter() {
+            if !made_buses.contains_key(&b.config.name) {
+                made_buses.insert(b.config.name.clone(), super::nodes::add_bus(&mut space, &self.ids, b));
+            }
+        }
+        for d in drives.iter() {
+            if !made_drives.contains_key(&d.config.name) {
+                made_drives.insert(d.config.name.clone(), super::nodes::add_drive(&mut space, &self.ids, d));
+            }
+        }
+        true
+    }
+
     async fn read_parameter(&self, drive: &str, name: &str) -> DataValue {
         match self.gw.read_param(drive, name).await {
             Ok(r) => {
@@ -136,7 +180,8 @@ impl DriveNodes {
 #[async_trait]
 impl InMemoryNodeManagerImpl for DriveNodes {
     async fn init(&self, space: &mut AddressSpace, _context: ServerContext) {
-        super::nodes::build(space, &self.ids, &self.gw.drives(), &self.gw.buses());
+        let made = super::nodes::build(space, &self.ids, &self.gw.drives(), &self.gw.buses());
+        *self.made.lock().unwrap_or_else(|p| p.into_inner()) = made;
         self.built.notify_one();
     }
 

@@ -372,6 +372,10 @@ async fn publish(
                 Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
             },
             _ = tick.tick() => {
+                // A reload added or removed drives or buses: the address space follows.
+                if manager.inner().sync(manager.address_space()) {
+                    last.clear();
+                }
                 for d in gw.drives().iter() {
                     let v = gw.drive_view(d);
                     publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));

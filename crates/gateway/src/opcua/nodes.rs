@@ -216,7 +216,26 @@ impl Ids {
     }
 }
 
-fn add_variable(space: &mut AddressSpace, ids: &Ids, id: &NodeId, parent: &NodeId, def: &VariableDef) {
+/// Adds the `EngineeringUnits` property of `id`; returns its node id.
+fn add_unit(space: &mut AddressSpace, ids: &Ids, id: &NodeId, unit: Unit) -> NodeId {
+    let eu = ids.id(format!("{}/EngineeringUnits", id_path(id)));
+    VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
+        .data_type(DataTypeId::EUInformation)
+        .value(unit.eu_information())
+        .has_type_definition(VariableTypeId::PropertyType)
+        .property_of(id.clone())
+        .insert(space);
+    eu
+}
+
+/// Adds a variable and its properties; returns their node ids.
+fn add_variable(
+    space: &mut AddressSpace,
+    ids: &Ids,
+    id: &NodeId,
+    parent: &NodeId,
+    def: &VariableDef,
+) -> Vec<NodeId> {
     let mut b = VariableBuilder::new(id, ids.name(def.name), def.name)
         .data_type(def.data_type)
         .value(Variant::Empty)
@@ -230,14 +249,9 @@ fn add_variable(space: &mut AddressSpace, ids: &Ids, id: &NodeId, parent: &NodeI
         b = b.writable();
     }
     b.insert(space);
+    let mut made = vec![id.clone()];
     if let Some(unit) = def.unit {
-        let eu = ids.id(format!("{}/EngineeringUnits", id_path(id)));
-        VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
-            .data_type(DataTypeId::EUInformation)
-            .value(unit.eu_information())
-            .has_type_definition(VariableTypeId::PropertyType)
-            .property_of(id.clone())
-            .insert(space);
+        made.push(add_unit(space, ids, id, unit));
     }
     if let Some((low, high)) = def.range {
         let r = ids.id(format!("{}/EURange", id_path(id)));
@@ -247,7 +261,9 @@ fn add_variable(space: &mut AddressSpace, ids: &Ids, id: &NodeId, parent: &NodeI
             .has_type_definition(VariableTypeId::PropertyType)
             .property_of(id.clone())
             .insert(space);
+        made.push(r);
     }
+    made
 }
 
 fn id_path(id: &NodeId) -> String {
@@ -257,13 +273,17 @@ fn id_path(id: &NodeId) -> String {
     }
 }
 
-/// Builds the types, the `Drives` and `Buses` folders and every drive and bus.
+/// The nodes made for each drive or bus, by name.
+pub type Made = std::collections::HashMap<String, Vec<NodeId>>;
+
+/// Builds the types, the `Drives` and `Buses` folders and every drive and bus; returns the nodes
+/// made for each drive and for each bus.
 pub fn build(
     space: &mut AddressSpace,
     ids: &Ids,
     drives: &[std::sync::Arc<DriveEntry>],
     buses: &[std::sync::Arc<BusEntry>],
-) {
+) -> (Made, Made) {
     ObjectTypeBuilder::new(&ids.drive_type(), ids.name("DriveType"), "DriveType")
         .subtype_of(ObjectTypeId::BaseObjectType)
         .generates_event(ObjectTypeId::BaseEventType)
@@ -275,44 +295,33 @@ pub fn build(
         .description("An RS-485 bus and its statistics")
         .insert(space);
     // The types' members, so a client browsing DriveType sees what every drive has.
-    for def in DRIVE_VARIABLES {
-        let id = ids.id(format!("DriveType/{}", def.name));
-        add_variable(space, ids, &id, &ids.drive_type(), def);
-        space.insert_reference(
-            &id,
-            &NodeId::from(ObjectId::ModellingRule_Mandatory),
-            ReferenceTypeId::HasModellingRule,
-        );
+    let members = [("DriveType", ids.drive_type(), DRIVE_VARIABLES), ("BusType", ids.bus_type(), BUS_VARIABLES)];
+    for (ty, ty_id, vars) in members {
+        for def in vars {
+            let id = ids.id(format!("{ty}/{}", def.name));
+            add_variable(space, ids, &id, &ty_id, def);
+            space.insert_reference(
+                &id,
+                &NodeId::from(ObjectId::ModellingRule_Mandatory),
+                ReferenceTypeId::HasModellingRule,
+            );
+        }
     }
-    for def in BUS_VARIABLES {
-        let id = ids.id(format!("BusType/{}", def.name));
-        add_variable(space, ids, &id, &ids.bus_type(), def);
-        space.insert_reference(
-            &id,
-            &NodeId::from(ObjectId::ModellingRule_Mandatory),
-            ReferenceTypeId::HasModellingRule,
-        );
+    for (folder, name) in [(ids.drives(), "Drives"), (ids.buses(), "Buses")] {
+        ObjectBuilder::new(&folder, ids.name(name), name)
+            .is_folder()
+            .organized_by(ObjectId::ObjectsFolder)
+            .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+            .insert(space);
     }
-    ObjectBuilder::new(&ids.drives(), ids.name("Drives"), "Drives")
-        .is_folder()
-        .organized_by(ObjectId::ObjectsFolder)
-        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
-        .insert(space);
-    ObjectBuilder::new(&ids.buses(), ids.name("Buses"), "Buses")
-        .is_folder()
-        .organized_by(ObjectId::ObjectsFolder)
-        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
-        .insert(space);
-    for d in drives {
-        add_drive(space, ids, d);
-    }
-    for b in buses {
-        add_bus(space, ids, b);
-    }
+    let drives = drives.iter().map(|d| (d.config.name.clone(), add_drive(space, ids, d))).collect();
+    let buses = buses.iter().map(|b| (b.config.name.clone(), add_bus(space, ids, b))).collect();
+    (drives, buses)
 }
 
-/// Adds one drive: its object, variables, methods and parameters.
-pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) {
+/// Adds one drive: its object, variables, methods and parameters. Returns every node made, for
+/// [`remove`] when a reload takes the drive away.
+pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) -> Vec<NodeId> {
     let name = d.config.name.as_str();
     let obj = ids.drive(name);
     ObjectBuilder::new(&obj, ids.name(name), name)
@@ -321,8 +330,9 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) {
         .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
         .description(format!("{} drive at address {} on bus {}", d.config.family, d.config.address, d.bus))
         .insert(space);
+    let mut made = vec![obj.clone()];
     for def in DRIVE_VARIABLES {
-        add_variable(space, ids, &ids.drive_member(name, def.name), &obj, def);
+        made.extend(add_variable(space, ids, &ids.drive_member(name, def.name), &obj, def));
     }
     for m in DRIVE_METHODS {
         let id = ids.drive_member(name, m);
@@ -331,19 +341,19 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) {
             .executable(true)
             .user_executable(true);
         if *m == "SetSpeed" {
-            b = b.input_args(
-                space,
-                &ids.drive_member(name, "SetSpeed/InputArguments"),
-                &[("hz", DataTypeId::Double).into()],
-            );
+            let args = ids.drive_member(name, "SetSpeed/InputArguments");
+            b = b.input_args(space, &args, &[("hz", DataTypeId::Double).into()]);
+            made.push(args);
         }
         b.insert(space);
+        made.push(id);
     }
     let params = ids.drive_member(name, "Parameters");
     ObjectBuilder::new(&params, ids.name("Parameters"), "Parameters")
         .is_folder()
         .component_of(obj.clone())
         .insert(space);
+    made.push(params.clone());
     for p in d.catalog().iter() {
         let id = ids.parameter(name, &p.name);
         let mut b = VariableBuilder::new(&id, ids.name(&p.name), p.name.as_str())
@@ -356,20 +366,16 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) {
             b = b.writable();
         }
         b.insert(space);
+        made.push(id.clone());
         if let Some(unit) = Unit::from_symbol(&p.unit) {
-            let eu = ids.id(format!("{}/EngineeringUnits", id_path(&id)));
-            VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
-                .data_type(DataTypeId::EUInformation)
-                .value(unit.eu_information())
-                .has_type_definition(VariableTypeId::PropertyType)
-                .property_of(id.clone())
-                .insert(space);
+            made.push(add_unit(space, ids, &id, unit));
         }
     }
+    made
 }
 
-/// Adds one bus: its object and variables.
-pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) {
+/// Adds one bus: its object and variables. Returns every node made.
+pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) -> Vec<NodeId> {
     let name = b.config.name.as_str();
     let obj = ids.bus(name);
     ObjectBuilder::new(&obj, ids.name(name), name)
@@ -381,8 +387,17 @@ pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) {
             b.config.protocol, b.config.port, b.config.baud, b.config.format
         ))
         .insert(space);
+    let mut made = vec![obj.clone()];
     for def in BUS_VARIABLES {
-        add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def);
+        made.extend(add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def));
+    }
+    made
+}
+
+/// Removes the nodes made by [`add_drive`] or [`add_bus`], with their references.
+pub fn remove(space: &mut AddressSpace, made: &[NodeId]) {
+    for id in made.iter().rev() {
+        space.delete(id, true);
     }
 }
 

@@ -22,6 +22,10 @@ pub struct SimulateArgs {
     /// Serve raw bytes on HOST:PORT, as a serial device server does.
     #[arg(long, value_name = "HOST:PORT")]
     pub tcp: Option<SocketAddr>,
+    /// Create a second pseudo-terminal (symlink at PATH) that carries a copy of every byte on
+    /// the virtual line, both directions, paced as on the line: open it with `drivebus sniff`.
+    #[arg(long, value_name = "PATH")]
+    pub tap: Option<PathBuf>,
     /// Serve the HTTP/JSON control interface (faults, load, trips, state) on HOST:PORT.
     #[arg(long, value_name = "HOST:PORT")]
     pub control: Option<SocketAddr>,
@@ -118,6 +122,17 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
             println!("control http://{}/drives", listener.local_addr()?);
             tokio::spawn(async move { axum_serve(listener, s).await });
         }
+        if let Some(path) = &args.tap {
+            let (at, feed) =
+                sim.clone().serve_tap(path).with_context(|| format!("tap {}", path.display()))?;
+            println!("{at}");
+            let shown = path.display().to_string();
+            tokio::spawn(async move {
+                if let Err(e) = feed.await {
+                    eprintln!("drivebus: tap {shown} stopped: {e}");
+                }
+            });
+        }
         let verbose = args.verbose;
         let serve = sim.clone().serve(endpoint.clone(), verbose, |at| println!("listening on {at}"));
         tokio::select! {
@@ -128,6 +143,9 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
             _ = tokio::signal::ctrl_c() => {}
         }
         if let Endpoint::Pty(p) = &endpoint {
+            let _ = std::fs::remove_file(p);
+        }
+        if let Some(p) = &args.tap {
             let _ = std::fs::remove_file(p);
         }
         Ok::<_, anyhow::Error>(())

@@ -5,6 +5,7 @@
 //! 3 bad usage. Errors go to stderr, one line each.
 
 mod commands;
+mod sniff;
 mod hexarg;
 
 use std::process::ExitCode;

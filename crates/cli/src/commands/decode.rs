@@ -161,7 +161,8 @@ pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Ite
     items
 }
 
-fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
+/// The report of a parsed frame found at `offset`.
+pub fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
     let mut fields: Vec<FieldReport> = Vec::new();
     frame.fields(&mut |f| {
         let json = field_json(&f);

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the interop tests use as witnesses:
-# pymodbus (PyPI), mbpoll, curl and mosquitto (Debian) and, for the dashboard's browser test, Debian's
+# pymodbus (PyPI), mbpoll, curl, mosquitto and tshark (Debian) and, for the dashboard's browser test, Debian's
 # chromium and chromium-driver (chromedriver). Idempotent.
 set -euo pipefail
 if ! python3 -c "import pymodbus, serial" 2>/dev/null; then
@@ -37,6 +37,14 @@ if ! command -v mosquitto >/dev/null && [ ! -x /usr/sbin/mosquitto ]; then
   [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get install -y -q mosquitto >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && $SUDO apt-get install -y -q mosquitto >/dev/null; }
 fi
+# tshark decodes the captures of `drivebus sniff --write` (crates/cli/tests/sniff.rs); its
+# question about letting non-root users capture is answered no (nothing here captures packets).
+if ! command -v tshark >/dev/null; then
+  SUDO=""
+  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  echo "wireshark-common wireshark-common/install-setuid boolean false" | $SUDO debconf-set-selections 2>/dev/null || true
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q tshark >/dev/null 2>&1 || { $SUDO apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q tshark >/dev/null; }
+fi
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
@@ -44,3 +52,4 @@ curl --version | head -n 1
 chromedriver --version | head -n 1
 MOSQUITTO="$(command -v mosquitto || echo /usr/sbin/mosquitto)"
 "$MOSQUITTO" -h 2>&1 | sed -n 1p || true  # -h exits 3 after printing its version
+tshark --version 2>/dev/null | head -n 1

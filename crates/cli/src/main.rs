@@ -30,6 +30,9 @@ enum Command {
     /// Run virtual drives on a virtual RS-485 line, paced at the real baud rate, behind a
     /// pseudo-terminal or a TCP port.
     Simulate(commands::simulate::SimulateArgs),
+    /// Listen to a line someone else drives, never transmit: every frame of every protocol
+    /// decoded, requests paired with replies and their latency, per-address statistics, a pcap.
+    Sniff(commands::sniff::SniffArgs),
     /// Read a drive's state: running, direction, output and setpoint Hz, current, fault.
     Status,
     /// Start the motor.
@@ -126,6 +129,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Decode(args) => commands::decode::run(&args, &cli.target),
         Command::Simulate(args) => commands::simulate::run(&args, &cli.target),
+        Command::Sniff(args) => commands::sniff::run(&args, &cli.target),
         Command::Status => commands::drive::status(&cli.target),
         Command::Run => commands::drive::command(&cli.target, "run", None),
         Command::Stop => commands::drive::command(&cli.target, "stop", None),

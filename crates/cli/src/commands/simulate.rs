@@ -43,7 +43,7 @@ pub struct SimulateArgs {
 
 /// Builds the bus the arguments describe.
 pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Result<BusSpec> {
-    let format = match &target.serial {
+    let format = match target.serial() {
         Some(s) => Some(s.parse::<CharFormat>().map_err(|e| anyhow::anyhow!("--serial {s:?}: {e}"))?),
         None => None,
     };
@@ -57,7 +57,7 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) ->
                 .with_context(|| format!("cannot read the bus file {}", path.display()))?;
             let mut bus = BusSpec::from_toml(&path.display().to_string(), &text)?;
             bus.drives.extend(extra);
-            if let Some(b) = target.baud {
+            if let Some(b) = target.baud() {
                 bus.baud = b;
             }
             if let Some(f) = format {
@@ -66,7 +66,7 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) ->
             bus.check()?;
             bus
         }
-        None => BusSpec::new(extra, target.baud, format)?,
+        None => BusSpec::new(extra, target.baud(), format)?,
     };
     let mut bus = bus;
     if args.no_pacing {

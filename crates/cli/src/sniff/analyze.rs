@@ -367,11 +367,6 @@ impl Analyzer {
         self.frames
     }
 
-    /// When the first byte was read.
-    pub fn first_time(&self) -> Option<Duration> {
-        self.first
-    }
-
     /// The share of the time the line carried characters, from the first read to the last.
     pub fn bus_load(&self) -> f64 {
         let (Some(a), Some(b)) = (self.first, self.last) else { return 0.0 };

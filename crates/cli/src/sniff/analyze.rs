@@ -97,13 +97,36 @@ pub fn parse(protocol: &str, bytes: &[u8], from: Direction) -> Result<FrameRepor
     }
 }
 
-/// Reads a frame heard on a pair that carries both directions: as a reply first when a request
-/// waits for one (a Modbus reply can look like a request, and 06's reply is its request's echo),
-/// as a request first otherwise.
-fn parse_either(protocol: &str, bytes: &[u8], reply_due: bool) -> Result<FrameReport, String> {
-    let (first, second) =
-        if reply_due { (Direction::Drive, Direction::Master) } else { (Direction::Master, Direction::Drive) };
-    parse(protocol, bytes, first).or_else(|e| parse(protocol, bytes, second).map_err(|_| e))
+/// A frame identical to the waiting request (a Modbus 05/06 reply echoes its request) that
+/// comes later than this after it is the master's retry, not the drive's echo: drives answer
+/// within tens of milliseconds, masters retry after their timeout (100 ms and more).
+pub const ECHO_WITHIN: Duration = Duration::from_millis(60);
+
+/// Reads a frame heard on a pair that carries both directions. With no request waiting, as a
+/// request first. With one waiting, as its reply first (a Modbus reply can look like a request,
+/// and 06's reply is its request's echo), unless that reading names another drive or the frame
+/// is the request again after [`ECHO_WITHIN`]: then as a request.
+fn parse_either(protocol: &str, bytes: &[u8], time: Duration, waiting: Option<&Record>) -> Result<FrameReport, String> {
+    let as_master = || parse(protocol, bytes, Direction::Master);
+    let Some(req) = waiting else {
+        return as_master().or_else(|e| parse(protocol, bytes, Direction::Drive).map_err(|_| e));
+    };
+    let reply = parse(protocol, bytes, Direction::Drive);
+    let fits = match &reply {
+        Ok(r) => {
+            let same_drive = match (req.frame.target, r.target) {
+                (Some(Target::Unit(a)), Some(Target::Unit(b))) => a == b,
+                _ => true,
+            };
+            let retry = bytes == req.frame.bytes.as_slice() && time.saturating_sub(req.time) > ECHO_WITHIN;
+            same_drive && !retry
+        }
+        Err(_) => false,
+    };
+    if fits {
+        return reply;
+    }
+    as_master().or(reply)
 }
 
 /// What one port of the listener hears.
@@ -444,7 +467,7 @@ impl Analyzer {
         }
         let waiting: Vec<_> = std::mem::take(&mut self.pending).into_values().collect();
         for p in waiting {
-            self.no_reply(p, &mut out);
+            self.no_reply(p, now, &mut out);
         }
         out
     }
@@ -578,13 +601,15 @@ impl Analyzer {
             .collect();
         for k in due {
             if let Some(p) = self.pending.remove(k) {
-                self.no_reply(p, out);
+                self.no_reply(p, now, out);
             }
         }
     }
 
-    fn no_reply(&mut self, p: Pending, out: &mut Vec<Record>) {
+    /// Reports the request `p` as unanswered, at `now` (when that became clear).
+    fn no_reply(&mut self, p: Pending, now: Duration, out: &mut Vec<Record>) {
         let mut r = p.record;
+        r.time = now.max(r.time);
         if let Some(a) = r.address() {
             self.stats.entry((r.protocol, a)).or_default().timeouts += 1;
         }
@@ -600,7 +625,9 @@ impl Analyzer {
             Some(e) => Err(e),
             None => match side {
                 Side::Only(d) => parse(protocol, &cut.bytes, d),
-                Side::Both => parse_either(protocol, &cut.bytes, reply_due),
+                Side::Both => {
+                    parse_either(protocol, &cut.bytes, time, self.pending.get(protocol).map(|p| &p.record))
+                }
             },
         };
         let frame = match parsed {
@@ -646,7 +673,7 @@ impl Analyzer {
         match direction {
             Direction::Master => {
                 if let Some(p) = self.pending.remove(protocol) {
-                    self.no_reply(p, out);
+                    self.no_reply(p, time, out);
                 }
                 let broadcast = record.frame.target.is_some_and(|t| t.is_broadcast());
                 if let Some(a) = record.address().filter(|_| !broadcast) {
@@ -694,6 +721,6 @@ impl Analyzer {
 fn parses(protocol: &str, bytes: &[u8], side: Side) -> bool {
     match side {
         Side::Only(d) => parse(protocol, bytes, d).is_ok(),
-        Side::Both => parse_either(protocol, bytes, false).is_ok(),
+        Side::Both => parse_either(protocol, bytes, Duration::ZERO, None).is_ok(),
     }
 }

@@ -136,6 +136,46 @@ mod tests {
         assert!(bad.json()["error"].as_str().is_some_and(|e| e.contains("CRC") || e.contains("checksum")), "{}", bad.json());
     }
 
+    fn rtu(body: &[u8]) -> Vec<u8> {
+        let mut v = body.to_vec();
+        v.extend_from_slice(&drivebus_proto::checksum::crc16_modbus(body).to_le_bytes());
+        v
+    }
+
+    #[test]
+    fn a_master_retrying_a_silent_drive_is_not_its_echo() {
+        // 06 to drive 3 (no such drive) three times 112 ms apart, then 06 to drive 1 and its
+        // echo 14 ms later.
+        let to3 = rtu(&[3, 6, 0x20, 1, 0x0F, 0xA0]);
+        let to1 = rtu(&[1, 6, 0x20, 1, 0x0F, 0xA0]);
+        let ms = Duration::from_millis;
+        let bursts: Vec<Burst> =
+            vec![(ms(0), to3.clone()), (ms(112), to3.clone()), (ms(224), to3), (ms(340), to1.clone()), (ms(354), to1)];
+        let (a, records) = listen(&bursts, 9600, CharFormat::EVEN_8E1, vec!["modbus-rtu"]);
+        let shape: Vec<(Direction, Option<u8>, bool)> =
+            records.iter().map(|r| (r.direction, r.address(), r.kind == Kind::NoReply)).collect();
+        use Direction::{Drive, Master};
+        assert_eq!(
+            shape,
+            [
+                (Master, Some(3), false),
+                (Master, Some(3), true),
+                (Master, Some(3), false),
+                (Master, Some(3), true),
+                (Master, Some(3), false),
+                (Master, Some(3), true),
+                (Master, Some(1), false),
+                (Drive, Some(1), false),
+            ],
+            "{records:#?}"
+        );
+        let s3 = &a.stats()[&("modbus-rtu", 3)];
+        assert_eq!((s3.requests, s3.replies, s3.timeouts), (3, 0, 3));
+        let s1 = &a.stats()[&("modbus-rtu", 1)];
+        assert_eq!((s1.requests, s1.replies, s1.timeouts), (1, 1, 0));
+        assert!(records[7].latency.is_some_and(|l| l < ms(20)));
+    }
+
     #[test]
     fn json_has_the_fields_the_issue_names() {
         let (baud, format, bursts) = traffic("generic@2:modbus-rtu", None, None, 2);

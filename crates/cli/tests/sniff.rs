@@ -215,8 +215,9 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
     let t = Command::new("tshark")
         .arg("-r")
         .arg(&pcap)
-        .args(["-o", r#"uat:user_dlts:"User 0 (DLT=147)","mbrtu","0","","0","""#])
-        .args(["-T", "fields", "-e", "frame.packet_flags_direction", "-e", "mbrtu.unit_id", "-e", "modbus.func_code", "-e", "modbus.reference_num"])
+        .args(["-o", "mbrtu.udp.port:502"])
+        .args(["-T", "fields", "-e", "frame.packet_flags_direction", "-e", "mbrtu.unit_id", "-e", "modbus.func_code"])
+        .args(["-e", "modbus.reference_num", "-e", "modbus.regval_uint16", "-e", "modbus.request_frame"])
         .output()
         .expect("run tshark");
     let table = String::from_utf8_lossy(&t.stdout);
@@ -228,8 +229,16 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
         assert_eq!(row[0], dir, "{table}");
         assert_eq!(row[1], "1", "{table}");
         assert_eq!(row[2], f["function"].to_string(), "{table}");
-        if f["direction"] == "master" && f["function"] == 3 {
-            assert_eq!(row[3], "8451", "2103H: {table}");
+        // Queries with their registers, read responses with their value, and every response
+        // tied to its query: tshark tells them apart by the UDP port.
+        if f["direction"] == "master" {
+            let reg = register(f, "starting address").or_else(|| register(f, "register address")).unwrap();
+            assert_eq!(row[3], reg.to_string(), "{table}");
+        } else {
+            assert!(!row[5].is_empty(), "a response names its request: {table}");
+            if f["function"] == 3 {
+                assert_eq!(row[4], register(f, "register value").unwrap().to_string(), "{table}");
+            }
         }
     }
 

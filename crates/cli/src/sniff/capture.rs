@@ -1,10 +1,13 @@
 //! Captures: the frames a sniff saw, as a pcapng file Wireshark and tshark open, and the
 //! captures `--read` replays (that pcapng, a classic pcap, or a hex dump).
 //!
-//! The writer puts each protocol on its own interface with its own link type, `USER0` (147)
-//! for Modbus RTU, so tshark's Modbus RTU dissector takes it with one option (see
-//! docs/sniff.md), and `USER1`..`USER5` (148..152) for the others in [`PROTOCOLS`] order, shown
-//! as payload. Each packet is one frame with its time and its direction in the packet's flags
+//! The writer puts each protocol on its own interface. Modbus RTU frames go as Modbus RTU over
+//! UDP in raw IPv4 packets (link type `RAW`, 101): the drive's side is UDP port 502 and
+//! 127.0.1.N for drive N, the master's port 1024 at 127.0.0.1, so tshark's own Modbus RTU
+//! dissector takes them with `-o mbrtu.udp.port:502` and tells queries from responses by the
+//! port (the addresses only carry the direction and the drive: a serial line has none). The
+//! other protocols go as payload with link types `USER1`..`USER5` (148..152) in [`PROTOCOLS`]
+//! order. Each packet is one frame with its time and its direction also in the packet's flags
 //! (outbound: from the master; inbound: from a drive).
 
 use std::io::{self, Write};
@@ -15,17 +18,66 @@ use drivebus_proto::Direction;
 
 use super::analyze::PROTOCOLS;
 
-/// The link type of `USER0`; a protocol's is this plus its index in [`PROTOCOLS`].
+/// The link type of `USER0`; a protocol's is this plus its index in [`PROTOCOLS`] (Modbus RTU,
+/// index 0, goes as [`LINKTYPE_RAW`] instead).
 pub const LINKTYPE_USER0: u16 = 147;
+/// Raw IPv4: Modbus RTU over UDP.
+pub const LINKTYPE_RAW: u16 = 101;
+/// The UDP port of the drive's side of a Modbus RTU packet.
+pub const MODBUS_PORT: u16 = 502;
 
 /// The link type that carries `protocol`'s frames.
 pub fn linktype(protocol: &str) -> Option<u16> {
-    PROTOCOLS.iter().position(|p| *p == protocol).map(|i| LINKTYPE_USER0 + i as u16)
+    match PROTOCOLS.iter().position(|p| *p == protocol)? {
+        0 => Some(LINKTYPE_RAW),
+        i => Some(LINKTYPE_USER0 + i as u16),
+    }
 }
 
 /// The protocol a link type of ours carries.
 pub fn protocol_of(linktype: u16) -> Option<&'static str> {
-    PROTOCOLS.get(linktype.checked_sub(LINKTYPE_USER0)? as usize).copied()
+    if linktype == LINKTYPE_RAW {
+        return Some(PROTOCOLS[0]);
+    }
+    match linktype.checked_sub(LINKTYPE_USER0)? {
+        0 => None,
+        i => PROTOCOLS.get(i as usize).copied(),
+    }
+}
+
+/// An RTU frame from `from` as an IPv4/UDP packet (see the module's doc).
+fn udp_wrap(frame: &[u8], from: Direction) -> Vec<u8> {
+    let unit = frame.first().copied().unwrap_or(0);
+    let (master, drive) = ([127, 0, 0, 1], [127, 0, 1, unit]);
+    let ((src, sport), (dst, dport)) = match from {
+        Direction::Master => ((master, 1024u16), (drive, MODBUS_PORT)),
+        Direction::Drive => ((drive, MODBUS_PORT), (master, 1024u16)),
+    };
+    let total = (20 + 8 + frame.len()) as u16;
+    let mut ip = vec![0x45, 0, 0, 0, 0, 0, 0, 0, 64, 17, 0, 0];
+    ip[2..4].copy_from_slice(&total.to_be_bytes());
+    ip.extend_from_slice(&src);
+    ip.extend_from_slice(&dst);
+    let sum = ip.chunks(2).fold(0u32, |a, w| a + u16::from_be_bytes([w[0], w[1]]) as u32);
+    let sum = !(((sum & 0xFFFF) + (sum >> 16)) as u16);
+    ip[10..12].copy_from_slice(&sum.to_be_bytes());
+    ip.extend_from_slice(&sport.to_be_bytes());
+    ip.extend_from_slice(&dport.to_be_bytes());
+    ip.extend_from_slice(&((8 + frame.len()) as u16).to_be_bytes());
+    ip.extend_from_slice(&[0, 0]);
+    ip.extend_from_slice(frame);
+    ip
+}
+
+/// The RTU frame in an IPv4/UDP packet, and who sent it (the side on port 502 is the drive's).
+fn udp_unwrap(packet: &[u8]) -> Option<(Direction, &[u8])> {
+    let ihl = (*packet.first()? & 0x0F) as usize * 4;
+    if packet[0] >> 4 != 4 || packet.get(9) != Some(&17) || packet.len() < ihl + 8 {
+        return None;
+    }
+    let sport = u16::from_be_bytes([packet[ihl], packet[ihl + 1]]);
+    let from = if sport == MODBUS_PORT { Direction::Drive } else { Direction::Master };
+    Some((from, &packet[ihl + 8..]))
 }
 
 /// Writes frames as pcapng.
@@ -84,6 +136,13 @@ impl<W: Write> PcapWriter<W> {
                 self.interfaces.push(protocol);
                 self.interfaces.len() - 1
             }
+        };
+        let wrapped;
+        let bytes = if lt == LINKTYPE_RAW {
+            wrapped = udp_wrap(bytes, from);
+            &wrapped[..]
+        } else {
+            bytes
         };
         let us = time.as_micros() as u64;
         let mut body = Vec::with_capacity(32 + bytes.len());
@@ -153,6 +212,16 @@ pub fn read(data: &[u8]) -> Result<Vec<Packet>> {
     Ok(out)
 }
 
+/// A packet read back; Modbus RTU over UDP unwrapped (its direction from the ports).
+fn packet(time: Duration, protocol: Option<&'static str>, direction: Option<Direction>, bytes: &[u8]) -> Packet {
+    if protocol == Some(PROTOCOLS[0]) {
+        if let Some((from, frame)) = udp_unwrap(bytes) {
+            return Packet { time, protocol, direction: direction.or(Some(from)), bytes: frame.to_vec() };
+        }
+    }
+    Packet { time, protocol, direction, bytes: bytes.to_vec() }
+}
+
 fn read_pcap(data: &[u8]) -> Result<Vec<Packet>> {
     let le = data[0] == 0xD4 || data[0] == 0x4D;
     let nanos = data[..4] == [0x4D, 0x3C, 0xB2, 0xA1] || data[..4] == [0xA1, 0xB2, 0x3C, 0x4D];
@@ -174,7 +243,7 @@ fn read_pcap(data: &[u8]) -> Result<Vec<Packet>> {
             bail!("the pcap is cut short: a packet at byte {at} needs {incl} bytes, {} are left", data.len() - at - 16);
         }
         let time = Duration::from_secs(secs) + if nanos { Duration::from_nanos(frac) } else { Duration::from_micros(frac) };
-        out.push(Packet { time, protocol, direction: None, bytes: data[at + 16..end].to_vec() });
+        out.push(packet(time, protocol, None, &data[at + 16..end]));
         at = end;
     }
     Ok(out)
@@ -253,7 +322,7 @@ fn read_pcapng(data: &[u8]) -> Result<Vec<Packet>> {
                 }
                 let time = Duration::from_secs(ticks / resol)
                     + Duration::from_nanos(((ticks % resol) as u128 * 1_000_000_000 / resol as u128) as u64);
-                out.push(Packet { time, protocol: protocol_of(lt), direction, bytes: data[start..start + caplen].to_vec() });
+                out.push(packet(time, protocol_of(lt), direction, &data[start..start + caplen]));
             }
             _ => {}
         }

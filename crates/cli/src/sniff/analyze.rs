@@ -164,9 +164,14 @@ pub struct Settings {
 
 /// Auto-detection settles once a protocol has this many valid frames.
 const SETTLE_FRAMES: u64 = 4;
-/// A protocol is decoded once it has this many valid frames...
+/// A protocol is decoded once it has this many valid frames (found when the detection settles,
+/// or later on a line where a second protocol starts talking).
 const FOUND_FRAMES: u64 = 2;
-/// ...and gives up on traffic that is not its own after this long of traffic.
+/// A protocol found after the first choice decodes the reads of this long before...
+const RECENT_TIME: Duration = Duration::from_secs(2);
+/// ...up to this many.
+const RECENT_READS: usize = 256;
+/// Auto-detection settles with what it has after this long of traffic.
 pub const DETECT_WITHIN: Duration = Duration::from_secs(5);
 
 /// What the listener reports: a frame, or a request that got no reply.
@@ -328,6 +333,10 @@ pub struct Analyzer {
     garbled: u64,
     /// Frames counted, valid or not.
     frames: u64,
+    /// Auto mode: the last reads, for a protocol found late.
+    recent: std::collections::VecDeque<(usize, Duration, Vec<u8>)>,
+    /// True while decoding bytes in which a protocol not decoded yet found a valid frame.
+    foreign: bool,
 }
 
 impl Analyzer {
@@ -367,6 +376,8 @@ impl Analyzer {
             stats: BTreeMap::new(),
             garbled: 0,
             frames: 0,
+            recent: std::collections::VecDeque::new(),
+            foreign: false,
         }
     }
 
@@ -416,15 +427,18 @@ impl Analyzer {
         }
         self.ports[port].last = Some(time);
         self.expire(time, &mut out);
+        self.foreign = false;
         if !self.ports[port].scouts.is_empty() {
-            self.scout(port, bytes);
+            let foreign = self.scout(port, time, bytes, &mut out);
             if self.active.is_empty() {
                 self.held.push((port, time, bytes.to_vec()));
                 self.settle(time, &mut out);
                 return out;
             }
+            self.foreign = foreign;
         }
         self.decode(port, time, bytes, &mut out);
+        self.foreign = false;
         out
     }
 
@@ -501,8 +515,12 @@ impl Analyzer {
 
     /// Runs the scouts over `bytes`, counting valid frames per protocol; adds a protocol found
     /// after the first choice (a second protocol on a mixed line).
-    fn scout(&mut self, port: usize, bytes: &[u8]) {
+    ///
+    /// Returns true when a protocol not decoded yet found a valid frame in these bytes: the
+    /// decoded protocols' rejects of them are then that protocol's traffic, not errors.
+    fn scout(&mut self, port: usize, time: Duration, bytes: &[u8], out: &mut Vec<Record>) -> bool {
         let side = self.ports[port].side;
+        let mut foreign = false;
         for i in 0..self.ports[port].scouts.len() {
             let mut cuts = Vec::new();
             self.ports[port].scouts[i].1.push(bytes, &mut cuts);
@@ -510,6 +528,7 @@ impl Analyzer {
             for c in cuts {
                 if c.error.is_none() && parses(p, &c.bytes, side) {
                     *self.score.entry(p).or_default() += 1;
+                    foreign |= !self.active.contains(&p);
                 }
             }
         }
@@ -517,13 +536,27 @@ impl Analyzer {
             let late: Vec<&'static str> = self
                 .score
                 .iter()
-                .filter(|(p, n)| **n >= SETTLE_FRAMES && !self.active.contains(p))
+                .filter(|(p, n)| **n >= FOUND_FRAMES && !self.active.contains(p))
                 .map(|(p, _)| *p)
                 .collect();
             for p in late {
                 self.activate(p);
+                // Its first frames went by before it was known: decode them from the history.
+                let recent: Vec<(usize, Duration, Vec<u8>)> = self.recent.iter().cloned().collect();
+                for (port, t, b) in recent {
+                    if let Some(i) = self.ports[port].framers.iter().position(|(x, _)| *x == p) {
+                        self.decode_with(port, i, t, &b, out);
+                    }
+                }
             }
         }
+        self.recent.push_back((port, time, bytes.to_vec()));
+        while self.recent.len() > RECENT_READS
+            || self.recent.front().is_some_and(|(_, t, _)| time.saturating_sub(*t) > RECENT_TIME)
+        {
+            self.recent.pop_front();
+        }
+        foreign
     }
 
     /// Chooses the protocols once one has [`SETTLE_FRAMES`] valid frames, or after
@@ -581,12 +614,17 @@ impl Analyzer {
 
     fn decode(&mut self, port: usize, time: Duration, bytes: &[u8], out: &mut Vec<Record>) {
         for i in 0..self.ports[port].framers.len() {
-            let mut cuts = Vec::new();
-            self.ports[port].framers[i].1.push(bytes, &mut cuts);
-            let p = self.ports[port].framers[i].0;
-            for c in cuts {
-                self.frame(p, port, time, c, out);
-            }
+            self.decode_with(port, i, time, bytes, out);
+        }
+    }
+
+    /// Feeds `bytes` to the port's framer `i` only.
+    fn decode_with(&mut self, port: usize, i: usize, time: Duration, bytes: &[u8], out: &mut Vec<Record>) {
+        let mut cuts = Vec::new();
+        self.ports[port].framers[i].1.push(bytes, &mut cuts);
+        let p = self.ports[port].framers[i].0;
+        for c in cuts {
+            self.frame(p, port, time, c, out);
         }
     }
 
@@ -620,7 +658,7 @@ impl Analyzer {
     fn frame(&mut self, protocol: &'static str, port: usize, time: Duration, cut: Cut, out: &mut Vec<Record>) {
         let side = self.ports[port].side;
         let reply_due = self.pending.contains_key(protocol);
-        let single = self.active.len() == 1;
+        let single = self.active.len() == 1 && !self.foreign;
         let parsed = match cut.error {
             Some(e) => Err(e),
             None => match side {
@@ -634,7 +672,8 @@ impl Analyzer {
             Ok(f) => f,
             Err(error) => {
                 // With several protocols on the line, each deframer rejects the others' frames:
-                // only a lone protocol's rejects are errors on the line.
+                // only a lone protocol's rejects are errors on the line, and not those of bytes
+                // in which another protocol just found a valid frame.
                 if !single {
                     return;
                 }

@@ -177,6 +177,22 @@ mod tests {
     }
 
     #[test]
+    fn a_second_protocol_that_starts_later_is_found_and_its_first_frames_decoded() {
+        // Modbus RTU first, then B800 on the same line (at the same baud and format).
+        let (baud, format, mut bursts) = traffic("generic@1:modbus-rtu", Some(9600), Some(CharFormat::NONE_8N1), 3);
+        let (_, _, b800) = traffic("b800@5", Some(9600), Some(CharFormat::NONE_8N1), 2);
+        let shift = bursts.last().unwrap().0 + Duration::from_millis(100);
+        bursts.extend(b800.iter().map(|(t, b)| (*t + shift, b.clone())));
+        let (a, records) = listen(&bursts, baud, format, Vec::new());
+        assert_eq!(a.protocols(), ["modbus-rtu", "b800"]);
+        assert!(records.iter().all(|r| r.valid()), "no B800 byte is a Modbus error: {records:#?}");
+        assert_eq!(a.garbled(), 0);
+        let b: Vec<&Record> = records.iter().filter(|r| r.protocol == "b800").collect();
+        assert_eq!(b.len(), b800.len(), "every B800 frame, the first ones too: {b:#?}");
+        assert!(b.iter().filter(|r| r.direction == Direction::Drive).all(|r| r.latency.is_some()));
+    }
+
+    #[test]
     fn json_has_the_fields_the_issue_names() {
         let (baud, format, bursts) = traffic("generic@2:modbus-rtu", None, None, 2);
         let (_, records) = listen(&bursts, baud, format, vec!["modbus-rtu"]);

@@ -133,6 +133,8 @@ impl std::error::Error for BusError {}
 pub enum Priority {
     /// A user's command: goes ahead of polling.
     Command,
+    /// A request passed through from a Modbus bridge: after commands, ahead of polling.
+    Bridge,
     /// Cyclic polling.
     Poll,
 }
@@ -199,6 +201,7 @@ struct Job {
 #[derive(Clone)]
 pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
+    bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
@@ -211,12 +214,13 @@ impl Bus {
         let stats = Arc::new(Mutex::new(BusStats::default()));
         let health = Arc::new(Mutex::new(HashMap::new()));
         let (ctx, crx) = mpsc::unbounded_channel();
+        let (btx, brx) = mpsc::unbounded_channel();
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
-            tokio::spawn(Owner { link, engine, rx_buf: Vec::new() }.run(crx, prx));
+            tokio::spawn(Owner { link, engine, rx_buf: Vec::new() }.run(crx, brx, prx));
         })?;
-        Ok(Bus { commands: ctx, polls: ptx, stats, health, name })
+        Ok(Bus { commands: ctx, bridged: btx, polls: ptx, stats, health, name })
     }
 
     /// The link's name.
@@ -237,6 +241,7 @@ impl Bus {
         let job = Job { address, exchange, timeout, done: tx };
         let queue = match priority {
             Priority::Command => &self.commands,
+            Priority::Bridge => &self.bridged,
             Priority::Poll => &self.polls,
         };
         queue.send(job).map_err(|_| BusError::Closed)?;
@@ -265,12 +270,14 @@ impl<L: Link, P: Protocol> Owner<L, P> {
     async fn run(
         mut self,
         mut commands: mpsc::UnboundedReceiver<Job>,
+        mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
     ) {
         loop {
             let job = tokio::select! {
                 biased;
                 Some(j) = commands.recv() => (j, Priority::Command),
+                Some(j) = bridged.recv() => (j, Priority::Bridge),
                 Some(j) = polls.recv() => (j, Priority::Poll),
                 else => return,
             };

@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# drivebus sniff on a 115200-baud virtual line at full load: pymodbus reads 2 registers at
+# 2100H from a simulated drive (response time 200 us) in a tight loop for SECONDS while
+# `drivebus sniff --json` listens on the simulator's tap. Prints the frames the line carried
+# (the simulator's byte counts / frame sizes: 8-byte requests, 9-byte replies), the valid
+# frames sniff saw, and sniff's CPU (user + system) as a share of one core.
+#
+#   bench/sniff.sh [SECONDS]        (default 60)
+#
+# Needs python3 with pymodbus (installed by .ci/install-witnesses.sh) and curl.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+SECS=${1:-60}
+WORK=$(mktemp -d)
+SIM_PID=
+SNIFF_PID=
+cleanup() {
+    for p in $SNIFF_PID $SIM_PID; do kill "$p" 2>/dev/null || true; wait "$p" 2>/dev/null || true; done
+    rm -rf "$WORK"
+}
+trap cleanup EXIT
+
+echo "building (release) ..." >&2
+cargo build --release -q -p drivebus
+BIN=${CARGO_TARGET_DIR:-target}/release/drivebus
+
+"$BIN" simulate --drive generic@1:modbus-rtu --baud 115200 --serial 8N1 --response-us 200 \
+    --pty "$WORK/bus" --tap "$WORK/tap" --control 127.0.0.1:0 >"$WORK/sim.log" 2>&1 &
+SIM_PID=$!
+until grep -q "listening on" "$WORK/sim.log" 2>/dev/null; do sleep 0.1; done
+CONTROL=$(sed -n 's|^control http://\(.*\)/drives$|\1|p' "$WORK/sim.log")
+
+# sniff: output to a file, CPU from /usr/bin/time; stopped with SIGINT once the load is over.
+/usr/bin/time -f "%e %U %S" -o "$WORK/time" "$BIN" sniff --port "$WORK/tap" --baud 115200 --serial 8N1 \
+    --protocol modbus-rtu --json >"$WORK/sniff.json" 2>"$WORK/sniff.err" &
+SNIFF_PID=$!
+until grep -q "pseudo-terminal\|heard" "$WORK/sniff.err" 2>/dev/null || [ -s "$WORK/sniff.err" ]; do sleep 0.1; done
+
+python3 bench/clients/pymodbus_client.py "$WORK/bus" "$SECS"
+STATS=$(curl -s "http://$CONTROL/stats")
+# Let sniff read the last reply off the tap, then stop it as Ctrl-C does.
+LINES=0
+for _ in $(seq 50); do
+    N=$(wc -l <"$WORK/sniff.json")
+    [ "$N" = "$LINES" ] && [ "$N" != 0 ] && break
+    LINES=$N
+    sleep 0.2
+done
+kill -INT "$SNIFF_PID"
+wait "$SNIFF_PID" || true
+SNIFF_PID=
+
+python3 - "$STATS" "$WORK/sniff.json" "$WORK/time" "$SECS" <<'PY'
+import json, sys
+stats = json.loads(sys.argv[1])
+frames_in = stats["master_bytes"] // 8 + stats["device_bytes"] // 9
+valid = invalid = 0
+with open(sys.argv[2]) as f:
+    for line in f:
+        o = json.loads(line)
+        if o.get("event"):
+            continue
+        if o["valid"]:
+            valid += 1
+        else:
+            invalid += 1
+wall, user, sys_ = (float(x) for x in open(sys.argv[3]).read().split()[-3:])
+print(f"line: {stats['master_bytes']} master bytes, {stats['device_bytes']} drive bytes = {frames_in} frames; "
+      f"utilization {stats['utilization'] * 100:.1f} % at {stats['baud']} {stats['serial']}")
+print(f"sniff: {valid} valid frames, {invalid} invalid; frames out == frames in: {valid == frames_in}")
+print(f"sniff CPU: {user:.2f} s user + {sys_:.2f} s system over {wall:.1f} s = {(user + sys_) / wall * 100:.2f} % of a core")
+PY

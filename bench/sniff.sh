@@ -34,7 +34,7 @@ CONTROL=$(sed -n 's|^control http://\(.*\)/drives$|\1|p' "$WORK/sim.log")
 /usr/bin/time -f "%e %U %S" -o "$WORK/time" "$BIN" sniff --port "$WORK/tap" --baud 115200 --serial 8N1 \
     --protocol modbus-rtu --json >"$WORK/sniff.json" 2>"$WORK/sniff.err" &
 SNIFF_PID=$!
-until grep -q "pseudo-terminal\|heard" "$WORK/sniff.err" 2>/dev/null || [ -s "$WORK/sniff.err" ]; do sleep 0.1; done
+until grep -q "listening on" "$WORK/sniff.err" 2>/dev/null; do sleep 0.1; done
 
 python3 bench/clients/pymodbus_client.py "$WORK/bus" "$SECS"
 STATS=$(curl -s "http://$CONTROL/stats")
@@ -46,10 +46,12 @@ for _ in $(seq 50); do
     LINES=$N
     sleep 0.2
 done
-kill -INT "$SNIFF_PID"
+# SIGINT to sniff itself (/usr/bin/time, its parent, ignores it).
+kill -INT "$(pgrep -P "$SNIFF_PID")"
 wait "$SNIFF_PID" || true
 SNIFF_PID=
 
+cp "$WORK/sniff.json" "${KEEP:-/dev/null}" 2>/dev/null || true
 python3 - "$STATS" "$WORK/sniff.json" "$WORK/time" "$SECS" <<'PY'
 import json, sys
 stats = json.loads(sys.argv[1])

@@ -69,11 +69,11 @@ impl Sniff {
             .stderr(Stdio::piped())
             .spawn()
             .expect("start drivebus sniff");
-        // It says the port is a pty once the port is open and its old input dropped.
+        // It says where it listens once the port is open and its old input dropped.
         let mut err = BufReader::new(child.stderr.take().expect("stderr")).lines();
         loop {
             match err.next() {
-                Some(Ok(l)) if l.contains("pseudo-terminal") => break,
+                Some(Ok(l)) if l.contains("listening on") => break,
                 Some(Ok(_)) => continue,
                 _ => panic!("drivebus sniff ended before listening"),
             }

@@ -317,6 +317,11 @@ fn listen(
             eprintln!("drivebus: {}: the driver has no low-latency mode: reads may come late by its timer (FTDI: 16 ms)", p.path());
         }
     }
+    eprintln!(
+        "drivebus: listening on {} at {baud} {format}, {}",
+        paths.join(" (master) and ") + if paths.len() == 2 { " (drives)" } else { "" },
+        if protocols.is_empty() { "protocol auto".to_string() } else { protocols.join(", ") }
+    );
     let sides = if ports.len() == 2 {
         vec![Side::Only(Direction::Master), Side::Only(Direction::Drive)]
     } else {
@@ -346,7 +351,7 @@ fn listen(
         });
     }
     drop(tx);
-    let (_, t35) = modbus_t15_t35(baud);
+    let t35 = modbus_t15_t35(baud).1.max(crate::sniff::analyze::READ_JITTER);
     let mut out = Output::new(t.json, args.write.as_ref())?;
     let mut heard = false;
     let mut last_data = std::time::Instant::now() - Duration::from_secs(10);

@@ -162,6 +162,12 @@ pub struct Settings {
     pub sides: Vec<Side>,
 }
 
+/// The least gap between reads taken as a silence that ends a frame. Reads are timestamped when
+/// they return, and a USB adapter or a busy scheduler splits one frame into reads milliseconds
+/// apart (at 115200 baud t3.5 is 1.75 ms); the deframers know a frame's length from its header,
+/// so a silence is needed only to end bytes that are no frame, and waiting longer costs nothing.
+pub const READ_JITTER: Duration = Duration::from_millis(20);
+
 /// Auto-detection settles once a protocol has this many valid frames.
 const SETTLE_FRAMES: u64 = 4;
 /// A protocol is decoded once it has this many valid frames (found when the detection settles,
@@ -342,7 +348,7 @@ pub struct Analyzer {
 impl Analyzer {
     /// A listener with `settings`; with no protocols given it finds them from the traffic.
     pub fn new(settings: Settings) -> Self {
-        let (_, t35) = modbus_t15_t35(settings.baud);
+        let t35 = modbus_t15_t35(settings.baud).1.max(READ_JITTER);
         let auto = settings.protocols.is_empty();
         let ports = settings
             .sides
@@ -442,7 +448,7 @@ impl Analyzer {
         out
     }
 
-    /// Time passes with nothing read: silences end frames, requests time out, detection
+    /// Time passes with nothing read: silences (t3.5, at least [`READ_JITTER`]) end frames, requests time out, detection
     /// settles after [`DETECT_WITHIN`] of traffic.
     pub fn tick(&mut self, now: Duration) -> Vec<Record> {
         let mut out = Vec::new();

@@ -193,6 +193,28 @@ mod tests {
     }
 
     #[test]
+    fn a_frame_split_across_reads_a_few_ms_apart_stays_whole() {
+        // At 115200 t3.5 is 1.75 ms; a reply read in two pieces 3 ms apart is still one frame.
+        let req = rtu(&[1, 3, 0x21, 0, 0, 2]);
+        let reply = rtu(&[1, 3, 4, 0, 0, 0x0A, 0]);
+        let ms = Duration::from_millis;
+        let mut a = Analyzer::new(Settings {
+            protocols: vec!["modbus-rtu"],
+            baud: 115200,
+            format: CharFormat::NONE_8N1,
+            reply_timeout: ms(500),
+            sides: vec![Side::Both],
+        });
+        let mut out = a.push(0, ms(10), &[&req[..], &reply[..2]].concat());
+        out.extend(a.tick(ms(12)));
+        out.extend(a.push(0, ms(13), &reply[2..]));
+        out.extend(a.finish(ms(100)));
+        assert_eq!(out.len(), 2, "{out:#?}");
+        assert!(out.iter().all(|r| r.valid()));
+        assert_eq!(out[1].latency, Some(ms(3)));
+    }
+
+    #[test]
     fn json_has_the_fields_the_issue_names() {
         let (baud, format, bursts) = traffic("generic@2:modbus-rtu", None, None, 2);
         let (_, records) = listen(&bursts, baud, format, vec!["modbus-rtu"]);

@@ -48,6 +48,17 @@
 //! follower = "pump-2"
 //! ratio = 0.5
 //! offset_hz = 2.0
+//!
+//! [[bridge]]                            # Modbus TCP straight through to a bus (bridge.rs)
+//! bus = "line-1"
+//! listen = "127.0.0.1:5021"
+//! framing = "mbap"                      # mbap | rtu (RTU over TCP)
+//!
+//! [[modbus_rtu]]                        # the unified map as a Modbus RTU slave (modbus_rtu.rs)
+//! port = "/dev/ttyS1"
+//! baud = 19200
+//! serial = "8E1"
+//! write = false                         # accept writes (read-only unless true)
 //! ```
 
 use std::collections::HashSet;
@@ -96,6 +107,10 @@ pub struct GatewayConfig {
     pub linkage: Vec<Linkage>,
     /// MQTT publishing, if configured.
     pub mqtt: Option<MqttConfig>,
+    /// Transparent Modbus bridges to buses (`[[bridge]]`).
+    pub bridges: Vec<crate::bridge::BridgeConfig>,
+    /// Modbus RTU slaves serving the unified map (`[[modbus_rtu]]`).
+    pub modbus_rtu: Vec<crate::modbus_rtu::ModbusRtuConfig>,
 }
 
 /// The HTTP listener.
@@ -273,6 +288,10 @@ struct FileConfig {
     #[serde(default)]
     linkage: Vec<Spanned<FileLinkage>>,
     mqtt: Option<FileMqtt>,
+    #[serde(default)]
+    bridge: Vec<crate::bridge::FileBridge>,
+    #[serde(default)]
+    modbus_rtu: Vec<crate::modbus_rtu::FileModbusRtu>,
 }
 
 #[derive(Deserialize, Default)]
@@ -365,7 +384,8 @@ struct FileMqtt {
     password_env: Option<Spanned<String>>,
 }
 
-struct Ctx<'a> {
+/// The file being read, for errors that name its line and field.
+pub(crate) struct Ctx<'a> {
     file: &'a str,
     text: &'a str,
 }
@@ -375,7 +395,8 @@ impl Ctx<'_> {
         self.text[..span.start.min(self.text.len())].lines().count().max(1)
             + usize::from(self.text[..span.start.min(self.text.len())].ends_with('\n'))
     }
-    fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
+    /// `file:line: field `field`: msg`.
+    pub(crate) fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
         Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
     }
 
@@ -801,7 +822,9 @@ impl GatewayConfig {
         } else {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
-        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt })
+        let bridges = crate::bridge::configs(&cx, &raw.bridge, &buses)?;
+        let modbus_rtu = crate::modbus_rtu::configs(&cx, &raw.modbus_rtu)?;
+        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt, bridges, modbus_rtu })
     }
 
     /// Every drive, in configuration order, with its bus.

@@ -16,10 +16,12 @@
 //! "virtual"` bus runs simulated drives (drivebus-sim) on a paced virtual line in this process:
 //! that is `drivebus serve --demo`.
 
+pub mod bridge;
 pub mod config;
 pub mod gateway;
 pub mod http;
 pub mod metrics;
+pub mod modbus_rtu;
 pub mod modbus_tcp;
 pub mod mqtt;
 pub mod port;

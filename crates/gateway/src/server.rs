@@ -14,6 +14,8 @@ pub struct Bound {
     pub http: SocketAddr,
     /// The Modbus TCP listener.
     pub modbus: SocketAddr,
+    /// The Modbus bridges' listeners, with their buses.
+    pub bridges: Vec<(String, SocketAddr)>,
 }
 
 async fn bind(addr: SocketAddr, what: &str, option: &str) -> Result<TcpListener, String> {
@@ -28,9 +30,10 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
     let cfg = gw.config().clone();
     let http = bind(cfg.http.listen, "HTTP", "--http").await?;
     let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus").await?;
-    let bound = Bound {
+    let mut bound = Bound {
         http: http.local_addr().map_err(|e| e.to_string())?,
         modbus: modbus.local_addr().map_err(|e| e.to_string())?,
+        bridges: Vec::new(),
     };
     let router = crate::http::router(gw.clone());
     let http_task = tokio::spawn(async move {
@@ -39,6 +42,14 @@ pub async fn run(gw: Arc<Gateway>, ready: impl FnOnce(&Bound)) -> Result<(), Str
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
     if let Some(m) = &cfg.mqtt {
         crate::mqtt::spawn(gw.clone(), m)?;
+    }
+    for b in &cfg.bridges {
+        let l = bind(b.listen, &format!("the Modbus bridge to bus {}", b.bus), "--bridge BUS=").await?;
+        bound.bridges.push((b.bus.clone(), l.local_addr().map_err(|e| e.to_string())?));
+        tokio::spawn(crate::bridge::serve(gw.clone(), b.clone(), l));
+    }
+    for m in &cfg.modbus_rtu {
+        tokio::spawn(crate::modbus_rtu::Slave::open(gw.clone(), m)?.run());
     }
     ready(&bound);
     let stop = async {

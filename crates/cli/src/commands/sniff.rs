@@ -351,7 +351,7 @@ fn listen(
         });
     }
     drop(tx);
-    let t35 = modbus_t15_t35(baud).1.max(crate::sniff::analyze::READ_JITTER);
+    let (_, t35) = modbus_t15_t35(baud);
     let mut out = Output::new(t.json, args.write.as_ref())?;
     let mut heard = false;
     let mut last_data = std::time::Instant::now() - Duration::from_secs(10);

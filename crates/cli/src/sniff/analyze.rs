@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use drivebus_proto::line::{modbus_t15_t35, CharFormat};
 use drivebus_proto::{b800, fc, modbus, toshiba};
-use drivebus_proto::{Codec, Deframer, Direction, Event, Target};
+use drivebus_proto::{Codec, Deframer, Direction, Event, Scan, Scanner, Target};
 use serde_json::{json, Value};
 
 use crate::commands::decode::{describe, render_json, FrameReport};
@@ -30,9 +30,26 @@ trait Framer: Send {
     fn silence(&mut self, out: &mut Vec<Cut>);
     fn finish(&mut self, out: &mut Vec<Cut>);
     fn buffered(&self) -> usize;
+    /// True when the frame in progress, followed by `next`, is a whole frame with a good
+    /// checksum: the gap before `next` was a late read, not a silence on the line.
+    fn spans(&self, next: &[u8]) -> bool;
 }
 
-struct Typed<C: Codec>(Deframer<C::Scanner>);
+/// A deframer and a copy of the bytes it holds for a frame in progress.
+struct Typed<C: Codec> {
+    deframer: Deframer<C::Scanner>,
+    held: Vec<u8>,
+}
+
+impl<C: Codec> Typed<C> {
+    /// Keeps `held` equal to the deframer's unfinished bytes, after `bytes` were pushed.
+    fn track(&mut self, bytes: &[u8]) {
+        self.held.extend_from_slice(bytes);
+        let keep = self.deframer.buffered();
+        let drop = self.held.len().saturating_sub(keep);
+        self.held.drain(..drop);
+    }
+}
 
 fn collect(out: &mut Vec<Cut>) -> impl FnMut(Event<'_>) + '_ {
     move |e| match e {
@@ -48,16 +65,27 @@ where
     C::Scanner: Send,
 {
     fn push(&mut self, bytes: &[u8], out: &mut Vec<Cut>) {
-        self.0.push(bytes, &mut collect(out));
+        self.deframer.push(bytes, &mut collect(out));
+        self.track(bytes);
     }
     fn silence(&mut self, out: &mut Vec<Cut>) {
-        self.0.silence(&mut collect(out));
+        self.deframer.silence(&mut collect(out));
+        self.track(&[]);
     }
     fn finish(&mut self, out: &mut Vec<Cut>) {
-        self.0.finish(&mut collect(out));
+        self.deframer.finish(&mut collect(out));
+        self.track(&[]);
     }
     fn buffered(&self) -> usize {
-        self.0.buffered()
+        self.deframer.buffered()
+    }
+    fn spans(&self, next: &[u8]) -> bool {
+        if self.held.is_empty() {
+            return false;
+        }
+        let mut all = self.held.clone();
+        all.extend_from_slice(next);
+        matches!(self.deframer.scanner().scan(&all, 0), Scan::Frame { len } if len > self.held.len())
     }
 }
 
@@ -67,7 +95,7 @@ fn framer(protocol: &str, from: Option<Direction>) -> Option<Box<dyn Framer>> {
     where
         C::Scanner: Send,
     {
-        Box::new(Typed::<C>(Deframer::new(C::scanner(from))))
+        Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(from)), held: Vec::new() })
     }
     Some(match protocol {
         "modbus-rtu" => make::<modbus::rtu::ModbusRtu>(from),
@@ -162,11 +190,11 @@ pub struct Settings {
     pub sides: Vec<Side>,
 }
 
-/// The least gap between reads taken as a silence that ends a frame. Reads are timestamped when
-/// they return, and a USB adapter or a busy scheduler splits one frame into reads milliseconds
-/// apart (at 115200 baud t3.5 is 1.75 ms); the deframers know a frame's length from its header,
-/// so a silence is needed only to end bytes that are no frame, and waiting longer costs nothing.
-pub const READ_JITTER: Duration = Duration::from_millis(20);
+/// With nothing read for this long (and at least t3.5), a frame in progress ends. Reads are
+/// timestamped when they return, and a USB adapter or a busy reader splits one frame into reads
+/// milliseconds apart (at 115200 baud t3.5 is 1.75 ms): a gap over t3.5 before the next read
+/// ends the frame only when the bytes before and after it do not make one valid frame.
+pub const QUIET: Duration = Duration::from_millis(500);
 
 /// Auto-detection settles once a protocol has this many valid frames.
 const SETTLE_FRAMES: u64 = 4;
@@ -348,7 +376,7 @@ pub struct Analyzer {
 impl Analyzer {
     /// A listener with `settings`; with no protocols given it finds them from the traffic.
     pub fn new(settings: Settings) -> Self {
-        let t35 = modbus_t15_t35(settings.baud).1.max(READ_JITTER);
+        let (_, t35) = modbus_t15_t35(settings.baud);
         let auto = settings.protocols.is_empty();
         let ports = settings
             .sides
@@ -429,7 +457,7 @@ impl Analyzer {
         self.bytes += bytes.len() as u64;
         // A gap longer than t3.5 since the port's last read ends the frame in progress.
         if self.ports[port].last.is_some_and(|l| time.saturating_sub(l) > self.t35) {
-            self.silence(port, time, &mut out);
+            self.silence(port, time, Some(bytes), &mut out);
         }
         self.ports[port].last = Some(time);
         self.expire(time, &mut out);
@@ -448,13 +476,13 @@ impl Analyzer {
         out
     }
 
-    /// Time passes with nothing read: silences (t3.5, at least [`READ_JITTER`]) end frames, requests time out, detection
+    /// Time passes with nothing read: after [`QUIET`] a frame in progress ends, requests time out, detection
     /// settles after [`DETECT_WITHIN`] of traffic.
     pub fn tick(&mut self, now: Duration) -> Vec<Record> {
         let mut out = Vec::new();
         for port in 0..self.ports.len() {
-            if self.ports[port].last.is_some_and(|l| now.saturating_sub(l) > self.t35) {
-                self.silence(port, now, &mut out);
+            if self.ports[port].last.is_some_and(|l| now.saturating_sub(l) > self.t35.max(QUIET)) {
+                self.silence(port, now, None, &mut out);
             }
         }
         self.expire(now, &mut out);
@@ -492,10 +520,12 @@ impl Analyzer {
         out
     }
 
-    fn silence(&mut self, port: usize, time: Duration, out: &mut Vec<Record>) {
+    /// A silence on `port` before `next` (`None`: a long quiet): ends the frames in progress,
+    /// except those that `next` completes (a late read, not a silence).
+    fn silence(&mut self, port: usize, time: Duration, next: Option<&[u8]>, out: &mut Vec<Record>) {
         let side = self.ports[port].side;
         for (p, f) in &mut self.ports[port].scouts {
-            if f.buffered() > 0 {
+            if f.buffered() > 0 && !next.is_some_and(|b| f.spans(b)) {
                 let mut cuts = Vec::new();
                 f.silence(&mut cuts);
                 for c in cuts {
@@ -506,8 +536,14 @@ impl Analyzer {
             }
         }
         let at = self.ports[port].last.unwrap_or(time);
+        self.silence_framers(port, at, next, out);
+    }
+
+    /// [`Analyzer::silence`] for the decoding framers only.
+    fn silence_framers(&mut self, port: usize, at: Duration, next: Option<&[u8]>, out: &mut Vec<Record>) {
         for i in 0..self.ports[port].framers.len() {
-            if self.ports[port].framers[i].1.buffered() == 0 {
+            let f = &self.ports[port].framers[i].1;
+            if f.buffered() == 0 || next.is_some_and(|b| f.spans(b)) {
                 continue;
             }
             let mut cuts = Vec::new();
@@ -601,16 +637,8 @@ impl Analyzer {
         let held = std::mem::take(&mut self.held);
         let mut last: Vec<Option<Duration>> = vec![None; self.ports.len()];
         for (port, time, bytes) in held {
-            if last[port].is_some_and(|l| time.saturating_sub(l) > self.t35) {
-                for i in 0..self.ports[port].framers.len() {
-                    let mut cuts = Vec::new();
-                    self.ports[port].framers[i].1.silence(&mut cuts);
-                    let p = self.ports[port].framers[i].0;
-                    let at = last[port].unwrap_or(time);
-                    for c in cuts {
-                        self.frame(p, port, at, c, out);
-                    }
-                }
+            if let Some(at) = last[port].filter(|l| time.saturating_sub(*l) > self.t35) {
+                self.silence_framers(port, at, Some(&bytes), out);
             }
             last[port] = Some(time);
             self.expire(time, out);

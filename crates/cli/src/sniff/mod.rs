@@ -193,8 +193,9 @@ mod tests {
     }
 
     #[test]
-    fn a_frame_split_across_reads_a_few_ms_apart_stays_whole() {
-        // At 115200 t3.5 is 1.75 ms; a reply read in two pieces 3 ms apart is still one frame.
+    fn a_frame_split_across_late_reads_stays_whole_and_a_cut_one_ends_at_the_silence() {
+        // At 115200 t3.5 is 1.75 ms; a reply read in two pieces 37 ms apart (a stalled reader)
+        // is still one frame.
         let req = rtu(&[1, 3, 0x21, 0, 0, 2]);
         let reply = rtu(&[1, 3, 4, 0, 0, 0x0A, 0]);
         let ms = Duration::from_millis;
@@ -207,11 +208,18 @@ mod tests {
         });
         let mut out = a.push(0, ms(10), &[&req[..], &reply[..2]].concat());
         out.extend(a.tick(ms(12)));
-        out.extend(a.push(0, ms(13), &reply[2..]));
-        out.extend(a.finish(ms(100)));
+        out.extend(a.push(0, ms(47), &reply[2..]));
         assert_eq!(out.len(), 2, "{out:#?}");
         assert!(out.iter().all(|r| r.valid()));
-        assert_eq!(out[1].latency, Some(ms(3)));
+        assert_eq!(out[1].latency, Some(ms(37)));
+        // A reply cut short, then a silence and the next request: the cut one is invalid at
+        // once, the request after it valid.
+        let mut out = a.push(0, ms(100), &req);
+        out.extend(a.push(0, ms(110), &reply[..5]));
+        out.extend(a.push(0, ms(120), &req));
+        out.extend(a.finish(ms(200)));
+        let valid: Vec<bool> = out.iter().filter(|r| r.kind == Kind::Frame).map(|r| r.valid()).collect();
+        assert_eq!(valid, [true, false, true], "{out:#?}");
     }
 
     #[test]

@@ -48,7 +48,9 @@ struct Written {
     at: Option<Instant>,
 }
 
-struct Server {
+/// The unified map's request handling, shared by the Modbus TCP listener and the Modbus RTU
+/// slave ([`crate::modbus_rtu`]).
+pub(crate) struct Server {
     gw: Arc<Gateway>,
     config: ModbusConfig,
     active: AtomicUsize,
@@ -93,14 +95,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
     if let Err(e) = raise_nofile_limit() {
         eprintln!("drivebus serve: Modbus TCP: cannot raise the open files limit: {e}");
     }
-    let config = gw.config().modbus.clone();
-    let server = Arc::new(Server {
-        gw,
-        config,
-        active: AtomicUsize::new(0),
-        written: (0..256).map(|_| Default::default()).collect(),
-        shown: (0..256).map(|_| Default::default()).collect(),
-    });
+    let server = Server::new(gw);
     static WARNED: AtomicBool = AtomicBool::new(false);
     loop {
         let (socket, peer) = match listener.accept().await {
@@ -240,6 +235,26 @@ fn param_slot(addr: u16) -> Option<(usize, bool)> {
 }
 
 impl Server {
+    /// The handler of `gw`'s unified map, with its `[modbus]` rules.
+    pub(crate) fn new(gw: Arc<Gateway>) -> Arc<Server> {
+        let config = gw.config().modbus.clone();
+        Arc::new(Server {
+            gw,
+            config,
+            active: AtomicUsize::new(0),
+            written: (0..256).map(|_| Default::default()).collect(),
+            shown: (0..256).map(|_| Default::default()).collect(),
+        })
+    }
+
+    /// Answers one request, an MBAP frame (header and PDU), into `out`: from the cache where it
+    /// can, else through the drive.
+    pub(crate) async fn answer(&self, conn: &mut Conn, frame: &[u8], out: &mut Vec<u8>) {
+        if !self.answer_cached(frame, out) {
+            self.answer_drive(conn, frame, out).await;
+        }
+    }
+
     async fn connection(&self, mut sock: TcpStream, peer: SocketAddr) -> std::io::Result<()> {
         let _ = sock.set_nodelay(true);
         let ip = match peer.ip() {
@@ -247,7 +262,12 @@ impl Server {
             v4 => v4,
         };
         let may_write = !self.config.read_only && self.config.allow.contains(&ip);
-        let mut conn = Conn { may_write, actor: None, peer };
+        let forbidden = if self.config.read_only {
+            "forbidden: the Modbus TCP listener is read-only ([modbus] read_only)".to_string()
+        } else {
+            format!("forbidden: client {ip} may not write ([modbus] allow)")
+        };
+        let mut conn = Conn { may_write, forbidden, actor: format!("modbus:{peer}") };
         let mut buf = vec![0u8; IN_BUF];
         let mut len = 0;
         let mut out: Vec<u8> = Vec::with_capacity(512);
@@ -485,16 +505,13 @@ impl Server {
     ) -> Result<(), u8> {
         let n = values.len();
         if !conn.may_write || d.locked() {
-            let why = if !conn.may_write && self.config.read_only {
-                "forbidden: the Modbus TCP listener is read-only ([modbus] read_only)".to_string()
-            } else if !conn.may_write {
-                format!("forbidden: client {} may not write ([modbus] allow)", conn.peer.ip())
+            let why = if !conn.may_write {
+                conn.forbidden.clone()
             } else {
                 format!("locked: {}", CommandError::Locked(d.config.name.clone()))
             };
-            let actor = conn.actor.get_or_insert_with(|| format!("modbus:{}", conn.peer)).clone();
             let action = format!("modbus write of {n} register(s) at {addr}");
-            self.gw.audit_refusal(&d.config.name, &actor, &action, &why).await;
+            self.gw.audit_refusal(&d.config.name, &conn.actor, &action, &why).await;
             return Err(ILLEGAL_FUNCTION);
         }
         if addr <= HR_SETPOINT {
@@ -589,16 +606,18 @@ impl Server {
     }
 
     async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), u8> {
-        let actor = conn.actor.get_or_insert_with(|| format!("modbus:{}", conn.peer));
-        self.gw.command(&d.config.name, cmd, actor).await.map_err(|e: CommandError| e.modbus_exception())
+        self.gw.command(&d.config.name, cmd, &conn.actor).await.map_err(|e: CommandError| e.modbus_exception())
     }
 }
 
-/// A client connection's standing.
-struct Conn {
-    may_write: bool,
-    actor: Option<String>,
-    peer: SocketAddr,
+/// A client's standing.
+pub(crate) struct Conn {
+    /// May it write?
+    pub(crate) may_write: bool,
+    /// Why its writes are refused, when they are (for the audit trail).
+    pub(crate) forbidden: String,
+    /// Who it is in the audit trail (`modbus:127.0.0.1:5555`, `modbus-rtu:/dev/ttyS1`).
+    pub(crate) actor: String,
 }
 
 /// A raw value as a number in the parameter's unit (what [`Command::SetParam`] takes).

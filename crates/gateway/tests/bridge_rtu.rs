@@ -284,3 +284,37 @@ protocol = "toshiba-binary"
     let m = &ok.modbus_rtu[0];
     assert_eq!((m.baud, m.format.to_string(), m.write), (19200, "8E1".to_string(), false), "the serial-line defaults");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_over_tcp_reaches_a_modbus_ascii_bus() {
+    let text = r#"
+[store]
+disabled = true
+[[bus]]
+name = "line-a"
+port = "virtual"
+protocol = "modbus-ascii"
+[[bus.drive]]
+name = "pump-1"
+family = "generic"
+address = 2
+poll_ms = 100
+[[bridge]]
+bus = "line-a"
+listen = "127.0.0.1:0"
+framing = "rtu"
+"#;
+    let cfg = GatewayConfig::from_toml("ascii.toml", text).unwrap();
+    let bridge = cfg.bridges[0].clone();
+    let gw = Gateway::start(cfg, None).unwrap();
+    let l = TcpListener::bind(bridge.listen).await.unwrap();
+    let addr = l.local_addr().unwrap();
+    tokio::spawn(drivebus_gateway::bridge::serve(gw.clone(), bridge, l));
+    let mut sock = TcpStream::connect(addr).await.unwrap();
+    // An RTU frame in (03 of 210BH from address 2), an RTU frame out: the bus spoke ASCII.
+    let req = drivebus_gateway::bridge::bus_frame(false, 2, &[0x03, 0x21, 0x0B, 0, 1]);
+    sock.write_all(&req).await.unwrap();
+    let mut answer = [0u8; 7];
+    tokio::time::timeout(Duration::from_secs(10), sock.read_exact(&mut answer)).await.unwrap().unwrap();
+    assert_eq!(answer.to_vec(), drivebus_gateway::bridge::bus_frame(false, 2, &[0x03, 2, 0x01, 0x00]));
+}

@@ -62,6 +62,9 @@ fn now() -> Duration {
     SystemTime::now().duration_since(UNIX_EPOCH).unwrap_or_default()
 }
 
+/// How often the per-address statistics are shown while listening.
+const STATS_EVERY: Duration = Duration::from_secs(10);
+
 /// Prints records and the capture, and counts toward `--count`.
 struct Output {
     json: bool,
@@ -356,6 +359,7 @@ fn listen(
     let mut heard = false;
     let mut last_data = std::time::Instant::now() - Duration::from_secs(10);
     let mut announced = 0;
+    let mut shown = std::time::Instant::now();
     let mut failure = None;
     loop {
         if stop.load(Ordering::Relaxed) || deadline.is_some_and(|d| std::time::Instant::now() >= d) {
@@ -383,6 +387,11 @@ fn listen(
         out.emit(records)?;
         if args.count.is_some_and(|c| out.frames >= c) {
             break;
+        }
+        // The live statistics, every 10 s (stderr: stdout stays one row or object per frame).
+        if shown.elapsed() >= STATS_EVERY && heard {
+            shown = std::time::Instant::now();
+            eprint!("{}", summary(&a, baud, format, heard));
         }
     }
     stop.store(true, Ordering::Relaxed);

@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
-# drivebus sniff on a 115200-baud virtual line at full load: pymodbus reads 2 registers at
+# drivebus sniff on a 115200-baud virtual line at full load: a master reads 2 registers at
 # 2100H from a simulated drive (response time 200 us) in a tight loop for SECONDS while
-# `drivebus sniff --json` listens on the simulator's tap. Prints the frames the line carried
+# `drivebus sniff --json` listens on the simulator's tap. The master is pymodbus (the default)
+# or, with MASTER=drivebus, drivebus's blocking bus (crates/link/examples/pty_read.rs), which
+# loads the line more. Prints the frames the line carried
 # (the simulator's byte counts / frame sizes: 8-byte requests, 9-byte replies), the valid
 # frames sniff saw, and sniff's CPU (user + system) as a share of one core.
 #
-#   bench/sniff.sh [SECONDS]        (default 60)
+#   bench/sniff.sh [SECONDS]                  (default 60)
+#   MASTER=drivebus bench/sniff.sh [SECONDS]
 #
 # Needs python3 with pymodbus (installed by .ci/install-witnesses.sh) and curl.
 set -euo pipefail
@@ -23,6 +26,10 @@ trap cleanup EXIT
 echo "building (release) ..." >&2
 cargo build --release -q -p drivebus
 BIN=${CARGO_TARGET_DIR:-target}/release/drivebus
+MASTER=${MASTER:-pymodbus}
+if [ "$MASTER" = drivebus ]; then
+    cargo build --release -q -p drivebus-link --example pty_read
+fi
 
 "$BIN" simulate --drive generic@1:modbus-rtu --baud 115200 --serial 8N1 --response-us 200 \
     --pty "$WORK/bus" --tap "$WORK/tap" --control 127.0.0.1:0 >"$WORK/sim.log" 2>&1 &
@@ -32,11 +39,15 @@ CONTROL=$(sed -n 's|^control http://\(.*\)/drives$|\1|p' "$WORK/sim.log")
 
 # sniff: output to a file, CPU from /usr/bin/time; stopped with SIGINT once the load is over.
 /usr/bin/time -f "%e %U %S" -o "$WORK/time" "$BIN" sniff --port "$WORK/tap" --baud 115200 --serial 8N1 \
-    --protocol modbus-rtu --json >"$WORK/sniff.json" 2>"$WORK/sniff.err" &
+    --json >"$WORK/sniff.json" 2>"$WORK/sniff.err" &
 SNIFF_PID=$!
 until grep -q "listening on" "$WORK/sniff.err" 2>/dev/null; do sleep 0.1; done
 
-python3 bench/clients/pymodbus_client.py "$WORK/bus" "$SECS"
+if [ "$MASTER" = drivebus ]; then
+    "${CARGO_TARGET_DIR:-target}/release/examples/pty_read" "$WORK/bus" "$SECS" 0
+else
+    python3 bench/clients/pymodbus_client.py "$WORK/bus" "$SECS"
+fi
 STATS=$(curl -s "http://$CONTROL/stats")
 # Let sniff read the last reply off the tap, then stop it as Ctrl-C does.
 LINES=0

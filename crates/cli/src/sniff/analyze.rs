@@ -33,6 +33,9 @@ trait Framer: Send {
     /// True when the frame in progress, followed by `next`, is a whole frame with a good
     /// checksum: the gap before `next` was a late read, not a silence on the line.
     fn spans(&self, next: &[u8]) -> bool;
+    /// True when `bytes` (a whole frame with a good checksum) parse as a frame from `from`
+    /// (`None`: either direction); cheaper than a full report, for the scouts.
+    fn valid(&self, bytes: &[u8], from: Option<Direction>) -> bool;
 }
 
 /// A deframer and a copy of the bytes it holds for a frame in progress.
@@ -86,6 +89,12 @@ where
         let mut all = self.held.clone();
         all.extend_from_slice(next);
         matches!(self.deframer.scanner().scan(&all, 0), Scan::Frame { len } if len > self.held.len())
+    }
+    fn valid(&self, bytes: &[u8], from: Option<Direction>) -> bool {
+        match from {
+            Some(d) => C::parse(bytes, Some(d)).is_ok(),
+            None => C::parse(bytes, Some(Direction::Master)).is_ok() || C::parse(bytes, Some(Direction::Drive)).is_ok(),
+        }
     }
 }
 
@@ -529,7 +538,7 @@ impl Analyzer {
                 let mut cuts = Vec::new();
                 f.silence(&mut cuts);
                 for c in cuts {
-                    if c.error.is_none() && parses(p, &c.bytes, side) {
+                    if c.error.is_none() && f.valid(&c.bytes, side.direction()) {
                         *self.score.entry(*p).or_default() += 1;
                     }
                 }
@@ -566,9 +575,10 @@ impl Analyzer {
         for i in 0..self.ports[port].scouts.len() {
             let mut cuts = Vec::new();
             self.ports[port].scouts[i].1.push(bytes, &mut cuts);
-            let p = self.ports[port].scouts[i].0;
+            let (p, f) = &self.ports[port].scouts[i];
+            let p = *p;
             for c in cuts {
-                if c.error.is_none() && parses(p, &c.bytes, side) {
+                if c.error.is_none() && f.valid(&c.bytes, side.direction()) {
                     *self.score.entry(p).or_default() += 1;
                     foreign |= !self.active.contains(&p);
                 }
@@ -790,10 +800,3 @@ impl Analyzer {
     }
 }
 
-/// True when `bytes` read as a frame of `protocol` in some direction the port can hear.
-fn parses(protocol: &str, bytes: &[u8], side: Side) -> bool {
-    match side {
-        Side::Only(d) => parse(protocol, bytes, d).is_ok(),
-        Side::Both => parse_either(protocol, bytes, Duration::ZERO, None).is_ok(),
-    }
-}

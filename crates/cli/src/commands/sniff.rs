@@ -11,7 +11,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use anyhow::{Context, Result};
 use clap::Args;
 use drivebus_link::listen::Listener;
-use drivebus_proto::line::{modbus_t15_t35, CharFormat};
+use drivebus_proto::line::CharFormat;
 use drivebus_proto::Direction;
 
 use crate::commands::drive::{fail, Target, EXIT_LINK, EXIT_REFUSED, EXIT_USAGE};
@@ -62,6 +62,9 @@ fn now() -> Duration {
     SystemTime::now().duration_since(UNIX_EPOCH).unwrap_or_default()
 }
 
+/// The longest wait for a read before the analysis is told the time.
+const TICK: Duration = Duration::from_millis(100);
+
 /// How often the per-address statistics are shown while listening.
 const STATS_EVERY: Duration = Duration::from_secs(10);
 
@@ -71,8 +74,14 @@ struct Output {
     pcap: Option<PcapWriter<BufWriter<std::fs::File>>>,
     since: Option<Duration>,
     frames: u64,
-    stdout: std::io::Stdout,
+    stdout: BufWriter<std::io::Stdout>,
+    /// Flush every batch (a terminal), or at most every [`FLUSH_EVERY`] (a file or a pipe).
+    live: bool,
+    flushed: std::time::Instant,
 }
+
+/// How long rows may wait in the output buffer when stdout is not a terminal.
+const FLUSH_EVERY: Duration = Duration::from_millis(100);
 
 impl Output {
     fn new(json: bool, write: Option<&PathBuf>) -> Result<Self> {
@@ -87,11 +96,14 @@ impl Output {
         if !json {
             println!("{:>10}  {:<14} {:<6}  {:>3}  meaning", "time s", "protocol", "from", "addr");
         }
-        Ok(Output { json, pcap, since: None, frames: 0, stdout: std::io::stdout() })
+        use std::io::IsTerminal;
+        let live = std::io::stdout().is_terminal();
+        let stdout = BufWriter::with_capacity(64 * 1024, std::io::stdout());
+        Ok(Output { json, pcap, since: None, frames: 0, stdout, live, flushed: std::time::Instant::now() })
     }
 
     fn emit(&mut self, records: Vec<Record>) -> Result<()> {
-        let mut out = self.stdout.lock();
+        let out = &mut self.stdout;
         for r in records {
             let since = *self.since.get_or_insert(r.time);
             if r.kind == Kind::Frame {
@@ -106,11 +118,15 @@ impl Output {
                 writeln!(out, "{}", r.row(since))?;
             }
         }
-        out.flush()?;
+        if self.live || self.flushed.elapsed() >= FLUSH_EVERY {
+            self.stdout.flush()?;
+            self.flushed = std::time::Instant::now();
+        }
         Ok(())
     }
 
     fn close(&mut self) -> Result<()> {
+        self.stdout.flush()?;
         if let Some(w) = &mut self.pcap {
             w.flush()?;
         }
@@ -354,10 +370,8 @@ fn listen(
         });
     }
     drop(tx);
-    let (_, t35) = modbus_t15_t35(baud);
     let mut out = Output::new(t.json, args.write.as_ref())?;
     let mut heard = false;
-    let mut last_data = std::time::Instant::now() - Duration::from_secs(10);
     let mut announced = 0;
     let mut shown = std::time::Instant::now();
     let mut failure = None;
@@ -369,12 +383,12 @@ fn listen(
             failure = Some(e);
             break;
         }
-        let wait = if last_data.elapsed() < Duration::from_secs(1) { t35 + Duration::from_millis(1) } else { Duration::from_millis(100) };
-        let wait = deadline.map_or(wait, |d| wait.min(d.saturating_duration_since(std::time::Instant::now())));
+        // Ticks end a frame after a long quiet, time out requests and settle the detection:
+        // none of that needs finer than TICK.
+        let wait = deadline.map_or(TICK, |d| TICK.min(d.saturating_duration_since(std::time::Instant::now())));
         let records = match rx.recv_timeout(wait) {
             Ok((port, time, bytes)) => {
                 heard = true;
-                last_data = std::time::Instant::now();
                 a.push(port, time, &bytes)
             }
             Err(mpsc::RecvTimeoutError::Timeout) => a.tick(now()),

@@ -5,8 +5,8 @@
 //! 3 bad usage. Errors go to stderr, one line each.
 
 mod commands;
-mod sniff;
 mod hexarg;
+mod sniff;
 
 use std::process::ExitCode;
 

@@ -265,14 +265,23 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
     let bridge: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["serve", "--demo", "--no-store", "--http", &format!("127.0.0.1:{}", free_port())])
-        .args(["--modbus", &format!("127.0.0.1:{}", free_port()), "--bridge", &format!("line-generic={bridge}")])
+        .args([
+            "--modbus",
+            &format!("127.0.0.1:{}", free_port()),
+            "--bridge",
+            &format!("line-generic={bridge}"),
+        ])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .expect("start drivebus serve");
     let lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let said: Vec<String> = lines.map_while(Result::ok).take_while(|l| !l.contains("demo write token")).collect();
-    assert!(said.iter().any(|l| l.contains(&format!("bridge      {bridge} -> bus line-generic"))), "{said:?}");
+    let said: Vec<String> =
+        lines.map_while(Result::ok).take_while(|l| !l.contains("demo write token")).collect();
+    assert!(
+        said.iter().any(|l| l.contains(&format!("bridge      {bridge} -> bus line-generic"))),
+        "{said:?}"
+    );
     // 03 of 210BH (version) from drive 1 of line-generic, through the bridge.
     let mut s = TcpStream::connect(bridge).unwrap();
     s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();

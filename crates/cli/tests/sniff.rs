@@ -170,8 +170,10 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
     let _sim = Sim::start(dir.path(), "generic@1:modbus-rtu");
     let pcap = dir.path().join("cap.pcap");
     let tap = dir.path().join("tap");
-    let mut sniff = Sniff::start(&["--port", tap.to_str().unwrap(), "--json", "--write", pcap.to_str().unwrap()]);
-    let out = Command::new("python3").arg(script()).arg("generic").arg(dir.path().join("bus")).output().unwrap();
+    let mut sniff =
+        Sniff::start(&["--port", tap.to_str().unwrap(), "--json", "--write", pcap.to_str().unwrap()]);
+    let out =
+        Command::new("python3").arg(script()).arg("generic").arg(dir.path().join("bus")).output().unwrap();
     let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "pymodbus: {text}");
     // pymodbus got every reply, so every one crossed the line: wait until sniff shows them all.
@@ -191,7 +193,10 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
     // The reads of 2103H, and the readings rising as the drive ramps.
     let reads = reqs.iter().filter(|f| f["function"] == 3).count();
     assert!(reads >= 3, "{reqs:#?}");
-    assert!(reqs.iter().filter(|f| f["function"] == 3).all(|f| register(f, "starting address") == Some(0x2103)));
+    assert!(reqs
+        .iter()
+        .filter(|f| f["function"] == 3)
+        .all(|f| register(f, "starting address") == Some(0x2103)));
     let readings: Vec<u64> = frames
         .iter()
         .filter(|f| f["direction"] == "drive" && f["function"] == 3)
@@ -216,7 +221,16 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
         .arg("-r")
         .arg(&pcap)
         .args(["-o", "mbrtu.udp.port:502"])
-        .args(["-T", "fields", "-e", "frame.packet_flags_direction", "-e", "mbrtu.unit_id", "-e", "modbus.func_code"])
+        .args([
+            "-T",
+            "fields",
+            "-e",
+            "frame.packet_flags_direction",
+            "-e",
+            "mbrtu.unit_id",
+            "-e",
+            "modbus.func_code",
+        ])
         .args(["-e", "modbus.reference_num", "-e", "modbus.regval_uint16", "-e", "modbus.request_frame"])
         .output()
         .expect("run tshark");
@@ -245,7 +259,8 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
     // --read replays the capture through the same analysis: the same frames, paired again.
     let r = Command::new(bin()).args(["sniff", "--json", "--read"]).arg(&pcap).output().unwrap();
     assert_eq!(r.status.code(), Some(0), "{}", String::from_utf8_lossy(&r.stderr));
-    let again: Vec<Value> = String::from_utf8_lossy(&r.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let again: Vec<Value> =
+        String::from_utf8_lossy(&r.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(again.len(), frames.len());
     for (a, b) in again.iter().zip(&frames) {
         for k in ["time", "direction", "address", "function", "fields", "bytes"] {

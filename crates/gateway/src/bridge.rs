@@ -63,23 +63,38 @@ pub(crate) struct FileBridge {
 }
 
 /// Reads the `[[bridge]]` sections: each names a Modbus bus of `buses` and a free address.
-pub(crate) fn configs(cx: &Ctx<'_>, file: &[FileBridge], buses: &[BusConfig]) -> Result<Vec<BridgeConfig>, ConfigError> {
+pub(crate) fn configs(
+    cx: &Ctx<'_>,
+    file: &[FileBridge],
+    buses: &[BusConfig],
+) -> Result<Vec<BridgeConfig>, ConfigError> {
     let mut out: Vec<BridgeConfig> = Vec::new();
     for b in file {
         let name = b.bus.get_ref();
         let Some(bus) = buses.iter().find(|x| x.name == *name) else {
             let known: Vec<&str> = buses.iter().map(|x| x.name.as_str()).collect();
-            return cx.err(b.bus.span(), "bridge.bus", format!("no bus {name:?} (buses: {})", known.join(", ")));
+            return cx.err(
+                b.bus.span(),
+                "bridge.bus",
+                format!("no bus {name:?} (buses: {})", known.join(", ")),
+            );
         };
         if !matches!(bus.protocol.as_str(), "modbus-rtu" | "modbus-ascii") {
             return cx.err(
                 b.bus.span(),
                 "bridge.bus",
-                format!("bus {name:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus", bus.protocol),
+                format!(
+                    "bus {name:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
+                    bus.protocol
+                ),
             );
         }
         let listen: SocketAddr = b.listen.get_ref().parse().or_else(|_| {
-            cx.err(b.listen.span(), "bridge.listen", format!("{:?} is not HOST:PORT (e.g. 127.0.0.1:5021)", b.listen.get_ref()))
+            cx.err(
+                b.listen.span(),
+                "bridge.listen",
+                format!("{:?} is not HOST:PORT (e.g. 127.0.0.1:5021)", b.listen.get_ref()),
+            )
         })?;
         if listen.port() != 0 && out.iter().any(|x| x.listen == listen) {
             return cx.err(b.listen.span(), "bridge.listen", format!("{listen} is already another bridge's"));
@@ -186,7 +201,12 @@ struct Request {
     header: Option<[u8; 7]>,
 }
 
-async fn connection(gw: Arc<Gateway>, cfg: BridgeConfig, mut sock: TcpStream, peer: SocketAddr) -> std::io::Result<()> {
+async fn connection(
+    gw: Arc<Gateway>,
+    cfg: BridgeConfig,
+    mut sock: TcpStream,
+    peer: SocketAddr,
+) -> std::io::Result<()> {
     let _ = sock.set_nodelay(true);
     let ip = match peer.ip() {
         IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
@@ -224,7 +244,11 @@ async fn connection(gw: Arc<Gateway>, cfg: BridgeConfig, mut sock: TcpStream, pe
                     }
                     let mut header = [0u8; 7];
                     header.copy_from_slice(h);
-                    requests.push(Request { unit: h[6], pdu: buf[pos + 7..pos + 6 + length].to_vec(), header: Some(header) });
+                    requests.push(Request {
+                        unit: h[6],
+                        pdu: buf[pos + 7..pos + 6 + length].to_vec(),
+                        header: Some(header),
+                    });
                     pos += 6 + length;
                 }
                 buf.copy_within(pos..len, 0);
@@ -232,7 +256,11 @@ async fn connection(gw: Arc<Gateway>, cfg: BridgeConfig, mut sock: TcpStream, pe
             }
             Framing::Rtu => rtu.push(&buf[..n], &mut |e| {
                 if let FrameEvent::Frame { bytes, .. } = e {
-                    requests.push(Request { unit: bytes[0], pdu: bytes[1..bytes.len() - 2].to_vec(), header: None });
+                    requests.push(Request {
+                        unit: bytes[0],
+                        pdu: bytes[1..bytes.len() - 2].to_vec(),
+                        header: None,
+                    });
                 }
             }),
         }
@@ -256,7 +284,14 @@ async fn connection(gw: Arc<Gateway>, cfg: BridgeConfig, mut sock: TcpStream, pe
 }
 
 /// Passes one request to the bus; returns the answer's PDU (`None`: none is due, a broadcast).
-async fn pass(gw: &Arc<Gateway>, cfg: &BridgeConfig, r: &Request, may_write: bool, forbidden: &str, actor: &str) -> Option<Vec<u8>> {
+async fn pass(
+    gw: &Arc<Gateway>,
+    cfg: &BridgeConfig,
+    r: &Request,
+    may_write: bool,
+    forbidden: &str,
+    actor: &str,
+) -> Option<Vec<u8>> {
     let fc = *r.pdu.first()?;
     let exception = |code: u8| Some(vec![fc | 0x80, code]);
     let bus = gw.buses().iter().find(|b| b.config.name == cfg.bus)?;
@@ -286,7 +321,9 @@ async fn pass(gw: &Arc<Gateway>, cfg: &BridgeConfig, r: &Request, may_write: boo
             None => (exception(TARGET_FAILED), "failed: a reply the bridge cannot read".to_string()),
         },
         Err(BusError::BadRequest(e)) => (exception(ILLEGAL_FUNCTION), format!("refused: {e}")),
-        Err(e @ (BusError::Link(_) | BusError::Closed)) => (exception(PATH_UNAVAILABLE), format!("failed: {e}")),
+        Err(e @ (BusError::Link(_) | BusError::Closed)) => {
+            (exception(PATH_UNAVAILABLE), format!("failed: {e}"))
+        }
         Err(e) => (exception(TARGET_FAILED), format!("timeout: {e}")),
     };
     if write {

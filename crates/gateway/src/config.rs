@@ -396,7 +396,12 @@ impl Ctx<'_> {
             + usize::from(self.text[..span.start.min(self.text.len())].ends_with('\n'))
     }
     /// `file:line: field `field`: msg`.
-    pub(crate) fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
+    pub(crate) fn err<T>(
+        &self,
+        span: Range<usize>,
+        field: &str,
+        msg: impl fmt::Display,
+    ) -> Result<T, ConfigError> {
         Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
     }
 
@@ -824,7 +829,18 @@ impl GatewayConfig {
         };
         let bridges = crate::bridge::configs(&cx, &raw.bridge, &buses)?;
         let modbus_rtu = crate::modbus_rtu::configs(&cx, &raw.modbus_rtu)?;
-        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt, bridges, modbus_rtu })
+        Ok(GatewayConfig {
+            name: gateway_name,
+            http,
+            modbus,
+            store,
+            tokens,
+            buses,
+            linkage,
+            mqtt,
+            bridges,
+            modbus_rtu,
+        })
     }
 
     /// Every drive, in configuration order, with its bus.

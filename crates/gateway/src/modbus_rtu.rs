@@ -71,11 +71,19 @@ pub(crate) fn configs(cx: &Ctx<'_>, file: &[FileModbusRtu]) -> Result<Vec<Modbus
             return cx.err(m.port.span(), "modbus_rtu.port", "give a serial device, e.g. /dev/ttyS1");
         }
         if out.iter().any(|x| x.port == c.port) {
-            return cx.err(m.port.span(), "modbus_rtu.port", format!("{} is already another slave's", c.port));
+            return cx.err(
+                m.port.span(),
+                "modbus_rtu.port",
+                format!("{} is already another slave's", c.port),
+            );
         }
         if let Some(b) = &m.baud {
             if !(300..=4_000_000).contains(b.get_ref()) {
-                return cx.err(b.span(), "modbus_rtu.baud", format!("{} is outside 300..4000000", b.get_ref()));
+                return cx.err(
+                    b.span(),
+                    "modbus_rtu.baud",
+                    format!("{} is outside 300..4000000", b.get_ref()),
+                );
             }
             c.baud = *b.get_ref();
         }

@@ -161,25 +161,48 @@ async fn mbpoll_writes_and_reads_through_the_bridge_while_the_gateway_polls() {
     until(&gw, "pump-1 online", |v| v.online == Some(true)).await;
     let polls_before = gw.drive_view(gw.drive("pump-1").unwrap()).polls;
     let mbpoll = |args: Vec<String>| async move {
-        let out = tokio::task::spawn_blocking(move || Command::new("mbpoll").args(&args).output().unwrap()).await.unwrap();
-        let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        let out = tokio::task::spawn_blocking(move || Command::new("mbpoll").args(&args).output().unwrap())
+            .await
+            .unwrap();
+        let text =
+            format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
         assert!(out.status.success(), "mbpoll {text}");
         text
     };
     let common = |reg: &str| -> Vec<String> {
-        ["-m", "tcp", "-p", &addr.port().to_string(), "-a", "1", "-t", "4", "-0", "-1", "-r", reg, "127.0.0.1"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect()
+        [
+            "-m",
+            "tcp",
+            "-p",
+            &addr.port().to_string(),
+            "-a",
+            "1",
+            "-t",
+            "4",
+            "-0",
+            "-1",
+            "-r",
+            reg,
+            "127.0.0.1",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
     };
     // 2001H = 8193 (0-based): 4000 = 40.00 Hz; then 2102H = 8450 reads it back.
     let mut w = common("8193");
     w.push("4000".into());
     mbpoll(w).await;
     let text = mbpoll(common("8450")).await;
-    assert!(text.contains("[8450]: \t4000") || text.contains("[8450]:\t4000") || text.contains("[8450]: 4000"), "{text}");
+    assert!(
+        text.contains("[8450]: \t4000") || text.contains("[8450]:\t4000") || text.contains("[8450]: 4000"),
+        "{text}"
+    );
     // The gateway kept polling the bus meanwhile, and its own view shows the write.
-    until(&gw, "more polls and the bridged setpoint", |v| v.polls > polls_before && v.setpoint_hz == Some(40.0)).await;
+    until(&gw, "more polls and the bridged setpoint", |v| {
+        v.polls > polls_before && v.setpoint_hz == Some(40.0)
+    })
+    .await;
 }
 
 /// Two ptys joined back to back, as socat's `pty,link=A pty,link=B` does: what is written to one
@@ -235,7 +258,10 @@ async fn pymodbus_reads_the_unified_map_from_the_rtu_slave() {
     let pair = pty_pair(&dir);
     let mut cfg = config("");
     // 8N1: a pty carries no parity bit (and refuses even parity set twice).
-    let text = format!("[[modbus_rtu]]\nport = {:?}\nbaud = 19200\nserial = \"8N1\"\n", pair.a.display().to_string());
+    let text = format!(
+        "[[modbus_rtu]]\nport = {:?}\nbaud = 19200\nserial = \"8N1\"\n",
+        pair.a.display().to_string()
+    );
     let rtu = GatewayConfig::from_toml("x.toml", &format!("{text}\n")).unwrap().modbus_rtu;
     cfg.modbus_rtu = rtu;
     let slave_cfg = cfg.modbus_rtu[0].clone();
@@ -268,8 +294,14 @@ protocol = "toshiba-binary"
 "#;
     for (extra, needle) in [
         ("[[bridge]]\nbus = \"line-9\"\nlisten = \"127.0.0.1:5021\"\n", "bridge.bus`: no bus \"line-9\""),
-        ("[[bridge]]\nbus = \"tosh\"\nlisten = \"127.0.0.1:5021\"\n", "needs a modbus-rtu or modbus-ascii bus"),
-        ("[[bridge]]\nbus = \"line-1\"\nlisten = \"nowhere\"\n", "bridge.listen`: \"nowhere\" is not HOST:PORT"),
+        (
+            "[[bridge]]\nbus = \"tosh\"\nlisten = \"127.0.0.1:5021\"\n",
+            "needs a modbus-rtu or modbus-ascii bus",
+        ),
+        (
+            "[[bridge]]\nbus = \"line-1\"\nlisten = \"nowhere\"\n",
+            "bridge.listen`: \"nowhere\" is not HOST:PORT",
+        ),
         ("[[bridge]]\nbus = \"line-1\"\nlisten = \"127.0.0.1:5021\"\nframing = \"udp\"\n", "use mbap or rtu"),
         ("[[modbus_rtu]]\nport = \"/dev/ttyS1\"\nserial = \"9Z1\"\n", "modbus_rtu.serial`"),
         ("[[modbus_rtu]]\nport = \"tcp://1.2.3.4:1\"\n", "give a serial device"),
@@ -280,9 +312,15 @@ protocol = "toshiba-binary"
         assert!(e.contains(needle) && e.starts_with("plant.toml:"), "{extra}: {e}");
         assert_eq!(e.lines().count(), 1, "{e}");
     }
-    let ok = GatewayConfig::from_toml("plant.toml", &format!("{base}[[modbus_rtu]]\nport = \"/dev/ttyS1\"\n")).unwrap();
+    let ok =
+        GatewayConfig::from_toml("plant.toml", &format!("{base}[[modbus_rtu]]\nport = \"/dev/ttyS1\"\n"))
+            .unwrap();
     let m = &ok.modbus_rtu[0];
-    assert_eq!((m.baud, m.format.to_string(), m.write), (19200, "8E1".to_string(), false), "the serial-line defaults");
+    assert_eq!(
+        (m.baud, m.format.to_string(), m.write),
+        (19200, "8E1".to_string(), false),
+        "the serial-line defaults"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -23,8 +23,10 @@ impl Listener {
     /// driver for its low-latency mode (an FTDI adapter then hands bytes over after 1 ms instead
     /// of 16 ms).
     pub fn open(path: &str, baud: u32, format: CharFormat, timeout: Duration) -> io::Result<Self> {
-        let native =
-            serial_builder(path, baud, format).timeout(timeout).open_native().map_err(|e| open_error(path, e))?;
+        let native = serial_builder(path, baud, format)
+            .timeout(timeout)
+            .open_native()
+            .map_err(|e| open_error(path, e))?;
         let low_latency = set_low_latency(&native).is_ok();
         let pty = std::fs::canonicalize(path).is_ok_and(|p| p.starts_with("/dev/pts"));
         let l = Listener { path: path.to_string(), port: Box::new(native), pty, low_latency };
@@ -51,9 +53,13 @@ impl Listener {
     /// Changes the baud rate and format and drops what was received before.
     pub fn set(&mut self, baud: u32, format: CharFormat) -> io::Result<()> {
         use tokio_serial::{DataBits, StopBits};
-        let e = |e: tokio_serial::Error| io::Error::other(format!("{}: cannot set {baud} {format}: {e}", self.path));
+        let e = |e: tokio_serial::Error| {
+            io::Error::other(format!("{}: cannot set {baud} {format}: {e}", self.path))
+        };
         self.port.set_baud_rate(baud).map_err(e)?;
-        self.port.set_data_bits(if format.data_bits == 7 { DataBits::Seven } else { DataBits::Eight }).map_err(e)?;
+        self.port
+            .set_data_bits(if format.data_bits == 7 { DataBits::Seven } else { DataBits::Eight })
+            .map_err(e)?;
         self.port
             .set_parity(match format.parity {
                 Parity::None => tokio_serial::Parity::None,
@@ -61,7 +67,9 @@ impl Listener {
                 Parity::Odd => tokio_serial::Parity::Odd,
             })
             .map_err(e)?;
-        self.port.set_stop_bits(if format.stop_bits == 2 { StopBits::Two } else { StopBits::One }).map_err(e)?;
+        self.port
+            .set_stop_bits(if format.stop_bits == 2 { StopBits::Two } else { StopBits::One })
+            .map_err(e)?;
         self.port.clear(tokio_serial::ClearBuffer::Input).map_err(e)
     }
 
@@ -69,7 +77,12 @@ impl Listener {
     pub fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         match self.port.read(buf) {
             Ok(n) => Ok(n),
-            Err(e) if matches!(e.kind(), io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted) => {
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+                ) =>
+            {
                 Ok(0)
             }
             Err(e) => Err(io::Error::new(e.kind(), format!("{}: {e}", self.path))),

@@ -149,7 +149,8 @@ async fn commands_go_first_then_bridged_requests_then_polls() {
     for _ in 0..10 {
         tokio::task::yield_now().await;
     }
-    let jobs = [job("poll", Priority::Poll), job("bridge", Priority::Bridge), job("command", Priority::Command)];
+    let jobs =
+        [job("poll", Priority::Poll), job("bridge", Priority::Bridge), job("command", Priority::Command)];
     first.await.unwrap();
     for j in jobs {
         j.await.unwrap();

@@ -231,7 +231,9 @@ impl Simulator {
                 self.tap_wake.notified().await;
                 self.line.lock().unwrap_or_else(|p| p.into_inner()).tap_read(&mut bytes);
                 // Whatever a program wrote to the tap: a listener's line has no talker.
-                while matches!(nix::unistd::read(pty.master.fd.get_ref().as_raw_fd(), &mut sink), Ok(n) if n > 0) {}
+                while matches!(nix::unistd::read(pty.master.fd.get_ref().as_raw_fd(), &mut sink), Ok(n) if n > 0)
+                {
+                }
                 pty.write_or_discard(&bytes)?;
                 bytes.clear();
             }

@@ -44,10 +44,9 @@ fn protocols(t: &Target) -> Result<Vec<&'static str>> {
         None | Some("auto") => Ok(Vec::new()),
         Some(p) => match PROTOCOLS.iter().find(|x| **x == p) {
             Some(x) => Ok(vec![*x]),
-            None => Err(fail(
-                EXIT_USAGE,
-                format!("unknown protocol {p:?}: use auto, {}", PROTOCOLS.join(", ")),
-            )),
+            None => {
+                Err(fail(EXIT_USAGE, format!("unknown protocol {p:?}: use auto, {}", PROTOCOLS.join(", "))))
+            }
         },
     }
 }
@@ -204,7 +203,11 @@ fn replay(
         }
     }
     let directed = packets.iter().all(|p| p.direction.is_some());
-    let sides = if directed { vec![Side::Only(Direction::Master), Side::Only(Direction::Drive)] } else { vec![Side::Both] };
+    let sides = if directed {
+        vec![Side::Only(Direction::Master), Side::Only(Direction::Drive)]
+    } else {
+        vec![Side::Both]
+    };
     let (baud, format) = (t.baud().unwrap_or(9600), format.unwrap_or(CharFormat::NONE_8N1));
     let mut a = Analyzer::new(Settings { protocols, baud, format, reply_timeout, sides });
     let mut out = Output::new(t.json, args.write.as_ref())?;
@@ -279,10 +282,18 @@ fn listen(
             ))
         }
         [_] | [_, _] => t.port.clone(),
-        _ => return Err(fail(EXIT_USAGE, "give one --port, or two for a 4-wire line (the master's pair first)")),
+        _ => {
+            return Err(fail(
+                EXIT_USAGE,
+                "give one --port, or two for a 4-wire line (the master's pair first)",
+            ))
+        }
     };
     if paths.iter().any(|p| p.starts_with("tcp://")) {
-        return Err(fail(EXIT_USAGE, "sniff listens on a serial port, not tcp://: clamp an RS-485 adapter on the line"));
+        return Err(fail(
+            EXIT_USAGE,
+            "sniff listens on a serial port, not tcp://: clamp an RS-485 adapter on the line",
+        ));
     }
     let stop = Arc::new(AtomicBool::new(false));
     {
@@ -385,7 +396,8 @@ fn listen(
         }
         // Ticks end a frame after a long quiet, time out requests and settle the detection:
         // none of that needs finer than TICK.
-        let wait = deadline.map_or(TICK, |d| TICK.min(d.saturating_duration_since(std::time::Instant::now())));
+        let wait =
+            deadline.map_or(TICK, |d| TICK.min(d.saturating_duration_since(std::time::Instant::now())));
         let records = match rx.recv_timeout(wait) {
             Ok((port, time, bytes)) => {
                 heard = true;
@@ -416,7 +428,11 @@ fn listen(
         return Err(fail(EXIT_LINK, e));
     }
     if !heard {
-        eprintln!("drivebus: heard nothing on {} in {:.1} s: check the wiring (A/B) and that the line is busy", paths.join(" and "), start.elapsed().as_secs_f64());
+        eprintln!(
+            "drivebus: heard nothing on {} in {:.1} s: check the wiring (A/B) and that the line is busy",
+            paths.join(" and "),
+            start.elapsed().as_secs_f64()
+        );
     }
     Ok(exit_code(&a, heard))
 }

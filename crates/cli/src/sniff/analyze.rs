@@ -93,7 +93,10 @@ where
     fn valid(&self, bytes: &[u8], from: Option<Direction>) -> bool {
         match from {
             Some(d) => C::parse(bytes, Some(d)).is_ok(),
-            None => C::parse(bytes, Some(Direction::Master)).is_ok() || C::parse(bytes, Some(Direction::Drive)).is_ok(),
+            None => {
+                C::parse(bytes, Some(Direction::Master)).is_ok()
+                    || C::parse(bytes, Some(Direction::Drive)).is_ok()
+            }
         }
     }
 }
@@ -143,7 +146,12 @@ pub const ECHO_WITHIN: Duration = Duration::from_millis(60);
 /// request first. With one waiting, as its reply first (a Modbus reply can look like a request,
 /// and 06's reply is its request's echo), unless that reading names another drive or the frame
 /// is the request again after [`ECHO_WITHIN`]: then as a request.
-fn parse_either(protocol: &str, bytes: &[u8], time: Duration, waiting: Option<&Record>) -> Result<FrameReport, String> {
+fn parse_either(
+    protocol: &str,
+    bytes: &[u8],
+    time: Duration,
+    waiting: Option<&Record>,
+) -> Result<FrameReport, String> {
     let as_master = || parse(protocol, bytes, Direction::Master);
     let Some(req) = waiting else {
         return as_master().or_else(|e| parse(protocol, bytes, Direction::Drive).map_err(|_| e));
@@ -699,7 +707,14 @@ impl Analyzer {
         out.push(r);
     }
 
-    fn frame(&mut self, protocol: &'static str, port: usize, time: Duration, cut: Cut, out: &mut Vec<Record>) {
+    fn frame(
+        &mut self,
+        protocol: &'static str,
+        port: usize,
+        time: Duration,
+        cut: Cut,
+        out: &mut Vec<Record>,
+    ) {
         let side = self.ports[port].side;
         let reply_due = self.pending.contains_key(protocol);
         let single = self.active.len() == 1 && !self.foreign;
@@ -721,7 +736,8 @@ impl Analyzer {
                 if !single {
                     return;
                 }
-                let direction = side.direction().unwrap_or(if reply_due { Direction::Drive } else { Direction::Master });
+                let direction =
+                    side.direction().unwrap_or(if reply_due { Direction::Drive } else { Direction::Master });
                 let mut frame = FrameReport {
                     offset: 0,
                     bytes: cut.bytes,
@@ -799,4 +815,3 @@ impl Analyzer {
         out.push(record);
     }
 }
-

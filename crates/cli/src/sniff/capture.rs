@@ -120,7 +120,13 @@ impl<W: Write> PcapWriter<W> {
     }
 
     /// Writes one frame of `protocol` from `from`, read at `time` (since the Unix epoch).
-    pub fn frame(&mut self, time: Duration, protocol: &'static str, from: Direction, bytes: &[u8]) -> io::Result<()> {
+    pub fn frame(
+        &mut self,
+        time: Duration,
+        protocol: &'static str,
+        from: Direction,
+        bytes: &[u8],
+    ) -> io::Result<()> {
         let Some(lt) = linktype(protocol) else { return Ok(()) };
         let iface = match self.interfaces.iter().position(|p| *p == protocol) {
             Some(i) => i,
@@ -204,7 +210,12 @@ pub fn read(data: &[u8]) -> Result<Vec<Packet>> {
         }
         let bytes = crate::hexarg::parse_hex_args(&[line.to_string()])
             .map_err(|e| anyhow::anyhow!("line {}: {e}", i + 1))?;
-        out.push(Packet { time: Duration::from_millis(10 * i as u64), protocol: None, direction: None, bytes });
+        out.push(Packet {
+            time: Duration::from_millis(10 * i as u64),
+            protocol: None,
+            direction: None,
+            bytes,
+        });
     }
     if out.is_empty() {
         bail!("the hex dump holds no bytes: write the bytes in hex, one burst per line");
@@ -213,7 +224,12 @@ pub fn read(data: &[u8]) -> Result<Vec<Packet>> {
 }
 
 /// A packet read back; Modbus RTU over UDP unwrapped (its direction from the ports).
-fn packet(time: Duration, protocol: Option<&'static str>, direction: Option<Direction>, bytes: &[u8]) -> Packet {
+fn packet(
+    time: Duration,
+    protocol: Option<&'static str>,
+    direction: Option<Direction>,
+    bytes: &[u8],
+) -> Packet {
     if protocol == Some(PROTOCOLS[0]) {
         if let Some((from, frame)) = udp_unwrap(bytes) {
             return Packet { time, protocol, direction: direction.or(Some(from)), bytes: frame.to_vec() };
@@ -240,9 +256,13 @@ fn read_pcap(data: &[u8]) -> Result<Vec<Packet>> {
         let (secs, frac, incl) = (u32_at(at) as u64, u32_at(at + 4) as u64, u32_at(at + 8) as usize);
         let end = at + 16 + incl;
         if end > data.len() {
-            bail!("the pcap is cut short: a packet at byte {at} needs {incl} bytes, {} are left", data.len() - at - 16);
+            bail!(
+                "the pcap is cut short: a packet at byte {at} needs {incl} bytes, {} are left",
+                data.len() - at - 16
+            );
         }
-        let time = Duration::from_secs(secs) + if nanos { Duration::from_nanos(frac) } else { Duration::from_micros(frac) };
+        let time = Duration::from_secs(secs)
+            + if nanos { Duration::from_nanos(frac) } else { Duration::from_micros(frac) };
         out.push(packet(time, protocol, None, &data[at + 16..end]));
         at = end;
     }
@@ -289,7 +309,11 @@ fn read_pcapng(data: &[u8]) -> Result<Vec<Packet>> {
                     }
                     if code == 9 && olen >= 1 {
                         let v = data[o + 4];
-                        resol = if v & 0x80 == 0 { 10u64.saturating_pow(v as u32) } else { 1u64 << (v & 0x7F).min(63) };
+                        resol = if v & 0x80 == 0 {
+                            10u64.saturating_pow(v as u32)
+                        } else {
+                            1u64 << (v & 0x7F).min(63)
+                        };
                     }
                     o += 4 + pad4(olen);
                 }

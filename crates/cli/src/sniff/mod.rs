@@ -22,14 +22,20 @@ mod tests {
     /// Line traffic of `exchanges` status reads of the drive `spec` on a simulated line, as a
     /// listener hears it: (when each burst's first character starts, its bytes). Also the line's
     /// baud and format.
-    fn traffic(spec: &str, baud: Option<u32>, format: Option<CharFormat>, exchanges: usize) -> (u32, CharFormat, Vec<Burst>) {
+    fn traffic(
+        spec: &str,
+        baud: Option<u32>,
+        format: Option<CharFormat>,
+        exchanges: usize,
+    ) -> (u32, CharFormat, Vec<Burst>) {
         let drive: DriveSpec = spec.parse().expect("drive spec");
         let bus = BusSpec::new(vec![drive], baud, format).expect("bus");
         let d = &bus.drives[0];
         let mut line = VirtualLine::new(bus.baud, bus.format, Instant::ZERO);
         line.add_device(drivebus_sim::family::build(d, Instant::ZERO).expect("drive"));
         line.attach_tap();
-        let protocol = d.protocol.clone().unwrap_or_else(|| drivebus_sim::family::wire_protocols(d)[0].to_string());
+        let protocol =
+            d.protocol.clone().unwrap_or_else(|| drivebus_sim::family::wire_protocols(d)[0].to_string());
         let profile = for_drive(d.family, &protocol, d.address).expect("profile");
         let mut bursts = Vec::new();
         let mut t = Instant::from_millis(10);
@@ -61,7 +67,12 @@ mod tests {
     }
 
     /// Every burst pushed as one read at the time its last character ends.
-    fn listen(bursts: &[Burst], baud: u32, format: CharFormat, protocols: Vec<&'static str>) -> (Analyzer, Vec<Record>) {
+    fn listen(
+        bursts: &[Burst],
+        baud: u32,
+        format: CharFormat,
+        protocols: Vec<&'static str>,
+    ) -> (Analyzer, Vec<Record>) {
         let mut a = Analyzer::new(Settings {
             protocols,
             baud,
@@ -95,8 +106,10 @@ mod tests {
             let (baud, format, bursts) = traffic(spec, None, None, 6);
             let (a, records) = listen(&bursts, baud, format, Vec::new());
             assert_eq!(a.protocols(), [protocol], "{spec}");
-            let requests: Vec<&Record> =
-                records.iter().filter(|r| r.direction == Direction::Master && r.kind == Kind::Frame).collect();
+            let requests: Vec<&Record> = records
+                .iter()
+                .filter(|r| r.direction == Direction::Master && r.kind == Kind::Frame)
+                .collect();
             let replies: Vec<&Record> = records.iter().filter(|r| r.direction == Direction::Drive).collect();
             assert!(requests.len() >= 6, "{spec}: {records:#?}");
             assert_eq!(requests.len(), replies.len(), "{spec}: {records:#?}");
@@ -133,7 +146,11 @@ mod tests {
         let bad = records.iter().find(|r| !r.valid() && r.kind == Kind::Frame).expect("the damaged reply");
         assert_eq!(bad.direction, Direction::Drive);
         assert_eq!(bad.address(), Some(7));
-        assert!(bad.json()["error"].as_str().is_some_and(|e| e.contains("CRC") || e.contains("checksum")), "{}", bad.json());
+        assert!(
+            bad.json()["error"].as_str().is_some_and(|e| e.contains("CRC") || e.contains("checksum")),
+            "{}",
+            bad.json()
+        );
     }
 
     fn rtu(body: &[u8]) -> Vec<u8> {
@@ -149,8 +166,13 @@ mod tests {
         let to3 = rtu(&[3, 6, 0x20, 1, 0x0F, 0xA0]);
         let to1 = rtu(&[1, 6, 0x20, 1, 0x0F, 0xA0]);
         let ms = Duration::from_millis;
-        let bursts: Vec<Burst> =
-            vec![(ms(0), to3.clone()), (ms(112), to3.clone()), (ms(224), to3), (ms(340), to1.clone()), (ms(354), to1)];
+        let bursts: Vec<Burst> = vec![
+            (ms(0), to3.clone()),
+            (ms(112), to3.clone()),
+            (ms(224), to3),
+            (ms(340), to1.clone()),
+            (ms(354), to1),
+        ];
         let (a, records) = listen(&bursts, 9600, CharFormat::EVEN_8E1, vec!["modbus-rtu"]);
         let shape: Vec<(Direction, Option<u8>, bool)> =
             records.iter().map(|r| (r.direction, r.address(), r.kind == Kind::NoReply)).collect();
@@ -179,7 +201,8 @@ mod tests {
     #[test]
     fn a_second_protocol_that_starts_later_is_found_and_its_first_frames_decoded() {
         // Modbus RTU first, then B800 on the same line (at the same baud and format).
-        let (baud, format, mut bursts) = traffic("generic@1:modbus-rtu", Some(9600), Some(CharFormat::NONE_8N1), 3);
+        let (baud, format, mut bursts) =
+            traffic("generic@1:modbus-rtu", Some(9600), Some(CharFormat::NONE_8N1), 3);
         let (_, _, b800) = traffic("b800@5", Some(9600), Some(CharFormat::NONE_8N1), 2);
         let shift = bursts.last().unwrap().0 + Duration::from_millis(100);
         bursts.extend(b800.iter().map(|(t, b)| (*t + shift, b.clone())));
@@ -255,7 +278,11 @@ mod tests {
         }
         out.extend(a.finish(Duration::from_secs(9)));
         let dirs: Vec<Direction> = out.iter().map(|r| r.direction).collect();
-        assert_eq!(dirs, [Direction::Master, Direction::Drive, Direction::Master, Direction::Drive], "{out:#?}");
+        assert_eq!(
+            dirs,
+            [Direction::Master, Direction::Drive, Direction::Master, Direction::Drive],
+            "{out:#?}"
+        );
         assert!(out[1].latency.is_some() && out[3].latency.is_some());
     }
 
@@ -281,7 +308,8 @@ mod tests {
         ];
         for (spec, protocol, baud, format) in cases {
             let (baud, format, bursts) = traffic(spec, baud, format, 4);
-            let ((b, f), score) = detect(&bursts, baud, format).unwrap_or_else(|| panic!("{spec}: nothing found"));
+            let ((b, f), score) =
+                detect(&bursts, baud, format).unwrap_or_else(|| panic!("{spec}: nothing found"));
             assert_eq!(key(b, f), key(baud, format), "{spec} at {baud} {format}: found {b} {f}");
             assert_eq!(score.protocol, Some(protocol), "{spec} at {baud} {format}");
             assert!(score.frames >= 8, "{spec}: {score:?}");
@@ -293,11 +321,13 @@ mod tests {
         let bursts: Vec<Burst> = vec![(Duration::ZERO, b"HELLO".to_vec())];
         let right = super::detect::receive(&bursts, 9600, CharFormat::EVEN_8E1, 9600, CharFormat::EVEN_8E1);
         assert_eq!(right, b"HELLO");
-        let wrong_baud = super::detect::receive(&bursts, 9600, CharFormat::EVEN_8E1, 19200, CharFormat::EVEN_8E1);
+        let wrong_baud =
+            super::detect::receive(&bursts, 9600, CharFormat::EVEN_8E1, 19200, CharFormat::EVEN_8E1);
         assert_ne!(wrong_baud, b"HELLO");
         // 'E', 'L', 'O' have an odd number of ones: even parity bit 1, so an 8N1 receiver sees a
         // good stop bit; 'H' = 0x48 has 2: parity 0, a framing error (00).
-        let no_parity = super::detect::receive(&bursts, 9600, CharFormat::EVEN_8E1, 9600, CharFormat::NONE_8N1);
+        let no_parity =
+            super::detect::receive(&bursts, 9600, CharFormat::EVEN_8E1, 9600, CharFormat::NONE_8N1);
         assert_eq!(no_parity, [0, b'E', b'L', b'L', b'O']);
     }
 
@@ -312,7 +342,10 @@ mod tests {
         drop(w);
         let p = read(&buf).unwrap();
         assert_eq!(p.len(), 2);
-        assert_eq!((p[0].time, p[0].protocol, p[0].direction), (t, Some("modbus-rtu"), Some(Direction::Master)));
+        assert_eq!(
+            (p[0].time, p[0].protocol, p[0].direction),
+            (t, Some("modbus-rtu"), Some(Direction::Master))
+        );
         assert_eq!(p[0].bytes, [1, 3, 0x21, 2, 0, 1, 0x2E, 0x36]);
         assert_eq!((p[1].protocol, p[1].direction), (Some("b800"), Some(Direction::Drive)));
         assert_eq!(p[1].time - p[0].time, Duration::from_millis(7));

@@ -606,7 +606,10 @@ impl Server {
     }
 
     async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), u8> {
-        self.gw.command(&d.config.name, cmd, &conn.actor).await.map_err(|e: CommandError| e.modbus_exception())
+        self.gw
+            .command(&d.config.name, cmd, &conn.actor)
+            .await
+            .map_err(|e: CommandError| e.modbus_exception())
     }
 }
 

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the tests use as witnesses: pymodbus and asyncua
-# (PyPI); from Debian mbpoll, curl, mosquitto, chromium + chromium-driver (the dashboard's
-# browser test) and systemd (systemd-analyze, for the package check); and cargo-deb (crates.io) to build the
-# Debian package. Idempotent: each is installed only when missing.
+# (PyPI); from Debian mbpoll, curl, mosquitto, tshark, chromium + chromium-driver (the
+# dashboard's browser test) and systemd (systemd-analyze, for the package check); and cargo-deb
+# (crates.io) to build the Debian package. Idempotent: each is installed only when missing.
 set -euo pipefail
 
 SUDO=""
@@ -17,12 +17,13 @@ apt_install() {
   if command -v "$cmd" >/dev/null || [ -x "/usr/sbin/$cmd" ]; then
     return 0
   fi
-  if [ -z "$APT_UPDATED" ] && ! $SUDO apt-get install -y -q "$@" >/dev/null 2>&1; then
+  local install=($SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -q "$@")
+  if [ -z "$APT_UPDATED" ] && ! "${install[@]}" >/dev/null 2>&1; then
     $SUDO apt-get update -q >/dev/null
     APT_UPDATED=1
-    $SUDO apt-get install -y -q "$@" >/dev/null
+    "${install[@]}" >/dev/null
   elif [ -n "$APT_UPDATED" ]; then
-    $SUDO apt-get install -y -q "$@" >/dev/null
+    "${install[@]}" >/dev/null
   fi
 }
 
@@ -51,6 +52,10 @@ command -v chromium-browser >/dev/null || apt_install chromium chromium chromium
 apt_install chromedriver chromium-driver
 # The MQTT broker the gateway's MQTT test starts on a free port (crates/gateway/tests/mqtt_mosquitto.rs).
 apt_install mosquitto mosquitto
+# tshark decodes the captures of `drivebus sniff --write` (crates/cli/tests/sniff.rs); its
+# question about letting non-root users capture is answered no (nothing here captures packets).
+echo "wireshark-common wireshark-common/install-setuid boolean false" | $SUDO debconf-set-selections 2>/dev/null || true
+apt_install tshark tshark
 # systemd-analyze verifies the packaged unit (.ci/package.sh).
 apt_install systemd-analyze systemd
 # cargo-deb builds the Debian package (.ci/package.sh).
@@ -66,5 +71,6 @@ curl --version | head -n 1
 chromedriver --version | head -n 1
 MOSQUITTO="$(command -v mosquitto || echo /usr/sbin/mosquitto)"
 "$MOSQUITTO" -h 2>&1 | sed -n 1p || true  # -h exits 3 after printing its version
+tshark --version 2>/dev/null | head -n 1
 systemd-analyze --version | head -n 1
 cargo deb --version

@@ -7,6 +7,7 @@
 mod commands;
 mod hexarg;
 mod options;
+mod sniff;
 
 use std::process::ExitCode;
 
@@ -28,6 +29,9 @@ enum Command {
     /// Run virtual drives on a virtual RS-485 line, paced at the real baud rate, behind a
     /// pseudo-terminal or a TCP port.
     Simulate(commands::simulate::SimulateArgs),
+    /// Listen to a line someone else drives, never transmit: every frame of every protocol
+    /// decoded, requests paired with replies and their latency, per-address statistics, a pcap.
+    Sniff(commands::sniff::SniffArgs),
     /// Read a drive's state: running, direction, output and setpoint Hz, current, fault.
     Status,
     /// Start the motor.
@@ -155,6 +159,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Decode(args) => commands::decode::run(&args, &target),
         Command::Simulate(args) => commands::simulate::run(&args, &target),
+        Command::Sniff(args) => commands::sniff::run(&args, &target),
         Command::Status => commands::drive::status(&target),
         Command::Run => commands::drive::command(&target, "run", None),
         Command::Stop => commands::drive::command(&target, "stop", None),

@@ -19,6 +19,7 @@ fn port() -> Arg {
     Arg::new("port")
         .long("port")
         .value_name("DEVICE|tcp://HOST:PORT")
+        .action(ArgAction::Append)
         .help("Serial device (/dev/ttyUSB0, a pty) or tcp://HOST:PORT of a serial device server")
 }
 
@@ -43,7 +44,11 @@ fn protocol(help: &'static str) -> Arg {
 }
 
 fn baud(help: &'static str) -> Arg {
-    Arg::new("baud").long("baud").value_name("BAUD").value_parser(clap::value_parser!(u32)).help(help)
+    Arg::new("baud")
+        .long("baud")
+        .value_name("BAUD|auto")
+        .value_parser(crate::commands::drive::parse_baud)
+        .help(help)
 }
 
 fn serial(help: &'static str) -> Arg {
@@ -197,6 +202,18 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
             serial("The line's character format such as 8E1 (default: the first drive's)"),
         ],
     ));
+    out.push((
+        &["sniff"],
+        vec![
+            port().help(
+                "The serial device or tcp://HOST:PORT to listen on; twice for a 4-wire line (one port per direction)",
+            ),
+            protocol("The protocol on the line, or auto (default): found from the traffic"),
+            baud("The line's baud rate, or auto (default): found from the traffic"),
+            serial("The line's character format such as 8E1, or auto (default): found from the traffic"),
+            json(),
+        ],
+    ));
     for path in [&["events"][..], &["trend"]] {
         out.push((path, vec![drive("ID", "The drive's name in the gateway"), json()]));
     }
@@ -270,7 +287,7 @@ pub fn target(matches: &ArgMatches) -> anyhow::Result<Target> {
         }
     }
     Ok(Target {
-        port: one(&levels, "port"),
+        port: all(&levels, "port"),
         drive: all(&levels, "drive"),
         address: all(&levels, "address"),
         protocol: one(&levels, "protocol"),

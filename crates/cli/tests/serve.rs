@@ -2,8 +2,8 @@
 //! with curl (or a plain HTTP/1.1 request when curl is not installed) using the demo token it
 //! prints.
 
-use std::io::{BufRead, BufReader, Read};
-use std::net::{SocketAddr, TcpListener};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -229,4 +229,69 @@ fn serve_warns_when_no_token_can_read_or_write() {
     let write = "[[token]]\nname = \"scada\"\ntoken = \"a-write-token-of-16-chars\"\nrole = \"write\"\n";
     let err = serve_config_stderr(dir.path(), write);
     assert!(!err.contains("warning") && !err.contains("note:"), "{err}");
+}
+
+#[test]
+fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
+    let bridge: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args([
+            "serve",
+            "--demo",
+            "--no-store",
+            "--no-opcua",
+            "--http",
+            &format!("127.0.0.1:{}", free_port()),
+        ])
+        .args([
+            "--modbus",
+            &format!("127.0.0.1:{}", free_port()),
+            "--bridge",
+            &format!("line-generic={bridge}"),
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start drivebus serve");
+    let lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let said: Vec<String> =
+        lines.map_while(Result::ok).take_while(|l| !l.contains("demo write token")).collect();
+    assert!(
+        said.iter().any(|l| l.contains(&format!("bridge      {bridge} -> bus line-generic"))),
+        "{said:?}"
+    );
+    // 03 of 210BH (version) from drive 1 of line-generic, through the bridge.
+    let mut s = TcpStream::connect(bridge).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    s.write_all(&[0, 1, 0, 0, 0, 6, 1, 0x03, 0x21, 0x0B, 0, 1]).unwrap();
+    let mut answer = [0u8; 11];
+    s.read_exact(&mut answer).unwrap();
+    assert_eq!(answer, [0, 1, 0, 0, 0, 5, 1, 0x03, 2, 0x01, 0x00], "version 1.00");
+    let _ = child.kill();
+    let _ = child.wait();
+
+    for (args, code, needle) in [
+        (vec!["--bridge", "nope=127.0.0.1:1"], 3, "no bus \"nope\""),
+        (vec!["--bridge", "line-toshiba=127.0.0.1:1"], 3, "needs a modbus-rtu or modbus-ascii bus"),
+        (vec!["--bridge", "line-generic"], 3, "BUS=HOST:PORT"),
+        (vec!["--modbus-rtu", "/nonexistent/ttyS9"], 2, "/nonexistent/ttyS9"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args([
+                "serve",
+                "--demo",
+                "--no-store",
+                "--no-opcua",
+                "--http",
+                &format!("127.0.0.1:{}", free_port()),
+            ])
+            .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
+            .args(&args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
+        let last = err.lines().last().unwrap_or_default();
+        assert!(last.starts_with("drivebus: ") && last.contains(needle), "{args:?}: {err}");
+    }
 }

@@ -188,3 +188,41 @@ fn a_stopped_simulator_removes_its_pty_link() {
         assert!(link.symlink_metadata().is_err(), "{signal}: {} is left behind", link.display());
     }
 }
+
+#[test]
+fn the_tap_carries_both_directions_of_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let tap_path = dir.path().join("tap");
+    let tap_arg = tap_path.to_str().unwrap();
+    let sim = Sim::start(&["--drive", "b800@5", "--tap", tap_arg]);
+    let mut tap = std::fs::File::open(&tap_path).expect("open the tap");
+    let mut bus = TcpStream::connect(&sim.bus).expect("connect bus");
+    let request = b800("85500960");
+    let reply = exchange(&mut bus, &request, 8);
+    assert_eq!(reply, b"\x7E0570\x33\x33\x7F");
+    // The tap hears the request, then the reply, whatever it held before is of no matter.
+    let mut want = request.clone();
+    want.extend_from_slice(&reply);
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut got = Vec::new();
+        let mut buf = [0u8; 256];
+        while let Ok(n) = tap.read(&mut buf) {
+            got.extend_from_slice(&buf[..n]);
+            if tx.send(got.clone()).is_err() {
+                break;
+            }
+        }
+    });
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let mut seen = Vec::new();
+    while !seen.windows(want.len()).any(|w| w == want.as_slice()) {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        seen = rx.recv_timeout(left).unwrap_or_else(|_| panic!("the tap carried {seen:02X?}"));
+    }
+    // Writing to the tap does not reach the line: a listener never talks.
+    let mut tap_w = std::fs::OpenOptions::new().write(true).open(&tap_path).unwrap();
+    tap_w.write_all(&b800("8552")).unwrap();
+    let (_, d) = sim.http("GET", "/drives/1", "");
+    assert_eq!(d["state"], "stopped", "a run written to the tap must not reach the drive");
+}

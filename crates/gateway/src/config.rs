@@ -48,6 +48,17 @@
 //! follower = "pump-2"
 //! ratio = 0.5
 //! offset_hz = 2.0
+//!
+//! [[bridge]]                            # Modbus TCP straight through to a bus (bridge.rs)
+//! bus = "line-1"
+//! listen = "127.0.0.1:5021"
+//! framing = "mbap"                      # mbap | rtu (RTU over TCP)
+//!
+//! [[modbus_rtu]]                        # the unified map as a Modbus RTU slave (modbus_rtu.rs)
+//! port = "/dev/ttyS1"
+//! baud = 19200
+//! serial = "8E1"
+//! write = false                         # accept writes (read-only unless true)
 //! ```
 
 use std::collections::HashSet;
@@ -98,6 +109,10 @@ pub struct GatewayConfig {
     pub mqtt: Option<MqttConfig>,
     /// The OPC UA server (`None`: off).
     pub opcua: Option<OpcUaConfig>,
+    /// Transparent Modbus bridges to buses (`[[bridge]]`).
+    pub bridges: Vec<crate::bridge::BridgeConfig>,
+    /// Modbus RTU slaves serving the unified map (`[[modbus_rtu]]`).
+    pub modbus_rtu: Vec<crate::modbus_rtu::ModbusRtuConfig>,
 }
 
 /// The OPC UA server (docs/opcua.md).
@@ -291,6 +306,10 @@ struct FileConfig {
     mqtt: Option<FileMqtt>,
     #[serde(default)]
     opcua: FileOpcUa,
+    #[serde(default)]
+    bridge: Vec<crate::bridge::FileBridge>,
+    #[serde(default)]
+    modbus_rtu: Vec<crate::modbus_rtu::FileModbusRtu>,
 }
 
 #[derive(Deserialize, Default)]
@@ -395,7 +414,8 @@ struct FileMqtt {
     password_env: Option<Spanned<String>>,
 }
 
-struct Ctx<'a> {
+/// The file being read, for errors that name its line and field.
+pub(crate) struct Ctx<'a> {
     file: &'a str,
     text: &'a str,
 }
@@ -405,7 +425,13 @@ impl Ctx<'_> {
         self.text[..span.start.min(self.text.len())].lines().count().max(1)
             + usize::from(self.text[..span.start.min(self.text.len())].ends_with('\n'))
     }
-    fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
+    /// `file:line: field `field`: msg`.
+    pub(crate) fn err<T>(
+        &self,
+        span: Range<usize>,
+        field: &str,
+        msg: impl fmt::Display,
+    ) -> Result<T, ConfigError> {
         Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
     }
 
@@ -852,7 +878,21 @@ impl GatewayConfig {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
         let opcua = opcua_section(&raw.opcua, &http, &addr)?;
-        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt, opcua })
+        let bridges = crate::bridge::configs(&cx, &raw.bridge, &buses)?;
+        let modbus_rtu = crate::modbus_rtu::configs(&cx, &raw.modbus_rtu)?;
+        Ok(GatewayConfig {
+            name: gateway_name,
+            http,
+            modbus,
+            store,
+            tokens,
+            buses,
+            linkage,
+            mqtt,
+            opcua,
+            bridges,
+            modbus_rtu,
+        })
     }
 
     /// Every drive, in configuration order, with its bus.

@@ -317,6 +317,11 @@ impl BusEntry {
     pub fn online(&self) -> bool {
         self.online.load(Ordering::Relaxed)
     }
+
+    /// The bus owner, for requests a Modbus bridge passes through (`crate::bridge`).
+    pub fn owner(&self) -> &Bus {
+        &self.bus
+    }
 }
 
 /// A drive as the API shows it: configuration, cached values and their age, link health.

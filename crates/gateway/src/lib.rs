@@ -22,12 +22,14 @@
 //! statistics and cache), so their polling never stops. [`health`] answers `/healthz` and
 //! `/readyz`; [`log`] writes the service's log lines as text or JSON.
 
+pub mod bridge;
 pub mod config;
 pub mod gateway;
 pub mod health;
 pub mod http;
 pub mod log;
 pub mod metrics;
+pub mod modbus_rtu;
 pub mod modbus_tcp;
 pub mod mqtt;
 pub mod opcua;

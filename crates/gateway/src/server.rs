@@ -19,6 +19,8 @@ pub struct Bound {
     pub modbus: SocketAddr,
     /// The OPC UA listener, when configured.
     pub opcua: Option<SocketAddr>,
+    /// The Modbus bridges' listeners, with their buses.
+    pub bridges: Vec<(String, SocketAddr)>,
 }
 
 /// Reads the configuration again for a reload (the file, with the command line's overrides);
@@ -55,10 +57,11 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
         },
         None => None,
     };
-    let bound = Bound {
+    let mut bound = Bound {
         http: http.local_addr().map_err(|e| e.to_string())?,
         modbus: modbus.local_addr().map_err(|e| e.to_string())?,
         opcua: opcua.as_ref().map(|l| l.local_addr()).transpose().map_err(|e| e.to_string())?,
+        bridges: Vec::new(),
     };
     gw.health().listener("http", bound.http, true);
     gw.health().listener("modbus", bound.modbus, true);
@@ -83,6 +86,16 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     }
     if let Some(loader) = loader {
         tokio::spawn(reload_on_hangup(gw.clone(), loader));
+    }
+    for b in &cfg.bridges {
+        let l = bind(b.listen, &format!("the Modbus bridge to bus {}", b.bus), "--bridge BUS=").await?;
+        let addr = l.local_addr().map_err(|e| e.to_string())?;
+        gw.health().listener(&format!("bridge-{}", b.bus), addr, true);
+        bound.bridges.push((b.bus.clone(), addr));
+        tokio::spawn(crate::bridge::serve(gw.clone(), b.clone(), l));
+    }
+    for m in &cfg.modbus_rtu {
+        tokio::spawn(crate::modbus_rtu::Slave::open(gw.clone(), m)?.run());
     }
     ready(&bound);
     let stop = async {

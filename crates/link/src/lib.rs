@@ -19,6 +19,7 @@ pub mod blocking;
 pub mod drive;
 mod engine;
 pub mod link;
+pub mod listen;
 pub mod owner;
 pub mod timer;
 

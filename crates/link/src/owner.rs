@@ -133,6 +133,8 @@ impl std::error::Error for BusError {}
 pub enum Priority {
     /// A user's command: goes ahead of polling.
     Command,
+    /// A request passed through from a Modbus bridge: after commands, ahead of polling.
+    Bridge,
     /// Cyclic polling.
     Poll,
 }
@@ -199,6 +201,7 @@ struct Job {
 #[derive(Clone)]
 pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
+    bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
@@ -213,21 +216,23 @@ impl Bus {
         let stats = Arc::new(Mutex::new(BusStats::default()));
         let health = Arc::new(Mutex::new(HashMap::new()));
         let (ctx, crx) = mpsc::unbounded_channel();
+        let (btx, brx) = mpsc::unbounded_channel();
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
         with_engine!(config, stats.clone(), health.clone(), |engine| {
-            tokio::spawn(Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx }.run(crx, prx));
+            tokio::spawn(Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx }.run(crx, brx, prx));
         })?;
-        Ok(Bus { commands: ctx, polls: ptx, stats, health, name, ended })
+        Ok(Bus { commands: ctx, bridged: btx, polls: ptx, stats, health, name, ended })
     }
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the
     /// serial port free for another open). The owner ends once every clone of the handle is
     /// dropped, so drop the others (and the [`crate::drive::Drive`]s holding them) first.
     pub async fn close(self) {
-        let Bus { commands, polls, mut ended, .. } = self;
+        let Bus { commands, bridged, polls, mut ended, .. } = self;
         drop(commands);
+        drop(bridged);
         drop(polls);
         // Err once the owner has dropped its sender, that is ended.
         while ended.changed().await.is_ok() {}
@@ -251,6 +256,7 @@ impl Bus {
         let job = Job { address, exchange, timeout, done: tx };
         let queue = match priority {
             Priority::Command => &self.commands,
+            Priority::Bridge => &self.bridged,
             Priority::Poll => &self.polls,
         };
         queue.send(job).map_err(|_| BusError::Closed)?;
@@ -281,12 +287,14 @@ impl<L: Link, P: Protocol> Owner<L, P> {
     async fn run(
         mut self,
         mut commands: mpsc::UnboundedReceiver<Job>,
+        mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
     ) {
         loop {
             let job = tokio::select! {
                 biased;
                 Some(j) = commands.recv() => (j, Priority::Command),
+                Some(j) = bridged.recv() => (j, Priority::Bridge),
                 Some(j) = polls.recv() => (j, Priority::Poll),
                 else => return,
             };

@@ -131,3 +131,29 @@ async fn a_dead_drive_costs_the_others_at_most_one_timeout_per_cycle() {
     assert!(!health[&5].online);
     assert!(health[&1].online);
 }
+
+#[tokio::test(start_paused = true)]
+async fn commands_go_first_then_bridged_requests_then_polls() {
+    let (bus, _line) = bus_of(&[1], Faults::default());
+    let bus = Arc::new(bus);
+    let order = Arc::new(Mutex::new(Vec::new()));
+    let job = |what: &'static str, priority: Priority| {
+        let (bus, order) = (bus.clone(), order.clone());
+        tokio::spawn(async move {
+            bus.transact(1, read(1, 0x2103), priority, None).await.unwrap();
+            order.lock().unwrap().push(what);
+        })
+    };
+    // The first keeps the line busy while the other three queue up, the lowest first.
+    let first = job("first", Priority::Poll);
+    for _ in 0..10 {
+        tokio::task::yield_now().await;
+    }
+    let jobs =
+        [job("poll", Priority::Poll), job("bridge", Priority::Bridge), job("command", Priority::Command)];
+    first.await.unwrap();
+    for j in jobs {
+        j.await.unwrap();
+    }
+    assert_eq!(*order.lock().unwrap(), ["first", "command", "bridge", "poll"]);
+}

@@ -111,6 +111,8 @@ pub struct VirtualLine {
     faults: Faults,
     rng: Rng,
     stats: LineStats,
+    /// What a listener on the line hears (both directions), when a tap is attached.
+    tap: Option<VecDeque<u8>>,
 }
 
 impl VirtualLine {
@@ -131,6 +133,7 @@ impl VirtualLine {
             faults: Faults::default(),
             rng: Rng::new(1),
             stats: LineStats::default(),
+            tap: None,
         }
     }
 
@@ -230,6 +233,25 @@ impl VirtualLine {
     pub fn master_write(&mut self, now: Instant, bytes: &[u8]) {
         self.advance_to(now);
         self.transmit(MASTER, bytes);
+    }
+
+    /// Attaches a tap: from now on every character that arrives on the line, from the master
+    /// or a device, is also kept for [`VirtualLine::tap_read`], as a passive listener hears it
+    /// (garbled, corrupted or dropped alike).
+    pub fn attach_tap(&mut self) {
+        self.tap.get_or_insert_with(VecDeque::new);
+    }
+
+    /// Bytes the tap has heard since the last call (nothing without [`VirtualLine::attach_tap`]).
+    pub fn tap_read(&mut self, out: &mut Vec<u8>) {
+        if let Some(t) = self.tap.as_mut() {
+            out.extend(t.drain(..));
+        }
+    }
+
+    /// True when the tap holds bytes not yet read.
+    pub fn tap_pending(&self) -> bool {
+        self.tap.as_ref().is_some_and(|t| !t.is_empty())
     }
 
     /// Bytes that have reached the master by now.
@@ -417,6 +439,9 @@ impl VirtualLine {
         if talker != MASTER {
             self.to_master.extend(bytes.iter().copied());
         }
+        if let Some(tap) = self.tap.as_mut() {
+            tap.extend(bytes.iter().copied());
+        }
         for (i, p) in self.ports.iter_mut().enumerate() {
             if i == talker {
                 continue;
@@ -593,6 +618,41 @@ mod tests {
         assert!(now >= expect && now <= expect + 4100, "{now} vs {expect}");
         assert_eq!(line.stats().master_bytes, 2);
         assert_eq!(line.stats().device_bytes, 2);
+    }
+
+    #[test]
+    fn the_tap_hears_both_directions_when_they_arrive() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (dev, _, _) = echo(5);
+        line.add_device(Box::new(dev));
+        line.attach_tap();
+        line.master_write(Instant::ZERO, &[0xAB, 0xCD]);
+        let mut tap = Vec::new();
+        // Nothing before the first character's last bit.
+        line.advance_to(Instant::from_nanos(1_145_833));
+        line.tap_read(&mut tap);
+        assert!(tap.is_empty());
+        // The request once it is on the line, then the reply: as a listener hears them.
+        line.advance_to(Instant::from_nanos(2 * 1_145_834));
+        line.tap_read(&mut tap);
+        assert_eq!(tap, [0xAB, 0xCD]);
+        run_until_idle(&mut line);
+        tap.clear();
+        line.tap_read(&mut tap);
+        assert_eq!(tap, [0xAB, 0xCD], "the echo's reply");
+        let mut master = Vec::new();
+        line.master_read(&mut master);
+        assert_eq!(master, [0xAB, 0xCD], "the master still gets the reply");
+    }
+
+    #[test]
+    fn without_a_tap_nothing_is_kept() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        line.master_write(Instant::ZERO, &[1, 2, 3]);
+        run_until_idle(&mut line);
+        let mut tap = Vec::new();
+        line.tap_read(&mut tap);
+        assert!(tap.is_empty());
     }
 
     #[test]

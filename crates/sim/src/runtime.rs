@@ -35,6 +35,8 @@ pub struct Simulator {
     line: Mutex<VirtualLine>,
     start: std::time::Instant,
     wake: Notify,
+    /// Rung when the tap has bytes to pass on.
+    tap_wake: Notify,
     protocols: Vec<String>,
 }
 
@@ -75,6 +77,7 @@ impl Simulator {
             line: Mutex::new(line),
             start: std::time::Instant::now(),
             wake: Notify::new(),
+            tap_wake: Notify::new(),
             protocols,
         }))
     }
@@ -189,6 +192,9 @@ impl Simulator {
                 let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
                 line.advance_to(now);
                 line.master_read(&mut out);
+                if line.tap_pending() {
+                    self.tap_wake.notify_one();
+                }
             }
             if !out.is_empty() {
                 for (_, m) in &mut monitors {
@@ -201,6 +207,38 @@ impl Simulator {
                 out.clear();
             }
         }
+    }
+
+    /// Serves a tap at `path`: a second pseudo-terminal that carries a copy of every byte on
+    /// the virtual line, from the master and from the drives, each burst when its last
+    /// character has arrived (as a passive listener on the pair of wires hears it). Listen-only:
+    /// what is written to the tap is discarded. Bytes nobody reads are discarded when the pty's
+    /// buffer fills, so a sniffer that opens the tap late starts with current traffic.
+    ///
+    /// Opens the tap now (an error says why it could not be made) and returns where it is
+    /// (`tap PATH -> /dev/pts/N`) and the task that feeds it, to spawn.
+    pub fn serve_tap(
+        self: Arc<Self>,
+        path: &Path,
+    ) -> io::Result<(String, impl std::future::Future<Output = io::Result<()>> + Send + 'static)> {
+        let pty = Pty::open(path)?;
+        self.line.lock().unwrap_or_else(|p| p.into_inner()).attach_tap();
+        let at = format!("tap {} -> {}", path.display(), pty.device.display());
+        let feed = async move {
+            let mut bytes = Vec::new();
+            let mut sink = [0u8; 256];
+            loop {
+                self.tap_wake.notified().await;
+                self.line.lock().unwrap_or_else(|p| p.into_inner()).tap_read(&mut bytes);
+                // Whatever a program wrote to the tap: a listener's line has no talker.
+                while matches!(nix::unistd::read(pty.master.fd.get_ref().as_raw_fd(), &mut sink), Ok(n) if n > 0)
+                {
+                }
+                pty.write_or_discard(&bytes)?;
+                bytes.clear();
+            }
+        };
+        Ok((at, feed))
     }
 
     /// The HTTP/JSON control interface (see `docs/simulator.md`).
@@ -472,6 +510,29 @@ impl Pty {
         #[allow(unsafe_code)]
         let fd = unsafe { AsyncFd::register(pair.master) }.map_err(io::Error::from)?;
         Ok(Pty { master: PtyMaster { fd }, slave: pair.slave, device })
+    }
+}
+
+impl Pty {
+    /// Writes `bytes` without waiting: when the buffer is full (nobody reads the slave side),
+    /// what is queued there is discarded first, and what still does not fit is dropped.
+    fn write_or_discard(&self, mut bytes: &[u8]) -> io::Result<()> {
+        let fd = self.master.fd.get_ref();
+        let mut flushed = false;
+        while !bytes.is_empty() {
+            match nix::unistd::write(fd, bytes) {
+                Ok(n) => bytes = &bytes[n..],
+                Err(nix::errno::Errno::EAGAIN) if !flushed => {
+                    nix::sys::termios::tcflush(self.slave.as_fd(), nix::sys::termios::FlushArg::TCIFLUSH)
+                        .map_err(io::Error::from)?;
+                    flushed = true;
+                }
+                Err(nix::errno::Errno::EAGAIN) => return Ok(()),
+                Err(nix::errno::Errno::EINTR) => {}
+                Err(e) => return Err(io::Error::from(e)),
+            }
+        }
+        Ok(())
     }
 }
 

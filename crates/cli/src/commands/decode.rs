@@ -191,7 +191,8 @@ fn reply_to<C: Codec>(
         .filter(|reply| reply.direction() == Direction::Drive && reply.target() == drive)
 }
 
-fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
+/// The report of a parsed frame found at `offset`.
+pub fn describe<F: Describe>(offset: u64, bytes: &[u8], frame: &F) -> FrameReport {
     let mut fields: Vec<FieldReport> = Vec::new();
     frame.fields(&mut |f| {
         let json = field_json(&f);

@@ -19,8 +19,9 @@ use crate::hexarg::parse_hex_args;
 /// `crate::options`, which declares them for each command).
 #[derive(Debug, Clone, Default)]
 pub struct Target {
-    /// Serial device (/dev/ttyUSB0, a pty) or tcp://HOST:PORT of a serial device server.
-    pub port: Option<String>,
+    /// Serial device (/dev/ttyUSB0, a pty) or tcp://HOST:PORT of a serial device server
+    /// (`sniff` takes two: one per direction of a 4-wire line).
+    pub port: Vec<String>,
     /// The drive family (generic, toshiba, danfoss, b800, auto for scan); for `simulate`, a
     /// drive on the virtual bus as KIND@ADDR[:PROTOCOL]; for `events` and `trend` a drive's name.
     pub drive: Vec<String>,
@@ -28,9 +29,11 @@ pub struct Target {
     pub address: Vec<u8>,
     /// The protocol: for `decode` the wire format; for a drive, where its family speaks several.
     pub protocol: Option<String>,
-    /// Baud rate (default: the family's).
+    /// Baud rate (default: the family's; 0 for `auto`: the family's, or for `sniff` found from
+    /// the traffic).
     pub baud: Option<u32>,
-    /// Character format such as 8E1 (default: the family's).
+    /// Character format such as 8E1 (default or `auto`: the family's; for `sniff`, found from
+    /// the traffic).
     pub serial: Option<String>,
     /// Response timeout in milliseconds (default: the protocol's).
     pub timeout: Option<u64>,
@@ -46,6 +49,39 @@ pub struct Target {
     pub echo: bool,
     /// Output JSON.
     pub json: bool,
+}
+
+/// `--baud`: a number, or `auto` (kept as 0 and read back by [`Target::baud`] as none given).
+/// A `--baud` value: a rate, or `auto` (0).
+pub(crate) fn parse_baud(s: &str) -> Result<u32, String> {
+    if s.eq_ignore_ascii_case("auto") {
+        return Ok(0);
+    }
+    match s.parse::<u32>() {
+        Ok(b) if b > 0 => Ok(b),
+        _ => Err(format!("{s:?} is not a baud rate: give a number such as 9600, or auto")),
+    }
+}
+
+impl Target {
+    /// The one `--port` given, if any (only `sniff` takes two).
+    pub fn one_port(&self) -> Result<Option<String>> {
+        match self.port.as_slice() {
+            [] => Ok(None),
+            [one] => Ok(Some(one.clone())),
+            _ => Err(fail(EXIT_USAGE, "give one --port: only sniff listens on two (one per direction)")),
+        }
+    }
+
+    /// `--baud`, unless absent or `auto`.
+    pub fn baud(&self) -> Option<u32> {
+        self.baud.filter(|&b| b != 0)
+    }
+
+    /// `--serial`, unless absent or `auto`.
+    pub fn serial(&self) -> Option<&String> {
+        self.serial.as_ref().filter(|s| !s.eq_ignore_ascii_case("auto"))
+    }
 }
 
 /// `param` subcommands.
@@ -119,7 +155,7 @@ impl std::fmt::Display for Failure {
 
 impl std::error::Error for Failure {}
 
-fn fail(code: u8, message: impl Into<String>) -> anyhow::Error {
+pub(crate) fn fail(code: u8, message: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Failure { code, message: message.into() })
 }
 
@@ -165,7 +201,7 @@ fn resolve(t: &Target) -> Result<Resolved> {
 
 /// Resolves the target options for the drive at `address`.
 pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
-    let port = t.port.clone().ok_or_else(|| {
+    let port = t.one_port()?.ok_or_else(|| {
         fail(EXIT_USAGE, "say where the drive is: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
     })?;
     let family_s = match t.drive.as_slice() {
@@ -195,11 +231,11 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
         },
     };
     let (db, df) = drivebus_sim::config::serial_default(family, Some(protocol.as_str()));
-    let format = match &t.serial {
+    let format = match t.serial() {
         Some(s) => s.parse::<CharFormat>().map_err(|e| fail(EXIT_USAGE, format!("--serial {s:?}: {e}")))?,
         None => df,
     };
-    let baud = t.baud.unwrap_or(db);
+    let baud = t.baud().unwrap_or(db);
     let mut config = BusConfig::new(&protocol, baud, format);
     config.retries = t.retries;
     config.response_timeout = t.timeout.map(Duration::from_millis);

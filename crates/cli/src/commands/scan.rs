@@ -81,7 +81,7 @@ fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
 
 /// Runs `drivebus scan`; exit 0 when a drive answered, 2 when none did.
 pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
-    let port = t.port.clone().ok_or_else(|| {
+    let port = t.one_port()?.ok_or_else(|| {
         crate::commands::drive::usage("say which line: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
     })?;
     let families: Vec<Family> = match t.drive.as_slice() {
@@ -105,7 +105,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
     // The lists given, read once (a typo is reported before anything is sent).
     let bauds = args.bauds.as_deref().map(|l| parse_list(l, "baud")).transpose()?;
     let addresses = args.addresses.as_deref().map(|l| parse_list(l, "address")).transpose()?;
-    let formats: Option<Vec<CharFormat>> = match (&args.formats, &t.serial) {
+    let formats: Option<Vec<CharFormat>> = match (&args.formats, t.serial()) {
         (Some(list), _) => Some(
             list.split(',')
                 .map(str::trim)
@@ -133,7 +133,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 continue;
             }
             let (db, df) = drivebus_sim::config::serial_default(family, Some(&protocol));
-            let bauds = match (&bauds, t.baud) {
+            let bauds = match (&bauds, t.baud()) {
                 (Some(list), _) => list.clone(),
                 (None, Some(b)) => vec![b],
                 (None, None) => vec![db],

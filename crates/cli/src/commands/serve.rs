@@ -40,6 +40,14 @@ pub struct ServeArgs {
     /// Keep no events or trends.
     #[arg(long, conflicts_with = "db")]
     pub no_store: bool,
+    /// A transparent Modbus bridge: Modbus TCP on HOST:PORT straight through to bus BUS (unit id
+    /// = the drive's address on the bus), as [[bridge]] does; repeat for more.
+    #[arg(long, value_name = "BUS=HOST:PORT")]
+    pub bridge: Vec<String>,
+    /// Serve the unified register map as a Modbus RTU slave on DEVICE (19200 8E1, read-only;
+    /// [[modbus_rtu]] sets the baud, format and writes).
+    #[arg(long, value_name = "DEVICE")]
+    pub modbus_rtu: Vec<String>,
     /// The gateway's name, instead of the configuration's (`demo` with --demo): the MQTT topic
     /// level and client id, so that two gateways on one broker stay apart.
     #[arg(long, value_name = "NAME")]
@@ -122,6 +130,14 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         m.url = url.clone();
         config.mqtt = Some(m);
     }
+    for b in &args.bridge {
+        let b = drivebus_gateway::bridge::parse_arg(b).map_err(|e| anyhow!(e))?;
+        drivebus_gateway::bridge::check(&b, &config.buses).map_err(|e| anyhow!(e))?;
+        config.bridges.push(b);
+    }
+    for port in &args.modbus_rtu {
+        config.modbus_rtu.push(drivebus_gateway::modbus_rtu::ModbusRtuConfig::new(port));
+    }
     if args.no_store {
         config.store = None;
     } else if let Some(db) = &args.db {
@@ -187,6 +203,12 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
             if let Some(a) = bound.opcua {
                 println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");
+            }
+            for (bus, at) in &bound.bridges {
+                println!("  bridge      {at} -> bus {bus} (Modbus TCP straight through, docs/gateway.md)");
+            }
+            for m in &gw.config().modbus_rtu {
+                println!("  Modbus RTU  slave on {} at {} {} (unit id = drive)", m.port, m.baud, m.format);
             }
             if let Some(m) = &gw.config().mqtt {
                 let prefix = m

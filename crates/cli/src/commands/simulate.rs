@@ -22,6 +22,10 @@ pub struct SimulateArgs {
     /// Serve raw bytes on HOST:PORT, as a serial device server does.
     #[arg(long, value_name = "HOST:PORT")]
     pub tcp: Option<SocketAddr>,
+    /// Create a second pseudo-terminal (symlink at PATH) that carries a copy of every byte on
+    /// the virtual line, both directions, paced as on the line: open it with `drivebus sniff`.
+    #[arg(long, value_name = "PATH")]
+    pub tap: Option<PathBuf>,
     /// Serve the HTTP/JSON control interface (faults, load, trips, state) on HOST:PORT.
     #[arg(long, value_name = "HOST:PORT")]
     pub control: Option<SocketAddr>,
@@ -39,7 +43,7 @@ pub struct SimulateArgs {
 
 /// Builds the bus the arguments describe.
 pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Result<BusSpec> {
-    let format = match &target.serial {
+    let format = match target.serial() {
         Some(s) => Some(s.parse::<CharFormat>().map_err(|e| anyhow::anyhow!("--serial {s:?}: {e}"))?),
         None => None,
     };
@@ -53,7 +57,7 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) ->
                 .with_context(|| format!("cannot read the bus file {}", path.display()))?;
             let mut bus = BusSpec::from_toml(&path.display().to_string(), &text)?;
             bus.drives.extend(extra);
-            if let Some(b) = target.baud {
+            if let Some(b) = target.baud() {
                 bus.baud = b;
             }
             if let Some(f) = format {
@@ -62,7 +66,7 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) ->
             bus.check()?;
             bus
         }
-        None => BusSpec::new(extra, target.baud, format)?,
+        None => BusSpec::new(extra, target.baud(), format)?,
     };
     let mut bus = bus;
     if args.no_pacing {
@@ -118,6 +122,17 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
             println!("control http://{}/drives", listener.local_addr()?);
             tokio::spawn(async move { axum_serve(listener, s).await });
         }
+        if let Some(path) = &args.tap {
+            let (at, feed) =
+                sim.clone().serve_tap(path).with_context(|| format!("tap {}", path.display()))?;
+            println!("{at}");
+            let shown = path.display().to_string();
+            tokio::spawn(async move {
+                if let Err(e) = feed.await {
+                    eprintln!("drivebus: tap {shown} stopped: {e}");
+                }
+            });
+        }
         let verbose = args.verbose;
         // Listened for before the ready line is printed: a signal right after it is not lost.
         let mut stop = StopSignals::new()?;
@@ -130,6 +145,9 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
             _ = stop.wait() => {}
         }
         if let Endpoint::Pty(p) = &endpoint {
+            let _ = std::fs::remove_file(p);
+        }
+        if let Some(p) = &args.tap {
             let _ = std::fs::remove_file(p);
         }
         Ok::<_, anyhow::Error>(())

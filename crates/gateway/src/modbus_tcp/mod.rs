@@ -48,7 +48,9 @@ struct Written {
     at: Option<Instant>,
 }
 
-struct Server {
+/// The unified map's request handling, shared by the Modbus TCP listener and the Modbus RTU
+/// slave ([`crate::modbus_rtu`]).
+pub(crate) struct Server {
     gw: Arc<Gateway>,
     /// The listener's settings at start (`max_connections`); the write rules are read live.
     config: ModbusConfig,
@@ -94,14 +96,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
     if let Err(e) = raise_nofile_limit() {
         crate::log::warn(&format!("Modbus TCP: cannot raise the open files limit: {e}"));
     }
-    let config = gw.config().modbus.clone();
-    let server = Arc::new(Server {
-        gw,
-        config,
-        active: AtomicUsize::new(0),
-        written: (0..256).map(|_| Default::default()).collect(),
-        shown: (0..256).map(|_| Default::default()).collect(),
-    });
+    let server = Server::new(gw);
     static WARNED: AtomicBool = AtomicBool::new(false);
     loop {
         let (socket, peer) = match listener.accept().await {
@@ -241,13 +236,40 @@ fn param_slot(addr: u16) -> Option<(usize, bool)> {
 }
 
 impl Server {
+    /// The handler of `gw`'s unified map, with its `[modbus]` rules.
+    pub(crate) fn new(gw: Arc<Gateway>) -> Arc<Server> {
+        let config = gw.config().modbus.clone();
+        Arc::new(Server {
+            gw,
+            config,
+            active: AtomicUsize::new(0),
+            written: (0..256).map(|_| Default::default()).collect(),
+            shown: (0..256).map(|_| Default::default()).collect(),
+        })
+    }
+
+    /// Answers one request, an MBAP frame (header and PDU), into `out`: from the cache where it
+    /// can, else through the drive.
+    pub(crate) async fn answer(&self, conn: &mut Conn, frame: &[u8], out: &mut Vec<u8>) {
+        if !self.answer_cached(frame, out) {
+            self.answer_drive(conn, frame, out).await;
+        }
+    }
+
     async fn connection(&self, mut sock: TcpStream, peer: SocketAddr) -> std::io::Result<()> {
         let _ = sock.set_nodelay(true);
         let ip = match peer.ip() {
             IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
             v4 => v4,
         };
-        let mut conn = Conn { ip, actor: None, peer };
+        // Writes are checked against the [modbus] rules as configured when they come (a
+        // reload changes them for open connections too); `may_write` and `forbidden` are unused.
+        let mut conn = Conn {
+            ip: Some(ip),
+            may_write: false,
+            forbidden: String::new(),
+            actor: format!("modbus:{peer}"),
+        };
         let mut buf = vec![0u8; IN_BUF];
         let mut len = 0;
         let mut out: Vec<u8> = Vec::with_capacity(512);
@@ -486,20 +508,26 @@ impl Server {
         values: Regs<'_>,
     ) -> Result<(), u8> {
         let n = values.len();
-        // The rules as configured now: a reload changes them for open connections too.
-        let rules = self.gw.config();
-        let may_write = !rules.modbus.read_only && rules.modbus.allow.contains(&conn.ip);
+        let (may_write, forbidden) = match conn.ip {
+            Some(ip) => {
+                let rules = self.gw.config();
+                let why = if rules.modbus.read_only {
+                    "forbidden: the Modbus TCP listener is read-only ([modbus] read_only)".to_string()
+                } else {
+                    format!("forbidden: client {ip} may not write ([modbus] allow)")
+                };
+                (!rules.modbus.read_only && rules.modbus.allow.contains(&ip), why)
+            }
+            None => (conn.may_write, conn.forbidden.clone()),
+        };
         if !may_write || d.locked() {
-            let why = if !may_write && rules.modbus.read_only {
-                "forbidden: the Modbus TCP listener is read-only ([modbus] read_only)".to_string()
-            } else if !may_write {
-                format!("forbidden: client {} may not write ([modbus] allow)", conn.peer.ip())
+            let why = if !may_write {
+                forbidden
             } else {
                 format!("locked: {}", CommandError::Locked(d.config.name.clone()))
             };
-            let actor = conn.actor.get_or_insert_with(|| format!("modbus:{}", conn.peer)).clone();
             let action = format!("modbus write of {n} register(s) at {addr}");
-            self.gw.audit_refusal(&d.config.name, &actor, &action, &why).await;
+            self.gw.audit_refusal(&d.config.name, &conn.actor, &action, &why).await;
             return Err(ILLEGAL_FUNCTION);
         }
         if addr <= HR_SETPOINT {
@@ -594,17 +622,25 @@ impl Server {
     }
 
     async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), u8> {
-        let actor = conn.actor.get_or_insert_with(|| format!("modbus:{}", conn.peer));
-        self.gw.command(&d.config.name, cmd, actor).await.map_err(|e: CommandError| e.modbus_exception())
+        self.gw
+            .command(&d.config.name, cmd, &conn.actor)
+            .await
+            .map_err(|e: CommandError| e.modbus_exception())
     }
 }
 
-/// A client connection's standing.
-struct Conn {
-    /// The client's address (IPv4-mapped IPv6 as IPv4), checked against `[modbus] allow`.
-    ip: IpAddr,
-    actor: Option<String>,
-    peer: SocketAddr,
+/// A client's standing.
+pub(crate) struct Conn {
+    /// A Modbus TCP client's address (IPv4-mapped IPv6 as IPv4): its writes are checked against
+    /// the `[modbus]` rules as configured at the time. `None` for a client whose rule is fixed
+    /// in `may_write` (the RTU slave).
+    pub(crate) ip: Option<IpAddr>,
+    /// May it write (when `ip` is `None`)?
+    pub(crate) may_write: bool,
+    /// Why its writes are refused, when they are (when `ip` is `None`).
+    pub(crate) forbidden: String,
+    /// Who it is in the audit trail (`modbus:127.0.0.1:5555`, `modbus-rtu:/dev/ttyS1`).
+    pub(crate) actor: String,
 }
 
 /// A raw value as a number in the parameter's unit (what [`Command::SetParam`] takes).

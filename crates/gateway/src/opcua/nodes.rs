@@ -295,7 +295,8 @@ pub fn build(
         .description("An RS-485 bus and its statistics")
         .insert(space);
     // The types' members, so a client browsing DriveType sees what every drive has.
-    let members = [("DriveType", ids.drive_type(), DRIVE_VARIABLES), ("BusType", ids.bus_type(), BUS_VARIABLES)];
+    let members =
+        [("DriveType", ids.drive_type(), DRIVE_VARIABLES), ("BusType", ids.bus_type(), BUS_VARIABLES)];
     for (ty, ty_id, vars) in members {
         for def in vars {
             let id = ids.id(format!("{ty}/{}", def.name));

@@ -1,0 +1,376 @@
+//! A transparent Modbus bridge (what mbusd does) on a bus the gateway also polls: a Modbus TCP
+//! request for unit id N goes to address N on the bus, as RTU or ASCII as the bus speaks, through
+//! the bus owner (after commands, ahead of polls: one transaction at a time with the polling),
+//! and the drive's answer goes back as it came. The `[modbus]` allow list and read-only switch
+//! apply to writes, and every write is in the audit trail.
+//!
+//! ```toml
+//! [[bridge]]
+//! bus = "line-1"              # a modbus-rtu or modbus-ascii bus
+//! listen = "127.0.0.1:5021"
+//! framing = "mbap"            # mbap (Modbus TCP, the default) | rtu (RTU frames over TCP)
+//! ```
+
+use std::net::{IpAddr, SocketAddr};
+use std::sync::Arc;
+
+use drivebus_drive::profile::Exchange;
+use drivebus_link::owner::{BusError, Priority};
+use drivebus_proto::checksum::{crc16_modbus, lrc};
+use drivebus_proto::modbus::rtu::RtuScanner;
+use drivebus_proto::{Deframer, Event as FrameEvent};
+use drivebus_store::{Event, EventKind};
+use serde::Deserialize;
+use serde_json::json;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use toml::Spanned;
+
+use crate::config::{BusConfig, ConfigError, Ctx};
+use crate::gateway::{unix_ms, Gateway};
+use crate::modbus_tcp::{ILLEGAL_FUNCTION, TARGET_FAILED};
+
+/// Exception 0A: gateway path unavailable (the bus is down).
+pub const PATH_UNAVAILABLE: u8 = 0x0A;
+
+/// How requests come over TCP.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Framing {
+    /// Modbus TCP: MBAP header and PDU.
+    Mbap,
+    /// RTU frames (address, PDU, CRC) over TCP.
+    Rtu,
+}
+
+/// One `[[bridge]]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BridgeConfig {
+    /// The bus's name.
+    pub bus: String,
+    /// Where to listen.
+    pub listen: SocketAddr,
+    /// How requests are framed.
+    pub framing: Framing,
+}
+
+/// A `[[bridge]]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct FileBridge {
+    bus: Spanned<String>,
+    listen: Spanned<String>,
+    framing: Option<Spanned<String>>,
+}
+
+/// Reads the `[[bridge]]` sections: each names a Modbus bus of `buses` and a free address.
+pub(crate) fn configs(
+    cx: &Ctx<'_>,
+    file: &[FileBridge],
+    buses: &[BusConfig],
+) -> Result<Vec<BridgeConfig>, ConfigError> {
+    let mut out: Vec<BridgeConfig> = Vec::new();
+    for b in file {
+        let name = b.bus.get_ref();
+        let Some(bus) = buses.iter().find(|x| x.name == *name) else {
+            let known: Vec<&str> = buses.iter().map(|x| x.name.as_str()).collect();
+            return cx.err(
+                b.bus.span(),
+                "bridge.bus",
+                format!("no bus {name:?} (buses: {})", known.join(", ")),
+            );
+        };
+        if !matches!(bus.protocol.as_str(), "modbus-rtu" | "modbus-ascii") {
+            return cx.err(
+                b.bus.span(),
+                "bridge.bus",
+                format!(
+                    "bus {name:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
+                    bus.protocol
+                ),
+            );
+        }
+        let listen: SocketAddr = b.listen.get_ref().parse().or_else(|_| {
+            cx.err(
+                b.listen.span(),
+                "bridge.listen",
+                format!("{:?} is not HOST:PORT (e.g. 127.0.0.1:5021)", b.listen.get_ref()),
+            )
+        })?;
+        if listen.port() != 0 && out.iter().any(|x| x.listen == listen) {
+            return cx.err(b.listen.span(), "bridge.listen", format!("{listen} is already another bridge's"));
+        }
+        let framing = match b.framing.as_ref().map(|f| f.get_ref().as_str()) {
+            None | Some("mbap") => Framing::Mbap,
+            Some("rtu") => Framing::Rtu,
+            Some(other) => {
+                let span = b.framing.as_ref().map(|f| f.span()).unwrap_or_default();
+                return cx.err(span, "bridge.framing", format!("{other:?}: use mbap or rtu"));
+            }
+        };
+        out.push(BridgeConfig { bus: name.clone(), listen, framing });
+    }
+    Ok(out)
+}
+
+/// `--bridge BUS=HOST:PORT`: a bridge with MBAP framing.
+pub fn parse_arg(arg: &str) -> Result<BridgeConfig, String> {
+    let (bus, addr) = arg
+        .split_once('=')
+        .ok_or_else(|| format!("--bridge {arg:?}: write BUS=HOST:PORT, e.g. line-1=127.0.0.1:5021"))?;
+    let listen = addr
+        .parse()
+        .map_err(|_| format!("--bridge {arg:?}: {addr:?} is not HOST:PORT, e.g. 127.0.0.1:5021"))?;
+    Ok(BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap })
+}
+
+/// Checks a bridge given on the command line against the buses (as [`configs`] does for the file).
+pub fn check(b: &BridgeConfig, buses: &[BusConfig]) -> Result<(), String> {
+    match buses.iter().find(|x| x.name == b.bus) {
+        None => Err(format!(
+            "--bridge: no bus {:?} (buses: {})",
+            b.bus,
+            buses.iter().map(|x| x.name.as_str()).collect::<Vec<_>>().join(", ")
+        )),
+        Some(bus) if !matches!(bus.protocol.as_str(), "modbus-rtu" | "modbus-ascii") => Err(format!(
+            "--bridge: bus {:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
+            b.bus, bus.protocol
+        )),
+        Some(_) => Ok(()),
+    }
+}
+
+/// True for the function codes that change something in the drive.
+pub fn is_write(fc: u8) -> bool {
+    matches!(fc, 0x05 | 0x06 | 0x0F | 0x10 | 0x15 | 0x16 | 0x17)
+}
+
+/// A request PDU for `unit` as the bus's frame: RTU (CRC) or ASCII (`:` hex LRC CR LF).
+pub fn bus_frame(ascii: bool, unit: u8, pdu: &[u8]) -> Vec<u8> {
+    let mut adu = Vec::with_capacity(pdu.len() + 3);
+    adu.push(unit);
+    adu.extend_from_slice(pdu);
+    if !ascii {
+        adu.extend_from_slice(&crc16_modbus(&adu).to_le_bytes());
+        return adu;
+    }
+    adu.push(lrc(&adu));
+    let mut out = Vec::with_capacity(2 * adu.len() + 3);
+    out.push(b':');
+    for b in adu {
+        out.extend_from_slice(format!("{b:02X}").as_bytes());
+    }
+    out.extend_from_slice(b"\r\n");
+    out
+}
+
+/// The PDU of a reply frame of the bus (checked by the bus owner): RTU or ASCII.
+pub fn reply_pdu(ascii: bool, frame: &[u8]) -> Option<Vec<u8>> {
+    if !ascii {
+        return (frame.len() >= 4).then(|| frame[1..frame.len() - 2].to_vec());
+    }
+    let hex = frame.strip_prefix(b":")?.strip_suffix(b"\r\n")?;
+    let bytes: Option<Vec<u8>> = hex
+        .chunks(2)
+        .map(|p| std::str::from_utf8(p).ok().and_then(|s| u8::from_str_radix(s, 16).ok()))
+        .collect();
+    let bytes = bytes?;
+    (bytes.len() >= 3).then(|| bytes[1..bytes.len() - 1].to_vec())
+}
+
+/// Serves the bridge `cfg` on `listener` until the process ends.
+pub async fn serve(gw: Arc<Gateway>, cfg: BridgeConfig, listener: TcpListener) -> std::io::Result<()> {
+    loop {
+        let (sock, peer) = match listener.accept().await {
+            Ok(x) => x,
+            Err(_) => {
+                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+                continue;
+            }
+        };
+        let (gw, cfg) = (gw.clone(), cfg.clone());
+        tokio::spawn(async move {
+            let _ = connection(gw, cfg, sock, peer).await;
+        });
+    }
+}
+
+/// One request taken off the connection: its unit, PDU and MBAP header (MBAP framing).
+struct Request {
+    unit: u8,
+    pdu: Vec<u8>,
+    header: Option<[u8; 7]>,
+}
+
+async fn connection(
+    gw: Arc<Gateway>,
+    cfg: BridgeConfig,
+    mut sock: TcpStream,
+    peer: SocketAddr,
+) -> std::io::Result<()> {
+    let _ = sock.set_nodelay(true);
+    let ip = match peer.ip() {
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
+        v4 => v4,
+    };
+    let modbus = &gw.config().modbus;
+    let may_write = !modbus.read_only && modbus.allow.contains(&ip);
+    let forbidden = if modbus.read_only {
+        "forbidden: Modbus writes are off ([modbus] read_only)".to_string()
+    } else {
+        format!("forbidden: client {ip} may not write ([modbus] allow)")
+    };
+    let actor = format!("modbus-bridge:{peer}");
+    let mut buf = vec![0u8; 2048];
+    let mut len = 0;
+    let mut rtu = Deframer::new(RtuScanner::requests());
+    loop {
+        let n = sock.read(&mut buf[len..]).await?;
+        if n == 0 {
+            return Ok(());
+        }
+        let mut requests = Vec::new();
+        match cfg.framing {
+            Framing::Mbap => {
+                len += n;
+                let mut pos = 0;
+                while len - pos >= 7 {
+                    let h = &buf[pos..pos + 7];
+                    let length = u16::from_be_bytes([h[4], h[5]]) as usize;
+                    if u16::from_be_bytes([h[2], h[3]]) != 0 || !(2..=254).contains(&length) {
+                        return Ok(());
+                    }
+                    if len - pos < 6 + length {
+                        break;
+                    }
+                    let mut header = [0u8; 7];
+                    header.copy_from_slice(h);
+                    requests.push(Request {
+                        unit: h[6],
+                        pdu: buf[pos + 7..pos + 6 + length].to_vec(),
+                        header: Some(header),
+                    });
+                    pos += 6 + length;
+                }
+                buf.copy_within(pos..len, 0);
+                len -= pos;
+            }
+            Framing::Rtu => rtu.push(&buf[..n], &mut |e| {
+                if let FrameEvent::Frame { bytes, .. } = e {
+                    requests.push(Request {
+                        unit: bytes[0],
+                        pdu: bytes[1..bytes.len() - 2].to_vec(),
+                        header: None,
+                    });
+                }
+            }),
+        }
+        for r in requests {
+            let answer = pass(&gw, &cfg, &r, may_write, &forbidden, &actor).await;
+            let Some(pdu) = answer else { continue };
+            let out = match r.header {
+                Some(h) => {
+                    let mut out = Vec::with_capacity(7 + pdu.len());
+                    out.extend_from_slice(&h[..4]);
+                    out.extend_from_slice(&((pdu.len() + 1) as u16).to_be_bytes());
+                    out.push(h[6]);
+                    out.extend_from_slice(&pdu);
+                    out
+                }
+                None => bus_frame(false, r.unit, &pdu),
+            };
+            sock.write_all(&out).await?;
+        }
+    }
+}
+
+/// Passes one request to the bus; returns the answer's PDU (`None`: none is due, a broadcast).
+async fn pass(
+    gw: &Arc<Gateway>,
+    cfg: &BridgeConfig,
+    r: &Request,
+    may_write: bool,
+    forbidden: &str,
+    actor: &str,
+) -> Option<Vec<u8>> {
+    let fc = *r.pdu.first()?;
+    let exception = |code: u8| Some(vec![fc | 0x80, code]);
+    let bus = gw.buses().iter().find(|b| b.config.name == cfg.bus)?.clone();
+    let ascii = bus.config.protocol == "modbus-ascii";
+    let write = is_write(fc);
+    // The drive's name where the gateway knows it, else bus@address.
+    let drive = gw
+        .drives()
+        .iter()
+        .find(|d| d.bus == cfg.bus && d.config.address == r.unit)
+        .map_or_else(|| format!("{}@{}", cfg.bus, r.unit), |d| d.config.name.clone());
+    let action = format!("modbus bridge: function {fc:02X} [{}]", hex(&r.pdu));
+    if write && !may_write {
+        audit(gw, &cfg.bus, &drive, actor, &action, forbidden.to_string()).await;
+        return if r.unit == 0 { None } else { exception(ILLEGAL_FUNCTION) };
+    }
+    let exchange = Exchange { request: bus_frame(ascii, r.unit, &r.pdu), expect_reply: r.unit != 0 };
+    let result = bus.owner().transact(r.unit, exchange, Priority::Bridge, None).await;
+    let (answer, outcome) = match result {
+        Ok(None) => (None, "ok (broadcast)".to_string()),
+        Ok(Some(frame)) => match reply_pdu(ascii, &frame) {
+            Some(p) if p.first().is_some_and(|f| f & 0x80 != 0) => {
+                let code = p.get(1).copied().unwrap_or(0);
+                (Some(p), format!("refused: exception {code:02X}"))
+            }
+            Some(p) => (Some(p), "ok".to_string()),
+            None => (exception(TARGET_FAILED), "failed: a reply the bridge cannot read".to_string()),
+        },
+        Err(BusError::BadRequest(e)) => (exception(ILLEGAL_FUNCTION), format!("refused: {e}")),
+        Err(e @ (BusError::Link(_) | BusError::Closed)) => {
+            (exception(PATH_UNAVAILABLE), format!("failed: {e}"))
+        }
+        Err(e) => (exception(TARGET_FAILED), format!("timeout: {e}")),
+    };
+    if write {
+        audit(gw, &cfg.bus, &drive, actor, &action, outcome).await;
+    }
+    answer
+}
+
+async fn audit(gw: &Arc<Gateway>, bus: &str, drive: &str, actor: &str, action: &str, result: String) {
+    let mut event = Event::new(unix_ms(), EventKind::Command);
+    event.bus = Some(bus.to_string());
+    event.drive = Some(drive.to_string());
+    event.actor = Some(actor.to_string());
+    event.action = Some(action.to_string());
+    event.result = Some(result);
+    event.detail = json!({});
+    let gw = gw.clone();
+    let _ = tokio::task::spawn_blocking(move || gw.record(event)).await;
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(" ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_for_the_bus_and_back() {
+        // Seed 004's example: 01 03 2102 0002.
+        let pdu = [0x03, 0x21, 0x02, 0x00, 0x02];
+        let rtu = bus_frame(false, 1, &pdu);
+        assert_eq!(rtu[..6], [1, 3, 0x21, 2, 0, 2]);
+        assert_eq!(reply_pdu(false, &rtu).unwrap(), pdu);
+        let ascii = bus_frame(true, 1, &pdu);
+        assert_eq!(ascii, b":010321020002D7\r\n");
+        assert_eq!(reply_pdu(true, &ascii).unwrap(), pdu);
+        assert_eq!(reply_pdu(true, b":01\r\n"), None);
+        assert!(is_write(0x06) && is_write(0x10) && !is_write(0x03));
+    }
+
+    #[test]
+    fn command_line_bridges_are_read_and_checked() {
+        let b = parse_arg("line-1=127.0.0.1:5021").unwrap();
+        assert_eq!((b.bus.as_str(), b.listen.port(), b.framing), ("line-1", 5021, Framing::Mbap));
+        assert!(parse_arg("line-1").unwrap_err().contains("BUS=HOST:PORT"));
+        assert!(parse_arg("line-1=nowhere").unwrap_err().contains("HOST:PORT"));
+    }
+}

@@ -9,12 +9,14 @@
 //! `.ci/install-witnesses.sh` installs asyncua and CI sets `DRIVEBUS_REQUIRE_INTEROP=1`, so there
 //! a missing witness is a failure; locally the test says on stderr that it did not run.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
 #[path = "support/http.rs"]
 mod http;
+#[path = "support/lines.rs"]
+mod lines;
+use lines::wait_for_lines as lines;
 
 struct Proc(Child);
 
@@ -31,26 +33,6 @@ fn script() -> PathBuf {
 
 fn has_asyncua() -> bool {
     Command::new("python3").args(["-c", "import asyncua"]).output().is_ok_and(|o| o.status.success())
-}
-
-/// Reads `child`'s stdout until a line starts with each of `want` (events, not sleeps); the rest
-/// of each such line, in the order of `want`. The rest of the output is drained.
-fn lines(child: &mut Child, what: &str, want: &[&str]) -> Vec<String> {
-    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let mut found: Vec<Option<String>> = vec![None; want.len()];
-    while found.iter().any(Option::is_none) {
-        let line = match lines.next() {
-            Some(Ok(l)) => l,
-            _ => panic!("{what} ended before printing {want:?}"),
-        };
-        for (i, prefix) in want.iter().enumerate() {
-            if let Some(rest) = line.trim().strip_prefix(prefix) {
-                found[i].get_or_insert_with(|| rest.trim().to_string());
-            }
-        }
-    }
-    std::thread::spawn(move || for _ in lines {});
-    found.into_iter().flatten().collect()
 }
 
 #[test]

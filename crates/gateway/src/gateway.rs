@@ -579,24 +579,18 @@ impl Gateway {
             needs_restart: plan.needs_restart.clone(),
             changed: !plan.is_empty(),
         };
-        self.record_async(Event {
-            id: 0,
-            time_ms: unix_ms(),
-            kind: EventKind::Reload,
-            bus: None,
-            drive: None,
-            actor: Some(actor.to_string()),
-            action: Some("reload".into()),
-            result: Some("ok".into()),
-            detail: plan.to_json(),
-        })
-        .await;
+        self.record_reload(actor, "ok".into(), plan.to_json()).await;
         Ok(reload)
     }
 
     /// Records a reload that was refused (the new configuration did not check): the old one
     /// keeps running.
     pub async fn reload_refused(self: &Arc<Self>, actor: &str, why: &str) {
+        self.record_reload(actor, format!("error: {why}"), json!({})).await;
+    }
+
+    /// A reload in the audit trail: by `actor`, ended with `result`, what changed in `detail`.
+    async fn record_reload(self: &Arc<Self>, actor: &str, result: String, detail: serde_json::Value) {
         self.record_async(Event {
             id: 0,
             time_ms: unix_ms(),
@@ -605,8 +599,8 @@ impl Gateway {
             drive: None,
             actor: Some(actor.to_string()),
             action: Some("reload".into()),
-            result: Some(format!("error: {why}")),
-            detail: json!({}),
+            result: Some(result),
+            detail,
         })
         .await;
     }

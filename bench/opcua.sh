@@ -6,7 +6,8 @@
 # Then, for each client count in $CLIENTS (default "1 20"), that many asyncua sessions
 # (bench/opcua_subscriber.py, core 1) subscribe to 6 variables of every drive (6000 monitored
 # items each) with sampling $SAMPLE_MS (default 1000) and publishing $PUBLISH_MS (default 1000):
-#   - the gateway's CPU over $SECS s, against the same window with no client (baseline);
+#   - the gateway's CPU over $SECS s, against the mean of the windows with no client just before
+#     and just after (the drives' and the stirrer's own load moves);
 #   - notifications/s and their latency from the drive's answer (source timestamp) to arrival;
 #   - the gateway's RSS per client.
 #
@@ -98,5 +99,8 @@ print(json.dumps({"clients": n, "clients_done": done, "notifications": len(lat),
                   "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0)}))
 PY
   rm -f "$TMP"/lat-*.json
-  python3 -c "print(f'gateway CPU {$CPU} % of a core: {round($CPU - $BASE, 1)} % above the baseline; RSS {$RSS} kB, {round(($RSS - $RSS0) / $n)} kB per client')"
+  # The load of the drives and of the HTTP stirrer moves: a baseline after as well as before.
+  AFTER=$(measure "$SECS")
+  python3 -c "b = ($BASE + $AFTER) / 2; print(f'gateway CPU {$CPU} % of a core; baselines {$BASE} and {$AFTER} %: {round($CPU - b, 1)} % above their mean; RSS {$RSS} kB, {round(($RSS - $RSS0) / $n)} kB per client')"
+  BASE=$AFTER
 done

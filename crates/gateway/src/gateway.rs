@@ -246,9 +246,6 @@ pub struct DriveEntry {
     poll: Drive,
     state: RwLock<DriveState>,
     locked: AtomicBool,
-    poll_now: AtomicBool,
-    /// Wakes the bus's poll scheduler (shared with the bus entry).
-    wake: Arc<Notify>,
     linking: AtomicBool,
     /// How the linkage's last write to this follower went: [`LINKAGE_NONE`], [`LINKAGE_HOLDS`]
     /// or [`LINKAGE_FAILS`]. Only the linkage changes it, so polls and operators' commands do
@@ -551,7 +548,7 @@ impl Gateway {
                         }
                         next.push(m.clone());
                     }
-                    _ => next.push(Arc::new(drive_entry(b, d, &kept.bus, &kept.wake)?)),
+                    _ => next.push(Arc::new(drive_entry(b, d, &kept.bus)?)),
                 }
             }
             let changed =
@@ -753,11 +750,19 @@ impl Gateway {
         actor: &str,
     ) -> Result<(), CommandError> {
         let d = self.drive(id)?;
-        let result = if d.locked() {
+        let mut result = if d.locked() {
             Err(CommandError::Locked(id.to_string()))
         } else {
             self.execute(&d, &command).await
         };
+        if let Err(CommandError::Refused { meaning, .. }) = &mut result {
+            // Say why from what the drive reports now.
+            self.refresh(&d).await;
+            if let Some(f) = d.with_state(|s| s.status.as_ref().and_then(|x| x.fault.clone())) {
+                *meaning =
+                    format!("{meaning}; the drive is tripped (fault {}: {}): reset it first", f.code, f.text);
+            }
+        }
         match &result {
             Ok(()) => self.counters.commands_ok.fetch_add(1, Ordering::Relaxed),
             Err(_) => self.counters.commands_failed.fetch_add(1, Ordering::Relaxed),
@@ -767,6 +772,11 @@ impl Gateway {
             Err(e) => format!("{}: {e}", e.kind()),
         };
         self.audit(Some(d.bus.clone()), id, actor, &command.action(), outcome).await;
+        if result.is_ok() {
+            // Read the drive's state now, so the answer (and every front end's cache) shows
+            // what the command did.
+            self.refresh(&d).await;
+        }
         result
     }
 
@@ -822,10 +832,14 @@ impl Gateway {
                 d.command.write_param(name, value, storage).await.map_err(map)?;
             }
         }
-        // Refresh the cache now rather than at the next poll.
-        d.poll_now.store(true, Ordering::Relaxed);
-        d.wake.notify_one();
         Ok(())
+    }
+
+    /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do).
+    async fn refresh(self: &Arc<Self>, d: &Arc<DriveEntry>) {
+        let Some(bus) = self.buses().iter().find(|b| b.config.name == d.bus).cloned() else { return };
+        let status = d.command.status().await;
+        self.update(&bus, d, status).await;
     }
 
     /// Reads parameter `name` of drive `id` from the drive (through the bus owner, ahead of polls).
@@ -867,12 +881,6 @@ impl Gateway {
             if mine.is_empty() {
                 wake.await;
                 continue;
-            }
-            // A drive whose command just went through is polled at once.
-            for (k, d) in mine.iter().enumerate() {
-                if d.poll_now.swap(false, Ordering::Relaxed) {
-                    due[k] = tokio::time::Instant::now();
-                }
             }
             let k = (0..mine.len()).min_by_key(|&k| (due[k], mine[k].config.priority)).expect("not empty");
             tokio::select! {
@@ -1102,8 +1110,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
     };
     let wake = Arc::new(Notify::new());
-    let members =
-        b.drives.iter().map(|d| drive_entry(b, d, &bus, &wake).map(Arc::new)).collect::<Result<_, _>>()?;
+    let members = b.drives.iter().map(|d| drive_entry(b, d, &bus).map(Arc::new)).collect::<Result<_, _>>()?;
     Ok(Arc::new(BusEntry {
         config: b.clone(),
         bus,
@@ -1117,7 +1124,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
 }
 
 /// A drive of bus `b`, reached through `bus`, with one profile for its commands and polls.
-fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus, wake: &Arc<Notify>) -> Result<DriveEntry, String> {
+fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, String> {
     let profile = drivebus_drive::profile::for_drive(d.family, &b.protocol, d.address)
         .map_err(|e| format!("drive {}: {e}", d.name))?;
     let mut command = Drive::new(bus.clone(), profile);
@@ -1133,8 +1140,6 @@ fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus, wake: &Arc<Notify>) ->
         poll,
         state: RwLock::new(DriveState::default()),
         locked: AtomicBool::new(d.locked),
-        poll_now: AtomicBool::new(false),
-        wake: wake.clone(),
         linking: AtomicBool::new(false),
         linkage: AtomicU8::new(LINKAGE_NONE),
     })

@@ -513,3 +513,38 @@ async fn the_openapi_schemas_match_what_is_served() {
     }
     drop(gw);
 }
+
+/// A command is answered with the drive's state read after the drive confirmed it: a speed
+/// answers its setpoint, a run answers running (the answer used to show the state before).
+#[tokio::test(start_paused = true)]
+async fn a_command_answers_with_the_state_that_shows_it() {
+    let (_gw, app) = app(true, false);
+    settle(2).await;
+    for id in ["conveyor-1", "pump-1", "ahu-1", "mixer-1"] {
+        let r = call(&app, "POST", &format!("/api/drives/{id}/run"), Some(WRITE), None).await;
+        assert_eq!(r.status, 200, "{id}: {}", r.json);
+        assert_eq!(r.json["drive"]["running"], true, "{id}: {}", r.json);
+        let r =
+            call(&app, "POST", &format!("/api/drives/{id}/speed"), Some(WRITE), Some(r#"{"hz": 40}"#)).await;
+        assert_eq!(r.status, 200, "{id}: {}", r.json);
+        assert_eq!(r.json["drive"]["setpoint_hz"], 40.0, "{id}: {}", r.json);
+    }
+}
+
+/// A generic drive that is tripped refuses a run with a Modbus exception; the refusal says that
+/// it is tripped and with what, from what the drive reports.
+#[tokio::test(start_paused = true)]
+async fn a_refusal_by_a_tripped_drive_says_it_is_tripped() {
+    let (gw, app) = app(true, false);
+    settle(2).await;
+    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap().clone();
+    {
+        let mut line = bus.line.as_ref().unwrap().lock().unwrap();
+        let port = (0..line.devices()).find(|&p| line.drive(p).is_some()).expect("a drive on the line");
+        let d = line.drive_mut(port).expect("conveyor-1, the bus's first drive");
+        d.core_mut().model.trip_now(drivebus_sim::model::Trip::OverCurrent);
+    }
+    let r = call(&app, "POST", "/api/drives/conveyor-1/run", Some(WRITE), None).await;
+    let m = assert_error(&r, 409, "refused");
+    assert!(m.contains("the drive is tripped (fault") && m.contains("reset it first"), "{m}");
+}

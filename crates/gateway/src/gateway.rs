@@ -595,7 +595,7 @@ impl Gateway {
             bus: None,
             drive: None,
             actor: Some(actor.to_string()),
-            action: Some("reload".into()),
+            action: None,
             result: Some(result),
             detail,
         })

@@ -22,6 +22,10 @@
 //! url = "mqtt://127.0.0.1:1883"
 //! allow_commands = ["line-1/*/stop"]    # command topics accepted: <bus>/<drive>/<command>, * = any
 //!
+//! [sparkplug]                           # optional: a Sparkplug B edge node (docs/sparkplug.md)
+//! urls = ["mqtt://10.0.0.9:1883"]       # tried in turn
+//! primary_host = "scada"                # publish only while this host's STATE is online
+//!
 //! [[token]]
 //! name = "scada"
 //! token = "change-me-0123456789"
@@ -96,6 +100,8 @@ pub struct GatewayConfig {
     pub linkage: Vec<Linkage>,
     /// MQTT publishing, if configured.
     pub mqtt: Option<MqttConfig>,
+    /// The Sparkplug B edge node, if configured.
+    pub sparkplug: Option<SparkplugConfig>,
 }
 
 /// The HTTP listener.
@@ -254,6 +260,50 @@ pub struct MqttConfig {
     pub credentials: Option<(String, String)>,
 }
 
+/// The Sparkplug B edge node (docs/sparkplug.md).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SparkplugConfig {
+    /// Brokers, `mqtt://HOST[:PORT]`, tried in turn when one cannot be reached.
+    pub urls: Vec<String>,
+    /// The Sparkplug group id.
+    pub group_id: String,
+    /// The edge node id (default: the gateway's name).
+    pub edge_node_id: Option<String>,
+    /// The primary host id: publish only while its STATE says online.
+    pub primary_host: Option<String>,
+    /// Whether DCMD commands reach the drives.
+    pub commands: bool,
+    /// User name and password for brokers that ask for them.
+    pub credentials: Option<(String, String)>,
+    /// Most data messages kept while nobody can receive them (oldest dropped first).
+    pub store_forward_max: u64,
+    /// Data messages older than this are dropped from the queue, seconds.
+    pub store_forward_max_age_s: u64,
+}
+
+/// The default Sparkplug group id.
+pub const SPARKPLUG_GROUP: &str = "drivebus";
+/// The default number of data messages kept for store-and-forward.
+pub const SPARKPLUG_STORE_MAX: u64 = 1_000_000;
+/// The default age limit of kept data messages, seconds (a day).
+pub const SPARKPLUG_STORE_MAX_AGE_S: u64 = 86_400;
+
+impl SparkplugConfig {
+    /// A configuration for broker `url` with every default (what `--sparkplug` makes).
+    pub fn new(url: &str) -> SparkplugConfig {
+        SparkplugConfig {
+            urls: vec![url.to_string()],
+            group_id: SPARKPLUG_GROUP.into(),
+            edge_node_id: None,
+            primary_host: None,
+            commands: false,
+            credentials: None,
+            store_forward_max: SPARKPLUG_STORE_MAX,
+            store_forward_max_age_s: SPARKPLUG_STORE_MAX_AGE_S,
+        }
+    }
+}
+
 // ---- the file as written -------------------------------------------------------------------
 
 #[derive(Deserialize)]
@@ -273,6 +323,7 @@ struct FileConfig {
     #[serde(default)]
     linkage: Vec<Spanned<FileLinkage>>,
     mqtt: Option<FileMqtt>,
+    sparkplug: Option<FileSparkplug>,
 }
 
 #[derive(Deserialize, Default)]
@@ -365,6 +416,22 @@ struct FileMqtt {
     password_env: Option<Spanned<String>>,
 }
 
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileSparkplug {
+    urls: Spanned<Vec<Spanned<String>>>,
+    group_id: Option<Spanned<String>>,
+    edge_node_id: Option<Spanned<String>>,
+    primary_host: Option<Spanned<String>>,
+    #[serde(default)]
+    commands: bool,
+    username: Option<Spanned<String>>,
+    password: Option<Spanned<String>>,
+    password_env: Option<Spanned<String>>,
+    store_forward_max: Option<Spanned<u64>>,
+    store_forward_max_age_s: Option<Spanned<u64>>,
+}
+
 struct Ctx<'a> {
     file: &'a str,
     text: &'a str,
@@ -377,6 +444,42 @@ impl Ctx<'_> {
     }
     fn err<T>(&self, span: Range<usize>, field: &str, msg: impl fmt::Display) -> Result<T, ConfigError> {
         Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
+    }
+
+    /// User name and password of section `section` (`mqtt`, `sparkplug`): both or neither; the
+    /// password as written or from the environment variable `password_env`.
+    fn credentials(
+        &self,
+        section: &str,
+        at: Range<usize>,
+        username: &Option<Spanned<String>>,
+        password: &Option<Spanned<String>>,
+        password_env: &Option<Spanned<String>>,
+    ) -> Result<Option<(String, String)>, ConfigError> {
+        let password = match (password, password_env) {
+            (Some(p), None) => Some(p.get_ref().clone()),
+            (None, Some(var)) => Some(std::env::var(var.get_ref()).or_else(|_| {
+                self.err(
+                    var.span(),
+                    &format!("{section}.password_env"),
+                    format!("the environment variable {:?} is not set", var.get_ref()),
+                )
+            })?),
+            (Some(p), Some(_)) => {
+                return self.err(p.span(), &format!("{section}.password"), "give password or password_env, not both")
+            }
+            (None, None) => None,
+        };
+        match (username, password) {
+            (Some(u), Some(p)) => Ok(Some((u.get_ref().clone(), p))),
+            (None, None) => Ok(None),
+            (Some(u), None) => self.err(
+                u.span(),
+                &format!("{section}.username"),
+                "give a password (or password_env) with the user name",
+            ),
+            (None, Some(_)) => self.err(at, &format!("{section}.username"), "a password needs a user name"),
+        }
     }
 
     /// The field a value at `span` belongs to (`bus.drive.address`): the key before `=` on its
@@ -408,6 +511,48 @@ impl Ctx<'_> {
 /// topic level, a URL path segment and a Prometheus label as it is.
 pub fn valid_name(name: &str) -> bool {
     !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// Checks the `[sparkplug]` section.
+fn sparkplug_section(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, ConfigError> {
+    if sp.urls.get_ref().is_empty() {
+        return cx.err(sp.urls.span(), "sparkplug.urls", "give at least one broker: [\"mqtt://HOST:PORT\"]");
+    }
+    for u in sp.urls.get_ref() {
+        if let Err(e) = crate::mqtt::parse_url(u.get_ref()) {
+            return cx.err(u.span(), "sparkplug.urls", e);
+        }
+    }
+    for (field, id) in
+        [("group_id", &sp.group_id), ("edge_node_id", &sp.edge_node_id), ("primary_host", &sp.primary_host)]
+    {
+        if let Some(id) = id {
+            if let Err(e) = crate::sparkplug::check_id(id.get_ref()) {
+                return cx.err(id.span(), &format!("sparkplug.{field}"), e);
+            }
+        }
+    }
+    let credentials =
+        cx.credentials("sparkplug", sp.urls.span(), &sp.username, &sp.password, &sp.password_env)?;
+    let positive = |v: &Option<Spanned<u64>>, field: &str, default: u64| match v {
+        Some(n) if *n.get_ref() == 0 => cx.err(n.span(), field, "give a number above 0"),
+        Some(n) => Ok(*n.get_ref()),
+        None => Ok(default),
+    };
+    Ok(SparkplugConfig {
+        urls: sp.urls.into_inner().into_iter().map(Spanned::into_inner).collect(),
+        group_id: sp.group_id.map_or_else(|| SPARKPLUG_GROUP.to_string(), Spanned::into_inner),
+        edge_node_id: sp.edge_node_id.map(Spanned::into_inner),
+        primary_host: sp.primary_host.map(Spanned::into_inner),
+        commands: sp.commands,
+        credentials,
+        store_forward_max: positive(&sp.store_forward_max, "sparkplug.store_forward_max", SPARKPLUG_STORE_MAX)?,
+        store_forward_max_age_s: positive(
+            &sp.store_forward_max_age_s,
+            "sparkplug.store_forward_max_age_s",
+            SPARKPLUG_STORE_MAX_AGE_S,
+        )?,
+    })
 }
 
 impl GatewayConfig {
@@ -757,34 +902,8 @@ impl GatewayConfig {
                         );
                     }
                 }
-                let password = match (&m.password, &m.password_env) {
-                    (Some(p), None) => Some(p.get_ref().clone()),
-                    (None, Some(var)) => Some(std::env::var(var.get_ref()).or_else(|_| {
-                        cx.err(
-                            var.span(),
-                            "mqtt.password_env",
-                            format!("the environment variable {:?} is not set", var.get_ref()),
-                        )
-                    })?),
-                    (Some(p), Some(_)) => {
-                        return cx.err(p.span(), "mqtt.password", "give password or password_env, not both")
-                    }
-                    (None, None) => None,
-                };
-                let credentials = match (&m.username, password) {
-                    (Some(u), Some(p)) => Some((u.get_ref().clone(), p)),
-                    (None, None) => None,
-                    (Some(u), None) => {
-                        return cx.err(
-                            u.span(),
-                            "mqtt.username",
-                            "give a password (or password_env) with the user name",
-                        )
-                    }
-                    (None, Some(_)) => {
-                        return cx.err(m.url.span(), "mqtt.username", "a password needs a user name")
-                    }
-                };
+                let credentials =
+                    cx.credentials("mqtt", m.url.span(), &m.username, &m.password, &m.password_env)?;
                 Some(MqttConfig {
                     url: m.url.get_ref().clone(),
                     topic_prefix: m.topic_prefix.map(|p| p.into_inner()),
@@ -796,12 +915,17 @@ impl GatewayConfig {
             }
         };
 
+        let sparkplug = match raw.sparkplug {
+            None => None,
+            Some(sp) => Some(sparkplug_section(&cx, sp)?),
+        };
+
         let store = if raw.store.disabled {
             None
         } else {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
-        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt })
+        Ok(GatewayConfig { name: gateway_name, http, modbus, store, tokens, buses, linkage, mqtt, sparkplug })
     }
 
     /// Every drive, in configuration order, with its bus.

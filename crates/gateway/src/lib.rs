@@ -33,6 +33,7 @@ pub mod mqtt;
 pub mod port;
 pub mod reload;
 pub mod server;
+pub mod sparkplug;
 
 pub use config::GatewayConfig;
 pub use gateway::{Command, CommandError, Gateway};

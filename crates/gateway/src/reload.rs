@@ -32,7 +32,7 @@ pub struct Plan {
     pub http_rules_changed: bool,
     /// The linkage rules changed.
     pub linkage_changed: bool,
-    /// Settings that changed and need a restart (listeners, store, MQTT, the gateway's name).
+    /// Settings that changed and need a restart (listeners, store, MQTT, Sparkplug, the gateway's name).
     pub needs_restart: Vec<String>,
 }
 
@@ -109,6 +109,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("modbus.max_connections", old.modbus.max_connections != new.modbus.max_connections),
         ("store", old.store != new.store),
         ("mqtt", old.mqtt != new.mqtt),
+        ("sparkplug", old.sparkplug != new.sparkplug),
         ("name", old.name != new.name),
     ];
     p.needs_restart = restart.iter().filter(|(_, c)| *c).map(|(n, _)| n.to_string()).collect();

@@ -1108,6 +1108,40 @@ mod tests {
     }
 
     #[test]
+    fn sparkplug_settings_have_defaults_and_are_checked() {
+        let c = GatewayConfig::from_toml("p.toml", "name = \"hall-1\"\n[sparkplug]\nurls = [\"mqtt://a\", \"mqtt://b:1884\"]\n")
+            .unwrap();
+        let sp = c.sparkplug.unwrap();
+        assert_eq!(sp.urls, ["mqtt://a", "mqtt://b:1884"]);
+        assert_eq!(sp.group_id, "drivebus");
+        assert_eq!((sp.edge_node_id, sp.primary_host, sp.commands), (None, None, false));
+        assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s), (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S));
+        let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
+                    primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
+                    store_forward_max = 10\nstore_forward_max_age_s = 60\n";
+        let sp = GatewayConfig::from_toml("p.toml", full).unwrap().sparkplug.unwrap();
+        assert_eq!(sp.edge_node_id.as_deref(), Some("hall-9"));
+        assert_eq!(sp.primary_host.as_deref(), Some("scada"));
+        assert_eq!(sp.credentials, Some(("u".into(), "p".into())));
+        assert!(sp.commands);
+        assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s), (10, 60));
+        let e = err("[sparkplug]\nurls = []\n");
+        assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: give at least one broker"), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\", \"tcp://b\"]\n");
+        assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: \"tcp://b\""), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"a/b\"\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.group_id`: "), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nprimary_host = \"#\"\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.primary_host`: "), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nstore_forward_max = 0\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0"), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nusername = \"u\"\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.username`: give a password"), "{e}");
+        let e = err("[sparkplug]\nurl = \"mqtt://a\"\n");
+        assert!(e.contains("unknown field `url`"), "{e}");
+    }
+
+    #[test]
     fn mqtt_credentials_come_whole_or_not_at_all() {
         let base = "[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\n";
         let c =

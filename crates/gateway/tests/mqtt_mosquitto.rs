@@ -8,8 +8,8 @@
 mod mqtt_support;
 
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::Command;
 
 use mqtt_support::*;
 

@@ -95,6 +95,11 @@ impl Metrics {
         self.stored.get()
     }
 
+    /// Data messages waiting in the store-and-forward queue, as last counted.
+    pub fn queued(&self) -> i64 {
+        self.queued.get()
+    }
+
     /// Connections made to a broker.
     pub fn connections(&self) -> u64 {
         self.connections.get()

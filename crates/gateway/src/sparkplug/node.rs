@@ -533,3 +533,195 @@ fn check_type(m: &Metric, want: DataType) -> Result<(), Refusal> {
         None => Err(refuse("wrong_type", format!("no value: give a {}", want.as_str()))),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gateway::FaultView;
+    use drivebus_drive::{Catalog, Family};
+
+    fn view(id: &str, online: Option<bool>, hz: f64) -> DriveView {
+        DriveView {
+            id: id.into(),
+            bus: "line-1".into(),
+            family: "generic".into(),
+            protocol: "modbus-rtu".into(),
+            address: 1,
+            unit_id: 1,
+            locked: false,
+            online,
+            running: Some(hz > 0.0),
+            direction: Some("forward".into()),
+            output_hz: Some(hz),
+            setpoint_hz: Some(40.0),
+            current_a: Some(1.5),
+            fault: None,
+            age_ms: Some(0),
+            last_seen_ms: Some(1_000),
+            error_rate: 0.0,
+            polls: 1,
+            last_error: None,
+            poll_ms: 250,
+        }
+    }
+
+    fn params() -> Vec<ParamDef> {
+        Catalog::load(Family::Generic).unwrap().iter().filter(|p| !p.read_only).cloned().collect()
+    }
+
+    fn node() -> Node {
+        let mut n = Node::new("plant", "hall-1");
+        n.sync_devices(vec![("pump-1".into(), params()), ("pump-2".into(), params())]);
+        n
+    }
+
+    fn birth(n: &mut Node, id: &str) -> Payload {
+        match n.on_drive(&view(id, Some(true), 0.0), true, 5) {
+            Some(DeviceMessage::Birth(p)) => p,
+            other => panic!("no DBIRTH: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn aliases_are_unique_across_the_node_and_kept_by_a_rebirth() {
+        let mut n = node();
+        let nb = n.nbirth(7, &[], 1);
+        let a = birth(&mut n, "pump-1");
+        let b = birth(&mut n, "pump-2");
+        let mut aliases: Vec<u64> =
+            nb.metrics.iter().chain(&a.metrics).chain(&b.metrics).filter_map(|m| m.alias).collect();
+        let count = aliases.len();
+        aliases.sort_unstable();
+        aliases.dedup();
+        assert_eq!(aliases.len(), count, "aliases repeat");
+        assert!(a.metrics.iter().all(|m| m.alias.is_some() && m.name.is_some() && m.datatype.is_some()));
+        let hz = a.metrics.iter().find(|m| m.name.as_deref() == Some("OutputFrequency")).unwrap();
+        assert_eq!(hz.properties.as_ref().unwrap().keys, ["engUnit"]);
+        n.nbirth(7, &[], 2);
+        assert_eq!(birth(&mut n, "pump-1").metrics, a.metrics.iter().map(|m| Metric { timestamp: Some(1_000), ..m.clone() }).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn seq_starts_at_zero_with_nbirth_and_wraps_after_255() {
+        let mut n = node();
+        assert_eq!(n.nbirth(0, &[], 1).seq, Some(0));
+        let mut p = Payload::default();
+        for expected in (1..=255).chain(0..=1) {
+            n.stamp(&mut p);
+            assert_eq!(p.seq, Some(expected));
+        }
+        assert_eq!(n.nbirth(0, &[], 1).seq, Some(0));
+    }
+
+    #[test]
+    fn data_on_change_only_death_when_offline_birth_when_back() {
+        let mut n = node();
+        n.nbirth(0, &[], 1);
+        birth(&mut n, "pump-1");
+        assert_eq!(n.on_drive(&view("pump-1", Some(true), 0.0), true, 6), None);
+        let Some(DeviceMessage::Data(p)) = n.on_drive(&view("pump-1", Some(true), 12.5), true, 7) else { panic!() };
+        let names: Vec<_> = p.metrics.iter().map(|m| m.name.clone().unwrap()).collect();
+        assert_eq!(names, ["OutputFrequency", "Running"]);
+        assert_eq!(p.metrics[0].timestamp, Some(1_000), "the time the drive answered");
+        assert!(Node::live(p).metrics.iter().all(|m| m.name.is_none() && m.alias.is_some()));
+        assert!(matches!(n.on_drive(&view("pump-1", Some(false), 12.5), true, 8), Some(DeviceMessage::Death(_))));
+        assert_eq!(n.on_drive(&view("pump-1", Some(false), 12.5), true, 9), None);
+        assert!(matches!(n.on_drive(&view("pump-1", Some(true), 12.5), true, 10), Some(DeviceMessage::Birth(_))));
+        // A fault shows in FaultCode and FaultText.
+        let mut v = view("pump-1", Some(true), 12.5);
+        v.fault = Some(FaultView { code: 0x21, text: "overcurrent".into() });
+        let Some(DeviceMessage::Data(p)) = n.on_drive(&v, true, 11) else { panic!() };
+        assert_eq!(p.metrics[0].value, Some(Value::Int(0x21)));
+        assert_eq!(p.metrics[1].value, Some(Value::String("overcurrent".into())));
+    }
+
+    #[test]
+    fn kept_data_goes_back_out_with_this_session_s_aliases_flagged_historical() {
+        let mut n = node();
+        // Nobody listens: data is made with names for the store.
+        let Some(DeviceMessage::Data(p)) = n.on_drive(&view("pump-1", Some(true), 3.0), false, 1) else { panic!() };
+        let kept = Node::to_keep(p);
+        assert!(kept.metrics.iter().all(|m| m.alias.is_none() && m.name.is_some()));
+        assert_eq!(n.historical("pump-1", kept.clone()), None, "not born yet");
+        n.nbirth(0, &[], 2);
+        let b = birth(&mut n, "pump-1");
+        let h = n.historical("pump-1", kept).unwrap();
+        let hz_alias = b.metrics.iter().find(|m| m.name.as_deref() == Some("OutputFrequency")).unwrap().alias;
+        assert_eq!(h.metrics[0].alias, hz_alias);
+        assert!(h.metrics.iter().all(|m| m.is_historical == Some(true) && m.name.is_none()));
+    }
+
+    fn cmd(name: &str, value: Value, datatype: DataType) -> Payload {
+        Payload {
+            metrics: vec![Metric {
+                name: Some(name.into()),
+                datatype: Some(datatype as u32),
+                value: Some(value),
+                ..Metric::default()
+            }],
+            ..Payload::default()
+        }
+    }
+
+    #[test]
+    fn commands_are_read_by_name_or_alias_and_checked_before_any_is_sent() {
+        let mut n = node();
+        n.nbirth(0, &[], 1);
+        let b = birth(&mut n, "pump-1");
+        let alias = |name: &str| b.metrics.iter().find(|m| m.name.as_deref() == Some(name)).unwrap().alias;
+        assert_eq!(n.device_command("pump-1", &cmd("Setpoint", Value::Double(30.0), DataType::Double)), Ok(vec![Command::Speed(30.0)]));
+        let mut by_alias = cmd("x", Value::Boolean(true), DataType::Boolean);
+        by_alias.metrics[0].name = None;
+        by_alias.metrics[0].alias = alias("Command/Run");
+        assert_eq!(n.device_command("pump-1", &by_alias), Ok(vec![Command::Run]));
+        let p = params().into_iter().find(|p| p.max > p.min).unwrap();
+        let ok = p.from_raw(p.min);
+        assert_eq!(
+            n.device_command("pump-1", &cmd(&format!("Parameters/{}", p.name), Value::Double(ok), DataType::Double)),
+            Ok(vec![Command::SetParam { name: p.name.clone(), value: format!("{ok}"), eeprom: false }])
+        );
+        let kind = |r: Result<Vec<Command>, Refusal>| r.unwrap_err().kind;
+        assert_eq!(kind(n.device_command("pump-9", &cmd("Setpoint", Value::Double(1.0), DataType::Double))), "unknown_device");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("Speed", Value::Double(1.0), DataType::Double))), "unknown_metric");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("OutputFrequency", Value::Double(1.0), DataType::Double))), "unknown_metric");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::String("x".into()), DataType::String))), "wrong_type");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::Float(3.0), DataType::Double))), "wrong_type");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::Double(-1.0), DataType::Double))), "out_of_range");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::Double(f64::NAN), DataType::Double))), "out_of_range");
+        assert_eq!(kind(n.device_command("pump-1", &cmd("Command/Stop", Value::Boolean(false), DataType::Boolean))), "out_of_range");
+        let too_big = p.from_raw(p.max) + 1000.0;
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd(&format!("Parameters/{}", p.name), Value::Double(too_big), DataType::Double))),
+            "out_of_range"
+        );
+        // One bad metric refuses the whole message.
+        let mut both = cmd("Command/Run", Value::Boolean(true), DataType::Boolean);
+        both.metrics.extend(cmd("Nonsense", Value::Boolean(true), DataType::Boolean).metrics);
+        assert_eq!(kind(n.device_command("pump-1", &both)), "unknown_metric");
+        assert_eq!(n.node_command(&cmd(REBIRTH, Value::Boolean(true), DataType::Boolean)), Ok(vec![NodeCommand::Rebirth]));
+        assert_eq!(n.node_command(&cmd(REBIRTH, Value::Boolean(false), DataType::Boolean)).unwrap_err().kind, "out_of_range");
+        assert_eq!(n.node_command(&cmd("Reboot", Value::Boolean(true), DataType::Boolean)).unwrap_err().kind, "unknown_metric");
+    }
+
+    #[test]
+    fn a_removed_drive_needs_a_death_and_a_new_one_new_aliases() {
+        let mut n = node();
+        let nb = n.nbirth(0, &[], 1);
+        let a = birth(&mut n, "pump-1");
+        birth(&mut n, "pump-2");
+        let dead = n.sync_devices(vec![("pump-1".into(), params()), ("fan-1".into(), params())]);
+        assert_eq!(dead, ["pump-2"]);
+        assert!(n.is_born("pump-1") && !n.is_born("fan-1"));
+        let f = birth(&mut n, "fan-1");
+        let used: Vec<u64> = nb.metrics.iter().chain(&a.metrics).filter_map(|m| m.alias).collect();
+        assert!(f.metrics.iter().all(|m| !used.contains(&m.alias.unwrap())));
+    }
+
+    #[test]
+    fn ids_are_topic_levels() {
+        assert!(check_id("hall-1").is_ok());
+        for bad in ["", "a/b", "a+", "#"] {
+            assert!(check_id(bad).is_err(), "{bad}");
+        }
+    }
+}

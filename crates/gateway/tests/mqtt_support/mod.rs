@@ -121,6 +121,8 @@ pub struct Msg {
     pub topic: String,
     /// Its payload as text.
     pub text: String,
+    /// Its payload as it came.
+    pub payload: Vec<u8>,
     /// Whether it came as a retained message.
     pub retain: bool,
 }
@@ -138,7 +140,7 @@ impl Subscriber {
     pub async fn start(broker: SocketAddr, id: &str, filter: &str) -> Subscriber {
         let mut opts = MqttOptions::new(id, broker.ip().to_string(), broker.port());
         opts.set_keep_alive(Duration::from_secs(30));
-        opts.set_max_packet_size(64 * 1024, 64 * 1024);
+        opts.set_max_packet_size(1 << 20, 64 * 1024);
         let (client, mut eventloop) = AsyncClient::new(opts, 100);
         client.subscribe(filter, QoS::AtLeastOnce).await.unwrap();
         let log: Arc<Mutex<Vec<Msg>>> = Arc::default();
@@ -149,6 +151,7 @@ impl Subscriber {
                     Ok(Event::Incoming(Packet::Publish(p))) => log2.lock().unwrap().push(Msg {
                         topic: p.topic.clone(),
                         text: String::from_utf8_lossy(&p.payload).into_owned(),
+                        payload: p.payload.to_vec(),
                         retain: p.retain,
                     }),
                     Ok(_) => {}

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs the programs nobody here wrote that the tests use as witnesses: pymodbus (PyPI), and
+# Installs the programs nobody here wrote that the tests use as witnesses: pymodbus and the
+# Sparkplug host's pysparkplug + paho-mqtt (PyPI), and
 # from Debian mbpoll, curl, mosquitto, chromium + chromium-driver (the dashboard's browser test)
 # and systemd (systemd-analyze, for the package check); and cargo-deb (crates.io) to build the
 # Debian package. Idempotent: each is installed only when missing.
@@ -41,6 +42,10 @@ pip_install() {
 }
 
 pip_install "pymodbus, serial" "pymodbus==3.16.1" pyserial
+# The Python Sparkplug B host of crates/cli/tests/sparkplug.rs: paho-mqtt and the Sparkplug B schema
+# as pysparkplug ships it (tests/interop/sparkplug_host.py).
+pip_install "pysparkplug._protobuf.sparkplug_b_pb2, paho.mqtt.client" \
+  "pysparkplug==0.6.1" "paho-mqtt==1.6.1" "protobuf==7.36.2"
 apt_install mbpoll mbpoll
 # curl drives `drivebus serve` in crates/cli/tests/serve.rs (it falls back to plain HTTP/1.1).
 apt_install curl curl
@@ -57,6 +62,7 @@ if ! cargo deb --version >/dev/null 2>&1; then
 fi
 
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
+python3 -c "import importlib.metadata as m; print(*(f'{p} {m.version(p)}' for p in ('pysparkplug', 'paho-mqtt', 'protobuf')))"
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
 (chromium --version 2>/dev/null || chromium-browser --version) | head -n 1

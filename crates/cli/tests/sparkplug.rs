@@ -15,10 +15,10 @@ use std::sync::{Arc, Mutex};
 
 use serde_json::Value;
 
-#[path = "../../gateway/tests/mqtt_support/mod.rs"]
-mod mqtt_support;
 #[path = "support/http.rs"]
 mod http;
+#[path = "../../gateway/tests/mqtt_support/mod.rs"]
+mod mqtt_support;
 
 use mqtt_support::{demo_drives, free_port, mosquitto_binary, Mosquitto, PATIENCE};
 
@@ -71,7 +71,8 @@ impl Host {
         let sink = log.clone();
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                let v = serde_json::from_str(&line).unwrap_or_else(|_| serde_json::json!({"type": "text", "what": line}));
+                let v = serde_json::from_str(&line)
+                    .unwrap_or_else(|_| serde_json::json!({"type": "text", "what": line}));
                 sink.lock().unwrap().push(v);
             }
         });
@@ -154,9 +155,7 @@ impl Serve {
     /// A counter of `/metrics` (0 when absent).
     fn metric(&self, series: &str) -> f64 {
         let (_, body) = http::request(self.http, "GET", "/metrics", None, None);
-        body.lines()
-            .find_map(|l| l.strip_prefix(series).and_then(|v| v.trim().parse().ok()))
-            .unwrap_or(0.0)
+        body.lines().find_map(|l| l.strip_prefix(series).and_then(|v| v.trim().parse().ok())).unwrap_or(0.0)
     }
 
     /// The drive's output frequency as the HTTP API shows it.
@@ -193,7 +192,8 @@ fn metric<'a>(m: &'a Value, name: &str) -> Option<&'a Value> {
 /// Index of the first NBIRTH of `edge` at or after `from`, once every demo drive's DBIRTH followed.
 fn births_from(log: &[Value], edge: &str, from: usize) -> Option<usize> {
     let (at, _) = of(log, "NBIRTH", edge).find(|(i, _)| *i >= from)?;
-    let born: Vec<&str> = of(log, "DBIRTH", edge).filter(|(i, _)| *i > at).filter_map(|(_, m)| m["device"].as_str()).collect();
+    let born: Vec<&str> =
+        of(log, "DBIRTH", edge).filter(|(i, _)| *i > at).filter_map(|(_, m)| m["device"].as_str()).collect();
     demo_drives().iter().all(|(_, d)| born.contains(&d.as_str())).then_some(at)
 }
 
@@ -227,12 +227,26 @@ async fn a_python_host_sees_births_data_commands_refusals_and_a_rebirth() {
     assert!(metric(nbirth, "Buses/line-toshiba/Transactions").is_some(), "{nbirth}");
     let dbirth = of(&log, "DBIRTH", "hall-1").find(|(_, m)| m["device"] == "pump-1").unwrap().1;
     for name in [
-        "OutputFrequency", "Setpoint", "Current", "Running", "Direction", "FaultCode", "FaultText", "Online",
-        "Command/Run", "Command/Stop", "Command/Reverse", "Command/Reset",
+        "OutputFrequency",
+        "Setpoint",
+        "Current",
+        "Running",
+        "Direction",
+        "FaultCode",
+        "FaultText",
+        "Online",
+        "Command/Run",
+        "Command/Stop",
+        "Command/Reverse",
+        "Command/Reset",
     ] {
         assert!(metric(dbirth, name).is_some_and(|m| m["alias"].is_u64()), "{name} in {dbirth}");
     }
-    assert!(dbirth["metrics"].as_array().unwrap().iter().any(|m| m["name"].as_str().unwrap().starts_with("Parameters/")));
+    assert!(dbirth["metrics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|m| m["name"].as_str().unwrap().starts_with("Parameters/")));
 
     // Speed and run by DCMD (by alias, as the host learnt it): DDATA reach the speed.
     let mark = host.len();
@@ -268,8 +282,12 @@ async fn a_python_host_sees_births_data_commands_refusals_and_a_rebirth() {
     // Every command is in the audit trail under the edge node's name.
     let store = drivebus_store::Store::open_read_only(&dir.path().join("a.db")).unwrap();
     let events = store.events(&drivebus_store::EventFilter { limit: 1000, ..Default::default() }).unwrap();
-    let ours: Vec<_> = events.iter().filter(|e| e.actor.as_deref() == Some("sparkplug:drivebus/hall-1")).collect();
-    assert!(ours.iter().any(|e| e.action.as_deref() == Some("speed 30 Hz") && e.result.as_deref() == Some("ok")), "{ours:?}");
+    let ours: Vec<_> =
+        events.iter().filter(|e| e.actor.as_deref() == Some("sparkplug:drivebus/hall-1")).collect();
+    assert!(
+        ours.iter().any(|e| e.action.as_deref() == Some("speed 30 Hz") && e.result.as_deref() == Some("ok")),
+        "{ours:?}"
+    );
     assert!(ours.iter().any(|e| e.action.as_deref() == Some("run")), "{ours:?}");
 }
 
@@ -284,9 +302,8 @@ async fn kill_9_brings_the_ndeath_and_a_restart_the_next_bd_seq() {
     let at = wait_births(&host, "hall-k", 0).await;
     let bd_seq = host.log()[at]["bdSeq"].as_u64().unwrap();
     gw.kill();
-    let death = host
-        .wait("the NDEATH", |log| of(log, "NDEATH", "hall-k").next().map(|(_, m)| m.clone()))
-        .await;
+    let death =
+        host.wait("the NDEATH", |log| of(log, "NDEATH", "hall-k").next().map(|(_, m)| m.clone())).await;
     assert_eq!(death["bdSeq"].as_u64(), Some(bd_seq), "{death}");
     let mark = host.len();
     let _gw = Serve::start("hall-k", &db, broker.addr, &[]);
@@ -306,14 +323,16 @@ async fn wait_metric(gw: &Serve, series: &str, at_least: f64) {
 /// Waits for historical DDATA of pump-1 (after `from`) that reach `hz`.
 async fn wait_kept(host: &Host, from: usize, hz: f64) {
     host.wait(&format!("kept data of pump-1 up to {hz} Hz"), |log| {
-        log.iter().skip(from).any(|m| {
-            m["type"] == "DDATA"
-                && m["device"] == "pump-1"
-                && metric(m, "OutputFrequency").is_some_and(|x| {
-                    x["historical"] == true && x["value"].as_f64().is_some_and(|v| (v - hz).abs() < 0.05)
-                })
-        })
-        .then_some(())
+        log.iter()
+            .skip(from)
+            .any(|m| {
+                m["type"] == "DDATA"
+                    && m["device"] == "pump-1"
+                    && metric(m, "OutputFrequency").is_some_and(|x| {
+                        x["historical"] == true && x["value"].as_f64().is_some_and(|v| (v - hz).abs() < 0.05)
+                    })
+            })
+            .then_some(())
     })
     .await
 }
@@ -321,7 +340,8 @@ async fn wait_kept(host: &Host, from: usize, hz: f64) {
 /// From `from` on: the DDATA of `device` while the host listened again: historical ones first,
 /// in time order, rising `OutputFrequency` up to `hz`, then live ones.
 fn check_history(log: &[Value], edge: &str, device: &str, from: usize, hz: f64) {
-    let ddata: Vec<&Value> = of(log, "DDATA", edge).filter(|(i, m)| *i > from && m["device"] == device).map(|(_, m)| m).collect();
+    let ddata: Vec<&Value> =
+        of(log, "DDATA", edge).filter(|(i, m)| *i > from && m["device"] == device).map(|(_, m)| m).collect();
     let historical = |m: &Value| m["metrics"].as_array().unwrap().iter().all(|x| x["historical"] == true);
     let split = ddata.iter().position(|m| !historical(m)).unwrap_or(ddata.len());
     assert!(ddata[split..].iter().all(|m| !historical(m)), "historical data after live data");
@@ -354,7 +374,10 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     let offline = host.len();
     gw.wait_hz("pump-1", 40.0).await;
     wait_metric(&gw, "drivebus_sparkplug_stored_total", 3.0).await;
-    assert!(of(&host.log(), "DDATA", "hall-s").all(|(i, _)| i < offline), "live DDATA while the host was offline");
+    assert!(
+        of(&host.log(), "DDATA", "hall-s").all(|(i, _)| i < offline),
+        "live DDATA while the host was offline"
+    );
     host.send("state online");
     let back = wait_births(&host, "hall-s", offline).await;
     wait_kept(&host, back, 40.0).await;
@@ -372,7 +395,10 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     // The broker goes away while pump-1 ramps down to 20 Hz, and comes back empty.
     let bd_seq = host.log()[back]["bdSeq"].as_u64().unwrap();
     host.send("dcmd hall-s pump-1 Setpoint double 20");
-    host.wait("the new setpoint", |log| (latest(log, "pump-1", "Setpoint", back)?.as_f64()? == 20.0).then_some(())).await;
+    host.wait("the new setpoint", |log| {
+        (latest(log, "pump-1", "Setpoint", back)?.as_f64()? == 20.0).then_some(())
+    })
+    .await;
     broker.stop();
     drop(host);
     gw.wait_hz("pump-1", 20.0).await;
@@ -389,7 +415,10 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     })
     .await;
     let log = host.log();
-    let ddata: Vec<&Value> = of(&log, "DDATA", "hall-s").filter(|(i, m)| *i > back && m["device"] == "pump-1").map(|(_, m)| m).collect();
+    let ddata: Vec<&Value> = of(&log, "DDATA", "hall-s")
+        .filter(|(i, m)| *i > back && m["device"] == "pump-1")
+        .map(|(_, m)| m)
+        .collect();
     let hzs: Vec<f64> = ddata
         .iter()
         .take_while(|m| m["metrics"][0]["historical"] == true)

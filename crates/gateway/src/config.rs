@@ -466,7 +466,11 @@ impl Ctx<'_> {
                 )
             })?),
             (Some(p), Some(_)) => {
-                return self.err(p.span(), &format!("{section}.password"), "give password or password_env, not both")
+                return self.err(
+                    p.span(),
+                    &format!("{section}.password"),
+                    "give password or password_env, not both",
+                )
             }
             (None, None) => None,
         };
@@ -546,7 +550,11 @@ fn sparkplug_section(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, Con
         primary_host: sp.primary_host.map(Spanned::into_inner),
         commands: sp.commands,
         credentials,
-        store_forward_max: positive(&sp.store_forward_max, "sparkplug.store_forward_max", SPARKPLUG_STORE_MAX)?,
+        store_forward_max: positive(
+            &sp.store_forward_max,
+            "sparkplug.store_forward_max",
+            SPARKPLUG_STORE_MAX,
+        )?,
         store_forward_max_age_s: positive(
             &sp.store_forward_max_age_s,
             "sparkplug.store_forward_max_age_s",
@@ -1109,13 +1117,19 @@ mod tests {
 
     #[test]
     fn sparkplug_settings_have_defaults_and_are_checked() {
-        let c = GatewayConfig::from_toml("p.toml", "name = \"hall-1\"\n[sparkplug]\nurls = [\"mqtt://a\", \"mqtt://b:1884\"]\n")
-            .unwrap();
+        let c = GatewayConfig::from_toml(
+            "p.toml",
+            "name = \"hall-1\"\n[sparkplug]\nurls = [\"mqtt://a\", \"mqtt://b:1884\"]\n",
+        )
+        .unwrap();
         let sp = c.sparkplug.unwrap();
         assert_eq!(sp.urls, ["mqtt://a", "mqtt://b:1884"]);
         assert_eq!(sp.group_id, "drivebus");
         assert_eq!((sp.edge_node_id, sp.primary_host, sp.commands), (None, None, false));
-        assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s), (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S));
+        assert_eq!(
+            (sp.store_forward_max, sp.store_forward_max_age_s),
+            (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S)
+        );
         let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
                     primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
                     store_forward_max = 10\nstore_forward_max_age_s = 60\n";
@@ -1134,7 +1148,10 @@ mod tests {
         let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nprimary_host = \"#\"\n");
         assert!(e.starts_with("plant.toml:3: field `sparkplug.primary_host`: "), "{e}");
         let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nstore_forward_max = 0\n");
-        assert!(e.starts_with("plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0"), "{e}");
+        assert!(
+            e.starts_with("plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0"),
+            "{e}"
+        );
         let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nusername = \"u\"\n");
         assert!(e.starts_with("plant.toml:3: field `sparkplug.username`: give a password"), "{e}");
         let e = err("[sparkplug]\nurl = \"mqtt://a\"\n");

@@ -17,7 +17,8 @@ fn drive(name: &str, address: u8) -> String {
 }
 
 fn bus(name: &str, drives: &[(&str, u8)]) -> String {
-    let mut s = format!("[[bus]]\nname = \"{name}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n");
+    let mut s =
+        format!("[[bus]]\nname = \"{name}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n");
     for (d, a) in drives {
         s.push_str(&drive(d, *a));
     }
@@ -25,7 +26,8 @@ fn bus(name: &str, drives: &[(&str, u8)]) -> String {
 }
 
 fn config(name: &str, buses: &str) -> GatewayConfig {
-    GatewayConfig::from_toml("plant.toml", &format!("name = \"{name}\"\n[store]\ndisabled = true\n{buses}")).unwrap()
+    GatewayConfig::from_toml("plant.toml", &format!("name = \"{name}\"\n[store]\ndisabled = true\n{buses}"))
+        .unwrap()
 }
 
 fn sparkplug(broker: SocketAddr) -> SparkplugConfig {
@@ -75,7 +77,10 @@ async fn a_reload_brings_dbirth_for_added_drives_ddeath_for_removed_ones_and_a_r
     .await;
     {
         let log = sub.log.lock().unwrap();
-        assert!(!log[mark..].iter().any(|m| kind(m, "hall-r").is_some_and(|(k, _)| k == "NBIRTH")), "no rebirth for drives");
+        assert!(
+            !log[mark..].iter().any(|m| kind(m, "hall-r").is_some_and(|(k, _)| k == "NBIRTH")),
+            "no rebirth for drives"
+        );
         assert_seq_continues(&log, "hall-r");
     }
 

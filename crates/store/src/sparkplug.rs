@@ -12,7 +12,8 @@ use crate::{Store, StoreError};
 pub const SPARKPLUG_SCHEMA: &str = "
 CREATE TABLE IF NOT EXISTS sparkplug_node (
     node    TEXT PRIMARY KEY,
-    bd_seq  INTEGER NOT NULL
+    bd_seq  INTEGER,
+    queued  INTEGER NOT NULL DEFAULT 0
 );
 CREATE TABLE IF NOT EXISTS sparkplug_spool (
     id      INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -22,6 +23,7 @@ CREATE TABLE IF NOT EXISTS sparkplug_spool (
     payload BLOB NOT NULL
 );
 CREATE INDEX IF NOT EXISTS sparkplug_spool_node ON sparkplug_spool (node, id);
+CREATE INDEX IF NOT EXISTS sparkplug_spool_time ON sparkplug_spool (node, time_ms);
 ";
 
 /// A message waiting in the store-and-forward queue.
@@ -37,13 +39,16 @@ pub struct Spooled {
     pub payload: Vec<u8>,
 }
 
-/// How many queued messages a push dropped to stay within its limits.
+/// What a push did: how many queued messages it dropped to stay within its limits, and how
+/// many are queued now.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SpoolDropped {
     /// Dropped because the queue held more than its number of messages (oldest first).
     pub over_count: u64,
     /// Dropped because they were older than the age limit.
     pub too_old: u64,
+    /// Messages in the queue after the push.
+    pub queued: u64,
 }
 
 impl Store {
@@ -56,7 +61,8 @@ impl Store {
         let last: Option<i64> = conn
             .query_row("SELECT bd_seq FROM sparkplug_node WHERE node = ?1", [node], |r| r.get(0))
             .optional()
-            .map_err(sq)?;
+            .map_err(sq)?
+            .flatten();
         let next = last.map_or(0, |l| (l + 1).rem_euclid(256));
         conn.execute(
             "INSERT INTO sparkplug_node (node, bd_seq) VALUES (?1, ?2)
@@ -92,10 +98,8 @@ impl Store {
         let too_old = tx
             .execute("DELETE FROM sparkplug_spool WHERE node = ?1 AND time_ms < ?2", params![node, oldest_ms])
             .map_err(sq)? as u64;
-        let count: i64 = tx
-            .query_row("SELECT count(*) FROM sparkplug_spool WHERE node = ?1", [node], |r| r.get(0))
-            .map_err(sq)?;
-        let excess = (count as u64).saturating_sub(max_messages);
+        let count = (queued(&tx, node).map_err(sq)? + items.len() as u64).saturating_sub(too_old);
+        let excess = count.saturating_sub(max_messages);
         let over_count = if excess > 0 {
             tx.execute(
                 "DELETE FROM sparkplug_spool WHERE id IN
@@ -106,8 +110,10 @@ impl Store {
         } else {
             0
         };
+        let now = count.saturating_sub(over_count);
+        set_queued(&tx, node, now).map_err(sq)?;
         tx.commit().map_err(sq)?;
-        Ok(SpoolDropped { over_count, too_old })
+        Ok(SpoolDropped { over_count, too_old, queued: now })
     }
 
     /// The oldest `max` messages of `node`'s queue, oldest first (they stay queued until
@@ -128,20 +134,41 @@ impl Store {
         rows.collect::<Result<Vec<_>, _>>().map_err(sq)
     }
 
-    /// Removes `node`'s queued messages up to and including id `through` (they were sent).
-    pub fn spool_remove(&self, node: &str, through: i64) -> Result<(), StoreError> {
-        let conn = self.writer()?;
-        conn.execute("DELETE FROM sparkplug_spool WHERE node = ?1 AND id <= ?2", params![node, through])
-            .map_err(|e| StoreError::sqlite(self.path(), "removing sent Sparkplug messages", e))?;
-        Ok(())
+    /// Removes `node`'s queued messages up to and including id `through` (they were sent);
+    /// returns how many are still queued.
+    pub fn spool_remove(&self, node: &str, through: i64) -> Result<u64, StoreError> {
+        let mut conn = self.writer()?;
+        let sq = |e| StoreError::sqlite(self.path(), "removing sent Sparkplug messages", e);
+        let tx = conn.transaction().map_err(sq)?;
+        let removed = tx
+            .execute("DELETE FROM sparkplug_spool WHERE node = ?1 AND id <= ?2", params![node, through])
+            .map_err(sq)? as u64;
+        let now = queued(&tx, node).map_err(sq)?.saturating_sub(removed);
+        set_queued(&tx, node, now).map_err(sq)?;
+        tx.commit().map_err(sq)?;
+        Ok(now)
     }
 
-    /// How many messages wait in `node`'s queue.
+    /// How many messages wait in `node`'s queue (kept as a count, not counted row by row).
     pub fn spool_len(&self, node: &str) -> Result<u64, StoreError> {
         let conn = self.writer()?;
-        let n: i64 = conn
-            .query_row("SELECT count(*) FROM sparkplug_spool WHERE node = ?1", [node], |r| r.get(0))
-            .map_err(|e| StoreError::sqlite(self.path(), "counting queued Sparkplug messages", e))?;
-        Ok(n as u64)
+        queued(&conn, node)
+            .map_err(|e| StoreError::sqlite(self.path(), "counting queued Sparkplug messages", e))
     }
+}
+
+fn queued(conn: &rusqlite::Connection, node: &str) -> Result<u64, rusqlite::Error> {
+    let n: Option<i64> = conn
+        .query_row("SELECT queued FROM sparkplug_node WHERE node = ?1", [node], |r| r.get(0))
+        .optional()?;
+    Ok(n.unwrap_or(0).max(0) as u64)
+}
+
+fn set_queued(conn: &rusqlite::Connection, node: &str, n: u64) -> Result<(), rusqlite::Error> {
+    conn.execute(
+        "INSERT INTO sparkplug_node (node, queued) VALUES (?1, ?2)
+         ON CONFLICT (node) DO UPDATE SET queued = excluded.queued",
+        params![node, n as i64],
+    )?;
+    Ok(())
 }

@@ -33,8 +33,14 @@ fn the_queue_keeps_order_and_drops_the_oldest_beyond_its_limits() {
     {
         let s = Store::open(&path).unwrap();
         let items: Vec<_> = (0..5).map(|i| item("pump-1", 1000 + i, i as u8)).collect();
-        assert_eq!(s.spool_push(node, &items, 4, 0).unwrap(), SpoolDropped { over_count: 1, too_old: 0 });
-        assert_eq!(s.spool_push("other/node", &[item("x", 1, 9)], 4, 0).unwrap(), SpoolDropped::default());
+        assert_eq!(
+            s.spool_push(node, &items, 4, 0).unwrap(),
+            SpoolDropped { over_count: 1, too_old: 0, queued: 4 }
+        );
+        assert_eq!(
+            s.spool_push("other/node", &[item("x", 1, 9)], 4, 0).unwrap(),
+            SpoolDropped { queued: 1, ..SpoolDropped::default() }
+        );
         assert_eq!(s.spool_len(node).unwrap(), 4);
     }
     let s = Store::open(&path).unwrap();
@@ -42,10 +48,12 @@ fn the_queue_keeps_order_and_drops_the_oldest_beyond_its_limits() {
     assert_eq!(q.iter().map(|m| m.payload[0]).collect::<Vec<_>>(), [1, 2, 3, 4]);
     assert!(q.iter().all(|m| m.device == "pump-1"));
     assert!(q.windows(2).all(|w| w[0].id < w[1].id));
-    s.spool_remove(node, q[1].id).unwrap();
+    assert_eq!(s.spool_remove(node, q[1].id).unwrap(), 2);
+    assert_eq!(s.spool_len(node).unwrap(), 2);
     assert_eq!(s.spool_peek(node, 10).unwrap().iter().map(|m| m.payload[0]).collect::<Vec<_>>(), [3, 4]);
     // Too old: read before 1004 ms.
-    assert_eq!(s.spool_push(node, &[item("pump-2", 2000, 7)], 100, 1004).unwrap().too_old, 1);
+    let pushed = s.spool_push(node, &[item("pump-2", 2000, 7)], 100, 1004).unwrap();
+    assert_eq!((pushed.too_old, pushed.queued), (1, 2));
     let q = s.spool_peek(node, 10).unwrap();
     assert_eq!(
         q.iter().map(|m| (m.device.as_str(), m.time_ms)).collect::<Vec<_>>(),

@@ -134,7 +134,9 @@ fn sparkplug_overrides(args: &ServeArgs, config: &mut GatewayConfig) -> Result<(
     if let Some(host) = &args.sparkplug_primary {
         drivebus_gateway::sparkplug::check_id(host).map_err(|e| anyhow!("--sparkplug-primary {e}"))?;
         let sp = config.sparkplug.as_mut().ok_or_else(|| {
-            anyhow!("--sparkplug-primary needs a broker: give --sparkplug mqtt://HOST:PORT or [sparkplug] urls")
+            anyhow!(
+                "--sparkplug-primary needs a broker: give --sparkplug mqtt://HOST:PORT or [sparkplug] urls"
+            )
         })?;
         sp.primary_host = Some(host.clone());
     }

@@ -109,10 +109,18 @@ impl Metrics {
     pub fn register(&self, reg: &mut Registry) {
         let reg = reg.sub_registry_with_prefix("sparkplug");
         reg.register("messages", "Sparkplug messages published, by kind", self.messages.clone());
-        reg.register("commands_refused", "DCMD/NCMD refused before reaching a drive, by reason", self.refused.clone());
+        reg.register(
+            "commands_refused",
+            "DCMD/NCMD refused before reaching a drive, by reason",
+            self.refused.clone(),
+        );
         reg.register("connections", "Connections made to a Sparkplug broker", self.connections.clone());
         reg.register("stored", "Data messages kept for store-and-forward", self.stored.clone());
-        reg.register("dropped", "Kept data messages dropped (queue limits, or no store)", self.dropped.clone());
+        reg.register(
+            "dropped",
+            "Kept data messages dropped (queue limits, or no store)",
+            self.dropped.clone(),
+        );
         reg.register("queued", "Data messages waiting in the store-and-forward queue", self.queued.clone());
         reg.register("bd_seq", "The bdSeq of the current MQTT session", self.bd_seq.clone());
     }
@@ -144,7 +152,9 @@ impl Settings {
         for id in [&cfg.group_id, &edge].into_iter().chain(cfg.primary_host.as_ref()) {
             check_id(id).map_err(|e| format!("Sparkplug id {e}"))?;
         }
-        let safe = |s: &str| s.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect::<String>();
+        let safe = |s: &str| {
+            s.chars().map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect::<String>()
+        };
         let client_id = format!("drivebus-spb-{}-{}", safe(&cfg.group_id), safe(&edge));
         Ok(Settings {
             brokers,
@@ -344,17 +354,13 @@ impl EdgeNode {
         let items = std::mem::take(&mut self.pending);
         let n = items.len() as u64;
         let (key, max, oldest) = (self.key(), self.s.max, unix_ms() - self.s.max_age_ms);
-        let r = tokio::task::spawn_blocking(move || {
-            let dropped = store.spool_push(&key, &items, max, oldest)?;
-            Ok::<_, drivebus_store::StoreError>((dropped, store.spool_len(&key)?))
-        })
-        .await;
+        let r = tokio::task::spawn_blocking(move || store.spool_push(&key, &items, max, oldest)).await;
         let m = metrics(&self.gw);
         match r {
-            Ok(Ok((dropped, queued))) => {
+            Ok(Ok(pushed)) => {
                 m.stored.inc_by(n);
-                m.dropped.inc_by(dropped.over_count + dropped.too_old);
-                m.queued.set(queued as i64);
+                m.dropped.inc_by(pushed.over_count + pushed.too_old);
+                m.queued.set(pushed.queued as i64);
             }
             Ok(Err(e)) => {
                 m.dropped.inc_by(n);
@@ -401,11 +407,7 @@ impl EdgeNode {
             }
         }
         let key = self.key();
-        let left = tokio::task::spawn_blocking(move || {
-            store.spool_remove(&key, last)?;
-            store.spool_len(&key)
-        })
-        .await;
+        let left = tokio::task::spawn_blocking(move || store.spool_remove(&key, last)).await;
         if let Ok(Ok(n)) = left {
             metrics(&self.gw).queued.set(n as i64);
         }
@@ -529,7 +531,9 @@ impl EdgeNode {
 
     async fn on_state(&mut self, payload: &[u8]) {
         let Ok(v) = serde_json::from_slice::<serde_json::Value>(payload) else {
-            crate::log::warn("Sparkplug: the primary host's STATE is not JSON {\"online\": ..., \"timestamp\": ...}");
+            crate::log::warn(
+                "Sparkplug: the primary host's STATE is not JSON {\"online\": ..., \"timestamp\": ...}",
+            );
             return;
         };
         let Some(online) = v.get("online").and_then(serde_json::Value::as_bool) else {
@@ -586,7 +590,9 @@ impl EdgeNode {
         tokio::spawn(async move {
             for c in cmds {
                 let param = match &c {
-                    Command::SetParam { name, value, .. } => value.parse::<f64>().ok().map(|v| (name.clone(), v)),
+                    Command::SetParam { name, value, .. } => {
+                        value.parse::<f64>().ok().map(|v| (name.clone(), v))
+                    }
                     _ => None,
                 };
                 match gw.command(&device, c.clone(), &actor).await {

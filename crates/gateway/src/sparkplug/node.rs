@@ -322,7 +322,10 @@ impl Node {
                 return None;
             }
             d.born = false;
-            return Some(DeviceMessage::Death(Payload { timestamp: Some(now_ms as u64), ..Payload::default() }));
+            return Some(DeviceMessage::Death(Payload {
+                timestamp: Some(now_ms as u64),
+                ..Payload::default()
+            }));
         }
         if publishing && !d.born {
             d.born = true;
@@ -366,8 +369,9 @@ impl Node {
             })
             .collect();
         d.last = Some(values);
-        (!changed.is_empty())
-            .then(|| DeviceMessage::Data(Payload { timestamp: Some(t), metrics: changed, ..Payload::default() }))
+        (!changed.is_empty()).then(|| {
+            DeviceMessage::Data(Payload { timestamp: Some(t), metrics: changed, ..Payload::default() })
+        })
     }
 
     /// DDATA with a parameter's value just written (the write's result).
@@ -432,7 +436,8 @@ impl Node {
         p.metrics
             .iter()
             .map(|m| {
-                let is_rebirth = m.alias == Some(1) || (m.alias.is_none() && m.name.as_deref() == Some(REBIRTH));
+                let is_rebirth =
+                    m.alias == Some(1) || (m.alias.is_none() && m.name.as_deref() == Some(REBIRTH));
                 if !is_rebirth {
                     return Err(refuse(
                         "unknown_metric",
@@ -598,7 +603,10 @@ mod tests {
         let hz = a.metrics.iter().find(|m| m.name.as_deref() == Some("OutputFrequency")).unwrap();
         assert_eq!(hz.properties.as_ref().unwrap().keys, ["engUnit"]);
         n.nbirth(7, &[], 2);
-        assert_eq!(birth(&mut n, "pump-1").metrics, a.metrics.iter().map(|m| Metric { timestamp: Some(1_000), ..m.clone() }).collect::<Vec<_>>());
+        assert_eq!(
+            birth(&mut n, "pump-1").metrics,
+            a.metrics.iter().map(|m| Metric { timestamp: Some(1_000), ..m.clone() }).collect::<Vec<_>>()
+        );
     }
 
     #[test]
@@ -619,14 +627,22 @@ mod tests {
         n.nbirth(0, &[], 1);
         birth(&mut n, "pump-1");
         assert_eq!(n.on_drive(&view("pump-1", Some(true), 0.0), true, 6), None);
-        let Some(DeviceMessage::Data(p)) = n.on_drive(&view("pump-1", Some(true), 12.5), true, 7) else { panic!() };
+        let Some(DeviceMessage::Data(p)) = n.on_drive(&view("pump-1", Some(true), 12.5), true, 7) else {
+            panic!()
+        };
         let names: Vec<_> = p.metrics.iter().map(|m| m.name.clone().unwrap()).collect();
         assert_eq!(names, ["OutputFrequency", "Running"]);
         assert_eq!(p.metrics[0].timestamp, Some(1_000), "the time the drive answered");
         assert!(Node::live(p).metrics.iter().all(|m| m.name.is_none() && m.alias.is_some()));
-        assert!(matches!(n.on_drive(&view("pump-1", Some(false), 12.5), true, 8), Some(DeviceMessage::Death(_))));
+        assert!(matches!(
+            n.on_drive(&view("pump-1", Some(false), 12.5), true, 8),
+            Some(DeviceMessage::Death(_))
+        ));
         assert_eq!(n.on_drive(&view("pump-1", Some(false), 12.5), true, 9), None);
-        assert!(matches!(n.on_drive(&view("pump-1", Some(true), 12.5), true, 10), Some(DeviceMessage::Birth(_))));
+        assert!(matches!(
+            n.on_drive(&view("pump-1", Some(true), 12.5), true, 10),
+            Some(DeviceMessage::Birth(_))
+        ));
         // A fault shows in FaultCode and FaultText.
         let mut v = view("pump-1", Some(true), 12.5);
         v.fault = Some(FaultView { code: 0x21, text: "overcurrent".into() });
@@ -639,7 +655,9 @@ mod tests {
     fn kept_data_goes_back_out_with_this_session_s_aliases_flagged_historical() {
         let mut n = node();
         // Nobody listens: data is made with names for the store.
-        let Some(DeviceMessage::Data(p)) = n.on_drive(&view("pump-1", Some(true), 3.0), false, 1) else { panic!() };
+        let Some(DeviceMessage::Data(p)) = n.on_drive(&view("pump-1", Some(true), 3.0), false, 1) else {
+            panic!()
+        };
         let kept = Node::to_keep(p);
         assert!(kept.metrics.iter().all(|m| m.alias.is_none() && m.name.is_some()));
         assert_eq!(n.historical("pump-1", kept.clone()), None, "not born yet");
@@ -669,7 +687,10 @@ mod tests {
         n.nbirth(0, &[], 1);
         let b = birth(&mut n, "pump-1");
         let alias = |name: &str| b.metrics.iter().find(|m| m.name.as_deref() == Some(name)).unwrap().alias;
-        assert_eq!(n.device_command("pump-1", &cmd("Setpoint", Value::Double(30.0), DataType::Double)), Ok(vec![Command::Speed(30.0)]));
+        assert_eq!(
+            n.device_command("pump-1", &cmd("Setpoint", Value::Double(30.0), DataType::Double)),
+            Ok(vec![Command::Speed(30.0)])
+        );
         let mut by_alias = cmd("x", Value::Boolean(true), DataType::Boolean);
         by_alias.metrics[0].name = None;
         by_alias.metrics[0].alias = alias("Command/Run");
@@ -677,30 +698,69 @@ mod tests {
         let p = params().into_iter().find(|p| p.max > p.min).unwrap();
         let ok = p.from_raw(p.min);
         assert_eq!(
-            n.device_command("pump-1", &cmd(&format!("Parameters/{}", p.name), Value::Double(ok), DataType::Double)),
+            n.device_command(
+                "pump-1",
+                &cmd(&format!("Parameters/{}", p.name), Value::Double(ok), DataType::Double)
+            ),
             Ok(vec![Command::SetParam { name: p.name.clone(), value: format!("{ok}"), eeprom: false }])
         );
         let kind = |r: Result<Vec<Command>, Refusal>| r.unwrap_err().kind;
-        assert_eq!(kind(n.device_command("pump-9", &cmd("Setpoint", Value::Double(1.0), DataType::Double))), "unknown_device");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("Speed", Value::Double(1.0), DataType::Double))), "unknown_metric");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("OutputFrequency", Value::Double(1.0), DataType::Double))), "unknown_metric");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::String("x".into()), DataType::String))), "wrong_type");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::Float(3.0), DataType::Double))), "wrong_type");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::Double(-1.0), DataType::Double))), "out_of_range");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("Setpoint", Value::Double(f64::NAN), DataType::Double))), "out_of_range");
-        assert_eq!(kind(n.device_command("pump-1", &cmd("Command/Stop", Value::Boolean(false), DataType::Boolean))), "out_of_range");
+        assert_eq!(
+            kind(n.device_command("pump-9", &cmd("Setpoint", Value::Double(1.0), DataType::Double))),
+            "unknown_device"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("Speed", Value::Double(1.0), DataType::Double))),
+            "unknown_metric"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("OutputFrequency", Value::Double(1.0), DataType::Double))),
+            "unknown_metric"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("Setpoint", Value::String("x".into()), DataType::String))),
+            "wrong_type"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("Setpoint", Value::Float(3.0), DataType::Double))),
+            "wrong_type"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("Setpoint", Value::Double(-1.0), DataType::Double))),
+            "out_of_range"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("Setpoint", Value::Double(f64::NAN), DataType::Double))),
+            "out_of_range"
+        );
+        assert_eq!(
+            kind(n.device_command("pump-1", &cmd("Command/Stop", Value::Boolean(false), DataType::Boolean))),
+            "out_of_range"
+        );
         let too_big = p.from_raw(p.max) + 1000.0;
         assert_eq!(
-            kind(n.device_command("pump-1", &cmd(&format!("Parameters/{}", p.name), Value::Double(too_big), DataType::Double))),
+            kind(n.device_command(
+                "pump-1",
+                &cmd(&format!("Parameters/{}", p.name), Value::Double(too_big), DataType::Double)
+            )),
             "out_of_range"
         );
         // One bad metric refuses the whole message.
         let mut both = cmd("Command/Run", Value::Boolean(true), DataType::Boolean);
         both.metrics.extend(cmd("Nonsense", Value::Boolean(true), DataType::Boolean).metrics);
         assert_eq!(kind(n.device_command("pump-1", &both)), "unknown_metric");
-        assert_eq!(n.node_command(&cmd(REBIRTH, Value::Boolean(true), DataType::Boolean)), Ok(vec![NodeCommand::Rebirth]));
-        assert_eq!(n.node_command(&cmd(REBIRTH, Value::Boolean(false), DataType::Boolean)).unwrap_err().kind, "out_of_range");
-        assert_eq!(n.node_command(&cmd("Reboot", Value::Boolean(true), DataType::Boolean)).unwrap_err().kind, "unknown_metric");
+        assert_eq!(
+            n.node_command(&cmd(REBIRTH, Value::Boolean(true), DataType::Boolean)),
+            Ok(vec![NodeCommand::Rebirth])
+        );
+        assert_eq!(
+            n.node_command(&cmd(REBIRTH, Value::Boolean(false), DataType::Boolean)).unwrap_err().kind,
+            "out_of_range"
+        );
+        assert_eq!(
+            n.node_command(&cmd("Reboot", Value::Boolean(true), DataType::Boolean)).unwrap_err().kind,
+            "unknown_metric"
+        );
     }
 
     #[test]

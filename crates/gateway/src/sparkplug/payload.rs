@@ -153,7 +153,8 @@ impl DataType {
     pub fn name(number: u32) -> &'static str {
         const NAMES: [&str; 20] = [
             "Unknown", "Int8", "Int16", "Int32", "Int64", "UInt8", "UInt16", "UInt32", "UInt64", "Float",
-            "Double", "Boolean", "String", "DateTime", "Text", "UUID", "DataSet", "Bytes", "File", "Template",
+            "Double", "Boolean", "String", "DateTime", "Text", "UUID", "DataSet", "Bytes", "File",
+            "Template",
         ];
         NAMES.get(number as usize).copied().unwrap_or("an unknown type")
     }
@@ -225,8 +226,10 @@ mod tests {
             ..Payload::default()
         };
         assert_eq!(hex(&p.encode_to_vec()), REFERENCE);
-        let bytes: Vec<u8> =
-            (0..REFERENCE.len()).step_by(2).map(|i| u8::from_str_radix(&REFERENCE[i..i + 2], 16).unwrap()).collect();
+        let bytes: Vec<u8> = (0..REFERENCE.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&REFERENCE[i..i + 2], 16).unwrap())
+            .collect();
         assert_eq!(decode(&bytes).unwrap(), p);
     }
 

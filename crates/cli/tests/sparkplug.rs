@@ -448,3 +448,27 @@ async fn three_gateways_on_one_broker_one_host_sees_them_all() {
     .await;
     host.assert_no_violation();
 }
+
+#[test]
+fn bad_sparkplug_flags_are_one_line_errors() {
+    for (args, says) in [
+        (
+            &["--sparkplug", "tcp://127.0.0.1:1883"][..],
+            "--sparkplug \"tcp://127.0.0.1:1883\": use mqtt://HOST:PORT",
+        ),
+        (&["--sparkplug-primary", "scada"][..], "--sparkplug-primary needs a broker"),
+        (
+            &["--sparkplug", "mqtt://127.0.0.1:1883", "--sparkplug-primary", "a/b"][..],
+            "--sparkplug-primary \"a/b\"",
+        ),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["serve", "--demo", "--no-store"])
+            .args(args)
+            .output()
+            .expect("run drivebus serve");
+        assert_eq!(out.status.code(), Some(3), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says) && err.lines().count() == 1, "{args:?}: {err}");
+    }
+}

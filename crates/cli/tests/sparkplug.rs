@@ -205,9 +205,9 @@ async fn wait_births(host: &Host, edge: &str, from: usize) -> usize {
 fn latest(log: &[Value], device: &str, name: &str, from: usize) -> Option<Value> {
     log.iter()
         .skip(from)
+        .rev()
         .filter(|m| (m["type"] == "DDATA" || m["type"] == "DBIRTH") && m["device"] == device)
-        .filter_map(|m| metric(m, name).map(|x| x["value"].clone()))
-        .last()
+        .find_map(|m| metric(m, name).map(|x| x["value"].clone()))
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -138,7 +138,13 @@ pub struct Node {
     seq: u8,
     next_alias: u64,
     devices: BTreeMap<String, Device>,
-    buses: HashMap<String, (u64, Option<(i64, Option<bool>)>)>,
+    buses: HashMap<String, BusState>,
+}
+
+/// A bus's first alias, and when its statistics were last sent with its link state then.
+struct BusState {
+    base_alias: u64,
+    last: Option<(i64, bool)>,
 }
 
 const BUS_METRICS: [(&str, DataType); 5] = [
@@ -251,14 +257,15 @@ impl Node {
         self.buses.retain(|name, _| buses.iter().any(|b| &b.name == name));
         for b in buses {
             let next = &mut self.next_alias;
-            let (base, last) = self.buses.entry(b.name.clone()).or_insert_with(|| {
-                let base = *next;
+            let bus = self.buses.entry(b.name.clone()).or_insert_with(|| {
+                let base_alias = *next;
                 *next += BUS_METRICS.len() as u64;
-                (base, None)
+                BusState { base_alias, last: None }
             });
-            *last = Some((now_ms, Some(b.online)));
+            bus.last = Some((now_ms, b.online));
             for (i, ((name, ty), v)) in BUS_METRICS.iter().zip(bus_values(b)).enumerate() {
-                let m = Metric::birth(&format!("Buses/{}/{name}", b.name), *base + i as u64, *ty, Some(v), t);
+                let alias = bus.base_alias + i as u64;
+                let m = Metric::birth(&format!("Buses/{}/{name}", b.name), alias, *ty, Some(v), t);
                 metrics.push(if *name == "Utilization" { m.with_unit("ratio") } else { m });
             }
         }
@@ -290,17 +297,18 @@ impl Node {
     /// NDATA with a bus's statistics when its link changed or [`NODE_DATA_INTERVAL_MS`] passed
     /// since the last; `None` otherwise, and for a bus not in the NBIRTH.
     pub fn on_bus(&mut self, b: &BusView, now_ms: i64) -> Option<Payload> {
-        let (base, last) = self.buses.get_mut(&b.name)?;
-        let (at, online) = (*last)?;
-        if online == Some(b.online) && now_ms - at < NODE_DATA_INTERVAL_MS {
+        let bus = self.buses.get_mut(&b.name)?;
+        let (at, online) = bus.last?;
+        if online == b.online && now_ms - at < NODE_DATA_INTERVAL_MS {
             return None;
         }
-        *last = Some((now_ms, Some(b.online)));
+        bus.last = Some((now_ms, b.online));
+        let base = bus.base_alias;
         let metrics = bus_values(b)
             .into_iter()
             .enumerate()
             .map(|(i, v)| Metric {
-                alias: Some(*base + i as u64),
+                alias: Some(base + i as u64),
                 timestamp: Some(now_ms as u64),
                 value: Some(v),
                 ..Metric::default()

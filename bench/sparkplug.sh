@@ -10,7 +10,8 @@
 #     (crates/gateway/examples/sparkplug_fill.rs), drained to a primary host that comes
 #     online: the time from NBIRTH to the last historical DDATA.
 #
-# SECS=30 bench/sparkplug.sh          (HOUR_MESSAGES=N to give the hour's count yourself)
+# SECS=30 bench/sparkplug.sh     RATE=N skips step 1 (an hour is N x 3600 messages);
+#                                HOUR_MESSAGES=N gives the hour's count itself
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SECS=${SECS:-30}
@@ -54,6 +55,7 @@ CFG="$TMP/plant.toml"
 bench/plant_1000.sh load >"$CFG"
 printf '[sparkplug]\nurls = ["mqtt://127.0.0.1:%s"]\ncommands = true\n' "$BP" >>"$CFG"
 
+if [ -z "${RATE:-}" ]; then
 echo "== 1000 drives on 32 virtual buses, Sparkplug edge node on core $SERVER_CORE, ${SECS} s of DDATA"
 taskset -c "$SERVER_CORE" "$BIN" serve --config "$CFG" --db "$TMP/live.db" --http "127.0.0.1:$(free_port)" \
   --modbus "127.0.0.1:$(free_port)" >"$TMP/gw.log" 2>&1 &
@@ -61,7 +63,8 @@ GW=$!; PIDS+=("$GW")
 taskset -c "$CLIENT_CORE" python3 bench/sparkplug_load.py "127.0.0.1:$BP" rate "$SECS" load 1000 >"$TMP/rate.json" &
 LOAD=$!
 # The CPU over the counted seconds: the load script waits for the births and 3 s of ramp first.
-until [ "$(grep -c 'command .* by sparkplug' "$TMP/gw.log" 2>/dev/null)" -ge 2000 ]; do sleep 0.2; done
+commands() { grep -c 'command .* by sparkplug' "$TMP/gw.log" 2>/dev/null || true; }
+until [ "$(commands)" -ge 2000 ]; do sleep 0.2; done
 sleep 3
 T0=$(cpu_ticks "$GW"); S0=$(date +%s.%N)
 wait "$LOAD"
@@ -69,8 +72,9 @@ T1=$(cpu_ticks "$GW"); S1=$(date +%s.%N)
 HZ=$(getconf CLK_TCK)
 CPU=$(python3 -c "print(round(100 * ($T1 - $T0) / $HZ / ($S1 - $S0), 1))")
 RATE=$(python3 -c "import json; print(json.load(open('$TMP/rate.json'))['ddata_per_s'])")
-echo "DDATA: $(cat "$TMP/rate.json"); gateway CPU ${CPU}% of one core"
+echo "DDATA: $(cat "$TMP/rate.json"); gateway CPU ${CPU}% of one core (the simulated drives included)"
 stop "$GW"
+fi
 
 HOUR=${HOUR_MESSAGES:-$((RATE * 3600))}
 echo "== draining one hour of stored changes: $HOUR DDATA messages (${RATE}/s x 3600 s)"

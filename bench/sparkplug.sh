@@ -53,7 +53,8 @@ wait_port "$BP"
 
 CFG="$TMP/plant.toml"
 bench/plant_1000.sh load >"$CFG"
-printf '[sparkplug]\nurls = ["mqtt://127.0.0.1:%s"]\ncommands = true\n' "$BP" >>"$CFG"
+# The queue's limit above an hour of data, so that none of it is dropped.
+printf '[sparkplug]\nurls = ["mqtt://127.0.0.1:%s"]\ncommands = true\nstore_forward_max = 100000000\n' "$BP" >>"$CFG"
 
 if [ -z "${RATE:-}" ]; then
 echo "== 1000 drives on 32 virtual buses, Sparkplug edge node on core $SERVER_CORE, ${SECS} s of DDATA"

@@ -58,11 +58,16 @@ def main():
         host_id = sys.argv[3]
         client.publish(f"spBv1.0/STATE/{host_id}",
                        json.dumps({"online": True, "timestamp": int(time.time() * 1000)}), qos=1, retain=True)
-        deadline = time.monotonic() + 3600
-        while time.monotonic() < deadline:
+        seen, idle_since = -1, time.monotonic()
+        while True:
             with lock:
                 if st["done_at"] is not None:
                     break
+                if st["hist"] != seen:
+                    seen, idle_since = st["hist"], time.monotonic()
+            if time.monotonic() - idle_since > 60:
+                print(json.dumps({"historical": seen, "error": "nothing more for 60 s"}))
+                sys.exit(1)
             time.sleep(0.05)
         with lock:
             secs = st["done_at"] - st["nbirth_at"]

@@ -253,6 +253,13 @@ address = 1
     }
 
     #[test]
+    fn a_sparkplug_change_needs_a_restart() {
+        let with = format!("{BASE}[sparkplug]\nurls = [\"mqtt://127.0.0.1:1883\"]\n");
+        let p = plan(&cfg(BASE), &cfg(&with));
+        assert_eq!(p.needs_restart, vec!["sparkplug"]);
+    }
+
+    #[test]
     fn a_bus_removed_and_one_added() {
         let other = BASE.replace("name = \"line-2\"", "name = \"line-3\"");
         let p = plan(&cfg(BASE), &cfg(&other));

@@ -279,6 +279,9 @@ pub struct SparkplugConfig {
     pub store_forward_max: u64,
     /// Data messages older than this are dropped from the queue, seconds.
     pub store_forward_max_age_s: u64,
+    /// Kept data messages sent per second at most when the queue drains (a host that comes
+    /// back is not flooded, and a broker does not drop what a slow host cannot take).
+    pub store_forward_rate: u64,
 }
 
 /// The default Sparkplug group id.
@@ -287,6 +290,8 @@ pub const SPARKPLUG_GROUP: &str = "drivebus";
 pub const SPARKPLUG_STORE_MAX: u64 = 1_000_000;
 /// The default age limit of kept data messages, seconds (a day).
 pub const SPARKPLUG_STORE_MAX_AGE_S: u64 = 86_400;
+/// The default pace of a draining queue, messages per second.
+pub const SPARKPLUG_STORE_RATE: u64 = 10_000;
 
 impl SparkplugConfig {
     /// A configuration for broker `url` with every default (what `--sparkplug` makes).
@@ -300,6 +305,7 @@ impl SparkplugConfig {
             credentials: None,
             store_forward_max: SPARKPLUG_STORE_MAX,
             store_forward_max_age_s: SPARKPLUG_STORE_MAX_AGE_S,
+            store_forward_rate: SPARKPLUG_STORE_RATE,
         }
     }
 }
@@ -430,6 +436,7 @@ struct FileSparkplug {
     password_env: Option<Spanned<String>>,
     store_forward_max: Option<Spanned<u64>>,
     store_forward_max_age_s: Option<Spanned<u64>>,
+    store_forward_rate: Option<Spanned<u64>>,
 }
 
 struct Ctx<'a> {
@@ -560,6 +567,7 @@ fn sparkplug_section(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, Con
             "sparkplug.store_forward_max_age_s",
             SPARKPLUG_STORE_MAX_AGE_S,
         )?,
+        store_forward_rate: positive(&sp.store_forward_rate, "sparkplug.store_forward_rate", SPARKPLUG_STORE_RATE)?,
     })
 }
 
@@ -1132,13 +1140,13 @@ mod tests {
         );
         let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
                     primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
-                    store_forward_max = 10\nstore_forward_max_age_s = 60\n";
+                    store_forward_max = 10\nstore_forward_max_age_s = 60\nstore_forward_rate = 500\n";
         let sp = GatewayConfig::from_toml("p.toml", full).unwrap().sparkplug.unwrap();
         assert_eq!(sp.edge_node_id.as_deref(), Some("hall-9"));
         assert_eq!(sp.primary_host.as_deref(), Some("scada"));
         assert_eq!(sp.credentials, Some(("u".into(), "p".into())));
         assert!(sp.commands);
-        assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s), (10, 60));
+        assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s, sp.store_forward_rate), (10, 60, 500));
         let e = err("[sparkplug]\nurls = []\n");
         assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: give at least one broker"), "{e}");
         let e = err("[sparkplug]\nurls = [\"mqtt://a\", \"tcp://b\"]\n");

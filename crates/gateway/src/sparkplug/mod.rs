@@ -42,8 +42,14 @@ use payload::Payload;
 use crate::config::SparkplugConfig;
 use crate::gateway::{unix_ms, Change, Command, DriveEntry, Gateway};
 
-/// Messages sent from the store-and-forward queue per batch.
+/// Most messages sent from the store-and-forward queue per batch.
 pub const DRAIN_BATCH: usize = 1000;
+
+/// How long sending `n` kept messages takes at `rate` messages per second: the pause before
+/// the next batch of a draining queue.
+pub fn drain_pause(n: usize, rate: u64) -> Duration {
+    Duration::from_secs_f64(n as f64 / rate.max(1) as f64)
+}
 
 /// How often kept data messages are written to the store, and the reload is looked for.
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(250);
@@ -135,6 +141,7 @@ struct Settings {
     credentials: Option<(String, String)>,
     max: u64,
     max_age_ms: i64,
+    rate: u64,
     client_id: String,
 }
 
@@ -165,6 +172,7 @@ impl Settings {
             credentials: cfg.credentials.clone(),
             max: cfg.store_forward_max,
             max_age_ms: (cfg.store_forward_max_age_s as i64).saturating_mul(1000),
+            rate: cfg.store_forward_rate.max(1),
             client_id: client_id.chars().take(64).collect(),
         })
     }
@@ -275,6 +283,8 @@ struct EdgeNode {
     /// Kept data messages wait (in `pending` or the store): new data joins the queue.
     draining: bool,
     pending: Vec<(String, i64, Vec<u8>)>,
+    /// When the next batch of kept messages may go ([`Settings::rate`]).
+    drain_next: tokio::time::Instant,
     drives: Arc<[Arc<DriveEntry>]>,
     buses: Vec<String>,
     written: mpsc::Sender<(String, String, f64)>,
@@ -382,7 +392,9 @@ impl EdgeNode {
         };
         let key = self.key();
         let st = store.clone();
-        let batch = match tokio::task::spawn_blocking(move || st.spool_peek(&key, DRAIN_BATCH)).await {
+        // Batches of a tenth of a second's worth at the pace, so the pace is smooth.
+        let n = DRAIN_BATCH.min((self.s.rate / 10).max(1) as usize);
+        let batch = match tokio::task::spawn_blocking(move || st.spool_peek(&key, n)).await {
             Ok(Ok(b)) => b,
             Ok(Err(e)) => {
                 crate::log::warn(&format!("Sparkplug: cannot read the kept data messages: {e}"));
@@ -396,6 +408,8 @@ impl EdgeNode {
             metrics(&self.gw).queued.set(0);
             return;
         };
+        let now = tokio::time::Instant::now();
+        self.drain_next = self.drain_next.max(now) + drain_pause(batch.len(), self.s.rate);
         for m in batch {
             let Ok(p) = payload::decode(&m.payload) else { continue };
             let Some(mut p) = self.node.historical(&m.device, p) else { continue };
@@ -629,6 +643,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
         publishing: false,
         draining: false,
         pending: Vec::new(),
+        drain_next: tokio::time::Instant::now(),
         drives: gw.drives(),
         buses: Vec::new(),
         written,
@@ -691,7 +706,20 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
                 }
                 e.flush().await;
             }
-            _ = std::future::ready(()), if e.publishing && e.draining => e.drain().await,
+            _ = tokio::time::sleep_until(e.drain_next), if e.publishing && e.draining => e.drain().await,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_drain_keeps_its_pace() {
+        assert_eq!(drain_pause(1000, 10_000), Duration::from_millis(100));
+        assert_eq!(drain_pause(50, 500), Duration::from_millis(100));
+        // A rate of 0 cannot come from the configuration; it is not a division by zero either.
+        assert_eq!(drain_pause(1, 0), Duration::from_secs(1));
     }
 }

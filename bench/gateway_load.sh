@@ -109,7 +109,19 @@ stop "$GW"
 
 echo "== RSS with 1000 simulated drives on 32 virtual buses (115200 baud, poll 500 ms)"
 CFG="$TMP/big.toml"
-bench/plant_1000.sh load >"$CFG"
+{
+  echo 'name = "load"'
+  printf '[http]\nanonymous_read = true\n'   # the count of online drives below reads without a token
+  n=0
+  for b in $(seq 1 32); do
+    per=31; [ "$b" -le 8 ] && per=32   # 8 x 32 + 24 x 31 = 1000
+    printf '[[bus]]\nname = "line-%d"\nport = "virtual"\nprotocol = "modbus-rtu"\nbaud = 115200\n' "$b"
+    for a in $(seq 1 "$per"); do
+      n=$((n + 1))
+      printf '[[bus.drive]]\nname = "vfd-%d"\nfamily = "generic"\naddress = %d\n' "$n" "$a"
+    done
+  done
+} >"$CFG"
 MP=$(free_port); HP=$(free_port)
 taskset -c "$SERVER_CORE" "$BIN" serve --config "$CFG" --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw3.log" 2>&1 &
 GW=$!; PIDS+=("$GW")

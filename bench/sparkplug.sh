@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The Sparkplug B edge node's benchmark (issue 16), not run in CI.
 #
-#  1. `drivebus serve` with 1000 simulated drives on 32 virtual buses (bench/plant_1000.sh)
+#  1. `drivebus serve` with 1000 simulated drives on 32 virtual buses (bench/lib/plant.sh)
 #     as Sparkplug edge node "load" on Mosquitto, pinned to core $SERVER_CORE; a Python host
 #     (bench/sparkplug_load.py, paho-mqtt + pysparkplug) on core $CLIENT_CORE runs every drive
 #     by DCMD, the setpoint switching between 20 and 50 Hz every 6 s, and counts DDATA for
@@ -15,6 +15,7 @@
 #                                HOUR_MESSAGES=N gives the hour's count itself
 set -euo pipefail
 cd "$(dirname "$0")/.."
+. bench/lib/plant.sh
 SECS=${SECS:-30}
 SERVER_CORE=${SERVER_CORE:-0}
 CLIENT_CORE=${CLIENT_CORE:-1}
@@ -55,10 +56,9 @@ PIDS+=("$!")
 wait_port "$BP"
 
 CFG="$TMP/plant.toml"
-bench/plant_1000.sh load >"$CFG"
 # The queue's limit above an hour of data, so that none of it is dropped.
-printf '[sparkplug]\nurls = ["mqtt://127.0.0.1:%s"]\ncommands = true\nstore_forward_max = 100000000\nstore_forward_rate = %s\n' \
-  "$BP" "$DRAIN_RATE" >>"$CFG"
+write_plant "$CFG" load "$(printf '[sparkplug]\nurls = ["mqtt://127.0.0.1:%s"]\ncommands = true\nstore_forward_max = 100000000\nstore_forward_rate = %s\n' \
+  "$BP" "$DRAIN_RATE")"
 
 if [ -z "${RATE:-}" ]; then
 echo "== 1000 drives on 32 virtual buses, Sparkplug edge node on core $SERVER_CORE, ${SECS} s of DDATA"

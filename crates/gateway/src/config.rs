@@ -567,7 +567,11 @@ fn sparkplug_section(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, Con
             "sparkplug.store_forward_max_age_s",
             SPARKPLUG_STORE_MAX_AGE_S,
         )?,
-        store_forward_rate: positive(&sp.store_forward_rate, "sparkplug.store_forward_rate", SPARKPLUG_STORE_RATE)?,
+        store_forward_rate: positive(
+            &sp.store_forward_rate,
+            "sparkplug.store_forward_rate",
+            SPARKPLUG_STORE_RATE,
+        )?,
     })
 }
 

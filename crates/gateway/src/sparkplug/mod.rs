@@ -244,10 +244,13 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
                 Ok(Event::Incoming(Packet::Publish(p))) => {
                     // Never wait here: the edge node may itself wait for this loop to take
                     // what it publishes. A flood of commands it cannot follow is dropped.
-                    if let Err(mpsc::error::TrySendError::Full(m)) = tx.try_send(FromBroker::Message(p)) {
-                        if let FromBroker::Message(p) = m {
-                            crate::log::warn(&format!("Sparkplug: too many messages at once: {} dropped", p.topic));
-                        }
+                    if let Err(mpsc::error::TrySendError::Full(FromBroker::Message(p))) =
+                        tx.try_send(FromBroker::Message(p))
+                    {
+                        crate::log::warn(&format!(
+                            "Sparkplug: too many messages at once: {} dropped",
+                            p.topic
+                        ));
                     }
                     continue;
                 }

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Installs the programs nobody here wrote that the tests use as witnesses: pymodbus and asyncua
-# (PyPI); from Debian mbpoll, curl, mosquitto, tshark, chromium + chromium-driver (the
-# dashboard's browser test) and systemd (systemd-analyze, for the package check); and cargo-deb
-# (crates.io) to build the Debian package. Idempotent: each is installed only when missing.
+# Installs the programs nobody here wrote that the tests use as witnesses: pymodbus, asyncua and
+# the Sparkplug host's pysparkplug + paho-mqtt (PyPI); from Debian mbpoll, curl, mosquitto,
+# tshark, chromium + chromium-driver (the dashboard's browser test) and systemd (systemd-analyze,
+# for the package check); and cargo-deb (crates.io) to build the Debian package. Idempotent:
+# each is installed only when missing.
 set -euo pipefail
 
 SUDO=""
@@ -44,6 +45,10 @@ pip_install() {
 pip_install "pymodbus, serial" "pymodbus==3.16.1" pyserial
 # The OPC UA client of crates/cli/tests/opcua.rs (tests/interop/opcua_client.py).
 pip_install asyncua "asyncua==1.1.5"
+# The Python Sparkplug B host of crates/cli/tests/sparkplug.rs: paho-mqtt and the Sparkplug B schema
+# as pysparkplug ships it (tests/interop/sparkplug_host.py).
+pip_install "pysparkplug._protobuf.sparkplug_b_pb2, paho.mqtt.client" \
+  "pysparkplug==0.6.1" "paho-mqtt==1.6.1" "protobuf==7.36.2"
 apt_install mbpoll mbpoll
 # curl drives `drivebus serve` in crates/cli/tests/serve.rs (it falls back to plain HTTP/1.1).
 apt_install curl curl
@@ -65,6 +70,7 @@ fi
 
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 python3 -c "import asyncua; print('asyncua', asyncua.__version__)"
+python3 -c "import importlib.metadata as m; print(*(f'{p} {m.version(p)}' for p in ('pysparkplug', 'paho-mqtt', 'protobuf')))"
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
 (chromium --version 2>/dev/null || chromium-browser --version) | head -n 1

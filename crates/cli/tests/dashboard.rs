@@ -621,7 +621,7 @@ fn start_plant_of_1000(dir: &Path) -> (Proc, SocketAddr) {
     let config = dir.join("plant.toml");
     std::fs::write(&config, toml).expect("write the configuration");
     let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--config"])
+        .args(["serve", "--no-opcua", "--config"])
         .arg(&config)
         .args(["--no-store", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
         .stdout(Stdio::piped())

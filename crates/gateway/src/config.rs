@@ -22,6 +22,10 @@
 //! url = "mqtt://127.0.0.1:1883"
 //! allow_commands = ["line-1/*/stop"]    # command topics accepted: <bus>/<drive>/<command>, * = any
 //!
+//! [sparkplug]                           # optional: a Sparkplug B edge node (docs/sparkplug.md)
+//! urls = ["mqtt://10.0.0.9:1883"]       # tried in turn
+//! primary_host = "scada"                # publish only while this host's STATE is online
+//!
 //! [[token]]
 //! name = "scada"
 //! token = "change-me-0123456789"
@@ -113,6 +117,8 @@ pub struct GatewayConfig {
     pub bridges: Vec<crate::bridge::BridgeConfig>,
     /// Modbus RTU slaves serving the unified map (`[[modbus_rtu]]`).
     pub modbus_rtu: Vec<crate::modbus_rtu::ModbusRtuConfig>,
+    /// The Sparkplug B edge node, if configured.
+    pub sparkplug: Option<SparkplugConfig>,
 }
 
 /// The OPC UA server (docs/opcua.md).
@@ -285,6 +291,56 @@ pub struct MqttConfig {
     pub credentials: Option<(String, String)>,
 }
 
+/// The Sparkplug B edge node (docs/sparkplug.md).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SparkplugConfig {
+    /// Brokers, `mqtt://HOST[:PORT]`, tried in turn when one cannot be reached.
+    pub urls: Vec<String>,
+    /// The Sparkplug group id.
+    pub group_id: String,
+    /// The edge node id (default: the gateway's name).
+    pub edge_node_id: Option<String>,
+    /// The primary host id: publish only while its STATE says online.
+    pub primary_host: Option<String>,
+    /// Whether DCMD commands reach the drives.
+    pub commands: bool,
+    /// User name and password for brokers that ask for them.
+    pub credentials: Option<(String, String)>,
+    /// Most data messages kept while nobody can receive them (oldest dropped first).
+    pub store_forward_max: u64,
+    /// Data messages older than this are dropped from the queue, seconds.
+    pub store_forward_max_age_s: u64,
+    /// Kept data messages sent per second at most when the queue drains (a host that comes
+    /// back is not flooded, and a broker does not drop what a slow host cannot take).
+    pub store_forward_rate: u64,
+}
+
+/// The default Sparkplug group id.
+pub const SPARKPLUG_GROUP: &str = "drivebus";
+/// The default number of data messages kept for store-and-forward.
+pub const SPARKPLUG_STORE_MAX: u64 = 1_000_000;
+/// The default age limit of kept data messages, seconds (a day).
+pub const SPARKPLUG_STORE_MAX_AGE_S: u64 = 86_400;
+/// The default pace of a draining queue, messages per second.
+pub const SPARKPLUG_STORE_RATE: u64 = 10_000;
+
+impl SparkplugConfig {
+    /// A configuration for broker `url` with every default (what `--sparkplug` makes).
+    pub fn new(url: &str) -> SparkplugConfig {
+        SparkplugConfig {
+            urls: vec![url.to_string()],
+            group_id: SPARKPLUG_GROUP.into(),
+            edge_node_id: None,
+            primary_host: None,
+            commands: false,
+            credentials: None,
+            store_forward_max: SPARKPLUG_STORE_MAX,
+            store_forward_max_age_s: SPARKPLUG_STORE_MAX_AGE_S,
+            store_forward_rate: SPARKPLUG_STORE_RATE,
+        }
+    }
+}
+
 // ---- the file as written -------------------------------------------------------------------
 
 #[derive(Deserialize)]
@@ -310,6 +366,7 @@ struct FileConfig {
     bridge: Vec<crate::bridge::FileBridge>,
     #[serde(default)]
     modbus_rtu: Vec<crate::modbus_rtu::FileModbusRtu>,
+    sparkplug: Option<FileSparkplug>,
 }
 
 #[derive(Deserialize, Default)]
@@ -414,6 +471,23 @@ struct FileMqtt {
     password_env: Option<Spanned<String>>,
 }
 
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileSparkplug {
+    urls: Spanned<Vec<Spanned<String>>>,
+    group_id: Option<Spanned<String>>,
+    edge_node_id: Option<Spanned<String>>,
+    primary_host: Option<Spanned<String>>,
+    #[serde(default)]
+    commands: bool,
+    username: Option<Spanned<String>>,
+    password: Option<Spanned<String>>,
+    password_env: Option<Spanned<String>>,
+    store_forward_max: Option<Spanned<u64>>,
+    store_forward_max_age_s: Option<Spanned<u64>>,
+    store_forward_rate: Option<Spanned<u64>>,
+}
+
 /// The file being read, for errors that name its line and field.
 pub(crate) struct Ctx<'a> {
     file: &'a str,
@@ -433,6 +507,46 @@ impl Ctx<'_> {
         msg: impl fmt::Display,
     ) -> Result<T, ConfigError> {
         Err(ConfigError(format!("{}:{}: field `{field}`: {msg}", self.file, self.line(span))))
+    }
+
+    /// User name and password of section `section` (`mqtt`, `sparkplug`): both or neither; the
+    /// password as written or from the environment variable `password_env`.
+    fn credentials(
+        &self,
+        section: &str,
+        at: Range<usize>,
+        username: &Option<Spanned<String>>,
+        password: &Option<Spanned<String>>,
+        password_env: &Option<Spanned<String>>,
+    ) -> Result<Option<(String, String)>, ConfigError> {
+        let password = match (password, password_env) {
+            (Some(p), None) => Some(p.get_ref().clone()),
+            (None, Some(var)) => Some(std::env::var(var.get_ref()).or_else(|_| {
+                self.err(
+                    var.span(),
+                    &format!("{section}.password_env"),
+                    format!("the environment variable {:?} is not set", var.get_ref()),
+                )
+            })?),
+            (Some(p), Some(_)) => {
+                return self.err(
+                    p.span(),
+                    &format!("{section}.password"),
+                    "give password or password_env, not both",
+                )
+            }
+            (None, None) => None,
+        };
+        match (username, password) {
+            (Some(u), Some(p)) => Ok(Some((u.get_ref().clone(), p))),
+            (None, None) => Ok(None),
+            (Some(u), None) => self.err(
+                u.span(),
+                &format!("{section}.username"),
+                "give a password (or password_env) with the user name",
+            ),
+            (None, Some(_)) => self.err(at, &format!("{section}.username"), "a password needs a user name"),
+        }
     }
 
     /// The field a value at `span` belongs to (`bus.drive.address`): the key before `=` on its
@@ -484,6 +598,57 @@ fn opcua_section(
 /// topic level, a URL path segment and a Prometheus label as it is.
 pub fn valid_name(name: &str) -> bool {
     !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// Checks the `[sparkplug]` section.
+fn sparkplug_section(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, ConfigError> {
+    if sp.urls.get_ref().is_empty() {
+        return cx.err(sp.urls.span(), "sparkplug.urls", "give at least one broker: [\"mqtt://HOST:PORT\"]");
+    }
+    for u in sp.urls.get_ref() {
+        if let Err(e) = crate::mqtt::parse_url(u.get_ref()) {
+            return cx.err(u.span(), "sparkplug.urls", e);
+        }
+    }
+    for (field, id) in
+        [("group_id", &sp.group_id), ("edge_node_id", &sp.edge_node_id), ("primary_host", &sp.primary_host)]
+    {
+        if let Some(id) = id {
+            if let Err(e) = crate::sparkplug::check_id(id.get_ref()) {
+                return cx.err(id.span(), &format!("sparkplug.{field}"), e);
+            }
+        }
+    }
+    let credentials =
+        cx.credentials("sparkplug", sp.urls.span(), &sp.username, &sp.password, &sp.password_env)?;
+    let positive = |v: &Option<Spanned<u64>>, field: &str, default: u64| match v {
+        Some(n) if *n.get_ref() == 0 => cx.err(n.span(), field, "give a number above 0"),
+        Some(n) => Ok(*n.get_ref()),
+        None => Ok(default),
+    };
+    Ok(SparkplugConfig {
+        urls: sp.urls.into_inner().into_iter().map(Spanned::into_inner).collect(),
+        group_id: sp.group_id.map_or_else(|| SPARKPLUG_GROUP.to_string(), Spanned::into_inner),
+        edge_node_id: sp.edge_node_id.map(Spanned::into_inner),
+        primary_host: sp.primary_host.map(Spanned::into_inner),
+        commands: sp.commands,
+        credentials,
+        store_forward_max: positive(
+            &sp.store_forward_max,
+            "sparkplug.store_forward_max",
+            SPARKPLUG_STORE_MAX,
+        )?,
+        store_forward_max_age_s: positive(
+            &sp.store_forward_max_age_s,
+            "sparkplug.store_forward_max_age_s",
+            SPARKPLUG_STORE_MAX_AGE_S,
+        )?,
+        store_forward_rate: positive(
+            &sp.store_forward_rate,
+            "sparkplug.store_forward_rate",
+            SPARKPLUG_STORE_RATE,
+        )?,
+    })
 }
 
 impl GatewayConfig {
@@ -833,34 +998,8 @@ impl GatewayConfig {
                         );
                     }
                 }
-                let password = match (&m.password, &m.password_env) {
-                    (Some(p), None) => Some(p.get_ref().clone()),
-                    (None, Some(var)) => Some(std::env::var(var.get_ref()).or_else(|_| {
-                        cx.err(
-                            var.span(),
-                            "mqtt.password_env",
-                            format!("the environment variable {:?} is not set", var.get_ref()),
-                        )
-                    })?),
-                    (Some(p), Some(_)) => {
-                        return cx.err(p.span(), "mqtt.password", "give password or password_env, not both")
-                    }
-                    (None, None) => None,
-                };
-                let credentials = match (&m.username, password) {
-                    (Some(u), Some(p)) => Some((u.get_ref().clone(), p)),
-                    (None, None) => None,
-                    (Some(u), None) => {
-                        return cx.err(
-                            u.span(),
-                            "mqtt.username",
-                            "give a password (or password_env) with the user name",
-                        )
-                    }
-                    (None, Some(_)) => {
-                        return cx.err(m.url.span(), "mqtt.username", "a password needs a user name")
-                    }
-                };
+                let credentials =
+                    cx.credentials("mqtt", m.url.span(), &m.username, &m.password, &m.password_env)?;
                 Some(MqttConfig {
                     url: m.url.get_ref().clone(),
                     topic_prefix: m.topic_prefix.map(|p| p.into_inner()),
@@ -870,6 +1009,11 @@ impl GatewayConfig {
                     credentials,
                 })
             }
+        };
+
+        let sparkplug = match raw.sparkplug {
+            None => None,
+            Some(sp) => Some(sparkplug_section(&cx, sp)?),
         };
 
         let store = if raw.store.disabled {
@@ -892,6 +1036,7 @@ impl GatewayConfig {
             opcua,
             bridges,
             modbus_rtu,
+            sparkplug,
         })
     }
 
@@ -1072,6 +1217,49 @@ mod tests {
         assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
         let e = err("[modbus]\nallow = [\"plc\"]\n");
         assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
+    }
+
+    #[test]
+    fn sparkplug_settings_have_defaults_and_are_checked() {
+        let c = GatewayConfig::from_toml(
+            "p.toml",
+            "name = \"hall-1\"\n[sparkplug]\nurls = [\"mqtt://a\", \"mqtt://b:1884\"]\n",
+        )
+        .unwrap();
+        let sp = c.sparkplug.unwrap();
+        assert_eq!(sp.urls, ["mqtt://a", "mqtt://b:1884"]);
+        assert_eq!(sp.group_id, "drivebus");
+        assert_eq!((sp.edge_node_id, sp.primary_host, sp.commands), (None, None, false));
+        assert_eq!(
+            (sp.store_forward_max, sp.store_forward_max_age_s),
+            (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S)
+        );
+        let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
+                    primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
+                    store_forward_max = 10\nstore_forward_max_age_s = 60\nstore_forward_rate = 500\n";
+        let sp = GatewayConfig::from_toml("p.toml", full).unwrap().sparkplug.unwrap();
+        assert_eq!(sp.edge_node_id.as_deref(), Some("hall-9"));
+        assert_eq!(sp.primary_host.as_deref(), Some("scada"));
+        assert_eq!(sp.credentials, Some(("u".into(), "p".into())));
+        assert!(sp.commands);
+        assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s, sp.store_forward_rate), (10, 60, 500));
+        let e = err("[sparkplug]\nurls = []\n");
+        assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: give at least one broker"), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\", \"tcp://b\"]\n");
+        assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: \"tcp://b\""), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"a/b\"\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.group_id`: "), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nprimary_host = \"#\"\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.primary_host`: "), "{e}");
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nstore_forward_max = 0\n");
+        assert!(
+            e.starts_with("plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0"),
+            "{e}"
+        );
+        let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nusername = \"u\"\n");
+        assert!(e.starts_with("plant.toml:3: field `sparkplug.username`: give a password"), "{e}");
+        let e = err("[sparkplug]\nurl = \"mqtt://a\"\n");
+        assert!(e.contains("unknown field `url`"), "{e}");
     }
 
     #[test]

@@ -36,6 +36,7 @@ pub mod opcua;
 pub mod port;
 pub mod reload;
 pub mod server;
+pub mod sparkplug;
 
 pub use config::GatewayConfig;
 pub use gateway::{Command, CommandError, Gateway};

@@ -101,6 +101,8 @@ pub struct FrontEndMetrics {
     modbus_latency_bus: Histogram,
     mqtt_publishes: Family<MqttLabels, Counter>,
     mqtt_connections: Counter,
+    /// The Sparkplug B edge node's counts.
+    pub sparkplug: crate::sparkplug::Metrics,
 }
 
 impl Default for FrontEndMetrics {
@@ -118,6 +120,7 @@ impl Default for FrontEndMetrics {
             modbus_latency_bus,
             mqtt_publishes: Family::default(),
             mqtt_connections: Counter::default(),
+            sparkplug: crate::sparkplug::Metrics::default(),
         }
     }
 }
@@ -341,6 +344,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     );
     reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
     reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
+    f.sparkplug.register(&mut reg);
 
     // Health (the facts of /readyz) and reloads.
     let h = gw.health();

@@ -32,7 +32,7 @@ pub struct Plan {
     pub http_rules_changed: bool,
     /// The linkage rules changed.
     pub linkage_changed: bool,
-    /// Settings that changed and need a restart (listeners, store, MQTT, the gateway's name).
+    /// Settings that changed and need a restart (listeners, store, MQTT, Sparkplug, the gateway's name).
     pub needs_restart: Vec<String>,
 }
 
@@ -110,6 +110,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("store", old.store != new.store),
         ("mqtt", old.mqtt != new.mqtt),
         ("opcua", old.opcua != new.opcua),
+        ("sparkplug", old.sparkplug != new.sparkplug),
         ("name", old.name != new.name),
     ];
     p.needs_restart = restart.iter().filter(|(_, c)| *c).map(|(n, _)| n.to_string()).collect();
@@ -250,6 +251,13 @@ address = 1
         assert!(p.tokens_changed);
         assert_eq!(p.needs_restart, vec!["http.listen"]);
         assert!(p.summary().contains("needs a restart to apply: http.listen"), "{}", p.summary());
+    }
+
+    #[test]
+    fn a_sparkplug_change_needs_a_restart() {
+        let with = format!("{BASE}[sparkplug]\nurls = [\"mqtt://127.0.0.1:1883\"]\n");
+        let p = plan(&cfg(BASE), &cfg(&with));
+        assert_eq!(p.needs_restart, vec!["sparkplug"]);
     }
 
     #[test]

@@ -84,6 +84,9 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
             }
         });
     }
+    if let Some(sp) = &cfg.sparkplug {
+        crate::sparkplug::spawn(gw.clone(), sp)?;
+    }
     if let Some(loader) = loader {
         tokio::spawn(reload_on_hangup(gw.clone(), loader));
     }

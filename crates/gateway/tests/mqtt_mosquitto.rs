@@ -8,63 +8,10 @@
 mod mqtt_support;
 
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::Command;
 
 use mqtt_support::*;
-
-fn mosquitto_binary() -> Option<PathBuf> {
-    let mut dirs: Vec<PathBuf> =
-        std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect()).unwrap_or_default();
-    dirs.extend(["/usr/sbin", "/usr/local/sbin", "/opt/homebrew/sbin"].map(PathBuf::from));
-    dirs.into_iter().map(|d| d.join("mosquitto")).find(|p| p.is_file())
-}
-
-/// A Mosquitto process, killed on drop.
-struct Mosquitto {
-    child: Child,
-    addr: SocketAddr,
-}
-
-impl Mosquitto {
-    async fn start(bin: &Path, port: u16) -> Mosquitto {
-        Mosquitto::start_with(bin, port, "allow_anonymous true\n").await
-    }
-
-    /// Starts with `extra` lines of configuration (the listener and persistence are set here).
-    async fn start_with(bin: &Path, port: u16, extra: &str) -> Mosquitto {
-        let dir = std::env::temp_dir().join(format!("drivebus-mosquitto-{}-{port}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let conf = dir.join("mosquitto.conf");
-        std::fs::write(
-            &conf,
-            format!("listener {port} 127.0.0.1\n{extra}persistence false\nlog_dest stderr\n"),
-        )
-        .unwrap();
-        let child = Command::new(bin)
-            .arg("-c")
-            .arg(&conf)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
-        let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
-        wait_listening(addr).await;
-        Mosquitto { child, addr }
-    }
-
-    fn stop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-impl Drop for Mosquitto {
-    fn drop(&mut self) {
-        self.stop();
-    }
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mosquitto_statuses_commands_and_restart() {

@@ -8,6 +8,8 @@
 //! - **trends** of each drive's output frequency, current and setpoint, in 1 s buckets kept for a
 //!   day and 1 min buckets (average, minimum and maximum of the output frequency) kept for a year
 //!   ([`Store::sample`], [`Store::trend`], [`Store::prune`]).
+//! - the **Sparkplug B** edge node's `bdSeq` and its store-and-forward queue
+//!   ([`Store::next_bd_seq`], [`Store::spool_push`], [`Store::spool_peek`], [`Store::spool_remove`]).
 //!
 //! It sits beside the other crates, not under them: `drivebus serve` (crates/gateway) records
 //! events and samples as it polls; `drivebus events` and `drivebus trend` (crates/cli) open the
@@ -47,6 +49,7 @@
 
 mod error;
 mod event;
+mod sparkplug;
 pub mod time;
 mod trend;
 
@@ -60,6 +63,7 @@ use rusqlite::{params, Connection, OpenFlags};
 
 pub use error::StoreError;
 pub use event::{Event, EventFilter, EventKind, UnknownKind};
+pub use sparkplug::{SpoolDropped, Spooled, SPARKPLUG_SCHEMA};
 pub use trend::{Resolution, Sample, TrendPoint, TrendQuery};
 
 /// The `application_id` in the SQLite header that marks a drivebus store ("DBST").
@@ -206,6 +210,7 @@ impl Store {
                     .map_err(sq("creating the schema"))?;
                 tx.pragma_update(None, "user_version", SCHEMA_VERSION).map_err(sq("creating the schema"))?;
             }
+            tx.execute_batch(SPARKPLUG_SCHEMA).map_err(sq("creating the Sparkplug tables"))?;
             tx.commit().map_err(sq("creating the schema"))?;
         }
         let reader = open_reader(path)?;

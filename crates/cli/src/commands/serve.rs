@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, Context, Result};
 use clap::Args;
-use drivebus_gateway::config::{MqttConfig, Role, Token};
+use drivebus_gateway::config::{MqttConfig, Role, SparkplugConfig, Token};
 use drivebus_gateway::{Gateway, GatewayConfig};
 
 use crate::commands::drive::Failure;
@@ -34,6 +34,13 @@ pub struct ServeArgs {
     /// Publish to an MQTT broker, mqtt://HOST:PORT.
     #[arg(long, value_name = "URL")]
     pub mqtt: Option<String>,
+    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT (docs/sparkplug.md); the
+    /// configuration's other [sparkplug] settings stay.
+    #[arg(long, value_name = "URL")]
+    pub sparkplug: Option<String>,
+    /// The Sparkplug primary host id: publish only while its STATE says online.
+    #[arg(long, value_name = "HOST_ID")]
+    pub sparkplug_primary: Option<String>,
     /// The event store (SQLite file); overrides the configuration's.
     #[arg(long, value_name = "FILE")]
     pub db: Option<PathBuf>,
@@ -138,6 +145,7 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
     for port in &args.modbus_rtu {
         config.modbus_rtu.push(drivebus_gateway::modbus_rtu::ModbusRtuConfig::new(port));
     }
+    sparkplug_overrides(args, &mut config)?;
     if args.no_store {
         config.store = None;
     } else if let Some(db) = &args.db {
@@ -147,6 +155,28 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         config.tokens.push(Token { name: "demo".into(), secret: t.to_string(), role: Role::Write });
     }
     Ok(config)
+}
+
+/// `--sparkplug` and `--sparkplug-primary` over the configuration's `[sparkplug]`; the demo
+/// accepts DCMD commands.
+fn sparkplug_overrides(args: &ServeArgs, config: &mut GatewayConfig) -> Result<()> {
+    if let Some(url) = &args.sparkplug {
+        drivebus_gateway::mqtt::parse_url(url).map_err(|e| anyhow!("--sparkplug {e}"))?;
+        let mut sp = config.sparkplug.clone().unwrap_or_else(|| SparkplugConfig::new(url));
+        sp.urls = vec![url.clone()];
+        sp.commands |= args.demo;
+        config.sparkplug = Some(sp);
+    }
+    if let Some(host) = &args.sparkplug_primary {
+        drivebus_gateway::sparkplug::check_id(host).map_err(|e| anyhow!("--sparkplug-primary {e}"))?;
+        let sp = config.sparkplug.as_mut().ok_or_else(|| {
+            anyhow!(
+                "--sparkplug-primary needs a broker: give --sparkplug mqtt://HOST:PORT or [sparkplug] urls"
+            )
+        })?;
+        sp.primary_host = Some(host.clone());
+    }
+    Ok(())
 }
 
 /// Runs `drivebus serve`.
@@ -216,6 +246,14 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
                     .clone()
                     .unwrap_or_else(|| drivebus_gateway::mqtt::default_prefix(&gw.config().name));
                 println!("  MQTT        {} (topics under {prefix}/, docs/mqtt.md)", m.url);
+            }
+            if let Some(sp) = &gw.config().sparkplug {
+                let edge = sp.edge_node_id.clone().unwrap_or_else(|| gw.config().name.clone());
+                println!(
+                    "  Sparkplug B {} (spBv1.0/{}/+/{edge}, docs/sparkplug.md)",
+                    sp.urls.join(", "),
+                    sp.group_id
+                );
             }
             match &db {
                 Some(p) => println!("  event store {}", p.display()),

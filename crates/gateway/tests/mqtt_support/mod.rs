@@ -1,10 +1,12 @@
 //! Shared by the MQTT tests: an in-process broker (rumqttd) on a free port, a TCP relay that
 //! can cut its connections and switch brokers (a broker restart as the gateway sees it), and a
-//! subscriber that keeps what it receives.
+//! subscriber that keeps what it receives; Debian's Mosquitto started on a free port.
 #![allow(dead_code)]
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -119,6 +121,8 @@ pub struct Msg {
     pub topic: String,
     /// Its payload as text.
     pub text: String,
+    /// Its payload as it came.
+    pub payload: Vec<u8>,
     /// Whether it came as a retained message.
     pub retain: bool,
 }
@@ -136,7 +140,7 @@ impl Subscriber {
     pub async fn start(broker: SocketAddr, id: &str, filter: &str) -> Subscriber {
         let mut opts = MqttOptions::new(id, broker.ip().to_string(), broker.port());
         opts.set_keep_alive(Duration::from_secs(30));
-        opts.set_max_packet_size(64 * 1024, 64 * 1024);
+        opts.set_max_packet_size(1 << 20, 64 * 1024);
         let (client, mut eventloop) = AsyncClient::new(opts, 100);
         client.subscribe(filter, QoS::AtLeastOnce).await.unwrap();
         let log: Arc<Mutex<Vec<Msg>>> = Arc::default();
@@ -147,6 +151,7 @@ impl Subscriber {
                     Ok(Event::Incoming(Packet::Publish(p))) => log2.lock().unwrap().push(Msg {
                         topic: p.topic.clone(),
                         text: String::from_utf8_lossy(&p.payload).into_owned(),
+                        payload: p.payload.to_vec(),
                         retain: p.retain,
                     }),
                     Ok(_) => {}
@@ -253,4 +258,61 @@ pub async fn wait_all_statuses(sub: &Subscriber, prefix: &str) {
         ok.then_some(())
     })
     .await
+}
+
+/// Debian's `mosquitto`, where it is installed.
+pub fn mosquitto_binary() -> Option<PathBuf> {
+    let mut dirs: Vec<PathBuf> =
+        std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect()).unwrap_or_default();
+    dirs.extend(["/usr/sbin", "/usr/local/sbin", "/opt/homebrew/sbin"].map(PathBuf::from));
+    dirs.into_iter().map(|d| d.join("mosquitto")).find(|p| p.is_file())
+}
+
+/// A Mosquitto process, killed on drop.
+pub struct Mosquitto {
+    child: Child,
+    /// Where it listens.
+    pub addr: SocketAddr,
+}
+
+impl Mosquitto {
+    /// Starts Mosquitto on loopback `port`, anonymous clients allowed.
+    pub async fn start(bin: &Path, port: u16) -> Mosquitto {
+        Mosquitto::start_with(bin, port, "allow_anonymous true\n").await
+    }
+
+    /// Starts with `extra` lines of configuration (the listener and persistence are set here).
+    pub async fn start_with(bin: &Path, port: u16, extra: &str) -> Mosquitto {
+        let dir = std::env::temp_dir().join(format!("drivebus-mosquitto-{}-{port}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let conf = dir.join("mosquitto.conf");
+        std::fs::write(
+            &conf,
+            format!("listener {port} 127.0.0.1\n{extra}persistence false\nlog_dest stderr\n"),
+        )
+        .unwrap();
+        let child = Command::new(bin)
+            .arg("-c")
+            .arg(&conf)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", bin.display()));
+        let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
+        wait_listening(addr).await;
+        Mosquitto { child, addr }
+    }
+
+    /// Kills it (a broker gone without a word).
+    pub fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Mosquitto {
+    fn drop(&mut self) {
+        self.stop();
+    }
 }

@@ -1,0 +1,144 @@
+//! The Sparkplug edge node in process, on an embedded broker (rumqttd): a reload that adds and
+//! removes drives brings their DBIRTH and DDEATH (a new bus, a rebirth), and the
+//! store-and-forward queue stays within its limit, dropping the oldest and counting them.
+//! The interop with a Sparkplug host nobody here wrote is in crates/cli/tests/sparkplug.rs.
+
+mod mqtt_support;
+
+use std::net::SocketAddr;
+
+use drivebus_gateway::config::SparkplugConfig;
+use drivebus_gateway::sparkplug::payload::{self, Payload};
+use drivebus_gateway::{Command, Gateway, GatewayConfig};
+use mqtt_support::{rumqttd, Msg, Subscriber, PATIENCE};
+
+fn drive(name: &str, address: u8) -> String {
+    format!("[[bus.drive]]\nname = \"{name}\"\nfamily = \"generic\"\naddress = {address}\npoll_ms = 100\n")
+}
+
+fn bus(name: &str, drives: &[(&str, u8)]) -> String {
+    let mut s =
+        format!("[[bus]]\nname = \"{name}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n");
+    for (d, a) in drives {
+        s.push_str(&drive(d, *a));
+    }
+    s
+}
+
+fn config(name: &str, buses: &str) -> GatewayConfig {
+    GatewayConfig::from_toml("plant.toml", &format!("name = \"{name}\"\n[store]\ndisabled = true\n{buses}"))
+        .unwrap()
+}
+
+fn sparkplug(broker: SocketAddr) -> SparkplugConfig {
+    SparkplugConfig::new(&format!("mqtt://{broker}"))
+}
+
+fn decoded(m: &Msg) -> Payload {
+    payload::decode(&m.payload).unwrap()
+}
+
+/// `(kind, device)` of a Sparkplug topic of edge node `edge`.
+fn kind<'a>(m: &'a Msg, edge: &str) -> Option<(&'a str, Option<&'a str>)> {
+    let mut it = m.topic.split('/');
+    let (_, _, kind, e) = (it.next()?, it.next()?, it.next()?, it.next()?);
+    (e == edge).then_some((kind, it.next()))
+}
+
+/// Every seq from the last NBIRTH on follows the one before.
+fn assert_seq_continues(log: &[Msg], edge: &str) {
+    let from = log.iter().rposition(|m| kind(m, edge).is_some_and(|(k, _)| k == "NBIRTH")).unwrap();
+    let seqs: Vec<u64> = log[from..]
+        .iter()
+        .filter(|m| kind(m, edge).is_some_and(|(k, _)| k != "NDEATH" && !k.ends_with("CMD")))
+        .map(|m| decoded(m).seq.unwrap())
+        .collect();
+    assert_eq!(seqs[0], 0);
+    assert!(seqs.windows(2).all(|w| w[1] == (w[0] + 1) % 256), "{seqs:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_brings_dbirth_for_added_drives_ddeath_for_removed_ones_and_a_rebirth_for_a_new_bus() {
+    let broker = rumqttd().await;
+    let sub = Subscriber::start(broker, "host", "spBv1.0/#").await;
+    let gw = Gateway::start(config("hall-r", &bus("line-1", &[("d1", 1), ("d2", 2)])), None).unwrap();
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sparkplug(broker)).unwrap();
+    let born = |log: &[Msg], d: &str, from: usize| {
+        log[from..].iter().any(|m| kind(m, "hall-r") == Some(("DBIRTH", Some(d))))
+    };
+    sub.wait("d1 and d2 born", |log| (born(log, "d1", 0) && born(log, "d2", 0)).then_some(())).await;
+
+    let mark = sub.log.lock().unwrap().len();
+    gw.reload(config("hall-r", &bus("line-1", &[("d1", 1), ("d3", 3)])), "test").await.unwrap();
+    sub.wait("d2's DDEATH and d3's DBIRTH", |log| {
+        let dead = log[mark..].iter().any(|m| kind(m, "hall-r") == Some(("DDEATH", Some("d2"))));
+        (dead && born(log, "d3", mark)).then_some(())
+    })
+    .await;
+    {
+        let log = sub.log.lock().unwrap();
+        assert!(
+            !log[mark..].iter().any(|m| kind(m, "hall-r").is_some_and(|(k, _)| k == "NBIRTH")),
+            "no rebirth for drives"
+        );
+        assert_seq_continues(&log, "hall-r");
+    }
+
+    let mark = sub.log.lock().unwrap().len();
+    let two = format!("{}{}", bus("line-1", &[("d1", 1), ("d3", 3)]), bus("line-2", &[("d4", 1)]));
+    gw.reload(config("hall-r", &two), "test").await.unwrap();
+    sub.wait("a rebirth with the new bus", |log| {
+        let nbirth = log[mark..].iter().find(|m| kind(m, "hall-r").is_some_and(|(k, _)| k == "NBIRTH"))?;
+        let p = decoded(nbirth);
+        let has_bus = p.metrics.iter().any(|m| m.name.as_deref() == Some("Buses/line-2/Online"));
+        (has_bus && ["d1", "d3", "d4"].iter().all(|d| born(log, d, mark))).then_some(())
+    })
+    .await;
+    assert_seq_continues(&sub.log.lock().unwrap(), "hall-r");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_store_and_forward_queue_keeps_the_newest_within_its_limit() {
+    let broker = rumqttd().await;
+    let dir = std::env::temp_dir().join(format!("drivebus-sparkplug-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("limit.db");
+    let _ = std::fs::remove_file(&db);
+    let store = drivebus_store::Store::open(&db).unwrap();
+    let gw = Gateway::start(config("hall-q", &bus("line-1", &[("d1", 1)])), Some(store.clone())).unwrap();
+    let mut sp = sparkplug(broker);
+    sp.primary_host = Some("scada".into());
+    sp.store_forward_max = 5;
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sp).unwrap();
+    gw.command("d1", Command::Speed(50.0), "test").await.unwrap();
+    gw.command("d1", Command::Run, "test").await.unwrap();
+    let metrics = &gw.counters.front_ends.sparkplug;
+    let start = std::time::Instant::now();
+    while metrics.stored() < 20 || metrics.queued() != 5 {
+        assert!(start.elapsed() < PATIENCE, "stored {} queued {}", metrics.stored(), metrics.queued());
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert!(metrics.dropped() >= 15, "dropped {}", metrics.dropped());
+    assert_eq!(store.spool_len("drivebus/hall-q").unwrap(), 5);
+    // Nothing was published: the primary host never said online.
+    let sub = Subscriber::start(broker, "scada", "spBv1.0/#").await;
+    assert_eq!(metrics.messages("nbirth"), 0);
+    let newest = store.spool_peek("drivebus/hall-q", 5).unwrap();
+    sub.publish("spBv1.0/STATE/scada", r#"{"online": true, "timestamp": 1}"#, true).await;
+    let kept = sub
+        .wait("the kept data, historical", |log| {
+            let hist: Vec<Payload> = log
+                .iter()
+                .filter(|m| kind(m, "hall-q") == Some(("DDATA", Some("d1"))))
+                .map(decoded)
+                .filter(|p| p.metrics.iter().all(|m| m.is_historical == Some(true)))
+                .collect();
+            (hist.len() >= newest.len()).then_some(hist)
+        })
+        .await;
+    // In order, and none of those dropped before: nothing older than the oldest kept then.
+    let times: Vec<i64> = kept.iter().map(|p| p.timestamp.unwrap() as i64).collect();
+    assert!(times.windows(2).all(|w| w[0] <= w[1]), "{times:?}");
+    assert!(times.iter().all(|t| *t >= newest[0].time_ms), "{times:?} {newest:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

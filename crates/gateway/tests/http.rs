@@ -548,3 +548,22 @@ async fn a_refusal_by_a_tripped_drive_says_it_is_tripped() {
     let m = assert_error(&r, 409, "refused");
     assert!(m.contains("the drive is tripped (fault") && m.contains("reset it first"), "{m}");
 }
+
+/// Times a user gives are checked, never wrapped: the extremes of an i64 are answered, not a
+/// panic (debug build) or a wrapped span.
+#[tokio::test(start_paused = true)]
+async fn trend_times_at_the_extremes_are_answered() {
+    let (_gw, app) = app(true, true);
+    settle(2).await;
+    for q in [
+        format!("until={}", i64::MIN),
+        format!("since={}", i64::MIN),
+        format!("since={}&until={}", i64::MIN, i64::MAX),
+        format!("until={}", i64::MAX),
+    ] {
+        let r = call(&app, "GET", &format!("/api/drives/pump-1/trend?{q}"), None, None).await;
+        assert!(r.status == 200 || r.status == 400, "{q}: {} {}", r.status, r.json);
+    }
+    let r = call(&app, "GET", &format!("/api/drives/pump-1/trend?since={}", i64::MIN), None, None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+}

@@ -477,6 +477,37 @@ async fn get_stats(State(sim): State<Arc<Simulator>>) -> Json<Value> {
     }))
 }
 
+/// Makes room for the pty's link at `link`: nothing there, or a stale link of a simulator (to a
+/// pseudo-terminal that is gone), which is removed. Anything else is refused, never deleted: a
+/// regular file, a folder, a link to something else, or to a pseudo-terminal still open.
+fn replace_stale_link(link: &Path) -> io::Result<()> {
+    let Ok(meta) = link.symlink_metadata() else { return Ok(()) };
+    let refuse = |what: String| {
+        Err(io::Error::new(
+            io::ErrorKind::AlreadyExists,
+            format!(
+                "{} exists ({what}): give another path, or remove it if it is not needed",
+                link.display()
+            ),
+        ))
+    };
+    if !meta.file_type().is_symlink() {
+        return refuse(if meta.is_dir() { "a folder".into() } else { "a file, not a link".into() });
+    }
+    let target = std::fs::read_link(link)?;
+    if !target.starts_with("/dev/pts") {
+        return refuse(format!("a link to {}", target.display()));
+    }
+    if target.exists() {
+        return refuse(format!(
+            "a link to {}, a pseudo-terminal still open: another simulator?",
+            target.display()
+        ));
+    }
+    std::fs::remove_file(link)
+        .map_err(|e| io::Error::new(e.kind(), format!("cannot replace {}: {e}", link.display())))
+}
+
 /// A pseudo-terminal whose slave side a serial program opens.
 struct Pty {
     master: PtyMaster,
@@ -487,16 +518,15 @@ struct Pty {
 impl Pty {
     fn open(link: &Path) -> io::Result<Pty> {
         use nix::sys::termios;
+        // Before opening ours: a pty number freed by a simulator that was killed is reused by the
+        // next one opened, which would make its stale link look alive.
+        replace_stale_link(link)?;
         let pair = nix::pty::openpty(None, None).map_err(io::Error::from)?;
         // Raw mode: no echo, no CR/LF translation, bytes as they come.
         let mut t = termios::tcgetattr(pair.slave.as_fd()).map_err(io::Error::from)?;
         termios::cfmakeraw(&mut t);
         termios::tcsetattr(pair.slave.as_fd(), termios::SetArg::TCSANOW, &t).map_err(io::Error::from)?;
         let device = nix::unistd::ttyname(pair.slave.as_fd()).map_err(io::Error::from)?;
-        if link.symlink_metadata().is_ok() {
-            std::fs::remove_file(link)
-                .map_err(|e| io::Error::new(e.kind(), format!("cannot replace {}: {e}", link.display())))?;
-        }
         std::os::unix::fs::symlink(&device, link).map_err(|e| {
             io::Error::new(e.kind(), format!("cannot create the link {}: {e}", link.display()))
         })?;
@@ -575,5 +605,35 @@ impl AsyncWrite for PtyMaster {
     }
     fn poll_shutdown(self: Pin<&mut Self>, _cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         Poll::Ready(Ok(()))
+    }
+}
+
+#[cfg(test)]
+mod link_tests {
+    use super::replace_stale_link;
+
+    #[test]
+    fn only_a_stale_pty_link_is_replaced() {
+        let dir = std::env::temp_dir().join(format!("drivebus-link-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // A regular file is kept and refused.
+        let file = dir.join("notes.txt");
+        std::fs::write(&file, "keep me").unwrap();
+        let e = replace_stale_link(&file).unwrap_err().to_string();
+        assert!(e.contains("a file, not a link"), "{e}");
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "keep me");
+        // A link to something else is refused and kept.
+        let other = dir.join("other");
+        std::os::unix::fs::symlink(&file, &other).unwrap();
+        assert!(replace_stale_link(&other).unwrap_err().to_string().contains("a link to"));
+        assert!(other.symlink_metadata().is_ok());
+        // A link to a pseudo-terminal that is gone is a simulator's leftover: replaced.
+        let stale = dir.join("stale");
+        std::os::unix::fs::symlink("/dev/pts/999999", &stale).unwrap();
+        replace_stale_link(&stale).unwrap();
+        assert!(stale.symlink_metadata().is_err());
+        // Nothing there: nothing to do.
+        replace_stale_link(&dir.join("nothing")).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

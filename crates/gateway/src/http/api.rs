@@ -256,13 +256,15 @@ pub async fn trend(
 ) -> ApiResult<Vec<TrendPoint>> {
     gw.drive(&id)?;
     let q = query(q, &["since", "until", "resolution"])?;
+    // Times a user gives may be anything an i64 holds: checked arithmetic only.
     let until_ms = number(&q, "until", UNIX_MS)?.unwrap_or_else(unix_ms);
-    let since_ms = number(&q, "since", UNIX_MS)?.unwrap_or(until_ms - DEFAULT_TREND_SPAN_MS);
+    let since_ms = number(&q, "since", UNIX_MS)?.unwrap_or(until_ms.saturating_sub(DEFAULT_TREND_SPAN_MS));
     if since_ms > until_ms {
         return Err(ApiError::bad_request(format!("since={since_ms} is after until={until_ms}")));
     }
+    let span = until_ms.checked_sub(since_ms).unwrap_or(i64::MAX);
     let resolution = match q.get("resolution").map(|s| s.trim()) {
-        None | Some("") if until_ms - since_ms <= DEFAULT_TREND_SPAN_MS => Resolution::Second,
+        None | Some("") if span <= DEFAULT_TREND_SPAN_MS => Resolution::Second,
         None | Some("") => Resolution::Minute,
         Some("1s") => Resolution::Second,
         Some("1m") => Resolution::Minute,

@@ -31,25 +31,8 @@ BIN=target/release/drivebus
 LOADGEN=target/release/examples/loadgen
 ulimit -n "$(ulimit -Hn)"
 
-TMP=$(mktemp -d)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$TMP"
-}
-trap cleanup EXIT
+. bench/lib/run.sh
 
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
-wait_port() {
-  for _ in $(seq 1 200); do
-    if (exec 3<>"/dev/tcp/127.0.0.1/$1") 2>/dev/null; then return 0; fi
-    sleep 0.05
-  done
-  echo "nothing listens on port $1" >&2
-  return 1
-}
-stop() { kill "$1" 2>/dev/null || true; wait "$1" 2>/dev/null || true; }
 load() { taskset -c "$CLIENT_CORE" "$LOADGEN" load --secs "$SECS" "$@"; }
 # serve_other NAME PROGRAM ARGS...: starts a server on the server core with a free port as its
 # last argument, waits until it listens, and sets SRV_PORT and SRV_PID.

@@ -23,17 +23,7 @@ TOKEN=bench-opcua-token-0123456789
 
 cargo build --release -q -p drivebus
 BIN=target/release/drivebus
-TMP=$(mktemp -d)
-PIDS=()
-cleanup() {
-  for p in "${PIDS[@]}"; do kill "$p" 2>/dev/null || true; done
-  wait 2>/dev/null || true
-  rm -rf "$TMP"
-}
-trap cleanup EXIT
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-ticks() { awk '{print $14 + $15}' "/proc/$1/stat"; }
-rss_kb() { awk '/VmRSS/ {print $2}' "/proc/$1/status"; }
+. bench/lib/run.sh
 HZ=$(getconf CLK_TCK)
 
 write_plant "$TMP/plant.toml" bench "$(printf '[store]\ndisabled = true\n[[token]]\nname = "bench"\ntoken = "%s"\nrole = "write"\n' "$TOKEN")"
@@ -66,7 +56,7 @@ sleep 15
 
 measure() {  # measure SECS: the gateway's CPU over SECS s, in % of one core
   local t0 t1
-  t0=$(ticks "$GW"); sleep "$1"; t1=$(ticks "$GW")
+  t0=$(cpu_ticks "$GW"); sleep "$1"; t1=$(cpu_ticks "$GW")
   python3 -c "print(round(($t1 - $t0) * 100 / ($HZ * $1), 1))"
 }
 echo "== baseline: no OPC UA client, $SECS s"

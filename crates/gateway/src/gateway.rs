@@ -523,7 +523,7 @@ impl Gateway {
         // Build first: a bus that cannot be built leaves everything as it was.
         let mut built = HashMap::new();
         for name in plan.buses_added.iter().chain(&plan.buses_changed) {
-            let b = new.buses.iter().find(|b| &b.name == name).expect("planned from new");
+            let Some(b) = new.buses.iter().find(|b| &b.name == name) else { continue };
             built.insert(name.clone(), build_bus(b)?);
         }
         let mut buses = Vec::new();
@@ -534,7 +534,16 @@ impl Gateway {
                 buses.push(entry);
                 continue;
             }
-            let kept = old.buses.iter().find(|x| x.config.name == b.name).expect("kept bus").clone();
+            // Not added nor changed: the running bus of that name, built again if it is missing.
+            let kept = match old.buses.iter().find(|x| x.config.name == b.name) {
+                Some(k) => k.clone(),
+                None => {
+                    let entry = build_bus(b)?;
+                    fresh.push(entry.clone());
+                    buses.push(entry);
+                    continue;
+                }
+            };
             let members = kept.members.read().unwrap_or_else(|p| p.into_inner()).clone();
             let mut next = Vec::new();
             for d in &b.drives {
@@ -571,11 +580,7 @@ impl Gateway {
         for b in fresh {
             tokio::spawn(self.clone().poll_bus(b));
         }
-        let reload = Reload {
-            summary: plan.summary(),
-            needs_restart: plan.needs_restart.clone(),
-            changed: !plan.is_empty(),
-        };
+        let reload = Reload { summary: plan.summary(), needs_restart: plan.needs_restart.clone() };
         self.record_reload(actor, "ok".into(), plan.to_json()).await;
         Ok(reload)
     }
@@ -1090,8 +1095,6 @@ pub struct Reload {
     pub summary: String,
     /// Settings that changed but take effect only at the next start.
     pub needs_restart: Vec<String>,
-    /// Whether anything changed.
-    pub changed: bool,
 }
 
 /// Builds a bus of the configuration (owner, link, drives); its poll scheduler is not started.

@@ -9,6 +9,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
+
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
 /// A `drivebus simulate` process with a pty, killed on drop.
@@ -59,26 +63,12 @@ impl Drop for Sim {
     }
 }
 
-fn required() -> bool {
-    std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_some()
-}
-
-/// True when the witness is here; otherwise says so (and fails in CI).
-fn witness(name: &str, present: bool, how: &str) -> bool {
-    if present {
-        return true;
-    }
-    assert!(!required(), "{name} is required in CI but missing: {how}");
-    eprintln!("NOT RUN: {name} is not installed ({how}); .ci/run installs it");
-    false
-}
-
 fn has_pymodbus() -> bool {
-    Command::new("python3").args(["-c", "import pymodbus"]).status().is_ok_and(|s| s.success())
+    witness::python_has("pymodbus")
 }
 
 fn has_mbpoll() -> bool {
-    Command::new("mbpoll").arg("-V").output().is_ok()
+    witness::runs("mbpoll", &["-V"], false)
 }
 
 fn script() -> PathBuf {

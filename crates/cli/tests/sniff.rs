@@ -13,6 +13,10 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
+
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_drivebus")
 }
@@ -122,25 +126,12 @@ impl Sniff {
     }
 }
 
-fn required() -> bool {
-    std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_some()
-}
-
-fn witness(name: &str, present: bool, how: &str) -> bool {
-    if present {
-        return true;
-    }
-    assert!(!required(), "{name} is required in CI but missing: {how}");
-    eprintln!("NOT RUN: {name} is not installed ({how}); .ci/run installs it");
-    false
-}
-
 fn has_pymodbus() -> bool {
-    Command::new("python3").args(["-c", "import pymodbus"]).status().is_ok_and(|s| s.success())
+    witness::python_has("pymodbus")
 }
 
 fn has_tshark() -> bool {
-    Command::new("tshark").arg("--version").output().is_ok_and(|o| o.status.success())
+    witness::runs("tshark", &["--version"], true)
 }
 
 fn script() -> PathBuf {

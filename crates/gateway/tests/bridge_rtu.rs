@@ -17,18 +17,9 @@ use drivebus_gateway::{Gateway, GatewayConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
-fn required() -> bool {
-    std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_some()
-}
-
-fn witness(name: &str, present: bool, how: &str) -> bool {
-    if present {
-        return true;
-    }
-    assert!(!required(), "{name} is required in CI but missing: {how}");
-    eprintln!("NOT RUN: {name} is not installed ({how}); .ci/install-witnesses.sh installs it");
-    false
-}
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
 
 /// A virtual bus `line-1` with a generic drive (`pump-1`, address 1) polled every 100 ms, and a
 /// bridge to it; `modbus` is extra `[modbus]` settings.

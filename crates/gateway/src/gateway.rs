@@ -9,7 +9,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus};
@@ -17,14 +17,15 @@ use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_link::drive::{Drive, Error as LinkError};
 use drivebus_link::owner::{Bus, BusConfig as OwnerConfig, BusError, BusStats};
 use drivebus_proto::protocol::WireProtocol;
+#[cfg(feature = "virtual")]
 use drivebus_sim::bus::VirtualLine;
 use drivebus_store::{Event, EventKind, Sample, Store};
 use serde::Serialize;
 use serde_json::json;
 use tokio::sync::{broadcast, Notify};
 
-use crate::config::{BusConfig, DriveConfig, GatewayConfig, Port};
-use crate::port::{sim_link, virtual_line, PortLink};
+use crate::config::{BusConfig, DriveConfig, GatewayConfig};
+use crate::port::PortLink;
 
 /// Unix time now, ms.
 pub fn unix_ms() -> i64 {
@@ -279,7 +280,8 @@ pub struct BusEntry {
     /// Set when a reload removed or replaced the bus: its scheduler ends and the port closes.
     retired: AtomicBool,
     /// The simulated drives of a virtual bus.
-    pub line: Option<Arc<Mutex<VirtualLine>>>,
+    #[cfg(feature = "virtual")]
+    pub line: Option<Arc<std::sync::Mutex<VirtualLine>>>,
 }
 
 impl BusEntry {
@@ -1080,14 +1082,17 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
     owner.retries = b.retries;
     owner.echo = b.echo;
     owner.strict_t15 = b.strict_t15;
+    #[cfg(feature = "virtual")]
     let (bus, line) = match b.port {
-        Port::Virtual => {
-            let line = virtual_line(b)?;
-            let link = sim_link(line.clone(), &format!("virtual:{}", b.name));
+        crate::config::Port::Virtual => {
+            let line = crate::virtual_bus::virtual_line(b)?;
+            let link = crate::virtual_bus::sim_link(line.clone(), &format!("virtual:{}", b.name));
             (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
         }
         _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
     };
+    #[cfg(not(feature = "virtual"))]
+    let bus = Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?;
     let wake = Arc::new(Notify::new());
     let members = b.drives.iter().map(|d| drive_entry(b, d, &bus).map(Arc::new)).collect::<Result<_, _>>()?;
     Ok(Arc::new(BusEntry {
@@ -1098,6 +1103,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         members: RwLock::new(members),
         generation: AtomicU64::new(0),
         retired: AtomicBool::new(false),
+        #[cfg(feature = "virtual")]
         line,
     }))
 }

@@ -56,6 +56,17 @@ pub enum Command {
         /// Write to EEPROM where the protocol lets the master choose (RAM otherwise).
         eeprom: bool,
     },
+    /// Write a parameter's raw value (as the drive holds it; a register client's write).
+    SetParamRaw {
+        /// The manual's name.
+        name: String,
+        /// The raw value.
+        raw: i64,
+        /// The value in its unit, for the audit trail.
+        shown: String,
+        /// Write to EEPROM where the protocol lets the master choose (RAM otherwise).
+        eeprom: bool,
+    },
 }
 
 impl Command {
@@ -68,8 +79,9 @@ impl Command {
             Command::Jog => "jog".into(),
             Command::Reset => "reset".into(),
             Command::Speed(hz) => format!("speed {hz} Hz"),
-            Command::SetParam { name, value, eeprom } => {
-                format!("param {name} = {value}{}", if *eeprom { " (eeprom)" } else { "" })
+            Command::SetParam { name, value: shown, eeprom }
+            | Command::SetParamRaw { name, shown, eeprom, .. } => {
+                format!("param {name} = {shown}{}", if *eeprom { " (eeprom)" } else { "" })
             }
         }
     }
@@ -814,6 +826,10 @@ impl Gateway {
             Command::SetParam { name, value, eeprom } => {
                 let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
                 d.command.write_param(name, value, storage).await.map_err(map)?;
+            }
+            Command::SetParamRaw { name, raw, eeprom, .. } => {
+                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
+                d.command.write_param_raw(name, *raw, storage).await.map_err(map)?;
             }
         }
         Ok(())

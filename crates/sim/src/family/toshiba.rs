@@ -19,6 +19,9 @@
 //! | FC90 / FE10-FE13 | trip code now / past trips 1-4 | code |
 //! | FC91 | alarm information | bits |
 //! | FE70 / FE71 | rated current / rated voltage | 0.1 A / 0.1 V |
+//! | FA50 | terminal board output data (held; read back) | bits, RAM |
+//! | FA51 / FA52 | FM / AM analog output data (held; read back) | 0.1 %, RAM |
+//! | FB05 | inverter model (capacity) code, [`MODEL_CODE`] | code |
 //! | others | the parameters of `crates/drive/catalogs/toshiba.toml` by communication number | |
 //!
 //! TIP errors (protocols.md 1.6): 0000 impossible to execute (not while running, a monitor
@@ -84,6 +87,9 @@ impl ToshibaProtocol {
 pub const MODEL_NAME: &str = "VFAS1-2037PM";
 /// The vendor (Modbus 2B/0E VendorName), as the VF-S15 manual's example shows it.
 pub const VENDOR_NAME: &str = "TOSHIBA";
+/// FB05, the inverter model (capacity) code (project decision: the seed names FB05 only; the
+/// type form's four digits as hex digits, 2037H for [`MODEL_NAME`]).
+pub const MODEL_CODE: u16 = 0x2037;
 /// The firmware version (Modbus 2B/0E MajorMinorRevision), as the VF-S15 manual's example.
 pub const VERSION: &str = "0100";
 /// The inverter's rated output current, 0.1 A (FE70): 17.5 A for a 200 V 3.7 kW VF-AS1.
@@ -549,7 +555,7 @@ impl Inner {
                 5 => Some(0xFA51),
                 _ => None,
             };
-            // A write the drive refuses (out of range, FA20/FA50/FA51 not simulated) is
+            // A write the drive refuses (out of range, FA20 not simulated) is
             // skipped; the reply still carries the read items.
             if let Some(n) = target {
                 let _ = self.write(n, w, Storage::Ram);
@@ -843,6 +849,7 @@ impl Inner {
             0xFC90 => m.trip().map_or(0, trip_code),
             0xFC91 => self.alarm(),
             0xFE70 => RATED_CURRENT_01A,
+            0xFB05 => MODEL_CODE,
             0xFE71 => RATED_VOLTAGE_01V,
             // Terminal boards, PID feedback and analog inputs: nothing is wired.
             0xFD06 | 0xFD07 | 0xFE06 | 0xFE07 | 0xFD22 | 0xFE35 | 0xFE36 | 0xFE37 => 0,

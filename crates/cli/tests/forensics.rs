@@ -45,3 +45,95 @@ fn toshiba_outputs_and_model_code_in_every_protocol() {
         }
     }
 }
+
+#[path = "support/http.rs"]
+mod http;
+
+fn trips(port: &str, family: &str, protocol: Option<&str>, address: u8) -> Value {
+    let o = drivebus(port, family, protocol, address, &["trips", "--json"]);
+    ok(&o, &format!("{family} trips"));
+    serde_json::from_str(o.stdout.trim()).expect("trips JSON")
+}
+
+fn trip(sim: &sim::Proc, what: &str) {
+    let (code, v) = http::http_json(sim.control(), "POST", "/drives/1", Some(&serde_json::json!({"trip": what})))
+        .expect("trip through the control interface");
+    assert_eq!(code, 200, "{v}");
+}
+
+/// Waits (generous deadline) until the drive's status says `what`.
+fn wait_status(port: &str, family: &str, protocol: Option<&str>, address: u8, what: &str, f: impl Fn(&Value) -> bool) {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    loop {
+        let o = drivebus(port, family, protocol, address, &["status", "--json"]);
+        if o.code == 0 {
+            let s: Value = serde_json::from_str(o.stdout.trim()).expect("status JSON");
+            if f(&s) {
+                return;
+            }
+        }
+        assert!(std::time::Instant::now() < deadline, "{family}: never {what}: {}{}", o.stdout, o.stderr);
+    }
+}
+
+/// Every family: two trips through the simulator's control interface (the first while running
+/// at 20 Hz), reset between them; `trips` shows the trip in force and the log, newest first,
+/// with the frequency at the trip where the drive logs it; the human table names them too.
+#[test]
+fn trips_of_every_family_over_a_pty() {
+    for (drive, family, protocol, address, first, second, logged) in [
+        ("generic@1:modbus-rtu", "generic", Some("modbus-rtu"), 1, (1, "over-current"), (4, "module over-temperature"), true),
+        ("toshiba@1", "toshiba", Some("toshiba-binary"), 1, (0x03, "OC3"), (0x10, "OH"), true),
+        ("toshiba@1", "toshiba", Some("toshiba-ascii"), 1, (0x03, "OC3"), (0x10, "OH"), true),
+        ("danfoss@3", "danfoss", None, 3, (13, "over current"), (29, "heat sink temperature"), true),
+        ("b800@5", "b800", None, 5, (1, "over-current"), (4, "over-temperature"), false),
+    ] {
+        let pty = pty_path(&format!("trips-{family}"));
+        let sim = simulate(drive, &["--pty", &pty, "--control", "127.0.0.1:0"]);
+        let clean = trips(&pty, family, protocol, address);
+        assert!(clean["current"].is_null() && clean["history"] == serde_json::json!([]), "{family}: {clean}");
+        ok(&drivebus(&pty, family, protocol, address, &["speed", "20"]), "speed 20");
+        ok(&drivebus(&pty, family, protocol, address, &["run"]), "run");
+        wait_status(&pty, family, protocol, address, "at 20 Hz", |s| {
+            s["output_hz"].as_f64().is_some_and(|hz| (hz - 20.0).abs() < 0.05)
+        });
+        trip(&sim, "over-current");
+        wait_status(&pty, family, protocol, address, "tripped", |s| !s["fault"].is_null());
+        let t = trips(&pty, family, protocol, address);
+        assert_eq!(t["current"]["code"], first.0, "{family}: {t}");
+        if matches!(family, "generic" | "toshiba") {
+            // P4.02 / FE00: the output frequency at the last trip.
+            assert_eq!(t["history"][0]["output_hz"], 20.0, "{family}: {t}");
+        }
+        ok(&drivebus(&pty, family, protocol, address, &["stop"]), "stop");
+        ok(&drivebus(&pty, family, protocol, address, &["reset"]), "reset");
+        trip(&sim, "over-temperature");
+        let t = trips(&pty, family, protocol, address);
+        assert_eq!(t["family"], family, "{t}");
+        assert_eq!(t["current"]["code"], second.0, "{family}: {t}");
+        assert!(t["current"]["text"].as_str().unwrap_or("").contains(second.1), "{family}: {t}");
+        let history = t["history"].as_array().expect("history");
+        if logged {
+            assert!(history.len() >= 2, "{family}: {t}");
+            assert_eq!(history[0]["index"], 1);
+            assert_eq!(history[0]["code"], second.0, "{family}: newest first: {t}");
+            assert_eq!(history[1]["code"], first.0, "{family}: {t}");
+            assert!(history[1]["text"].as_str().unwrap_or("").contains(first.1), "{family}: {t}");
+            if matches!(family, "generic" | "toshiba") {
+                // The newest trip came at standstill; the older one's frequency is not logged.
+                assert_eq!(history[0]["output_hz"], 0.0, "{family}: {t}");
+                assert!(history[1]["output_hz"].is_null(), "{family}: {t}");
+            }
+        } else {
+            assert!(history.is_empty(), "{family}: the protocol gives no log: {t}");
+            assert!(t["source"].as_str().unwrap_or("").contains("F-13"), "{t}");
+        }
+        let o = drivebus(&pty, family, protocol, address, &["trips"]);
+        ok(&o, "trips as a table");
+        assert!(o.stdout.contains("in force") && o.stdout.contains(second.1), "{family}: {}", o.stdout);
+        if logged {
+            assert!(o.stdout.contains(first.1), "{family}: {}", o.stdout);
+        }
+        drop(sim);
+    }
+}

@@ -40,7 +40,9 @@ use drivebus_proto::modbus::{
 };
 use drivebus_proto::session::{Incoming, Responder, SlaveSession};
 use drivebus_proto::toshiba::binary::{BinaryRequestBody, BlockRequest};
-use drivebus_proto::toshiba::{Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipReply, TipRequest};
+use drivebus_proto::toshiba::{
+    block_read_item, block_write_item, Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipReply, TipRequest,
+};
 use drivebus_proto::Instant;
 
 use crate::bus::Device;
@@ -547,14 +549,8 @@ impl Inner {
     /// the read items are the ones f875-f879 select.
     fn block(&mut self, block: BlockRequest) -> [u16; 5] {
         for (i, &w) in block.wdata().iter().enumerate() {
-            let target = match self.param(BLOCK_WRITE_1 + i as u32) {
-                1 => Some(0xFA00),
-                2 => Some(0xFA20),
-                3 => Some(0xFA01),
-                4 => Some(0xFA50),
-                5 => Some(0xFA51),
-                _ => None,
-            };
+            let selection = u16::try_from(self.param(BLOCK_WRITE_1 + i as u32)).unwrap_or(0);
+            let target = block_write_item(selection).map(|c| c.0);
             // A write the drive refuses (out of range, FA20 not simulated) is
             // skipped; the reply still carries the read items.
             if let Some(n) = target {
@@ -563,22 +559,8 @@ impl Inner {
         }
         let mut rdata = [0u16; 5];
         for (i, slot) in rdata.iter_mut().enumerate() {
-            let item = match self.param(BLOCK_READ_1 + i as u32) {
-                1 => Some(0xFD01),
-                2 => Some(0xFD00),
-                3 => Some(0xFE03),
-                4 => Some(0xFE05),
-                5 => Some(0xFC91),
-                6 => Some(0xFD22),
-                7 => Some(0xFD06),
-                8 => Some(0xFD07),
-                9 => Some(0xFE35),
-                10 => Some(0xFE36),
-                11 => Some(0xFE37),
-                12 => Some(0xFE04),
-                13 => Some(0xFC90),
-                _ => None,
-            };
+            let selection = u16::try_from(self.param(BLOCK_READ_1 + i as u32)).unwrap_or(0);
+            let item = block_read_item(selection).map(|c| c.0);
             *slot = item.and_then(|n| self.read(n).ok()).unwrap_or(0);
         }
         rdata

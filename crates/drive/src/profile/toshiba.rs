@@ -1061,7 +1061,7 @@ mod tests {
     #[test]
     fn the_current_is_given_at_the_drives_resolution() {
         // 98.28 % of 14.5 A is 14.2506 A in binary floating point's approximation.
-        let m = Monitors { fd01: 0, fd00: 0, fe02: 0, fe03: 9828, fc90: None };
+        let m = Monitors { fd01: 0, fd00: 0, fe02: 0, fe03: 9828, fc90: None, ..Default::default() };
         assert_eq!(status_of(1, &m, 145).current_a, Some(14.25));
         let m = Monitors { fe03: 1915, ..m };
         assert_eq!(status_of(1, &m, 100).current_a, Some(1.92));

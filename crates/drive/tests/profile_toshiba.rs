@@ -189,8 +189,8 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
 }
 
 /// Binary mode reads status with block communication by default: f875-f879 once, then the X
-/// block and FE02 per status (the single reads' result, in 35 bytes instead of 56); a trip
-/// shows in the block's FC90 item.
+/// block of the first 3 read groups and FE02 per status (the single reads' result, in 31
+/// bytes instead of 56).
 #[test]
 fn binary_block_status_reads_in_two_exchanges() {
     let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
@@ -209,11 +209,12 @@ fn binary_block_status_reads_in_two_exchanges() {
     assert_eq!(bus.master_bytes() - bytes, 6 + 6, "X (6 bytes) and R FE02 (6 bytes) from the master");
     assert_eq!(a, b);
     assert_eq!(b.output_hz, Some(30.0));
-    // A trip shows in the block's FC90 item.
+    // The block asks for 3 groups (FD01, FD00, FE03): FC90, the 4th item, is read on its own
+    // when FD01 says tripped.
     bus.drive_mut(1).core_mut().model.trip_now(Trip::OverCurrent);
     let before = bus.exchanges;
     let f = bus.status(&block).fault.unwrap_or_else(|| panic!("a fault"));
-    assert_eq!(bus.exchanges - before, 2, "FC90 comes in the block");
+    assert_eq!(bus.exchanges - before, 3, "X, FE02 and FC90");
     assert_eq!((f.code, f.text.as_str()), (0x03, "OC3: over-current during constant speed operation"));
     // Other protocols ignore the option.
     let mut rtu = Bus::new(ToshibaProtocol::ModbusRtu, &[1]);
@@ -235,16 +236,19 @@ fn block_status_follows_the_drives_read_item_selection() {
     let s = bus.status(&p);
     assert_eq!(bus.exchanges - before, 4, "FD01, FD00, FE02, FE03: the block lacks FD00");
     assert_eq!(s.output_hz, Some(0.0));
-    // Back to FD00, FC90 replaced by FC91: the block again, FC90 read only when tripped.
+    // FD00 back, FC90 first: the block again (4 groups, FC90 among them), no FC90 read when
+    // tripped.
     bus.ok(&p, write("f876", 2, Storage::Ram));
-    bus.ok(&p, write("f878", 5, Storage::Ram));
+    bus.ok(&p, write("f875", 13, Storage::Ram));
+    bus.ok(&p, write("f878", 1, Storage::Ram));
     let before = bus.exchanges;
     bus.status(&p);
     assert_eq!(bus.exchanges - before, 5 + 2, "f875-f879 read again, then X and FE02");
     bus.drive_mut(1).core_mut().model.trip_now(Trip::OverTemperature);
-    let before = bus.exchanges;
+    let (before, bytes) = (bus.exchanges, bus.master_bytes());
     let f = bus.status(&p).fault.unwrap_or_else(|| panic!("a fault"));
-    assert_eq!(bus.exchanges - before, 3, "X, FE02 and FC90");
+    assert_eq!(bus.exchanges - before, 2, "FC90 comes in the block");
+    assert_eq!(bus.master_bytes() - bytes, 12);
     assert_eq!(f.code, 0x10);
 }
 

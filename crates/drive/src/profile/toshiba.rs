@@ -4,7 +4,7 @@
 //!
 //! | operation | exchanges |
 //! |---|---|
-//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile; FD01, FD00, FE03 needed, FC90 used where selected) and FE02: 35 bytes on the wire instead of 56 |
+//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile; FD01, FD00, FE03 needed), asking for the read groups up to the last of those three (3 with the default selection; FC90 is used where it lies within them, else read when FD01 says tripped), and FE02: 31 bytes on the wire instead of 56 |
 //! | Run / Jog | read FD01 (trip, direction), write FA00 = C400H / C500H with bit 9 = the direction FD01 shows |
 //! | Reverse | read FD01, write FA00 with bit 9 turned over (a running drive ramps through zero) |
 //! | Stop | write FA00 = C000H (command and frequency priority kept, run off), bit 9 as last known |
@@ -280,6 +280,18 @@ impl BlockMap {
             BlockMap::Unusable
         }
     }
+
+    /// The read groups to ask for: up to the last of FD01, FD00 and FE03 (fewer groups, a
+    /// shorter reply; FC90 comes along where it lies within them).
+    fn groups(self) -> u8 {
+        match self {
+            BlockMap::Items(items) => {
+                let last = items.iter().rposition(|n| [FD01, FD00, FE03].contains(n)).unwrap_or(4);
+                u8::try_from(last + 1).unwrap_or(5)
+            }
+            _ => 5,
+        }
+    }
 }
 
 /// A Toshiba VF-AS1 at one inverter number (or a broadcast), in one of its protocols.
@@ -441,7 +453,7 @@ impl Profile for ToshibaProfile {
                 let block = self.block_status && self.protocol == ToshibaProtocol::TipBinary;
                 let mut todo = match (block, self.memory.block()) {
                     (true, BlockMap::Unknown) => (F875..=F879).map(Ask::Read).collect(),
-                    (true, BlockMap::Items(_)) => vec![Ask::Block, Ask::Read(FE02)],
+                    (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
                     _ => single_status_reads(),
                 };
                 if self.memory.rated_current.load(Ordering::Relaxed) == 0 {
@@ -493,7 +505,7 @@ impl Profile for ToshibaProfile {
 /// known: the block and FE02, or one number per request.
 fn next_status_reads(todo: &mut Vec<Ask>, map: BlockMap) {
     let next = match map {
-        BlockMap::Items(_) => vec![Ask::Block, Ask::Read(FE02)],
+        BlockMap::Items(_) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
         _ => single_status_reads(),
     };
     todo.extend(next.into_iter().rev());
@@ -525,8 +537,8 @@ enum Ask {
     Read(u16),
     /// Write one: `ram` picks TIP's `P` over `W` (Modbus has 06 only).
     Write { comm: u16, value: u16, ram: bool },
-    /// TIP binary `X`: no write groups, 5 read groups.
-    Block,
+    /// TIP binary `X`: no write groups, this many read groups.
+    Block(u8),
 }
 
 impl fmt::Display for Ask {
@@ -535,7 +547,7 @@ impl fmt::Display for Ask {
             Ask::Read(c) => write!(f, "read of {c:04X}"),
             Ask::Write { comm, value, ram: true } => write!(f, "write (RAM) of {value:04X}H to {comm:04X}"),
             Ask::Write { comm, value, ram: false } => write!(f, "write of {value:04X}H to {comm:04X}"),
-            Ask::Block => f.write_str("block read (X)"),
+            Ask::Block(n) => write!(f, "block read (X) of {n} groups"),
         }
     }
 }
@@ -563,7 +575,7 @@ impl Link {
         match ask {
             Ask::Read(c) => Some(ModbusAsk::Read { start: c, quantity: 1 }),
             Ask::Write { comm, value, .. } => Some(ModbusAsk::Write { register: comm, value }),
-            Ask::Block => None,
+            Ask::Block(_) => None,
         }
     }
 
@@ -583,7 +595,7 @@ impl Link {
                         AsciiRequest::write_ram(inv, CommNo(comm), value)
                     }
                     Ask::Write { comm, value, ram: false } => AsciiRequest::write(inv, CommNo(comm), value),
-                    Ask::Block => return Err(cannot(&"block communication is TIP binary mode only")),
+                    Ask::Block(_) => return Err(cannot(&"block communication is TIP binary mode only")),
                 };
                 let mut out = [0u8; 32];
                 let n = request.with_sum().emit(&mut out).map_err(|e| cannot(&e))?;
@@ -598,8 +610,8 @@ impl Link {
                         BinaryRequest::write_ram(inv, CommNo(comm), value)
                     }
                     Ask::Write { comm, value, ram: false } => BinaryRequest::write(inv, CommNo(comm), value),
-                    Ask::Block => {
-                        BinaryRequest::block(inv, BlockRequest::new(&[], 5).map_err(|e| cannot(&e))?)
+                    Ask::Block(n) => {
+                        BinaryRequest::block(inv, BlockRequest::new(&[], n).map_err(|e| cannot(&e))?)
                     }
                 };
                 let mut out = [0u8; 32];
@@ -619,7 +631,7 @@ impl Link {
         let (cmd, comm, written) = match ask {
             Ask::Read(c) => (Cmd::R, c, None),
             Ask::Write { comm, value, ram } => (if ram { Cmd::P } else { Cmd::W }, comm, Some(value)),
-            Ask::Block => (Cmd::R, 0, None),
+            Ask::Block(_) => (Cmd::R, 0, None),
         };
         let tip_refusal = |code: ErrorCode| DriveError::Refused {
             code: u32::from(code.0),
@@ -669,9 +681,9 @@ impl Link {
                 }
                 match (reply.body, ask) {
                     (BinaryReplyBody::Error(code), _) => Err(tip_refusal(code)),
-                    (BinaryReplyBody::Block(b), Ask::Block) => {
-                        if b.rdata().len() != 5 {
-                            return Err(bad(format!("carries {} read groups, not 5", b.rdata().len())));
+                    (BinaryReplyBody::Block(b), Ask::Block(n)) => {
+                        if b.rdata().len() != usize::from(n) {
+                            return Err(bad(format!("carries {} read groups, not {n}", b.rdata().len())));
                         }
                         Ok(Answer::Block { items: b.rdata().to_vec() })
                     }
@@ -853,7 +865,7 @@ impl ToshibaPlan {
             },
             Job::Status(s) => {
                 match (self.sent, &answer) {
-                    (Some(Ask::Block), Some(Answer::Block { items })) => {
+                    (Some(Ask::Block(_)), Some(Answer::Block { items })) => {
                         let BlockMap::Items(numbers) = self.memory.block() else {
                             return Err(DriveError::Protocol(
                                 "a block reply came before the block's read items were known".to_string(),

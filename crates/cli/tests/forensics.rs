@@ -6,7 +6,7 @@ use serde_json::Value;
 #[path = "support/sim.rs"]
 mod sim;
 
-use sim::{drivebus, ok, pty_path, simulate};
+use sim::{drivebus, ok, pty_path, simulate, wait_status};
 
 fn get(port: &str, protocol: &str, name: &str) -> Value {
     let o = drivebus(port, "toshiba", Some(protocol), 1, &["param", "get", name, "--json"]);
@@ -59,21 +59,6 @@ fn trip(sim: &sim::Proc, what: &str) {
     let (code, v) = http::http_json(sim.control(), "POST", "/drives/1", Some(&serde_json::json!({"trip": what})))
         .expect("trip through the control interface");
     assert_eq!(code, 200, "{v}");
-}
-
-/// Waits (generous deadline) until the drive's status says `what`.
-fn wait_status(port: &str, family: &str, protocol: Option<&str>, address: u8, what: &str, f: impl Fn(&Value) -> bool) {
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
-    loop {
-        let o = drivebus(port, family, protocol, address, &["status", "--json"]);
-        if o.code == 0 {
-            let s: Value = serde_json::from_str(o.stdout.trim()).expect("status JSON");
-            if f(&s) {
-                return;
-            }
-        }
-        assert!(std::time::Instant::now() < deadline, "{family}: never {what}: {}{}", o.stdout, o.stderr);
-    }
 }
 
 /// Every family: two trips through the simulator's control interface (the first while running

@@ -6,6 +6,8 @@
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 
+use serde_json::Value;
+
 /// A background process killed on drop, with the line it printed when ready.
 pub struct Proc {
     child: Child,
@@ -87,4 +89,31 @@ pub fn ok(o: &Out, what: &str) {
 /// A pty path of its own for a test.
 pub fn pty_path(what: &str) -> String {
     std::env::temp_dir().join(format!("drivebus-{what}-{}", std::process::id())).to_string_lossy().to_string()
+}
+
+/// `status --json` of the drive, parsed.
+pub fn status(port: &str, family: &str, protocol: Option<&str>, address: u8) -> Value {
+    let o = drivebus(port, family, protocol, address, &["status", "--json"]);
+    ok(&o, "status");
+    serde_json::from_str(o.stdout.trim()).expect("status JSON")
+}
+
+/// Polls `status` until `done` holds for it, with a generous deadline (the ramp's pace is the
+/// simulator's, not a speed claim of this test).
+pub fn wait_status(
+    port: &str,
+    family: &str,
+    protocol: Option<&str>,
+    address: u8,
+    what: &str,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        let s = status(port, family, protocol, address);
+        if done(&s) {
+            return s;
+        }
+        assert!(std::time::Instant::now() < deadline, "{what}: {s}");
+    }
 }

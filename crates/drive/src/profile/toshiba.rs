@@ -1078,4 +1078,26 @@ mod tests {
         let m = Monitors { fe03: 1915, ..m };
         assert_eq!(status_of(1, &m, 100).current_a, Some(1.92));
     }
+
+    /// A drive that refuses to tell its block read items (error 0002 to f875) is read one
+    /// number per request, and the profile does not ask again.
+    #[test]
+    fn a_refused_block_selection_falls_back_to_single_reads() {
+        let p = ToshibaProfile::new(1, ToshibaProtocol::TipBinary).unwrap_or_else(|e| panic!("{e}"));
+        let request = |step: Result<Step, DriveError>| match step {
+            Ok(Step::Send(x)) => BinaryRequest::parse(&x.request).unwrap_or_else(|e| panic!("{e}")),
+            other => panic!("expected a request, got {other:?}"),
+        };
+        let mut plan = p.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        let first = request(plan.step(None));
+        assert_eq!(first.body.comm_no(), Some(CommNo(F875)));
+        let refusal = first.error_reply(1, false, ErrorCode::COMM_NO_ERROR);
+        let mut out = [0u8; 32];
+        let n = refusal.emit(&mut out).unwrap_or_else(|e| panic!("{e}"));
+        let next = request(plan.step(Some(&out[..n])));
+        assert_eq!(next.body.comm_no(), Some(CommNo(FD01)), "single reads: {next:?}");
+        assert_eq!(p.memory.block(), BlockMap::Unusable);
+        let mut again = p.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(request(again.step(None)).body.comm_no(), Some(CommNo(FD01)));
+    }
 }

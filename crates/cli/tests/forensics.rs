@@ -18,9 +18,10 @@ fn get(port: &str, protocol: &str, name: &str) -> Value {
 /// refuses writes; in TIP (ASCII and binary) and in Modbus-RTU.
 #[test]
 fn toshiba_outputs_and_model_code_in_every_protocol() {
-    for (drive, protocols) in
-        [("toshiba@1", &["toshiba-binary", "toshiba-ascii"][..]), ("toshiba@1:modbus-rtu", &["modbus-rtu"][..])]
-    {
+    for (drive, protocols) in [
+        ("toshiba@1", &["toshiba-binary", "toshiba-ascii"][..]),
+        ("toshiba@1:modbus-rtu", &["modbus-rtu"][..]),
+    ] {
         let pty = pty_path("toshiba-outputs");
         let _sim = simulate(drive, &["--pty", &pty]);
         for (k, &protocol) in protocols.iter().enumerate() {
@@ -29,7 +30,11 @@ fn toshiba_outputs_and_model_code_in_every_protocol() {
             assert!(model["text"].as_str().unwrap_or("").contains("VFAS1-2037PM"), "{model}");
             let o = drivebus(&pty, "toshiba", Some(protocol), 1, &["param", "get", "FB05"]);
             ok(&o, "FB05 as text");
-            assert!(o.stdout.contains("Inverter model (capacity) code") && o.stdout.contains("VFAS1-2037PM"), "{}", o.stdout);
+            assert!(
+                o.stdout.contains("Inverter model (capacity) code") && o.stdout.contains("VFAS1-2037PM"),
+                "{}",
+                o.stdout
+            );
             let bits = format!("{}", 5 + k);
             ok(&drivebus(&pty, "toshiba", Some(protocol), 1, &["param", "set", "FA50", &bits]), "set FA50");
             assert_eq!(get(&pty, protocol, "FA50")["raw"], 5 + k as i64, "{protocol}");
@@ -56,8 +61,9 @@ fn trips(port: &str, family: &str, protocol: Option<&str>, address: u8) -> Value
 }
 
 fn trip(sim: &sim::Proc, what: &str) {
-    let (code, v) = http::http_json(sim.control(), "POST", "/drives/1", Some(&serde_json::json!({"trip": what})))
-        .expect("trip through the control interface");
+    let (code, v) =
+        http::http_json(sim.control(), "POST", "/drives/1", Some(&serde_json::json!({"trip": what})))
+            .expect("trip through the control interface");
     assert_eq!(code, 200, "{v}");
 }
 
@@ -67,7 +73,15 @@ fn trip(sim: &sim::Proc, what: &str) {
 #[test]
 fn trips_of_every_family_over_a_pty() {
     for (drive, family, protocol, address, first, second, logged) in [
-        ("generic@1:modbus-rtu", "generic", Some("modbus-rtu"), 1, (1, "over-current"), (4, "module over-temperature"), true),
+        (
+            "generic@1:modbus-rtu",
+            "generic",
+            Some("modbus-rtu"),
+            1,
+            (1, "over-current"),
+            (4, "module over-temperature"),
+            true,
+        ),
         ("toshiba@1", "toshiba", Some("toshiba-binary"), 1, (0x03, "OC3"), (0x10, "OH"), true),
         ("toshiba@1", "toshiba", Some("toshiba-ascii"), 1, (0x03, "OC3"), (0x10, "OH"), true),
         ("danfoss@3", "danfoss", None, 3, (13, "over current"), (29, "heat sink temperature"), true),

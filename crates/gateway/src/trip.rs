@@ -43,7 +43,8 @@ mod tests {
     #[test]
     fn the_detail_keeps_the_values_before_and_at_the_trip() {
         let fault = Fault { code: 3, text: "OC3".into() };
-        let before = DriveStatus { running: true, output_hz: Some(40.0), current_a: Some(7.5), ..Default::default() };
+        let before =
+            DriveStatus { running: true, output_hz: Some(40.0), current_a: Some(7.5), ..Default::default() };
         let at = DriveStatus { fault: Some(fault.clone()), ..Default::default() };
         let d = trip_detail(&fault, Some(&before), Some(1000), Some(40.0), &at);
         assert_eq!(d["code"], 3);

@@ -53,7 +53,8 @@ pub fn run(t: &Target) -> Result<u8> {
         }
         let width = h.entries.iter().map(|e| e.text.len()).max().unwrap_or(4).max(4);
         println!("  {:>2}  {:>4}  {:<width$}  {:>10}  {:>8}", "#", "code", "text", "output", "current");
-        let cell = |v: Option<f64>, unit: &str, d: usize| v.map_or("-".to_string(), |x| format!("{x:.d$} {unit}"));
+        let cell =
+            |v: Option<f64>, unit: &str, d: usize| v.map_or("-".to_string(), |x| format!("{x:.d$} {unit}"));
         for e in &h.entries {
             println!(
                 "  {:>2}  {:>4}  {:<width$}  {:>10}  {:>8}",

@@ -736,7 +736,10 @@ impl Plan for GenericPlan {
                 // A drive that refuses a multi-register read (illegal address or value) is read
                 // one register per request from now on: the status starts again.
                 Err(DriveError::Refused { code: 2 | 3, .. })
-                    if matches!((ask, &self.job), (ModbusAsk::Read { quantity: 2.., .. }, Job::Status(_))) =>
+                    if matches!(
+                        (ask, &self.job),
+                        (ModbusAsk::Read { quantity: 2.., .. }, Job::Status(_))
+                    ) =>
                 {
                     self.word_reads.store(true, Ordering::Relaxed);
                     self.stage = 0;
@@ -883,7 +886,10 @@ mod tests {
                 Ok(Step::Done(Outcome::Status(st))) => {
                     assert_eq!(k, 4);
                     assert!(st.running && st.fault.is_none(), "{st:?}");
-                    assert_eq!((st.setpoint_hz, st.output_hz, st.current_a), (Some(40.0), Some(39.9), Some(7.5)));
+                    assert_eq!(
+                        (st.setpoint_hz, st.output_hz, st.current_a),
+                        (Some(40.0), Some(39.9), Some(7.5))
+                    );
                 }
                 other => panic!("{other:?}"),
             }

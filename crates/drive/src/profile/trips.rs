@@ -74,7 +74,10 @@ pub fn history_of(family: Family, status: &DriveStatus, raws: &[i64]) -> TripHis
     let raw = |i: usize| raws.get(i).copied().unwrap_or(0);
     // The value in units of catalog parameter `name`, as the catalog scales it.
     let scaled = |name: &str, raw: i64| {
-        Catalog::load(family).ok().and_then(|c| c.get(name).map(|d| d.from_raw(raw))).map(|v| super::round_to(v, 2))
+        Catalog::load(family)
+            .ok()
+            .and_then(|c| c.get(name).map(|d| d.from_raw(raw)))
+            .map(|v| super::round_to(v, 2))
     };
     let entry = |index: usize, code: i64, text: String| TripEntry {
         index,
@@ -113,8 +116,10 @@ pub fn history_of(family: Family, status: &DriveStatus, raws: &[i64]) -> TripHis
             for k in 0..10 {
                 let code = raw(k);
                 if code != 0 {
-                    let text = danfoss::alarm_text(code as u32)
-                        .map_or_else(|| format!("alarm {code} (not in drivebus' alarm list)"), str::to_string);
+                    let text = danfoss::alarm_text(code as u32).map_or_else(
+                        || format!("alarm {code} (not in drivebus' alarm list)"),
+                        str::to_string,
+                    );
                     entries.push(entry(k + 1, code, text));
                 }
             }
@@ -145,7 +150,8 @@ mod tests {
 
     #[test]
     fn toshiba_history_newest_first_with_the_frequency_at_the_trip() {
-        let status = DriveStatus { fault: Some(Fault { code: 3, text: toshiba::trip_text(3) }), ..Default::default() };
+        let status =
+            DriveStatus { fault: Some(Fault { code: 3, text: toshiba::trip_text(3) }), ..Default::default() };
         let h = history_of(Family::Toshiba, &status, &[0x03, 0x10, 0, 0, 4000]);
         assert_eq!(h.entries.len(), 2);
         assert_eq!((h.entries[0].index, h.entries[0].code), (1, 3));

@@ -20,3 +20,26 @@ write_plant() {
     done
   } >"$file"
 }
+
+# Writes the configuration of one virtual bus per drive family, DRIVES drives each (named
+# generic-1.., toshiba-1.., danfoss-1.., b800-1..), at BAUD in each family's character format,
+# every drive polled as often as the line allows (poll_ms = 10).
+#
+#   write_family_plant FILE BAUD DRIVES [EXTRA]   EXTRA: TOML put before the buses (tokens, ...)
+write_family_plant() {
+  local file="$1" baud="$2" drives="$3" extra="${4:-}"
+  {
+    echo 'name = "families"'
+    printf '[http]\nanonymous_read = true\n'
+    printf '%s\n' "$extra"
+    local fam protocol serial a
+    for spec in generic:modbus-rtu:8N2 toshiba:toshiba-binary:8E1 danfoss:danfoss-fc:8E1 b800:b800:8N1; do
+      IFS=: read -r fam protocol serial <<<"$spec"
+      printf '[[bus]]\nname = "line-%s"\nport = "virtual"\nprotocol = "%s"\nbaud = %d\nserial = "%s"\n' \
+        "$fam" "$protocol" "$baud" "$serial"
+      for a in $(seq 1 "$drives"); do
+        printf '[[bus.drive]]\nname = "%s-%d"\nfamily = "%s"\naddress = %d\npoll_ms = 10\n' "$fam" "$a" "$fam" "$a"
+      done
+    done
+  } >"$file"
+}

@@ -44,6 +44,9 @@ enum Command {
     Jog,
     /// Reset a fault.
     Reset,
+    /// Read a drive's trip history as far as its protocol gives it: the trip in force and the
+    /// logged trips, newest first, with the frequency and current at the trip where logged.
+    Trips,
     /// Set the speed in Hz (checked against the drive's limits before anything is sent).
     Speed {
         /// The speed in Hz.
@@ -166,6 +169,7 @@ fn main() -> ExitCode {
         Command::Reverse => commands::drive::command(&target, "reverse", None),
         Command::Jog => commands::drive::command(&target, "jog", None),
         Command::Reset => commands::drive::command(&target, "reset", None),
+        Command::Trips => commands::trips::run(&target),
         Command::Speed { hz } => commands::drive::command(&target, "speed", Some(hz)),
         Command::Param(cmd) => commands::drive::param(&target, &cmd),
         Command::Params(cmd) => commands::drive::params(&target, &cmd),

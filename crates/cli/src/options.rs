@@ -149,6 +149,7 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
         &["reverse"],
         &["jog"],
         &["reset"],
+        &["trips"],
         &["speed"],
         &["param"],
         &["param", "get"],

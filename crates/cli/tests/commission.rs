@@ -1,88 +1,17 @@
 //! The commissioning commands end to end against `drivebus simulate`: every family and
 //! protocol, over TCP and over a pty; and the generic profile against a pymodbus server.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 use serde_json::{json, Value};
 
 #[path = "support/http.rs"]
 mod http;
 
-/// A background process killed on drop, with the line it printed when ready.
-struct Proc {
-    child: Child,
-    ready: String,
-    /// The lines printed before the ready line.
-    before: Vec<String>,
-}
+#[path = "support/sim.rs"]
+mod sim;
 
-impl Proc {
-    fn start(mut cmd: Command, ready_prefix: &str) -> Proc {
-        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start");
-        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        let mut before = Vec::new();
-        let ready = loop {
-            let line = lines.next().expect("ready line").expect("utf-8");
-            if let Some(rest) = line.strip_prefix(ready_prefix) {
-                break rest.trim().to_string();
-            }
-            before.push(line);
-        };
-        std::thread::spawn(move || for _ in lines {});
-        Proc { child, ready, before }
-    }
-
-    /// The simulator's control interface (`--control`), from the line it printed.
-    fn control(&self) -> std::net::SocketAddr {
-        let line =
-            self.before.iter().find_map(|l| l.strip_prefix("control http://")).expect("a control line");
-        line.trim_end_matches("/drives").parse().expect("the control address")
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn simulate(drive: &str, endpoint: &[&str]) -> Proc {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
-    cmd.args(["simulate", "--drive", drive]).args(endpoint);
-    Proc::start(cmd, "listening on ")
-}
-
-struct Out {
-    code: i32,
-    stdout: String,
-    stderr: String,
-}
-
-fn drivebus(port: &str, family: &str, protocol: Option<&str>, address: u8, args: &[&str]) -> Out {
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
-    cmd.args(["--port", port, "--drive", family, "--address", &address.to_string(), "--timeout", "200"]);
-    if let Some(p) = protocol {
-        cmd.args(["--protocol", p]);
-    }
-    let out = cmd.args(args).output().expect("run drivebus");
-    Out {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
-}
-
-fn ok(o: &Out, what: &str) {
-    assert_eq!(o.code, 0, "{what}: {}{}", o.stdout, o.stderr);
-}
-
-fn status(port: &str, family: &str, protocol: Option<&str>, address: u8) -> Value {
-    let o = drivebus(port, family, protocol, address, &["status", "--json"]);
-    ok(&o, "status");
-    serde_json::from_str(o.stdout.trim()).expect("status JSON")
-}
+use sim::{drivebus, ok, simulate, status, wait_status, Proc};
 
 /// speed, run, status shows it running and ramping, stop; out-of-range speed refused with 3
 /// before anything is sent; a missing drive is exit 2.
@@ -475,26 +404,6 @@ fn b800_parameters_are_refused_with_what_to_do() {
     let o = drivebus(&port, "b800", None, 5, &["status"]);
     ok(&o, "status");
     assert!(o.stdout.contains("1 transaction,") && !o.stdout.contains("(s)"), "{}", o.stdout);
-}
-
-/// Polls `status` until `done` holds for it, with a generous deadline (the ramp's pace is the
-/// simulator's, not a speed claim of this test).
-fn wait_status(
-    port: &str,
-    family: &str,
-    protocol: Option<&str>,
-    address: u8,
-    what: &str,
-    done: impl Fn(&Value) -> bool,
-) -> Value {
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
-    loop {
-        let s = status(port, family, protocol, address);
-        if done(&s) {
-            return s;
-        }
-        assert!(std::time::Instant::now() < deadline, "{what}: {s}");
-    }
 }
 
 /// Danfoss, each command a separate process: `speed 30; run; stop; run` reaches 30 Hz (every

@@ -3,7 +3,8 @@
 //! when a command is first sent, say clearly when a token is not accepted, show a locked drive's
 //! refusal, run `mixer-1` (state running, output frequency above 0), and fit a 360 px wide screen.
 //! Then a second gateway, on a configuration of its own, shows a tripped drive (a `drivebus
-//! simulate` process tripped through its control interface) with its fault code and text, and a
+//! simulate` process tripped through its control interface while the page watches) with its
+//! fault code and text and the trip in the event log with the values before it, and a
 //! drive whose port does not exist as offline. Screenshots go to `target/artifacts/dashboard.png`,
 //! `dashboard-faults.png` and `dashboard-phone.png`.
 //!
@@ -125,10 +126,10 @@ fn start_serve() -> (Proc, SocketAddr, String) {
     (proc, http.unwrap(), token.unwrap())
 }
 
-/// A plant with trouble: a generic drive on a `drivebus simulate` process over TCP, tripped
+/// A plant with trouble: a generic drive on a `drivebus simulate` process over TCP, to be tripped
 /// through the simulator's control interface, and a drive on a serial port that does not exist.
-/// Returns the processes and the gateway's HTTP address.
-fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr) {
+/// Returns the processes, the gateway's HTTP address and the simulator's control address.
+fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
     let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
         .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
@@ -139,9 +140,6 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr) {
     let at = wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
     let sim = Proc(sim);
     let control: SocketAddr = at[1].trim_end_matches("/drives").parse().expect("the control address");
-    let (status, answer) =
-        http_json(control, "POST", "/drives/1", Some(&json!({ "trip": "over-current" }))).expect("trip");
-    assert_eq!(status, 200, "tripping the simulated drive: {answer}");
 
     let config = dir.join("faulted.toml");
     std::fs::write(
@@ -167,7 +165,7 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr) {
         .expect("start drivebus serve --config");
     let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
     let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (sim, Proc(serve), http)
+    (sim, Proc(serve), http, control)
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -546,8 +544,23 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
     // A tripped drive and a drive that cannot be reached, as a second gateway shows them.
     let dir = std::env::temp_dir().join(format!("drivebus-dashboard-faults-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("a temp dir");
-    let (_sim, _faulted, faulted_http) = start_faulted_plant(&dir);
+    let (_sim, _faulted, faulted_http, control) = start_faulted_plant(&dir);
     browser.goto(&format!("http://{faulted_http}/"));
+    // Tripped while the gateway polls it and the page follows the live events: the trip's row
+    // in the event log shows the values the drive had just before it.
+    browser.wait_for(
+        "press-1 polled, stopped",
+        "const t = document.querySelector('[data-drive=\"press-1\"]'); return !!t && t.dataset.state === 'stopped';",
+        "const t = document.querySelector('[data-drive=\"press-1\"]'); return t ? t.innerText : document.body.innerText.slice(0, 300);",
+    );
+    let (status, answer) =
+        http_json(control, "POST", "/drives/1", Some(&json!({ "trip": "over-current" }))).expect("trip");
+    assert_eq!(status, 200, "tripping the simulated drive: {answer}");
+    browser.wait_for(
+        "the trip in the event log with the values before it",
+        "return [...document.querySelectorAll('#event-rows tr')].some(r => r.dataset.kind === 'trip' && r.textContent.includes('press-1') && r.textContent.includes('before: stopped 0.00 Hz'));",
+        "return document.getElementById('event-rows').innerText;",
+    );
     let fault = q(&tile("press-1", "[data-field=fault]"));
     browser.wait_for(
         "press-1 tripped, with the fault's code and text",

@@ -153,15 +153,18 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
         assert!(!s.running, "{protocol}");
         assert_eq!(s.fault, None);
         assert_eq!(s.current_a, Some(0.0));
-        // FD01, FD00, FE02, FE03 and, the first time, FE70.
-        assert_eq!(bus.exchanges, 5, "{protocol}");
+        // FD01, FD00, FE02, FE03 and, the first time, FE70; in binary mode f875-f879 (once),
+        // the X block, FE02 and FE70.
+        let first = if protocol == ToshibaProtocol::TipBinary { 8 } else { 5 };
+        assert_eq!(bus.exchanges, first, "{protocol}");
 
         bus.ok(&p, Operation::SetSpeed(40.0));
         bus.ok(&p, Operation::Run);
         bus.wait(Duration::from_secs(2));
         let before = bus.exchanges;
         let s = bus.status(&p);
-        assert_eq!(bus.exchanges - before, 4, "FE70 is read once per profile ({protocol})");
+        let each = if protocol == ToshibaProtocol::TipBinary { 2 } else { 4 };
+        assert_eq!(bus.exchanges - before, each, "FE70 and f875-f879 are read once per profile ({protocol})");
         assert!(s.running, "{protocol}");
         assert_eq!(s.direction.as_deref(), Some("forward"));
         assert_eq!(s.setpoint_hz, Some(40.0));
@@ -185,29 +188,68 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
     }
 }
 
+/// Binary mode reads status with block communication by default: f875-f879 once, then the X
+/// block of the first 3 read groups and FE02 per status (the single reads' result, in 31
+/// bytes instead of 56).
 #[test]
 fn binary_block_status_reads_in_two_exchanges() {
     let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
-    let plain = profile(ToshibaProtocol::TipBinary);
-    let block = profile(ToshibaProtocol::TipBinary).with_block_status(true);
+    let plain = profile(ToshibaProtocol::TipBinary).with_block_status(false);
+    let block = profile(ToshibaProtocol::TipBinary);
     bus.ok(&plain, Operation::SetSpeed(30.0));
     bus.ok(&plain, Operation::Run);
     bus.wait(Duration::from_secs(10));
-    let a = bus.status(&plain);
-    bus.status(&block); // learns FE70
     let before = bus.exchanges;
+    let a = bus.status(&plain);
+    assert_eq!(bus.exchanges - before, 5, "FD01, FD00, FE02, FE03, FE70 one by one");
+    bus.status(&block); // learns FE70 and f875-f879
+    let (before, bytes) = (bus.exchanges, bus.master_bytes());
     let b = bus.status(&block);
     assert_eq!(bus.exchanges - before, 2, "X block read and FE02");
+    assert_eq!(bus.master_bytes() - bytes, 6 + 6, "X (6 bytes) and R FE02 (6 bytes) from the master");
     assert_eq!(a, b);
     assert_eq!(b.output_hz, Some(30.0));
-    // A trip shows in the block's FC90 item.
+    // The block asks for 3 groups (FD01, FD00, FE03): FC90, the 4th item, is read on its own
+    // when FD01 says tripped.
     bus.drive_mut(1).core_mut().model.trip_now(Trip::OverCurrent);
+    let before = bus.exchanges;
     let f = bus.status(&block).fault.unwrap_or_else(|| panic!("a fault"));
+    assert_eq!(bus.exchanges - before, 3, "X, FE02 and FC90");
     assert_eq!((f.code, f.text.as_str()), (0x03, "OC3: over-current during constant speed operation"));
     // Other protocols ignore the option.
     let mut rtu = Bus::new(ToshibaProtocol::ModbusRtu, &[1]);
     rtu.status(&profile(ToshibaProtocol::ModbusRtu).with_block_status(true));
     assert_eq!(rtu.exchanges, 5);
+}
+
+/// A drive whose block read items lack one the status needs is read one number per request;
+/// a write of f875-f879 through the profile makes it read them again. Without FC90 in the
+/// block, a tripped drive costs one more read.
+#[test]
+fn block_status_follows_the_drives_read_item_selection() {
+    let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
+    let p = profile(ToshibaProtocol::TipBinary);
+    // f876 = 4: output voltage instead of output frequency.
+    bus.ok(&p, write("f876", 4, Storage::Ram));
+    bus.status(&p);
+    let before = bus.exchanges;
+    let s = bus.status(&p);
+    assert_eq!(bus.exchanges - before, 4, "FD01, FD00, FE02, FE03: the block lacks FD00");
+    assert_eq!(s.output_hz, Some(0.0));
+    // FD00 back, FC90 first: the block again (4 groups, FC90 among them), no FC90 read when
+    // tripped.
+    bus.ok(&p, write("f876", 2, Storage::Ram));
+    bus.ok(&p, write("f875", 13, Storage::Ram));
+    bus.ok(&p, write("f878", 1, Storage::Ram));
+    let before = bus.exchanges;
+    bus.status(&p);
+    assert_eq!(bus.exchanges - before, 5 + 2, "f875-f879 read again, then X and FE02");
+    bus.drive_mut(1).core_mut().model.trip_now(Trip::OverTemperature);
+    let (before, bytes) = (bus.exchanges, bus.master_bytes());
+    let f = bus.status(&p).fault.unwrap_or_else(|| panic!("a fault"));
+    assert_eq!(bus.exchanges - before, 2, "FC90 comes in the block");
+    assert_eq!(bus.master_bytes() - bytes, 12);
+    assert_eq!(f.code, 0x10);
 }
 
 #[test]

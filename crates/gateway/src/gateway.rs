@@ -934,7 +934,10 @@ impl Gateway {
                     let old_fault = s.status.as_ref().and_then(|x| x.fault.clone());
                     match (&old_fault, &status.fault) {
                         (None, Some(f)) => {
-                            events.push(event(EventKind::Trip, json!({ "code": f.code, "text": f.text })));
+                            let before = s.status.as_ref();
+                            let detail =
+                                crate::trip::trip_detail(f, before, s.updated_ms, s.commanded_hz, &status);
+                            events.push(event(EventKind::Trip, detail));
                         }
                         (Some(f), None) => {
                             events.push(event(

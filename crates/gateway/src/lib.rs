@@ -38,6 +38,7 @@ pub mod reload;
 pub mod server;
 pub mod sparkplug;
 pub mod text;
+pub mod trip;
 #[cfg(feature = "virtual")]
 pub mod virtual_bus;
 

@@ -287,6 +287,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let checksum = Family::<BusLabels, Counter>::default();
     let retries = Family::<BusLabels, Counter>::default();
     let utilization = Family::<BusLabels, F64Gauge>::default();
+    let wire_bytes = Family::<BusLabels, Counter>::default();
     let bus_online = Family::<BusLabels, Gauge>::default();
     for b in gw.buses().iter() {
         let l = BusLabels { bus: b.config.name.clone() };
@@ -296,6 +297,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         timeouts.get_or_create(&l).inc_by(s.timeouts);
         checksum.get_or_create(&l).inc_by(s.checksum_errors);
         retries.get_or_create(&l).inc_by(s.retries);
+        wire_bytes.get_or_create(&l).inc_by(s.wire_bytes);
         let u = s.utilization();
         utilization.get_or_create(&l).set(if u.is_finite() { u } else { 0.0 });
         bus_online.get_or_create(&l).set(i64::from(b.online()));
@@ -306,6 +308,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     reg.register("bus_checksum_errors", "Damaged replies", checksum);
     reg.register("bus_retries", "Retries after a timeout or a damaged reply", retries);
     reg.register("bus_utilization", "Time on the wire over time elapsed (0..1)", utilization);
+    reg.register("bus_wire_bytes", "Bytes of the requests and their replies on the line", wire_bytes);
     reg.register("bus_online", "1 unless the bus's port failed", bus_online);
 
     // The gateway's own work.

@@ -158,6 +158,8 @@ async fn metrics_cover_drives_buses_and_the_gateway() {
         let tx = find(&samples, "drivebus_bus_transactions_total", &l).unwrap().value;
         let rx = find(&samples, "drivebus_bus_replies_total", &l).unwrap().value;
         assert!(tx > 0.0 && rx > 0.0 && rx <= tx, "{l:?}: {rx} replies to {tx} requests");
+        let bytes = find(&samples, "drivebus_bus_wire_bytes_total", &l).unwrap().value;
+        assert!(bytes >= 4.0 * (tx + rx), "{l:?}: {bytes} bytes for {tx} requests and {rx} replies");
         for n in ["timeouts_total", "checksum_errors_total", "retries_total"] {
             assert!(find(&samples, &format!("drivebus_bus_{n}"), &l).is_some(), "{n}");
         }

@@ -196,6 +196,7 @@ impl<P: Protocol> Engine<P> {
                 self.stat(now, |s| {
                     s.replies += 1;
                     s.wire_seconds += wire;
+                    s.wire_bytes += bytes.len() as u64;
                 });
                 Action::Done(Attempt::Reply(bytes))
             }
@@ -222,6 +223,7 @@ impl<P: Protocol> Engine<P> {
         let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
         s.transactions += 1;
         s.wire_seconds += wire;
+        s.wire_bytes += self.out.len() as u64;
         // The request is on the line until its last character: elapsed time runs to there, so
         // the line is never busier than the time that has passed.
         s.elapsed_seconds = s.elapsed_seconds.max(now.as_nanos() as f64 / 1e9 + wire);
@@ -341,7 +343,7 @@ mod tests {
         first_transmit(&mut e);
         // The write failed (no port): nothing was on the line.
         let s = stats.lock().unwrap().clone();
-        assert_eq!((s.transactions, s.wire_seconds, s.utilization()), (0, 0.0, 0.0));
+        assert_eq!((s.transactions, s.wire_seconds, s.utilization(), s.wire_bytes), (0, 0.0, 0.0, 0));
     }
 
     #[test]
@@ -352,6 +354,7 @@ mod tests {
         // Read while the request is still on the wire (8 characters at 9600 baud, 8.3 ms).
         let s = stats.lock().unwrap().clone();
         assert_eq!(s.transactions, 1);
+        assert_eq!(s.wire_bytes, 8, "the 8 bytes of the request: {s:?}");
         assert!(s.wire_seconds > 0.008, "{s:?}");
         let u = s.utilization();
         assert!(u > 0.0 && u <= 1.0, "utilization {u} from {s:?}");

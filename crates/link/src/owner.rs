@@ -157,6 +157,8 @@ pub struct BusStats {
     pub broadcasts: u64,
     /// Time the line carried our requests and the replies, seconds.
     pub wire_seconds: f64,
+    /// Bytes of our requests and their replies on the line (what `wire_seconds` reckons).
+    pub wire_bytes: u64,
     /// Session time since the bus started, seconds.
     pub elapsed_seconds: f64,
 }

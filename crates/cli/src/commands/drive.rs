@@ -243,7 +243,7 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     Ok(Resolved { family, protocol, address, port, config, label })
 }
 
-async fn connect(t: &Target) -> Result<(Drive, String)> {
+pub(crate) async fn connect(t: &Target) -> Result<(Drive, String)> {
     let r = resolve(t)?;
     let profile = drivebus_drive::profile::for_drive(r.family, r.protocol, r.address)
         .map_err(|e| fail(EXIT_USAGE, e.to_string()))?;

@@ -9,3 +9,4 @@ pub mod scan;
 pub mod serve;
 pub mod simulate;
 pub mod sniff;
+pub mod trips;

@@ -588,6 +588,7 @@ mod tests {
                 retries: 2,
                 broadcasts: 0,
                 wire_seconds: 1.0,
+                wire_bytes: 960,
                 elapsed_seconds: 4.0,
             },
         }

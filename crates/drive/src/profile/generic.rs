@@ -3,7 +3,7 @@
 //!
 //! | operation | exchanges |
 //! |---|---|
-//! | Status | 03 read 2100H..2103H (fault code, status bits, set and output frequency), 03 read 2104H (current): the drive answers at most 4 registers ("N<=8" data bytes) |
+//! | Status | 03 read 2100H..2103H (fault code, status bits, set and output frequency), 03 read 2104H (current): the drive answers at most 4 registers ("N<=8" data bytes). A drive that refuses the 4-register read (exception 02 or 03) is read one register per request (2100H..2104H) from then on |
 //! | Run / Stop / Jog / Reset | 06 write 2000H = 1 (run in the commanded direction) / 7 (decelerate to stop) / 4 (jog) / 0AH (fault reset) |
 //! | Reverse | 03 read 2101H, then 06 write 2000H = 3 (reverse run) or 2 (forward run), 6 or 5 while jogging |
 //! | SetSpeed | 06 write 2001H, 0.01 Hz, after a check against the known limits |
@@ -35,7 +35,7 @@
 
 use std::fmt;
 use std::str::FromStr;
-use std::sync::atomic::{AtomicI64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::Arc;
 
 use drivebus_proto::modbus::{ExceptionCode, Reply, ReplyPdu, Request, UnitId};
@@ -150,6 +150,8 @@ pub struct GenericProfile {
     protocol: GenericProtocol,
     catalog: Arc<Catalog>,
     limits: Arc<SpeedLimits>,
+    /// The drive refused a multi-register read: status reads one register per request.
+    word_reads: Arc<AtomicBool>,
 }
 
 impl GenericProfile {
@@ -164,7 +166,13 @@ impl GenericProfile {
             .map_err(|e| DriveError::Unsupported(format!("the generic catalog does not load: {e}")))?;
         let limits =
             SpeedLimits::from_catalog(&catalog, "P0.04", "maximum frequency", "P0.05", "upper limit")?;
-        Ok(GenericProfile { address, protocol, catalog, limits: Arc::new(limits) })
+        Ok(GenericProfile {
+            address,
+            protocol,
+            catalog,
+            limits: Arc::new(limits),
+            word_reads: Arc::new(AtomicBool::new(false)),
+        })
     }
 
     /// The transmission mode in use.
@@ -213,6 +221,7 @@ impl GenericProfile {
             framing: self.protocol.framing(),
             unit: self.address,
             limits: Arc::clone(&self.limits),
+            word_reads: Arc::clone(&self.word_reads),
             job,
             stage: 0,
             sent: None,
@@ -602,6 +611,8 @@ struct GenericPlan {
     framing: ModbusFraming,
     unit: u8,
     limits: Arc<SpeedLimits>,
+    /// Shared with the profile: status reads one register per request.
+    word_reads: Arc<AtomicBool>,
     job: Job,
     /// Exchanges answered so far.
     stage: u8,
@@ -648,6 +659,20 @@ impl GenericPlan {
         let stage = self.stage;
         self.stage = self.stage.saturating_add(1);
         match &mut self.job {
+            Job::Status(s) if self.word_reads.load(Ordering::Relaxed) => {
+                // 2100H, 2101H, 2102H, 2103H, 2104H one by one.
+                if stage > 0 {
+                    let value = word(0);
+                    match stage {
+                        1 => s.fault = value,
+                        2 => s.bits = value,
+                        3 => s.set = value,
+                        4 => s.output = value,
+                        _ => return Ok(Next::Done(Outcome::Status(status_of(self.unit, s, value)))),
+                    }
+                }
+                Ok(Next::Send(ModbusAsk::Read { start: reg::FAULT_CODE + u16::from(stage), quantity: 1 }))
+            }
             Job::Status(s) => match stage {
                 0 => Ok(Next::Send(ModbusAsk::Read { start: reg::FAULT_CODE, quantity: 4 })),
                 1 => {
@@ -721,6 +746,18 @@ impl Plan for GenericPlan {
         let answer = match self.sent.take() {
             Some(ask) => match self.answer(ask, reply) {
                 Ok(a) => Some(a),
+                // A drive that refuses a multi-register read (illegal address or value) is read
+                // one register per request from now on: the status starts again.
+                Err(DriveError::Refused { code: 2 | 3, .. })
+                    if matches!(
+                        (ask, &self.job),
+                        (ModbusAsk::Read { quantity: 2.., .. }, Job::Status(_))
+                    ) =>
+                {
+                    self.word_reads.store(true, Ordering::Relaxed);
+                    self.stage = 0;
+                    None
+                }
                 Err(e) => {
                     self.finished = true;
                     return Err(e);
@@ -828,5 +865,58 @@ mod tests {
             assert!(matches!(plan.step(Some(garbage)), Err(DriveError::Protocol(_))), "{garbage:?}");
             assert!(matches!(plan.step(Some(garbage)), Err(DriveError::Protocol(_))));
         }
+    }
+
+    /// A Modbus RTU frame: `body` and its CRC.
+    fn rtu(body: &[u8]) -> Vec<u8> {
+        let mut v = body.to_vec();
+        v.extend_from_slice(&drivebus_proto::checksum::crc16_modbus(body).to_le_bytes());
+        v
+    }
+
+    /// The request a step sends.
+    fn sent(step: Result<Step, DriveError>) -> Vec<u8> {
+        match step {
+            Ok(Step::Send(x)) => x.request,
+            other => panic!("expected a request, got {other:?}"),
+        }
+    }
+
+    /// A drive that answers exception 03 to the 4-register read is read one register per
+    /// request, in this status and every later one; a drive that takes it is read in two.
+    #[test]
+    fn a_drive_refusing_multi_register_reads_is_read_one_register_at_a_time() {
+        let p = profile(1);
+        let mut plan = p.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(sent(plan.step(None)), rtu(&[1, 3, 0x21, 0x00, 0, 4]));
+        let values = [0u16, 0x0001, 4000, 3990, 75];
+        let mut request = sent(plan.step(Some(&rtu(&[1, 0x83, 3]))));
+        for (k, value) in values.iter().enumerate() {
+            assert_eq!(request, rtu(&[1, 3, 0x21, k as u8, 0, 1]), "register {k}");
+            let [hi, lo] = value.to_be_bytes();
+            match plan.step(Some(&rtu(&[1, 3, 2, hi, lo]))) {
+                Ok(Step::Send(x)) => request = x.request,
+                Ok(Step::Done(Outcome::Status(st))) => {
+                    assert_eq!(k, 4);
+                    assert!(st.running && st.fault.is_none(), "{st:?}");
+                    assert_eq!(
+                        (st.setpoint_hz, st.output_hz, st.current_a),
+                        (Some(40.0), Some(39.9), Some(7.5))
+                    );
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+        // The next status starts with single reads at once.
+        let mut plan = p.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(sent(plan.step(None)), rtu(&[1, 3, 0x21, 0x00, 0, 1]));
+        // Another refusal of a single read is the drive's answer, not a fallback.
+        assert!(matches!(plan.step(Some(&rtu(&[1, 0x83, 2]))), Err(DriveError::Refused { code: 2, .. })));
+        // A profile whose drive takes it reads 2100H..2103H and 2104H.
+        let q = profile(1);
+        let mut plan = q.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(sent(plan.step(None)), rtu(&[1, 3, 0x21, 0x00, 0, 4]));
+        let four = rtu(&[1, 3, 8, 0, 0, 0, 1, 0x0F, 0xA0, 0x0F, 0x96]);
+        assert_eq!(sent(plan.step(Some(&four))), rtu(&[1, 3, 0x21, 0x04, 0, 1]));
     }
 }

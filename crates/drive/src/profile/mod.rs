@@ -25,6 +25,7 @@ pub mod b800;
 pub mod danfoss;
 pub mod generic;
 pub mod toshiba;
+pub mod trips;
 
 /// What to do to a drive.
 #[derive(Clone, Debug, PartialEq)]

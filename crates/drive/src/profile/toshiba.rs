@@ -4,7 +4,7 @@
 //!
 //! | operation | exchanges |
 //! |---|---|
-//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile), FC90 (trip code, only when FD01 says tripped). Binary mode with [`ToshibaProfile::with_block_status`]: one `X` block read (FD01, FD00, FE03, FC90, FE05) and FE02 |
+//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile; FD01, FD00, FE03 needed), asking for the read groups up to the last of those three (3 with the default selection; FC90 is used where it lies within them, else read when FD01 says tripped), and FE02: 31 bytes on the wire instead of 56 |
 //! | Run / Jog | read FD01 (trip, direction), write FA00 = C400H / C500H with bit 9 = the direction FD01 shows |
 //! | Reverse | read FD01, write FA00 with bit 9 turned over (a running drive ramps through zero) |
 //! | Stop | write FA00 = C000H (command and frequency priority kept, run off), bit 9 as last known |
@@ -49,14 +49,14 @@
 use std::fmt;
 use std::str::FromStr;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use drivebus_proto::modbus::ExceptionCode;
 use drivebus_proto::toshiba::ascii::{AsciiAddress, AsciiReply, AsciiReplyBody, AsciiRequest};
 use drivebus_proto::toshiba::binary::{
     BinaryAddress, BinaryReply, BinaryReplyBody, BinaryRequest, BlockRequest,
 };
-use drivebus_proto::toshiba::{Cmd, CommNo, Command1, ErrorCode, Status1};
+use drivebus_proto::toshiba::{block_read_item, Cmd, CommNo, Command1, ErrorCode, Status1};
 
 use super::generic::{
     checked_write, raw_of, register_of, ModbusAnswer, ModbusAsk, ModbusFraming, SpeedLimits,
@@ -241,6 +241,61 @@ struct Memory {
     rated_current: AtomicU32,
     /// The direction last read from FD01 or commanded.
     reverse: AtomicBool,
+    /// What the drive's block read items (f875–f879) carry, once read.
+    block: Mutex<BlockMap>,
+}
+
+impl Memory {
+    fn block(&self) -> BlockMap {
+        *self.block.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn set_block(&self, map: BlockMap) {
+        *self.block.lock().unwrap_or_else(|p| p.into_inner()) = map;
+    }
+}
+
+/// The first of the block read item selections f875–f879.
+const F875: u16 = 0x0875;
+/// The last of them.
+const F879: u16 = 0x0879;
+
+/// What a block read (`X`) carries, as f875–f879 select it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+enum BlockMap {
+    /// Not read yet.
+    #[default]
+    Unknown,
+    /// The communication number of each read item (0: no selection); it carries FD01, FD00
+    /// and FE03, so a status needs only the block and FE02.
+    Items([u16; 5]),
+    /// The selection lacks FD01, FD00 or FE03 (or the drive would not tell): status reads
+    /// one number per request.
+    Unusable,
+}
+
+impl BlockMap {
+    /// The map of the selections f875–f879 hold.
+    fn of(selections: [u16; 5]) -> BlockMap {
+        let items = selections.map(|s| block_read_item(s).map_or(0, |c| c.0));
+        if [FD01, FD00, FE03].iter().all(|n| items.contains(n)) {
+            BlockMap::Items(items)
+        } else {
+            BlockMap::Unusable
+        }
+    }
+
+    /// The read groups to ask for: up to the last of FD01, FD00 and FE03 (fewer groups, a
+    /// shorter reply; FC90 comes along where it lies within them).
+    fn groups(self) -> u8 {
+        match self {
+            BlockMap::Items(items) => {
+                let last = items.iter().rposition(|n| [FD01, FD00, FE03].contains(n)).unwrap_or(4);
+                u8::try_from(last + 1).unwrap_or(5)
+            }
+            _ => 5,
+        }
+    }
 }
 
 /// A Toshiba VF-AS1 at one inverter number (or a broadcast), in one of its protocols.
@@ -276,13 +331,16 @@ impl ToshibaProfile {
             catalog,
             limits: Arc::new(limits),
             memory: Arc::new(Memory::default()),
-            block_status: false,
+            block_status: true,
         })
     }
 
-    /// With `on`, Status in TIP binary mode reads FD01, FD00, FE03 and FC90 in one `X` block
-    /// exchange. Only for a drive whose f875–f879 hold their defaults (FD01, FD00, FE03, FC90,
-    /// FE05): the block reply does not say which items it carries. Other protocols ignore it.
+    /// Block status (on by default): in TIP binary mode, Status reads FD01, FD00, FE03 (and
+    /// FC90 where selected) in one `X` block exchange and FE02 in one `R`. The block reply does
+    /// not say which items it carries, so the first status reads f875–f879 once (and again after
+    /// a write of one of them through the profile); a selection without FD01, FD00 and FE03
+    /// falls back to one read per number. With `off`, Status always reads one number per
+    /// request. Other protocols ignore it.
     pub fn with_block_status(mut self, on: bool) -> Self {
         self.block_status = on;
         self
@@ -397,10 +455,10 @@ impl Profile for ToshibaProfile {
             Operation::Status => {
                 self.needs_reply("Status")?;
                 let block = self.block_status && self.protocol == ToshibaProtocol::TipBinary;
-                let mut todo = if block {
-                    vec![Ask::Block, Ask::Read(FE02)]
-                } else {
-                    vec![Ask::Read(FD01), Ask::Read(FD00), Ask::Read(FE02), Ask::Read(FE03)]
+                let mut todo = match (block, self.memory.block()) {
+                    (true, BlockMap::Unknown) => (F875..=F879).map(Ask::Read).collect(),
+                    (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
+                    _ => single_status_reads(),
                 };
                 if self.memory.rated_current.load(Ordering::Relaxed) == 0 {
                     todo.push(Ask::Read(FE70));
@@ -447,6 +505,21 @@ impl Profile for ToshibaProfile {
     }
 }
 
+/// Queues (in `todo`, sent last first) what a status reads once the block read items are
+/// known: the block and FE02, or one number per request.
+fn next_status_reads(todo: &mut Vec<Ask>, map: BlockMap) {
+    let next = match map {
+        BlockMap::Items(_) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
+        _ => single_status_reads(),
+    };
+    todo.extend(next.into_iter().rev());
+}
+
+/// Status one number per request: FD01, FD00, FE02, FE03 (in sending order).
+fn single_status_reads() -> Vec<Ask> {
+    vec![Ask::Read(FD01), Ask::Read(FD00), Ask::Read(FE02), Ask::Read(FE03)]
+}
+
 fn write_fa00(word: u16, what: &str) -> Job {
     Job::Write {
         comm: FA00,
@@ -468,8 +541,8 @@ enum Ask {
     Read(u16),
     /// Write one: `ram` picks TIP's `P` over `W` (Modbus has 06 only).
     Write { comm: u16, value: u16, ram: bool },
-    /// TIP binary `X`: no write groups, 5 read groups.
-    Block,
+    /// TIP binary `X`: no write groups, this many read groups.
+    Block(u8),
 }
 
 impl fmt::Display for Ask {
@@ -478,7 +551,7 @@ impl fmt::Display for Ask {
             Ask::Read(c) => write!(f, "read of {c:04X}"),
             Ask::Write { comm, value, ram: true } => write!(f, "write (RAM) of {value:04X}H to {comm:04X}"),
             Ask::Write { comm, value, ram: false } => write!(f, "write of {value:04X}H to {comm:04X}"),
-            Ask::Block => f.write_str("block read (X)"),
+            Ask::Block(n) => write!(f, "block read (X) of {n} groups"),
         }
     }
 }
@@ -506,7 +579,7 @@ impl Link {
         match ask {
             Ask::Read(c) => Some(ModbusAsk::Read { start: c, quantity: 1 }),
             Ask::Write { comm, value, .. } => Some(ModbusAsk::Write { register: comm, value }),
-            Ask::Block => None,
+            Ask::Block(_) => None,
         }
     }
 
@@ -526,7 +599,7 @@ impl Link {
                         AsciiRequest::write_ram(inv, CommNo(comm), value)
                     }
                     Ask::Write { comm, value, ram: false } => AsciiRequest::write(inv, CommNo(comm), value),
-                    Ask::Block => return Err(cannot(&"block communication is TIP binary mode only")),
+                    Ask::Block(_) => return Err(cannot(&"block communication is TIP binary mode only")),
                 };
                 let mut out = [0u8; 32];
                 let n = request.with_sum().emit(&mut out).map_err(|e| cannot(&e))?;
@@ -541,8 +614,8 @@ impl Link {
                         BinaryRequest::write_ram(inv, CommNo(comm), value)
                     }
                     Ask::Write { comm, value, ram: false } => BinaryRequest::write(inv, CommNo(comm), value),
-                    Ask::Block => {
-                        BinaryRequest::block(inv, BlockRequest::new(&[], 5).map_err(|e| cannot(&e))?)
+                    Ask::Block(n) => {
+                        BinaryRequest::block(inv, BlockRequest::new(&[], n).map_err(|e| cannot(&e))?)
                     }
                 };
                 let mut out = [0u8; 32];
@@ -562,7 +635,7 @@ impl Link {
         let (cmd, comm, written) = match ask {
             Ask::Read(c) => (Cmd::R, c, None),
             Ask::Write { comm, value, ram } => (if ram { Cmd::P } else { Cmd::W }, comm, Some(value)),
-            Ask::Block => (Cmd::R, 0, None),
+            Ask::Block(_) => (Cmd::R, 0, None),
         };
         let tip_refusal = |code: ErrorCode| DriveError::Refused {
             code: u32::from(code.0),
@@ -614,9 +687,9 @@ impl Link {
                 }
                 match (reply.body, ask) {
                     (BinaryReplyBody::Error(code), _) => Err(tip_refusal(code)),
-                    (BinaryReplyBody::Block(b), Ask::Block) => {
-                        if b.rdata().len() != 5 {
-                            return Err(bad(format!("carries {} read groups, not 5", b.rdata().len())));
+                    (BinaryReplyBody::Block(b), Ask::Block(n)) => {
+                        if b.rdata().len() != usize::from(n) {
+                            return Err(bad(format!("carries {} read groups, not {n}", b.rdata().len())));
                         }
                         Ok(Answer::Block { items: b.rdata().to_vec() })
                     }
@@ -700,6 +773,8 @@ struct CommandJob {
 /// The monitors a Status has read.
 #[derive(Debug, Default)]
 struct Monitors {
+    /// f875–f879 as read (block read item selections).
+    selections: [u16; 5],
     fd01: u16,
     fd00: u16,
     fe02: u16,
@@ -780,6 +855,9 @@ impl ToshibaPlan {
                     if *comm == FA00 {
                         self.memory.reverse.store(*value & Command1::REVERSE != 0, Ordering::Relaxed);
                     }
+                    if (F875..=F879).contains(comm) {
+                        self.memory.set_block(BlockMap::Unknown);
+                    }
                     Ok(Next::Done(Outcome::Done))
                 }
             },
@@ -793,13 +871,33 @@ impl ToshibaPlan {
             },
             Job::Status(s) => {
                 match (self.sent, &answer) {
-                    (Some(Ask::Block), Some(Answer::Block { items })) => {
-                        let item = |i: usize| items.get(i).copied().unwrap_or(0);
-                        s.got.fd01 = item(0);
-                        s.got.fd00 = item(1);
-                        s.got.fe03 = item(2);
-                        s.got.fc90 = Some(item(3));
-                        self.memory.reverse.store(item(0) & Status1::REVERSE != 0, Ordering::Relaxed);
+                    (Some(Ask::Block(_)), Some(Answer::Block { items })) => {
+                        let BlockMap::Items(numbers) = self.memory.block() else {
+                            return Err(DriveError::Protocol(
+                                "a block reply came before the block's read items were known".to_string(),
+                            ));
+                        };
+                        for (&number, &value) in numbers.iter().zip(items) {
+                            match number {
+                                FD01 => s.got.fd01 = value,
+                                FD00 => s.got.fd00 = value,
+                                FE03 => s.got.fe03 = value,
+                                FC90 => s.got.fc90 = Some(value),
+                                _ => {}
+                            }
+                        }
+                        self.memory.reverse.store(s.got.fd01 & Status1::REVERSE != 0, Ordering::Relaxed);
+                        if s.got.fd01 & Status1::TRIPPED != 0 && s.got.fc90.is_none() {
+                            s.todo.insert(0, Ask::Read(FC90));
+                        }
+                    }
+                    (Some(Ask::Read(c @ F875..=F879)), Some(Answer::Data { value, .. })) => {
+                        s.got.selections[usize::from(c - F875)] = *value;
+                        if c == F879 {
+                            let map = BlockMap::of(s.got.selections);
+                            self.memory.set_block(map);
+                            next_status_reads(&mut s.todo, map);
+                        }
                     }
                     (Some(Ask::Read(c)), Some(Answer::Data { value, .. })) => match c {
                         FD01 => {
@@ -927,6 +1025,18 @@ impl Plan for ToshibaPlan {
         let answer = match self.sent {
             Some(ask) => match self.link.decode(ask, reply, &self.job.what()) {
                 Ok(a) => Some(a),
+                // A drive that will not tell its block read items is read one number per
+                // request.
+                Err(DriveError::Refused { .. })
+                    if matches!((ask, &self.job), (Ask::Read(F875..=F879), Job::Status(_))) =>
+                {
+                    self.memory.set_block(BlockMap::Unusable);
+                    if let Job::Status(s) = &mut self.job {
+                        s.todo.retain(|a| !matches!(a, Ask::Read(F875..=F879)));
+                        next_status_reads(&mut s.todo, BlockMap::Unusable);
+                    }
+                    None
+                }
                 Err(e) => {
                     self.finished = true;
                     return Err(e);
@@ -969,9 +1079,31 @@ mod tests {
     #[test]
     fn the_current_is_given_at_the_drives_resolution() {
         // 98.28 % of 14.5 A is 14.2506 A in binary floating point's approximation.
-        let m = Monitors { fd01: 0, fd00: 0, fe02: 0, fe03: 9828, fc90: None };
+        let m = Monitors { fd01: 0, fd00: 0, fe02: 0, fe03: 9828, fc90: None, ..Default::default() };
         assert_eq!(status_of(1, &m, 145).current_a, Some(14.25));
         let m = Monitors { fe03: 1915, ..m };
         assert_eq!(status_of(1, &m, 100).current_a, Some(1.92));
+    }
+
+    /// A drive that refuses to tell its block read items (error 0002 to f875) is read one
+    /// number per request, and the profile does not ask again.
+    #[test]
+    fn a_refused_block_selection_falls_back_to_single_reads() {
+        let p = ToshibaProfile::new(1, ToshibaProtocol::TipBinary).unwrap_or_else(|e| panic!("{e}"));
+        let request = |step: Result<Step, DriveError>| match step {
+            Ok(Step::Send(x)) => BinaryRequest::parse(&x.request).unwrap_or_else(|e| panic!("{e}")),
+            other => panic!("expected a request, got {other:?}"),
+        };
+        let mut plan = p.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        let first = request(plan.step(None));
+        assert_eq!(first.body.comm_no(), Some(CommNo(F875)));
+        let refusal = first.error_reply(1, false, ErrorCode::COMM_NO_ERROR);
+        let mut out = [0u8; 32];
+        let n = refusal.emit(&mut out).unwrap_or_else(|e| panic!("{e}"));
+        let next = request(plan.step(Some(&out[..n])));
+        assert_eq!(next.body.comm_no(), Some(CommNo(FD01)), "single reads: {next:?}");
+        assert_eq!(p.memory.block(), BlockMap::Unusable);
+        let mut again = p.plan(&Operation::Status).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(request(again.step(None)).body.comm_no(), Some(CommNo(FD01)));
     }
 }

@@ -59,6 +59,42 @@ pub fn default_timing() -> Timing {
     timing(DEFAULT_BAUD, DEFAULT_FORMAT)
 }
 
+/// The number block communication reads for read-item selection `selection` (f875–f879;
+/// protocols.md 1.7): 1 FD01, 2 FD00, 3 FE03, 4 FE05, 5 FC91, 6 FD22, 7 FD06, 8 FD07, 9 FE35,
+/// 10 FE36, 11 FE37, 12 FE04, 13 FC90 (13 a project addition); `None` for 0 (no selection) and
+/// anything else.
+pub const fn block_read_item(selection: u16) -> Option<CommNo> {
+    Some(CommNo(match selection {
+        1 => 0xFD01,
+        2 => 0xFD00,
+        3 => 0xFE03,
+        4 => 0xFE05,
+        5 => 0xFC91,
+        6 => 0xFD22,
+        7 => 0xFD06,
+        8 => 0xFD07,
+        9 => 0xFE35,
+        10 => 0xFE36,
+        11 => 0xFE37,
+        12 => 0xFE04,
+        13 => 0xFC90,
+        _ => return None,
+    }))
+}
+
+/// The number block communication writes for write-item selection `selection` (f870/f871):
+/// 1 FA00, 2 FA20, 3 FA01, 4 FA50, 5 FA51; `None` for 0 (no selection) and anything else.
+pub const fn block_write_item(selection: u16) -> Option<CommNo> {
+    Some(CommNo(match selection {
+        1 => 0xFA00,
+        2 => 0xFA20,
+        3 => 0xFA01,
+        4 => 0xFA50,
+        5 => 0xFA51,
+        _ => return None,
+    }))
+}
+
 /// A communication number (COMNO): the 16-bit number of a parameter or monitor, e.g. FD00.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct CommNo(pub u16);

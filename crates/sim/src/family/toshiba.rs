@@ -19,6 +19,9 @@
 //! | FC90 / FE10-FE13 | trip code now / past trips 1-4 | code |
 //! | FC91 | alarm information | bits |
 //! | FE70 / FE71 | rated current / rated voltage | 0.1 A / 0.1 V |
+//! | FA50 | terminal board output data (held; read back) | bits, RAM |
+//! | FA51 / FA52 | FM / AM analog output data (held; read back) | 0.1 %, RAM |
+//! | FB05 | inverter model (capacity) code, [`MODEL_CODE`] | code |
 //! | others | the parameters of `crates/drive/catalogs/toshiba.toml` by communication number | |
 //!
 //! TIP errors (protocols.md 1.6): 0000 impossible to execute (not while running, a monitor
@@ -38,7 +41,9 @@ use drivebus_proto::modbus::{
 use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{Incoming, Responder, SlaveSession};
 use drivebus_proto::toshiba::binary::{BinaryRequestBody, BlockRequest};
-use drivebus_proto::toshiba::{Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipReply, TipRequest};
+use drivebus_proto::toshiba::{
+    block_read_item, block_write_item, Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipReply, TipRequest,
+};
 use drivebus_proto::Instant;
 
 use crate::bus::Device;
@@ -90,6 +95,9 @@ impl ToshibaProtocol {
 pub const MODEL_NAME: &str = "VFAS1-2037PM";
 /// The vendor (Modbus 2B/0E VendorName), as the VF-S15 manual's example shows it.
 pub const VENDOR_NAME: &str = "TOSHIBA";
+/// FB05, the inverter model (capacity) code (project decision: the seed names FB05 only; the
+/// type form's four digits as hex digits, 2037H for [`MODEL_NAME`]).
+pub const MODEL_CODE: u16 = 0x2037;
 /// The firmware version (Modbus 2B/0E MajorMinorRevision), as the VF-S15 manual's example.
 pub const VERSION: &str = "0100";
 /// The inverter's rated output current, 0.1 A (FE70): 17.5 A for a 200 V 3.7 kW VF-AS1.
@@ -547,15 +555,9 @@ impl Inner {
     /// the read items are the ones f875-f879 select.
     fn block(&mut self, block: BlockRequest) -> [u16; 5] {
         for (i, &w) in block.wdata().iter().enumerate() {
-            let target = match self.param(BLOCK_WRITE_1 + i as u32) {
-                1 => Some(0xFA00),
-                2 => Some(0xFA20),
-                3 => Some(0xFA01),
-                4 => Some(0xFA50),
-                5 => Some(0xFA51),
-                _ => None,
-            };
-            // A write the drive refuses (out of range, FA20/FA50/FA51 not simulated) is
+            let selection = u16::try_from(self.param(BLOCK_WRITE_1 + i as u32)).unwrap_or(0);
+            let target = block_write_item(selection).map(|c| c.0);
+            // A write the drive refuses (out of range, FA20 not simulated) is
             // skipped; the reply still carries the read items.
             if let Some(n) = target {
                 let _ = self.write(n, w, Storage::Ram);
@@ -563,22 +565,8 @@ impl Inner {
         }
         let mut rdata = [0u16; 5];
         for (i, slot) in rdata.iter_mut().enumerate() {
-            let item = match self.param(BLOCK_READ_1 + i as u32) {
-                1 => Some(0xFD01),
-                2 => Some(0xFD00),
-                3 => Some(0xFE03),
-                4 => Some(0xFE05),
-                5 => Some(0xFC91),
-                6 => Some(0xFD22),
-                7 => Some(0xFD06),
-                8 => Some(0xFD07),
-                9 => Some(0xFE35),
-                10 => Some(0xFE36),
-                11 => Some(0xFE37),
-                12 => Some(0xFE04),
-                13 => Some(0xFC90),
-                _ => None,
-            };
+            let selection = u16::try_from(self.param(BLOCK_READ_1 + i as u32)).unwrap_or(0);
+            let item = block_read_item(selection).map(|c| c.0);
             *slot = item.and_then(|n| self.read(n).ok()).unwrap_or(0);
         }
         rdata
@@ -849,6 +837,7 @@ impl Inner {
             0xFC90 => m.trip().map_or(0, trip_code),
             0xFC91 => self.alarm(),
             0xFE70 => RATED_CURRENT_01A,
+            0xFB05 => MODEL_CODE,
             0xFE71 => RATED_VOLTAGE_01V,
             // Terminal boards, PID feedback and analog inputs: nothing is wired.
             0xFD06 | 0xFD07 | 0xFE06 | 0xFE07 | 0xFD22 | 0xFE35 | 0xFE36 | 0xFE37 => 0,

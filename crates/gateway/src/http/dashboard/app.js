@@ -683,9 +683,20 @@
     return (!drive || e.drive === drive) && (!kind || e.kind === kind);
   }
 
+  // A trip's snapshot of the drive just before it: "before: running 30.00 Hz (set 30.00 Hz), 7.5 A".
+  function tripBefore(b) {
+    if (!b) return '';
+    const hz = (v) => (v == null ? '-' : `${Number(v).toFixed(2)} Hz`);
+    const parts = [`${b.running ? 'running' : 'stopped'} ${hz(b.output_hz)}`];
+    if (b.setpoint_hz != null) parts[0] += ` (set ${hz(b.setpoint_hz)})`;
+    if (b.current_a != null) parts.push(`${Number(b.current_a).toFixed(1)} A`);
+    return ` — before: ${parts.join(', ')}`;
+  }
+
   function eventWhat(e) {
     if (e.action) return e.action;
     const det = e.detail || {};
+    if (e.kind === 'trip' && det.text) return `${det.code != null ? det.code + ': ' : ''}${det.text}${tripBefore(det.before)}`;
     if (det.text) return `${det.code != null ? det.code + ': ' : ''}${det.text}`;
     if (det.error) return det.error;
     if (e.kind === 'started' && det.drives != null) return `${det.buses} buses, ${det.drives} drives`;

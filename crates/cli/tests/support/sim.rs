@@ -1,0 +1,119 @@
+//! `drivebus simulate` in the background and the `drivebus` command against it, for the
+//! end-to-end tests.
+
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+
+use serde_json::Value;
+
+/// A background process killed on drop, with the line it printed when ready.
+pub struct Proc {
+    child: Child,
+    /// The rest of the ready line.
+    pub ready: String,
+    /// The lines printed before the ready line.
+    pub before: Vec<String>,
+}
+
+impl Proc {
+    /// Starts `cmd` and waits for the line that starts with `ready_prefix`.
+    pub fn start(mut cmd: Command, ready_prefix: &str) -> Proc {
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start");
+        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
+        let mut before = Vec::new();
+        let ready = loop {
+            let line = lines.next().expect("ready line").expect("utf-8");
+            if let Some(rest) = line.strip_prefix(ready_prefix) {
+                break rest.trim().to_string();
+            }
+            before.push(line);
+        };
+        std::thread::spawn(move || for _ in lines {});
+        Proc { child, ready, before }
+    }
+
+    /// The simulator's control interface (`--control`), from the line it printed.
+    pub fn control(&self) -> std::net::SocketAddr {
+        let line =
+            self.before.iter().find_map(|l| l.strip_prefix("control http://")).expect("a control line");
+        line.trim_end_matches("/drives").parse().expect("the control address")
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `drivebus simulate --drive <drive> <endpoint...>`, ready once it listens.
+pub fn simulate(drive: &str, endpoint: &[&str]) -> Proc {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["simulate", "--drive", drive]).args(endpoint);
+    Proc::start(cmd, "listening on ")
+}
+
+/// What a `drivebus` run printed, and its exit status.
+pub struct Out {
+    /// The exit status (-1 when killed).
+    pub code: i32,
+    /// Standard output.
+    pub stdout: String,
+    /// Standard error.
+    pub stderr: String,
+}
+
+/// `drivebus --port <port> --drive <family> --address <address> [--protocol P] <args>`.
+pub fn drivebus(port: &str, family: &str, protocol: Option<&str>, address: u8, args: &[&str]) -> Out {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["--port", port, "--drive", family, "--address", &address.to_string(), "--timeout", "200"]);
+    if let Some(p) = protocol {
+        cmd.args(["--protocol", p]);
+    }
+    let out = cmd.args(args).output().expect("run drivebus");
+    Out {
+        code: out.status.code().unwrap_or(-1),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+/// Asserts exit status 0.
+pub fn ok(o: &Out, what: &str) {
+    assert_eq!(o.code, 0, "{what}: {}{}", o.stdout, o.stderr);
+}
+
+/// A pty path of its own for a test.
+pub fn pty_path(what: &str) -> String {
+    std::env::temp_dir().join(format!("drivebus-{what}-{}", std::process::id())).to_string_lossy().to_string()
+}
+
+/// `status --json` of the drive, parsed.
+pub fn status(port: &str, family: &str, protocol: Option<&str>, address: u8) -> Value {
+    let o = drivebus(port, family, protocol, address, &["status", "--json"]);
+    ok(&o, "status");
+    serde_json::from_str(o.stdout.trim()).expect("status JSON")
+}
+
+/// Polls `status` until `done` holds for it, with a generous deadline (the ramp's pace is the
+/// simulator's, not a speed claim of this test).
+pub fn wait_status(
+    port: &str,
+    family: &str,
+    protocol: Option<&str>,
+    address: u8,
+    what: &str,
+    done: impl Fn(&Value) -> bool,
+) -> Value {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        let s = status(port, family, protocol, address);
+        if done(&s) {
+            return s;
+        }
+        assert!(std::time::Instant::now() < deadline, "{what}: {s}");
+    }
+}

@@ -402,8 +402,22 @@ pub struct BusView {
     pub retries: u64,
     /// Time on the wire / elapsed.
     pub utilization: f64,
+    /// Broadcasts heard that the gateway did not send.
+    pub foreign_broadcasts: u64,
+    /// True while a drive acts as bus master on this line: a broadcast the gateway did not
+    /// send was heard within the last [`DRIVE_MASTER_WINDOW_S`] seconds.
+    pub drive_master: bool,
     /// The drives' ids.
     pub drives: Vec<String>,
+}
+
+/// How long after the last broadcast it did not send the gateway still shows a bus as a
+/// drive-master line, seconds.
+pub const DRIVE_MASTER_WINDOW_S: f64 = 10.0;
+
+/// True while a drive acts as bus master on the line of `stats` (see [`BusView::drive_master`]).
+pub fn drive_master(stats: &BusStats) -> bool {
+    stats.last_foreign_broadcast_s.is_some_and(|t| stats.elapsed_seconds - t <= DRIVE_MASTER_WINDOW_S)
 }
 
 /// A change for live subscribers (the HTTP stream, MQTT, the dashboard).
@@ -699,6 +713,8 @@ impl Gateway {
             checksum_errors: s.checksum_errors,
             retries: s.retries,
             utilization: s.utilization(),
+            foreign_broadcasts: s.foreign_broadcasts,
+            drive_master: drive_master(&s),
             drives: self
                 .drives()
                 .iter()

@@ -9,7 +9,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use drivebus_proto::line::CharFormat;
-use drivebus_proto::session::{MasterEvent, MasterSession, Protocol, Timing};
+use drivebus_proto::deframe::{Deframer, Event};
+use drivebus_proto::session::{Disposition, MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
 use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
@@ -59,6 +60,9 @@ pub(crate) struct Engine<P: Protocol> {
     echo_left: Vec<u8>,
     /// The bytes to write on [`Action::Transmit`].
     out: Vec<u8>,
+    /// Finds requests in what the line brings besides our own: broadcasts another talker
+    /// sent (a drive acting as bus master).
+    listener: Deframer<P::RequestScanner>,
 }
 
 /// Calls `$body` with an engine of the protocol named in `$config`, or evaluates to a
@@ -128,6 +132,7 @@ impl<P: Protocol> Engine<P> {
         health: Arc<Mutex<HashMap<u8, Health>>>,
     ) -> Self {
         Engine {
+            listener: Deframer::new(proto.request_scanner()),
             session: MasterSession::new(proto, timing),
             timing,
             config,
@@ -259,6 +264,7 @@ impl<P: Protocol> Engine<P> {
         } else {
             self.echo_left.drain(..same);
         }
+        self.listen(now, input);
         self.session.handle_input(now, input);
     }
 
@@ -313,6 +319,29 @@ impl<P: Protocol> Engine<P> {
                 };
                 h.next_probe = Some(now + h.backoff);
             }
+        }
+    }
+
+    /// Counts the broadcasts in `input` (bytes that are not our own request's echo): requests
+    /// to every drive that this master did not send, as a drive acting as bus master sends
+    /// them every cycle.
+    fn listen(&mut self, now: Instant, input: &[u8]) {
+        let Engine { listener, session, .. } = self;
+        let proto = session.protocol();
+        let mut heard = 0u64;
+        listener.push(input, &mut |e| {
+            if let Event::Frame { bytes, .. } = e {
+                let broadcast = proto
+                    .parse_request(bytes)
+                    .is_ok_and(|r| matches!(proto.disposition(&r, 0xFE), Disposition::Broadcast { .. }));
+                heard += u64::from(broadcast);
+            }
+        });
+        if heard > 0 {
+            self.stat(now, |s| {
+                s.foreign_broadcasts += heard;
+                s.last_foreign_broadcast_s = Some(now.as_nanos() as f64 / 1e9);
+            });
         }
     }
 

@@ -154,6 +154,11 @@ pub struct BusStats {
     pub retries: u64,
     /// Broadcasts sent.
     pub broadcasts: u64,
+    /// Broadcasts heard on the line that this master did not send: another talker commands
+    /// every drive (a drive acting as bus master, seed 004 9.2.2 (2), Toshiba f806 = 3/4).
+    pub foreign_broadcasts: u64,
+    /// Session time of the last of them, seconds.
+    pub last_foreign_broadcast_s: Option<f64>,
     /// Time the line carried our requests and the replies, seconds.
     pub wire_seconds: f64,
     /// Session time since the bus started, seconds.

@@ -589,6 +589,7 @@ mod tests {
                 broadcasts: 0,
                 wire_seconds: 1.0,
                 elapsed_seconds: 4.0,
+                ..BusStats::default()
             },
         }
     }

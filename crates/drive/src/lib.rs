@@ -59,6 +59,7 @@ mod param;
 mod store;
 
 pub mod docgen;
+pub mod interdrive;
 pub mod profile;
 pub mod registers;
 

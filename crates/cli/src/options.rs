@@ -158,6 +158,7 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
         &["params", "restore"],
         &["params", "diff"],
         &["raw"],
+        &["panel"],
     ] {
         out.push((path, one_drive()));
     }

@@ -60,6 +60,7 @@ mod store;
 
 pub mod docgen;
 pub mod interdrive;
+pub mod panel;
 pub mod profile;
 pub mod registers;
 

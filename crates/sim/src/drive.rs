@@ -94,6 +94,8 @@ pub struct DriveSnapshot {
     /// frequency to the other drives); absent otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub role: Option<String>,
+    /// What the drive's panel display shows now (`drivebus_drive::panel`).
+    pub display: String,
 }
 
 /// A virtual drive: a [`Device`] with a model and parameters that a control interface can
@@ -147,7 +149,8 @@ pub trait VirtualDrive: Device + Send {
     }
     /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
-        snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
+        let display = panel_display(self.family(), self.core());
+        DriveSnapshot { display, ..snapshot_of(self.core(), self.family(), self.protocol(), self.control_source()) }
     }
 }
 
@@ -197,7 +200,37 @@ pub fn snapshot_of(
         eeprom_writes: core.params.total_eeprom_writes(),
         silent: false,
         role: None,
+        display: String::new(),
     }
+}
+
+/// What the panel of `drive` shows now (see `drivebus_drive::panel`): a Toshiba drive with
+/// FA10 = 1 shows the LED data FA11/FA12; otherwise the trip in force, or the frequency.
+pub fn panel_display(family: Family, core: &DriveCore) -> String {
+    use drivebus_drive::panel;
+    use drivebus_drive::profile::{DriveStatus, Fault};
+    let p = |n: u32| core.params.get(n).unwrap_or(0);
+    if family == Family::Toshiba && p(0xFA10) == 1 {
+        return panel::led_text(p(0xFA11) as u16, p(0xFA12) as u16);
+    }
+    let m = &core.model;
+    let fault = m.trip().map(|t| match family {
+        Family::Toshiba => {
+            let code = crate::family::toshiba::trip_code(t);
+            Fault { code: u32::from(code), text: drivebus_drive::profile::toshiba::trip_text(code) }
+        }
+        _ => Fault { code: u32::from(crate::family::generic::fault_code(t)), text: t.name().to_string() },
+    });
+    let status = DriveStatus {
+        address: core.address,
+        running: m.is_running(),
+        direction: None,
+        output_hz: Some(m.output_hz()),
+        setpoint_hz: Some(m.setpoint_hz()),
+        current_a: None,
+        fault,
+    };
+    panel::display(family, &status)
 }
 
 /// Sets parameter `name` of `core` from a value in its unit, as the keypad would (range and

@@ -252,7 +252,7 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     Ok(Resolved { family, protocol, address, port, config, label })
 }
 
-async fn connect(t: &Target) -> Result<(Drive, String)> {
+pub(crate) async fn connect(t: &Target) -> Result<(Drive, String)> {
     let r = resolve(t)?;
     let profile = drivebus_drive::profile::for_drive(r.family, &r.protocol, r.address)
         .map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
@@ -265,7 +265,7 @@ pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_current_thread().enable_all().build()?)
 }
 
-fn status_json(s: &DriveStatus) -> Value {
+pub(crate) fn status_json(s: &DriveStatus) -> Value {
     json!({
         "address": s.address,
         "running": s.running,

@@ -1120,6 +1120,12 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
     owner.retries = b.retries;
     owner.echo = b.echo;
     owner.strict_t15 = b.strict_t15;
+    // A family whose manual asks for more silence than the protocol (generic RTU: 10 ms).
+    owner.family = b
+        .drives
+        .iter()
+        .map(|d| d.family)
+        .find(|&f| drivebus_drive::registers::generic::line_silence(f, &b.protocol).is_some());
     let (bus, line) = match b.port {
         Port::Virtual => {
             let line = virtual_line(b)?;

@@ -113,8 +113,14 @@ pub(crate) fn timing_of(config: &BusConfig, f: fn(u32, CharFormat) -> Timing) ->
     if let Some(rt) = config.response_timeout {
         timing.response_timeout = rt;
     }
-    if let Some(gap) = config.gap {
-        timing.min_gap = gap;
+    match (config.gap, config.family) {
+        (Some(gap), _) => timing.min_gap = gap,
+        (None, Some(family)) => {
+            if let Some(silence) = drivebus_drive::registers::generic::line_silence(family, &config.protocol) {
+                timing.min_gap = timing.min_gap.max(silence);
+            }
+        }
+        (None, None) => {}
     }
     if config.strict_t15 && config.protocol == "modbus-rtu" {
         timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
@@ -460,6 +466,49 @@ mod tests {
                 other => panic!("cut at {cut}: {other:?}"),
             }
         }
+    }
+
+    /// The silence the engine of `config` keeps between a reply's last byte and the next
+    /// request, on session (virtual) time.
+    fn silence_after_a_reply(config: BusConfig) -> Duration {
+        let timing = timing_of(&config, rtu::timing);
+        let mut e = Engine::new(ModbusRtu, timing, config, Default::default(), Default::default());
+        let at = first_transmit(&mut e);
+        e.sent(at);
+        let heard = at + Duration::from_millis(20);
+        e.input(heard, &read_reply());
+        assert!(matches!(e.poll(heard), Action::Done(Attempt::Reply(_))));
+        e.start(heard, &READ, 0).unwrap();
+        let mut now = heard;
+        loop {
+            match e.poll(now) {
+                Action::Transmit => return now - heard,
+                Action::Wait(t) => now = t,
+                Action::Done(a) => panic!("ended before sending: {a:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_generic_rtu_bus_keeps_10_ms_between_frames_not_only_t35() {
+        // 19200 baud 8N2: t3.5 is 2 ms; seed 004 asks for at least 10 ms of silence.
+        let plain = BusConfig::new("modbus-rtu", 19200, "8N2".parse().unwrap());
+        let t35 = rtu::timing(19200, plain.format).min_gap;
+        assert!(t35 < Duration::from_millis(3), "{t35:?}");
+        assert_eq!(silence_after_a_reply(plain.clone()), t35);
+        let generic = BusConfig { family: Some(drivebus_drive::Family::Generic), ..plain.clone() };
+        assert_eq!(silence_after_a_reply(generic.clone()), Duration::from_millis(10));
+        // Other families keep the protocol's; --gap overrides both.
+        let toshiba = BusConfig { family: Some(drivebus_drive::Family::Toshiba), ..plain.clone() };
+        assert_eq!(silence_after_a_reply(toshiba), t35);
+        let gap = BusConfig { gap: Some(Duration::from_millis(2)), ..generic };
+        assert_eq!(silence_after_a_reply(gap), Duration::from_millis(2));
+        // At 9600 baud t3.5 (4.01 ms) is shorter than 10 ms too.
+        let slow = BusConfig {
+            family: Some(drivebus_drive::Family::Generic),
+            ..BusConfig::new("modbus-rtu", 9600, "8N2".parse().unwrap())
+        };
+        assert_eq!(silence_after_a_reply(slow), Duration::from_millis(10));
     }
 
     #[test]

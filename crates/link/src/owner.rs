@@ -53,6 +53,10 @@ pub struct BusConfig {
     /// deliver bytes in bursts with gaps of their own (an FTDI chip's latency timer is 16 ms),
     /// and would lose good replies. For on-board UARTs where a frame's bytes come as sent.
     pub strict_t15: bool,
+    /// The family of the drives on the bus, where its manual adds to the protocol's timing:
+    /// a generic bus in Modbus RTU keeps at least 10 ms of silence before each request (seed
+    /// 004), not only t3.5. `None`: the protocol's timing alone. `gap` overrides both.
+    pub family: Option<drivebus_drive::Family>,
 }
 
 impl BusConfig {
@@ -71,6 +75,7 @@ impl BusConfig {
             gap: None,
             rs485: crate::link::Rs485::Off,
             strict_t15: false,
+            family: None,
         }
     }
 }

@@ -33,7 +33,7 @@ use crate::model::{Rotation, RunState};
 pub const DEFAULT_CYCLE: Duration = Duration::from_millis(100);
 /// The silence a generic master keeps between its two frames: seed 004's RTU frame
 /// delimiter, "保持无输入信号大于等于 10ms" (also kept in ASCII mode).
-pub const GENERIC_GAP: Duration = Duration::from_millis(10);
+pub const GENERIC_GAP: Duration = drivebus_drive::registers::generic::FRAME_SILENCE;
 
 /// Toshiba f806, inter-drive communication.
 const F806: u32 = 0x0806;

@@ -192,3 +192,23 @@ fn bus_file_errors_for_the_master_role() {
     let bus = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"toshiba\"\naddress = 1\nparams = { f806 = 3 }\n").unwrap();
     assert_eq!(bus.master.map(|m| m.drive), Some(0));
 }
+
+#[test]
+fn when_the_generic_master_fails_a_follower_does_what_p3_13_says() {
+    // The manual gives generic followers nothing of their own: the communication time-out.
+    let toml = GENERIC.replacen(
+        "address = 2\nprotocol = \"modbus-rtu\"\n",
+        "address = 2\nprotocol = \"modbus-rtu\"\nparams = { \"P3.13\" = \"1.0\", \"P3.14\" = 1 }\n",
+        1,
+    );
+    let mut line = line(&toml);
+    line.drive_mut(1).unwrap().press_run(true).unwrap();
+    run_for(&mut line, Duration::from_secs(10));
+    assert_eq!(output_hz(&mut line, 2), 40.0);
+    line.set_silent(1, true);
+    run_for(&mut line, Duration::from_secs(2));
+    let s = line.drive(2).unwrap().snapshot();
+    assert_eq!((s.state.as_str(), s.trip.as_deref()), ("tripped", Some("communication time-out")));
+    // Drive 3 has no time-out set: it runs on with the last command.
+    assert_eq!(output_hz(&mut line, 3), 40.0);
+}

@@ -53,16 +53,14 @@ pub fn step_hz(family: Family) -> f64 {
 pub fn led_text(fa11: u16, fa12: u16) -> String {
     [fa11 >> 8, fa11 & 0xFF, fa12 >> 8, fa12 & 0xFF]
         .into_iter()
-        .map(|c| if c < 0x20 || c > 0x7E { ' ' } else { char::from(c as u8) })
+        .map(|c| if (0x20..=0x7E).contains(&c) { char::from(c as u8) } else { ' ' })
         .collect()
 }
 
 /// FA11 and FA12 for `text`: up to four printable ASCII characters, blank-padded.
 pub fn led_words(text: &str) -> Result<(u16, u16), String> {
     if text.chars().count() > LED_CHARS || !text.chars().all(|c| c.is_ascii_graphic() || c == ' ') {
-        return Err(format!(
-            "the panel shows up to {LED_CHARS} printable ASCII characters, not {text:?}"
-        ));
+        return Err(format!("the panel shows up to {LED_CHARS} printable ASCII characters, not {text:?}"));
     }
     let mut b = [0x20u16; LED_CHARS];
     for (slot, c) in b.iter_mut().zip(text.bytes()) {
@@ -94,7 +92,8 @@ mod tests {
         assert_eq!(display(Family::Generic, &status(false, 0.0, 40.0)), "40.00");
         assert_eq!(display(Family::Toshiba, &status(true, 60.0, 60.0)), "60.0");
         let mut tripped = status(false, 0.0, 60.0);
-        tripped.fault = Some(Fault { code: 3, text: "OC3: over-current during constant speed operation".into() });
+        tripped.fault =
+            Some(Fault { code: 3, text: "OC3: over-current during constant speed operation".into() });
         assert_eq!(display(Family::Toshiba, &tripped), "OC3");
         assert_eq!(display(Family::Generic, &tripped), "E-03");
     }

@@ -8,8 +8,8 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_proto::line::CharFormat;
 use drivebus_proto::deframe::{Deframer, Event};
+use drivebus_proto::line::CharFormat;
 use drivebus_proto::session::{Disposition, MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
@@ -116,7 +116,8 @@ pub(crate) fn timing_of(config: &BusConfig, f: fn(u32, CharFormat) -> Timing) ->
     match (config.gap, config.family) {
         (Some(gap), _) => timing.min_gap = gap,
         (None, Some(family)) => {
-            if let Some(silence) = drivebus_drive::registers::generic::line_silence(family, &config.protocol) {
+            if let Some(silence) = drivebus_drive::registers::generic::line_silence(family, &config.protocol)
+            {
                 timing.min_gap = timing.min_gap.max(silence);
             }
         }

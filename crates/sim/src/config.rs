@@ -163,8 +163,8 @@ fn master_of(index: usize, spec: &DriveSpec, d: &FileDrive) -> Result<Option<Mas
         Some("master") => true,
         Some(other) => {
             return bad(format!(
-                "field `role`: {other:?} is not a role: the only one is \"master\" (the other drives follow it)"
-            ))
+            "field `role`: {other:?} is not a role: the only one is \"master\" (the other drives follow it)"
+        ))
         }
     };
     let f806 = spec.params.iter().find(|(k, _)| k == "f806").map(|(_, v)| v.trim().to_string());
@@ -177,7 +177,9 @@ fn master_of(index: usize, spec: &DriveSpec, d: &FileDrive) -> Result<Option<Mas
     }
     if !(by_role || by_f806) {
         if d.cycle_ms.is_some() || d.keypad_hz.is_some() {
-            return bad("fields `cycle_ms` and `keypad_hz` belong to the master drive: add role = \"master\"".into());
+            return bad(
+                "fields `cycle_ms` and `keypad_hz` belong to the master drive: add role = \"master\"".into(),
+            );
         }
         return Ok(None);
     }
@@ -403,7 +405,8 @@ impl BusSpec {
                     if let Some(hz) = m.keypad_hz {
                         drive.set_keypad_hz(hz).map_err(|e| at(format!("keypad_hz: {e}")))?;
                     }
-                    let wrapped = BusMaster::new(drive, m.cycle, line.char_time(), Instant::ZERO).map_err(at)?;
+                    let wrapped =
+                        BusMaster::new(drive, m.cycle, line.char_time(), Instant::ZERO).map_err(at)?;
                     line.add_device(Box::new(wrapped));
                 }
                 None => {

@@ -135,7 +135,9 @@ pub trait VirtualDrive: Device + Send {
             return Ok(());
         }
         model.run().map_err(|why| match why {
-            RunRefusal::Tripped(t) => format!("the drive does not start: it is tripped ({}); reset it first", t.name()),
+            RunRefusal::Tripped(t) => {
+                format!("the drive does not start: it is tripped ({}); reset it first", t.name())
+            }
             RunRefusal::NoHardwareEnable => {
                 "the drive does not start: its hardware enable input is off".to_string()
             }
@@ -145,12 +147,18 @@ pub trait VirtualDrive: Device + Send {
     /// turns at). Default: not simulated for this family.
     fn set_keypad_hz(&mut self, hz: f64) -> Result<(), String> {
         let _ = hz;
-        Err(format!("a simulated {} drive has no keypad frequency setting; set its parameters instead", self.family()))
+        Err(format!(
+            "a simulated {} drive has no keypad frequency setting; set its parameters instead",
+            self.family()
+        ))
     }
     /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
         let display = panel_display(self.family(), self.core());
-        DriveSnapshot { display, ..snapshot_of(self.core(), self.family(), self.protocol(), self.control_source()) }
+        DriveSnapshot {
+            display,
+            ..snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
+        }
     }
 }
 

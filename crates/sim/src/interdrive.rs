@@ -144,8 +144,10 @@ pub fn broadcast_frames(drive: &dyn VirtualDrive) -> Vec<Vec<u8>> {
 
 /// `06` to the broadcast address 0, RTU or ASCII.
 fn modbus_broadcast(register: u16, value: u16, ascii: bool) -> Option<Vec<u8>> {
-    let request =
-        Request { unit: UnitId(0), pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(register), value } };
+    let request = Request {
+        unit: UnitId(0),
+        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(register), value },
+    };
     let mut out = [0u8; 32];
     let n = if ascii { request.emit_ascii(&mut out) } else { request.emit_rtu(&mut out) }.ok()?;
     Some(out[..n].to_vec())

@@ -391,7 +391,8 @@ async fn patch_drive(
         d.core_mut().model.trip_now(trip);
     }
     if let Some(hz) = p.keypad_hz {
-        d.set_keypad_hz(hz).map_err(|e| api_error(StatusCode::UNPROCESSABLE_ENTITY, format!("keypad_hz: {e}")))?;
+        d.set_keypad_hz(hz)
+            .map_err(|e| api_error(StatusCode::UNPROCESSABLE_ENTITY, format!("keypad_hz: {e}")))?;
     }
     if p.reset == Some(true) {
         if let Err(t) = d.core_mut().model.reset() {

@@ -99,7 +99,12 @@ fn a_generic_master_at_40_hz_runs_two_followers_at_40_hz() {
     line.drive_mut(1).unwrap().press_run(false).unwrap();
     run_for(&mut line, Duration::from_secs(10));
     for port in 1..=3 {
-        assert_eq!(state(&mut line, port), "stopped", "drive {port}: {:?}", line.drive(port).unwrap().snapshot());
+        assert_eq!(
+            state(&mut line, port),
+            "stopped",
+            "drive {port}: {:?}",
+            line.drive(port).unwrap().snapshot()
+        );
     }
 }
 
@@ -185,11 +190,14 @@ fn bus_file_errors_for_the_master_role() {
     assert!(msg.contains("f806 = 3"), "{msg}");
     let msg = e("[[drive]]\nkind = \"generic\"\naddress = 1\ncycle_ms = 50\n");
     assert!(msg.contains("role = \"master\""), "{msg}");
-    let bus = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"b800\"\naddress = 1\nrole = \"master\"\n").unwrap();
+    let bus = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"b800\"\naddress = 1\nrole = \"master\"\n")
+        .unwrap();
     let err = bus.build_line().err().expect("b800 has no master role").0;
     assert!(err.contains("no drive acting as bus master"), "{err}");
     // f806 = 3 alone makes a Toshiba drive the master.
-    let bus = BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"toshiba\"\naddress = 1\nparams = { f806 = 3 }\n").unwrap();
+    let bus =
+        BusSpec::from_toml("bus.toml", "[[drive]]\nkind = \"toshiba\"\naddress = 1\nparams = { f806 = 3 }\n")
+            .unwrap();
     assert_eq!(bus.master.map(|m| m.drive), Some(0));
 }
 

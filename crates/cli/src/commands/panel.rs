@@ -69,7 +69,10 @@ pub fn run(args: &PanelArgs, t: &Target) -> Result<u8> {
         }
         if let Some((fa11, fa12)) = led {
             for (name, value) in [("FA11", fa11), ("FA12", fa12), ("FA10", 1)] {
-                drive.write_param(name, &value.to_string(), Storage::Ram).await.map_err(|e| classify(e, &label))?;
+                drive
+                    .write_param(name, &value.to_string(), Storage::Ram)
+                    .await
+                    .map_err(|e| classify(e, &label))?;
             }
         }
         if args.release {
@@ -123,7 +126,10 @@ async fn press(
                 Some(hz) => hz,
                 None => drive.status().await?.setpoint_hz.unwrap_or(0.0),
             };
-            let hz = drivebus_drive::profile::round_to(if key == "up" { set + step } else { (set - step).max(0.0) }, 2);
+            let hz = drivebus_drive::profile::round_to(
+                if key == "up" { set + step } else { (set - step).max(0.0) },
+                2,
+            );
             drive.set_speed(hz).await?;
             *setpoint = Some(hz);
             Ok(())

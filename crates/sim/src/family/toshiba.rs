@@ -822,7 +822,7 @@ impl Inner {
         let params = &self.core.params;
         let fa00 = Command1(params.get(FA00).unwrap_or(0) as u16);
         let centi = if fa00.contains(Command1::FREQUENCY_PRIORITY) {
-            self.from_communication(params.get(FA01).unwrap_or(0))
+            self.communication_frequency(params.get(FA01).unwrap_or(0))
         } else {
             i64::from(self.panel_centihz)
         };
@@ -871,7 +871,7 @@ impl Inner {
     /// itself, or with f810 = 1/2 (communication command points) a percentage (0.01 %) mapped
     /// through point 1 (f811 %, f812 Hz) and point 2 (f813 %, f814 Hz): the proportional
     /// control of speed of inter-drive communication.
-    fn from_communication(&self, value: i64) -> i64 {
+    fn communication_frequency(&self, value: i64) -> i64 {
         if self.param(POINT_SELECTION) == 0 {
             return value;
         }

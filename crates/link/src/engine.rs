@@ -63,6 +63,9 @@ pub(crate) struct Engine<P: Protocol> {
     /// Finds requests in what the line brings besides our own: broadcasts another talker
     /// sent (a drive acting as bus master).
     listener: Deframer<P::RequestScanner>,
+    /// When the listener last heard bytes (Modbus RTU: a silence of t3.5 since then ends a
+    /// frame, so a partial frame never holds the listener).
+    last_heard: Option<Instant>,
 }
 
 /// Calls `$body` with an engine of the protocol named in `$config`, or evaluates to a
@@ -140,6 +143,7 @@ impl<P: Protocol> Engine<P> {
     ) -> Self {
         Engine {
             listener: Deframer::new(proto.request_scanner()),
+            last_heard: None,
             session: MasterSession::new(proto, timing),
             timing,
             config,
@@ -333,17 +337,28 @@ impl<P: Protocol> Engine<P> {
     /// to every drive that this master did not send, as a drive acting as bus master sends
     /// them every cycle.
     fn listen(&mut self, now: Instant, input: &[u8]) {
+        if input.is_empty() {
+            return;
+        }
+        let t35 = drivebus_proto::line::modbus_t15_t35(self.config.baud).1;
+        let silence = self.config.protocol == "modbus-rtu"
+            && self.last_heard.is_some_and(|t| now.saturating_since(t) >= t35);
+        self.last_heard = Some(now);
         let Engine { listener, session, .. } = self;
         let proto = session.protocol();
         let mut heard = 0u64;
-        listener.push(input, &mut |e| {
+        let mut on_event = |e: Event<'_>| {
             if let Event::Frame { bytes, .. } = e {
                 let broadcast = proto
                     .parse_request(bytes)
                     .is_ok_and(|r| matches!(proto.disposition(&r, 0xFE), Disposition::Broadcast { .. }));
                 heard += u64::from(broadcast);
             }
-        });
+        };
+        if silence {
+            listener.silence(&mut on_event);
+        }
+        listener.push(input, &mut on_event);
         if heard > 0 {
             self.stat(now, |s| {
                 s.foreign_broadcasts += heard;
@@ -510,6 +525,33 @@ mod tests {
             ..BusConfig::new("modbus-rtu", 9600, "8N2".parse().unwrap())
         };
         assert_eq!(silence_after_a_reply(slow), Duration::from_millis(10));
+    }
+
+    /// A generic master drive's broadcast: 06 to 0, 2001H = 40.00 Hz.
+    fn broadcast() -> Vec<u8> {
+        let mut b = vec![0x00, 0x06, 0x20, 0x01, 0x0F, 0xA0];
+        let crc = drivebus_proto::checksum::crc16_modbus(&b);
+        b.extend_from_slice(&crc.to_le_bytes());
+        b
+    }
+
+    #[test]
+    fn broadcasts_another_talker_sent_are_counted_after_a_cut_frame() {
+        let (mut e, stats) = engine();
+        let at = first_transmit(&mut e);
+        e.sent(at);
+        // The start of a frame that announces 246 data bytes, cut short (a collision) ...
+        let mut now = at + Duration::from_millis(2);
+        e.input(now, &[0x05, 0x10, 0x00, 0x00, 0x00, 0x7B, 0xF6, 0x01]);
+        // ... then, after more than t3.5 of silence, a drive master's broadcast: counted.
+        now = now + Duration::from_millis(20);
+        e.input(now, &broadcast());
+        let s = stats.lock().unwrap().clone();
+        assert_eq!(s.foreign_broadcasts, 1, "{s:?}");
+        assert_eq!(s.last_foreign_broadcast_s, Some(now.as_nanos() as f64 / 1e9));
+        // Our own request and the drive's reply are not broadcasts.
+        e.input(now + Duration::from_millis(20), &read_reply());
+        assert_eq!(stats.lock().unwrap().foreign_broadcasts, 1);
     }
 
     #[test]

@@ -65,6 +65,9 @@ enum Command {
     /// Live view of one or more drives (repeat --address): state, trend of frequency and
     /// current, link statistics; `q` quits. Prints lines instead when stdout is not a terminal.
     Monitor(commands::monitor::MonitorArgs),
+    /// The drive's panel over the line: what its display shows, its keys pressed (--key run,
+    /// --key up, ...), and on a Toshiba drive four characters put on its LEDs (--show TEXT).
+    Panel(commands::panel::PanelArgs),
     /// Send bytes (hex) as one request and print the decoded reply.
     Raw {
         /// The request on the wire, in hex.
@@ -180,6 +183,7 @@ fn main() -> ExitCode {
         Command::Events(args) => commands::history::events(&args, &target),
         Command::Trend(args) => commands::history::trend(&args, &target),
         Command::Monitor(args) => commands::monitor::run(&args, &target),
+        Command::Panel(args) => commands::panel::run(&args, &target),
     };
     match result {
         Ok(code) => ExitCode::from(code),

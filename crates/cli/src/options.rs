@@ -159,6 +159,7 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
         &["params", "restore"],
         &["params", "diff"],
         &["raw"],
+        &["panel"],
     ] {
         out.push((path, one_drive()));
     }

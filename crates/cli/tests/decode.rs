@@ -397,3 +397,21 @@ fn danfoss_replies_without_from_are_the_drives() {
     let hex = hex.join(" ");
     valid(&["-p", "danfoss-fc", &hex], &["drive 1 to master: 01 parameter value transferred (word)"]);
 }
+
+// ---- A drive acting as bus master (seed 004 9.2.2 (2), Toshiba f806) ----
+
+#[test]
+fn a_master_drives_broadcasts_are_named() {
+    // A generic master's 06 to address 0, 2001H = 40.00 Hz.
+    valid(
+        &["--protocol", "modbus-rtu", "--from", "master", "00 06 20 01 0F A0 D7 93"],
+        &["master to all drives (broadcast)", "40.00 Hz", "broadcast as a drive acting as bus master"],
+    );
+    // A Toshiba master's block write to every inverter: run, 100.00 % of its FH.
+    let (code, frames) = json(&["--protocol", "toshiba-binary", "2F FF 58 02 00 C4 00 27 10 83"]);
+    assert_eq!(code, 0);
+    assert_eq!(frames[0]["drive_master_broadcast"], true, "{}", frames[0]);
+    // A write to one drive is not one.
+    let (_, frames) = json(&["--protocol", "modbus-rtu", "--from", "master", "01 06 20 01 0F A0 D6 42"]);
+    assert!(frames[0].get("drive_master_broadcast").is_none(), "{}", frames[0]);
+}

@@ -226,3 +226,96 @@ fn the_tap_carries_both_directions_of_the_line() {
     let (_, d) = sim.http("GET", "/drives/1", "");
     assert_eq!(d["state"], "stopped", "a run written to the tap must not reach the drive");
 }
+
+/// Polls `GET /drives/{n}` until `ok` holds for its JSON, for at most 30 s.
+fn wait_drive(sim: &Sim, n: usize, what: &str, ok: impl Fn(&Value) -> bool) -> Value {
+    let start = std::time::Instant::now();
+    loop {
+        let (_, d) = sim.http("GET", &format!("/drives/{n}"), "");
+        if ok(&d) {
+            return d;
+        }
+        assert!(start.elapsed() < Duration::from_secs(30), "drive {n}: timed out waiting for {what}: {d}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_generic_master_drive_runs_its_followers_through_the_control_interface() {
+    let dir = tempfile::tempdir().unwrap();
+    let bus = dir.path().join("bus.toml");
+    // Short ramps (0.5 s to 50 Hz) so the test waits little.
+    std::fs::write(
+        &bus,
+        r#"
+[[drive]]
+kind = "generic"
+address = 1
+protocol = "modbus-rtu"
+role = "master"
+keypad_hz = 40
+params = { "P0.07" = "0.5", "P0.08" = "0.5" }
+
+[[drive]]
+kind = "generic"
+address = 2
+protocol = "modbus-rtu"
+params = { "P0.07" = "0.5", "P0.08" = "0.5" }
+
+[[drive]]
+kind = "generic"
+address = 3
+protocol = "modbus-rtu"
+params = { "P0.07" = "0.5", "P0.08" = "0.5" }
+"#,
+    )
+    .unwrap();
+    let sim = Sim::start(&["--config", bus.to_str().unwrap()]);
+    let (status, master) = sim.http("POST", "/drives/1", r#"{"run": true}"#);
+    assert_eq!(status, 200, "{master}");
+    assert_eq!(master["role"], "master");
+    for n in 1..=3 {
+        wait_drive(&sim, n, "40 Hz", |d| d["state"] == "running" && d["output_hz"] == 40.0);
+    }
+    sim.http("POST", "/drives/1", r#"{"run": false}"#);
+    for n in 2..=3 {
+        wait_drive(&sim, n, "a stop", |d| d["state"] == "stopped");
+    }
+    // A follower's keypad RUN is refused: its run commands come from communication.
+    let (status, err) = sim.http("POST", "/drives/2", r#"{"run": true}"#);
+    assert_eq!(status, 409, "{err}");
+    assert!(err["error"].as_str().unwrap_or_default().contains("P0.01 = 0"), "{err}");
+}
+
+#[test]
+fn a_toshiba_master_drive_its_proportional_follower_and_f806_when_it_fails() {
+    let dir = tempfile::tempdir().unwrap();
+    let bus = dir.path().join("bus.toml");
+    let ramps = r#""0009" = "0.1 s", "0010" = "0.1 s", "0012" = "80 Hz""#;
+    std::fs::write(
+        &bus,
+        format!(
+            r#"
+[[drive]]
+kind = "toshiba"
+address = 10
+role = "master"
+params = {{ f806 = 3, {ramps} }}
+
+[[drive]]
+kind = "toshiba"
+address = 1
+params = {{ f806 = 2, f803 = 1, f810 = 1, f813 = 100, f814 = "40 Hz", {ramps} }}
+"#
+        ),
+    )
+    .unwrap();
+    let sim = Sim::start(&["--config", bus.to_str().unwrap()]);
+    let (status, m) = sim.http("POST", "/drives/1", r#"{"keypad_hz": 80, "run": true}"#);
+    assert_eq!(status, 200, "{m}");
+    wait_drive(&sim, 2, "40 Hz (80 Hz = 100 % of the master's FH)", |d| d["output_hz"] == 40.0);
+    // The master fails: after f803 = 1 s the follower trips (f806 = 2: emergency stop).
+    sim.http("POST", "/drives/1", r#"{"silent": true}"#);
+    let d = wait_drive(&sim, 2, "the trip", |d| d["state"] == "tripped");
+    assert_eq!(d["trip"], "external trip");
+}

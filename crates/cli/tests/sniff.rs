@@ -302,3 +302,24 @@ fn bad_usage_exits_3_with_one_line() {
         assert_eq!(err.lines().count(), 1, "{args:?}: one line: {err}");
     }
 }
+
+#[test]
+fn a_drive_masters_broadcasts_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let dump = dir.path().join("line.hex");
+    // A generic master drive's cycle, twice: 2001H = 40.00 Hz, then 2000H = 2 (forward run).
+    std::fs::write(
+        &dump,
+        "00 06 20 01 0F A0 D7 93\n00 06 20 00 00 02 02 1A\n00 06 20 01 0F A0 D7 93\n00 06 20 00 00 02 02 1A\n",
+    )
+    .unwrap();
+    let r = Command::new(bin()).args(["sniff", "--read"]).arg(&dump).output().unwrap();
+    let out = String::from_utf8_lossy(&r.stdout);
+    assert_eq!(r.status.code(), Some(0), "{out}");
+    assert_eq!(out.matches("broadcast as a drive acting as bus master").count(), 4, "{out}");
+    let r = Command::new(bin()).args(["sniff", "--json", "--read"]).arg(&dump).output().unwrap();
+    let frames: Vec<Value> =
+        String::from_utf8_lossy(&r.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(frames.len(), 4);
+    assert!(frames.iter().all(|f| f["drive_master_broadcast"] == true), "{frames:?}");
+}

@@ -59,6 +59,8 @@ mod param;
 mod store;
 
 pub mod docgen;
+pub mod interdrive;
+pub mod panel;
 pub mod profile;
 pub mod registers;
 

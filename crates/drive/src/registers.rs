@@ -4,6 +4,21 @@
 /// The generic VFD of `seeds/004_e8ea1998fe1a671e.txt`: 2000H command, 2001H frequency,
 /// 2100H–210BH monitors, 2101H status bits.
 pub mod generic {
+    /// The silence before and after every RTU frame: seed 004's "保持无输入信号大于等于 10ms"
+    /// (no signal for at least 10 ms), longer than t3.5 at every baud rate from 4800 up.
+    pub const FRAME_SILENCE: core::time::Duration = core::time::Duration::from_millis(10);
+
+    /// The silence a master keeps before each request on a line of `family` drives speaking
+    /// `protocol`, where the family's manual asks for more than the protocol's own:
+    /// [`FRAME_SILENCE`] for the generic drive in Modbus RTU.
+    pub fn line_silence(
+        family: crate::Family,
+        protocol: drivebus_proto::protocol::WireProtocol,
+    ) -> Option<core::time::Duration> {
+        (family == crate::Family::Generic && protocol == drivebus_proto::protocol::WireProtocol::ModbusRtu)
+            .then_some(FRAME_SILENCE)
+    }
+
     /// The registers of the seed's map ("通讯协议参数定义").
     pub mod reg {
         /// 2000H: command (06): 1 run, 2 forward run, 3 reverse run, 4 jog, 5 jog forward,

@@ -394,8 +394,22 @@ pub struct BusView {
     pub retries: u64,
     /// Time on the wire / elapsed.
     pub utilization: f64,
+    /// Broadcasts heard that the gateway did not send.
+    pub foreign_broadcasts: u64,
+    /// True while a drive acts as bus master on this line: a broadcast the gateway did not
+    /// send was heard within the last [`DRIVE_MASTER_WINDOW_S`] seconds.
+    pub drive_master: bool,
     /// The drives' ids.
     pub drives: Vec<String>,
+}
+
+/// How long after the last broadcast it did not send the gateway still shows a bus as a
+/// drive-master line, seconds.
+pub const DRIVE_MASTER_WINDOW_S: f64 = 10.0;
+
+/// True while a drive acts as bus master on the line of `stats` (see [`BusView::drive_master`]).
+pub fn drive_master(stats: &BusStats) -> bool {
+    stats.last_foreign_broadcast_s.is_some_and(|t| stats.elapsed_seconds - t <= DRIVE_MASTER_WINDOW_S)
 }
 
 /// A change for live subscribers (the HTTP stream, MQTT, the dashboard).
@@ -691,6 +705,8 @@ impl Gateway {
             checksum_errors: s.checksum_errors,
             retries: s.retries,
             utilization: s.utilization(),
+            foreign_broadcasts: s.foreign_broadcasts,
+            drive_master: drive_master(&s),
             drives: self
                 .drives()
                 .iter()
@@ -1101,6 +1117,12 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
     owner.retries = b.retries;
     owner.echo = b.echo;
     owner.strict_t15 = b.strict_t15;
+    // A family whose manual asks for more silence than the protocol (generic RTU: 10 ms).
+    owner.family = b
+        .drives
+        .iter()
+        .map(|d| d.family)
+        .find(|&f| drivebus_drive::registers::generic::line_silence(f, b.protocol).is_some());
     #[cfg(feature = "virtual")]
     let (bus, line) = match b.port {
         crate::config::Port::Virtual => {

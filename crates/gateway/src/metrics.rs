@@ -289,6 +289,8 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let utilization = Family::<BusLabels, F64Gauge>::default();
     let wire_bytes = Family::<BusLabels, Counter>::default();
     let bus_online = Family::<BusLabels, Gauge>::default();
+    let foreign = Family::<BusLabels, Counter>::default();
+    let drive_master = Family::<BusLabels, Gauge>::default();
     for b in gw.buses().iter() {
         let l = BusLabels { bus: b.config.name.clone() };
         let s = b.stats();
@@ -301,6 +303,8 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         let u = s.utilization();
         utilization.get_or_create(&l).set(if u.is_finite() { u } else { 0.0 });
         bus_online.get_or_create(&l).set(i64::from(b.online()));
+        foreign.get_or_create(&l).inc_by(s.foreign_broadcasts);
+        drive_master.get_or_create(&l).set(i64::from(crate::gateway::drive_master(&s)));
     }
     reg.register("bus_transactions", "Requests sent, retries included", transactions);
     reg.register("bus_replies", "Replies received", replies);
@@ -310,6 +314,12 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     reg.register("bus_utilization", "Time on the wire over time elapsed (0..1)", utilization);
     reg.register("bus_wire_bytes", "Bytes of the requests and their replies on the line", wire_bytes);
     reg.register("bus_online", "1 unless the bus's port failed", bus_online);
+    reg.register(
+        "bus_foreign_broadcasts",
+        "Broadcasts heard on the line that the gateway did not send (a drive acting as bus master)",
+        foreign,
+    );
+    reg.register("bus_drive_master", "1 while a drive acts as bus master on the line", drive_master);
 
     // The gateway's own work.
     let c = &gw.counters;

@@ -8,8 +8,9 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use drivebus_proto::deframe::{Deframer, Event};
 use drivebus_proto::protocol::WireProtocol;
-use drivebus_proto::session::{MasterEvent, MasterSession, Protocol, Timing};
+use drivebus_proto::session::{Disposition, MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
 use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
@@ -59,6 +60,12 @@ pub(crate) struct Engine<P: Protocol> {
     echo_left: Vec<u8>,
     /// The bytes to write on [`Action::Transmit`].
     out: Vec<u8>,
+    /// Finds requests in what the line brings besides our own: broadcasts another talker
+    /// sent (a drive acting as bus master).
+    listener: Deframer<P::RequestScanner>,
+    /// When the listener last heard bytes (Modbus RTU: a silence of t3.5 since then ends a
+    /// frame, so a partial frame never holds the listener).
+    last_heard: Option<Instant>,
 }
 
 /// Calls `$body` with an engine of `$config`'s protocol (the one place that goes from a
@@ -93,8 +100,14 @@ pub(crate) fn timing_of(config: &BusConfig) -> Timing {
     if let Some(rt) = config.response_timeout {
         timing.response_timeout = rt;
     }
-    if let Some(gap) = config.gap {
-        timing.min_gap = gap;
+    match (config.gap, config.family) {
+        (Some(gap), _) => timing.min_gap = gap,
+        (None, Some(family)) => {
+            if let Some(silence) = drivebus_drive::registers::generic::line_silence(family, config.protocol) {
+                timing.min_gap = timing.min_gap.max(silence);
+            }
+        }
+        (None, None) => {}
     }
     if config.strict_t15 && config.protocol == WireProtocol::ModbusRtu {
         timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
@@ -112,6 +125,8 @@ impl<P: Protocol> Engine<P> {
         health: Arc<Mutex<HashMap<u8, Health>>>,
     ) -> Self {
         Engine {
+            listener: Deframer::new(proto.request_scanner()),
+            last_heard: None,
             session: MasterSession::new(proto, timing),
             timing,
             config,
@@ -245,6 +260,7 @@ impl<P: Protocol> Engine<P> {
         } else {
             self.echo_left.drain(..same);
         }
+        self.listen(now, input);
         self.session.handle_input(now, input);
     }
 
@@ -299,6 +315,40 @@ impl<P: Protocol> Engine<P> {
                 };
                 h.next_probe = Some(now + h.backoff);
             }
+        }
+    }
+
+    /// Counts the broadcasts in `input` (bytes that are not our own request's echo): requests
+    /// to every drive that this master did not send, as a drive acting as bus master sends
+    /// them every cycle.
+    fn listen(&mut self, now: Instant, input: &[u8]) {
+        if input.is_empty() {
+            return;
+        }
+        let t35 = drivebus_proto::line::modbus_t15_t35(self.config.baud).1;
+        let silence = self.config.protocol == WireProtocol::ModbusRtu
+            && self.last_heard.is_some_and(|t| now.saturating_since(t) >= t35);
+        self.last_heard = Some(now);
+        let Engine { listener, session, .. } = self;
+        let proto = session.protocol();
+        let mut heard = 0u64;
+        let mut on_event = |e: Event<'_>| {
+            if let Event::Frame { bytes, .. } = e {
+                let broadcast = proto
+                    .parse_request(bytes)
+                    .is_ok_and(|r| matches!(proto.disposition(&r, 0xFE), Disposition::Broadcast { .. }));
+                heard += u64::from(broadcast);
+            }
+        };
+        if silence {
+            listener.silence(&mut on_event);
+        }
+        listener.push(input, &mut on_event);
+        if heard > 0 {
+            self.stat(now, |s| {
+                s.foreign_broadcasts += heard;
+                s.last_foreign_broadcast_s = Some(now.as_nanos() as f64 / 1e9);
+            });
         }
     }
 
@@ -418,6 +468,76 @@ mod tests {
                 other => panic!("cut at {cut}: {other:?}"),
             }
         }
+    }
+
+    /// The silence the engine of `config` keeps between a reply's last byte and the next
+    /// request, on session (virtual) time.
+    fn silence_after_a_reply(config: BusConfig) -> Duration {
+        let timing = timing_of(&config);
+        let mut e = Engine::new(ModbusRtu, timing, config, Default::default(), Default::default());
+        let at = first_transmit(&mut e);
+        e.sent(at);
+        let heard = at + Duration::from_millis(20);
+        e.input(heard, &read_reply());
+        assert!(matches!(e.poll(heard), Action::Done(Attempt::Reply(_))));
+        e.start(heard, &READ, 0).unwrap();
+        let mut now = heard;
+        loop {
+            match e.poll(now) {
+                Action::Transmit => return now - heard,
+                Action::Wait(t) => now = t,
+                Action::Done(a) => panic!("ended before sending: {a:?}"),
+            }
+        }
+    }
+
+    #[test]
+    fn a_generic_rtu_bus_keeps_10_ms_between_frames_not_only_t35() {
+        // 19200 baud 8N2: t3.5 is 2 ms; seed 004 asks for at least 10 ms of silence.
+        let plain = BusConfig::new(WireProtocol::ModbusRtu, 19200, "8N2".parse().unwrap());
+        let t35 = drivebus_proto::modbus::rtu::timing(19200, plain.format).min_gap;
+        assert!(t35 < Duration::from_millis(3), "{t35:?}");
+        assert_eq!(silence_after_a_reply(plain.clone()), t35);
+        let generic = BusConfig { family: Some(drivebus_drive::Family::Generic), ..plain.clone() };
+        assert_eq!(silence_after_a_reply(generic.clone()), Duration::from_millis(10));
+        // Other families keep the protocol's; --gap overrides both.
+        let toshiba = BusConfig { family: Some(drivebus_drive::Family::Toshiba), ..plain.clone() };
+        assert_eq!(silence_after_a_reply(toshiba), t35);
+        let gap = BusConfig { gap: Some(Duration::from_millis(2)), ..generic };
+        assert_eq!(silence_after_a_reply(gap), Duration::from_millis(2));
+        // At 9600 baud t3.5 (4.01 ms) is shorter than 10 ms too.
+        let slow = BusConfig {
+            family: Some(drivebus_drive::Family::Generic),
+            ..BusConfig::new(WireProtocol::ModbusRtu, 9600, "8N2".parse().unwrap())
+        };
+        assert_eq!(silence_after_a_reply(slow), Duration::from_millis(10));
+    }
+
+    /// A generic master drive's broadcast: 06 to 0, 2001H = 40.00 Hz.
+    fn broadcast() -> Vec<u8> {
+        let mut b = vec![0x00, 0x06, 0x20, 0x01, 0x0F, 0xA0];
+        let crc = drivebus_proto::checksum::crc16_modbus(&b);
+        b.extend_from_slice(&crc.to_le_bytes());
+        b
+    }
+
+    #[test]
+    fn broadcasts_another_talker_sent_are_counted_after_a_cut_frame() {
+        let (mut e, stats) = engine();
+        let at = first_transmit(&mut e);
+        e.sent(at);
+        // The start of a frame that announces 246 data bytes, cut short (a collision) ...
+        let mut now = at + Duration::from_millis(2);
+        e.input(now, &[0x05, 0x10, 0x00, 0x00, 0x00, 0x7B, 0xF6, 0x01]);
+        // ... then, after more than t3.5 of silence, a drive master's broadcast: counted.
+        now = now + Duration::from_millis(20);
+        e.input(now, &broadcast());
+        let s = stats.lock().unwrap().clone();
+        assert_eq!(s.foreign_broadcasts, 1, "{s:?}");
+        assert_eq!(s.last_foreign_broadcast_s, Some(now.as_nanos() as f64 / 1e9));
+        // Our own request and the drive's reply are not broadcasts.
+        e.input(now + Duration::from_millis(20), &read_reply());
+        assert_eq!(stats.lock().unwrap().foreign_broadcasts, 1);
     }
 
     #[test]

@@ -54,6 +54,10 @@ pub struct BusConfig {
     /// deliver bytes in bursts with gaps of their own (an FTDI chip's latency timer is 16 ms),
     /// and would lose good replies. For on-board UARTs where a frame's bytes come as sent.
     pub strict_t15: bool,
+    /// The family of the drives on the bus, where its manual adds to the protocol's timing:
+    /// a generic bus in Modbus RTU keeps at least 10 ms of silence before each request (seed
+    /// 004), not only t3.5. `None`: the protocol's timing alone. `gap` overrides both.
+    pub family: Option<drivebus_drive::Family>,
 }
 
 impl BusConfig {
@@ -72,6 +76,7 @@ impl BusConfig {
             gap: None,
             rs485: crate::link::Rs485::Off,
             strict_t15: false,
+            family: None,
         }
     }
 }
@@ -155,6 +160,11 @@ pub struct BusStats {
     pub retries: u64,
     /// Broadcasts sent.
     pub broadcasts: u64,
+    /// Broadcasts heard on the line that this master did not send: another talker commands
+    /// every drive (a drive acting as bus master, seed 004 9.2.2 (2), Toshiba f806 = 3/4).
+    pub foreign_broadcasts: u64,
+    /// Session time of the last of them, seconds.
+    pub last_foreign_broadcast_s: Option<f64>,
     /// Time the line carried our requests and the replies, seconds.
     pub wire_seconds: f64,
     /// Bytes of our requests and their replies on the line (what `wire_seconds` reckons).

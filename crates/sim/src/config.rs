@@ -18,6 +18,9 @@
 //! response_ms = 5      # the drive's response time
 //! load = 0.5           # fraction of rated torque
 //! params = { "P0.02" = "45 Hz" }  # set at start, as on the keypad
+//! role = "master"      # optional: this drive broadcasts its run/stop and frequency
+//! cycle_ms = 100       # the master's broadcast cycle
+//! keypad_hz = 40       # the master's keypad frequency setting
 //! ```
 
 use std::fmt;
@@ -29,7 +32,10 @@ use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
 use serde::Deserialize;
 
-use crate::bus::Faults;
+use drivebus_proto::Instant;
+
+use crate::bus::{Faults, VirtualLine};
+use crate::interdrive::{BusMaster, DEFAULT_CYCLE};
 
 /// One drive on the virtual bus.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,6 +54,18 @@ pub struct DriveSpec {
     pub params: Vec<(String, String)>,
 }
 
+/// The drive that is the line's bus master (`role = "master"`, or a Toshiba drive with f806 =
+/// 3 or 4), see [`crate::interdrive`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct MasterSpec {
+    /// Which drive, an index into [`BusSpec::drives`].
+    pub drive: usize,
+    /// How often it broadcasts.
+    pub cycle: Duration,
+    /// Its keypad frequency setting at start, Hz.
+    pub keypad_hz: Option<f64>,
+}
+
 /// A virtual bus: line settings, faults and drives.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BusSpec {
@@ -64,6 +82,8 @@ pub struct BusSpec {
     pub pacing: bool,
     /// Seed for fault injection.
     pub seed: u64,
+    /// The drive acting as bus master, if one does.
+    pub master: Option<MasterSpec>,
 }
 
 /// Why a bus description is not usable. Prints as one sentence naming the place.
@@ -109,6 +129,48 @@ impl FromStr for DriveSpec {
         spec.check().map_err(|e| bad(e.0))?;
         Ok(spec)
     }
+}
+
+/// The master role a bus file's drive takes, if it takes one: `role = "master"`, or for a
+/// Toshiba drive f806 = 3 or 4 in its params; `cycle_ms` and `keypad_hz` only with it.
+fn master_of(index: usize, spec: &DriveSpec, d: &FileDrive) -> Result<Option<MasterSpec>, ConfigError> {
+    let bad = |m: String| Err(ConfigError(m));
+    let by_role = match d.role.as_deref() {
+        None => false,
+        Some("master") => true,
+        Some(other) => {
+            return bad(format!(
+            "field `role`: {other:?} is not a role: the only one is \"master\" (the other drives follow it)"
+        ))
+        }
+    };
+    let f806 = spec.params.iter().find(|(k, _)| k == "f806").map(|(_, v)| v.trim().to_string());
+    let by_f806 = spec.family == Family::Toshiba && matches!(f806.as_deref(), Some("3" | "4"));
+    if by_role && spec.family == Family::Toshiba && f806.is_some() && !by_f806 {
+        return bad(format!(
+            "role = \"master\" with f806 = {}: a Toshiba master has f806 = 3 (frequency command) or 4 (output frequency)",
+            f806.unwrap_or_default()
+        ));
+    }
+    if !(by_role || by_f806) {
+        if d.cycle_ms.is_some() || d.keypad_hz.is_some() {
+            return bad(
+                "fields `cycle_ms` and `keypad_hz` belong to the master drive: add role = \"master\"".into(),
+            );
+        }
+        return Ok(None);
+    }
+    let cycle = match d.cycle_ms {
+        None => DEFAULT_CYCLE,
+        Some(ms) if (10..=10_000).contains(&ms) => Duration::from_millis(ms),
+        Some(ms) => return bad(format!("field `cycle_ms`: {ms} is outside 10..10000 ms")),
+    };
+    if let Some(hz) = d.keypad_hz {
+        if !(0.0..=500.0).contains(&hz) {
+            return bad(format!("field `keypad_hz`: {hz} is outside 0..500 Hz"));
+        }
+    }
+    Ok(Some(MasterSpec { drive: index, cycle, keypad_hz: d.keypad_hz }))
 }
 
 impl DriveSpec {
@@ -183,6 +245,9 @@ struct FileDrive {
     load: Option<f64>,
     #[serde(default)]
     params: toml::Table,
+    role: Option<String>,
+    cycle_ms: Option<u64>,
+    keypad_hz: Option<f64>,
 }
 
 impl BusSpec {
@@ -202,6 +267,7 @@ impl BusSpec {
             faults: Faults::default(),
             pacing: true,
             seed: 1,
+            master: None,
         };
         spec.check()?;
         Ok(spec)
@@ -218,6 +284,7 @@ impl BusSpec {
             }
         })?;
         let mut drives = Vec::new();
+        let mut master: Option<MasterSpec> = None;
         for (i, d) in raw.drives.iter().enumerate() {
             let at = format!("{file}: drive {} (kind {:?}, address {})", i + 1, d.kind, d.address);
             let family: Family = d.kind.parse().map_err(|_| {
@@ -242,6 +309,15 @@ impl BusSpec {
                     .collect(),
             };
             spec.check().map_err(|e| ConfigError(format!("{at}: {e}")))?;
+            if let Some(m) = master_of(i, &spec, d).map_err(|e| ConfigError(format!("{at}: {e}")))? {
+                if let Some(first) = &master {
+                    return Err(ConfigError(format!(
+                        "{at}: drive {} is the bus master already: a line has one master drive",
+                        first.drive + 1
+                    )));
+                }
+                master = Some(m);
+            }
             drives.push(spec);
         }
         let format = match &raw.serial {
@@ -266,7 +342,53 @@ impl BusSpec {
         };
         bus.seed = raw.seed;
         bus.pacing = raw.pacing;
+        bus.master = master;
         Ok(bus)
+    }
+
+    /// Builds the line this bus describes at simulated time zero: every drive with its load,
+    /// response time and parameters, the master drive wrapped as a [`BusMaster`].
+    pub fn build_line(&self) -> Result<VirtualLine, ConfigError> {
+        let mut line = VirtualLine::new(self.baud, self.format, Instant::ZERO);
+        line.set_faults(self.faults);
+        line.seed(self.seed);
+        line.set_pacing(self.pacing);
+        for (i, spec) in self.drives.iter().enumerate() {
+            let at = |e: String| ConfigError(format!("{}@{}: {e}", spec.family, spec.address));
+            let mut drive = crate::family::build(spec, Instant::ZERO)?;
+            drive.core_mut().model.set_load(spec.load);
+            drive.core_mut().response_delay = spec.response;
+            let master = self.master.as_ref().filter(|m| m.drive == i);
+            if master.is_some() {
+                // Run and frequency from the keypad (generic), master by f806 (Toshiba); the
+                // bus file's params may say otherwise.
+                let defaults: &[(&str, &str)] = match spec.family {
+                    Family::Generic => &[("P0.00", "0"), ("P0.01", "0")],
+                    Family::Toshiba => &[("f806", "3")],
+                    _ => &[],
+                };
+                for (name, value) in defaults {
+                    drive.set_param(name, value).map_err(at)?;
+                }
+            }
+            for (name, value) in &spec.params {
+                drive.set_param(name, value).map_err(|e| at(format!("parameter {name}: {e}")))?;
+            }
+            match master {
+                Some(m) => {
+                    if let Some(hz) = m.keypad_hz {
+                        drive.set_keypad_hz(hz).map_err(|e| at(format!("keypad_hz: {e}")))?;
+                    }
+                    let wrapped =
+                        BusMaster::new(drive, m.cycle, line.char_time(), Instant::ZERO).map_err(at)?;
+                    line.add_device(Box::new(wrapped));
+                }
+                None => {
+                    line.add_device(drive);
+                }
+            }
+        }
+        Ok(line)
     }
 
     /// Checks line settings and that no two drives share an address.

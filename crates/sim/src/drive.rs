@@ -11,7 +11,7 @@ use drivebus_proto::Instant;
 use serde::Serialize;
 
 use crate::bus::Device;
-use crate::model::{DriveModel, ModelSettings, Rotation, RunState};
+use crate::model::{DriveModel, ModelSettings, Rotation, RunRefusal, RunState};
 
 /// The state shared by every family.
 #[derive(Clone, Debug)]
@@ -90,6 +90,12 @@ pub struct DriveSnapshot {
     pub eeprom_writes: u64,
     /// True when the drive is silenced by fault injection.
     pub silent: bool,
+    /// `master` when the drive is the line's bus master (it broadcasts its run/stop and
+    /// frequency to the other drives); absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub role: Option<String>,
+    /// What the drive's panel display shows now (`drivebus_drive::panel`).
+    pub display: String,
 }
 
 /// A virtual drive: a [`Device`] with a model and parameters that a control interface can
@@ -117,22 +123,42 @@ pub trait VirtualDrive: Device + Send {
     /// Sets parameter `name` from a value in its unit (`"2"`, `"50 Hz"`), as the keypad would:
     /// range and read-only checks apply, nothing counts as a bus write.
     fn set_param(&mut self, name: &str, value: &str) -> Result<(), String> {
-        let core = self.core_mut();
-        let def = core
-            .params
-            .catalog()
-            .get(name)
-            .ok_or_else(|| format!("no parameter {name:?} in the catalog"))?
-            .clone();
-        let raw = def.parse_value(value).map_err(|e| e.to_string())?;
-        let running = core.model.is_running();
-        core.params
-            .set(def.name.as_str(), raw, drivebus_drive::Storage::Ram, running)
-            .map_err(|e| e.to_string())
+        set_param_as_keypad(self.core_mut(), name, value)
+    }
+    /// Presses the keypad's RUN (`true`) or STOP (`false`) key. Default: STOP ramps the motor
+    /// down; RUN starts it unless the model refuses (tripped, no hardware enable). Families
+    /// whose run source parameter can exclude the keypad check it first.
+    fn press_run(&mut self, run: bool) -> Result<(), String> {
+        let model = &mut self.core_mut().model;
+        if !run {
+            model.stop();
+            return Ok(());
+        }
+        model.run().map_err(|why| match why {
+            RunRefusal::Tripped(t) => {
+                format!("the drive does not start: it is tripped ({}); reset it first", t.name())
+            }
+            RunRefusal::NoHardwareEnable => {
+                "the drive does not start: its hardware enable input is off".to_string()
+            }
+        })
+    }
+    /// Sets the keypad frequency setting, Hz (the frequency a drive running from its keypad
+    /// turns at). Default: not simulated for this family.
+    fn set_keypad_hz(&mut self, hz: f64) -> Result<(), String> {
+        let _ = hz;
+        Err(format!(
+            "a simulated {} drive has no keypad frequency setting; set its parameters instead",
+            self.family()
+        ))
     }
     /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
-        snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
+        let display = panel_display(self.family(), self.core());
+        DriveSnapshot {
+            display,
+            ..snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
+        }
     }
 }
 
@@ -181,5 +207,51 @@ pub fn snapshot_of(
             .collect(),
         eeprom_writes: core.params.total_eeprom_writes(),
         silent: false,
+        role: None,
+        display: String::new(),
     }
+}
+
+/// What the panel of `drive` shows now (see `drivebus_drive::panel`): a Toshiba drive with
+/// FA10 = 1 shows the LED data FA11/FA12; otherwise the trip in force, or the frequency.
+pub fn panel_display(family: Family, core: &DriveCore) -> String {
+    use drivebus_drive::panel;
+    use drivebus_drive::profile::{DriveStatus, Fault};
+    let p = |n: u32| core.params.get(n).unwrap_or(0);
+    if family == Family::Toshiba && p(0xFA10) == 1 {
+        return panel::led_text(p(0xFA11) as u16, p(0xFA12) as u16);
+    }
+    let m = &core.model;
+    let fault = m.trip().map(|t| match family {
+        Family::Toshiba => {
+            let code = crate::family::toshiba::trip_code(t);
+            Fault { code: u32::from(code), text: drivebus_drive::profile::toshiba::trip_text(code) }
+        }
+        _ => Fault { code: u32::from(crate::family::generic::fault_code(t)), text: t.name().to_string() },
+    });
+    let status = DriveStatus {
+        address: core.address,
+        running: m.is_running(),
+        direction: None,
+        output_hz: Some(m.output_hz()),
+        setpoint_hz: Some(m.setpoint_hz()),
+        current_a: None,
+        fault,
+    };
+    panel::display(family, &status)
+}
+
+/// Sets parameter `name` of `core` from a value in its unit, as the keypad would (range and
+/// read-only checks apply, nothing counts as a bus write): the body of
+/// [`VirtualDrive::set_param`], for families that re-derive their state afterwards.
+pub fn set_param_as_keypad(core: &mut DriveCore, name: &str, value: &str) -> Result<(), String> {
+    let def = core
+        .params
+        .catalog()
+        .get(name)
+        .ok_or_else(|| format!("no parameter {name:?} in the catalog"))?
+        .clone();
+    let raw = def.parse_value(value).map_err(|e| e.to_string())?;
+    let running = core.model.is_running();
+    core.params.set(def.name.as_str(), raw, drivebus_drive::Storage::Ram, running).map_err(|e| e.to_string())
 }

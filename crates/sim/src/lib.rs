@@ -20,6 +20,7 @@
 //! - [`family`]: generic, toshiba, danfoss, b800: each family's registers, commands, errors and
 //!   addressing rules.
 //! - [`bus`]: the virtual line; sans-IO, advanced by the caller's clock.
+//! - [`interdrive`]: a drive as bus master, broadcasting its run/stop and frequency.
 //!
 //! Nothing here reads a clock: tests run the whole bus on simulated time.
 
@@ -27,6 +28,7 @@ pub mod bus;
 pub mod config;
 pub mod drive;
 pub mod family;
+pub mod interdrive;
 pub mod master;
 pub mod model;
 pub mod monitor;

@@ -28,6 +28,21 @@ where
         let from = self.from;
         let report = self.report_rejects;
         self.deframer.push(bytes, &mut |e| match e {
+            // What a drive acting as bus master broadcasts is a request: shown as one.
+            Event::Frame { bytes, .. } | Event::Rejected { bytes, .. }
+                if from == Direction::Drive && master_broadcast::<C>(bytes).is_some() =>
+            {
+                if let (Ok(f), Some(note)) =
+                    (C::parse(bytes, Some(Direction::Master)), master_broadcast::<C>(bytes))
+                {
+                    let line = line_of(&f).replacen(
+                        "master to all drives",
+                        "a drive acting as bus master to all drives",
+                        1,
+                    );
+                    out.push(format!("{} {line} ({note})", C::NAME));
+                }
+            }
             Event::Frame { bytes, .. } => match C::parse(bytes, Some(from)) {
                 Ok(f) => out.push(format!("{} {}", C::NAME, line_of(&f))),
                 Err(err) if report => out.push(format!("{} {}: invalid: {err}", C::NAME, hex(bytes))),
@@ -67,6 +82,11 @@ impl Monitor {
     }
 }
 
+/// The name of `bytes` when they are a broadcast a drive acting as bus master sends.
+fn master_broadcast<C: Codec>(bytes: &[u8]) -> Option<&'static str> {
+    drivebus_drive::interdrive::master_drive_broadcast(C::NAME.parse().ok()?, bytes)
+}
+
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(" ")
 }
@@ -90,4 +110,20 @@ pub fn line_of<F: Describe>(f: &F) -> String {
     f.fields(&mut |field| fields.push(field.to_string()));
     let refusal = if f.is_refusal() { " (refused)" } else { "" };
     format!("{who}: {code} {}{refusal}; {}", c.name, fields.join(", "))
+}
+
+#[cfg(test)]
+mod master_drive_tests {
+    use super::*;
+
+    #[test]
+    fn a_master_drives_broadcast_is_shown_as_one() {
+        let mut m = Monitor::new(WireProtocol::ModbusRtu, Direction::Drive, true);
+        let lines = m.push(&[0x00, 0x06, 0x20, 0x01, 0x0F, 0xA0, 0xD7, 0x93]);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!(lines[0].contains("a drive acting as bus master to all drives"), "{}", lines[0]);
+        // A drive's ordinary reply is not.
+        let lines = m.push(&[0x01, 0x06, 0x20, 0x01, 0x0F, 0xA0, 0xD6, 0x42]);
+        assert!(lines[0].starts_with("modbus-rtu drive 1 to master"), "{lines:?}");
+    }
 }

@@ -53,26 +53,14 @@ pub enum Endpoint {
 impl Simulator {
     /// Builds every drive of `bus` on a fresh line.
     pub fn new(bus: &BusSpec) -> Result<Arc<Self>, ConfigError> {
-        let mut line = VirtualLine::new(bus.baud, bus.format, Instant::ZERO);
-        line.set_faults(bus.faults);
-        line.seed(bus.seed);
-        line.set_pacing(bus.pacing);
+        let line = bus.build_line()?;
         let mut protocols: Vec<WireProtocol> = Vec::new();
         for spec in &bus.drives {
-            let mut drive = crate::family::build(spec, Instant::ZERO)?;
-            drive.core_mut().model.set_load(spec.load);
-            drive.core_mut().response_delay = spec.response;
-            for (name, value) in &spec.params {
-                drive.set_param(name, value).map_err(|e| {
-                    ConfigError(format!("{}@{}: parameter {name}: {e}", spec.family, spec.address))
-                })?;
-            }
             for &p in crate::family::wire_protocols(spec) {
                 if !protocols.contains(&p) {
                     protocols.push(p);
                 }
             }
-            line.add_device(drive);
         }
         Ok(Arc::new(Simulator {
             line: Mutex::new(line),
@@ -278,7 +266,7 @@ async fn index() -> Json<Value> {
         "endpoints": {
             "GET /drives": "every drive's state",
             "GET /drives/{n}": "drive n (1 = first --drive)",
-            "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0, \"params\": {\"F-12\": 2}, \"power_cycle\": true}",
+            "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0, \"params\": {\"F-12\": 2}, \"power_cycle\": true, \"run\": true, \"keypad_hz\": 40}",
             "GET /faults, PUT /faults": "{\"corrupt_rate\": 0.01, \"drop_rate\": 0.0, \"extra_latency_ms\": 0}",
             "GET /stats": "what the line has carried"
         }
@@ -323,6 +311,10 @@ struct DrivePatch {
     silent: Option<bool>,
     hardware_enable: Option<bool>,
     supply: Option<f64>,
+    /// The keypad's RUN (true) or STOP (false) key.
+    run: Option<bool>,
+    /// The keypad frequency setting, Hz.
+    keypad_hz: Option<f64>,
 }
 
 fn parse_trip(s: &str) -> Option<Trip> {
@@ -396,6 +388,10 @@ async fn patch_drive(
         })?;
         d.core_mut().model.trip_now(trip);
     }
+    if let Some(hz) = p.keypad_hz {
+        d.set_keypad_hz(hz)
+            .map_err(|e| api_error(StatusCode::UNPROCESSABLE_ENTITY, format!("keypad_hz: {e}")))?;
+    }
     if p.reset == Some(true) {
         if let Err(t) = d.core_mut().model.reset() {
             return Err(api_error(
@@ -403,6 +399,9 @@ async fn patch_drive(
                 format!("the {} persists: the drive stays tripped", t.name()),
             ));
         }
+    }
+    if let Some(run) = p.run {
+        d.press_run(run).map_err(|e| api_error(StatusCode::CONFLICT, e))?;
     }
     drop(line);
     sim.wake.notify_one();

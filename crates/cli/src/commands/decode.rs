@@ -238,6 +238,15 @@ fn target_text(t: Target) -> String {
     }
 }
 
+/// The name of a valid request frame that a drive acting as bus master broadcasts
+/// ([`drivebus_drive::interdrive`]).
+pub fn master_drive_broadcast(protocol: &str, f: &FrameReport) -> Option<&'static str> {
+    let request = f.error.is_none() && f.direction != Some(Direction::Drive);
+    request
+        .then(|| drivebus_drive::interdrive::master_drive_broadcast(protocol.parse().ok()?, &f.bytes))
+        .flatten()
+}
+
 /// The text form of one item.
 pub fn render_text(protocol: &str, index: usize, item: &Item) -> String {
     match item {
@@ -263,6 +272,9 @@ pub fn render_text(protocol: &str, index: usize, item: &Item) -> String {
             let (code, _, name) = f.command.clone().unwrap_or_default();
             let _ =
                 writeln!(s, "{who}: {code} {name}{}", if f.refusal { " (the drive refuses)" } else { "" });
+            if let Some(note) = master_drive_broadcast(protocol, f) {
+                let _ = writeln!(s, "    {note}");
+            }
             for field in &f.fields {
                 let _ = writeln!(s, "    {}", field.text);
             }
@@ -305,6 +317,9 @@ pub fn render_json(protocol: &str, item: &Item) -> Option<Value> {
         }
     }
     o.insert("refusal".into(), json!(f.refusal));
+    if master_drive_broadcast(protocol, f).is_some() {
+        o.insert("drive_master_broadcast".into(), json!(true));
+    }
     let mut fields = Map::new();
     for field in &f.fields {
         fields.insert(field.name.clone(), field.json.clone());

@@ -233,6 +233,7 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     config.rs485 = t.rs485.parse().map_err(|e: String| fail(EXIT_USAGE, format!("--rs485: {e}")))?;
     config.echo = t.echo;
     config.strict_t15 = t.strict_t15;
+    config.family = Some(family);
     if let Some(gap) = t.gap {
         if !(0.0..=1000.0).contains(&gap) {
             return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));
@@ -256,7 +257,7 @@ pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
     Ok(tokio::runtime::Builder::new_current_thread().enable_all().build()?)
 }
 
-fn status_json(s: &DriveStatus) -> Value {
+pub(crate) fn status_json(s: &DriveStatus) -> Value {
     json!({
         "address": s.address,
         "running": s.running,

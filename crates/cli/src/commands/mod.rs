@@ -5,6 +5,7 @@ pub mod decode;
 pub mod drive;
 pub mod history;
 pub mod monitor;
+pub mod panel;
 pub mod scan;
 pub mod serve;
 pub mod simulate;

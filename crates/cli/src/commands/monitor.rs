@@ -590,6 +590,7 @@ mod tests {
                 wire_seconds: 1.0,
                 wire_bytes: 960,
                 elapsed_seconds: 4.0,
+                ..BusStats::default()
             },
         }
     }

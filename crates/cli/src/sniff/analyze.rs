@@ -318,7 +318,10 @@ impl Record {
         let (code, _, name) = f.command.clone().unwrap_or_default();
         let fields = f.fields.iter().map(|x| x.text.as_str()).collect::<Vec<_>>().join(", ");
         match self.direction {
-            Direction::Master => format!("{code} {name}; {fields}"),
+            Direction::Master => match crate::commands::decode::master_drive_broadcast(self.protocol, f) {
+                Some(note) => format!("{code} {name}; {fields} ({note})"),
+                None => format!("{code} {name}; {fields}"),
+            },
             Direction::Drive if f.refusal => format!("→ refused: {code} {name}; {fields}"),
             Direction::Drive => format!("→ ok: {code} {name}; {fields}"),
         }

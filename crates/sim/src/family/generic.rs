@@ -372,6 +372,41 @@ impl VirtualDrive for GenericDrive {
         let text = params.catalog().by_number(P0_01_RUN_SOURCE).and_then(|d| d.choice(value)).unwrap_or("?");
         format!("P0.01 = {value} {text}")
     }
+
+    fn set_param(&mut self, name: &str, value: &str) -> Result<(), String> {
+        crate::drive::set_param_as_keypad(&mut self.state.core, name, value)?;
+        self.state.apply_parameters();
+        self.state.apply_comm_timeout();
+        Ok(())
+    }
+
+    /// RUN works while P0.01 = 0 (run commands from the keypad); STOP always works.
+    fn press_run(&mut self, run: bool) -> Result<(), String> {
+        let source = self.state.param(P0_01_RUN_SOURCE);
+        if run && source != 0 {
+            return Err(format!(
+                "P0.01 = {source}: run commands do not come from the keypad; set P0.01 = 0 first"
+            ));
+        }
+        let coast = self.state.param(P0_13_STOP_MODE) == 1;
+        let model = &mut self.state.core.model;
+        if !run && coast {
+            model.coast();
+            return Ok(());
+        }
+        if !run {
+            model.stop();
+            return Ok(());
+        }
+        model.run().map_err(|_| {
+            "the drive does not start: it is tripped or its hardware enable input is off".to_string()
+        })
+    }
+
+    /// P0.02, the keypad digital frequency setting.
+    fn set_keypad_hz(&mut self, hz: f64) -> Result<(), String> {
+        self.set_param("P0.02", &format!("{hz}"))
+    }
 }
 
 /// How the bytes of a rejected frame are laid out, to find its address and function code.

@@ -160,6 +160,12 @@ const BLOCK_WRITE_1: u32 = 0x0870;
 const BLOCK_READ_1: u32 = 0x0875;
 const FA00: u32 = 0xFA00;
 const FA01: u32 = 0xFA01;
+const INTER_DRIVE: u32 = 0x0806;
+const POINT_SELECTION: u32 = 0x0810;
+const POINT_1_PERCENT: u32 = 0x0811;
+const POINT_1_FREQ: u32 = 0x0812;
+const POINT_2_PERCENT: u32 = 0x0813;
+const POINT_2_FREQ: u32 = 0x0814;
 
 /// A virtual Toshiba VF-AS1.
 pub struct ToshibaDrive {
@@ -202,6 +208,9 @@ struct Inner {
     coast_stopped: bool,
     /// No communication until then (start-up after a power cycle).
     deaf_until: Option<Instant>,
+    /// A master drive's broadcast block write was heard since power-up (f806 = 0..2): the
+    /// communication time-out then means the master failed, and f806 says what to do.
+    following: bool,
 }
 
 impl ToshibaDrive {
@@ -240,6 +249,7 @@ impl ToshibaDrive {
             comm_priority: false,
             coast_stopped: false,
             deaf_until: None,
+            following: false,
         };
         inner.apply_comm_timeout();
         inner.apply_frequency();
@@ -401,6 +411,27 @@ impl VirtualDrive for ToshibaDrive {
             format!("CMOd (0003) = {cmod} {text}, {freq}")
         }
     }
+
+    fn set_param(&mut self, name: &str, value: &str) -> Result<(), String> {
+        crate::drive::set_param_as_keypad(&mut self.inner.core, name, value)?;
+        let inner = &mut self.inner;
+        let settings = settings_from(&inner.core.params);
+        if settings != *inner.core.model.settings() {
+            inner.core.model.set_settings(settings);
+        }
+        inner.apply_comm_timeout();
+        inner.apply_frequency();
+        Ok(())
+    }
+
+    /// The operation panel frequency.
+    fn set_keypad_hz(&mut self, hz: f64) -> Result<(), String> {
+        if !(0.0..=500.0).contains(&hz) {
+            return Err(format!("panel frequency {hz} Hz is outside 0..500 Hz"));
+        }
+        self.set_panel_frequency_hz(hz);
+        Ok(())
+    }
 }
 
 impl Inner {
@@ -417,6 +448,7 @@ impl Inner {
             self.core.model.advance_to(deadline);
             self.timeout_fired = true;
             match self.param(TIMEOUT_ACTION) {
+                _ if self.following => self.master_lost(),
                 // "alarm only": FD01 bit 2, the motor runs on.
                 0 => self.comm_alarm = true,
                 // "trip (deceleration stop)": ramp down, then trip.
@@ -484,6 +516,7 @@ impl Inner {
         self.core.address = u8::try_from(self.param(INVERTER_NUMBER)).unwrap_or(0);
         self.comm_priority = false;
         self.coast_stopped = false;
+        self.following = false;
         self.deaf_until = Some(now + STARTUP_DEAF);
         let settings = settings_from(&self.core.params);
         self.core.model.set_settings(settings);
@@ -498,11 +531,14 @@ impl Inner {
     fn on_tip(&mut self, now: Instant, inc: Incoming<'_, TipRequest>, resp: &mut Responder<'_, Tip>) {
         let me = self.core.address;
         match inc {
-            Incoming::Request { request, .. } => {
+            Incoming::Request { request, broadcast } => {
                 self.comm_seen(now);
                 let reply = match request {
                     TipRequest::Binary(b) => match b.body {
                         BinaryRequestBody::Block(block) => {
+                            if broadcast && block.n_w > 0 {
+                                self.heard_master();
+                            }
                             let rdata = self.block(block);
                             b.block_reply(me, self.tripped(), &rdata).map(TipReply::Binary)
                         }
@@ -780,7 +816,7 @@ impl Inner {
         let params = &self.core.params;
         let fa00 = Command1(params.get(FA00).unwrap_or(0) as u16);
         let centi = if fa00.contains(Command1::FREQUENCY_PRIORITY) {
-            params.get(FA01).unwrap_or(0)
+            self.communication_frequency(params.get(FA01).unwrap_or(0))
         } else {
             i64::from(self.panel_centihz)
         };
@@ -792,9 +828,53 @@ impl Inner {
     /// stop). The model's own time-out trips for 1; 0 and 2 are handled in [`Inner::advance`].
     fn apply_comm_timeout(&mut self) {
         let secs = self.param(TIMEOUT_TIME);
-        let timeout = (secs > 0 && self.param(TIMEOUT_ACTION) == 1).then(|| Duration::from_secs(secs as u64));
+        let timeout = (secs > 0 && self.param(TIMEOUT_ACTION) == 1 && !self.following)
+            .then(|| Duration::from_secs(secs as u64));
         self.core.model.set_comm_timeout(timeout);
         self.restart_timeout();
+    }
+
+    // ---------------------------------------------------------------------------------------
+    // Inter-drive communication, follower side (docs/simulator.md, "Decisions")
+    // ---------------------------------------------------------------------------------------
+
+    /// A broadcast block write came (a master drive's cycle): a slave (f806 = 0..2) follows
+    /// from now on, and its communication time-out (f803) means the master failed.
+    fn heard_master(&mut self) {
+        if !self.following && self.param(INTER_DRIVE) <= 2 {
+            self.following = true;
+            self.apply_comm_timeout();
+        }
+    }
+
+    /// f803 elapsed without the master's frames: f806 = 0 the frequency command drops to
+    /// 0 Hz (the motor ramps down and stays in run), 1 operation goes on, 2 emergency stop
+    /// trip (E).
+    fn master_lost(&mut self) {
+        match self.param(INTER_DRIVE) {
+            0 => {
+                let _ = self.core.params.force(FA01, 0, 0);
+                self.apply_frequency();
+            }
+            2 => self.core.model.trip_now(Trip::External),
+            _ => {}
+        }
+    }
+
+    /// The frequency, 0.01 Hz, a communication frequency command `value` asks for: `value`
+    /// itself, or with f810 = 1/2 (communication command points) a percentage (0.01 %) mapped
+    /// through point 1 (f811 %, f812 Hz) and point 2 (f813 %, f814 Hz): the proportional
+    /// control of speed of inter-drive communication.
+    fn communication_frequency(&self, value: i64) -> i64 {
+        if self.param(POINT_SELECTION) == 0 {
+            return value;
+        }
+        let (p1, f1) = (self.param(POINT_1_PERCENT) * 100, self.param(POINT_1_FREQ));
+        let (p2, f2) = (self.param(POINT_2_PERCENT) * 100, self.param(POINT_2_FREQ));
+        if p1 == p2 {
+            return f1;
+        }
+        (f1 + (value - p1) * (f2 - f1) / (p2 - p1)).max(0)
     }
 
     // ---------------------------------------------------------------------------------------

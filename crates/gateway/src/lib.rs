@@ -37,6 +37,7 @@ pub mod port;
 pub mod reload;
 pub mod server;
 pub mod sparkplug;
+pub mod text;
 
 pub use config::GatewayConfig;
 pub use gateway::{Command, CommandError, Gateway};

@@ -39,6 +39,10 @@
 //! serial = "8E1"
 //! timeout_ms = 200
 //! retries = 2
+//! on_demand_share = 0.5                 # bus time for parameter reads while polls wait
+//! on_demand_queue = 32                  # parameter reads waiting; beyond: busy
+//! on_demand_per_client = 8              # of them, from one client address
+//! param_cache_ms = 200                  # a read this soon after the last is that value
 //!
 //! [[bus.drive]]
 //! name = "pump-1"
@@ -222,6 +226,12 @@ pub struct BusConfig {
     pub echo: bool,
     /// Modbus RTU: discard replies with a silence over t1.5 inside (on-board UARTs only).
     pub strict_t15: bool,
+    /// How on-demand reads (parameters) share the bus with polling: `on_demand_share`,
+    /// `on_demand_queue`, `on_demand_per_client` (docs/gateway.md, "Fair use of a bus").
+    pub on_demand: drivebus_link::FairConfig,
+    /// A parameter read within this time of the last read of the same parameter is answered
+    /// with that value (`param_cache_ms`; zero: always from the drive).
+    pub param_cache: Duration,
     /// The drives.
     pub drives: Vec<DriveConfig>,
 }
@@ -314,6 +324,10 @@ pub struct SparkplugConfig {
     /// back is not flooded, and a broker does not drop what a slow host cannot take).
     pub store_forward_rate: u64,
 }
+
+/// The default `param_cache_ms`: a parameter read this soon after the last read of the same
+/// parameter is answered with that value.
+pub const PARAM_CACHE_MS: u64 = 200;
 
 /// The default Sparkplug group id.
 pub const SPARKPLUG_GROUP: &str = "drivebus";
@@ -429,6 +443,10 @@ struct FileBus {
     echo: bool,
     #[serde(default)]
     strict_t15: bool,
+    on_demand_share: Option<Spanned<f64>>,
+    on_demand_queue: Option<Spanned<usize>>,
+    on_demand_per_client: Option<Spanned<usize>>,
+    param_cache_ms: Option<u64>,
     #[serde(default)]
     drive: Vec<FileDrive>,
 }
@@ -907,7 +925,32 @@ impl GatewayConfig {
                 }
                 None => df,
             };
+            let mut on_demand = drivebus_link::FairConfig::default();
+            if let Some(v) = &b.on_demand_share {
+                let share = *v.get_ref();
+                if !(0.0..=1.0).contains(&share) {
+                    return cx.err(
+                        v.span(),
+                        "bus.on_demand_share",
+                        format!("{share} is not a share of the bus time: use 0.0..1.0 (0.5: half)"),
+                    );
+                }
+                on_demand.share = share;
+            }
+            for (v, field, to) in [
+                (&b.on_demand_queue, "bus.on_demand_queue", &mut on_demand.queue),
+                (&b.on_demand_per_client, "bus.on_demand_per_client", &mut on_demand.per_client),
+            ] {
+                if let Some(v) = v {
+                    if *v.get_ref() == 0 {
+                        return cx.err(v.span(), field, "use 1 or more");
+                    }
+                    *to = *v.get_ref();
+                }
+            }
             buses.push(BusConfig {
+                on_demand,
+                param_cache: Duration::from_millis(b.param_cache_ms.unwrap_or(PARAM_CACHE_MS)),
                 name,
                 port,
                 protocol,

@@ -113,6 +113,12 @@ pub enum CommandError {
     LinkDown(String),
     /// The reply made no sense.
     Protocol(String),
+    /// Too many parameter reads wait on the drive's bus (or from this client); nothing was
+    /// sent: try again shortly.
+    Busy(String),
+    /// The command's audit record could not be committed (the store failed: disk full, read
+    /// only): the command was not sent.
+    NotRecorded(String),
 }
 
 impl std::fmt::Display for CommandError {
@@ -132,7 +138,11 @@ impl std::fmt::Display for CommandError {
             CommandError::Refused { code, meaning, .. } => {
                 write!(f, "the drive refused: code {code:#04X}, {meaning}")
             }
-            CommandError::NoAnswer(s) | CommandError::LinkDown(s) => f.write_str(s),
+            CommandError::NoAnswer(s) | CommandError::LinkDown(s) | CommandError::Busy(s) => f.write_str(s),
+            CommandError::NotRecorded(e) => write!(
+                f,
+                "the command was not sent: its audit record cannot be stored ({e}); free the store's disk or fix its permissions"
+            ),
         }
     }
 }
@@ -151,6 +161,8 @@ impl CommandError {
             CommandError::NoAnswer(_) => "no_answer",
             CommandError::LinkDown(_) => "link_down",
             CommandError::Protocol(_) => "protocol",
+            CommandError::Busy(_) => "busy",
+            CommandError::NotRecorded(_) => "not_recorded",
         }
     }
 }
@@ -166,6 +178,7 @@ impl From<LinkError> for CommandError {
             LinkError::Drive(DriveError::Protocol(s)) => CommandError::Protocol(s),
             LinkError::Bus(BusError::Link(s)) => CommandError::LinkDown(s),
             LinkError::Bus(BusError::Closed) => CommandError::LinkDown("the bus has stopped".into()),
+            LinkError::Bus(e @ BusError::Busy(_)) => CommandError::Busy(e.to_string()),
             LinkError::Bus(e) => CommandError::NoAnswer(e.to_string()),
         }
     }
@@ -221,6 +234,8 @@ pub struct DriveEntry {
     /// profile (a Danfoss setpoint or 3-03 scaling) shows in the next poll.
     command: Drive,
     poll: Drive,
+    /// Parameter values read a moment ago.
+    params: crate::params::ParamCache,
     state: RwLock<DriveState>,
     locked: AtomicBool,
     linking: AtomicBool,
@@ -810,7 +825,11 @@ impl Gateway {
             }
             Command::SetParam { name, value, eeprom } => {
                 let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
-                d.command.write_param(name, value, storage).await.map_err(map)?;
+                let written = d.command.write_param(name, value, storage).await;
+                if let Ok(def) = d.param(name) {
+                    d.params.forget(&def.name);
+                }
+                written.map_err(map)?;
             }
         }
         Ok(())
@@ -823,10 +842,15 @@ impl Gateway {
         self.update(&bus, d, status).await;
     }
 
-    /// Reads parameter `name` of drive `id` from the drive (through the bus owner, ahead of polls).
-    pub async fn read_param(&self, id: &str, name: &str) -> Result<ParamReading, CommandError> {
+    /// Reads parameter `name` of drive `id` on behalf of `client` (its address, or a session
+    /// where the address is not known): from the drive, in turn with other clients' reads and
+    /// sharing the bus with polls ([`drivebus_link::fair`]), or the value read less than
+    /// `param_cache_ms` ago. [`CommandError::Busy`] when too many reads wait on the bus.
+    pub async fn read_param(&self, id: &str, name: &str, client: &str) -> Result<ParamReading, CommandError> {
         let d = self.drive(id)?;
-        let (raw, def) = d.command.read_param(name).await?;
+        let def = d.param(name)?.clone();
+        let reader = d.command.on_demand_for(client);
+        let raw = d.params.read(&def.name, || async { reader.read_param(&def.name).await.map(|(raw, _)| raw) }).await?;
         Ok(ParamReading {
             name: def.name.clone(),
             title: def.title.clone(),
@@ -1079,6 +1103,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
     owner.retries = b.retries;
     owner.echo = b.echo;
     owner.strict_t15 = b.strict_t15;
+    owner.on_demand = b.on_demand;
     let (bus, line) = match b.port {
         Port::Virtual => {
             let line = virtual_line(b)?;
@@ -1116,6 +1141,7 @@ fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, 
         protocol: b.protocol.clone(),
         command,
         poll,
+        params: crate::params::ParamCache::new(b.param_cache),
         state: RwLock::new(DriveState::default()),
         locked: AtomicBool::new(d.locked),
         linking: AtomicBool::new(false),

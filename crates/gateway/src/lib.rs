@@ -33,6 +33,7 @@ pub mod modbus_rtu;
 pub mod modbus_tcp;
 pub mod mqtt;
 pub mod opcua;
+mod params;
 pub mod port;
 pub mod reload;
 pub mod server;

@@ -111,6 +111,8 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::NoAnswer(_) => StatusCode::GATEWAY_TIMEOUT,
         CommandError::LinkDown(_) => StatusCode::SERVICE_UNAVAILABLE,
         CommandError::Protocol(_) => StatusCode::BAD_GATEWAY,
+        CommandError::Busy(_) => StatusCode::TOO_MANY_REQUESTS,
+        CommandError::NotRecorded(_) => StatusCode::SERVICE_UNAVAILABLE,
     }
 }
 

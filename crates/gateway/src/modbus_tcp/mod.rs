@@ -20,8 +20,8 @@ use std::time::Instant;
 
 use drivebus_drive::profile::CodeSpace;
 use drivebus_drive::{format_fixed, ParamDef};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpListener;
 
 use crate::config::ModbusConfig;
 use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
@@ -117,11 +117,22 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
             continue;
         }
         let server = server.clone();
+        let _ = socket.set_nodelay(true);
         tokio::spawn(async move {
             let _slot = Slot(&server.active);
             let _ = server.connection(socket, peer).await;
         });
     }
+}
+
+/// Serves one Modbus TCP client on `stream` (any byte stream; `peer` is its address) until it
+/// closes: what the listener does for each connection it accepts, for tests and embedders
+/// that bring their own streams.
+pub async fn serve_stream<S>(gw: Arc<Gateway>, stream: S, peer: SocketAddr) -> std::io::Result<()>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    Server::new(gw).connection(stream, peer).await
 }
 
 /// A parsed request PDU; register values are views into the request.
@@ -257,8 +268,10 @@ impl Server {
         }
     }
 
-    async fn connection(&self, mut sock: TcpStream, peer: SocketAddr) -> std::io::Result<()> {
-        let _ = sock.set_nodelay(true);
+    async fn connection<S>(&self, mut sock: S, peer: SocketAddr) -> std::io::Result<()>
+    where
+        S: AsyncRead + AsyncWrite + Unpin,
+    {
         let ip = match peer.ip() {
             IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
             v4 => v4,
@@ -414,7 +427,7 @@ impl Server {
             Ok(Request::Read { addr, count, .. }) => {
                 let start = begin(out, header);
                 out.extend_from_slice(&[fc, (count * 2) as u8]);
-                match self.read_window(&d, addr, count, out).await {
+                match self.read_window(&d, addr, count, &conn.client(), out).await {
                     Ok(()) => {
                         end(out, start);
                         return;
@@ -449,7 +462,7 @@ impl Server {
                         let start = begin(out, header);
                         out.extend_from_slice(&[fc, (count * 2) as u8]);
                         let read = if addr >= PARAM_BASE {
-                            self.read_window(&d, addr, count, out).await
+                            self.read_window(&d, addr, count, &conn.client(), out).await
                         } else if u32::from(addr) + u32::from(count) > 2 {
                             Err(ILLEGAL_ADDRESS)
                         } else {
@@ -477,7 +490,14 @@ impl Server {
     }
 
     /// Reads holding registers `addr..addr + count` of the parameter window from the drive.
-    async fn read_window(&self, d: &DriveEntry, addr: u16, count: u16, out: &mut Vec<u8>) -> Result<(), u8> {
+    async fn read_window(
+        &self,
+        d: &DriveEntry,
+        addr: u16,
+        count: u16,
+        client: &str,
+        out: &mut Vec<u8>,
+    ) -> Result<(), u8> {
         let catalog = d.catalog();
         let (first, first_high) = param_slot(addr).ok_or(ILLEGAL_ADDRESS)?;
         let last_addr = addr.checked_add(count - 1).ok_or(ILLEGAL_ADDRESS)?;
@@ -487,7 +507,7 @@ impl Server {
         }
         for i in first..=last {
             let name = &catalog.params()[i].name;
-            let reading = self.gw.read_param(&d.config.name, name).await.map_err(|e| exception_of(&e))?;
+            let reading = self.gw.read_param(&d.config.name, name, client).await.map_err(|e| exception_of(&e))?;
             let bits = reading.raw as i32 as u32;
             if i != first || first_high {
                 out.extend_from_slice(&((bits >> 16) as u16).to_be_bytes());
@@ -638,6 +658,8 @@ pub fn exception_of(e: &CommandError) -> u8 {
         CommandError::Refused { .. } | CommandError::Protocol(_) => 0x04,
         CommandError::NoAnswer(_) => 0x0B,
         CommandError::LinkDown(_) => 0x0A,
+        CommandError::Busy(_) => 0x06,
+        CommandError::NotRecorded(_) => 0x04,
     }
 }
 
@@ -653,6 +675,14 @@ pub(crate) struct Conn {
     pub(crate) forbidden: String,
     /// Who it is in the audit trail (`modbus:127.0.0.1:5555`, `modbus-rtu:/dev/ttyS1`).
     pub(crate) actor: String,
+}
+
+impl Conn {
+    /// The client whose parameter reads wait in one queue on the bus: its address (all its
+    /// connections together), or its actor where it has none.
+    fn client(&self) -> String {
+        self.ip.map_or_else(|| self.actor.clone(), |ip| ip.to_string())
+    }
 }
 
 /// A raw value as a number in the parameter's unit (what [`Command::SetParam`] takes).

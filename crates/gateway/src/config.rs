@@ -57,6 +57,12 @@
 //! ratio = 0.5
 //! offset_hz = 2.0
 //!
+//! [limits]                              # every listener (limits.rs)
+//! per_address = 64                      # connections from one address on each listener
+//! header_timeout_ms = 5000              # a request header (a frame's rest) within this
+//! idle_timeout_s = 300                  # a connection silent this long is closed (0: never)
+//! reserve_fds = 256                     # descriptors kept for the other listeners and buses
+//!
 //! [[bridge]]                            # Modbus TCP straight through to a bus (bridge.rs)
 //! bus = "line-1"
 //! listen = "127.0.0.1:5021"
@@ -123,6 +129,8 @@ pub struct GatewayConfig {
     pub modbus_rtu: Vec<crate::modbus_rtu::ModbusRtuConfig>,
     /// The Sparkplug B edge node, if configured.
     pub sparkplug: Option<SparkplugConfig>,
+    /// Connection limits and timeouts of every listener (`[limits]`).
+    pub limits: crate::limits::LimitsConfig,
 }
 
 /// The OPC UA server (docs/opcua.md).
@@ -381,6 +389,17 @@ struct FileConfig {
     #[serde(default)]
     modbus_rtu: Vec<crate::modbus_rtu::FileModbusRtu>,
     sparkplug: Option<FileSparkplug>,
+    #[serde(default)]
+    limits: FileLimits,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileLimits {
+    per_address: Option<Spanned<usize>>,
+    header_timeout_ms: Option<Spanned<u64>>,
+    idle_timeout_s: Option<u64>,
+    reserve_fds: Option<u64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -1065,6 +1084,25 @@ impl GatewayConfig {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
         let opcua = opcua_section(&raw.opcua, &http, &addr)?;
+        let mut limits = crate::limits::LimitsConfig::default();
+        if let Some(n) = &raw.limits.per_address {
+            if *n.get_ref() == 0 {
+                return cx.err(n.span(), "limits.per_address", "use 1 or more");
+            }
+            limits.per_address = *n.get_ref();
+        }
+        if let Some(t) = &raw.limits.header_timeout_ms {
+            if !(100..=600_000).contains(t.get_ref()) {
+                return cx.err(t.span(), "limits.header_timeout_ms", format!("{} is outside 100..600000", t.get_ref()));
+            }
+            limits.header_timeout = Duration::from_millis(*t.get_ref());
+        }
+        if let Some(t) = raw.limits.idle_timeout_s {
+            limits.idle_timeout = Duration::from_secs(t);
+        }
+        if let Some(r) = raw.limits.reserve_fds {
+            limits.reserve_fds = r;
+        }
         let bridges = crate::bridge::configs(&cx, &raw.bridge, &buses)?;
         let modbus_rtu = crate::modbus_rtu::configs(&cx, &raw.modbus_rtu)?;
         Ok(GatewayConfig {
@@ -1080,6 +1118,7 @@ impl GatewayConfig {
             bridges,
             modbus_rtu,
             sparkplug,
+            limits,
         })
     }
 

@@ -114,6 +114,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("opcua", old.opcua != new.opcua),
         ("sparkplug", old.sparkplug != new.sparkplug),
         ("name", old.name != new.name),
+        ("limits", old.limits != new.limits),
     ];
     p.needs_restart = restart.iter().filter(|(_, c)| *c).map(|(n, _)| n.to_string()).collect();
     p

@@ -244,6 +244,23 @@ pub fn canonical(ip: IpAddr) -> IpAddr {
     }
 }
 
+/// Reads from `stream` into `buf`, waiting at most `wait` (for ever when zero): `None` when
+/// nothing came in time.
+pub async fn read_within<S: AsyncRead + Unpin>(
+    stream: &mut S,
+    buf: &mut [u8],
+    wait: Duration,
+) -> std::io::Result<Option<usize>> {
+    use tokio::io::AsyncReadExt;
+    if wait.is_zero() {
+        return stream.read(buf).await.map(Some);
+    }
+    match tokio::time::timeout(wait, stream.read(buf)).await {
+        Ok(r) => r.map(Some),
+        Err(_) => Ok(None),
+    }
+}
+
 /// A byte stream that notes when anything went through it either way, for idle timeouts.
 pub struct Activity<S> {
     inner: S,

@@ -20,7 +20,7 @@ use std::time::Instant;
 
 use drivebus_drive::profile::CodeSpace;
 use drivebus_drive::{format_fixed, ParamDef};
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 
 use crate::config::ModbusConfig;
@@ -80,23 +80,10 @@ impl Drop for Slot<'_> {
     }
 }
 
-/// Raises the soft limit of open files to the hard limit (each client is a descriptor).
-/// Returns the new soft limit.
-pub fn raise_nofile_limit() -> std::io::Result<u64> {
-    use nix::sys::resource::{getrlimit, setrlimit, Resource};
-    let (soft, hard) = getrlimit(Resource::RLIMIT_NOFILE).map_err(std::io::Error::from)?;
-    if soft < hard {
-        setrlimit(Resource::RLIMIT_NOFILE, hard, hard).map_err(std::io::Error::from)?;
-    }
-    Ok(hard.max(soft))
-}
-
-/// Serves Modbus TCP clients on `listener` with the gateway's `[modbus]` configuration until the
-/// process ends.
+/// Serves Modbus TCP clients on `listener` with the gateway's `[modbus]` configuration and its
+/// `[limits]` until the process ends.
 pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<()> {
-    if let Err(e) = raise_nofile_limit() {
-        crate::log::warn(&format!("Modbus TCP: cannot raise the open files limit: {e}"));
-    }
+    let limits = gw.limits().listener("Modbus TCP");
     let server = Server::new(gw);
     static WARNED: AtomicBool = AtomicBool::new(false);
     loop {
@@ -111,6 +98,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
                 continue;
             }
         };
+        let Some(permit) = limits.admit(peer.ip()) else { continue };
         if server.active.fetch_add(1, Ordering::Relaxed) >= server.config.max_connections {
             server.active.fetch_sub(1, Ordering::Relaxed);
             drop(socket);
@@ -119,6 +107,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
         let server = server.clone();
         let _ = socket.set_nodelay(true);
         tokio::spawn(async move {
+            let _permit = permit;
             let _slot = Slot(&server.active);
             let _ = server.connection(socket, peer).await;
         });
@@ -287,8 +276,15 @@ impl Server {
         let mut buf = vec![0u8; IN_BUF];
         let mut len = 0;
         let mut out: Vec<u8> = Vec::with_capacity(512);
+        let limits = self.gw.limits().config().clone();
         loop {
-            let n = sock.read(&mut buf[len..]).await?;
+            // The rest of a frame begun within the header timeout; the next one within the idle
+            // timeout: otherwise the connection is closed.
+            let wait = if len > 0 { limits.header_timeout } else { limits.idle_timeout };
+            let n = match crate::limits::read_within(&mut sock, &mut buf[len..], wait).await? {
+                Some(n) => n,
+                None => return Ok(()),
+            };
             if n == 0 {
                 return Ok(());
             }

@@ -1197,6 +1197,37 @@ mod tests {
     }
 
     #[test]
+    fn fair_use_and_limits_are_checked_and_have_defaults() {
+        let bus = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n";
+        let drive = "[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n";
+        let e = err(&format!("{bus}on_demand_share = 1.5\n{drive}"));
+        assert_eq!(
+            e,
+            "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)"
+        );
+        let e = err(&format!("{bus}on_demand_queue = 0\n{drive}"));
+        assert_eq!(e, "plant.toml:4: field `bus.on_demand_queue`: use 1 or more");
+        let e = err(&format!("{bus}on_demand_per_client = 0\n{drive}"));
+        assert_eq!(e, "plant.toml:4: field `bus.on_demand_per_client`: use 1 or more");
+        let e = err("[limits]\nper_address = 0\n");
+        assert_eq!(e, "plant.toml:2: field `limits.per_address`: use 1 or more");
+        let e = err("[limits]\nheader_timeout_ms = 5\n");
+        assert_eq!(e, "plant.toml:2: field `limits.header_timeout_ms`: 5 is outside 100..600000");
+
+        let c = GatewayConfig::from_toml("plant.toml", &format!("{bus}{drive}")).unwrap();
+        assert_eq!(c.buses[0].on_demand, drivebus_link::FairConfig { share: 0.5, queue: 32, per_client: 8 });
+        assert_eq!(c.buses[0].param_cache, Duration::from_millis(200));
+        assert_eq!(c.limits, crate::limits::LimitsConfig::default());
+        let c = GatewayConfig::from_toml(
+            "plant.toml",
+            &format!("[limits]\nper_address = 8\nidle_timeout_s = 0\n{bus}on_demand_share = 0.25\nparam_cache_ms = 0\n{drive}"),
+        )
+        .unwrap();
+        assert_eq!((c.limits.per_address, c.limits.idle_timeout), (8, Duration::ZERO));
+        assert_eq!((c.buses[0].on_demand.share, c.buses[0].param_cache), (0.25, Duration::ZERO));
+    }
+
+    #[test]
     fn the_gateway_name_follows_the_name_rule() {
         let e = err("name = \"hall 3/west\"\n");
         assert_eq!(

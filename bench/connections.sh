@@ -11,6 +11,13 @@
 #          header_timeout_ms = 600000 (no per-address limit, no reserve, no timeouts to speak of)
 #  after:  the defaults (per_address = 64, reserve_fds = 256, header 5 s, idle 300 s)
 #
+# Measured (debug build, 2 shared cores):
+#  before: all 20 000 held (19 998 descriptors open); from 127.0.0.3 the HTTP GET, the Modbus
+#          read and the half-sent header all reset at once: the gateway serves nobody
+#  after:  the gateway holds 13 descriptors; from 127.0.0.3 the HTTP GET is answered 200 in
+#          1 ms, the Modbus read in 0 ms; the half-sent header closed after 5 001 ms; 20 000
+#          refusals in 2 log lines
+#
 # bench/connections.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -27,6 +34,10 @@ resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 socks, failed = [], 0
 for _ in range(n):
     s = socket.socket()
+    # The port is chosen at connect (IP_BIND_ADDRESS_NO_PORT), and one in TIME_WAIT from an
+    # earlier run may be taken again.
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    s.setsockopt(socket.IPPROTO_IP, 24, 1)
     s.bind(("127.0.0.2", 0))
     try:
         s.connect(("127.0.0.1", port))
@@ -53,7 +64,7 @@ cat >"$TMP/probe.py" <<'PY'
 import socket, struct, sys, time
 hp, mp = int(sys.argv[1]), int(sys.argv[2])
 def conn(port):
-    s = socket.socket(); s.bind(("127.0.0.3", 0)); s.settimeout(10); s.connect(("127.0.0.1", port)); return s
+    s = socket.socket(); s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1); s.bind(("127.0.0.3", 0)); s.settimeout(10); s.connect(("127.0.0.1", port)); return s
 def timed(what, f):
     t = time.monotonic()
     try:
@@ -98,7 +109,7 @@ PY
   echo "  from 127.0.0.2: $(cat "$TMP/hold1.txt"); $(cat "$TMP/hold2.txt")"
   echo "  the gateway holds $(ls /proc/$gw/fd | wc -l) descriptors"
   python3 "$TMP/probe.py" "$hp" "$mp"
-  echo "  its log: $(grep -c . "$TMP/gw.log") lines; $(grep -m1 -i refused "$TMP/gw.log" || true)"
+  echo "  its log: $(grep -c . "$TMP/gw.log") lines; $(grep -m1 'refused [0-9]* connection' "$TMP/gw.log" || true)"
   stop "$h1"; stop "$h2"; stop "$gw"
 }
 

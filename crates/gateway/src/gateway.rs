@@ -9,21 +9,23 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, RwLock};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_link::drive::{Drive, Error as LinkError};
 use drivebus_link::owner::{Bus, BusConfig as OwnerConfig, BusError, BusStats};
+use drivebus_proto::protocol::WireProtocol;
+#[cfg(feature = "virtual")]
 use drivebus_sim::bus::VirtualLine;
 use drivebus_store::{Event, EventKind, Sample, Store};
 use serde::Serialize;
 use serde_json::json;
 use tokio::sync::{broadcast, Notify};
 
-use crate::config::{BusConfig, DriveConfig, GatewayConfig, Port};
-use crate::port::{sim_link, virtual_line, PortLink};
+use crate::config::{BusConfig, DriveConfig, GatewayConfig};
+use crate::port::PortLink;
 
 /// Unix time now, ms.
 pub fn unix_ms() -> i64 {
@@ -229,7 +231,7 @@ pub struct DriveEntry {
     /// The bus's name.
     pub bus: String,
     /// The bus's protocol.
-    pub protocol: String,
+    pub protocol: WireProtocol,
     /// Commands (ahead of polls); shares its profile with `poll`, so what a command teaches the
     /// profile (a Danfoss setpoint or 3-03 scaling) shows in the next poll.
     command: Drive,
@@ -293,7 +295,8 @@ pub struct BusEntry {
     /// Set when a reload removed or replaced the bus: its scheduler ends and the port closes.
     retired: AtomicBool,
     /// The simulated drives of a virtual bus.
-    pub line: Option<Arc<Mutex<VirtualLine>>>,
+    #[cfg(feature = "virtual")]
+    pub line: Option<Arc<std::sync::Mutex<VirtualLine>>>,
 }
 
 impl BusEntry {
@@ -662,7 +665,7 @@ impl Gateway {
                 id: d.config.name.clone(),
                 bus: d.bus.clone(),
                 family: d.config.family.as_str().to_string(),
-                protocol: d.protocol.clone(),
+                protocol: d.protocol.to_string(),
                 address: d.config.address,
                 unit_id: d.config.unit_id,
                 locked: d.locked(),
@@ -691,7 +694,7 @@ impl Gateway {
         BusView {
             name: b.config.name.clone(),
             port: b.config.port.to_string(),
-            protocol: b.config.protocol.clone(),
+            protocol: b.config.protocol.to_string(),
             baud: b.config.baud,
             serial: b.config.format.to_string(),
             online: b.online(),
@@ -1179,20 +1182,23 @@ pub struct Reload {
 
 /// Builds a bus of the configuration (owner, link, drives); its poll scheduler is not started.
 fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
-    let mut owner = OwnerConfig::new(&b.protocol, b.baud, b.format);
+    let mut owner = OwnerConfig::new(b.protocol, b.baud, b.format);
     owner.response_timeout = b.timeout;
     owner.retries = b.retries;
     owner.echo = b.echo;
     owner.strict_t15 = b.strict_t15;
     owner.on_demand = b.on_demand;
+    #[cfg(feature = "virtual")]
     let (bus, line) = match b.port {
-        Port::Virtual => {
-            let line = virtual_line(b)?;
-            let link = sim_link(line.clone(), &format!("virtual:{}", b.name));
+        crate::config::Port::Virtual => {
+            let line = crate::virtual_bus::virtual_line(b)?;
+            let link = crate::virtual_bus::sim_link(line.clone(), &format!("virtual:{}", b.name));
             (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
         }
         _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
     };
+    #[cfg(not(feature = "virtual"))]
+    let bus = Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?;
     let wake = Arc::new(Notify::new());
     let members = b.drives.iter().map(|d| drive_entry(b, d, &bus).map(Arc::new)).collect::<Result<_, _>>()?;
     Ok(Arc::new(BusEntry {
@@ -1203,13 +1209,14 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         members: RwLock::new(members),
         generation: AtomicU64::new(0),
         retired: AtomicBool::new(false),
+        #[cfg(feature = "virtual")]
         line,
     }))
 }
 
 /// A drive of bus `b`, reached through `bus`, with one profile for its commands and polls.
 fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, String> {
-    let profile = drivebus_drive::profile::for_drive(d.family, &b.protocol, d.address)
+    let profile = drivebus_drive::profile::for_drive(d.family, b.protocol, d.address)
         .map_err(|e| format!("drive {}: {e}", d.name))?;
     let mut command = Drive::new(bus.clone(), profile);
     if let Some(t) = b.timeout {
@@ -1219,7 +1226,7 @@ fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, 
     Ok(DriveEntry {
         config: d.clone(),
         bus: b.name.clone(),
-        protocol: b.protocol.clone(),
+        protocol: b.protocol,
         command,
         poll,
         params: crate::params::ParamCache::new(b.param_cache),

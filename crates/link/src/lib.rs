@@ -23,8 +23,12 @@ pub mod fair;
 pub mod link;
 pub mod listen;
 pub mod owner;
+#[cfg(feature = "virtual")]
+pub mod sim_link;
 pub mod timer;
 
-pub use link::{Clock, Link, Rs485, SerialLink, SimLink, TcpLink};
 pub use fair::FairConfig;
+pub use link::{Clock, Link, Rs485, SerialLink, TcpLink};
 pub use owner::{Bus, BusConfig, BusError, BusStats, Health, Priority};
+#[cfg(feature = "virtual")]
+pub use sim_link::SimLink;

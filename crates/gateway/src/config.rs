@@ -1095,7 +1095,11 @@ impl GatewayConfig {
         }
         if let Some(t) = &raw.limits.header_timeout_ms {
             if !(100..=600_000).contains(t.get_ref()) {
-                return cx.err(t.span(), "limits.header_timeout_ms", format!("{} is outside 100..600000", t.get_ref()));
+                return cx.err(
+                    t.span(),
+                    "limits.header_timeout_ms",
+                    format!("{} is outside 100..600000", t.get_ref()),
+                );
             }
             limits.header_timeout = Duration::from_millis(*t.get_ref());
         }

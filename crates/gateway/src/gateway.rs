@@ -849,9 +849,10 @@ impl Gateway {
     async fn audit_done(self: &Arc<Self>, mut event: Event, result: String) {
         if let (Some(store), true) = (self.store.clone(), event.id != 0) {
             let (id, r) = (event.id, result.clone());
-            let stored = tokio::task::spawn_blocking(move || store.set_result(id, &r).map_err(|e| e.to_string()))
-                .await
-                .unwrap_or_else(|e| Err(e.to_string()));
+            let stored =
+                tokio::task::spawn_blocking(move || store.set_result(id, &r).map_err(|e| e.to_string()))
+                    .await
+                    .unwrap_or_else(|e| Err(e.to_string()));
             if let Err(e) = stored {
                 self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
                 crate::log::warn(&format!("result of event {id} not stored (it stays pending): {e}"));
@@ -934,7 +935,10 @@ impl Gateway {
         let d = self.drive(id)?;
         let def = d.param(name)?.clone();
         let reader = d.command.on_demand_for(client);
-        let raw = d.params.read(&def.name, || async { reader.read_param(&def.name).await.map(|(raw, _)| raw) }).await?;
+        let raw = d
+            .params
+            .read(&def.name, || async { reader.read_param(&def.name).await.map(|(raw, _)| raw) })
+            .await?;
         Ok(ParamReading {
             name: def.name.clone(),
             title: def.title.clone(),

@@ -35,7 +35,8 @@ impl ParamCache {
         if self.keep.is_zero() {
             return read().await;
         }
-        let slot = self.slots.lock().unwrap_or_else(|p| p.into_inner()).entry(name.to_string()).or_default().clone();
+        let slot =
+            self.slots.lock().unwrap_or_else(|p| p.into_inner()).entry(name.to_string()).or_default().clone();
         // Reads of the same parameter wait for the one in flight and take its value.
         let mut held = slot.lock().await;
         if let Some((at, raw)) = *held {

@@ -34,7 +34,13 @@ fn config(bus_extra: &str) -> GatewayConfig {
 
 /// Modbus TCP clients from `peer`'s address, each reading holding registers 1000..1124 of unit 3
 /// (62 parameters) again as soon as answered; counts the answers and the busy exceptions.
-fn window_readers(gw: &Arc<Gateway>, n: usize, peer: SocketAddr, answered: Arc<AtomicU32>, busy: Arc<AtomicU32>) {
+fn window_readers(
+    gw: &Arc<Gateway>,
+    n: usize,
+    peer: SocketAddr,
+    answered: Arc<AtomicU32>,
+    busy: Arc<AtomicU32>,
+) {
     for _ in 0..n {
         let (mut client, server) = tokio::io::duplex(4096);
         tokio::spawn(drivebus_gateway::modbus_tcp::serve_stream(gw.clone(), server, peer));
@@ -60,7 +66,13 @@ fn window_readers(gw: &Arc<Gateway>, n: usize, peer: SocketAddr, answered: Arc<A
 
 /// HTTP clients from `peer`'s address, each reading fan-1's P0.02 again as soon as answered;
 /// counts the answers (200) and the refusals (429 `busy`).
-fn param_readers(gw: &Arc<Gateway>, n: usize, peer: SocketAddr, answered: Arc<AtomicU32>, busy: Arc<AtomicU32>) {
+fn param_readers(
+    gw: &Arc<Gateway>,
+    n: usize,
+    peer: SocketAddr,
+    answered: Arc<AtomicU32>,
+    busy: Arc<AtomicU32>,
+) {
     let app = drivebus_gateway::http::router(gw.clone()).layer(MockConnectInfo(peer));
     for _ in 0..n {
         let (app, answered, busy) = (app.clone(), answered.clone(), busy.clone());
@@ -137,8 +149,9 @@ async fn window_and_param_floods_leave_the_other_drives_polls_on_time() {
 
 #[tokio::test(start_paused = true)]
 async fn beyond_the_queue_reads_are_refused_as_busy() {
-    let gw = Gateway::start(config("param_cache_ms = 0\non_demand_queue = 4\non_demand_per_client = 2"), None)
-        .unwrap();
+    let gw =
+        Gateway::start(config("param_cache_ms = 0\non_demand_queue = 4\non_demand_per_client = 2"), None)
+            .unwrap();
     tokio::time::sleep(Duration::from_secs(1)).await;
     let (windows, windows_busy) = counters();
     let (params, params_busy) = counters();

@@ -71,7 +71,9 @@ async fn closed_by(s: &mut TcpStream, deadline: tokio::time::Instant) -> bool {
 /// A GET of `path` on a fresh connection from `from`; the status line.
 async fn http_get(from: [u8; 4], to: SocketAddr, path: &str) -> String {
     let mut s = connect_from(from, to).await;
-    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: gw\r\nConnection: close\r\n\r\n").as_bytes()).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: gw\r\nConnection: close\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
     let mut answer = Vec::new();
     tokio::time::timeout(PATIENCE, s.read_to_end(&mut answer)).await.expect("an answer in time").unwrap();
     String::from_utf8_lossy(&answer).lines().next().unwrap_or_default().to_string()
@@ -90,7 +92,8 @@ async fn modbus_read(s: &mut TcpStream) -> u8 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn many_idle_connections_from_one_address_leave_the_others_served() {
     // Timeouts far off: only the limit closes connections here.
-    let (gw, at) = start(&format!("per_address = {PER_ADDRESS}\nheader_timeout_ms = 600000\nidle_timeout_s = 0")).await;
+    let (gw, at) =
+        start(&format!("per_address = {PER_ADDRESS}\nheader_timeout_ms = 600000\nidle_timeout_s = 0")).await;
     for (name, to) in [("HTTP", at.http), ("Modbus TCP", at.modbus), ("bridge", at.bridge)] {
         // 127.0.0.2 opens five times its share and sends nothing.
         let mut idle = Vec::new();
@@ -122,7 +125,10 @@ async fn many_idle_connections_from_one_address_leave_the_others_served() {
         loop {
             // The server may see the close after the new connection: try until it has room.
             if name == "HTTP" {
-                again.write_all(b"GET /api/drives/d1 HTTP/1.1\r\nHost: gw\r\nConnection: close\r\n\r\n").await.ok();
+                again
+                    .write_all(b"GET /api/drives/d1 HTTP/1.1\r\nHost: gw\r\nConnection: close\r\n\r\n")
+                    .await
+                    .ok();
                 let mut answer = Vec::new();
                 let _ = tokio::time::timeout(PATIENCE, again.read_to_end(&mut answer)).await;
                 if String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200") {

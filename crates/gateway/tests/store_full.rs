@@ -67,7 +67,8 @@ async fn a_command_whose_audit_record_cannot_be_committed_never_reaches_the_driv
     // The disk fills up: the file may not grow, and what is left of its pages is written full.
     store.set_max_pages(1).unwrap();
     for size in [2000, 200, 20, 0] {
-        let filler = Event { detail: json!({ "filler": "x".repeat(size) }), ..Event::new(0, EventKind::Started) };
+        let filler =
+            Event { detail: json!({ "filler": "x".repeat(size) }), ..Event::new(0, EventKind::Started) };
         let full = (0..100_000).any(|_| store.record(&filler).is_err());
         assert!(full, "the store never filled up with {size}-byte events");
     }
@@ -82,7 +83,8 @@ async fn a_command_whose_audit_record_cannot_be_committed_never_reaches_the_driv
         opcua::types::StatusCode::BadResourceUnavailable
     );
     // Over HTTP: 503 not_recorded.
-    let app = drivebus_gateway::http::router(gw.clone()).layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 1], 1))));
+    let app = drivebus_gateway::http::router(gw.clone())
+        .layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 1], 1))));
     let req = Request::post("/api/drives/d1/speed")
         .header(header::AUTHORIZATION, format!("Bearer {TOKEN}"))
         .header(header::CONTENT_TYPE, "application/json")
@@ -90,7 +92,8 @@ async fn a_command_whose_audit_record_cannot_be_committed_never_reaches_the_driv
         .unwrap();
     let r = app.oneshot(req).await.unwrap();
     let status = r.status().as_u16();
-    let body: serde_json::Value = serde_json::from_slice(&r.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    let body: serde_json::Value =
+        serde_json::from_slice(&r.into_body().collect().await.unwrap().to_bytes()).unwrap();
     assert_eq!(status, 503, "{body}");
     assert_eq!(body["error"]["kind"], "not_recorded", "{body}");
 

@@ -147,7 +147,13 @@ pub struct Drive {
 impl Drive {
     /// A drive reached through `bus` with `profile`.
     pub fn new(bus: Bus, profile: Box<dyn Profile>) -> Self {
-        Drive { bus, profile: Arc::from(profile), timeout: None, priority: Priority::Command, client: Arc::from("") }
+        Drive {
+            bus,
+            profile: Arc::from(profile),
+            timeout: None,
+            priority: Priority::Command,
+            client: Arc::from(""),
+        }
     }
 
     /// The same drive, with the same profile (so what a command teaches it, a setpoint or a
@@ -195,7 +201,13 @@ impl Drive {
                 Step::Send(exchange) => {
                     reply = self
                         .bus
-                        .transact_for(&self.client, self.profile.address(), exchange, self.priority, self.timeout)
+                        .transact_for(
+                            &self.client,
+                            self.profile.address(),
+                            exchange,
+                            self.priority,
+                            self.timeout,
+                        )
                         .await?;
                 }
             }

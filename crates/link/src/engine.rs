@@ -144,7 +144,8 @@ impl<P: Protocol> Engine<P> {
             let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
             if !h.online
                 && matches!(priority, Priority::Poll | Priority::OnDemand)
-                && h.next_probe.is_some_and(|t| now < t) {
+                && h.next_probe.is_some_and(|t| now < t)
+            {
                 return Err(BusError::Offline { address });
             }
             offline = !h.online;

@@ -234,10 +234,8 @@ impl Bus {
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
-        let on_demand = Arc::new(OnDemand {
-            queues: Mutex::new(Queues::new(config.on_demand)),
-            ready: Notify::new(),
-        });
+        let on_demand =
+            Arc::new(OnDemand { queues: Mutex::new(Queues::new(config.on_demand)), ready: Notify::new() });
         let share = Share::new(config.on_demand.share);
         let od = on_demand.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
@@ -298,7 +296,12 @@ impl Bus {
                 if self.commands.is_closed() {
                     return Err(BusError::Closed);
                 }
-                self.on_demand.queues.lock().unwrap_or_else(|p| p.into_inner()).push(client, job).map_err(|(_, e)| e)?;
+                self.on_demand
+                    .queues
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .push(client, job)
+                    .map_err(|(_, e)| e)?;
                 self.on_demand.ready.notify_one();
                 return rx.await.map_err(|_| BusError::Closed)?;
             }
@@ -360,7 +363,9 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             let first = match commands.try_recv() {
                 Ok(j) => Some((j, Priority::Command)),
                 Err(mpsc::error::TryRecvError::Disconnected) => return,
-                Err(mpsc::error::TryRecvError::Empty) => bridged.try_recv().ok().map(|j| (j, Priority::Bridge)),
+                Err(mpsc::error::TryRecvError::Empty) => {
+                    bridged.try_recv().ok().map(|j| (j, Priority::Bridge))
+                }
             };
             if let Some((job, priority)) = first {
                 let result = self.job(&job, priority).await;

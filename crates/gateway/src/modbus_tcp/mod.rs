@@ -503,7 +503,8 @@ impl Server {
         }
         for i in first..=last {
             let name = &catalog.params()[i].name;
-            let reading = self.gw.read_param(&d.config.name, name, client).await.map_err(|e| exception_of(&e))?;
+            let reading =
+                self.gw.read_param(&d.config.name, name, client).await.map_err(|e| exception_of(&e))?;
             let bits = reading.raw as i32 as u32;
             if i != first || first_high {
                 out.extend_from_slice(&((bits >> 16) as u16).to_be_bytes());

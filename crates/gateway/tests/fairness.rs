@@ -81,6 +81,9 @@ fn param_readers(
                 let req = Request::get("/api/drives/fan-1/params/P0.02").body(Body::empty()).unwrap();
                 let r = app.clone().oneshot(req).await.unwrap();
                 let status = r.status().as_u16();
+                if status == 429 {
+                    assert_eq!(r.headers()["retry-after"], "1");
+                }
                 let body = r.into_body().collect().await.unwrap().to_bytes();
                 match status {
                     200 => {

@@ -301,7 +301,7 @@ async fn conns(args: &[String]) {
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    if let Err(e) = drivebus_gateway::modbus_tcp::raise_nofile_limit() {
+    if let Err(e) = drivebus_gateway::limits::raise_nofile_limit() {
         eprintln!("loadgen: cannot raise the open files limit: {e}");
     }
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");

@@ -22,7 +22,7 @@ use drivebus_proto::{Deframer, Event as FrameEvent};
 use drivebus_store::{Event, EventKind};
 use serde::Deserialize;
 use serde_json::json;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 use toml::Spanned;
 
@@ -181,6 +181,7 @@ pub fn reply_pdu(ascii: bool, frame: &[u8]) -> Option<Vec<u8>> {
 
 /// Serves the bridge `cfg` on `listener` until the process ends.
 pub async fn serve(gw: Arc<Gateway>, cfg: BridgeConfig, listener: TcpListener) -> std::io::Result<()> {
+    let limits = gw.limits().listener(&format!("the Modbus bridge to {}", cfg.bus));
     loop {
         let (sock, peer) = match listener.accept().await {
             Ok(x) => x,
@@ -189,8 +190,10 @@ pub async fn serve(gw: Arc<Gateway>, cfg: BridgeConfig, listener: TcpListener) -
                 continue;
             }
         };
+        let Some(permit) = limits.admit(peer.ip()) else { continue };
         let (gw, cfg) = (gw.clone(), cfg.clone());
         tokio::spawn(async move {
+            let _permit = permit;
             let _ = connection(gw, cfg, sock, peer).await;
         });
     }
@@ -225,8 +228,14 @@ async fn connection(
     let mut buf = vec![0u8; 2048];
     let mut len = 0;
     let mut rtu = Deframer::new(RtuScanner::requests());
+    let limits = gw.limits().config().clone();
     loop {
-        let n = sock.read(&mut buf[len..]).await?;
+        // The rest of an MBAP frame begun within the header timeout; the next request within
+        // the idle timeout: otherwise the connection is closed.
+        let wait = if len > 0 { limits.header_timeout } else { limits.idle_timeout };
+        let Some(n) = crate::limits::read_within(&mut sock, &mut buf[len..], wait).await? else {
+            return Ok(());
+        };
         if n == 0 {
             return Ok(());
         }

@@ -39,6 +39,10 @@
 //! serial = "8E1"
 //! timeout_ms = 200
 //! retries = 2
+//! on_demand_share = 0.5                 # bus time for parameter reads while polls wait
+//! on_demand_queue = 32                  # parameter reads waiting; beyond: busy
+//! on_demand_per_client = 8              # of them, from one client address
+//! param_cache_ms = 200                  # a read this soon after the last is that value
 //!
 //! [[bus.drive]]
 //! name = "pump-1"
@@ -52,6 +56,12 @@
 //! follower = "pump-2"
 //! ratio = 0.5
 //! offset_hz = 2.0
+//!
+//! [limits]                              # every listener (limits.rs)
+//! per_address = 64                      # connections from one address on each listener
+//! header_timeout_ms = 5000              # a request header (a frame's rest) within this
+//! idle_timeout_s = 300                  # a connection silent this long is closed (0: never)
+//! reserve_fds = 256                     # descriptors kept for the other listeners and buses
 //!
 //! [[bridge]]                            # Modbus TCP straight through to a bus (bridge.rs)
 //! bus = "line-1"
@@ -120,6 +130,8 @@ pub struct GatewayConfig {
     pub modbus_rtu: Vec<crate::modbus_rtu::ModbusRtuConfig>,
     /// The Sparkplug B edge node, if configured.
     pub sparkplug: Option<SparkplugConfig>,
+    /// Connection limits and timeouts of every listener (`[limits]`).
+    pub limits: crate::limits::LimitsConfig,
 }
 
 /// The OPC UA server (docs/opcua.md).
@@ -223,6 +235,12 @@ pub struct BusConfig {
     pub echo: bool,
     /// Modbus RTU: discard replies with a silence over t1.5 inside (on-board UARTs only).
     pub strict_t15: bool,
+    /// How on-demand reads (parameters) share the bus with polling: `on_demand_share`,
+    /// `on_demand_queue`, `on_demand_per_client` (docs/gateway.md, "Fair use of a bus").
+    pub on_demand: drivebus_link::FairConfig,
+    /// A parameter read within this time of the last read of the same parameter is answered
+    /// with that value (`param_cache_ms`; zero: always from the drive).
+    pub param_cache: Duration,
     /// The drives.
     pub drives: Vec<DriveConfig>,
 }
@@ -316,6 +334,10 @@ pub struct SparkplugConfig {
     pub store_forward_rate: u64,
 }
 
+/// The default `param_cache_ms`: a parameter read this soon after the last read of the same
+/// parameter is answered with that value.
+pub const PARAM_CACHE_MS: u64 = 200;
+
 /// The default Sparkplug group id.
 pub const SPARKPLUG_GROUP: &str = "drivebus";
 /// The default number of data messages kept for store-and-forward.
@@ -368,6 +390,17 @@ struct FileConfig {
     #[serde(default)]
     modbus_rtu: Vec<crate::modbus_rtu::FileModbusRtu>,
     sparkplug: Option<FileSparkplug>,
+    #[serde(default)]
+    limits: FileLimits,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct FileLimits {
+    per_address: Option<Spanned<usize>>,
+    header_timeout_ms: Option<Spanned<u64>>,
+    idle_timeout_s: Option<u64>,
+    reserve_fds: Option<u64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -430,6 +463,10 @@ struct FileBus {
     echo: bool,
     #[serde(default)]
     strict_t15: bool,
+    on_demand_share: Option<Spanned<f64>>,
+    on_demand_queue: Option<Spanned<usize>>,
+    on_demand_per_client: Option<Spanned<usize>>,
+    param_cache_ms: Option<u64>,
     #[serde(default)]
     drive: Vec<FileDrive>,
 }
@@ -909,7 +946,32 @@ impl GatewayConfig {
                 }
                 None => df,
             };
+            let mut on_demand = drivebus_link::FairConfig::default();
+            if let Some(v) = &b.on_demand_share {
+                let share = *v.get_ref();
+                if !(0.0..=1.0).contains(&share) {
+                    return cx.err(
+                        v.span(),
+                        "bus.on_demand_share",
+                        format!("{share} is not a share of the bus time: use 0.0..1.0 (0.5: half)"),
+                    );
+                }
+                on_demand.share = share;
+            }
+            for (v, field, to) in [
+                (&b.on_demand_queue, "bus.on_demand_queue", &mut on_demand.queue),
+                (&b.on_demand_per_client, "bus.on_demand_per_client", &mut on_demand.per_client),
+            ] {
+                if let Some(v) = v {
+                    if *v.get_ref() == 0 {
+                        return cx.err(v.span(), field, "use 1 or more");
+                    }
+                    *to = *v.get_ref();
+                }
+            }
             buses.push(BusConfig {
+                on_demand,
+                param_cache: Duration::from_millis(b.param_cache_ms.unwrap_or(PARAM_CACHE_MS)),
                 name,
                 port,
                 protocol,
@@ -1024,6 +1086,29 @@ impl GatewayConfig {
             Some(PathBuf::from(raw.store.path.unwrap_or_else(|| "drivebus.db".to_string())))
         };
         let opcua = opcua_section(&raw.opcua, &http, &addr)?;
+        let mut limits = crate::limits::LimitsConfig::default();
+        if let Some(n) = &raw.limits.per_address {
+            if *n.get_ref() == 0 {
+                return cx.err(n.span(), "limits.per_address", "use 1 or more");
+            }
+            limits.per_address = *n.get_ref();
+        }
+        if let Some(t) = &raw.limits.header_timeout_ms {
+            if !(100..=600_000).contains(t.get_ref()) {
+                return cx.err(
+                    t.span(),
+                    "limits.header_timeout_ms",
+                    format!("{} is outside 100..600000", t.get_ref()),
+                );
+            }
+            limits.header_timeout = Duration::from_millis(*t.get_ref());
+        }
+        if let Some(t) = raw.limits.idle_timeout_s {
+            limits.idle_timeout = Duration::from_secs(t);
+        }
+        if let Some(r) = raw.limits.reserve_fds {
+            limits.reserve_fds = r;
+        }
         let bridges = crate::bridge::configs(&cx, &raw.bridge, &buses)?;
         let modbus_rtu = crate::modbus_rtu::configs(&cx, &raw.modbus_rtu)?;
         Ok(GatewayConfig {
@@ -1039,6 +1124,7 @@ impl GatewayConfig {
             bridges,
             modbus_rtu,
             sparkplug,
+            limits,
         })
     }
 
@@ -1114,6 +1200,37 @@ mod tests {
         assert_eq!(e, "plant.toml:2: field `http.max_body`: 0 is outside 256..16777216 bytes");
         let e = err("[modbus]\nmax_connections = 0\n");
         assert_eq!(e, "plant.toml:2: field `modbus.max_connections`: use 1 or more");
+    }
+
+    #[test]
+    fn fair_use_and_limits_are_checked_and_have_defaults() {
+        let bus = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n";
+        let drive = "[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n";
+        let e = err(&format!("{bus}on_demand_share = 1.5\n{drive}"));
+        assert_eq!(
+            e,
+            "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)"
+        );
+        let e = err(&format!("{bus}on_demand_queue = 0\n{drive}"));
+        assert_eq!(e, "plant.toml:4: field `bus.on_demand_queue`: use 1 or more");
+        let e = err(&format!("{bus}on_demand_per_client = 0\n{drive}"));
+        assert_eq!(e, "plant.toml:4: field `bus.on_demand_per_client`: use 1 or more");
+        let e = err("[limits]\nper_address = 0\n");
+        assert_eq!(e, "plant.toml:2: field `limits.per_address`: use 1 or more");
+        let e = err("[limits]\nheader_timeout_ms = 5\n");
+        assert_eq!(e, "plant.toml:2: field `limits.header_timeout_ms`: 5 is outside 100..600000");
+
+        let c = GatewayConfig::from_toml("plant.toml", &format!("{bus}{drive}")).unwrap();
+        assert_eq!(c.buses[0].on_demand, drivebus_link::FairConfig { share: 0.5, queue: 32, per_client: 8 });
+        assert_eq!(c.buses[0].param_cache, Duration::from_millis(200));
+        assert_eq!(c.limits, crate::limits::LimitsConfig::default());
+        let c = GatewayConfig::from_toml(
+            "plant.toml",
+            &format!("[limits]\nper_address = 8\nidle_timeout_s = 0\n{bus}on_demand_share = 0.25\nparam_cache_ms = 0\n{drive}"),
+        )
+        .unwrap();
+        assert_eq!((c.limits.per_address, c.limits.idle_timeout), (8, Duration::ZERO));
+        assert_eq!((c.buses[0].on_demand.share, c.buses[0].param_cache), (0.25, Duration::ZERO));
     }
 
     #[test]

@@ -127,6 +127,12 @@ pub enum CommandError {
     LinkDown(String),
     /// The reply made no sense.
     Protocol(String),
+    /// Too many parameter reads wait on the drive's bus (or from this client); nothing was
+    /// sent: try again shortly.
+    Busy(String),
+    /// The command's audit record could not be committed (the store failed: disk full, read
+    /// only): the command was not sent.
+    NotRecorded(String),
 }
 
 impl std::fmt::Display for CommandError {
@@ -146,7 +152,11 @@ impl std::fmt::Display for CommandError {
             CommandError::Refused { code, meaning, .. } => {
                 write!(f, "the drive refused: code {code:#04X}, {meaning}")
             }
-            CommandError::NoAnswer(s) | CommandError::LinkDown(s) => f.write_str(s),
+            CommandError::NoAnswer(s) | CommandError::LinkDown(s) | CommandError::Busy(s) => f.write_str(s),
+            CommandError::NotRecorded(e) => write!(
+                f,
+                "the command was not sent: its audit record cannot be stored ({e}); free the store's disk or fix its permissions"
+            ),
         }
     }
 }
@@ -165,6 +175,8 @@ impl CommandError {
             CommandError::NoAnswer(_) => "no_answer",
             CommandError::LinkDown(_) => "link_down",
             CommandError::Protocol(_) => "protocol",
+            CommandError::Busy(_) => "busy",
+            CommandError::NotRecorded(_) => "not_recorded",
         }
     }
 }
@@ -180,6 +192,7 @@ impl From<LinkError> for CommandError {
             LinkError::Drive(DriveError::Protocol(s)) => CommandError::Protocol(s),
             LinkError::Bus(BusError::Link(s)) => CommandError::LinkDown(s),
             LinkError::Bus(BusError::Closed) => CommandError::LinkDown("the bus has stopped".into()),
+            LinkError::Bus(e @ BusError::Busy(_)) => CommandError::Busy(e.to_string()),
             LinkError::Bus(e) => CommandError::NoAnswer(e.to_string()),
         }
     }
@@ -235,6 +248,8 @@ pub struct DriveEntry {
     /// profile (a Danfoss setpoint or 3-03 scaling) shows in the next poll.
     command: Drive,
     poll: Drive,
+    /// Parameter values read a moment ago.
+    params: crate::params::ParamCache,
     state: RwLock<DriveState>,
     locked: AtomicBool,
     linking: AtomicBool,
@@ -433,6 +448,8 @@ pub struct Counters {
     pub commands_failed: AtomicU64,
     /// Events that could not be written to the store.
     pub store_errors: AtomicU64,
+    /// Commands refused because their audit record could not be committed.
+    pub commands_not_recorded: AtomicU64,
     /// The front ends' own counts (HTTP, Modbus TCP, MQTT).
     pub front_ends: crate::metrics::FrontEndMetrics,
 }
@@ -475,6 +492,7 @@ pub struct Gateway {
     pub counters: Counters,
     log_events: AtomicBool,
     health: crate::health::Health,
+    limits: crate::limits::Limits,
 }
 
 impl Gateway {
@@ -483,7 +501,9 @@ impl Gateway {
     pub fn start(config: GatewayConfig, store: Option<Store>) -> Result<Arc<Gateway>, String> {
         let buses = config.buses.iter().map(build_bus).collect::<Result<Vec<_>, _>>()?;
         let (changes, _) = broadcast::channel(1024);
+        let limits = crate::limits::Limits::new(config.limits.clone());
         let gw = Arc::new(Gateway {
+            limits,
             topology: RwLock::new(Arc::new(Topology::new(config, buses))),
             reloading: tokio::sync::Mutex::new(()),
             changes,
@@ -648,6 +668,11 @@ impl Gateway {
         &self.health
     }
 
+    /// The listeners' connection limits (`[limits]`, as at start).
+    pub fn limits(&self) -> &crate::limits::Limits {
+        &self.limits
+    }
+
     /// The store, if configured.
     pub fn store(&self) -> Option<&Store> {
         self.store.as_ref()
@@ -728,11 +753,16 @@ impl Gateway {
                 }
             }
         }
+        self.announce(&event);
+        event
+    }
+
+    /// Tells the log (when on) and live subscribers about an event.
+    fn announce(&self, event: &Event) {
         if self.log_events.load(Ordering::Relaxed) {
-            crate::log::event(&event);
+            crate::log::event(event);
         }
         let _ = self.changes.send(Change::Event(event.clone()));
-        event
     }
 
     /// Prints every event as one line on stderr (what `drivebus serve` does).
@@ -755,7 +785,9 @@ impl Gateway {
     }
 
     /// Sends `command` to drive `id` on behalf of `actor` (for the audit trail) and waits for the
-    /// drive's confirmation. The command and its result are in the store before this returns.
+    /// drive's confirmation. The command is in the store (result `pending`) before it is sent,
+    /// and its result before this returns. A command whose audit record cannot be committed is
+    /// not sent: [`CommandError::NotRecorded`].
     pub async fn command(
         self: &Arc<Self>,
         id: &str,
@@ -763,11 +795,15 @@ impl Gateway {
         actor: &str,
     ) -> Result<(), CommandError> {
         let d = self.drive(id)?;
-        let mut result = if d.locked() {
-            Err(CommandError::Locked(id.to_string()))
-        } else {
-            self.execute(&d, &command).await
-        };
+        if d.locked() {
+            let e = CommandError::Locked(id.to_string());
+            self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
+            let outcome = format!("{}: {e}", e.kind());
+            self.audit(Some(d.bus.clone()), id, actor, &command.action(), outcome).await;
+            return Err(e);
+        }
+        let pending = self.audit_pending(&d, actor, &command).await?;
+        let mut result = self.execute(&d, &command).await;
         if let Err(CommandError::Refused { meaning, .. }) = &mut result {
             // Say why from what the drive reports now.
             self.refresh(&d).await;
@@ -784,13 +820,74 @@ impl Gateway {
             Ok(()) => "ok".to_string(),
             Err(e) => format!("{}: {e}", e.kind()),
         };
-        self.audit(Some(d.bus.clone()), id, actor, &command.action(), outcome).await;
+        self.audit_done(pending, outcome).await;
         if result.is_ok() {
             // Read the drive's state now, so the answer (and every front end's cache) shows
             // what the command did.
             self.refresh(&d).await;
         }
         result
+    }
+
+    /// Commits `command`'s audit record with result `pending` before it is carried out: the
+    /// event, with its id, to finish with [`Gateway::audit_done`]. Without a store there is
+    /// nothing to commit (the event is made, not stored). When the store cannot commit it, the
+    /// command is refused, logged and counted.
+    async fn audit_pending(
+        self: &Arc<Self>,
+        d: &DriveEntry,
+        actor: &str,
+        command: &Command,
+    ) -> Result<Event, CommandError> {
+        let mut event = Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Command,
+            bus: Some(d.bus.clone()),
+            drive: Some(d.config.name.clone()),
+            actor: Some(actor.to_string()),
+            action: Some(command.action()),
+            result: Some(drivebus_store::PENDING.to_string()),
+            detail: json!({}),
+        };
+        let Some(store) = self.store.clone() else { return Ok(event) };
+        let kept = event.clone();
+        let stored = tokio::task::spawn_blocking(move || store.record(&kept).map_err(|e| e.to_string()))
+            .await
+            .unwrap_or_else(|e| Err(e.to_string()));
+        match stored {
+            Ok(id) => {
+                event.id = id;
+                Ok(event)
+            }
+            Err(e) => {
+                self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
+                self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
+                self.counters.commands_not_recorded.fetch_add(1, Ordering::Relaxed);
+                let e = CommandError::NotRecorded(e);
+                crate::log::warn(&format!("{} refused: {e}", log_line(&event)));
+                Err(e)
+            }
+        }
+    }
+
+    /// Writes the `result` of a command recorded by [`Gateway::audit_pending`] and tells the
+    /// log and live subscribers. A result that cannot be stored leaves the record `pending`,
+    /// logged and counted.
+    async fn audit_done(self: &Arc<Self>, mut event: Event, result: String) {
+        if let (Some(store), true) = (self.store.clone(), event.id != 0) {
+            let (id, r) = (event.id, result.clone());
+            let stored =
+                tokio::task::spawn_blocking(move || store.set_result(id, &r).map_err(|e| e.to_string()))
+                    .await
+                    .unwrap_or_else(|e| Err(e.to_string()));
+            if let Err(e) = stored {
+                self.counters.store_errors.fetch_add(1, Ordering::Relaxed);
+                crate::log::warn(&format!("result of event {id} not stored (it stays pending): {e}"));
+            }
+        }
+        event.result = Some(result);
+        self.announce(&event);
     }
 
     /// Puts a command in the audit trail: who, on which drive, what, and how it ended.
@@ -841,7 +938,11 @@ impl Gateway {
             }
             Command::SetParam { name, value, eeprom } => {
                 let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
-                d.command.write_param(name, value, storage).await.map_err(map)?;
+                let written = d.command.write_param(name, value, storage).await;
+                if let Ok(def) = d.param(name) {
+                    d.params.forget(&def.name);
+                }
+                written.map_err(map)?;
             }
             Command::SetParamRaw { name, raw, eeprom, .. } => {
                 let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
@@ -858,10 +959,18 @@ impl Gateway {
         self.update(&bus, d, status).await;
     }
 
-    /// Reads parameter `name` of drive `id` from the drive (through the bus owner, ahead of polls).
-    pub async fn read_param(&self, id: &str, name: &str) -> Result<ParamReading, CommandError> {
+    /// Reads parameter `name` of drive `id` on behalf of `client` (its address, or a session
+    /// where the address is not known): from the drive, in turn with other clients' reads and
+    /// sharing the bus with polls ([`drivebus_link::fair`]), or the value read less than
+    /// `param_cache_ms` ago. [`CommandError::Busy`] when too many reads wait on the bus.
+    pub async fn read_param(&self, id: &str, name: &str, client: &str) -> Result<ParamReading, CommandError> {
         let d = self.drive(id)?;
-        let (raw, def) = d.command.read_param(name).await?;
+        let def = d.param(name)?.clone();
+        let reader = d.command.on_demand_for(client);
+        let raw = d
+            .params
+            .read(&def.name, || async { reader.read_param(&def.name).await.map(|(raw, _)| raw) })
+            .await?;
         Ok(ParamReading {
             name: def.name.clone(),
             title: def.title.clone(),
@@ -1123,6 +1232,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         .iter()
         .map(|d| d.family)
         .find(|&f| drivebus_drive::registers::generic::line_silence(f, b.protocol).is_some());
+    owner.on_demand = b.on_demand;
     #[cfg(feature = "virtual")]
     let (bus, line) = match b.port {
         crate::config::Port::Virtual => {
@@ -1164,6 +1274,7 @@ fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, 
         protocol: b.protocol,
         command,
         poll,
+        params: crate::params::ParamCache::new(b.param_cache),
         state: RwLock::new(DriveState::default()),
         locked: AtomicBool::new(d.locked),
         linking: AtomicBool::new(false),

@@ -332,6 +332,13 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let store_errors = Counter::<u64>::default();
     store_errors.inc_by(c.store_errors.load(Ordering::Relaxed));
     reg.register("store_errors", "Events that could not be written to the store", store_errors);
+    let not_recorded = Counter::<u64>::default();
+    not_recorded.inc_by(c.commands_not_recorded.load(Ordering::Relaxed));
+    reg.register(
+        "commands_not_recorded",
+        "Commands refused, not sent, because their audit record could not be committed",
+        not_recorded,
+    );
     let f = &c.front_ends;
     reg.register(
         "http_requests",

@@ -53,9 +53,11 @@ fn same_bus(a: &BusConfig, b: &BusConfig) -> bool {
     ) {
         (&x.port, x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15)
     }
+    // The owner's queue and the parameter cache are built with the bus.
+    let fair = |x: &BusConfig| (x.on_demand, x.param_cache);
     let same_drives =
         || a.drives.len() == b.drives.len() && a.drives.iter().zip(&b.drives).all(|(x, y)| same_drive(x, y));
-    line(a) == line(b) && (a.port != crate::config::Port::Virtual || same_drives())
+    line(a) == line(b) && fair(a) == fair(b) && (a.port != crate::config::Port::Virtual || same_drives())
 }
 
 /// Whether a drive entry can be kept as it is: everything but the lock (applied in place) is
@@ -112,6 +114,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("opcua", old.opcua != new.opcua),
         ("sparkplug", old.sparkplug != new.sparkplug),
         ("name", old.name != new.name),
+        ("limits", old.limits != new.limits),
     ];
     p.needs_restart = restart.iter().filter(|(_, c)| *c).map(|(n, _)| n.to_string()).collect();
     p

@@ -65,10 +65,7 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     };
     gw.health().listener("http", bound.http, true);
     gw.health().listener("modbus", bound.modbus, true);
-    let router = crate::http::router(gw.clone());
-    let http_task = tokio::spawn(async move {
-        axum::serve(http, router.into_make_service_with_connect_info::<SocketAddr>()).await
-    });
+    let http_task = tokio::spawn(crate::http::serve(gw.clone(), http));
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
     if let Some(m) = &cfg.mqtt {
         crate::mqtt::spawn(gw.clone(), m)?;

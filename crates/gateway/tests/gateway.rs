@@ -88,13 +88,13 @@ async fn changes_are_streamed() {
 #[tokio::test(start_paused = true)]
 async fn parameters_read_from_the_drive() {
     let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
-    let p = gw.read_param("ahu-1", "4-14").await.unwrap();
+    let p = gw.read_param("ahu-1", "4-14", "test").await.unwrap();
     assert_eq!(p.unit, "Hz");
     gw.command("ahu-1", Command::SetParam { name: "4-14".into(), value: "55".into(), eeprom: false }, "t")
         .await
         .unwrap();
-    assert_eq!(gw.read_param("ahu-1", "4-14").await.unwrap().value, 55.0);
-    let e = gw.read_param("ahu-1", "99-99").await.unwrap_err();
+    assert_eq!(gw.read_param("ahu-1", "4-14", "test").await.unwrap().value, 55.0);
+    let e = gw.read_param("ahu-1", "99-99", "test").await.unwrap_err();
     assert_eq!(drivebus_gateway::http::error::status_of(&e).as_u16(), 422, "{e}");
 }
 

@@ -345,17 +345,17 @@ async fn the_parameter_window_reads_and_writes_the_drive() {
     let def = &catalog.params()[i as usize];
     let reg = 1000 + 2 * i;
     let mut c = Client::connect(addr).await;
-    let before = gw.read_param("ahu-1", "4-14").await.unwrap();
+    let before = gw.read_param("ahu-1", "4-14", "test").await.unwrap();
     let r = c.holding(ahu, reg, 2).await.unwrap();
     assert_eq!((i64::from(r[0]) << 16) | i64::from(r[1]), before.raw);
     // FC16, both registers: 55 Hz.
     let raw = def.to_raw(55.0).unwrap() as i32 as u32;
     c.write(ahu, reg, &[(raw >> 16) as u16, raw as u16]).await.unwrap();
-    assert_eq!(gw.read_param("ahu-1", "4-14").await.unwrap().value, 55.0);
+    assert_eq!(gw.read_param("ahu-1", "4-14", "test").await.unwrap().value, 55.0);
     // FC06 to the low register: 52 Hz.
     let raw = def.to_raw(52.0).unwrap();
     c.write1(ahu, reg + 1, raw as u16).await.unwrap();
-    assert_eq!(gw.read_param("ahu-1", "4-14").await.unwrap().value, 52.0);
+    assert_eq!(gw.read_param("ahu-1", "4-14", "test").await.unwrap().value, 52.0);
     // Reading the low half only, and two parameters at once.
     assert_eq!(c.holding(ahu, reg + 1, 1).await.unwrap(), vec![raw as u16]);
     let two = c.holding(ahu, reg, 4).await.unwrap();
@@ -363,18 +363,18 @@ async fn the_parameter_window_reads_and_writes_the_drive() {
     // Out of range for the parameter: nothing written.
     let too_much = (def.max + 1) as i32 as u32;
     assert_eq!(c.write(ahu, reg, &[(too_much >> 16) as u16, too_much as u16]).await, Err(0x03));
-    assert_eq!(gw.read_param("ahu-1", "4-14").await.unwrap().value, 52.0);
+    assert_eq!(gw.read_param("ahu-1", "4-14", "test").await.unwrap().value, 52.0);
     // A signed 32-bit parameter (3-02, minimum reference, -4999.000..4999.000) keeps its sign.
     let k = catalog.params().iter().position(|p| p.name == "3-02").unwrap();
     let reg = 1000 + 2 * k as u16;
     let v = catalog.params()[k].to_raw(-12.5).unwrap() as i32 as u32;
     c.write(ahu, reg, &[(v >> 16) as u16, v as u16]).await.unwrap();
-    assert_eq!(gw.read_param("ahu-1", "3-02").await.unwrap().value, -12.5);
+    assert_eq!(gw.read_param("ahu-1", "3-02", "test").await.unwrap().value, -12.5);
     let r = c.holding(ahu, reg, 2).await.unwrap();
     assert_eq!(((u32::from(r[0]) << 16) | u32::from(r[1])) as i32, -12500);
     // FC06: 16 bits, signed.
     c.write1(ahu, reg + 1, (-300i16) as u16).await.unwrap();
-    assert_eq!(gw.read_param("ahu-1", "3-02").await.unwrap().value, -0.3);
+    assert_eq!(gw.read_param("ahu-1", "3-02", "test").await.unwrap().value, -0.3);
     // A read-only parameter (16-02) is not written.
     let k = catalog.params().iter().position(|p| p.name == "16-02").unwrap();
     assert_eq!(c.write(ahu, 1000 + 2 * k as u16, &[0, 1]).await, Err(0x02));

@@ -140,18 +140,33 @@ pub struct Drive {
     profile: Arc<dyn Profile>,
     timeout: Option<Duration>,
     priority: Priority,
+    /// Whose on-demand reads these are (the bus serves clients in turn).
+    client: Arc<str>,
 }
 
 impl Drive {
     /// A drive reached through `bus` with `profile`.
     pub fn new(bus: Bus, profile: Box<dyn Profile>) -> Self {
-        Drive { bus, profile: Arc::from(profile), timeout: None, priority: Priority::Command }
+        Drive {
+            bus,
+            profile: Arc::from(profile),
+            timeout: None,
+            priority: Priority::Command,
+            client: Arc::from(""),
+        }
     }
 
     /// The same drive, with the same profile (so what a command teaches it, a setpoint or a
     /// scaling, shows in the next poll), whose requests are polls that wait behind commands.
     pub fn polling_twin(&self) -> Self {
         Drive { priority: Priority::Poll, ..self.clone() }
+    }
+
+    /// The same drive, whose requests are on-demand reads of `client` (an address, a
+    /// session): they share the bus with polling, in turn with other clients' reads, and are
+    /// refused with [`BusError::Busy`] beyond the bus's queue ([`crate::fair`]).
+    pub fn on_demand_for(&self, client: &str) -> Self {
+        Drive { priority: Priority::OnDemand, client: Arc::from(client), ..self.clone() }
     }
 
     /// Sets this drive's response timeout (the bus default otherwise).
@@ -186,7 +201,13 @@ impl Drive {
                 Step::Send(exchange) => {
                     reply = self
                         .bus
-                        .transact(self.profile.address(), exchange, self.priority, self.timeout)
+                        .transact_for(
+                            &self.client,
+                            self.profile.address(),
+                            exchange,
+                            self.priority,
+                            self.timeout,
+                        )
                         .await?;
                 }
             }

@@ -143,7 +143,8 @@ impl<P: Protocol> Engine<P> {
     }
 
     /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or
-    /// `Offline` when the drive is offline and its next probe is not due (polls only).
+    /// `Offline` when the drive is offline and its next probe is not due (polls and on-demand
+    /// reads only).
     pub(crate) fn admit(
         &mut self,
         now: Instant,
@@ -156,7 +157,10 @@ impl<P: Protocol> Engine<P> {
         if !broadcast {
             let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
             let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
-            if !h.online && priority == Priority::Poll && h.next_probe.is_some_and(|t| now < t) {
+            if !h.online
+                && matches!(priority, Priority::Poll | Priority::OnDemand)
+                && h.next_probe.is_some_and(|t| now < t)
+            {
                 return Err(BusError::Offline { address });
             }
             offline = !h.online;

@@ -3,7 +3,8 @@
 //! How drivebus reaches a bus: byte links ([`link`]: serial ports, TCP to serial device
 //! servers, the simulator's virtual line) and the bus owner ([`owner`]): one task per
 //! half-duplex bus that runs one transaction at a time with the protocol's timing, commands
-//! ahead of polling, retries, and per-drive online/offline tracking with backoff.
+//! ahead of polling, on-demand reads sharing the bus fairly with polling ([`fair`]), retries,
+//! and per-drive online/offline tracking with backoff.
 //!
 //! ```text
 //! Drive (profile: operation -> frames)  ──transact──►  Bus (queue) ──► owner task
@@ -18,6 +19,7 @@
 pub mod blocking;
 pub mod drive;
 mod engine;
+pub mod fair;
 pub mod link;
 pub mod listen;
 pub mod owner;
@@ -25,6 +27,7 @@ pub mod owner;
 pub mod sim_link;
 pub mod timer;
 
+pub use fair::FairConfig;
 pub use link::{Clock, Link, Rs485, SerialLink, TcpLink};
 pub use owner::{Bus, BusConfig, BusError, BusStats, Health, Priority};
 #[cfg(feature = "virtual")]

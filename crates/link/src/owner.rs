@@ -2,7 +2,9 @@
 //! protocol's timing (the minimum silence before a request, the response timeout, the
 //! turnaround after a broadcast) kept by the protocol's `MasterSession`.
 //!
-//! Commands go ahead of polling (two queues, commands served first). Each drive's link health
+//! Commands go ahead of polling (commands served first, then bridged requests). On-demand reads
+//! share the rest with polling ([`crate::fair`]): one bounded queue per client, served in
+//! turn, and at most a configured share of the bus time while polls wait. Each drive's link health
 //! is tracked: after `offline_after` failed transactions in a row it is offline, and polls to it
 //! are answered at once with [`BusError::Offline`] until its backoff has passed, when one probe
 //! goes out (the backoff doubles up to `max_backoff` while it stays silent). So a dead drive
@@ -18,9 +20,10 @@ use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
-use tokio::sync::{mpsc, oneshot, watch};
+use tokio::sync::{mpsc, oneshot, watch, Notify};
 
 use crate::engine::{with_engine, Action, Attempt, Engine};
+use crate::fair::{FairConfig, Queues, Share, Turn};
 use crate::link::Link;
 
 /// How a bus is run.
@@ -58,6 +61,8 @@ pub struct BusConfig {
     /// a generic bus in Modbus RTU keeps at least 10 ms of silence before each request (seed
     /// 004), not only t3.5. `None`: the protocol's timing alone. `gap` overrides both.
     pub family: Option<drivebus_drive::Family>,
+    /// How on-demand reads share the bus with polling.
+    pub on_demand: FairConfig,
 }
 
 impl BusConfig {
@@ -77,6 +82,7 @@ impl BusConfig {
             rs485: crate::link::Rs485::Off,
             strict_t15: false,
             family: None,
+            on_demand: FairConfig::default(),
         }
     }
 }
@@ -111,6 +117,8 @@ pub enum BusError {
     BadRequest(String),
     /// The bus owner has stopped.
     Closed,
+    /// Too many on-demand reads wait on the bus (or from this client); nothing was sent.
+    Busy(String),
 }
 
 impl fmt::Display for BusError {
@@ -128,6 +136,7 @@ impl fmt::Display for BusError {
             BusError::Link(e) => f.write_str(e),
             BusError::BadRequest(e) => write!(f, "cannot send that request: {e}"),
             BusError::Closed => f.write_str("the bus has stopped"),
+            BusError::Busy(e) => write!(f, "the bus is busy: {e}"),
         }
     }
 }
@@ -141,6 +150,9 @@ pub enum Priority {
     Command,
     /// A request passed through from a Modbus bridge: after commands, ahead of polling.
     Bridge,
+    /// A read a client asked for now (a parameter): shares the bus with polling, client by
+    /// client ([`crate::fair`]).
+    OnDemand,
     /// Cyclic polling.
     Poll,
 }
@@ -216,6 +228,7 @@ pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
     bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
+    on_demand: Arc<OnDemand>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
     name: String,
@@ -233,10 +246,15 @@ impl Bus {
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
+        let on_demand =
+            Arc::new(OnDemand { queues: Mutex::new(Queues::new(config.on_demand)), ready: Notify::new() });
+        let share = Share::new(config.on_demand.share);
+        let od = on_demand.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
-            tokio::spawn(Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx }.run(crx, brx, prx));
+            let owner = Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx };
+            tokio::spawn(owner.run(crx, brx, prx, od, share));
         });
-        Ok(Bus { commands: ctx, bridged: btx, polls: ptx, stats, health, name, ended })
+        Ok(Bus { commands: ctx, bridged: btx, polls: ptx, on_demand, stats, health, name, ended })
     }
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the
@@ -257,9 +275,24 @@ impl Bus {
     }
 
     /// Sends `exchange` to drive `address` and waits for the reply frame (`None` when no reply
-    /// is due). `timeout` overrides the bus's response timeout for this drive.
+    /// is due). `timeout` overrides the bus's response timeout for this drive. On-demand reads
+    /// are queued as one anonymous client's: [`Bus::transact_for`] names the client.
     pub async fn transact(
         &self,
+        address: u8,
+        exchange: Exchange,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Result<Option<Vec<u8>>, BusError> {
+        self.transact_for("", address, exchange, priority, timeout).await
+    }
+
+    /// [`Bus::transact`] on behalf of `client` (an address, a session): on-demand reads of
+    /// different clients are served in turn, and one refused with [`BusError::Busy`] when the
+    /// bus's queue or the client's own is full.
+    pub async fn transact_for(
+        &self,
+        client: &str,
         address: u8,
         exchange: Exchange,
         priority: Priority,
@@ -271,6 +304,19 @@ impl Bus {
             Priority::Command => &self.commands,
             Priority::Bridge => &self.bridged,
             Priority::Poll => &self.polls,
+            Priority::OnDemand => {
+                if self.commands.is_closed() {
+                    return Err(BusError::Closed);
+                }
+                self.on_demand
+                    .queues
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .push(client, job)
+                    .map_err(|(_, e)| e)?;
+                self.on_demand.ready.notify_one();
+                return rx.await.map_err(|_| BusError::Closed)?;
+            }
         };
         queue.send(job).map_err(|_| BusError::Closed)?;
         rx.await.map_err(|_| BusError::Closed)?
@@ -284,6 +330,22 @@ impl Bus {
     /// Each drive's link health.
     pub fn health(&self) -> HashMap<u8, Health> {
         self.health.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+}
+
+/// The on-demand reads waiting, and the owner's wake-up when one comes.
+struct OnDemand {
+    queues: Mutex<Queues<Job>>,
+    ready: Notify,
+}
+
+impl OnDemand {
+    fn pop(&self) -> Option<Job> {
+        self.queues.lock().unwrap_or_else(|p| p.into_inner()).pop()
+    }
+
+    fn is_empty(&self) -> bool {
+        self.queues.lock().unwrap_or_else(|p| p.into_inner()).is_empty()
     }
 }
 
@@ -302,17 +364,68 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         mut commands: mpsc::UnboundedReceiver<Job>,
         mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
+        on_demand: Arc<OnDemand>,
+        mut share: Share,
     ) {
+        // A poll taken from its channel that waits for its turn.
+        let mut poll: Option<Job> = None;
         loop {
-            let job = tokio::select! {
-                biased;
-                Some(j) = commands.recv() => (j, Priority::Command),
-                Some(j) = bridged.recv() => (j, Priority::Bridge),
-                Some(j) = polls.recv() => (j, Priority::Poll),
-                else => return,
+            // Commands first, then bridged requests. Every handle holds all the senders: the
+            // commands' closed means all are, and the owner ends.
+            let first = match commands.try_recv() {
+                Ok(j) => Some((j, Priority::Command)),
+                Err(mpsc::error::TryRecvError::Disconnected) => return,
+                Err(mpsc::error::TryRecvError::Empty) => {
+                    bridged.try_recv().ok().map(|j| (j, Priority::Bridge))
+                }
             };
-            let (job, priority) = job;
+            if let Some((job, priority)) = first {
+                let result = self.job(&job, priority).await;
+                let _ = job.done.send(result);
+                continue;
+            }
+            if poll.is_none() {
+                poll = polls.try_recv().ok();
+            }
+            let waiting = !on_demand.is_empty();
+            let turn = match (poll.is_some(), waiting) {
+                (true, true) => share.turn(),
+                (true, false) => Turn::Poll,
+                (false, true) => Turn::OnDemand,
+                (false, false) => {
+                    // Nothing waits: sleep until something comes.
+                    let woken = tokio::select! {
+                        biased;
+                        j = commands.recv() => match j {
+                            Some(j) => Some((j, Priority::Command)),
+                            None => return,
+                        },
+                        Some(j) = bridged.recv() => Some((j, Priority::Bridge)),
+                        Some(j) = polls.recv() => {
+                            poll = Some(j);
+                            None
+                        }
+                        _ = on_demand.ready.notified() => None,
+                    };
+                    if let Some((job, priority)) = woken {
+                        let result = self.job(&job, priority).await;
+                        let _ = job.done.send(result);
+                    }
+                    continue;
+                }
+            };
+            // Only bus time both kinds waited for counts toward the share.
+            let contended = poll.is_some() && waiting;
+            let (job, priority) = match turn {
+                Turn::Poll => (poll.take(), Priority::Poll),
+                Turn::OnDemand => (on_demand.pop(), Priority::OnDemand),
+            };
+            let Some(job) = job else { continue };
+            let started = self.link.now();
             let result = self.job(&job, priority).await;
+            if contended {
+                share.spent(turn, self.link.now() - started);
+            }
             let _ = job.done.send(result);
         }
     }

@@ -158,3 +158,45 @@ async fn commands_go_first_then_bridged_requests_then_polls() {
     }
     assert_eq!(*order.lock().unwrap(), ["first", "command", "bridge", "poll"]);
 }
+
+#[tokio::test(start_paused = true)]
+async fn on_demand_floods_share_the_bus_and_polls_keep_their_interval() {
+    let (bus, _line) = bus_of(&[1, 2], Faults::default());
+    let bus = Arc::new(bus);
+    // Two clients each keep 8 reads of drive 2 waiting (the most a client may), with more
+    // trying, as fast as they are answered.
+    let served = Arc::new(Mutex::new([0u32; 2]));
+    for (k, client) in ["10.0.0.2", "10.0.0.3"].into_iter().enumerate() {
+        for _ in 0..12 {
+            let (bus, served) = (bus.clone(), served.clone());
+            tokio::spawn(async move {
+                loop {
+                    match bus.transact_for(client, 2, read(2, 0x2103), Priority::OnDemand, None).await {
+                        Ok(_) => served.lock().unwrap()[k] += 1,
+                        Err(BusError::Busy(_)) => tokio::time::sleep(Duration::from_millis(1)).await,
+                        Err(e) => panic!("{e}"),
+                    }
+                }
+            });
+        }
+    }
+    // A client over its own bound is refused at once, without waiting.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let refused = bus.transact_for("10.0.0.2", 2, read(2, 0x2103), Priority::OnDemand, None).await;
+    assert!(matches!(refused, Err(BusError::Busy(ref m)) if m.contains("at most 8")), "{refused:?}");
+    // Drive 1 polled every 100 ms for 10 s: every poll done within its interval.
+    let start = tokio::time::Instant::now();
+    let mut due = start;
+    let mut worst = Duration::ZERO;
+    while due - start < Duration::from_secs(10) {
+        tokio::time::sleep_until(due).await;
+        let poll = bus.transact(1, read(1, 0x2103), Priority::Poll, None);
+        tokio::time::timeout(Duration::from_secs(1), poll).await.expect("a poll within 1 s").unwrap();
+        worst = worst.max(tokio::time::Instant::now() - due);
+        due += Duration::from_millis(100);
+    }
+    assert!(worst < Duration::from_millis(100), "a poll took {worst:?} to be served");
+    let [a, b] = *served.lock().unwrap();
+    assert!(a > 100 && b > 100, "on-demand reads were served too: {a} and {b}");
+    assert!(a.abs_diff(b) * 10 <= a.max(b), "the clients were served in turn: {a} and {b}");
+}

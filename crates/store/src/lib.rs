@@ -47,6 +47,7 @@
 //!
 //! The schema is in `docs/store.md` and in [`SCHEMA`].
 
+mod audit;
 mod error;
 mod event;
 mod sparkplug;
@@ -61,6 +62,7 @@ use std::time::{Duration, Instant};
 
 use rusqlite::{params, Connection, OpenFlags};
 
+pub use audit::PENDING;
 pub use error::StoreError;
 pub use event::{Event, EventFilter, EventKind, UnknownKind};
 pub use sparkplug::{SpoolDropped, Spooled, SPARKPLUG_SCHEMA};

@@ -120,12 +120,12 @@ pub async fn speed(
 
 /// `GET /api/drives/{id}/params/{name}`: read from the drive.
 pub async fn read_param(
-    _: ReadAccess,
+    ReadAccess(caller): ReadAccess,
     State(gw): State<Arc<Gateway>>,
     Path((id, name)): Path<(String, String)>,
 ) -> ApiResult<ParamReading> {
     gw.drive(&id)?.param(&name)?;
-    Ok(Json(gw.read_param(&id, &name).await?))
+    Ok(Json(gw.read_param(&id, &name, &caller.ip).await?))
 }
 
 #[derive(Deserialize)]

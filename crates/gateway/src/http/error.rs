@@ -111,6 +111,8 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::NoAnswer(_) => StatusCode::GATEWAY_TIMEOUT,
         CommandError::LinkDown(_) => StatusCode::SERVICE_UNAVAILABLE,
         CommandError::Protocol(_) => StatusCode::BAD_GATEWAY,
+        CommandError::Busy(_) => StatusCode::TOO_MANY_REQUESTS,
+        CommandError::NotRecorded(_) => StatusCode::SERVICE_UNAVAILABLE,
     }
 }
 
@@ -126,6 +128,10 @@ impl IntoResponse for ApiError {
         let mut r = (self.status, Json(body)).into_response();
         if self.status == StatusCode::UNAUTHORIZED {
             r.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+        }
+        if self.status == StatusCode::TOO_MANY_REQUESTS {
+            // A busy bus frees within a few transactions.
+            r.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
         }
         r
     }

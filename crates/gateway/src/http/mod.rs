@@ -77,6 +77,45 @@ pub fn router(gw: Arc<Gateway>) -> Router {
         .with_state(gw)
 }
 
+/// Serves the HTTP API, the dashboard and the metrics on `listener` until the process ends,
+/// within the gateway's `[limits]`: at most `per_address` connections from one address, a
+/// request header within `header_timeout_ms`, a connection idle for `idle_timeout_s` closed.
+pub async fn serve(gw: Arc<Gateway>, listener: tokio::net::TcpListener) -> std::io::Result<()> {
+    let limits = gw.limits().listener("HTTP");
+    let cfg = gw.limits().config().clone();
+    let app = router(gw);
+    loop {
+        let (sock, peer) = match listener.accept().await {
+            Ok(x) => x,
+            Err(_) => {
+                // Out of descriptors, or a connection reset before accept: serve the others.
+                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+                continue;
+            }
+        };
+        let Some(permit) = limits.admit(peer.ip()) else { continue };
+        let (app, cfg) = (app.clone(), cfg.clone());
+        tokio::spawn(async move {
+            let _permit = permit;
+            let _ = sock.set_nodelay(true);
+            let io = crate::limits::Activity::new(sock);
+            let idle = io.idle(cfg.idle_timeout);
+            let service = hyper::service::service_fn(move |mut req: Request<hyper::body::Incoming>| {
+                req.extensions_mut().insert(axum::extract::ConnectInfo(peer));
+                tower::ServiceExt::oneshot(app.clone(), req.map(axum::body::Body::new))
+            });
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(hyper_util::rt::TokioTimer::new())
+                .header_read_timeout(cfg.header_timeout)
+                .serve_connection(hyper_util::rt::TokioIo::new(io), service);
+            tokio::select! {
+                _ = conn => {}
+                _ = idle => {}
+            }
+        });
+    }
+}
+
 /// Refuses a declared body over `[http] max_body` before anything else looks at the request,
 /// and turns a handler panic into a 500 JSON error instead of a dropped connection.
 async fn guard(State(gw): State<Arc<Gateway>>, req: Request, next: Next) -> Response {

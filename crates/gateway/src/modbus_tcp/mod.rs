@@ -22,8 +22,8 @@ use drivebus_drive::profile::CodeSpace;
 use drivebus_drive::{format_fixed, ParamDef};
 use drivebus_proto::modbus::tcp::{Mbap, MAX_ADU, MBAP_LEN};
 use drivebus_proto::modbus::{ExceptionCode, RegisterAddress, Registers, ReplyPdu, RequestPdu};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
+use tokio::net::TcpListener;
 
 use crate::config::ModbusConfig;
 use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
@@ -82,23 +82,10 @@ impl Drop for Slot<'_> {
     }
 }
 
-/// Raises the soft limit of open files to the hard limit (each client is a descriptor).
-/// Returns the new soft limit.
-pub fn raise_nofile_limit() -> std::io::Result<u64> {
-    use nix::sys::resource::{getrlimit, setrlimit, Resource};
-    let (soft, hard) = getrlimit(Resource::RLIMIT_NOFILE).map_err(std::io::Error::from)?;
-    if soft < hard {
-        setrlimit(Resource::RLIMIT_NOFILE, hard, hard).map_err(std::io::Error::from)?;
-    }
-    Ok(hard.max(soft))
-}
-
-/// Serves Modbus TCP clients on `listener` with the gateway's `[modbus]` configuration until the
-/// process ends.
+/// Serves Modbus TCP clients on `listener` with the gateway's `[modbus]` configuration and its
+/// `[limits]` until the process ends.
 pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<()> {
-    if let Err(e) = raise_nofile_limit() {
-        crate::log::warn(&format!("Modbus TCP: cannot raise the open files limit: {e}"));
-    }
+    let limits = gw.limits().listener("Modbus TCP");
     let server = Server::new(gw);
     static WARNED: AtomicBool = AtomicBool::new(false);
     loop {
@@ -113,17 +100,30 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
                 continue;
             }
         };
+        let Some(permit) = limits.admit(peer.ip()) else { continue };
         if server.active.fetch_add(1, Ordering::Relaxed) >= server.config.max_connections {
             server.active.fetch_sub(1, Ordering::Relaxed);
             drop(socket);
             continue;
         }
         let server = server.clone();
+        let _ = socket.set_nodelay(true);
         tokio::spawn(async move {
+            let _permit = permit;
             let _slot = Slot(&server.active);
             let _ = server.connection(socket, peer).await;
         });
     }
+}
+
+/// Serves one Modbus TCP client on `stream` (any byte stream; `peer` is its address) until it
+/// closes: what the listener does for each connection it accepts, for tests and embedders
+/// that bring their own streams.
+pub async fn serve_stream<S>(gw: Arc<Gateway>, stream: S, peer: SocketAddr) -> std::io::Result<()>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    Server::new(gw).connection(stream, peer).await
 }
 
 /// A request of the unified map, read from proto's [`RequestPdu`]; register values are views
@@ -246,8 +246,10 @@ impl Server {
         }
     }
 
-    async fn connection(&self, mut sock: TcpStream, peer: SocketAddr) -> std::io::Result<()> {
-        let _ = sock.set_nodelay(true);
+    async fn connection<S>(&self, mut sock: S, peer: SocketAddr) -> std::io::Result<()>
+    where
+        S: AsyncRead + AsyncWrite + Unpin,
+    {
         let ip = match peer.ip() {
             IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
             v4 => v4,
@@ -263,8 +265,15 @@ impl Server {
         let mut buf = vec![0u8; IN_BUF];
         let mut len = 0;
         let mut out: Vec<u8> = Vec::with_capacity(512);
+        let limits = self.gw.limits().config().clone();
         loop {
-            let n = sock.read(&mut buf[len..]).await?;
+            // The rest of a frame begun within the header timeout; the next one within the idle
+            // timeout: otherwise the connection is closed.
+            let wait = if len > 0 { limits.header_timeout } else { limits.idle_timeout };
+            let n = match crate::limits::read_within(&mut sock, &mut buf[len..], wait).await? {
+                Some(n) => n,
+                None => return Ok(()),
+            };
             if n == 0 {
                 return Ok(());
             }
@@ -414,7 +423,7 @@ impl Server {
         let answer: Result<ReplyValues, ExceptionCode> = async {
             Ok(match parse(pdu)? {
                 Request::Read { addr, count, .. } => {
-                    ReplyValues::Read(self.read_window(&d, addr, count).await?)
+                    ReplyValues::Read(self.read_window(&d, addr, count, &conn.client()).await?)
                 }
                 Request::Write { addr, values } => {
                     self.write(conn, mbap.unit, &d, addr, values).await?;
@@ -433,7 +442,7 @@ impl Server {
                     }
                     self.write(conn, mbap.unit, &d, waddr, values).await?;
                     ReplyValues::ReadWrite(if window {
-                        self.read_window(&d, addr, count).await?
+                        self.read_window(&d, addr, count, &conn.client()).await?
                     } else {
                         let (regs, range) = self.holding_range(&d, mbap.unit, addr, count)?;
                         regs[range].to_vec()
@@ -462,13 +471,20 @@ impl Server {
     }
 
     /// Reads holding registers `addr..addr + count` of the parameter window from the drive.
-    async fn read_window(&self, d: &DriveEntry, addr: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
+    async fn read_window(
+        &self,
+        d: &DriveEntry,
+        addr: u16,
+        count: u16,
+        client: &str,
+    ) -> Result<Vec<u16>, ExceptionCode> {
         let catalog = d.catalog();
         let ((first, first_high), (last, last_high)) = param_window(catalog.len(), addr, count)?;
         let mut values = Vec::with_capacity(count as usize);
         for i in first..=last {
             let name = &catalog.params()[i].name;
-            let reading = self.gw.read_param(&d.config.name, name).await.map_err(|e| exception_of(&e))?;
+            let reading =
+                self.gw.read_param(&d.config.name, name, client).await.map_err(|e| exception_of(&e))?;
             let bits = reading.raw as i32 as u32;
             if i != first || first_high {
                 values.push((bits >> 16) as u16);
@@ -643,6 +659,8 @@ pub fn exception_of(e: &CommandError) -> ExceptionCode {
         }
         CommandError::Refused { .. } | CommandError::Protocol(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
         CommandError::LinkDown(_) => ExceptionCode::GATEWAY_PATH_UNAVAILABLE,
+        CommandError::Busy(_) => ExceptionCode::SERVER_DEVICE_BUSY,
+        CommandError::NotRecorded(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
     }
 }
 
@@ -658,6 +676,14 @@ pub(crate) struct Conn {
     pub(crate) forbidden: String,
     /// Who it is in the audit trail (`modbus:127.0.0.1:5555`, `modbus-rtu:/dev/ttyS1`).
     pub(crate) actor: String,
+}
+
+impl Conn {
+    /// The client whose parameter reads wait in one queue on the bus: its address (all its
+    /// connections together), or its actor where it has none.
+    fn client(&self) -> String {
+        self.ip.map_or_else(|| self.actor.clone(), |ip| ip.to_string())
+    }
 }
 
 /// A raw value as a number in the parameter's unit (what [`Command::SetParam`] takes).

@@ -59,6 +59,8 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::NoAnswer(_) => StatusCode::BadTimeout,
         CommandError::LinkDown(_) => StatusCode::BadNoCommunication,
         CommandError::Protocol(_) => StatusCode::BadCommunicationError,
+        CommandError::Busy(_) => StatusCode::BadTooManyOperations,
+        CommandError::NotRecorded(_) => StatusCode::BadResourceUnavailable,
     }
 }
 
@@ -141,8 +143,8 @@ impl DriveNodes {
         true
     }
 
-    async fn read_parameter(&self, drive: &str, name: &str) -> DataValue {
-        match self.gw.read_param(drive, name).await {
+    async fn read_parameter(&self, drive: &str, name: &str, client: &str) -> DataValue {
+        match self.gw.read_param(drive, name, client).await {
             Ok(r) => {
                 let now = DateTime::now();
                 DataValue {
@@ -209,7 +211,8 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             };
             match param {
                 // A parameter is read from the drive when it is read: never a stale value.
-                Some((drive, name)) => out.push(self.read_parameter(&drive, &name).await),
+                // The reads of a session's client wait in one queue on the bus.
+                Some((drive, name)) => out.push(self.read_parameter(&drive, &name, &actor(context)).await),
                 None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
             }
         }

@@ -167,6 +167,11 @@ fn build(
     // How often subscriptions are looked at for notifications to send: the library's default
     // (100 ms) adds up to that much to every change's latency.
     builder = builder.subscription_poll_interval_ms(10);
+    // async-opcua accepts on its own and tells no one the peer's address: no per-address
+    // limit here ([limits] per_address covers the other listeners). A client must say HELLO
+    // within the header timeout (whole seconds, at least 1).
+    let header = gw.limits().config().header_timeout;
+    builder = builder.hello_timeout(header.as_secs().max(1).try_into().unwrap_or(u32::MAX));
     let limits = builder.limits_mut();
     limits.subscriptions.max_monitored_items_per_sub = 100_000;
     limits.operational.max_monitored_items_per_call = 10_000;

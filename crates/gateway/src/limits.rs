@@ -1,0 +1,363 @@
+//! Connection limits, so that no client can exhaust the gateway (docs/gateway.md, "Connection
+//! limits"): at most `per_address` connections from one address on each listener; new
+//! connections refused while the process's open descriptors are within `reserve_fds` of its
+//! limit (so the other listeners, the buses' ports and the store never starve); refusals
+//! logged at a bounded rate. The header and idle timeouts are applied by each front end
+//! ([`Timeouts`], [`Activity`]).
+
+use std::collections::HashMap;
+use std::net::IpAddr;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::time::Instant;
+
+/// The `[limits]` section.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LimitsConfig {
+    /// Most connections from one address on each listener.
+    pub per_address: usize,
+    /// Time a client has to send a whole request header (HTTP), the rest of a frame it began
+    /// (Modbus TCP, the bridge), its HELLO (OPC UA, whole seconds).
+    pub header_timeout: Duration,
+    /// A connection with nothing sent either way for this long is closed (zero: never).
+    pub idle_timeout: Duration,
+    /// Descriptors kept free: new connections are refused while fewer are left.
+    pub reserve_fds: u64,
+}
+
+/// The default `per_address`.
+pub const PER_ADDRESS: usize = 64;
+/// The default `header_timeout_ms`.
+pub const HEADER_TIMEOUT_MS: u64 = 5_000;
+/// The default `idle_timeout_s`.
+pub const IDLE_TIMEOUT_S: u64 = 300;
+/// The default `reserve_fds`.
+pub const RESERVE_FDS: u64 = 256;
+
+impl Default for LimitsConfig {
+    fn default() -> Self {
+        LimitsConfig {
+            per_address: PER_ADDRESS,
+            header_timeout: Duration::from_millis(HEADER_TIMEOUT_MS),
+            idle_timeout: Duration::from_secs(IDLE_TIMEOUT_S),
+            reserve_fds: RESERVE_FDS,
+        }
+    }
+}
+
+/// How often refusals are logged at most (the first at once, then a count per interval).
+const LOG_EVERY: Duration = Duration::from_secs(10);
+/// How often the open descriptors are counted at most.
+const COUNT_EVERY: Duration = Duration::from_secs(1);
+
+/// Raises the soft limit of open files to the hard limit (each client is a descriptor).
+/// Returns the soft limit in force.
+pub fn raise_nofile_limit() -> std::io::Result<u64> {
+    use nix::sys::resource::{getrlimit, setrlimit, Resource};
+    let (soft, hard) = getrlimit(Resource::RLIMIT_NOFILE).map_err(std::io::Error::from)?;
+    if soft < hard {
+        setrlimit(Resource::RLIMIT_NOFILE, hard, hard).map_err(std::io::Error::from)?;
+    }
+    Ok(hard.max(soft))
+}
+
+/// The descriptors this process has open (`/proc/self/fd`); `None` where that cannot be read.
+fn open_fds() -> Option<u64> {
+    Some(std::fs::read_dir("/proc/self/fd").ok()?.count() as u64)
+}
+
+/// The process's descriptor budget, shared by every listener.
+struct Descriptors {
+    /// The soft limit.
+    limit: u64,
+    /// Open at the last count, and when that was.
+    counted: Mutex<(u64, Option<Instant>)>,
+    /// Connections admitted since the last count.
+    since: AtomicU64,
+}
+
+impl Descriptors {
+    /// How many are open now, at most: the last count (taken again when a second old) and the
+    /// connections admitted since.
+    fn open(&self) -> u64 {
+        let mut c = self.counted.lock().unwrap_or_else(|p| p.into_inner());
+        if c.1.map_or(true, |at| at.elapsed() >= COUNT_EVERY) {
+            if let Some(n) = open_fds() {
+                *c = (n, Some(Instant::now()));
+                self.since.store(0, Ordering::Relaxed);
+            }
+        }
+        c.0 + self.since.load(Ordering::Relaxed)
+    }
+}
+
+/// The limits of the whole gateway; [`Limits::listener`] gives each listener its own count.
+pub struct Limits {
+    config: LimitsConfig,
+    fds: Arc<Descriptors>,
+}
+
+impl Limits {
+    /// Limits of `config`. Raises the soft descriptor limit to the hard limit first (a warning
+    /// when it cannot).
+    pub fn new(config: LimitsConfig) -> Limits {
+        let limit = match raise_nofile_limit() {
+            Ok(n) => n,
+            Err(e) => {
+                crate::log::warn(&format!("cannot raise the open files limit: {e}"));
+                u64::MAX
+            }
+        };
+        let fds = Descriptors { limit, counted: Mutex::new((0, None)), since: AtomicU64::new(0) };
+        Limits { config, fds: Arc::new(fds) }
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &LimitsConfig {
+        &self.config
+    }
+
+    /// The accounting of listener `name` (`HTTP`, `Modbus TCP`, `the bridge to line-1`).
+    pub fn listener(&self, name: &str) -> Arc<Listener> {
+        Arc::new(Listener {
+            name: name.to_string(),
+            config: self.config.clone(),
+            fds: self.fds.clone(),
+            by_address: Mutex::new(HashMap::new()),
+            refused: Mutex::new(Refusals::default()),
+        })
+    }
+}
+
+/// Refusals since the last log line.
+#[derive(Default)]
+struct Refusals {
+    logged: Option<Instant>,
+    count: u64,
+    last: String,
+}
+
+/// One listener's connections by address.
+pub struct Listener {
+    name: String,
+    config: LimitsConfig,
+    fds: Arc<Descriptors>,
+    by_address: Mutex<HashMap<IpAddr, usize>>,
+    refused: Mutex<Refusals>,
+}
+
+impl Listener {
+    /// Admits a connection from `ip`, or refuses it (logged at a bounded rate): the returned
+    /// [`Permit`] holds its place until dropped.
+    pub fn admit(self: &Arc<Self>, ip: IpAddr) -> Option<Permit> {
+        let ip = canonical(ip);
+        let why = {
+            let mut m = self.by_address.lock().unwrap_or_else(|p| p.into_inner());
+            let n = m.entry(ip).or_insert(0);
+            if *n >= self.config.per_address {
+                Some(format!(
+                    "{ip} has {n} connections open ([limits] per_address = {})",
+                    self.config.per_address
+                ))
+            } else {
+                *n += 1;
+                None
+            }
+        };
+        let why = why.or_else(|| {
+            let open = self.fds.open();
+            let room = self.fds.limit.saturating_sub(self.config.reserve_fds);
+            (open >= room).then(|| {
+                self.release(ip);
+                format!(
+                    "{open} descriptors open of {} ([limits] reserve_fds = {} kept for the other listeners and the buses)",
+                    self.fds.limit, self.config.reserve_fds
+                )
+            })
+        });
+        match why {
+            Some(why) => {
+                self.refused(why);
+                None
+            }
+            None => {
+                self.fds.since.fetch_add(1, Ordering::Relaxed);
+                Some(Permit { listener: self.clone(), ip })
+            }
+        }
+    }
+
+    /// Connections open from `ip` now.
+    pub fn open_from(&self, ip: IpAddr) -> usize {
+        self.by_address.lock().unwrap_or_else(|p| p.into_inner()).get(&canonical(ip)).copied().unwrap_or(0)
+    }
+
+    fn release(&self, ip: IpAddr) {
+        let mut m = self.by_address.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(n) = m.get_mut(&ip) {
+            *n -= 1;
+            if *n == 0 {
+                m.remove(&ip);
+            }
+        }
+    }
+
+    /// Logs a refusal: the first at once, then at most one line per [`LOG_EVERY`] with the count.
+    fn refused(&self, why: String) {
+        let mut r = self.refused.lock().unwrap_or_else(|p| p.into_inner());
+        r.count += 1;
+        r.last = why;
+        if r.logged.map_or(true, |at| at.elapsed() >= LOG_EVERY) {
+            let n = r.count;
+            crate::log::warn(&format!(
+                "{}: refused {n} connection{} in the last {} s; the last: {}",
+                self.name,
+                if n == 1 { "" } else { "s" },
+                LOG_EVERY.as_secs(),
+                r.last
+            ));
+            r.count = 0;
+            r.logged = Some(Instant::now());
+        }
+    }
+}
+
+/// A connection's place on its listener; given back when dropped.
+pub struct Permit {
+    listener: Arc<Listener>,
+    ip: IpAddr,
+}
+
+impl Drop for Permit {
+    fn drop(&mut self) {
+        self.listener.release(self.ip);
+    }
+}
+
+/// An IPv4-mapped IPv6 address as IPv4 (one client, one count).
+pub fn canonical(ip: IpAddr) -> IpAddr {
+    match ip {
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
+        v4 => v4,
+    }
+}
+
+/// Reads from `stream` into `buf`, waiting at most `wait` (for ever when zero): `None` when
+/// nothing came in time.
+pub async fn read_within<S: AsyncRead + Unpin>(
+    stream: &mut S,
+    buf: &mut [u8],
+    wait: Duration,
+) -> std::io::Result<Option<usize>> {
+    use tokio::io::AsyncReadExt;
+    if wait.is_zero() {
+        return stream.read(buf).await.map(Some);
+    }
+    match tokio::time::timeout(wait, stream.read(buf)).await {
+        Ok(r) => r.map(Some),
+        Err(_) => Ok(None),
+    }
+}
+
+/// A byte stream that notes when anything went through it either way, for idle timeouts.
+pub struct Activity<S> {
+    inner: S,
+    last: Arc<AtomicU64>,
+    start: Instant,
+}
+
+impl<S> Activity<S> {
+    /// Wraps `inner`; [`Activity::idle`] watches it.
+    pub fn new(inner: S) -> Self {
+        Activity { inner, last: Arc::new(AtomicU64::new(0)), start: Instant::now() }
+    }
+
+    fn touch(&self) {
+        self.last.store(self.start.elapsed().as_millis() as u64, Ordering::Relaxed);
+    }
+
+    /// A future that ends once nothing went through the stream for `timeout` (never when zero).
+    pub fn idle(&self, timeout: Duration) -> impl std::future::Future<Output = ()> + Send + 'static {
+        let (last, start) = (self.last.clone(), self.start);
+        async move {
+            if timeout.is_zero() {
+                return std::future::pending().await;
+            }
+            loop {
+                let at = start + Duration::from_millis(last.load(Ordering::Relaxed)) + timeout;
+                if Instant::now() >= at {
+                    return;
+                }
+                tokio::time::sleep_until(at).await;
+            }
+        }
+    }
+}
+
+impl<S: AsyncRead + Unpin> AsyncRead for Activity<S> {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let r = Pin::new(&mut self.inner).poll_read(cx, buf);
+        if matches!(r, Poll::Ready(Ok(()))) && buf.filled().len() > before {
+            self.touch();
+        }
+        r
+    }
+}
+
+impl<S: AsyncWrite + Unpin> AsyncWrite for Activity<S> {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        data: &[u8],
+    ) -> Poll<std::io::Result<usize>> {
+        let r = Pin::new(&mut self.inner).poll_write(cx, data);
+        if matches!(r, Poll::Ready(Ok(n)) if n > 0) {
+            self.touch();
+        }
+        r
+    }
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_address_gets_its_share_and_gives_it_back() {
+        let limits = Limits::new(LimitsConfig { per_address: 2, ..LimitsConfig::default() });
+        let l = limits.listener("test");
+        let a: IpAddr = "127.0.0.2".parse().unwrap();
+        let b: IpAddr = "::ffff:127.0.0.3".parse().unwrap();
+        let p1 = l.admit(a).unwrap();
+        let _p2 = l.admit(a).unwrap();
+        assert!(l.admit(a).is_none(), "a third connection from one address");
+        assert!(l.admit(b).is_some(), "another address is served");
+        drop(p1);
+        assert_eq!(l.open_from(a), 1);
+        assert!(l.admit(a).is_some());
+    }
+
+    #[test]
+    fn no_connection_within_the_reserve() {
+        let limits = Limits::new(LimitsConfig { reserve_fds: u64::MAX, ..LimitsConfig::default() });
+        let l = limits.listener("test");
+        assert!(l.admit("127.0.0.2".parse().unwrap()).is_none());
+        assert_eq!(l.open_from("127.0.0.2".parse().unwrap()), 0, "a refusal holds no place");
+    }
+}

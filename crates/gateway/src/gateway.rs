@@ -24,6 +24,7 @@ use tokio::sync::{broadcast, Notify};
 
 use crate::config::{BusConfig, DriveConfig, GatewayConfig, Port};
 use crate::port::{sim_link, virtual_line, PortLink};
+use crate::refusals::{Refused, Refusals, Seen};
 
 /// Unix time now, ms.
 pub fn unix_ms() -> i64 {
@@ -469,6 +470,8 @@ pub struct Gateway {
     pub counters: Counters,
     log_events: AtomicBool,
     health: crate::health::Health,
+    /// Refused writes counted per client and reason ([`Gateway::audit_refusal`]).
+    refusals: Mutex<Refusals>,
 }
 
 impl Gateway {
@@ -485,6 +488,7 @@ impl Gateway {
             counters: Counters::default(),
             log_events: AtomicBool::new(false),
             health: crate::health::Health::default(),
+            refusals: Mutex::new(Refusals::default()),
         });
         let topo = gw.topology();
         gw.record(Event {
@@ -502,6 +506,7 @@ impl Gateway {
             tokio::spawn(gw.clone().poll_bus(b.clone()));
         }
         tokio::spawn(gw.clone().publish_buses());
+        tokio::spawn(gw.clone().close_refusal_windows());
         Ok(gw)
     }
 
@@ -809,11 +814,49 @@ impl Gateway {
     }
 
     /// Records a write that was refused before it became a command (a client not allowed to
-    /// write, a read-only listener, a locked drive), so the audit trail shows every attempt.
+    /// write, a read-only listener, a locked drive, a malformed MQTT command), so the audit
+    /// trail shows every attempt. `why` starts with the reason's kind (`forbidden: ...`). The
+    /// first refusal of a (client, reason) is written at once; repeats within a minute are
+    /// counted and written as one event when the minute is over ([`crate::refusals`]).
     pub async fn audit_refusal(self: &Arc<Self>, id: &str, actor: &str, action: &str, why: &str) {
-        let bus = self.drive(id).ok().map(|d| d.bus.clone());
         self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
-        self.audit(bus, id, actor, action, why.to_string()).await;
+        let id = crate::display::shown(id);
+        let sample = Refused { drive: id.clone(), action: action.to_string(), why: why.to_string() };
+        let client = crate::refusals::client_of(actor);
+        let seen = self
+            .refusals
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .refused(tokio::time::Instant::now(), &client, sample);
+        if seen == Seen::First {
+            let bus = self.drive(&id).ok().map(|d| d.bus.clone());
+            self.audit(bus, &id, actor, action, why.to_string()).await;
+        }
+    }
+
+    /// Writes the refusals counted over windows that closed: one event per client and reason.
+    async fn close_refusal_windows(self: Arc<Self>) {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tick.tick().await;
+            let due = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).due(tokio::time::Instant::now());
+            for s in due {
+                let bus = self.drive(&s.sample.drive).ok().map(|d| d.bus.clone());
+                self.record_async(Event {
+                    id: 0,
+                    time_ms: unix_ms(),
+                    kind: EventKind::Command,
+                    bus,
+                    drive: Some(s.sample.drive.clone()),
+                    actor: Some(s.client.clone()),
+                    action: Some(s.sample.action.clone()),
+                    result: Some(s.result()),
+                    detail: json!({ "repeated": s.count, "reason": s.reason, "window_s": s.window.as_secs() }),
+                })
+                .await;
+            }
+        }
     }
 
     async fn execute(&self, d: &DriveEntry, command: &Command) -> Result<(), CommandError> {

@@ -24,6 +24,7 @@
 
 pub mod bridge;
 pub mod config;
+pub mod display;
 pub mod gateway;
 pub mod health;
 pub mod http;
@@ -34,6 +35,7 @@ pub mod modbus_tcp;
 pub mod mqtt;
 pub mod opcua;
 pub mod port;
+pub mod refusals;
 pub mod reload;
 pub mod server;
 pub mod sparkplug;

@@ -118,10 +118,4 @@ impl IntoResponse for ApiError {
     }
 }
 
-/// The first `max` characters of `text` to show in a message, and `"..."` when it was cut.
-pub(crate) fn cut(text: &str, max: usize) -> (&str, &'static str) {
-    match text.char_indices().nth(max) {
-        Some((at, _)) => (&text[..at], "..."),
-        None => (text, ""),
-    }
-}
+pub(crate) use crate::display::cut;

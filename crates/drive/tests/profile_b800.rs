@@ -5,7 +5,9 @@
 use std::time::Duration;
 
 use drivebus_drive::profile::b800::B800Profile;
-use drivebus_drive::profile::{DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step};
+use drivebus_drive::profile::{
+    CodeSpace, DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step,
+};
 use drivebus_drive::{Family, Storage};
 use drivebus_proto::b800::FrameScanner;
 use drivebus_proto::line::CharFormat;
@@ -109,7 +111,7 @@ fn set_f12(line: &mut VirtualLine, port: usize, value: i64) {
 }
 
 fn refused(code: u32, meaning: &str) -> DriveError {
-    DriveError::Refused { code, meaning: meaning.to_string() }
+    DriveError::Refused { code, space: CodeSpace::B800Error, meaning: meaning.to_string() }
 }
 
 #[test]
@@ -229,7 +231,7 @@ fn reverse_needs_f12_host_run_stop_and_a_running_drive() {
     run(&mut line, &b, Operation::Run);
     let (e, sent) = fail(&mut line, &b, Operation::Reverse);
     assert!(
-        matches!(e, DriveError::Refused { code: 0x93, ref meaning } if meaning.contains("F-12 = 2")),
+        matches!(e, DriveError::Refused { code: 0x93, ref meaning, .. } if meaning.contains("F-12 = 2")),
         "{e}"
     );
     assert_eq!(sent, "TR");

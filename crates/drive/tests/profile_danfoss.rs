@@ -4,7 +4,7 @@
 use std::time::Duration;
 
 use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
-use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
+use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
 use drivebus_drive::Storage;
 use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
@@ -100,7 +100,7 @@ fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveMode
 
 fn refusal(result: Result<Outcome, DriveError>) -> (u32, String) {
     match result {
-        Err(DriveError::Refused { code, meaning }) => (code, meaning),
+        Err(DriveError::Refused { code, meaning, .. }) => (code, meaning),
         other => panic!("a refusal, not {other:?}"),
     }
 }
@@ -447,10 +447,20 @@ fn parameter_refusals() {
     run(&mut line, &fc, Operation::SetSpeed(10.0));
     run(&mut line, &fc, Operation::Run);
     let (result, _) = execute(&mut line, fc.plan(&write("1-23", 60, Storage::Ram)).expect("plan"));
-    assert_eq!(result, Err(DriveError::Refused { code: 17, meaning: "not while running".into() }));
+    assert_eq!(
+        result,
+        Err(DriveError::Refused { code: 17, space: CodeSpace::FcFault, meaning: "not while running".into() })
+    );
     // And fault 2 from the drive's own check: 8-31 above 126 with the FC protocol.
     let (result, _) = execute(&mut line, fc.plan(&write("8-31", 200, Storage::Ram)).expect("plan"));
-    assert_eq!(result, Err(DriveError::Refused { code: 2, meaning: "upper or lower limit exceeded".into() }));
+    assert_eq!(
+        result,
+        Err(DriveError::Refused {
+            code: 2,
+            space: CodeSpace::FcFault,
+            meaning: "upper or lower limit exceeded".into()
+        })
+    );
 }
 
 #[test]

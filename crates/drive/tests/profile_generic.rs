@@ -111,7 +111,7 @@ fn drive_mut(line: &mut VirtualLine, port: usize) -> &mut dyn VirtualDrive {
 
 fn refused_code(r: Result<Outcome, DriveError>) -> u32 {
     match r {
-        Err(DriveError::Refused { code, meaning }) => {
+        Err(DriveError::Refused { code, meaning, .. }) => {
             assert!(!meaning.is_empty());
             code
         }
@@ -190,7 +190,7 @@ fn run_while_tripped_is_refused_with_03_and_reset_clears_the_fault() {
     assert_eq!(fault.text, "external fault");
 
     match rtu(&mut line, &p, Operation::Run) {
-        Err(DriveError::Refused { code, meaning }) => {
+        Err(DriveError::Refused { code, meaning, .. }) => {
             assert_eq!(code, 3);
             assert!(meaning.starts_with("data content error (资料内容错误。资料内容超限)"), "{meaning}");
             assert!(meaning.contains("06 write of 0001H to 2000H"), "{meaning}");

@@ -137,7 +137,7 @@ fn write(name: &str, raw: i64, storage: Storage) -> Operation {
 
 fn refusal(r: Result<Outcome, DriveError>) -> (u32, String) {
     match r {
-        Err(DriveError::Refused { code, meaning }) => (code, meaning),
+        Err(DriveError::Refused { code, meaning, .. }) => (code, meaning),
         other => panic!("expected a refusal, got {other:?}"),
     }
 }

@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use drivebus_drive::profile::{DriveError, DriveStatus};
+use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_link::drive::{Drive, Error as LinkError};
 use drivebus_link::owner::{Bus, BusConfig as OwnerConfig, BusError, BusStats};
@@ -86,7 +86,9 @@ impl Command {
     }
 }
 
-/// Why a command or parameter read was not done.
+/// What happened to a command or parameter read that was not done: the core's typed outcome.
+/// Each front end says it in its own words (HTTP status in `http::error`, Modbus exception in
+/// `modbus_tcp`, OPC UA status in `opcua::manager`, the MQTT result's `kind`).
 #[derive(Debug)]
 pub enum CommandError {
     /// No drive has that id.
@@ -99,10 +101,10 @@ pub enum CommandError {
     Refused {
         /// The drive's code.
         code: u32,
+        /// Which of the manual's lists the code belongs to.
+        space: CodeSpace,
         /// The manual's meaning.
         meaning: String,
-        /// Whether the code is a Modbus exception code (passed through to Modbus clients).
-        modbus: bool,
     },
     /// The operation does not exist for this drive.
     Unsupported(String),
@@ -119,7 +121,7 @@ impl std::fmt::Display for CommandError {
         match self {
             CommandError::UnknownDrive(id) => {
                 // A name is short; a client that sends a page of text gets its start back.
-                let (shown, more) = crate::http::error::cut(id, 64);
+                let (shown, more) = crate::text::cut(id, 64);
                 write!(f, "no drive {shown:?}{more}: GET /api/drives lists them")
             }
             CommandError::Locked(id) => {
@@ -152,38 +154,13 @@ impl CommandError {
             CommandError::Protocol(_) => "protocol",
         }
     }
+}
 
-    /// The HTTP status that says what happened.
-    pub fn http_status(&self) -> u16 {
-        match self {
-            CommandError::UnknownDrive(_) => 404,
-            CommandError::Locked(_) => 423,
-            CommandError::Invalid(_) => 422,
-            CommandError::Refused { .. } => 409,
-            CommandError::Unsupported(_) => 422,
-            CommandError::NoAnswer(_) => 504,
-            CommandError::LinkDown(_) => 503,
-            CommandError::Protocol(_) => 502,
-        }
-    }
-
-    /// The Modbus exception code that says what happened (docs/register-map.md).
-    pub fn modbus_exception(&self) -> u8 {
-        match self {
-            CommandError::UnknownDrive(_) => 0x0B,
-            CommandError::Locked(_) | CommandError::Unsupported(_) => 0x01,
-            CommandError::Invalid(_) => 0x03,
-            CommandError::Refused { code, modbus: true, .. } if *code > 0 && *code <= 0xFF => *code as u8,
-            CommandError::Refused { .. } | CommandError::Protocol(_) => 0x04,
-            CommandError::NoAnswer(_) => 0x0B,
-            CommandError::LinkDown(_) => 0x0A,
-        }
-    }
-
-    fn from_link(e: LinkError, modbus: bool) -> Self {
+impl From<LinkError> for CommandError {
+    fn from(e: LinkError) -> Self {
         match e {
-            LinkError::Drive(DriveError::Refused { code, meaning }) => {
-                CommandError::Refused { code, meaning, modbus }
+            LinkError::Drive(DriveError::Refused { code, space, meaning }) => {
+                CommandError::Refused { code, space, meaning }
             }
             LinkError::Drive(DriveError::OutOfRange(s)) => CommandError::Invalid(s),
             LinkError::Drive(DriveError::Unsupported(s)) => CommandError::Unsupported(s),
@@ -820,7 +797,7 @@ impl Gateway {
     /// counted and written as one event when the minute is over ([`crate::refusals`]).
     pub async fn audit_refusal(self: &Arc<Self>, id: &str, actor: &str, action: &str, why: &str) {
         self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
-        let id = crate::display::shown(id);
+        let id = crate::text::shown(id);
         let sample = Refused { drive: id.clone(), action: action.to_string(), why: why.to_string() };
         let client = crate::refusals::client_of(actor);
         let seen = self
@@ -860,8 +837,7 @@ impl Gateway {
     }
 
     async fn execute(&self, d: &DriveEntry, command: &Command) -> Result<(), CommandError> {
-        let modbus = d.protocol.starts_with("modbus");
-        let map = |e| CommandError::from_link(e, modbus);
+        let map = CommandError::from;
         match command {
             Command::Run => d.command.run().await.map_err(map)?,
             Command::Stop => d.command.stop().await.map_err(map)?,
@@ -893,8 +869,7 @@ impl Gateway {
     /// Reads parameter `name` of drive `id` from the drive (through the bus owner, ahead of polls).
     pub async fn read_param(&self, id: &str, name: &str) -> Result<ParamReading, CommandError> {
         let d = self.drive(id)?;
-        let modbus = d.protocol.starts_with("modbus");
-        let (raw, def) = d.command.read_param(name).await.map_err(|e| CommandError::from_link(e, modbus))?;
+        let (raw, def) = d.command.read_param(name).await?;
         Ok(ParamReading {
             name: def.name.clone(),
             title: def.title.clone(),

@@ -24,7 +24,6 @@
 
 pub mod bridge;
 pub mod config;
-pub mod display;
 pub mod gateway;
 pub mod health;
 pub mod http;
@@ -39,6 +38,7 @@ pub mod refusals;
 pub mod reload;
 pub mod server;
 pub mod sparkplug;
+pub mod text;
 
 pub use config::GatewayConfig;
 pub use gateway::{Command, CommandError, Gateway};

@@ -153,7 +153,7 @@ impl Refusals {
 /// write`), at most 32 characters.
 pub fn reason_of(why: &str) -> &str {
     let kind = why.split_once(':').map_or(why, |(k, _)| k).trim();
-    crate::display::cut(kind, 32).0
+    crate::text::cut(kind, 32).0
 }
 
 /// Who a refusal is counted for: the actor without its port (`modbus:127.0.0.2` for
@@ -164,7 +164,7 @@ pub fn client_of(actor: &str) -> String {
             return format!("{scheme}:{}", a.ip());
         }
     }
-    crate::display::cut(actor, 128).0.to_string()
+    crate::text::cut(actor, 128).0.to_string()
 }
 
 #[cfg(test)]

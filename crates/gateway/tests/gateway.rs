@@ -59,14 +59,14 @@ async fn refusals_say_why() {
     settle(2).await;
     let e = gw.command("pump-3", Command::Run, "test").await.unwrap_err();
     assert!(matches!(e, CommandError::Locked(_)), "{e}");
-    assert_eq!(e.modbus_exception(), 0x01);
+    assert_eq!(drivebus_gateway::modbus_tcp::exception_of(&e), 0x01);
     let e = gw.command("nobody", Command::Run, "test").await.unwrap_err();
-    assert_eq!(e.http_status(), 404);
+    assert_eq!(drivebus_gateway::http::error::status_of(&e).as_u16(), 404);
     let e = gw.command("fan-1", Command::Speed(500.0), "test").await.unwrap_err();
     assert!(matches!(e, CommandError::Invalid(_)), "{e}");
-    assert_eq!(e.modbus_exception(), 0x03);
+    assert_eq!(drivebus_gateway::modbus_tcp::exception_of(&e), 0x03);
     let e = gw.command("fan-1", Command::Speed(f64::NAN), "test").await.unwrap_err();
-    assert_eq!(e.http_status(), 422);
+    assert_eq!(drivebus_gateway::http::error::status_of(&e).as_u16(), 422);
 }
 
 #[tokio::test(start_paused = true)]
@@ -95,7 +95,7 @@ async fn parameters_read_from_the_drive() {
         .unwrap();
     assert_eq!(gw.read_param("ahu-1", "4-14").await.unwrap().value, 55.0);
     let e = gw.read_param("ahu-1", "99-99").await.unwrap_err();
-    assert_eq!(e.http_status(), 422, "{e}");
+    assert_eq!(drivebus_gateway::http::error::status_of(&e).as_u16(), 422, "{e}");
 }
 
 #[test]

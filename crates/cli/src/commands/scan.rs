@@ -207,7 +207,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                     false,
                 ),
                 // A refusal is an answer: something with this address speaks the protocol.
-                Err(Error::Drive(DriveError::Refused { code, meaning })) => {
+                Err(Error::Drive(DriveError::Refused { code, meaning, .. })) => {
                     (format!("answers (refused status: {code}, {meaning})"), true)
                 }
                 Err(Error::Drive(DriveError::Protocol(e))) => (format!("answers oddly: {e}"), false),

@@ -42,7 +42,7 @@ use drivebus_proto::b800::{
     Address, Destination, DriveState, ErrorCode, MasterCommand, Reply, Request, SlaveReply, Speed, MAX_FRAME,
 };
 
-use super::{DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
 use crate::{Catalog, Family, ParamDef};
 
 /// The codec name of the B800 protocol.
@@ -66,6 +66,7 @@ pub fn trip_text(code: u8) -> Option<&'static str> {
 fn refused(code: ErrorCode) -> DriveError {
     DriveError::Refused {
         code: u32::from(code.0),
+        space: CodeSpace::B800Error,
         meaning: code.meaning().unwrap_or("not in the seed's error list").to_string(),
     }
 }
@@ -404,6 +405,7 @@ impl B800Plan {
             // The drive said no: a refusal (exit 1 on the command line), with what to change.
             (Purpose::Reverse, ErrorCode::RUNNING) => Err(DriveError::Refused {
                 code: u32::from(code.0),
+                space: CodeSpace::B800Error,
                 meaning:
                     "running: command cannot be carried out; the drive is in keypad mode (F-12 = 1), and \
                           the B800 protocol reverses a running drive only with F-12 = 2"
@@ -411,6 +413,7 @@ impl B800Plan {
             }),
             (Purpose::Reset, ErrorCode::TRIPPED) => Err(DriveError::Refused {
                 code: u32::from(code.0),
+                space: CodeSpace::B800Error,
                 meaning: "tripped: the trip is still in force after S, its cause persists".to_string(),
             }),
             _ => Err(refused(code)),

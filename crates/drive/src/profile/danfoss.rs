@@ -80,7 +80,7 @@ use drivebus_proto::fc::{
     Request, StatusWord, MAX_TELEGRAM,
 };
 
-use super::{DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
 use crate::{Catalog, Family, ParamDef, Size, Storage};
 
 /// The codec name of the FC protocol.
@@ -883,7 +883,11 @@ impl FcPlan {
         if p.ak == ParameterResponse::CannotPerform {
             let code = FaultCode(p.pwe_low());
             let meaning = code.meaning().unwrap_or("not in the FC fault table");
-            return Err(DriveError::Refused { code: u32::from(code.0), meaning: meaning.to_string() });
+            return Err(DriveError::Refused {
+                code: u32::from(code.0),
+                space: CodeSpace::FcFault,
+                meaning: meaning.to_string(),
+            });
         }
         if p.pnu.pnu() != pnu {
             return Err(DriveError::Protocol(format!(
@@ -984,6 +988,7 @@ impl FcPlan {
 fn no_bus_control(stw: StatusWord) -> DriveError {
     DriveError::Refused {
         code: u32::from(stw.0),
+        space: CodeSpace::StatusWord,
         meaning: format!(
             "the drive ignores the bus control word: status word {stw} has bit 09 \"bus control\" = 0 \
              (8-02 Control Source, 8-01 Control Site)"
@@ -1000,11 +1005,17 @@ fn refused(refusal: Refusal, alarm: Option<u32>) -> DriveError {
     match alarm {
         Some(alarm) => {
             let fault = alarm_fault(alarm);
-            DriveError::Refused { code: alarm, meaning: format!("{what} (alarm {alarm}: {})", fault.text) }
+            DriveError::Refused {
+                code: alarm,
+                space: CodeSpace::Trip,
+                meaning: format!("{what} (alarm {alarm}: {})", fault.text),
+            }
         }
-        None => {
-            DriveError::Refused { code: u32::from(stw.0), meaning: format!("{what} (status word {stw})") }
-        }
+        None => DriveError::Refused {
+            code: u32::from(stw.0),
+            space: CodeSpace::StatusWord,
+            meaning: format!("{what} (status word {stw})"),
+        },
     }
 }
 

@@ -40,7 +40,7 @@ use std::sync::Arc;
 
 use drivebus_proto::modbus::{ExceptionCode, Reply, ReplyPdu, Request, UnitId};
 
-use super::{DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
 use crate::{format_fixed, Catalog, Family, ParamDef, Size, Storage};
 
 pub use crate::registers::generic::{command, reg, status};
@@ -619,6 +619,7 @@ impl GenericPlan {
         match self.framing.decode(self.unit, ask, bytes)? {
             ModbusAnswer::Exception(code) => Err(DriveError::Refused {
                 code: u32::from(code),
+                space: CodeSpace::ModbusException,
                 meaning: format!("{} (in reply to the {ask}: {})", exception_meaning(code), self.job.what()),
             }),
             answer => Ok(answer),

@@ -118,6 +118,38 @@ pub enum Step {
     Done(Outcome),
 }
 
+/// Which of the manual's lists a refusal's code belongs to: a front end passes a Modbus exception
+/// through to Modbus clients and names the others.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CodeSpace {
+    /// A Modbus exception code (01 illegal function, 02 illegal address, 03 illegal value, ...).
+    ModbusException,
+    /// A TOSHIBA Inverter Protocol error code (ASCII or binary mode).
+    ToshibaError,
+    /// A Danfoss FC fault code (the PWE of an AK = 7 reply).
+    FcFault,
+    /// A B800 error code (the `e` reply).
+    B800Error,
+    /// The drive's trip or alarm number (Toshiba FC90, Danfoss alarm log).
+    Trip,
+    /// A status word the refusal was read from (Danfoss FC profile).
+    StatusWord,
+}
+
+impl CodeSpace {
+    /// A short name for JSON and the audit trail.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            CodeSpace::ModbusException => "modbus_exception",
+            CodeSpace::ToshibaError => "toshiba_error",
+            CodeSpace::FcFault => "fc_fault",
+            CodeSpace::B800Error => "b800_error",
+            CodeSpace::Trip => "trip",
+            CodeSpace::StatusWord => "status_word",
+        }
+    }
+}
+
 /// Why an operation failed, sorted by what the user can do about it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum DriveError {
@@ -125,6 +157,8 @@ pub enum DriveError {
     Refused {
         /// The code as the drive sent it.
         code: u32,
+        /// Which of the manual's lists the code belongs to.
+        space: CodeSpace,
         /// What it means, from the manual.
         meaning: String,
     },
@@ -139,7 +173,7 @@ pub enum DriveError {
 impl fmt::Display for DriveError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            DriveError::Refused { code, meaning } => {
+            DriveError::Refused { code, meaning, .. } => {
                 write!(f, "the drive refused: code {code:#04X}, {meaning}")
             }
             DriveError::OutOfRange(s) | DriveError::Unsupported(s) | DriveError::Protocol(s) => {

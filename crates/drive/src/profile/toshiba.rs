@@ -61,7 +61,7 @@ use drivebus_proto::toshiba::{Cmd, CommNo, Command1, ErrorCode, Status1};
 use super::generic::{
     checked_write, raw_of, register_of, ModbusAnswer, ModbusAsk, ModbusFraming, SpeedLimits,
 };
-use super::{DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
 use crate::{format_fixed, Catalog, Family, ParamDef, Storage};
 
 /// The address that makes a TIP profile a broadcast (`**` in ASCII mode, FF in binary mode).
@@ -562,6 +562,7 @@ impl Link {
         };
         let tip_refusal = |code: ErrorCode| DriveError::Refused {
             code: u32::from(code.0),
+            space: CodeSpace::ToshibaError,
             meaning: format!("{} (in reply to the {ask}: {what})", tip_error_meaning(code.0)),
         };
         match self.protocol {
@@ -576,6 +577,7 @@ impl Link {
                     ModbusAnswer::Written => Ok(Answer::Data { value: written.unwrap_or(0), tripped: false }),
                     ModbusAnswer::Exception(code) => Err(DriveError::Refused {
                         code: u32::from(code),
+                        space: CodeSpace::ModbusException,
                         meaning: format!("{} (in reply to the {m}: {what})", modbus_exception_meaning(code)),
                     }),
                 }
@@ -759,7 +761,7 @@ fn tripped_refusal(code: u16, after_reset: bool) -> DriveError {
             trip_text(code)
         )
     };
-    DriveError::Refused { code: u32::from(code), meaning }
+    DriveError::Refused { code: u32::from(code), space: CodeSpace::Trip, meaning }
 }
 
 impl ToshibaPlan {

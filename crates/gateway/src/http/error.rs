@@ -7,6 +7,7 @@ use axum::Json;
 use serde_json::json;
 
 use crate::gateway::CommandError;
+use crate::text::cut;
 
 /// An error answer: status, kind and a one-line message naming the problem.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -100,10 +101,22 @@ impl std::fmt::Display for ApiError {
     }
 }
 
+/// The HTTP status that says what happened to a command or parameter read.
+pub fn status_of(e: &CommandError) -> StatusCode {
+    match e {
+        CommandError::UnknownDrive(_) => StatusCode::NOT_FOUND,
+        CommandError::Locked(_) => StatusCode::LOCKED,
+        CommandError::Invalid(_) | CommandError::Unsupported(_) => StatusCode::UNPROCESSABLE_ENTITY,
+        CommandError::Refused { .. } => StatusCode::CONFLICT,
+        CommandError::NoAnswer(_) => StatusCode::GATEWAY_TIMEOUT,
+        CommandError::LinkDown(_) => StatusCode::SERVICE_UNAVAILABLE,
+        CommandError::Protocol(_) => StatusCode::BAD_GATEWAY,
+    }
+}
+
 impl From<CommandError> for ApiError {
     fn from(e: CommandError) -> Self {
-        let status = StatusCode::from_u16(e.http_status()).unwrap_or(StatusCode::INTERNAL_SERVER_ERROR);
-        ApiError::new(status, e.kind(), e.to_string())
+        ApiError::new(status_of(&e), e.kind(), e.to_string())
     }
 }
 
@@ -117,5 +130,3 @@ impl IntoResponse for ApiError {
         r
     }
 }
-
-pub(crate) use crate::display::cut;

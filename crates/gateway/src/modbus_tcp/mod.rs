@@ -18,6 +18,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+use drivebus_drive::profile::CodeSpace;
 use drivebus_drive::{format_fixed, ParamDef};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -486,7 +487,7 @@ impl Server {
         }
         for i in first..=last {
             let name = &catalog.params()[i].name;
-            let reading = self.gw.read_param(&d.config.name, name).await.map_err(|e| e.modbus_exception())?;
+            let reading = self.gw.read_param(&d.config.name, name).await.map_err(|e| exception_of(&e))?;
             let bits = reading.raw as i32 as u32;
             if i != first || first_high {
                 out.extend_from_slice(&((bits >> 16) as u16).to_be_bytes());
@@ -622,10 +623,21 @@ impl Server {
     }
 
     async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), u8> {
-        self.gw
-            .command(&d.config.name, cmd, &conn.actor)
-            .await
-            .map_err(|e: CommandError| e.modbus_exception())
+        self.gw.command(&d.config.name, cmd, &conn.actor).await.map_err(|e: CommandError| exception_of(&e))
+    }
+}
+
+/// The Modbus exception code that says what happened to a command or parameter read
+/// (docs/register-map.md). A drive's own Modbus exception is passed through as it came.
+pub fn exception_of(e: &CommandError) -> u8 {
+    match e {
+        CommandError::UnknownDrive(_) => 0x0B,
+        CommandError::Locked(_) | CommandError::Unsupported(_) => 0x01,
+        CommandError::Invalid(_) => 0x03,
+        CommandError::Refused { code: code @ 1..=0xFF, space: CodeSpace::ModbusException, .. } => *code as u8,
+        CommandError::Refused { .. } | CommandError::Protocol(_) => 0x04,
+        CommandError::NoAnswer(_) => 0x0B,
+        CommandError::LinkDown(_) => 0x0A,
     }
 }
 

@@ -74,7 +74,7 @@ impl AuthManager for TokenAuth {
             None => {
                 crate::log::warn(&format!(
                     "OPC UA: login refused for user {:?}: unknown user or wrong password",
-                    crate::http::error::cut(username, 64).0
+                    crate::text::cut(username, 64).0
                 ));
                 Err(Error::new(StatusCode::BadUserAccessDenied, "unknown user or wrong password"))
             }

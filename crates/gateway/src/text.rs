@@ -1,8 +1,4 @@
-//! User values in messages, logs and the audit trail: cut to a length that is still readable,
-//! so that a client sending a page of text gets one line back, and the log one line too.
-
-/// Most characters of a user value shown by [`shown`].
-pub const SHOWN_CHARS: usize = 64;
+//! How a user's text is shown back in messages, logs and the audit trail.
 
 /// The first `max` characters of `text` to show in a message, and `"..."` when it was cut.
 pub fn cut(text: &str, max: usize) -> (&str, &'static str) {
@@ -11,6 +7,9 @@ pub fn cut(text: &str, max: usize) -> (&str, &'static str) {
         None => (text, ""),
     }
 }
+
+/// Most characters of a user value shown by [`shown`].
+pub const SHOWN_CHARS: usize = 64;
 
 /// A user value as shown in an error, a log line or an audit record: as it is when it has at
 /// most [`SHOWN_CHARS`] characters, else its first ones and `…(N bytes)` with its full length.

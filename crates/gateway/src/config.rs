@@ -17,6 +17,8 @@
 //!
 //! [store]
 //! path = "drivebus.db"
+//! retention_days = 365                  # events older are deleted (0: kept for ever)
+//! max_size_mb = 1024                    # beyond it the oldest events and trends go (0: no cap)
 //!
 //! [mqtt]                                # optional (docs/mqtt.md)
 //! url = "mqtt://127.0.0.1:1883"
@@ -103,6 +105,8 @@ pub struct GatewayConfig {
     pub modbus: ModbusConfig,
     /// Where events and trends are kept (`None`: not kept).
     pub store: Option<PathBuf>,
+    /// The store's retention and size cap (`[store] retention_days`, `max_size_mb`).
+    pub store_limits: drivebus_store::Limits,
     /// Bearer tokens.
     pub tokens: Vec<Token>,
     /// The buses.
@@ -399,12 +403,35 @@ struct FileModbus {
     max_connections: Option<Spanned<usize>>,
 }
 
-#[derive(Deserialize, Default)]
+#[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct FileStore {
     path: Option<String>,
     #[serde(default)]
     disabled: bool,
+    #[serde(default = "default_retention_days")]
+    retention_days: u64,
+    #[serde(default = "default_max_size_mb")]
+    max_size_mb: u64,
+}
+
+impl Default for FileStore {
+    fn default() -> Self {
+        FileStore {
+            path: None,
+            disabled: false,
+            retention_days: default_retention_days(),
+            max_size_mb: default_max_size_mb(),
+        }
+    }
+}
+
+fn default_retention_days() -> u64 {
+    365
+}
+
+fn default_max_size_mb() -> u64 {
+    1024
 }
 
 #[derive(Deserialize)]
@@ -1016,6 +1043,7 @@ impl GatewayConfig {
             Some(sp) => Some(sparkplug_section(&cx, sp)?),
         };
 
+        let store_limits = drivebus_store::Limits::from_days_and_mb(raw.store.retention_days, raw.store.max_size_mb);
         let store = if raw.store.disabled {
             None
         } else {
@@ -1029,6 +1057,7 @@ impl GatewayConfig {
             http,
             modbus,
             store,
+            store_limits,
             tokens,
             buses,
             linkage,
@@ -1061,6 +1090,17 @@ mod tests {
 
     fn err(text: &str) -> String {
         GatewayConfig::from_toml("plant.toml", text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn store_retention_and_size_cap() {
+        let c = GatewayConfig::from_toml("plant.toml", "").unwrap();
+        assert_eq!(c.store_limits, drivebus_store::Limits::default());
+        let c = GatewayConfig::from_toml("plant.toml", "[store]\nretention_days = 30\nmax_size_mb = 0\n").unwrap();
+        assert_eq!(c.store_limits, drivebus_store::Limits::from_days_and_mb(30, 0));
+        assert_eq!(c.store_limits.max_bytes, None);
+        let e = err("[store]\nmax_size_mb = -1\n");
+        assert!(e.starts_with("plant.toml:2: field `store.max_size_mb`"), "{e}");
     }
 
     #[test]

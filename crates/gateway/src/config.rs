@@ -8,6 +8,7 @@
 //! [http]
 //! listen = "127.0.0.1:8080"
 //! anonymous_read = false                # reads without a token
+//! hosts = ["scada.plant.local"]         # names in Host besides addresses and localhost
 //!
 //! [modbus]
 //! listen = "127.0.0.1:5020"
@@ -148,6 +149,9 @@ pub struct HttpConfig {
     pub anonymous_read: bool,
     /// Largest request body, bytes.
     pub max_body: usize,
+    /// Names the gateway is reached by (`Host` header) besides its addresses and `localhost`;
+    /// checked when `anonymous_read` is on (`crate::http::host`).
+    pub hosts: Vec<String>,
 }
 
 /// The Modbus TCP listener.
@@ -391,6 +395,8 @@ struct FileHttp {
     listen: Option<Spanned<String>>,
     anonymous_read: Option<bool>,
     max_body: Option<Spanned<usize>>,
+    #[serde(default)]
+    hosts: Vec<Spanned<String>>,
 }
 
 #[derive(Deserialize, Default)]
@@ -728,6 +734,21 @@ impl GatewayConfig {
                 }
                 Some(m) => *m.get_ref(),
                 None => 64 * 1024,
+            },
+            hosts: {
+                let mut hosts = Vec::new();
+                for h in &raw.http.hosts {
+                    let name = h.get_ref().trim();
+                    if name.is_empty() || name.contains([':', '/', ' ', '[', ']', '@']) {
+                        return cx.err(
+                            h.span(),
+                            "http.hosts",
+                            format!("{:?}: give a host name alone (scada.plant.local), without scheme or port", h.get_ref()),
+                        );
+                    }
+                    hosts.push(name.to_ascii_lowercase());
+                }
+                hosts
             },
         };
         let allow = match &raw.modbus.allow {

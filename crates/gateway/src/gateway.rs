@@ -31,6 +31,17 @@ pub fn unix_ms() -> i64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
 }
 
+/// Most characters of a message (an error, an audit result) that may quote a user's value.
+pub const MAX_MESSAGE_CHARS: usize = 512;
+
+/// The largest speed, Hz, a command may ask for; beyond it the command is refused before any
+/// drive's profile sees it (no drive runs at 100 kHz; `1e308` is not worth 309 digits).
+pub const MAX_SPEED_HZ: f64 = 100_000.0;
+
+/// Failed logins from one address in a minute after which its requests with a token get 429
+/// until the minute is over.
+pub const MAX_LOGIN_FAILURES: u64 = 10;
+
 /// A command to a drive.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Command {
@@ -66,8 +77,9 @@ impl Command {
             Command::Reverse => "reverse".into(),
             Command::Jog => "jog".into(),
             Command::Reset => "reset".into(),
-            Command::Speed(hz) => format!("speed {hz} Hz"),
+            Command::Speed(hz) => format!("speed {} Hz", crate::text::number(*hz)),
             Command::SetParam { name, value, eeprom } => {
+                let (name, value) = (crate::text::shown(name), crate::text::shown(value));
                 format!("param {name} = {value}{}", if *eeprom { " (eeprom)" } else { "" })
             }
         }
@@ -756,7 +768,7 @@ impl Gateway {
         };
         let outcome = match &result {
             Ok(()) => "ok".to_string(),
-            Err(e) => format!("{}: {e}", e.kind()),
+            Err(e) => crate::text::shown_max(&format!("{}: {e}", e.kind()), MAX_MESSAGE_CHARS),
         };
         self.audit(Some(d.bus.clone()), id, actor, &command.action(), outcome).await;
         if result.is_ok() {
@@ -797,18 +809,51 @@ impl Gateway {
     /// counted and written as one event when the minute is over ([`crate::refusals`]).
     pub async fn audit_refusal(self: &Arc<Self>, id: &str, actor: &str, action: &str, why: &str) {
         self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
-        let id = crate::text::shown(id);
-        let sample = Refused { drive: id.clone(), action: action.to_string(), why: why.to_string() };
+        self.refusal(Some(id), actor, action, why).await;
+    }
+
+    /// Records a failed login (an unknown or malformed token) from `ip` like a refusal:
+    /// audited and logged, aggregated per address ([`Gateway::login_blocked`] counts them).
+    pub async fn login_failed(self: &Arc<Self>, ip: &str, why: &str) {
+        self.refusal(None, &format!("http:{ip}"), "login", why).await;
+    }
+
+    /// Whether `ip` failed to log in [`MAX_LOGIN_FAILURES`] times in its current minute.
+    pub fn login_blocked(&self, ip: &str) -> bool {
+        let seen = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).seen(&format!("http:{ip}"), "unauthorized");
+        seen >= MAX_LOGIN_FAILURES
+    }
+
+    async fn refusal(self: &Arc<Self>, id: Option<&str>, actor: &str, action: &str, why: &str) {
+        let id = id.map(crate::text::shown);
+        let why = crate::text::shown_max(why, MAX_MESSAGE_CHARS);
+        let sample = Refused { drive: id.clone(), action: action.to_string(), why };
         let client = crate::refusals::client_of(actor);
         let seen = self
             .refusals
             .lock()
             .unwrap_or_else(|p| p.into_inner())
-            .refused(tokio::time::Instant::now(), &client, sample);
+            .refused(tokio::time::Instant::now(), &client, sample.clone());
         if seen == Seen::First {
-            let bus = self.drive(&id).ok().map(|d| d.bus.clone());
-            self.audit(bus, &id, actor, action, why.to_string()).await;
+            self.write_refusal(&sample, actor, sample.why.clone(), json!({})).await;
         }
+    }
+
+    /// A refusal (or a window's count of them) in the audit trail.
+    async fn write_refusal(self: &Arc<Self>, r: &Refused, actor: &str, result: String, detail: serde_json::Value) {
+        let bus = r.drive.as_deref().and_then(|d| self.drive(d).ok()).map(|d| d.bus.clone());
+        self.record_async(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Command,
+            bus,
+            drive: r.drive.clone(),
+            actor: Some(actor.to_string()),
+            action: Some(r.action.clone()),
+            result: Some(result),
+            detail,
+        })
+        .await;
     }
 
     /// Writes the refusals counted over windows that closed: one event per client and reason.
@@ -819,19 +864,8 @@ impl Gateway {
             tick.tick().await;
             let due = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).due(tokio::time::Instant::now());
             for s in due {
-                let bus = self.drive(&s.sample.drive).ok().map(|d| d.bus.clone());
-                self.record_async(Event {
-                    id: 0,
-                    time_ms: unix_ms(),
-                    kind: EventKind::Command,
-                    bus,
-                    drive: Some(s.sample.drive.clone()),
-                    actor: Some(s.client.clone()),
-                    action: Some(s.sample.action.clone()),
-                    result: Some(s.result()),
-                    detail: json!({ "repeated": s.count, "reason": s.reason, "window_s": s.window.as_secs() }),
-                })
-                .await;
+                let detail = json!({ "repeated": s.count, "reason": s.reason, "window_s": s.window.as_secs() });
+                self.write_refusal(&s.sample, &s.client, s.result(), detail).await;
             }
         }
     }
@@ -845,8 +879,11 @@ impl Gateway {
             Command::Jog => d.command.jog().await.map_err(map)?,
             Command::Reset => d.command.reset().await.map_err(map)?,
             Command::Speed(hz) => {
-                if !hz.is_finite() {
-                    return Err(CommandError::Invalid(format!("speed {hz} is not a number of Hz")));
+                if !hz.is_finite() || hz.abs() > MAX_SPEED_HZ {
+                    return Err(CommandError::Invalid(format!(
+                        "speed {} Hz is not a speed: give a number of Hz within ±{MAX_SPEED_HZ}",
+                        crate::text::number(*hz)
+                    )));
                 }
                 d.command.set_speed(*hz).await.map_err(map)?;
                 d.state.write().unwrap_or_else(|p| p.into_inner()).commanded_hz = Some(*hz);

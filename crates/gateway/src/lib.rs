@@ -27,6 +27,7 @@ pub mod config;
 pub mod gateway;
 pub mod health;
 pub mod http;
+pub mod json;
 pub mod log;
 pub mod metrics;
 pub mod modbus_rtu;

@@ -143,6 +143,9 @@ impl Pattern {
 pub fn parse_speed(payload: &[u8]) -> Result<f64, String> {
     let bad = || "speed wants a number of Hz: 40 or {\"hz\": 40}".to_string();
     let text = std::str::from_utf8(payload).map_err(|_| bad())?.trim();
+    if let Err(e) = crate::json::check_unique_keys(text.as_bytes()) {
+        return Err(format!("{e}: {}", bad()));
+    }
     let hz = match serde_json::from_str::<Value>(text) {
         Ok(Value::Number(n)) => n.as_f64(),
         Ok(Value::Object(o)) if o.len() == 1 => o.get("hz").and_then(Value::as_f64),
@@ -629,6 +632,7 @@ mod tests {
             b"\xff",
             b"NaN",
             b"1e999",
+            br#"{"hz":40,"hz":41}"#,
         ] {
             assert!(parse_speed(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
         }

@@ -26,8 +26,8 @@ pub const OTHER_CLIENTS: &str = "other clients";
 /// The refusal a window counts: the first one's drive, action and reason in full.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Refused {
-    /// The drive the first refused write was for.
-    pub drive: String,
+    /// The drive the first refused write was for (`None`: no drive, a failed login).
+    pub drive: Option<String>,
     /// What was refused (`modbus write of 1 register(s) at 0`, `mqtt set/run`).
     pub action: String,
     /// Why, in full (`forbidden: client 127.0.0.2 may not write ([modbus] allow)`).
@@ -143,6 +143,12 @@ impl Refusals {
         out
     }
 
+    /// Refusals of `client` for `reason` in its window open now (the first included; 0 when
+    /// none is open).
+    pub fn seen(&self, client: &str, reason: &str) -> u64 {
+        self.open.get(&(client.to_string(), reason.to_string())).map_or(0, |w| 1 + w.count)
+    }
+
     /// When the next window closes, if any is open.
     pub fn next_due(&self) -> Option<Instant> {
         self.open.values().map(|w| w.closes).min()
@@ -172,7 +178,7 @@ mod tests {
     use super::*;
 
     fn sample(why: &str) -> Refused {
-        Refused { drive: "pump-1".into(), action: "modbus write of 1 register(s) at 0".into(), why: why.into() }
+        Refused { drive: Some("pump-1".into()), action: "modbus write of 1 register(s) at 0".into(), why: why.into() }
     }
 
     const WHY: &str = "forbidden: client 127.0.0.2 may not write ([modbus] allow)";
@@ -186,6 +192,8 @@ mod tests {
         for k in 1..=1204 {
             assert_eq!(r.refused(at(k * 10), "modbus:127.0.0.2", sample(WHY)), Seen::Counted);
         }
+        assert_eq!(r.seen("modbus:127.0.0.2", "forbidden"), 1205);
+        assert_eq!(r.seen("modbus:127.0.0.2", "locked"), 0);
         // Another client, another reason: firsts of their own.
         assert_eq!(r.refused(at(0), "modbus:127.0.0.3", sample(WHY)), Seen::First);
         assert_eq!(r.refused(at(0), "modbus:127.0.0.2", sample("locked: drive \"pump-3\"")), Seen::First);

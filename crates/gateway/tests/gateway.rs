@@ -249,3 +249,21 @@ async fn repeated_refusals_are_one_audit_event_per_client_reason_and_minute() {
     drop(gw);
     let _ = std::fs::remove_file(&path);
 }
+
+/// An offline drive is still polled, and its `polls` counter keeps rising with its failed polls
+/// (issue 13, defect 10).
+#[tokio::test(start_paused = true)]
+async fn an_offline_drives_polls_keep_counting() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    settle(5).await;
+    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap().clone();
+    bus.line.as_ref().unwrap().lock().unwrap().set_silent(1, true);
+    let d = gw.drive("conveyor-1").unwrap();
+    settle(30).await;
+    let offline = gw.drive_view(&d);
+    assert_eq!(offline.online, Some(false), "{offline:?}");
+    settle(60).await;
+    let later = gw.drive_view(&d);
+    assert!(later.polls > offline.polls, "polls stopped at {} while offline", later.polls);
+    assert!(later.error_rate > offline.error_rate, "{offline:?} {later:?}");
+}

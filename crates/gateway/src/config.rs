@@ -743,7 +743,10 @@ impl GatewayConfig {
                         return cx.err(
                             h.span(),
                             "http.hosts",
-                            format!("{:?}: give a host name alone (scada.plant.local), without scheme or port", h.get_ref()),
+                            format!(
+                                "{:?}: give a host name alone (scada.plant.local), without scheme or port",
+                                h.get_ref()
+                            ),
                         );
                     }
                     hosts.push(name.to_ascii_lowercase());
@@ -1064,7 +1067,8 @@ impl GatewayConfig {
             Some(sp) => Some(sparkplug_section(&cx, sp)?),
         };
 
-        let store_limits = drivebus_store::Limits::from_days_and_mb(raw.store.retention_days, raw.store.max_size_mb);
+        let store_limits =
+            drivebus_store::Limits::from_days_and_mb(raw.store.retention_days, raw.store.max_size_mb);
         let store = if raw.store.disabled {
             None
         } else {
@@ -1117,7 +1121,8 @@ mod tests {
     fn store_retention_and_size_cap() {
         let c = GatewayConfig::from_toml("plant.toml", "").unwrap();
         assert_eq!(c.store_limits, drivebus_store::Limits::default());
-        let c = GatewayConfig::from_toml("plant.toml", "[store]\nretention_days = 30\nmax_size_mb = 0\n").unwrap();
+        let c = GatewayConfig::from_toml("plant.toml", "[store]\nretention_days = 30\nmax_size_mb = 0\n")
+            .unwrap();
         assert_eq!(c.store_limits, drivebus_store::Limits::from_days_and_mb(30, 0));
         assert_eq!(c.store_limits.max_bytes, None);
         let e = err("[store]\nmax_size_mb = -1\n");

@@ -24,7 +24,7 @@ use tokio::sync::{broadcast, Notify};
 
 use crate::config::{BusConfig, DriveConfig, GatewayConfig, Port};
 use crate::port::{sim_link, virtual_line, PortLink};
-use crate::refusals::{Refused, Refusals, Seen};
+use crate::refusals::{Refusals, Refused, Seen};
 
 /// Unix time now, ms.
 pub fn unix_ms() -> i64 {
@@ -820,7 +820,11 @@ impl Gateway {
 
     /// Whether `ip` failed to log in [`MAX_LOGIN_FAILURES`] times in its current minute.
     pub fn login_blocked(&self, ip: &str) -> bool {
-        let seen = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).seen(&format!("http:{ip}"), "unauthorized");
+        let seen = self
+            .refusals
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .seen(&format!("http:{ip}"), "unauthorized");
         seen >= MAX_LOGIN_FAILURES
     }
 
@@ -829,18 +833,24 @@ impl Gateway {
         let why = crate::text::shown_max(why, MAX_MESSAGE_CHARS);
         let sample = Refused { drive: id.clone(), action: action.to_string(), why };
         let client = crate::refusals::client_of(actor);
-        let seen = self
-            .refusals
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .refused(tokio::time::Instant::now(), &client, sample.clone());
+        let seen = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).refused(
+            tokio::time::Instant::now(),
+            &client,
+            sample.clone(),
+        );
         if seen == Seen::First {
             self.write_refusal(&sample, actor, sample.why.clone(), json!({})).await;
         }
     }
 
     /// A refusal (or a window's count of them) in the audit trail.
-    async fn write_refusal(self: &Arc<Self>, r: &Refused, actor: &str, result: String, detail: serde_json::Value) {
+    async fn write_refusal(
+        self: &Arc<Self>,
+        r: &Refused,
+        actor: &str,
+        result: String,
+        detail: serde_json::Value,
+    ) {
         let bus = r.drive.as_deref().and_then(|d| self.drive(d).ok()).map(|d| d.bus.clone());
         self.record_async(Event {
             id: 0,
@@ -862,9 +872,11 @@ impl Gateway {
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
             tick.tick().await;
-            let due = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).due(tokio::time::Instant::now());
+            let due =
+                self.refusals.lock().unwrap_or_else(|p| p.into_inner()).due(tokio::time::Instant::now());
             for s in due {
-                let detail = json!({ "repeated": s.count, "reason": s.reason, "window_s": s.window.as_secs() });
+                let detail =
+                    json!({ "repeated": s.count, "reason": s.reason, "window_s": s.window.as_secs() });
                 self.write_refusal(&s.sample, &s.client, s.result(), detail).await;
             }
         }

@@ -91,7 +91,10 @@ mod tests {
         assert!(e.to_string().starts_with("duplicate key \"hz\": give each key once"), "{e}");
         assert!(check_unique_keys(br#"{"value": {"a": 1, "a": 1}}"#).is_err());
         assert!(check_unique_keys(br#"[{"a": 1, "a": 1}]"#).is_err());
-        assert_eq!(check_unique_keys(b"{\"hz\": 4").unwrap_err().classify(), serde_json::error::Category::Eof);
+        assert_eq!(
+            check_unique_keys(b"{\"hz\": 4").unwrap_err().classify(),
+            serde_json::error::Category::Eof
+        );
         assert!(check_unique_keys(b"{} x").is_err());
     }
 }

@@ -239,7 +239,7 @@ pub fn spawn(gw: Arc<Gateway>, cfg: &MqttConfig) -> Result<tokio::task::JoinHand
 enum FromBroker {
     Connected,
     Lost,
-    Message(Publish),
+    Message(Box<Publish>),
 }
 
 /// Per drive: when its status was last published, what it said, and what waits.
@@ -532,7 +532,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                     reported = false;
                     Some(FromBroker::Connected)
                 }
-                Ok(Event::Incoming(Packet::Publish(p))) => Some(FromBroker::Message(p)),
+                Ok(Event::Incoming(Packet::Publish(p))) => Some(FromBroker::Message(Box::new(p))),
                 Ok(_) => None,
                 Err(e) => {
                     if !reported {
@@ -574,7 +574,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                     p.on_connect(&mut throttle);
                 }
                 Some(FromBroker::Lost) => p.connected = false,
-                Some(FromBroker::Message(m)) => p.on_message(m),
+                Some(FromBroker::Message(m)) => p.on_message(*m),
                 None => return,
             },
             c = changes.recv() => match c {

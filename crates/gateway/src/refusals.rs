@@ -178,7 +178,11 @@ mod tests {
     use super::*;
 
     fn sample(why: &str) -> Refused {
-        Refused { drive: Some("pump-1".into()), action: "modbus write of 1 register(s) at 0".into(), why: why.into() }
+        Refused {
+            drive: Some("pump-1".into()),
+            action: "modbus write of 1 register(s) at 0".into(),
+            why: why.into(),
+        }
     }
 
     const WHY: &str = "forbidden: client 127.0.0.2 may not write ([modbus] allow)";
@@ -201,7 +205,10 @@ mod tests {
         assert!(r.due(at(59_999)).is_empty());
         let s = r.due(at(60_000));
         assert_eq!(s.len(), 1, "{s:?}");
-        assert_eq!((s[0].client.as_str(), s[0].reason.as_str(), s[0].count), ("modbus:127.0.0.2", "forbidden", 1204));
+        assert_eq!(
+            (s[0].client.as_str(), s[0].reason.as_str(), s[0].count),
+            ("modbus:127.0.0.2", "forbidden", 1204)
+        );
         assert_eq!(
             s[0].result(),
             "1204 refused from modbus:127.0.0.2 in the last 60 s: forbidden: client 127.0.0.2 may not write ([modbus] allow)"

@@ -576,23 +576,40 @@ async fn duplicate_keys_long_values_and_huge_numbers() {
     let r = call(&app, "POST", "/api/drives/pump-1/speed", Some(WRITE), Some(r#"{"hz":40,"hz":41}"#)).await;
     let m = assert_error(&r, 422, "invalid");
     assert!(m.starts_with("duplicate key \"hz\": give each key once"), "{m}");
-    let r = call(&app, "PUT", "/api/drives/pump-1/params/0010", Some(WRITE), Some(r#"{"value":"5","value":"6"}"#))
-        .await;
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/pump-1/params/0010",
+        Some(WRITE),
+        Some(r#"{"value":"5","value":"6"}"#),
+    )
+    .await;
     assert_error(&r, 422, "invalid");
-    assert_eq!(gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed), 0, "nothing reached a drive");
+    assert_eq!(
+        gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed),
+        0,
+        "nothing reached a drive"
+    );
 
     let r = call(&app, "POST", "/api/drives/pump-1/speed", Some(WRITE), Some(r#"{"hz": 1e308}"#)).await;
     let m = assert_error(&r, 422, "invalid");
     assert!(m.contains("1e308") && m.len() < 200, "{m}");
     let audited = gw.store().unwrap().events(&drivebus_store::EventFilter::default()).unwrap();
-    let speed = audited.iter().rev().find(|e| e.action.as_deref().is_some_and(|a| a.starts_with("speed "))).unwrap();
+    let speed =
+        audited.iter().rev().find(|e| e.action.as_deref().is_some_and(|a| a.starts_with("speed "))).unwrap();
     assert_eq!(speed.action.as_deref(), Some("speed 1e308 Hz"));
     assert!(speed.result.as_deref().unwrap().len() < 200, "{speed:?}");
 
     // A long value (this test's max_body is 1 KiB; the same cut holds for 60 KB).
     let long = "9".repeat(900);
-    let r = call(&app, "PUT", "/api/drives/pump-1/params/0010", Some(WRITE), Some(&format!(r#"{{"value":"{long}"}}"#)))
-        .await;
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/pump-1/params/0010",
+        Some(WRITE),
+        Some(&format!(r#"{{"value":"{long}"}}"#)),
+    )
+    .await;
     let m = assert_error(&r, 422, "invalid");
     assert!(m.contains("…(900 bytes)") && m.len() < 600, "{} bytes: {m}", m.len());
     let r = call(&app, "GET", &format!("/api/drives/{long}"), Some(READ), None).await;
@@ -607,7 +624,11 @@ async fn duplicate_keys_long_values_and_huge_numbers() {
 async fn failed_logins_are_audited_and_rate_limited_per_address() {
     let (gw, app) = app(false, true);
     for _ in 0..10 {
-        assert_error(&call(&app, "GET", "/api/drives", Some("guess-0123456789abcdef"), None).await, 401, "unauthorized");
+        assert_error(
+            &call(&app, "GET", "/api/drives", Some("guess-0123456789abcdef"), None).await,
+            401,
+            "unauthorized",
+        );
     }
     let r = call(&app, "GET", "/api/drives", Some(READ), None).await;
     let m = assert_error(&r, 429, "too_many_failures");
@@ -625,7 +646,10 @@ async fn failed_logins_are_audited_and_rate_limited_per_address() {
     settle(61).await;
     let l = logins();
     assert_eq!(l.len(), 2, "{l:?}");
-    assert!(l[1].result.as_deref().unwrap().starts_with("9 refused from http:127.0.0.7 in the last 60 s"), "{l:?}");
+    assert!(
+        l[1].result.as_deref().unwrap().starts_with("9 refused from http:127.0.0.7 in the last 60 s"),
+        "{l:?}"
+    );
     // The minute is over: the right token works again.
     assert_eq!(call(&app, "GET", "/api/drives", Some(READ), None).await.status, 200);
 }

@@ -680,8 +680,7 @@ fn background(shared: &Shared) {
             if prune || size_check {
                 last_size_check = Some(Instant::now());
                 // The retention with the pruning; the cap at every check.
-                let limits =
-                    if prune { shared.limits } else { Limits { retention: None, ..shared.limits } };
+                let limits = if prune { shared.limits } else { Limits { retention: None, ..shared.limits } };
                 if let Err(e) = limits::enforce(&lock(writer), &shared.path, &limits, time::now_ms()) {
                     errors.push(e.to_string());
                 }

@@ -34,7 +34,8 @@ impl Limits {
     /// `retention_days` (0: for ever) and `max_size_mb` (0: no cap) as a configuration gives them.
     pub fn from_days_and_mb(retention_days: u64, max_size_mb: u64) -> Limits {
         Limits {
-            retention: (retention_days > 0).then(|| Duration::from_secs(retention_days.saturating_mul(86_400))),
+            retention: (retention_days > 0)
+                .then(|| Duration::from_secs(retention_days.saturating_mul(86_400))),
             max_bytes: (max_size_mb > 0).then(|| max_size_mb.saturating_mul(1 << 20)),
         }
     }

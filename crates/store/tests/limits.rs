@@ -47,7 +47,8 @@ fn the_size_cap_deletes_the_oldest_events_and_buckets_first() {
     {
         // Written without limits: 4 000 events of ~1 KB over 40 days and a day of trends.
         let store = Store::open(&path).unwrap();
-        let batch: Vec<Event> = (0..4000).map(|k| event(NOW - 40 * DAY_MS + k * DAY_MS / 100, &pad)).collect();
+        let batch: Vec<Event> =
+            (0..4000).map(|k| event(NOW - 40 * DAY_MS + k * DAY_MS / 100, &pad)).collect();
         store.record_batch(&batch).unwrap();
         for k in 0..3600 {
             store.sample(Sample {

@@ -80,7 +80,14 @@ mod tests {
         ] {
             assert!(allowed(ok, &hosts), "{ok}");
         }
-        for bad in ["evil.example", "evil.example:8080", "scada.plant.local.evil.example", "", ":8080", "localhost.evil.example"] {
+        for bad in [
+            "evil.example",
+            "evil.example:8080",
+            "scada.plant.local.evil.example",
+            "",
+            ":8080",
+            "localhost.evil.example",
+        ] {
             assert!(!allowed(bad, &hosts), "{bad}");
         }
     }

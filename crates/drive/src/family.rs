@@ -3,6 +3,8 @@
 use std::fmt;
 use std::str::FromStr;
 
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use serde::{Deserialize, Serialize};
 
 /// A drive family: one wire protocol, one parameter catalog, one seed manual.
@@ -131,6 +133,77 @@ impl Family {
         match self {
             Family::Generic | Family::Toshiba => format!("0x{number:04X}"),
             Family::Danfoss | Family::B800 => number.to_string(),
+        }
+    }
+}
+
+/// What a family speaks, in one table: the protocols, the default one, the address range and the
+/// serial default of each. Everything that needs one of these facts (profiles, simulator, gateway
+/// configuration, command line) asks here.
+impl Family {
+    /// The protocols this family speaks; the first is its default.
+    pub fn protocols(self) -> &'static [WireProtocol] {
+        match self {
+            // seed 004: "默认通讯协议方式采用ASCII 方式" (the default is ASCII).
+            Family::Generic => &[WireProtocol::ModbusAscii, WireProtocol::ModbusRtu],
+            // Binary mode is the manual's compact one (and the only one with block communication).
+            Family::Toshiba => {
+                &[WireProtocol::ToshibaBinary, WireProtocol::ToshibaAscii, WireProtocol::ModbusRtu]
+            }
+            Family::Danfoss => &[WireProtocol::DanfossFc],
+            Family::B800 => &[WireProtocol::B800],
+        }
+    }
+
+    /// The protocol a drive of this family is spoken to when none is given.
+    pub fn default_protocol(self) -> WireProtocol {
+        self.protocols()[0]
+    }
+
+    /// `protocol` if this family speaks it, else a sentence that says which it speaks.
+    pub fn check_protocol(self, protocol: WireProtocol) -> Result<WireProtocol, String> {
+        if self.protocols().contains(&protocol) {
+            Ok(protocol)
+        } else {
+            let names: Vec<&str> = self.protocols().iter().map(|p| p.name()).collect();
+            Err(format!("a {self} drive does not speak {protocol}: use {}", names.join(" or ")))
+        }
+    }
+
+    /// The addresses a drive of this family can have on `protocol` (broadcast not included).
+    pub fn address_range(self, protocol: WireProtocol) -> (u8, u8) {
+        match (self, protocol) {
+            // seed 004: addresses up to FEH (the Modbus specification stops at 247).
+            (Family::Generic, _) => (1, 254),
+            (Family::Toshiba, WireProtocol::ModbusRtu) => (1, 247),
+            // TIP binary carries the inverter number in 6 bits; ASCII as two decimal digits.
+            (Family::Toshiba, WireProtocol::ToshibaBinary) => (0, 63),
+            (Family::Toshiba, _) => (0, 99),
+            (Family::Danfoss, _) => (1, 126),
+            (Family::B800, _) => (1, 63),
+        }
+    }
+
+    /// `address` if a drive of this family can have it on `protocol`, else a sentence that says
+    /// the range.
+    pub fn check_address(self, protocol: WireProtocol, address: u8) -> Result<u8, String> {
+        let (lo, hi) = self.address_range(protocol);
+        if (lo..=hi).contains(&address) {
+            Ok(address)
+        } else {
+            Err(format!("a {self} drive on {protocol} has an address in {lo}..{hi}, not {address}"))
+        }
+    }
+
+    /// The serial settings a drive of this family leaves the factory with on `protocol`
+    /// (protocols.md, project decisions).
+    pub fn serial_default(self, protocol: WireProtocol) -> (u32, CharFormat) {
+        match (self, protocol) {
+            (Family::Generic, WireProtocol::ModbusRtu) => (9600, CharFormat::NONE_8N2),
+            (Family::Generic, _) => (9600, CharFormat::NONE_7N2),
+            (Family::Toshiba, _) => (19200, CharFormat::EVEN_8E1),
+            (Family::Danfoss, _) => (9600, CharFormat::EVEN_8E1),
+            (Family::B800, _) => (9600, CharFormat::NONE_8N1),
         }
     }
 }

@@ -118,7 +118,10 @@ fn refused(code: u32, meaning: &str) -> DriveError {
 fn set_speed_then_run_ramps_and_status_shows_it() {
     let mut line = line_with(&[1]);
     let b = B800Profile::new(1).expect("profile");
-    assert_eq!((b.family(), b.protocol(), b.address()), (Family::B800, "b800", 1));
+    assert_eq!(
+        (b.family(), b.protocol(), b.address()),
+        (Family::B800, drivebus_proto::protocol::WireProtocol::B800, 1)
+    );
 
     // P: 40 Hz as 60 x Hz = 0960; the stopped drive takes the keypad setpoint.
     assert_eq!(run(&mut line, &b, Operation::SetSpeed(40.0)), (Outcome::Done, "P".into()));

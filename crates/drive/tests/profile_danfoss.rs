@@ -111,7 +111,7 @@ fn set_speed_then_run_ramps_and_status_shows_it() {
     let fc = DanfossProfile::new(1).expect("profile");
     assert_eq!(
         (fc.family(), fc.protocol(), fc.address()),
-        (drivebus_drive::Family::Danfoss, "danfoss-fc", 1)
+        (drivebus_drive::Family::Danfoss, drivebus_proto::protocol::WireProtocol::DanfossFc, 1)
     );
 
     // The first set speed reads 3-00, 3-02, 3-03, 4-14, 16-02 (the reference held) and 16-00

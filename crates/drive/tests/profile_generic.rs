@@ -25,7 +25,11 @@ const TURNAROUND: Duration = Duration::from_millis(100);
 
 /// A line in the protocol's default format with simulated drives at `addresses`.
 fn line_with(protocol: sim::GenericProtocol, addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(BAUD, protocol.char_format(), Instant::ZERO);
+    let mut line = VirtualLine::new(
+        BAUD,
+        drivebus_drive::Family::Generic.serial_default(protocol.wire()).1,
+        Instant::ZERO,
+    );
     for &a in addresses {
         match sim::GenericDrive::new(a, protocol, Instant::ZERO) {
             Ok(d) => {
@@ -123,7 +127,7 @@ fn refused_code(r: Result<Outcome, DriveError>) -> u32 {
 fn run_and_set_speed_show_running_and_the_output_ramping() {
     let mut line = line_with(sim::GenericProtocol::Rtu, &[1]);
     let p = profile(1, GenericProtocol::Rtu);
-    assert_eq!(p.protocol(), "modbus-rtu");
+    assert_eq!(p.protocol(), drivebus_proto::protocol::WireProtocol::ModbusRtu);
     let s = status(&mut line, &p);
     assert_eq!(s.address, 1);
     assert!(!s.running);
@@ -156,7 +160,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping() {
 fn modbus_ascii_runs_the_same_operations() {
     let mut line = line_with(sim::GenericProtocol::Ascii, &[7]);
     let p = profile(7, GenericProtocol::Ascii);
-    assert_eq!(p.protocol(), "modbus-ascii");
+    assert_eq!(p.protocol(), drivebus_proto::protocol::WireProtocol::ModbusAscii);
     let go = |line: &mut VirtualLine, op: Operation| run::<ModbusAscii>(line, &p, op);
     assert_eq!(go(&mut line, Operation::SetSpeed(25.5)), Ok(Outcome::Done));
     assert_eq!(go(&mut line, Operation::Run), Ok(Outcome::Done));

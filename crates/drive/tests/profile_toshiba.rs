@@ -147,7 +147,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
     for protocol in ALL {
         let mut bus = Bus::new(protocol, &[1]);
         let p = profile(protocol);
-        assert_eq!(p.protocol(), protocol.name());
+        assert_eq!(p.protocol(), protocol.wire());
         let s = bus.status(&p);
         assert_eq!(s.address, 1);
         assert!(!s.running, "{protocol}");
@@ -489,7 +489,7 @@ fn inverter_numbers_are_checked_per_protocol() {
                 .into()
         ))
     );
-    assert_eq!("TIP-ascii".parse::<ToshibaProtocol>(), Ok(ToshibaProtocol::TipAscii));
+    assert_eq!("Toshiba-ASCII".parse::<ToshibaProtocol>(), Ok(ToshibaProtocol::TipAscii));
     assert!("profibus".parse::<ToshibaProtocol>().is_err());
     // TIP inverter 0 is a drive, not a broadcast.
     let mut bus = Bus::new(ToshibaProtocol::TipAscii, &[0]);

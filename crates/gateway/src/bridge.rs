@@ -79,7 +79,7 @@ pub(crate) fn configs(
                 format!("no bus {name:?} (buses: {})", known.join(", ")),
             );
         };
-        if !matches!(bus.protocol.as_str(), "modbus-rtu" | "modbus-ascii") {
+        if !bus.protocol.is_modbus() {
             return cx.err(
                 b.bus.span(),
                 "bridge.bus",
@@ -131,7 +131,7 @@ pub fn check(b: &BridgeConfig, buses: &[BusConfig]) -> Result<(), String> {
             b.bus,
             buses.iter().map(|x| x.name.as_str()).collect::<Vec<_>>().join(", ")
         )),
-        Some(bus) if !matches!(bus.protocol.as_str(), "modbus-rtu" | "modbus-ascii") => Err(format!(
+        Some(bus) if !bus.protocol.is_modbus() => Err(format!(
             "--bridge: bus {:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
             b.bus, bus.protocol
         )),
@@ -295,7 +295,7 @@ async fn pass(
     let fc = *r.pdu.first()?;
     let exception = |code: u8| Some(vec![fc | 0x80, code]);
     let bus = gw.buses().iter().find(|b| b.config.name == cfg.bus)?.clone();
-    let ascii = bus.config.protocol == "modbus-ascii";
+    let ascii = bus.config.protocol == drivebus_proto::protocol::WireProtocol::ModbusAscii;
     let write = is_write(fc);
     // The drive's name where the gateway knows it, else bus@address.
     let drive = gw

@@ -77,6 +77,7 @@ use std::time::Duration;
 
 use drivebus_drive::Family;
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use serde::Deserialize;
 use toml::Spanned;
 
@@ -216,8 +217,8 @@ pub struct BusConfig {
     pub name: String,
     /// How it is reached.
     pub port: Port,
-    /// The wire protocol (a codec name: `modbus-rtu`, `toshiba-binary`, `danfoss-fc`, ...).
-    pub protocol: String,
+    /// The wire protocol.
+    pub protocol: WireProtocol,
     /// Baud rate.
     pub baud: u32,
     /// Character format.
@@ -907,44 +908,38 @@ impl GatewayConfig {
             }
             let first = drives.first().map(|d| d.family);
             let protocol = match (&b.protocol, first) {
-                (Some(p), _) => p.get_ref().clone(),
-                (None, Some(f)) => drivebus_sim::config::protocols(f)[0].to_string(),
+                (Some(p), _) => {
+                    p.get_ref().parse::<WireProtocol>().or_else(|e| cx.err(p.span(), "bus.protocol", e))?
+                }
+                (None, Some(f)) => f.default_protocol(),
                 (None, None) => {
                     return cx.err(b.name.span(), "bus.protocol", "give the bus's protocol or a drive")
                 }
             };
+            let protocol_span = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
             for (d, raw_drive) in drives.iter().zip(&b.drive) {
-                let profile = drivebus_drive::profile::for_drive(d.family, &protocol, d.address);
-                let protocol_span = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
-                if let Err(e @ drivebus_drive::profile::DriveError::Unsupported(_)) = &profile {
+                if let Err(e) = d.family.check_protocol(protocol) {
                     return cx.err(protocol_span, "bus.protocol", format!("drive {:?}: {e}", d.name));
                 }
                 // A polled drive has an address of its own: never the broadcast address, which
                 // every drive obeys and none answers (a lock on one drive would not hold).
-                let (lo, hi) = drivebus_drive::profile::address_range(d.family, &protocol);
-                if d.address < lo || d.address > hi {
+                if let Err(e) = d.family.check_address(protocol, d.address) {
+                    let broadcast = if d.address == 0 {
+                        " (0 is the broadcast address: every drive obeys it)"
+                    } else {
+                        ""
+                    };
                     return cx.err(
                         raw_drive.address.span(),
                         "bus.drive.address",
-                        format!(
-                            "drive {:?}: a {} drive on {protocol} has an address in {lo}..{hi}{}",
-                            d.name,
-                            d.family,
-                            if d.address == 0 {
-                                " (0 is the broadcast address: every drive obeys it)"
-                            } else {
-                                ""
-                            }
-                        ),
+                        format!("drive {:?}: {e}{broadcast}", d.name),
                     );
                 }
-                if let Err(e) = profile {
+                if let Err(e) = drivebus_drive::profile::for_drive(d.family, protocol, d.address) {
                     return cx.err(protocol_span, "bus.protocol", format!("drive {:?}: {e}", d.name));
                 }
             }
-            let (db, df) = first.map_or((9600, CharFormat::NONE_8N1), |f| {
-                drivebus_sim::config::serial_default(f, Some(protocol.as_str()))
-            });
+            let (db, df) = first.map_or((9600, CharFormat::NONE_8N1), |f| f.serial_default(protocol));
             let baud = match &b.baud {
                 Some(v) if !(300..=1_000_000).contains(v.get_ref()) => {
                     return cx.err(v.span(), "bus.baud", format!("{} is outside 300..1000000", v.get_ref()))
@@ -1200,9 +1195,12 @@ mod tests {
         let e = err(&bus("generic", "modbus-rtu", 0));
         assert_eq!(
             e,
-            "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..247 (0 is the broadcast address: every drive obeys it)"
+            "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..254, not 0 (0 is the broadcast address: every drive obeys it)"
         );
-        assert!(err(&bus("generic", "modbus-rtu", 250)).contains("1..247"));
+        // The generic manual allows addresses up to FEH, beyond the Modbus specification's 247.
+        assert!(GatewayConfig::from_toml("p.toml", &bus("generic", "modbus-rtu", 254)).is_ok());
+        assert!(err(&bus("generic", "modbus-rtu", 255)).contains("1..254"));
+        assert!(err(&bus("toshiba", "modbus-rtu", 248)).contains("1..247"));
         // Out of range for the protocol: the address's line and field, whatever the family.
         let e = err(&bus("danfoss", "danfoss-fc", 127));
         assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("1..126"), "{e}");
@@ -1251,7 +1249,10 @@ mod tests {
         .unwrap();
         let b = &c.buses[0];
         assert_eq!(b.port, Port::Tcp("10.0.0.5:4001".into()));
-        assert_eq!((b.baud, b.format, b.protocol.as_str()), (19200, CharFormat::EVEN_8E1, "toshiba-ascii"));
+        assert_eq!(
+            (b.baud, b.format, b.protocol),
+            (19200, CharFormat::EVEN_8E1, WireProtocol::ToshibaBinary)
+        );
         assert_eq!(c.http.listen.to_string(), "127.0.0.1:8080");
         assert_eq!(c.modbus.listen.to_string(), "127.0.0.1:5020");
         assert_eq!(b.drives[0].unit_id, 1);

@@ -16,6 +16,7 @@ use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_link::drive::{Drive, Error as LinkError};
 use drivebus_link::owner::{Bus, BusConfig as OwnerConfig, BusError, BusStats};
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_store::{Event, EventKind, Sample, Store};
 use serde::Serialize;
@@ -229,7 +230,7 @@ pub struct DriveEntry {
     /// The bus's name.
     pub bus: String,
     /// The bus's protocol.
-    pub protocol: String,
+    pub protocol: WireProtocol,
     /// Commands (ahead of polls); shares its profile with `poll`, so what a command teaches the
     /// profile (a Danfoss setpoint or 3-03 scaling) shows in the next poll.
     command: Drive,
@@ -654,7 +655,7 @@ impl Gateway {
                 id: d.config.name.clone(),
                 bus: d.bus.clone(),
                 family: d.config.family.as_str().to_string(),
-                protocol: d.protocol.clone(),
+                protocol: d.protocol.to_string(),
                 address: d.config.address,
                 unit_id: d.config.unit_id,
                 locked: d.locked(),
@@ -683,7 +684,7 @@ impl Gateway {
         BusView {
             name: b.config.name.clone(),
             port: b.config.port.to_string(),
-            protocol: b.config.protocol.clone(),
+            protocol: b.config.protocol.to_string(),
             baud: b.config.baud,
             serial: b.config.format.to_string(),
             online: b.online(),
@@ -1166,7 +1167,7 @@ pub struct Reload {
 
 /// Builds a bus of the configuration (owner, link, drives); its poll scheduler is not started.
 fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
-    let mut owner = OwnerConfig::new(&b.protocol, b.baud, b.format);
+    let mut owner = OwnerConfig::new(b.protocol, b.baud, b.format);
     owner.response_timeout = b.timeout;
     owner.retries = b.retries;
     owner.echo = b.echo;
@@ -1195,7 +1196,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
 
 /// A drive of bus `b`, reached through `bus`, with one profile for its commands and polls.
 fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, String> {
-    let profile = drivebus_drive::profile::for_drive(d.family, &b.protocol, d.address)
+    let profile = drivebus_drive::profile::for_drive(d.family, b.protocol, d.address)
         .map_err(|e| format!("drive {}: {e}", d.name))?;
     let mut command = Drive::new(bus.clone(), profile);
     if let Some(t) = b.timeout {
@@ -1205,7 +1206,7 @@ fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, 
     Ok(DriveEntry {
         config: d.clone(),
         bus: b.name.clone(),
-        protocol: b.protocol.clone(),
+        protocol: b.protocol,
         command,
         poll,
         state: RwLock::new(DriveState::default()),

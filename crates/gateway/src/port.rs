@@ -89,7 +89,7 @@ pub fn virtual_line(bus: &BusConfig) -> Result<Arc<Mutex<VirtualLine>>, String> 
         .map(|d| DriveSpec {
             family: d.family,
             address: d.address,
-            protocol: Some(bus.protocol.clone()),
+            protocol: Some(bus.protocol),
             response: std::time::Duration::from_millis(3),
             load: d.load,
             params: Vec::new(),

@@ -43,7 +43,7 @@ fn same_bus(a: &BusConfig, b: &BusConfig) -> bool {
         x: &BusConfig,
     ) -> (
         &crate::config::Port,
-        &str,
+        drivebus_proto::protocol::WireProtocol,
         u32,
         drivebus_proto::line::CharFormat,
         Option<std::time::Duration>,
@@ -51,7 +51,7 @@ fn same_bus(a: &BusConfig, b: &BusConfig) -> bool {
         bool,
         bool,
     ) {
-        (&x.port, &x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15)
+        (&x.port, x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15)
     }
     let same_drives =
         || a.drives.len() == b.drives.len() && a.drives.iter().zip(&b.drives).all(|(x, y)| same_drive(x, y));

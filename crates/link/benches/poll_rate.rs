@@ -43,7 +43,7 @@ async fn run(baud: u32, seconds: u64) -> (f64, f64, f64) {
         let spec = DriveSpec {
             family: Family::Generic,
             address: a,
-            protocol: Some("modbus-rtu".into()),
+            protocol: Some(drivebus_proto::protocol::WireProtocol::ModbusRtu),
             response: RESPONSE,
             load: 0.5,
             params: Vec::new(),
@@ -53,8 +53,11 @@ async fn run(baud: u32, seconds: u64) -> (f64, f64, f64) {
         line.add_device(d);
     }
     let line = Arc::new(Mutex::new(line));
-    let bus =
-        Bus::spawn(SimLink::new(line, "virtual"), BusConfig::new("modbus-rtu", baud, format)).expect("bus");
+    let bus = Bus::spawn(
+        SimLink::new(line, "virtual"),
+        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, baud, format),
+    )
+    .expect("bus");
     let start = tokio::time::Instant::now();
     let mut n = 0u64;
     while start.elapsed() < Duration::from_secs(seconds) {

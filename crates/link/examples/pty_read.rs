@@ -24,7 +24,7 @@ fn main() {
     };
     let gap_ms = args.get(3).and_then(|s| s.parse::<f64>().ok()).unwrap_or(0.0);
     let mut config = match "8N1".parse() {
-        Ok(format) => BusConfig::new("modbus-rtu", 115_200, format),
+        Ok(format) => BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 115_200, format),
         Err(e) => {
             eprintln!("pty_read: {e}");
             std::process::exit(3);

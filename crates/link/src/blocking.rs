@@ -11,7 +11,8 @@
 //! use drivebus_drive::profile::Exchange;
 //! use drivebus_link::blocking::BlockingBus;
 //! use drivebus_link::{BusConfig, Priority};
-//! let mut bus = BlockingBus::open("/dev/ttyUSB0", BusConfig::new("modbus-rtu", 9600, "8E1".parse().unwrap()))?;
+//! use drivebus_proto::protocol::WireProtocol;
+//! let mut bus = BlockingBus::open("/dev/ttyUSB0", BusConfig::new(WireProtocol::ModbusRtu, 9600, "8E1".parse().unwrap()))?;
 //! // Read 2 registers at 2100H from drive 1.
 //! let request = vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37];
 //! let reply = bus.transact(1, &Exchange { request, expect_reply: true }, Priority::Command, None)?;
@@ -69,8 +70,7 @@ impl BlockingBus {
         let stats = Arc::new(Mutex::new(BusStats::default()));
         let health = Arc::new(Mutex::new(HashMap::new()));
         let master: Box<dyn Master> =
-            with_engine!(config, stats.clone(), health.clone(), |engine| Box::new(engine)
-                as Box<dyn Master>)?;
+            with_engine!(config, stats.clone(), health.clone(), |engine| Box::new(engine) as Box<dyn Master>);
         Ok(BlockingBus {
             io: Io { port, clock: SyncClock::new(), buf: vec![0; 1024] },
             master,
@@ -487,7 +487,8 @@ mod tests {
     fn a_serial_port_reopens_on_the_same_device_and_stays_closed_while_it_cannot() {
         let (_master, device, link) = pty("blocking");
         let path = link.to_str().unwrap().to_string();
-        let config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+        let config =
+            BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
         let mut port =
             Port::Serial(SerialPort::open(&path, config.baud, config.format, Rs485::Off).expect("open"));
         // Opened for exclusive use: without closing first, the second open of the device fails.

@@ -5,8 +5,9 @@
 //! # async fn demo() -> Result<(), drivebus_link::drive::Error> {
 //! use drivebus_link::drive::{open, Drive};
 //! use drivebus_drive::Family;
-//! let bus = open("/dev/ttyUSB0", "modbus-rtu", 9600, "8N2".parse().unwrap()).await?;
-//! let drive = Drive::new(bus, drivebus_drive::profile::for_drive(Family::Generic, "modbus-rtu", 1)?);
+//! use drivebus_proto::protocol::WireProtocol;
+//! let bus = open("/dev/ttyUSB0", WireProtocol::ModbusRtu, 9600, "8N2".parse().unwrap()).await?;
+//! let drive = Drive::new(bus, drivebus_drive::profile::for_drive(Family::Generic, WireProtocol::ModbusRtu, 1)?);
 //! drive.set_speed(40.0).await?;
 //! drive.run().await?;
 //! let status = drive.status().await?;
@@ -19,7 +20,8 @@
 //! ```no_run
 //! use drivebus_link::drive::BlockingDrive;
 //! use drivebus_drive::Family;
-//! let drive = BlockingDrive::open("tcp://10.0.0.5:4001", Family::Danfoss, "danfoss-fc", 3, 9600, "8E1".parse().unwrap()).unwrap();
+//! use drivebus_proto::protocol::WireProtocol;
+//! let drive = BlockingDrive::open("tcp://10.0.0.5:4001", Family::Danfoss, WireProtocol::DanfossFc, 3, 9600, "8E1".parse().unwrap()).unwrap();
 //! drive.run().unwrap();
 //! ```
 
@@ -31,6 +33,7 @@ use std::time::Duration;
 use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Profile, Step};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::Instant;
 
 use crate::blocking::BlockingBus;
@@ -114,7 +117,7 @@ impl Link for AnyLink {
 }
 
 /// Opens `port` (a device path or `tcp://host:port`) and starts a bus owner for `protocol`.
-pub async fn open(port: &str, protocol: &str, baud: u32, format: CharFormat) -> Result<Bus, Error> {
+pub async fn open(port: &str, protocol: WireProtocol, baud: u32, format: CharFormat) -> Result<Bus, Error> {
     open_with(port, BusConfig::new(protocol, baud, format)).await
 }
 
@@ -252,7 +255,7 @@ impl BlockingDrive {
     pub fn open(
         port: &str,
         family: Family,
-        protocol: &str,
+        protocol: WireProtocol,
         address: u8,
         baud: u32,
         format: CharFormat,

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
@@ -61,58 +61,42 @@ pub(crate) struct Engine<P: Protocol> {
     out: Vec<u8>,
 }
 
-/// Calls `$body` with an engine of the protocol named in `$config`, or evaluates to a
-/// `BusError::BadRequest` for an unknown protocol.
+/// Calls `$body` with an engine of `$config`'s protocol (the one place that goes from a
+/// [`WireProtocol`](drivebus_proto::protocol::WireProtocol) to its session type).
 macro_rules! with_engine {
     ($config:expr, $stats:expr, $health:expr, |$engine:ident| $body:expr) => {{
         let config: $crate::owner::BusConfig = $config;
-        let t = |f: fn(u32, drivebus_proto::line::CharFormat) -> drivebus_proto::session::Timing| {
-            $crate::engine::timing_of(&config, f)
-        };
+        let timing = $crate::engine::timing_of(&config);
+        use drivebus_proto::protocol::WireProtocol as W;
         use drivebus_proto::{b800, fc, modbus, toshiba};
-        match config.protocol.as_str() {
-            "modbus-rtu" => {
-                let $engine = $crate::engine::Engine::new(modbus::rtu::ModbusRtu, t(modbus::rtu::timing), config.clone(), $stats, $health);
-                Ok($body)
-            }
-            "modbus-ascii" => {
-                let $engine = $crate::engine::Engine::new(modbus::ascii::ModbusAscii, t(modbus::ascii::timing), config.clone(), $stats, $health);
-                Ok($body)
-            }
-            "toshiba-ascii" => {
-                let $engine = $crate::engine::Engine::new(toshiba::ascii::TipAscii::default(), t(toshiba::timing), config.clone(), $stats, $health);
-                Ok($body)
-            }
-            "toshiba-binary" => {
-                let $engine = $crate::engine::Engine::new(toshiba::binary::TipBinary::default(), t(toshiba::timing), config.clone(), $stats, $health);
-                Ok($body)
-            }
-            "danfoss-fc" => {
-                let $engine = $crate::engine::Engine::new(fc::Fc::default(), t(fc::timing), config.clone(), $stats, $health);
-                Ok($body)
-            }
-            "b800" => {
-                let $engine = $crate::engine::Engine::new(b800::B800, t(b800::timing), config.clone(), $stats, $health);
-                Ok($body)
-            }
-            other => Err($crate::owner::BusError::BadRequest(format!(
-                "unknown protocol {other:?}: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800"
-            ))),
+        macro_rules! go {
+            ($proto:expr) => {{
+                let $engine = $crate::engine::Engine::new($proto, timing, config.clone(), $stats, $health);
+                $body
+            }};
+        }
+        match config.protocol {
+            W::ModbusRtu => go!(modbus::rtu::ModbusRtu),
+            W::ModbusAscii => go!(modbus::ascii::ModbusAscii),
+            W::ToshibaAscii => go!(toshiba::ascii::TipAscii::default()),
+            W::ToshibaBinary => go!(toshiba::binary::TipBinary::default()),
+            W::DanfossFc => go!(fc::Fc::default()),
+            W::B800 => go!(b800::B800),
         }
     }};
 }
 pub(crate) use with_engine;
 
-/// The protocol's timing `f` with the configuration's overrides.
-pub(crate) fn timing_of(config: &BusConfig, f: fn(u32, CharFormat) -> Timing) -> Timing {
-    let mut timing = f(config.baud, config.format);
+/// The protocol's timing with the configuration's overrides.
+pub(crate) fn timing_of(config: &BusConfig) -> Timing {
+    let mut timing = config.protocol.timing(config.baud, config.format);
     if let Some(rt) = config.response_timeout {
         timing.response_timeout = rt;
     }
     if let Some(gap) = config.gap {
         timing.min_gap = gap;
     }
-    if config.strict_t15 && config.protocol == "modbus-rtu" {
+    if config.strict_t15 && config.protocol == WireProtocol::ModbusRtu {
         timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
     }
     timing
@@ -326,12 +310,12 @@ impl<P: Protocol> Engine<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use drivebus_proto::modbus::rtu::{self, ModbusRtu};
+    use drivebus_proto::modbus::rtu::ModbusRtu;
 
     fn engine() -> (Engine<ModbusRtu>, Arc<Mutex<BusStats>>) {
-        let config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+        let config = BusConfig::new(WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
         let stats = Arc::new(Mutex::new(BusStats::default()));
-        let timing = timing_of(&config, rtu::timing);
+        let timing = timing_of(&config);
         let e = Engine::new(ModbusRtu, timing, config, stats.clone(), Default::default());
         (e, stats)
     }
@@ -398,9 +382,9 @@ mod tests {
     }
 
     fn echo_engine() -> Engine<ModbusRtu> {
-        let mut config = BusConfig::new("modbus-rtu", 9600, "8N1".parse().unwrap());
+        let mut config = BusConfig::new(WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
         config.echo = true;
-        let timing = timing_of(&config, rtu::timing);
+        let timing = timing_of(&config);
         Engine::new(ModbusRtu, timing, config, Default::default(), Default::default())
     }
 

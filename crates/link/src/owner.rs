@@ -15,6 +15,7 @@ use std::time::Duration;
 
 use drivebus_drive::profile::Exchange;
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
 use tokio::sync::{mpsc, oneshot, watch};
@@ -25,8 +26,8 @@ use crate::link::Link;
 /// How a bus is run.
 #[derive(Clone, Debug)]
 pub struct BusConfig {
-    /// The codec name of the protocol on the bus (`modbus-rtu`, `danfoss-fc`, ...).
-    pub protocol: String,
+    /// The protocol on the bus.
+    pub protocol: WireProtocol,
     /// Baud rate (for character times and gaps).
     pub baud: u32,
     /// Character format.
@@ -58,9 +59,9 @@ pub struct BusConfig {
 impl BusConfig {
     /// A configuration with the protocol's defaults: 2 retries, no echo, offline after 3
     /// failures, probes at most every 30 s.
-    pub fn new(protocol: &str, baud: u32, format: CharFormat) -> Self {
+    pub fn new(protocol: WireProtocol, baud: u32, format: CharFormat) -> Self {
         BusConfig {
-            protocol: protocol.to_string(),
+            protocol,
             baud,
             format,
             response_timeout: None,
@@ -222,7 +223,7 @@ impl Bus {
         let (ended_tx, ended) = watch::channel(());
         with_engine!(config, stats.clone(), health.clone(), |engine| {
             tokio::spawn(Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx }.run(crx, brx, prx));
-        })?;
+        });
         Ok(Bus { commands: ctx, bridged: btx, polls: ptx, stats, health, name, ended })
     }
 

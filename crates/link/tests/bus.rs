@@ -30,7 +30,7 @@ fn bus_of(addresses: &[u8], faults: Faults) -> (Bus, Arc<Mutex<VirtualLine>>) {
         let spec = DriveSpec {
             family: Family::Generic,
             address: a,
-            protocol: Some("modbus-rtu".into()),
+            protocol: Some(drivebus_proto::protocol::WireProtocol::ModbusRtu),
             response: Duration::from_millis(3),
             load: 0.5,
             params: Vec::new(),
@@ -40,7 +40,8 @@ fn bus_of(addresses: &[u8], faults: Faults) -> (Bus, Arc<Mutex<VirtualLine>>) {
     line.set_faults(faults);
     line.seed(7);
     let line = Arc::new(Mutex::new(line));
-    let mut cfg = BusConfig::new("modbus-rtu", 19200, CharFormat::NONE_8N2);
+    let mut cfg =
+        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 19200, CharFormat::NONE_8N2);
     cfg.response_timeout = Some(Duration::from_millis(50));
     let bus = Bus::spawn(SimLink::new(line.clone(), "virtual"), cfg).unwrap();
     (bus, line)

@@ -32,7 +32,9 @@ async fn auto_falls_back_to_rts_on_a_pty_and_transactions_work() {
     let format = "8N2".parse().unwrap();
     let link = SerialLink::open_rs485(&path, 9600, format, Rs485::Auto).expect("open");
     assert_eq!(link.direction(), Direction::Rts);
-    let bus = Bus::spawn(link, BusConfig::new("modbus-rtu", 9600, format)).unwrap();
+    let bus =
+        Bus::spawn(link, BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, format))
+            .unwrap();
     // Read 2 registers at 2100H: RTS on, write, drain, RTS off around it.
     let request = vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37];
     let reply = bus

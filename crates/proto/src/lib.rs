@@ -29,6 +29,8 @@
 //!   a [`deframe::Scanner`] for the streaming [`deframe::Deframer`], an implementation of
 //!   [`session::Protocol`] for the sessions, and of [`codec::Codec`] + [`describe::Describe`]
 //!   for tools.
+//! - [`protocol::WireProtocol`] names the six and dispatches from a protocol to its codec
+//!   and session types; every other crate asks it rather than spelling a protocol's name.
 //! - [`checksum`] holds the six checksums, [`hex`] the hex-ASCII helpers, [`line`](mod@line) the
 //!   character format and the times it implies, [`time`] the caller-supplied clock.
 //! - Errors say whose fault they are: [`error::FrameError`] for bad bytes,
@@ -50,6 +52,7 @@ pub mod describe;
 pub mod error;
 pub mod hex;
 pub mod line;
+pub mod protocol;
 pub mod session;
 pub mod time;
 

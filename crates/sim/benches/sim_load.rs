@@ -60,7 +60,7 @@ fn run_line<P: Protocol + Default>(
         let spec = DriveSpec {
             family,
             address: a,
-            protocol: protocol.map(str::to_string),
+            protocol: protocol.map(|p: &str| p.parse().expect("a protocol")),
             response: Duration::from_millis(2),
             load: 0.5,
             params: Vec::new(),

@@ -26,6 +26,7 @@ use std::time::Duration;
 
 use drivebus_drive::Family;
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use serde::Deserialize;
 
 use crate::bus::Faults;
@@ -38,7 +39,7 @@ pub struct DriveSpec {
     /// Its number on the bus.
     pub address: u8,
     /// The wire protocol, where the family speaks several (`None`: the family default).
-    pub protocol: Option<String>,
+    pub protocol: Option<WireProtocol>,
     /// Its response time.
     pub response: Duration,
     /// Its load, fraction of rated torque.
@@ -77,30 +78,6 @@ impl fmt::Display for ConfigError {
 
 impl std::error::Error for ConfigError {}
 
-/// The serial defaults of a family and protocol (protocols.md, project decisions).
-pub fn serial_default(family: Family, protocol: Option<&str>) -> (u32, CharFormat) {
-    match family {
-        Family::Generic => match protocol {
-            Some("modbus-rtu") => (9600, CharFormat::NONE_8N2),
-            _ => (9600, CharFormat::NONE_7N2),
-        },
-        Family::Toshiba => (19200, CharFormat::EVEN_8E1),
-        Family::Danfoss => (9600, CharFormat::EVEN_8E1),
-        Family::B800 => (9600, CharFormat::NONE_8N1),
-    }
-}
-
-/// The protocols a family speaks; the first is its default.
-pub fn protocols(family: Family) -> &'static [&'static str] {
-    match family {
-        // seed 004: "默认通讯协议方式采用ASCII 方式" (the default is ASCII).
-        Family::Generic => &["modbus-ascii", "modbus-rtu"],
-        Family::Toshiba => &["toshiba-ascii", "toshiba-binary", "modbus-rtu"],
-        Family::Danfoss => &["danfoss-fc"],
-        Family::B800 => &["b800"],
-    }
-}
-
 impl FromStr for DriveSpec {
     type Err = ConfigError;
 
@@ -116,7 +93,7 @@ impl FromStr for DriveSpec {
             .parse()
             .map_err(|_| bad(format!("unknown kind {kind:?}: use generic, toshiba, danfoss or b800")))?;
         let (addr, protocol) = match rest.split_once(':') {
-            Some((a, p)) => (a, Some(p.to_string())),
+            Some((a, p)) => (a, Some(p.parse::<WireProtocol>().map_err(|e| bad(e.to_string()))?)),
             None => (rest, None),
         };
         let address: u8 =
@@ -137,29 +114,20 @@ impl FromStr for DriveSpec {
 impl DriveSpec {
     /// Checks the address range and protocol of the family.
     pub fn check(&self) -> Result<(), ConfigError> {
-        let (lo, hi) = match self.family {
-            Family::Generic => (1, 254),
-            Family::Toshiba => match self.protocol.as_deref() {
-                Some("modbus-rtu") => (1, 247),
-                _ => (0, 99),
-            },
-            Family::Danfoss => (1, 126),
-            Family::B800 => (1, 63),
-        };
-        if self.address < lo || self.address > hi {
+        if let Some(p) = self.protocol {
+            self.family.check_protocol(p).map_err(ConfigError)?;
+        }
+        // A drive answers every protocol it speaks on the line (a TOSHIBA drive both TIP modes):
+        // its address is good if one of them can carry it.
+        let answered = crate::family::wire_protocols(self);
+        if !answered.iter().any(|&p| self.family.check_address(p, self.address).is_ok()) {
+            let widest =
+                answered.iter().map(|&p| self.family.address_range(p)).max_by_key(|(lo, hi)| hi - lo);
+            let (lo, hi) = widest.unwrap_or((0, 0));
             return Err(ConfigError(format!(
                 "a {} drive's address is {lo}..{hi}, not {}",
                 self.family, self.address
             )));
-        }
-        if let Some(p) = &self.protocol {
-            if !protocols(self.family).contains(&p.as_str()) {
-                return Err(ConfigError(format!(
-                    "a {} drive speaks {}, not {p:?}",
-                    self.family,
-                    protocols(self.family).join(", ")
-                )));
-            }
         }
         if !(0.0..=5.0).contains(&self.load) {
             return Err(ConfigError(format!(
@@ -226,7 +194,7 @@ impl BusSpec {
     ) -> Result<Self, ConfigError> {
         let first =
             drives.first().ok_or_else(|| ConfigError("no drive on the bus: add --drive KIND@ADDR".into()))?;
-        let (db, df) = serial_default(first.family, first.protocol.as_deref());
+        let (db, df) = first.family.serial_default(first.protocol.unwrap_or(first.family.default_protocol()));
         let spec = BusSpec {
             baud: baud.unwrap_or(db),
             format: format.unwrap_or(df),
@@ -258,7 +226,13 @@ impl BusSpec {
             let spec = DriveSpec {
                 family,
                 address: d.address,
-                protocol: d.protocol.clone(),
+                protocol: match &d.protocol {
+                    Some(p) => Some(
+                        p.parse::<WireProtocol>()
+                            .map_err(|e| ConfigError(format!("{at}: field `protocol`: {e}")))?,
+                    ),
+                    None => None,
+                },
                 response: Duration::from_millis(d.response_ms.unwrap_or(5)),
                 load: d.load.unwrap_or(0.5),
                 params: d
@@ -331,7 +305,7 @@ mod tests {
     #[test]
     fn drive_option_parses() {
         let d: DriveSpec = "generic@1:modbus-rtu".parse().unwrap();
-        assert_eq!((d.family, d.address, d.protocol.as_deref()), (Family::Generic, 1, Some("modbus-rtu")));
+        assert_eq!((d.family, d.address, d.protocol), (Family::Generic, 1, Some(WireProtocol::ModbusRtu)));
         let d: DriveSpec = "b800@5".parse().unwrap();
         assert_eq!((d.family, d.address, d.protocol), (Family::B800, 5, None));
     }
@@ -343,7 +317,7 @@ mod tests {
         let e = "pump@1".parse::<DriveSpec>().unwrap_err().0;
         assert!(e.contains("unknown kind") && e.contains("KIND@ADDR"), "{e}");
         let e = "danfoss@3:modbus-rtu".parse::<DriveSpec>().unwrap_err().0;
-        assert!(e.contains("speaks danfoss-fc"), "{e}");
+        assert!(e.contains("does not speak modbus-rtu: use danfoss-fc"), "{e}");
         let e = "generic1".parse::<DriveSpec>().unwrap_err().0;
         assert!(e.contains("no '@'"), "{e}");
     }

@@ -56,7 +56,7 @@ pub struct DriveSnapshot {
     pub family: String,
     /// The drive's number on the bus.
     pub address: u8,
-    /// The wire protocol it answers (`modbus-rtu`, `toshiba-ascii+binary`, ...).
+    /// The wire protocols it answers, joined by `+` (`modbus-rtu`, `toshiba-ascii+toshiba-binary`, ...).
     pub protocol: String,
     /// `stopped`, `running`, `stopping` or `tripped`.
     pub state: String,

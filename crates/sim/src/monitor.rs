@@ -2,7 +2,7 @@
 //! answered, decoded with the bus's protocols.
 
 use drivebus_proto::describe::CodeStyle;
-use drivebus_proto::{b800, fc, modbus, toshiba};
+use drivebus_proto::protocol::{CodecJob, WireProtocol};
 use drivebus_proto::{Codec, Deframer, Describe, Direction, Event, Target};
 
 /// A streaming decoder for one protocol and one direction that prints a line per frame.
@@ -42,25 +42,21 @@ where
 }
 
 impl Monitor {
-    /// A monitor for the protocol named `protocol` (a codec name) and frames from `from`.
-    /// `report_rejects`: print damaged frames too (only useful when one protocol is on the line).
-    pub fn new(protocol: &str, from: Direction, report_rejects: bool) -> Option<Monitor> {
-        fn make<C: Codec + 'static>(from: Direction, report_rejects: bool) -> Box<dyn MonitorImpl + Send>
-        where
-            C::Scanner: Send,
-        {
-            Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(Some(from))), from, report_rejects })
+    /// A monitor for `protocol` and frames from `from`. `report_rejects`: print damaged
+    /// frames too (only useful when one protocol is on the line).
+    pub fn new(protocol: WireProtocol, from: Direction, report_rejects: bool) -> Monitor {
+        struct Make(Direction, bool);
+        impl CodecJob for Make {
+            type Output = Box<dyn MonitorImpl + Send>;
+            fn run<C: Codec + 'static>(self) -> Self::Output
+            where
+                C::Scanner: Send + 'static,
+            {
+                let Make(from, report_rejects) = self;
+                Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(Some(from))), from, report_rejects })
+            }
         }
-        let inner = match protocol {
-            "modbus-rtu" => make::<modbus::rtu::ModbusRtu>(from, report_rejects),
-            "modbus-ascii" => make::<modbus::ascii::ModbusAscii>(from, report_rejects),
-            "toshiba-ascii" => make::<toshiba::ascii::AsciiCodec>(from, report_rejects),
-            "toshiba-binary" => make::<toshiba::binary::BinaryCodec>(from, report_rejects),
-            "danfoss-fc" => make::<fc::DanfossFc>(from, report_rejects),
-            "b800" => make::<b800::B800>(from, report_rejects),
-            _ => return None,
-        };
-        Some(Monitor { inner })
+        Monitor { inner: protocol.with_codec(Make(from, report_rejects)) }
     }
 
     /// Feeds bytes; returns a line per frame completed.

@@ -18,6 +18,7 @@ use axum::extract::{Path as UrlPath, State};
 use axum::http::StatusCode;
 use axum::routing::get;
 use axum::{Json, Router};
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::{Direction, Instant};
 use serde::Deserialize;
 use serde_json::{json, Value};
@@ -37,7 +38,7 @@ pub struct Simulator {
     wake: Notify,
     /// Rung when the tap has bytes to pass on.
     tap_wake: Notify,
-    protocols: Vec<String>,
+    protocols: Vec<WireProtocol>,
 }
 
 /// Where the master reaches the bus.
@@ -56,7 +57,7 @@ impl Simulator {
         line.set_faults(bus.faults);
         line.seed(bus.seed);
         line.set_pacing(bus.pacing);
-        let mut protocols: Vec<String> = Vec::new();
+        let mut protocols: Vec<WireProtocol> = Vec::new();
         for spec in &bus.drives {
             let mut drive = crate::family::build(spec, Instant::ZERO)?;
             drive.core_mut().model.set_load(spec.load);
@@ -66,9 +67,9 @@ impl Simulator {
                     ConfigError(format!("{}@{}: parameter {name}: {e}", spec.family, spec.address))
                 })?;
             }
-            for p in crate::family::wire_protocols(spec) {
-                if !protocols.iter().any(|x| x == p) {
-                    protocols.push(p.to_string());
+            for &p in crate::family::wire_protocols(spec) {
+                if !protocols.contains(&p) {
+                    protocols.push(p);
                 }
             }
             line.add_device(drive);
@@ -100,7 +101,7 @@ impl Simulator {
     }
 
     /// The wire protocols spoken on the line.
-    pub fn protocols(&self) -> &[String] {
+    pub fn protocols(&self) -> &[WireProtocol] {
         &self.protocols
     }
 
@@ -152,11 +153,8 @@ impl Simulator {
         let mut monitors: Vec<(Monitor, Monitor)> = if verbose {
             self.protocols
                 .iter()
-                .filter_map(|p| {
-                    Some((
-                        Monitor::new(p, Direction::Master, single)?,
-                        Monitor::new(p, Direction::Drive, single)?,
-                    ))
+                .map(|&p| {
+                    (Monitor::new(p, Direction::Master, single), Monitor::new(p, Direction::Drive, single))
                 })
                 .collect()
         } else {

@@ -18,7 +18,8 @@ const BAUD: u32 = 9600;
 
 /// A line at 9600 baud in the protocol's default format with drives at `addresses`.
 fn line_with(protocol: GenericProtocol, addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(BAUD, protocol.char_format(), Instant::ZERO);
+    let mut line =
+        VirtualLine::new(BAUD, drivebus_sim::family::generic::char_format(protocol), Instant::ZERO);
     for &a in addresses {
         let drive = GenericDrive::new(a, protocol, Instant::ZERO).expect("a valid address");
         line.add_device(Box::new(drive));
@@ -216,10 +217,10 @@ fn the_highest_address_254_works_and_bad_addresses_are_refused() {
             )
         );
     }
-    assert_eq!("ascii".parse::<GenericProtocol>(), Ok(GenericProtocol::Ascii));
+    assert_eq!("modbus-ascii".parse::<GenericProtocol>(), Ok(GenericProtocol::Ascii));
     assert_eq!("Modbus-RTU".parse::<GenericProtocol>(), Ok(GenericProtocol::Rtu));
     assert_eq!(
-        "tcp".parse::<GenericProtocol>(),
+        "tcp".parse::<GenericProtocol>().map_err(|e| e.to_string()),
         Err("the generic drive speaks modbus-rtu or modbus-ascii, not \"tcp\"".to_string())
     );
 }
@@ -702,8 +703,10 @@ fn transact(
 #[test]
 fn a_master_session_runs_the_drive() {
     let mut line = rtu_line();
-    let mut master =
-        MasterSession::new(ModbusRtu, rtu::timing_generic_vfd(BAUD, GenericProtocol::Rtu.char_format()));
+    let mut master = MasterSession::new(
+        ModbusRtu,
+        rtu::timing_generic_vfd(BAUD, drivebus_sim::family::generic::char_format(GenericProtocol::Rtu)),
+    );
     let unit = UnitId(1);
     let set = Request::write_single_register(unit, reg::FREQUENCY, 4000);
     assert_eq!(transact(&mut line, &mut master, &set), Some(vec![4000]));

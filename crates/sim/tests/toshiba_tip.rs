@@ -471,7 +471,7 @@ fn f829_takes_effect_at_power_cycle() {
     assert_eq!(ask(&mut drive, t0, b"(03W08290001)\r"), b"(03W08290001)\r");
     assert_eq!(ask(&mut drive, t0 + Duration::from_millis(100), b"(03P00100032)\r"), b"(03P00100032)\r");
     assert_eq!(drive.protocol_in_force(), ToshibaProtocol::Tip);
-    assert_eq!(drivebus_sim::drive::VirtualDrive::protocol(&drive), "toshiba-ascii+binary");
+    assert_eq!(drivebus_sim::drive::VirtualDrive::protocol(&drive), "toshiba-ascii+toshiba-binary");
     // Power cycle: Modbus-RTU from now on, after 2 s without communication; the P value is gone.
     let t1 = Instant::from_millis(1000);
     drive.power_cycle(t1);

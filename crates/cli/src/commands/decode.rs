@@ -5,6 +5,7 @@ use std::io::Write as _;
 
 use anyhow::Result;
 use clap::{Args, ValueEnum};
+use drivebus_proto::protocol::WireProtocol;
 
 use drivebus_drive::Family;
 use drivebus_proto::describe::{CodeStyle, Raw};
@@ -12,38 +13,6 @@ use drivebus_proto::{Codec, Deframer, Describe, Direction, Event, Target};
 use serde_json::{json, Map, Value};
 
 use crate::hexarg::parse_hex_args;
-
-/// The wire formats `decode` reads.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
-pub enum ProtocolName {
-    /// Modbus RTU (binary, CRC-16).
-    ModbusRtu,
-    /// Modbus ASCII (':' ... LRC CR LF).
-    ModbusAscii,
-    /// Toshiba Inverter Protocol, ASCII mode ('(' ... ')' CR).
-    ToshibaAscii,
-    /// Toshiba Inverter Protocol, binary mode (2F ... SUM).
-    ToshibaBinary,
-    /// Danfoss FC protocol (STX LGE ADR ... BCC).
-    DanfossFc,
-    /// B800 hex-ASCII protocol (7E ... 7F).
-    B800,
-}
-
-impl ProtocolName {
-    /// The decoder for a codec name.
-    pub fn from_codec(name: &str) -> Option<Self> {
-        Some(match name {
-            "modbus-rtu" => ProtocolName::ModbusRtu,
-            "modbus-ascii" => ProtocolName::ModbusAscii,
-            "toshiba-ascii" => ProtocolName::ToshibaAscii,
-            "toshiba-binary" => ProtocolName::ToshibaBinary,
-            "danfoss-fc" => ProtocolName::DanfossFc,
-            "b800" => ProtocolName::B800,
-            _ => return None,
-        })
-    }
-}
 
 /// Who sent the bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -347,41 +316,35 @@ pub fn render_json(protocol: &str, item: &Item) -> Option<Value> {
     Some(Value::Object(o))
 }
 
-/// Decodes with the codec `name`; Modbus registers are named from the catalog of `family`
+/// Decodes with the codec of `name`; Modbus registers are named from the catalog of `family`
 /// (generic or toshiba), or of whichever of the two has the register when `None`.
 pub fn decode_by_name(
-    name: ProtocolName,
+    name: WireProtocol,
     bytes: &[u8],
     from: Option<Direction>,
     family: Option<Family>,
 ) -> (&'static str, Vec<Item>) {
-    use drivebus_proto::{b800, fc, modbus, toshiba};
-    match name {
-        ProtocolName::ModbusRtu => {
-            let mut items = decode_stream::<modbus::rtu::ModbusRtu>(bytes, from);
-            name_registers(&mut items, family);
-            (modbus::rtu::ModbusRtu::NAME, items)
+    struct Decode<'a>(&'a [u8], Option<Direction>);
+    impl drivebus_proto::protocol::CodecJob for Decode<'_> {
+        type Output = Vec<Item>;
+        fn run<C: Codec + 'static>(self) -> Vec<Item>
+        where
+            C::Scanner: Send + 'static,
+        {
+            decode_stream::<C>(self.0, self.1)
         }
-        ProtocolName::ModbusAscii => {
-            let mut items = decode_stream::<modbus::ascii::ModbusAscii>(bytes, from);
-            name_registers(&mut items, family);
-            (modbus::ascii::ModbusAscii::NAME, items)
-        }
-        ProtocolName::ToshibaAscii => {
-            (toshiba::ascii::AsciiCodec::NAME, decode_stream::<toshiba::ascii::AsciiCodec>(bytes, from))
-        }
-        ProtocolName::ToshibaBinary => {
-            (toshiba::binary::BinaryCodec::NAME, decode_stream::<toshiba::binary::BinaryCodec>(bytes, from))
-        }
-        ProtocolName::DanfossFc => (fc::DanfossFc::NAME, decode_stream::<fc::DanfossFc>(bytes, from)),
-        ProtocolName::B800 => (b800::B800::NAME, decode_stream::<b800::B800>(bytes, from)),
     }
+    let mut items = name.with_codec(Decode(bytes, from));
+    if name.is_modbus() {
+        name_registers(&mut items, family);
+    }
+    (name.name(), items)
 }
 
 /// Decodes `reply` as the drive's answer to `request` (one valid request): a read reply's
 /// values named and scaled by the request's starting address. Only the reply's items.
 pub fn decode_reply(
-    name: ProtocolName,
+    name: WireProtocol,
     request: &[u8],
     reply: &[u8],
     family: Option<Family>,
@@ -390,7 +353,7 @@ pub fn decode_reply(
     let (protocol, answer) = decode_by_name(name, reply, Some(Direction::Drive), family);
     let asked = items.len();
     items.extend(answer);
-    if matches!(name, ProtocolName::ModbusRtu | ProtocolName::ModbusAscii) {
+    if name.is_modbus() {
         name_registers(&mut items, family);
     }
     (protocol, items.split_off(asked))
@@ -504,11 +467,12 @@ fn set_quantity(field: &mut FieldReport, value: f64, unit: &str, decimals: usize
 /// Runs `drivebus decode`; returns the exit status (0 a valid frame was found, 1 none).
 pub fn run(args: &DecodeArgs, target: &crate::commands::drive::Target) -> Result<u8> {
     let name = target.protocol.as_deref().ok_or_else(|| {
-        anyhow::anyhow!("say which wire format: --protocol modbus-rtu|modbus-ascii|toshiba-ascii|toshiba-binary|danfoss-fc|b800")
+        anyhow::anyhow!(
+            "say which wire format: --protocol {}",
+            WireProtocol::NAMES.replace(", ", "|").replace(" or ", "|")
+        )
     })?;
-    let protocol = ProtocolName::from_codec(name).ok_or_else(|| {
-        anyhow::anyhow!("unknown protocol {name:?}: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800")
-    })?;
+    let protocol: WireProtocol = name.parse().map_err(|e| anyhow::anyhow!("--protocol {name:?}: {e}"))?;
     let json = target.json;
     let bytes = parse_hex_args(&args.hex)?;
     let from = args.from.map(|f| match f {

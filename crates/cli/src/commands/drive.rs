@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use anyhow::{anyhow, Context, Result};
+use anyhow::{Context, Result};
 use clap::Subcommand;
 use drivebus_drive::profile::{DriveError, DriveStatus};
 use drivebus_drive::{Family, Storage};
@@ -11,6 +11,7 @@ use drivebus_link::drive::{open_with, Drive, Error};
 use drivebus_link::owner::{BusConfig, BusError};
 use drivebus_link::Priority;
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use serde_json::{json, Map, Value};
 
 use crate::hexarg::parse_hex_args;
@@ -183,7 +184,7 @@ pub(crate) fn classify(e: Error, target: &str) -> anyhow::Error {
 /// The target options resolved: family, protocol, port and bus settings.
 pub(crate) struct Resolved {
     pub(crate) family: Family,
-    pub(crate) protocol: String,
+    pub(crate) protocol: WireProtocol,
     pub(crate) address: u8,
     pub(crate) port: String,
     pub(crate) config: BusConfig,
@@ -212,31 +213,21 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     let family: Family = family_s.parse().map_err(|_| {
         fail(EXIT_USAGE, format!("unknown drive family {family_s:?}: use generic, toshiba, danfoss or b800"))
     })?;
-    let protocols = drivebus_sim::config::protocols(family);
     let protocol = match &t.protocol {
-        Some(p) if protocols.contains(&p.as_str()) || (family == Family::Generic && p == "modbus-ascii") => {
-            p.clone()
-        }
         Some(p) => {
-            return Err(fail(
-                EXIT_USAGE,
-                format!("a {family} drive speaks {}, not {p:?}", protocols.join(", ")),
-            ))
+            let p: WireProtocol =
+                p.parse().map_err(|e| fail(EXIT_USAGE, format!("--protocol {p:?}: {e}")))?;
+            family.check_protocol(p).map_err(|e| fail(EXIT_USAGE, e))?
         }
-        None => match family {
-            // The generic drive defaults to ASCII (seed 004); most installations use RTU, so
-            // an RTU port is the common override.
-            Family::Toshiba => "toshiba-binary".to_string(),
-            _ => protocols[0].to_string(),
-        },
+        None => family.default_protocol(),
     };
-    let (db, df) = drivebus_sim::config::serial_default(family, Some(protocol.as_str()));
+    let (db, df) = family.serial_default(protocol);
     let format = match t.serial() {
         Some(s) => s.parse::<CharFormat>().map_err(|e| fail(EXIT_USAGE, format!("--serial {s:?}: {e}")))?,
         None => df,
     };
     let baud = t.baud().unwrap_or(db);
-    let mut config = BusConfig::new(&protocol, baud, format);
+    let mut config = BusConfig::new(protocol, baud, format);
     config.retries = t.retries;
     config.response_timeout = t.timeout.map(Duration::from_millis);
     config.rs485 = t.rs485.parse().map_err(|e: String| fail(EXIT_USAGE, format!("--rs485: {e}")))?;
@@ -254,7 +245,7 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
 
 async fn connect(t: &Target) -> Result<(Drive, String)> {
     let r = resolve(t)?;
-    let profile = drivebus_drive::profile::for_drive(r.family, &r.protocol, r.address)
+    let profile = drivebus_drive::profile::for_drive(r.family, r.protocol, r.address)
         .map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
     Ok((Drive::new(bus, profile), r.label))
@@ -392,8 +383,11 @@ pub fn param(t: &Target, cmd: &ParamCmd) -> Result<u8> {
 
 /// Whether the protocol lets the master choose RAM or EEPROM for a write (TIP `P`/`W`, FC AK
 /// 2/3 or E/D); Modbus 06 on the generic and Toshiba drives always stores.
-fn can_choose_storage(family: Family, protocol: &str) -> bool {
-    matches!((family, protocol), (Family::Toshiba, "toshiba-ascii" | "toshiba-binary") | (Family::Danfoss, _))
+fn can_choose_storage(family: Family, protocol: WireProtocol) -> bool {
+    matches!(
+        (family, protocol),
+        (Family::Toshiba, WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary) | (Family::Danfoss, _)
+    )
 }
 
 /// Reads every setting (writable, stored in EEPROM) the protocol can reach. A protocol without
@@ -485,7 +479,7 @@ pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
                 let params = read_all(&drive, &label).await?;
                 let n = params.len();
                 let p = drive.profile();
-                let doc = json!({"family": family, "model": p.family().model(), "protocol": p.protocol(), "address": p.address(), "params": params});
+                let doc = json!({"family": family, "model": p.family().model(), "protocol": p.protocol().name(), "address": p.address(), "params": params});
                 let text = serde_json::to_string_pretty(&doc)?;
                 std::fs::write(file, text + "\n").map_err(|e| fail(EXIT_USAGE, format!("cannot write {}: {e}", file.display())))?;
                 println!("{label}: {n} {} saved to {}", plural(n as u64, "parameter", "parameters"), file.display());
@@ -562,14 +556,14 @@ pub(crate) fn plural(n: u64, one: &'static str, many: &'static str) -> &'static 
 
 /// `raw`'s bytes must be one valid request of the bus's protocol, as a drive would check it
 /// (checksum included): the session would otherwise send its own encoding of them.
-fn check_raw_request(
-    name: crate::commands::decode::ProtocolName,
-    protocol: &str,
-    bytes: &[u8],
-) -> Result<()> {
+fn check_raw_request(protocol: WireProtocol, bytes: &[u8]) -> Result<()> {
     use crate::commands::decode::Item;
-    let (_, items) =
-        crate::commands::decode::decode_by_name(name, bytes, Some(drivebus_proto::Direction::Master), None);
+    let (_, items) = crate::commands::decode::decode_by_name(
+        protocol,
+        bytes,
+        Some(drivebus_proto::Direction::Master),
+        None,
+    );
     let not_one = || {
         fail(EXIT_USAGE, format!("the bytes are not one {protocol} request: check them with drivebus decode --protocol {protocol} --from master"))
     };
@@ -586,10 +580,8 @@ fn check_raw_request(
 pub fn raw(t: &Target, hex: &[String]) -> Result<u8> {
     let bytes = parse_hex_args(hex).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
     let r = resolve(t)?;
-    let protocol = r.protocol.clone();
-    let name = crate::commands::decode::ProtocolName::from_codec(&protocol)
-        .ok_or_else(|| anyhow!("no decoder for {protocol}"))?;
-    check_raw_request(name, &protocol, &bytes)?;
+    let name = r.protocol;
+    check_raw_request(name, &bytes)?;
     runtime()?.block_on(async move {
         let bus = open_with(&r.port, r.config).await.map_err(|e| classify(e, &r.label))?;
         let exchange = drivebus_drive::profile::Exchange { request: bytes.clone(), expect_reply: true };

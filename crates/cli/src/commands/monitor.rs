@@ -405,7 +405,7 @@ pub fn run(args: &MonitorArgs, t: &Target) -> Result<u8> {
     let mut profiles = Vec::new();
     for &a in &addresses {
         profiles.push(
-            drivebus_drive::profile::for_drive(r.family, &r.protocol, a).map_err(|e| usage(e.to_string()))?,
+            drivebus_drive::profile::for_drive(r.family, r.protocol, a).map_err(|e| usage(e.to_string()))?,
         );
     }
     let plain = args.plain || !std::io::stdout().is_terminal();

@@ -10,6 +10,7 @@ use drivebus_drive::Family;
 use drivebus_link::drive::{open_with, Drive, Error};
 use drivebus_link::owner::BusConfig;
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -35,7 +36,7 @@ pub struct ScanArgs {
 
 struct Found {
     family: Family,
-    protocol: String,
+    protocol: WireProtocol,
     address: u8,
     baud: u32,
     format: CharFormat,
@@ -48,15 +49,15 @@ struct Found {
 impl Found {
     /// The protocol and address: one drive whatever family is tried there (a pty or a serial
     /// server answers at any baud rate and format).
-    fn spot(&self) -> (String, u8) {
-        (self.protocol.clone(), self.address)
+    fn spot(&self) -> (WireProtocol, u8) {
+        (self.protocol, self.address)
     }
 }
 
 /// Whether `protocol` is spoken by more than one of the families (a refusal there may come
 /// from another family's drive).
-fn shared(protocol: &str) -> bool {
-    Family::ALL.iter().filter(|&&f| drivebus_sim::config::protocols(f).contains(&protocol)).count() > 1
+fn shared(protocol: WireProtocol) -> bool {
+    Family::ALL.iter().filter(|&&f| f.protocols().contains(&protocol)).count() > 1
 }
 
 fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
@@ -124,15 +125,17 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
     // Every (family, protocol, baud, format, address) to try.
     let mut combos = Vec::new();
     for &family in &families {
-        let protocols: Vec<String> = match &t.protocol {
-            Some(p) => vec![p.clone()],
-            None => drivebus_sim::config::protocols(family).iter().map(|s| s.to_string()).collect(),
+        let protocols: Vec<WireProtocol> = match &t.protocol {
+            Some(p) => vec![p
+                .parse()
+                .map_err(|e| crate::commands::drive::usage(format!("--protocol {p:?}: {e}")))?],
+            None => family.protocols().to_vec(),
         };
         for protocol in protocols {
-            if for_drive(family, &protocol, 1).is_err() {
+            if for_drive(family, protocol, 1).is_err() {
                 continue;
             }
-            let (db, df) = drivebus_sim::config::serial_default(family, Some(&protocol));
+            let (db, df) = family.serial_default(protocol);
             let bauds = match (&bauds, t.baud()) {
                 (Some(list), _) => list.clone(),
                 (None, Some(b)) => vec![b],
@@ -142,7 +145,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 Some(list) => list.clone(),
                 None => vec![df],
             };
-            let (lo, hi) = drivebus_drive::profile::address_range(family, &protocol);
+            let (lo, hi) = family.address_range(protocol);
             let addresses: Vec<u8> = match &addresses {
                 Some(list) => list
                     .iter()
@@ -155,7 +158,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             for &format in &formats {
                 for &baud in &bauds {
                     for &address in &addresses {
-                        combos.push((family, protocol.clone(), baud, format, address));
+                        combos.push((family, protocol, baud, format, address));
                     }
                 }
             }
@@ -175,17 +178,17 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let mut found: Vec<Found> = rt.block_on(async {
         let mut found = Vec::new();
-        let mut current: Option<((String, u32, CharFormat), drivebus_link::Bus)> = None;
+        let mut current: Option<((WireProtocol, u32, CharFormat), drivebus_link::Bus)> = None;
         for (family, protocol, baud, format, address) in combos {
             bar.set_message(format!("{family} {protocol} {baud} address {address}"));
             bar.inc(1);
-            let key = (protocol.clone(), baud, format);
+            let key = (protocol, baud, format);
             if current.as_ref().map(|(k, _)| k) != Some(&key) {
                 // The port is ours alone: close it before opening it with the next settings.
                 if let Some((_, old)) = current.take() {
                     old.close().await;
                 }
-                let mut config = BusConfig::new(&protocol, baud, format);
+                let mut config = BusConfig::new(protocol, baud, format);
                 config.retries = 0;
                 config.response_timeout = Some(timeout);
                 config.offline_after = u32::MAX;
@@ -195,7 +198,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 current = Some((key, bus));
             }
             let Some((_, bus)) = &current else { continue };
-            let Ok(profile) = for_drive(family, &protocol, address) else { continue };
+            let Ok(profile) = for_drive(family, protocol, address) else { continue };
             let drive = Drive::new(bus.clone(), profile);
             let (note, refused) = match drive.status().await {
                 Ok(s) => (
@@ -214,7 +217,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 Err(_) => continue,
             };
             drop(drive);
-            let tentative = refused && shared(&protocol);
+            let tentative = refused && shared(protocol);
             let f = Found { family, protocol, address, baud, format, note, tentative };
             if f.tentative {
                 // Told at the end, if no family reads a status there.
@@ -246,7 +249,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
     if t.json {
         let list: Vec<_> = found
             .iter()
-            .map(|f| json!({"family": f.family.to_string(), "protocol": f.protocol, "address": f.address, "baud": f.baud, "serial": f.format.to_string(), "state": f.note}))
+            .map(|f| json!({"family": f.family.to_string(), "protocol": f.protocol.name(), "address": f.address, "baud": f.baud, "serial": f.format.to_string(), "state": f.note}))
             .collect();
         println!("{}", json!(list));
     } else if found.is_empty() {

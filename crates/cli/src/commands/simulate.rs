@@ -109,7 +109,7 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Resu
                     "{}@{}{}",
                     d.family,
                     d.address,
-                    d.protocol.as_deref().map(|p| format!(":{p}")).unwrap_or_default()
+                    d.protocol.map(|p| format!(":{p}")).unwrap_or_default()
                 ))
                 .collect::<Vec<_>>()
                 .join(" ")

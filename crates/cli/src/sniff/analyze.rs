@@ -7,15 +7,22 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use drivebus_proto::line::{modbus_t15_t35, CharFormat};
-use drivebus_proto::{b800, fc, modbus, toshiba};
+use drivebus_proto::protocol::{CodecJob, WireProtocol};
 use drivebus_proto::{Codec, Deframer, Direction, Event, Scan, Scanner, Target};
 use serde_json::{json, Value};
 
 use crate::commands::decode::{describe, render_json, FrameReport};
 
-/// The codec names of the six wire formats, in the order auto-detection lists them.
-pub const PROTOCOLS: [&str; 6] =
-    ["modbus-rtu", "modbus-ascii", "toshiba-ascii", "toshiba-binary", "danfoss-fc", "b800"];
+/// The names of the six wire formats, in the order auto-detection lists them.
+pub const PROTOCOLS: [&str; 6] = {
+    let mut names = [""; 6];
+    let mut i = 0;
+    while i < names.len() {
+        names[i] = WireProtocol::ALL[i].name();
+        i += 1;
+    }
+    names
+};
 
 /// A frame candidate out of a deframer: its bytes and, when it is not a whole frame with a
 /// good checksum, why.
@@ -103,38 +110,34 @@ where
 
 /// A deframer for `protocol` and frames from `from` (`None`: both directions on one pair).
 fn framer(protocol: &str, from: Option<Direction>) -> Option<Box<dyn Framer>> {
-    fn make<C: Codec + 'static>(from: Option<Direction>) -> Box<dyn Framer>
-    where
-        C::Scanner: Send,
-    {
-        Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(from)), held: Vec::new() })
+    struct Make(Option<Direction>);
+    impl CodecJob for Make {
+        type Output = Box<dyn Framer>;
+        fn run<C: Codec + 'static>(self) -> Box<dyn Framer>
+        where
+            C::Scanner: Send + 'static,
+        {
+            Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(self.0)), held: Vec::new() })
+        }
     }
-    Some(match protocol {
-        "modbus-rtu" => make::<modbus::rtu::ModbusRtu>(from),
-        "modbus-ascii" => make::<modbus::ascii::ModbusAscii>(from),
-        "toshiba-ascii" => make::<toshiba::ascii::AsciiCodec>(from),
-        "toshiba-binary" => make::<toshiba::binary::BinaryCodec>(from),
-        "danfoss-fc" => make::<fc::DanfossFc>(from),
-        "b800" => make::<b800::B800>(from),
-        _ => return None,
-    })
+    Some(protocol.parse::<WireProtocol>().ok()?.with_codec(Make(from)))
 }
 
 /// Reads a whole frame of `protocol` as sent by `from`.
 pub fn parse(protocol: &str, bytes: &[u8], from: Direction) -> Result<FrameReport, String> {
-    fn go<C: Codec>(bytes: &[u8], from: Direction) -> Result<FrameReport, String> {
-        let frame = C::parse(bytes, Some(from)).map_err(|e| e.to_string())?;
-        Ok(describe(0, bytes, &frame))
+    struct Parse<'a>(&'a [u8], Direction);
+    impl CodecJob for Parse<'_> {
+        type Output = Result<FrameReport, String>;
+        fn run<C: Codec + 'static>(self) -> Self::Output
+        where
+            C::Scanner: Send + 'static,
+        {
+            let frame = C::parse(self.0, Some(self.1)).map_err(|e| e.to_string())?;
+            Ok(describe(0, self.0, &frame))
+        }
     }
-    match protocol {
-        "modbus-rtu" => go::<modbus::rtu::ModbusRtu>(bytes, from),
-        "modbus-ascii" => go::<modbus::ascii::ModbusAscii>(bytes, from),
-        "toshiba-ascii" => go::<toshiba::ascii::AsciiCodec>(bytes, from),
-        "toshiba-binary" => go::<toshiba::binary::BinaryCodec>(bytes, from),
-        "danfoss-fc" => go::<fc::DanfossFc>(bytes, from),
-        "b800" => go::<b800::B800>(bytes, from),
-        other => Err(format!("unknown protocol {other:?}")),
-    }
+    let protocol: WireProtocol = protocol.parse().map_err(|e| format!("{protocol:?}: {e}"))?;
+    protocol.with_codec(Parse(bytes, from))
 }
 
 /// A frame identical to the waiting request (a Modbus 05/06 reply echoes its request) that

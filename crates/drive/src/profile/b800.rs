@@ -42,11 +42,14 @@ use drivebus_proto::b800::{
     Address, Destination, DriveState, ErrorCode, MasterCommand, Reply, Request, SlaveReply, Speed, MAX_FRAME,
 };
 
-use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    WireProtocol,
+};
 use crate::{Catalog, Family, ParamDef};
 
-/// The codec name of the B800 protocol.
-pub const PROTOCOL: &str = "b800";
+/// The protocol the B800 speaks.
+pub const PROTOCOL: WireProtocol = WireProtocol::B800;
 
 /// The text of a B800 trip code, as the `t` reply's high byte carries it. The seed lists no
 /// trip codes: these are the project's simulator's (01 over-current .. 06 external).
@@ -250,7 +253,7 @@ impl Profile for B800Profile {
         Family::B800
     }
 
-    fn protocol(&self) -> &'static str {
+    fn protocol(&self) -> WireProtocol {
         PROTOCOL
     }
 

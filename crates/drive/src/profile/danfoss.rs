@@ -80,11 +80,14 @@ use drivebus_proto::fc::{
     Request, StatusWord, MAX_TELEGRAM,
 };
 
-use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    WireProtocol,
+};
 use crate::{Catalog, Family, ParamDef, Size, Storage};
 
-/// The codec name of the FC protocol.
-pub const PROTOCOL: &str = "danfoss-fc";
+/// The protocol a Danfoss FC drive speaks.
+pub const PROTOCOL: WireProtocol = WireProtocol::DanfossFc;
 
 /// 3-00 Reference Range.
 const REF_RANGE: u16 = 300;
@@ -562,7 +565,7 @@ impl Profile for DanfossProfile {
         Family::Danfoss
     }
 
-    fn protocol(&self) -> &'static str {
+    fn protocol(&self) -> WireProtocol {
         PROTOCOL
     }
 

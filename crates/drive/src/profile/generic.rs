@@ -40,7 +40,10 @@ use std::sync::Arc;
 
 use drivebus_proto::modbus::{ExceptionCode, Reply, ReplyPdu, Request, UnitId};
 
-use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    WireProtocol,
+};
 use crate::{format_fixed, Catalog, Family, ParamDef, Size, Storage};
 
 pub use crate::registers::generic::{command, reg, status};
@@ -60,9 +63,18 @@ pub enum GenericProtocol {
 }
 
 impl GenericProtocol {
-    /// The codec name: `modbus-rtu` or `modbus-ascii`.
-    pub fn name(self) -> &'static str {
-        self.framing().name()
+    /// The wire protocol of this mode.
+    pub fn wire(self) -> WireProtocol {
+        self.framing().wire()
+    }
+
+    /// The mode that speaks `protocol`, if it is a Modbus framing.
+    pub fn from_wire(protocol: WireProtocol) -> Option<Self> {
+        match protocol {
+            WireProtocol::ModbusRtu => Some(GenericProtocol::Rtu),
+            WireProtocol::ModbusAscii => Some(GenericProtocol::Ascii),
+            _ => None,
+        }
     }
 
     fn framing(self) -> ModbusFraming {
@@ -75,23 +87,23 @@ impl GenericProtocol {
 
 impl fmt::Display for GenericProtocol {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
+        self.wire().fmt(f)
     }
 }
 
 impl FromStr for GenericProtocol {
     type Err = DriveError;
 
-    /// `modbus-rtu`/`rtu` or `modbus-ascii`/`ascii`, any letter case.
+    /// `modbus-rtu` or `modbus-ascii`, any letter case.
     fn from_str(s: &str) -> Result<Self, DriveError> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "modbus-rtu" | "rtu" => Ok(GenericProtocol::Rtu),
-            "modbus-ascii" | "ascii" => Ok(GenericProtocol::Ascii),
-            _ => Err(DriveError::Unsupported(format!(
-                "the generic drive speaks modbus-rtu or modbus-ascii, not {:?}",
+        s.parse().ok().and_then(GenericProtocol::from_wire).ok_or_else(|| {
+            DriveError::Unsupported(format!(
+                "the generic drive speaks {} or {}, not {:?}",
+                WireProtocol::ModbusRtu,
+                WireProtocol::ModbusAscii,
                 s.trim()
-            ))),
-        }
+            ))
+        })
     }
 }
 
@@ -214,8 +226,8 @@ impl Profile for GenericProfile {
         Family::Generic
     }
 
-    fn protocol(&self) -> &'static str {
-        self.protocol.name()
+    fn protocol(&self) -> WireProtocol {
+        self.protocol.wire()
     }
 
     fn address(&self) -> u8 {
@@ -473,10 +485,10 @@ pub(crate) enum ModbusAnswer {
 }
 
 impl ModbusFraming {
-    pub(crate) fn name(self) -> &'static str {
+    pub(crate) fn wire(self) -> WireProtocol {
         match self {
-            ModbusFraming::Rtu => "modbus-rtu",
-            ModbusFraming::Ascii => "modbus-ascii",
+            ModbusFraming::Rtu => WireProtocol::ModbusRtu,
+            ModbusFraming::Ascii => WireProtocol::ModbusAscii,
         }
     }
 
@@ -737,7 +749,7 @@ impl Plan for GenericPlan {
 impl fmt::Debug for GenericPlan {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("GenericPlan")
-            .field("protocol", &self.framing.name())
+            .field("protocol", &self.framing.wire())
             .field("unit", &self.unit)
             .field("job", &self.job)
             .field("stage", &self.stage)

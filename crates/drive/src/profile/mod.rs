@@ -17,6 +17,8 @@
 
 use std::fmt;
 
+pub use drivebus_proto::protocol::WireProtocol;
+
 use crate::{Family, ParamDef, Storage};
 
 pub mod b800;
@@ -196,8 +198,8 @@ pub trait Plan: Send {
 pub trait Profile: Send + Sync {
     /// The family.
     fn family(&self) -> Family;
-    /// The codec name of the protocol in use (`modbus-rtu`, `toshiba-binary`, ...).
-    fn protocol(&self) -> &'static str;
+    /// The protocol in use.
+    fn protocol(&self) -> WireProtocol;
     /// The drive's number on the bus.
     fn address(&self) -> u8;
     /// The parameter named `name` in this family's catalog, with its unit and limits.
@@ -206,51 +208,24 @@ pub trait Profile: Send + Sync {
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError>;
 }
 
-/// The addresses one drive of `family` can have on `protocol` (a codec name), broadcast
-/// addresses excluded: Modbus 1..247, TIP binary 0..63, TIP ASCII 0..99, FC 1..126, B800 1..63.
-pub fn address_range(family: Family, protocol: &str) -> (u8, u8) {
-    match (family, protocol) {
-        (Family::Generic, _) | (Family::Toshiba, "modbus-rtu") => (1, 247),
-        (Family::Toshiba, "toshiba-binary") => (0, 63),
-        (Family::Toshiba, _) => (0, 99),
-        (Family::Danfoss, _) => (1, 126),
-        (Family::B800, _) => (1, 63),
-    }
-}
-
-/// The profile for drive `address` of `family` spoken in `protocol` (a codec name).
-pub fn for_drive(family: Family, protocol: &str, address: u8) -> Result<Box<dyn Profile>, DriveError> {
-    let wrong = || {
-        DriveError::Unsupported(format!(
-            "a {family} drive does not speak {protocol:?}: use {}",
-            match family {
-                Family::Generic => "modbus-rtu or modbus-ascii",
-                Family::Toshiba => "modbus-rtu, toshiba-ascii or toshiba-binary",
-                Family::Danfoss => "danfoss-fc",
-                Family::B800 => "b800",
-            }
-        ))
-    };
+/// The profile for drive `address` of `family` spoken in `protocol`.
+pub fn for_drive(
+    family: Family,
+    protocol: WireProtocol,
+    address: u8,
+) -> Result<Box<dyn Profile>, DriveError> {
+    family.check_protocol(protocol).map_err(DriveError::Unsupported)?;
+    let wrong = || DriveError::Unsupported(format!("a {family} drive does not speak {protocol}"));
     Ok(match family {
         Family::Generic => {
-            let p = match protocol {
-                "modbus-rtu" => generic::GenericProtocol::Rtu,
-                "modbus-ascii" => generic::GenericProtocol::Ascii,
-                _ => return Err(wrong()),
-            };
+            let p = generic::GenericProtocol::from_wire(protocol).ok_or_else(wrong)?;
             Box::new(generic::GenericProfile::new(address, p)?)
         }
         Family::Toshiba => {
-            let p = match protocol {
-                "modbus-rtu" => toshiba::ToshibaProtocol::ModbusRtu,
-                "toshiba-ascii" => toshiba::ToshibaProtocol::TipAscii,
-                "toshiba-binary" => toshiba::ToshibaProtocol::TipBinary,
-                _ => return Err(wrong()),
-            };
+            let p = toshiba::ToshibaProtocol::from_wire(protocol).ok_or_else(wrong)?;
             Box::new(toshiba::ToshibaProfile::new(address, p)?)
         }
-        Family::Danfoss if protocol == "danfoss-fc" => Box::new(danfoss::DanfossProfile::new(address)?),
-        Family::B800 if protocol == "b800" => Box::new(b800::B800Profile::new(address)?),
-        _ => return Err(wrong()),
+        Family::Danfoss => Box::new(danfoss::DanfossProfile::new(address)?),
+        Family::B800 => Box::new(b800::B800Profile::new(address)?),
     })
 }

@@ -61,7 +61,10 @@ use drivebus_proto::toshiba::{Cmd, CommNo, Command1, ErrorCode, Status1};
 use super::generic::{
     checked_write, raw_of, register_of, ModbusAnswer, ModbusAsk, ModbusFraming, SpeedLimits,
 };
-use super::{CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step};
+use super::{
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    WireProtocol,
+};
 use crate::{format_fixed, Catalog, Family, ParamDef, Storage};
 
 /// The address that makes a TIP profile a broadcast (`**` in ASCII mode, FF in binary mode).
@@ -100,23 +103,30 @@ pub enum ToshibaProtocol {
 }
 
 impl ToshibaProtocol {
-    /// The codec name: `modbus-rtu`, `toshiba-ascii` or `toshiba-binary`.
-    pub fn name(self) -> &'static str {
+    /// The wire protocol.
+    pub fn wire(self) -> WireProtocol {
         match self {
-            ToshibaProtocol::ModbusRtu => "modbus-rtu",
-            ToshibaProtocol::TipAscii => "toshiba-ascii",
-            ToshibaProtocol::TipBinary => "toshiba-binary",
+            ToshibaProtocol::ModbusRtu => WireProtocol::ModbusRtu,
+            ToshibaProtocol::TipAscii => WireProtocol::ToshibaAscii,
+            ToshibaProtocol::TipBinary => WireProtocol::ToshibaBinary,
+        }
+    }
+
+    /// The profile's protocol for `protocol`, if the VF-AS1 speaks it.
+    pub fn from_wire(protocol: WireProtocol) -> Option<Self> {
+        match protocol {
+            WireProtocol::ModbusRtu => Some(ToshibaProtocol::ModbusRtu),
+            WireProtocol::ToshibaAscii => Some(ToshibaProtocol::TipAscii),
+            WireProtocol::ToshibaBinary => Some(ToshibaProtocol::TipBinary),
+            _ => None,
         }
     }
 
     /// The inverter numbers a single drive can have: Modbus 1..=247, TIP ASCII 0..=99,
-    /// TIP binary 0..=63.
+    /// TIP binary 0..=63 (the family's capability table).
     pub fn unit_range(self) -> std::ops::RangeInclusive<u8> {
-        match self {
-            ToshibaProtocol::ModbusRtu => 1..=247,
-            ToshibaProtocol::TipAscii => 0..=99,
-            ToshibaProtocol::TipBinary => 0..=63,
-        }
+        let (lo, hi) = Family::Toshiba.address_range(self.wire());
+        lo..=hi
     }
 
     /// The address that broadcasts: 0 in Modbus-RTU, [`TIP_BROADCAST`] in TIP.
@@ -130,25 +140,19 @@ impl ToshibaProtocol {
 
 impl fmt::Display for ToshibaProtocol {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
+        self.wire().fmt(f)
     }
 }
 
 impl FromStr for ToshibaProtocol {
     type Err = DriveError;
 
-    /// `modbus-rtu`, `toshiba-ascii` or `toshiba-binary` (also `rtu`, `ascii`, `binary`), any
-    /// letter case.
+    /// `modbus-rtu`, `toshiba-ascii` or `toshiba-binary`, any letter case.
     fn from_str(s: &str) -> Result<Self, DriveError> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "modbus-rtu" | "modbus" | "rtu" => Ok(ToshibaProtocol::ModbusRtu),
-            "toshiba-ascii" | "tip-ascii" | "ascii" => Ok(ToshibaProtocol::TipAscii),
-            "toshiba-binary" | "tip-binary" | "binary" => Ok(ToshibaProtocol::TipBinary),
-            _ => Err(DriveError::Unsupported(format!(
-                "the VF-AS1 speaks modbus-rtu, toshiba-ascii or toshiba-binary, not {:?}",
-                s.trim()
-            ))),
-        }
+        s.parse().ok().and_then(ToshibaProtocol::from_wire).ok_or_else(|| {
+            let names: Vec<&str> = Family::Toshiba.protocols().iter().map(|p| p.name()).collect();
+            DriveError::Unsupported(format!("the VF-AS1 speaks {}, not {:?}", names.join(", "), s.trim()))
+        })
     }
 }
 
@@ -368,8 +372,8 @@ impl Profile for ToshibaProfile {
         Family::Toshiba
     }
 
-    fn protocol(&self) -> &'static str {
-        self.protocol.name()
+    fn protocol(&self) -> WireProtocol {
+        self.protocol.wire()
     }
 
     fn address(&self) -> u8 {

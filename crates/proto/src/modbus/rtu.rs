@@ -534,7 +534,7 @@ impl Protocol for ModbusRtu {
 }
 
 impl Codec for ModbusRtu {
-    const NAME: &'static str = "modbus-rtu";
+    const NAME: &'static str = crate::protocol::WireProtocol::ModbusRtu.name();
     type Scanner = RtuScanner;
     type Frame<'a> = Frame<'a>;
 

@@ -67,7 +67,7 @@ use crate::drive::{DriveCore, VirtualDrive};
 use crate::model::{ModelSettings, Rotation, RunRefusal, RunState, Trip};
 
 /// The protocol name the drive reports (the codec's name).
-pub const PROTOCOL: &str = "b800";
+pub const PROTOCOL: drivebus_proto::protocol::WireProtocol = drivebus_proto::protocol::WireProtocol::B800;
 
 /// The software version a new drive reports to `V`: 1.00 (project decision: BCD, 0x0100).
 pub const VERSION: Version = Version::from_raw(0x0100);
@@ -533,7 +533,7 @@ impl VirtualDrive for B800Drive {
     }
 
     fn protocol(&self) -> String {
-        PROTOCOL.to_string()
+        PROTOCOL.name().to_string()
     }
 
     fn core(&self) -> &DriveCore {

@@ -64,7 +64,8 @@ use crate::model::{ModelSettings, Rotation, RunState, Trip};
 use channel::Answer;
 
 /// The protocol name this drive answers.
-pub const PROTOCOL: &str = "danfoss-fc";
+pub const PROTOCOL: drivebus_proto::protocol::WireProtocol =
+    drivebus_proto::protocol::WireProtocol::DanfossFc;
 
 /// The FC alarm number of a model trip, as 15-30 Alarm Log shows it.
 pub fn alarm_code(trip: Trip) -> u8 {
@@ -264,7 +265,7 @@ impl VirtualDrive for DanfossDrive {
     }
 
     fn protocol(&self) -> String {
-        PROTOCOL.to_string()
+        PROTOCOL.name().to_string()
     }
 
     fn core(&self) -> &DriveCore {

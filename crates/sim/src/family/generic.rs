@@ -51,8 +51,6 @@
 //!   function codes whose length no Modbus layout gives (41H, 2BH with an MEI type other than
 //!   0EH): those get exception 01 too, as a drive that frames by silence answers them.
 
-use std::fmt;
-use std::str::FromStr;
 use std::time::Duration;
 
 use drivebus_drive::{Family, ParamStore, Storage, WriteError};
@@ -111,58 +109,19 @@ const SOURCE_COMM: i64 = 4;
 /// P0.01 = 2: run commands from communication.
 const RUN_SOURCE_COMM: i64 = 2;
 
-/// Which Modbus transmission mode the drive speaks ("RTU 方式和ASCII 方式", selected by P3.10).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum GenericProtocol {
-    /// Modbus RTU: binary, CRC-16, frames delimited by silence.
-    Rtu,
-    /// Modbus ASCII: `:` hex digits, LRC, CR LF (the manual's default mode).
-    Ascii,
+pub use drivebus_drive::profile::generic::GenericProtocol;
+
+/// The default character format of `protocol`: ASCII 1-7-2 without parity (the manual's
+/// default, "1 位起始位,7 位数据位,2 位停止位"), RTU 1-8-2 without parity (the family's table).
+pub fn char_format(protocol: GenericProtocol) -> CharFormat {
+    Family::Generic.serial_default(protocol.wire()).1
 }
 
-impl GenericProtocol {
-    /// The name a user gives it: `modbus-rtu` or `modbus-ascii`.
-    pub fn name(self) -> &'static str {
-        match self {
-            GenericProtocol::Rtu => "modbus-rtu",
-            GenericProtocol::Ascii => "modbus-ascii",
-        }
-    }
-
-    /// The default character format: ASCII 1-7-2 without parity (the manual's default, "1 位
-    /// 起始位,7 位数据位,2 位停止位"), RTU 1-8-2 without parity (protocols.md decision).
-    pub fn char_format(self) -> CharFormat {
-        match self {
-            GenericProtocol::Rtu => CharFormat::NONE_8N2,
-            GenericProtocol::Ascii => CharFormat::NONE_7N2,
-        }
-    }
-
-    /// The P3.10 value for [`char_format`](Self::char_format): 3 (RTU 1-8-2) or 0 (ASCII 1-7-2).
-    fn p3_10(self) -> i64 {
-        match self {
-            GenericProtocol::Rtu => 3,
-            GenericProtocol::Ascii => 0,
-        }
-    }
-}
-
-impl fmt::Display for GenericProtocol {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for GenericProtocol {
-    type Err = String;
-
-    /// `modbus-rtu`/`rtu` or `modbus-ascii`/`ascii`, any case.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "modbus-rtu" | "rtu" => Ok(GenericProtocol::Rtu),
-            "modbus-ascii" | "ascii" => Ok(GenericProtocol::Ascii),
-            _ => Err(format!("the generic drive speaks modbus-rtu or modbus-ascii, not {:?}", s.trim())),
-        }
+/// The P3.10 value for [`char_format`]: 3 (RTU 1-8-2) or 0 (ASCII 1-7-2).
+fn p3_10(protocol: GenericProtocol) -> i64 {
+    match protocol {
+        GenericProtocol::Rtu => 3,
+        GenericProtocol::Ascii => 0,
     }
 }
 
@@ -396,7 +355,7 @@ impl VirtualDrive for GenericDrive {
     }
 
     fn protocol(&self) -> String {
-        self.state.protocol.name().to_string()
+        self.state.protocol.wire().name().to_string()
     }
 
     fn core(&self) -> &DriveCore {
@@ -522,7 +481,7 @@ impl State {
         let params = &mut self.core.params;
         let _ = params.force(P0_00_FREQ_SOURCE, 0, SOURCE_COMM);
         let _ = params.force(P0_01_RUN_SOURCE, 0, RUN_SOURCE_COMM);
-        let _ = params.force(P3_10_FORMAT, 0, self.protocol.p3_10());
+        let _ = params.force(P3_10_FORMAT, 0, p3_10(self.protocol));
         let direction = if self.param(P0_03_DIRECTION) == 1 { Rotation::Reverse } else { Rotation::Forward };
         self.core.model.set_rotation(direction);
     }

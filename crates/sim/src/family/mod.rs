@@ -13,6 +13,7 @@ pub mod generic;
 pub mod toshiba;
 
 use drivebus_drive::Family;
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::Instant;
 
 use crate::config::{ConfigError, DriveSpec};
@@ -24,15 +25,14 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
     Ok(match spec.family {
         Family::B800 => Box::new(b800::B800Drive::new(spec.address, now).map_err(err)?),
         Family::Generic => {
-            let protocol = match spec.protocol.as_deref() {
-                Some("modbus-rtu") => generic::GenericProtocol::Rtu,
-                _ => generic::GenericProtocol::Ascii,
-            };
+            let wire = spec.protocol.unwrap_or(Family::Generic.default_protocol());
+            let protocol =
+                generic::GenericProtocol::from_wire(wire).ok_or_else(|| err(format!("speaks no {wire}")))?;
             Box::new(generic::GenericDrive::new(spec.address, protocol, now).map_err(err)?)
         }
         Family::Toshiba => {
-            let protocol = match spec.protocol.as_deref() {
-                Some("modbus-rtu") => toshiba::ToshibaProtocol::ModbusRtu,
+            let protocol = match spec.protocol {
+                Some(WireProtocol::ModbusRtu) => toshiba::ToshibaProtocol::ModbusRtu,
                 _ => toshiba::ToshibaProtocol::Tip,
             };
             Box::new(toshiba::ToshibaDrive::new(spec.address, protocol, now).map_err(err)?)
@@ -41,14 +41,14 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
     })
 }
 
-/// The codec names a master may use to talk to the drive `spec` describes.
-pub fn wire_protocols(spec: &DriveSpec) -> &'static [&'static str] {
-    match (spec.family, spec.protocol.as_deref()) {
-        (Family::Generic, Some("modbus-rtu")) => &["modbus-rtu"],
-        (Family::Generic, _) => &["modbus-ascii"],
-        (Family::Toshiba, Some("modbus-rtu")) => &["modbus-rtu"],
-        (Family::Toshiba, _) => &["toshiba-ascii", "toshiba-binary"],
-        (Family::Danfoss, _) => &["danfoss-fc"],
-        (Family::B800, _) => &["b800"],
+/// The protocols a master may use to talk to the drive `spec` describes: the one it was given,
+/// or its family's default (a TOSHIBA drive answers both TIP modes on one line).
+pub fn wire_protocols(spec: &DriveSpec) -> &'static [WireProtocol] {
+    match (spec.family, spec.protocol) {
+        (Family::Toshiba, None | Some(WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary)) => {
+            toshiba::ToshibaProtocol::Tip.wire_protocols()
+        }
+        (family, Some(p)) => family.protocols().iter().find(|&&x| x == p).map_or(&[], core::slice::from_ref),
+        (family, None) => &family.protocols()[..1],
     }
 }

@@ -35,6 +35,7 @@ use drivebus_proto::modbus::{
     DeviceIdReply, DeviceObject, DeviceObjects, ExceptionCode, Registers, Reply, ReplyPdu, Request,
     RequestPdu, UnitId,
 };
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{Incoming, Responder, SlaveSession};
 use drivebus_proto::toshiba::binary::{BinaryRequestBody, BlockRequest};
 use drivebus_proto::toshiba::{Alarm, Cmd, Command1, ErrorCode, Status1, Tip, TipReply, TipRequest};
@@ -54,12 +55,17 @@ pub enum ToshibaProtocol {
 }
 
 impl ToshibaProtocol {
-    /// The name a user gives it: `toshiba-ascii+binary` or `modbus-rtu`.
-    pub fn name(self) -> &'static str {
+    /// The wire protocols a master may use with it.
+    pub fn wire_protocols(self) -> &'static [WireProtocol] {
         match self {
-            ToshibaProtocol::Tip => "toshiba-ascii+binary",
-            ToshibaProtocol::ModbusRtu => "modbus-rtu",
+            ToshibaProtocol::Tip => &[WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary],
+            ToshibaProtocol::ModbusRtu => &[WireProtocol::ModbusRtu],
         }
+    }
+
+    /// Its name: the protocols' names joined by `+` (`toshiba-ascii+toshiba-binary`).
+    pub fn name(self) -> String {
+        self.wire_protocols().iter().map(|p| p.name()).collect::<Vec<_>>().join("+")
     }
 
     /// The value of f829 that selects it.
@@ -359,7 +365,7 @@ impl VirtualDrive for ToshibaDrive {
     }
 
     fn protocol(&self) -> String {
-        self.inner.protocol.name().to_string()
+        self.inner.protocol.name()
     }
 
     fn core(&self) -> &DriveCore {

@@ -41,9 +41,9 @@
 //! ## Retention and size cap
 //!
 //! [`Limits`]: events older than the retention are deleted, and when the data outgrows the size
-//! cap the oldest events and trend buckets go first ([`Store::enforce_limits`]); the background
-//! thread enforces both when the store opens, the retention every ten minutes and the cap every
-//! [`SIZE_CHECK_INTERVAL`].
+//! cap the oldest events and trend buckets go first ([`Store::enforce_limits`]). Both are
+//! enforced when the store opens (before it is used), then by the background thread: the
+//! retention every ten minutes, the cap every [`SIZE_CHECK_INTERVAL`].
 //!
 //! ## Concurrency
 //!
@@ -196,8 +196,8 @@ impl Store {
         Store::open_with_limits(path, Limits::NONE)
     }
 
-    /// [`Store::open`] with the retention and size cap `limits`, enforced by the background
-    /// thread at once and then periodically.
+    /// [`Store::open`] with the retention and size cap `limits`, enforced before this returns
+    /// and then periodically by the background thread.
     pub fn open_with_limits(path: &Path, limits: Limits) -> Result<Store, StoreError> {
         let sq = |doing| move |e| StoreError::sqlite(path, doing, e);
         let mut writer = Connection::open(path).map_err(sq("opening"))?;
@@ -230,12 +230,19 @@ impl Store {
             tx.execute_batch(SPARKPLUG_SCHEMA).map_err(sq("creating the Sparkplug tables"))?;
             tx.commit().map_err(sq("creating the schema"))?;
         }
+        // The limits hold from the start: enforced before the store is used.
+        let mut queue = Queue::default();
+        if limits != Limits::NONE {
+            if let Err(e) = limits::enforce(&writer, path, &limits, time::now_ms()) {
+                queue.last_error = Some(e.to_string());
+            }
+        }
         let reader = open_reader(path)?;
         let shared = Arc::new(Shared {
             path: path.to_path_buf(),
             reader: Mutex::new(reader),
             writer: Some(Mutex::new(writer)),
-            queue: Mutex::new(Queue::default()),
+            queue: Mutex::new(queue),
             wake: Condvar::new(),
             limits,
         });
@@ -653,10 +660,7 @@ fn background(shared: &Shared) {
     let mut last_prune: Option<Instant> = None;
     let mut last_size_check: Option<Instant> = None;
     loop {
-        // The first round runs at once: limits are enforced when the store opens.
-        let stop = if last_prune.is_none() {
-            lock(&shared.queue).stop
-        } else {
+        let stop = {
             let q = lock(&shared.queue);
             let (q, _) = shared
                 .wake

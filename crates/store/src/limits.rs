@@ -1,6 +1,6 @@
 //! What the store keeps at most: events no older than a retention period, and a file no larger
-//! than a size cap (oldest events and trend buckets deleted first). Enforced by the background
-//! thread when the store opens and then periodically ([`crate::Store::enforce_limits`]).
+//! than a size cap (oldest events and trend buckets deleted first). Enforced when the store opens
+//! and then periodically by its background thread ([`crate::Store::enforce_limits`]).
 
 use std::path::Path;
 use std::time::Duration;

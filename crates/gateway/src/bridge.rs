@@ -29,9 +29,11 @@ use toml::Spanned;
 use crate::config::{BusConfig, ConfigError, Ctx};
 use crate::gateway::{unix_ms, Gateway};
 use crate::modbus_tcp::{ILLEGAL_FUNCTION, TARGET_FAILED};
+use drivebus_proto::modbus::tcp::{Mbap, MBAP_LEN};
+use drivebus_proto::modbus::ExceptionCode;
 
 /// Exception 0A: gateway path unavailable (the bus is down).
-pub const PATH_UNAVAILABLE: u8 = 0x0A;
+pub const PATH_UNAVAILABLE: ExceptionCode = ExceptionCode::GATEWAY_PATH_UNAVAILABLE;
 
 /// How requests come over TCP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -198,7 +200,7 @@ pub async fn serve(gw: Arc<Gateway>, cfg: BridgeConfig, listener: TcpListener) -
 struct Request {
     unit: u8,
     pdu: Vec<u8>,
-    header: Option<[u8; 7]>,
+    header: Option<Mbap>,
 }
 
 async fn connection(
@@ -233,23 +235,23 @@ async fn connection(
             Framing::Mbap => {
                 len += n;
                 let mut pos = 0;
-                while len - pos >= 7 {
-                    let h = &buf[pos..pos + 7];
-                    let length = u16::from_be_bytes([h[4], h[5]]) as usize;
-                    if u16::from_be_bytes([h[2], h[3]]) != 0 || !(2..=254).contains(&length) {
-                        return Ok(());
-                    }
-                    if len - pos < 6 + length {
+                loop {
+                    let header = match Mbap::parse(&buf[pos..len]) {
+                        Ok(Some(h)) => h,
+                        Ok(None) => break,
+                        // Nothing after a damaged header can be trusted to be framed right.
+                        Err(_) => return Ok(()),
+                    };
+                    let total = header.frame_len();
+                    if len - pos < total {
                         break;
                     }
-                    let mut header = [0u8; 7];
-                    header.copy_from_slice(h);
                     requests.push(Request {
-                        unit: h[6],
-                        pdu: buf[pos + 7..pos + 6 + length].to_vec(),
+                        unit: header.unit,
+                        pdu: buf[pos + MBAP_LEN..pos + total].to_vec(),
                         header: Some(header),
                     });
-                    pos += 6 + length;
+                    pos += total;
                 }
                 buf.copy_within(pos..len, 0);
                 len -= pos;
@@ -269,10 +271,8 @@ async fn connection(
             let Some(pdu) = answer else { continue };
             let out = match r.header {
                 Some(h) => {
-                    let mut out = Vec::with_capacity(7 + pdu.len());
-                    out.extend_from_slice(&h[..4]);
-                    out.extend_from_slice(&((pdu.len() + 1) as u16).to_be_bytes());
-                    out.push(h[6]);
+                    let mut out = vec![0u8; MBAP_LEN];
+                    let _ = h.answer(pdu.len()).emit(&mut out);
                     out.extend_from_slice(&pdu);
                     out
                 }
@@ -293,7 +293,7 @@ async fn pass(
     actor: &str,
 ) -> Option<Vec<u8>> {
     let fc = *r.pdu.first()?;
-    let exception = |code: u8| Some(vec![fc | 0x80, code]);
+    let exception = |code: ExceptionCode| Some(vec![fc | 0x80, code.0]);
     let bus = gw.buses().iter().find(|b| b.config.name == cfg.bus)?.clone();
     let ascii = bus.config.protocol == drivebus_proto::protocol::WireProtocol::ModbusAscii;
     let write = is_write(fc);

@@ -823,6 +823,13 @@ impl GatewayConfig {
                 return cx.err(b.name.span(), "bus.name", format!("two buses are named {name:?}"));
             }
             let port = match b.port.get_ref().as_str() {
+                "virtual" if cfg!(not(feature = "virtual")) => {
+                    return cx.err(
+                        b.port.span(),
+                        "bus.port",
+                        "this build has no virtual buses (built without the `virtual` feature): give a serial device or tcp://HOST:PORT",
+                    )
+                }
                 "virtual" => Port::Virtual,
                 p if p.starts_with("tcp://") => Port::Tcp(p["tcp://".len()..].to_string()),
                 "" => {

@@ -17,14 +17,15 @@ use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_link::drive::{Drive, Error as LinkError};
 use drivebus_link::owner::{Bus, BusConfig as OwnerConfig, BusError, BusStats};
 use drivebus_proto::protocol::WireProtocol;
+#[cfg(feature = "virtual")]
 use drivebus_sim::bus::VirtualLine;
 use drivebus_store::{Event, EventKind, Sample, Store};
 use serde::Serialize;
 use serde_json::json;
 use tokio::sync::{broadcast, Notify};
 
-use crate::config::{BusConfig, DriveConfig, GatewayConfig, Port};
-use crate::port::{sim_link, virtual_line, PortLink};
+use crate::config::{BusConfig, DriveConfig, GatewayConfig};
+use crate::port::PortLink;
 use crate::refusals::{Refusals, Refused, Seen};
 
 /// Unix time now, ms.
@@ -67,6 +68,17 @@ pub enum Command {
         /// Write to EEPROM where the protocol lets the master choose (RAM otherwise).
         eeprom: bool,
     },
+    /// Write a parameter's raw value (as the drive holds it; a register client's write).
+    SetParamRaw {
+        /// The manual's name.
+        name: String,
+        /// The raw value.
+        raw: i64,
+        /// The value in its unit, for the audit trail.
+        shown: String,
+        /// Write to EEPROM where the protocol lets the master choose (RAM otherwise).
+        eeprom: bool,
+    },
 }
 
 impl Command {
@@ -79,9 +91,10 @@ impl Command {
             Command::Jog => "jog".into(),
             Command::Reset => "reset".into(),
             Command::Speed(hz) => format!("speed {} Hz", crate::text::number(*hz)),
-            Command::SetParam { name, value, eeprom } => {
-                let (name, value) = (crate::text::shown(name), crate::text::shown(value));
-                format!("param {name} = {value}{}", if *eeprom { " (eeprom)" } else { "" })
+            Command::SetParam { name, value: shown, eeprom }
+            | Command::SetParamRaw { name, shown, eeprom, .. } => {
+                let (name, shown) = (crate::text::shown(name), crate::text::shown(shown));
+                format!("param {name} = {shown}{}", if *eeprom { " (eeprom)" } else { "" })
             }
         }
     }
@@ -292,7 +305,8 @@ pub struct BusEntry {
     /// Set when a reload removed or replaced the bus: its scheduler ends and the port closes.
     retired: AtomicBool,
     /// The simulated drives of a virtual bus.
-    pub line: Option<Arc<Mutex<VirtualLine>>>,
+    #[cfg(feature = "virtual")]
+    pub line: Option<Arc<std::sync::Mutex<VirtualLine>>>,
 }
 
 impl BusEntry {
@@ -905,6 +919,10 @@ impl Gateway {
                 let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
                 d.command.write_param(name, value, storage).await.map_err(map)?;
             }
+            Command::SetParamRaw { name, raw, eeprom, .. } => {
+                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
+                d.command.write_param_raw(name, *raw, storage).await.map_err(map)?;
+            }
         }
         Ok(())
     }
@@ -1172,14 +1190,17 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
     owner.retries = b.retries;
     owner.echo = b.echo;
     owner.strict_t15 = b.strict_t15;
+    #[cfg(feature = "virtual")]
     let (bus, line) = match b.port {
-        Port::Virtual => {
-            let line = virtual_line(b)?;
-            let link = sim_link(line.clone(), &format!("virtual:{}", b.name));
+        crate::config::Port::Virtual => {
+            let line = crate::virtual_bus::virtual_line(b)?;
+            let link = crate::virtual_bus::sim_link(line.clone(), &format!("virtual:{}", b.name));
             (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
         }
         _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
     };
+    #[cfg(not(feature = "virtual"))]
+    let bus = Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?;
     let wake = Arc::new(Notify::new());
     let members = b.drives.iter().map(|d| drive_entry(b, d, &bus).map(Arc::new)).collect::<Result<_, _>>()?;
     Ok(Arc::new(BusEntry {
@@ -1190,6 +1211,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         members: RwLock::new(members),
         generation: AtomicU64::new(0),
         retired: AtomicBool::new(false),
+        #[cfg(feature = "virtual")]
         line,
     }))
 }

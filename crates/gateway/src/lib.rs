@@ -40,6 +40,8 @@ pub mod reload;
 pub mod server;
 pub mod sparkplug;
 pub mod text;
+#[cfg(feature = "virtual")]
+pub mod virtual_bus;
 
 pub use config::GatewayConfig;
 pub use gateway::{Command, CommandError, Gateway};

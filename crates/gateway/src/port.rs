@@ -1,15 +1,12 @@
 //! The link behind a configured bus: a serial device or a device server that may be missing at
 //! start and may vanish and come back (the bus is then reported offline and reopened by the bus
-//! owner), or a virtual line of simulated drives in this process.
+//! owner). A virtual line of simulated drives in this process is [`crate::virtual_bus`].
 
 use std::io;
-use std::sync::{Arc, Mutex};
 
 use drivebus_link::drive::AnyLink;
-use drivebus_link::link::{Clock, Link, SerialLink, SimLink, TcpLink};
+use drivebus_link::link::{Clock, Link, SerialLink, TcpLink};
 use drivebus_proto::Instant;
-use drivebus_sim::bus::VirtualLine;
-use drivebus_sim::config::{BusSpec, DriveSpec};
 
 use crate::config::{BusConfig, Port};
 
@@ -78,37 +75,4 @@ impl Link for PortLink {
         self.inner = None;
         self.open().await.map(|_| ())
     }
-}
-
-/// Builds the virtual line of a `port = "virtual"` bus: one simulated drive per configured drive,
-/// at the bus's baud rate and format.
-pub fn virtual_line(bus: &BusConfig) -> Result<Arc<Mutex<VirtualLine>>, String> {
-    let drives = bus
-        .drives
-        .iter()
-        .map(|d| DriveSpec {
-            family: d.family,
-            address: d.address,
-            protocol: Some(bus.protocol),
-            response: std::time::Duration::from_millis(3),
-            load: d.load,
-            params: Vec::new(),
-        })
-        .collect();
-    let spec = BusSpec::new(drives, Some(bus.baud), Some(bus.format))
-        .map_err(|e| format!("bus {}: {e}", bus.name))?;
-    let mut line = VirtualLine::new(spec.baud, spec.format, Instant::ZERO);
-    for d in &spec.drives {
-        let mut drive =
-            drivebus_sim::family::build(d, Instant::ZERO).map_err(|e| format!("bus {}: {e}", bus.name))?;
-        drive.core_mut().model.set_load(d.load);
-        drive.core_mut().response_delay = d.response;
-        line.add_device(drive);
-    }
-    Ok(Arc::new(Mutex::new(line)))
-}
-
-/// A link to a virtual line.
-pub fn sim_link(line: Arc<Mutex<VirtualLine>>, name: &str) -> SimLink {
-    SimLink::new(line, name)
 }

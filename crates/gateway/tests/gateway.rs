@@ -59,12 +59,12 @@ async fn refusals_say_why() {
     settle(2).await;
     let e = gw.command("pump-3", Command::Run, "test").await.unwrap_err();
     assert!(matches!(e, CommandError::Locked(_)), "{e}");
-    assert_eq!(drivebus_gateway::modbus_tcp::exception_of(&e), 0x01);
+    assert_eq!(drivebus_gateway::modbus_tcp::exception_of(&e).0, 0x01);
     let e = gw.command("nobody", Command::Run, "test").await.unwrap_err();
     assert_eq!(drivebus_gateway::http::error::status_of(&e).as_u16(), 404);
     let e = gw.command("fan-1", Command::Speed(500.0), "test").await.unwrap_err();
     assert!(matches!(e, CommandError::Invalid(_)), "{e}");
-    assert_eq!(drivebus_gateway::modbus_tcp::exception_of(&e), 0x03);
+    assert_eq!(drivebus_gateway::modbus_tcp::exception_of(&e).0, 0x03);
     let e = gw.command("fan-1", Command::Speed(f64::NAN), "test").await.unwrap_err();
     assert_eq!(drivebus_gateway::http::error::status_of(&e).as_u16(), 422);
 }

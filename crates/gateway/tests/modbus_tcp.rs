@@ -521,3 +521,26 @@ async fn a_silent_drive_is_0b_and_a_drives_refusal_is_04() {
     bus.line.as_ref().unwrap().lock().unwrap().set_silent(1, false);
     assert_eq!(c.write1(conveyor, 1, 2500).await, Ok(()));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_refused_request_does_nothing_of_what_it_asks() {
+    let (gw, addr) = demo().await;
+    all_online(addr, 10).await;
+    let mut c = Client::connect(addr).await;
+    let commands = |gw: &Gateway| gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed);
+    let before = commands(&gw);
+    let n = Catalog::load(Family::Generic).unwrap().len() as u16;
+    let past = (1000 + 2 * n).to_be_bytes();
+    // FC 23 writing fan-1's setpoint (25.00 Hz) with its read part past the parameter window:
+    // exception 02 and no write (the whole request is checked first).
+    let pdu = [0x17, past[0], past[1], 0, 2, 0, 1, 0, 1, 2, 0x09, 0xC4];
+    assert_eq!(c.call(3, &pdu).await, Err(0x02));
+    // The same with the read part beyond the command/setpoint pair.
+    assert_eq!(c.call(3, &[0x17, 0, 1, 0, 2, 0, 1, 0, 1, 2, 0x09, 0xC4]).await, Err(0x02));
+    // FC 16 of a command word with undefined bits and a setpoint: 03, the setpoint not written.
+    assert_eq!(c.write(3, 0, &[0x0100, 2500]).await, Err(0x03));
+    // FC 16 of two parameters whose second is out of its limits: 03, the first not written.
+    assert_eq!(c.write(3, 1000, &[0, 1, 0x7FFF, 0xFFFF]).await, Err(0x03));
+    assert_eq!(commands(&gw), before, "no command reached a drive");
+    assert_ne!(gw.drive_view(&gw.drive("fan-1").unwrap()).setpoint_hz, Some(25.0));
+}

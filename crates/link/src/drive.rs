@@ -240,6 +240,13 @@ impl Drive {
         self.execute(&op).await?;
         Ok(raw)
     }
+
+    /// Writes a parameter's raw value (as the drive holds it), checked against its limits first.
+    pub async fn write_param_raw(&self, name: &str, raw: i64, storage: Storage) -> Result<(), Error> {
+        let def = self.profile.param(name)?;
+        def.check(raw).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
+        self.execute(&Operation::WriteParam { name: name.to_string(), raw, storage }).await.map(|_| ())
+    }
 }
 
 /// The same API without async, for scripts and single-threaded programs: runs on a

@@ -21,7 +21,11 @@ mod engine;
 pub mod link;
 pub mod listen;
 pub mod owner;
+#[cfg(feature = "virtual")]
+pub mod sim_link;
 pub mod timer;
 
-pub use link::{Clock, Link, Rs485, SerialLink, SimLink, TcpLink};
+pub use link::{Clock, Link, Rs485, SerialLink, TcpLink};
 pub use owner::{Bus, BusConfig, BusError, BusStats, Health, Priority};
+#[cfg(feature = "virtual")]
+pub use sim_link::SimLink;

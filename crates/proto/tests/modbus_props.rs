@@ -20,6 +20,7 @@ enum Req {
     Diag { sub: u16, data: Vec<u8> },
     WriteMany { start: u16, values: Vec<u16> },
     DevId { code: u8, object: u8 },
+    ReadWrite { read: u16, quantity: u16, write: u16, values: Vec<u16> },
     Other { function: u8, data: Vec<u8> },
 }
 
@@ -45,6 +46,12 @@ impl Req {
             Req::DevId { code, object } => {
                 RequestPdu::ReadDeviceIdentification { code: ReadDeviceIdCode(*code), object_id: *object }
             }
+            Req::ReadWrite { read, quantity, write, values } => RequestPdu::ReadWriteMultipleRegisters {
+                read_start: RegisterAddress(*read),
+                read_quantity: *quantity,
+                write_start: RegisterAddress(*write),
+                values: Registers::from_values(values),
+            },
             Req::Other { function, data } => {
                 RequestPdu::Other { function: *function, data: Data::binary(data) }
             }
@@ -56,6 +63,7 @@ impl Req {
 #[derive(Clone, Debug)]
 enum Rep {
     Read { input: bool, values: Vec<u16> },
+    ReadWrite { values: Vec<u16> },
     Write { address: u16, value: u16 },
     Diag { sub: u16, data: Vec<u8> },
     WriteMany { start: u16, quantity: u16 },
@@ -79,6 +87,9 @@ impl Rep {
             }
             Rep::Read { input: true, values } => {
                 ReplyPdu::ReadInputRegisters { values: Registers::from_values(values) }
+            }
+            Rep::ReadWrite { values } => {
+                ReplyPdu::ReadWriteMultipleRegisters { values: Registers::from_values(values) }
             }
             Rep::Write { address, value } => {
                 ReplyPdu::WriteSingleRegister { address: RegisterAddress(*address), value: *value }
@@ -137,6 +148,8 @@ fn req(rtu_framable: bool) -> impl Strategy<Value = Req> {
         (any::<u16>(), proptest::collection::vec(any::<u16>(), 1..=123))
             .prop_map(|(start, values)| Req::WriteMany { start, values }),
         (1..=4u8, any::<u8>()).prop_map(|(code, object)| Req::DevId { code, object }),
+        (any::<u16>(), 1..=125u16, any::<u16>(), proptest::collection::vec(any::<u16>(), 1..=121))
+            .prop_map(|(read, quantity, write, values)| Req::ReadWrite { read, quantity, write, values }),
         prop_oneof![
             (prop_oneof![Just(0x01u8), Just(0x02), Just(0x05)], fixed(4)),
             (prop_oneof![Just(0x07u8), Just(0x0B), Just(0x0C), Just(0x11)], fixed(0)),
@@ -144,7 +157,6 @@ fn req(rtu_framable: bool) -> impl Strategy<Value = Req> {
             (Just(0x18u8), fixed(2)),
             (Just(0x0Fu8), counted(4)),
             (prop_oneof![Just(0x14u8), Just(0x15)], counted(0)),
-            (Just(0x17u8), counted(8)),
         ]
         .prop_map(|(function, data)| Req::Other { function, data }),
     ]
@@ -155,6 +167,7 @@ fn rep(rtu_framable: bool) -> impl Strategy<Value = Rep> {
     prop_oneof![
         (any::<bool>(), proptest::collection::vec(any::<u16>(), 1..=125))
             .prop_map(|(input, values)| Rep::Read { input, values }),
+        proptest::collection::vec(any::<u16>(), 1..=125).prop_map(|values| Rep::ReadWrite { values }),
         (any::<u16>(), any::<u16>()).prop_map(|(address, value)| Rep::Write { address, value }),
         (any::<u16>(), proptest::collection::vec(any::<u8>(), diag_len))
             .prop_map(|(sub, data)| Rep::Diag { sub, data }),
@@ -176,15 +189,7 @@ fn rep(rtu_framable: bool) -> impl Strategy<Value = Rep> {
         (1..=0x7Fu8, any::<u8>()).prop_map(|(function, code)| Rep::Exception { function, code }),
         prop_oneof![
             (
-                prop_oneof![
-                    Just(0x01u8),
-                    Just(0x02),
-                    Just(0x0C),
-                    Just(0x11),
-                    Just(0x14),
-                    Just(0x15),
-                    Just(0x17)
-                ],
+                prop_oneof![Just(0x01u8), Just(0x02), Just(0x0C), Just(0x11), Just(0x14), Just(0x15)],
                 counted(0)
             ),
             (prop_oneof![Just(0x05u8), Just(0x0B), Just(0x0F)], fixed(4)),

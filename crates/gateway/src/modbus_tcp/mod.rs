@@ -20,6 +20,8 @@ use std::time::Instant;
 
 use drivebus_drive::profile::CodeSpace;
 use drivebus_drive::{format_fixed, ParamDef};
+use drivebus_proto::modbus::tcp::{Mbap, MAX_ADU, MBAP_LEN};
+use drivebus_proto::modbus::{ExceptionCode, RegisterAddress, Registers, ReplyPdu, RequestPdu};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 
@@ -28,16 +30,16 @@ use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
 use map::*;
 
 /// Exception 01: illegal function (also: writes refused by configuration or a lock).
-pub const ILLEGAL_FUNCTION: u8 = 0x01;
+pub const ILLEGAL_FUNCTION: ExceptionCode = ExceptionCode::ILLEGAL_FUNCTION;
 /// Exception 02: illegal data address.
-pub const ILLEGAL_ADDRESS: u8 = 0x02;
+pub const ILLEGAL_ADDRESS: ExceptionCode = ExceptionCode::ILLEGAL_DATA_ADDRESS;
 /// Exception 03: illegal data value (counts, byte counts, values out of range).
-pub const ILLEGAL_VALUE: u8 = 0x03;
+pub const ILLEGAL_VALUE: ExceptionCode = ExceptionCode::ILLEGAL_DATA_VALUE;
 /// Exception 0B: gateway target device failed to respond (no drive has the unit id).
-pub const TARGET_FAILED: u8 = 0x0B;
+pub const TARGET_FAILED: ExceptionCode = ExceptionCode::GATEWAY_TARGET_FAILED;
 
 /// The longest Modbus TCP frame: 7 bytes of MBAP header and a 253-byte PDU.
-const MAX_FRAME: usize = 260;
+const MAX_FRAME: usize = MAX_ADU;
 /// Input buffer per connection (several pipelined requests).
 const IN_BUF: usize = 2048;
 
@@ -124,114 +126,99 @@ pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<(
     }
 }
 
-/// A parsed request PDU; register values are views into the request.
+/// A request of the unified map, read from proto's [`RequestPdu`]; register values are views
+/// into the request.
 enum Request<'a> {
     Read { input: bool, addr: u16, count: u16 },
-    Write { addr: u16, values: Regs<'a> },
-    ReadWrite { addr: u16, count: u16, waddr: u16, values: Regs<'a> },
+    Write { addr: u16, values: Registers<'a> },
+    ReadWrite { addr: u16, count: u16, waddr: u16, values: Registers<'a> },
 }
 
-/// Big-endian registers in a request.
-#[derive(Clone, Copy)]
-struct Regs<'a>(&'a [u8]);
-
-impl Regs<'_> {
-    fn len(&self) -> usize {
-        self.0.len() / 2
+/// Reads a request PDU (function code first); errors are exception codes: 01 for a function the
+/// map does not serve, 03 for counts and lengths the Modbus specification does not allow.
+fn parse(pdu: &[u8]) -> Result<Request<'_>, ExceptionCode> {
+    if !matches!(pdu.first(), Some(0x03 | 0x04 | 0x06 | 0x10 | 0x17)) {
+        return Err(ILLEGAL_FUNCTION);
     }
-    fn get(&self, i: usize) -> u16 {
-        u16::from_be_bytes([self.0[2 * i], self.0[2 * i + 1]])
-    }
-}
-
-fn be16(b: &[u8], at: usize) -> u16 {
-    u16::from_be_bytes([b[at], b[at + 1]])
-}
-
-/// Parses a request PDU (function code first); errors are exception codes.
-fn parse(pdu: &[u8]) -> Result<Request<'_>, u8> {
-    let fc = pdu[0];
-    match fc {
-        0x03 | 0x04 => {
-            if pdu.len() != 5 {
-                return Err(ILLEGAL_VALUE);
-            }
-            let count = be16(pdu, 3);
-            if count == 0 || count > 125 {
-                return Err(ILLEGAL_VALUE);
-            }
-            Ok(Request::Read { input: fc == 0x04, addr: be16(pdu, 1), count })
+    match RequestPdu::parse(pdu) {
+        Ok(RequestPdu::ReadHoldingRegisters { start, quantity }) => {
+            Ok(Request::Read { input: false, addr: start.0, count: quantity })
         }
-        0x06 => {
-            if pdu.len() != 5 {
-                return Err(ILLEGAL_VALUE);
-            }
-            Ok(Request::Write { addr: be16(pdu, 1), values: Regs(&pdu[3..5]) })
+        Ok(RequestPdu::ReadInputRegisters { start, quantity }) => {
+            Ok(Request::Read { input: true, addr: start.0, count: quantity })
         }
-        0x10 => {
-            if pdu.len() < 6 {
-                return Err(ILLEGAL_VALUE);
-            }
-            let count = be16(pdu, 3) as usize;
-            let bytes = pdu[5] as usize;
-            if count == 0 || count > 123 || bytes != 2 * count || pdu.len() != 6 + bytes {
-                return Err(ILLEGAL_VALUE);
-            }
-            Ok(Request::Write { addr: be16(pdu, 1), values: Regs(&pdu[6..]) })
+        Ok(RequestPdu::WriteSingleRegister { address, .. }) => {
+            Ok(Request::Write { addr: address.0, values: Registers::from_be_bytes(&pdu[3..5]) })
         }
-        0x17 => {
-            if pdu.len() < 10 {
-                return Err(ILLEGAL_VALUE);
-            }
-            let count = be16(pdu, 3);
-            let wcount = be16(pdu, 7) as usize;
-            let bytes = pdu[9] as usize;
-            if count == 0
-                || count > 125
-                || wcount == 0
-                || wcount > 121
-                || bytes != 2 * wcount
-                || pdu.len() != 10 + bytes
-            {
-                return Err(ILLEGAL_VALUE);
-            }
-            Ok(Request::ReadWrite {
-                addr: be16(pdu, 1),
-                count,
-                waddr: be16(pdu, 5),
-                values: Regs(&pdu[10..]),
-            })
+        Ok(RequestPdu::WriteMultipleRegisters { start, values }) => {
+            Ok(Request::Write { addr: start.0, values })
         }
-        _ => Err(ILLEGAL_FUNCTION),
+        Ok(RequestPdu::ReadWriteMultipleRegisters { read_start, read_quantity, write_start, values }) => {
+            Ok(Request::ReadWrite { addr: read_start.0, count: read_quantity, waddr: write_start.0, values })
+        }
+        Ok(_) => Err(ILLEGAL_FUNCTION),
+        Err(_) => Err(ILLEGAL_VALUE),
     }
 }
 
-/// Starts an answer: the request's transaction id and unit, protocol 0, length filled by [`end`].
-fn begin(out: &mut Vec<u8>, header: &[u8]) -> usize {
+/// Starts an answer to `mbap`; its length is filled in by [`end`].
+fn begin(out: &mut Vec<u8>, mbap: &Mbap) -> usize {
     let start = out.len();
-    out.extend_from_slice(&[header[0], header[1], 0, 0, 0, 0, header[6]]);
+    out.resize(start + MBAP_LEN, 0);
+    let _ = mbap.answer(0).emit(&mut out[start..]);
     start
 }
 
+/// Ends the answer begun at `start`: the MBAP length counts what was written after it.
 fn end(out: &mut [u8], start: usize) {
     let len = (out.len() - start - 6) as u16;
     out[start + 4..start + 6].copy_from_slice(&len.to_be_bytes());
 }
 
-fn exception(out: &mut Vec<u8>, header: &[u8], fc: u8, code: u8) {
-    let start = begin(out, header);
-    out.extend_from_slice(&[fc | 0x80, code]);
+/// Answers `mbap`'s request with the PDU `pdu`.
+fn reply(out: &mut Vec<u8>, mbap: &Mbap, pdu: &ReplyPdu<'_>) {
+    let start = begin(out, mbap);
+    let at = out.len();
+    out.resize(at + pdu.wire_len(), 0);
+    match pdu.emit(&mut out[at..]) {
+        Ok(n) => out.truncate(at + n),
+        Err(_) => {
+            // A reply the map built wrong is the server's failure, not the client's.
+            out.truncate(at);
+            out.extend_from_slice(&[pdu.answers_function() | 0x80, ExceptionCode::SERVER_DEVICE_FAILURE.0]);
+        }
+    }
     end(out, start);
 }
 
-fn push_regs(out: &mut Vec<u8>, regs: impl IntoIterator<Item = u16>) {
-    for r in regs {
-        out.extend_from_slice(&r.to_be_bytes());
+fn exception(out: &mut Vec<u8>, mbap: &Mbap, function: u8, code: ExceptionCode) {
+    reply(out, mbap, &ReplyPdu::Exception { function: function & 0x7F, code });
+}
+
+/// What a request that went to the drive answers with.
+enum ReplyValues {
+    Read(Vec<u16>),
+    ReadWrite(Vec<u16>),
+    Written { addr: u16, first: u16, quantity: u16 },
+}
+
+/// A parameter of the window and one of its halves (`true`: the high word).
+type WindowSlot = (usize, bool);
+
+/// The first and last parameter slots of window registers `addr..addr + count` over a catalog
+/// of `params` parameters, or exception 02 where they leave the window.
+fn param_window(params: usize, addr: u16, count: u16) -> Result<(WindowSlot, WindowSlot), ExceptionCode> {
+    let first = param_slot(addr).ok_or(ILLEGAL_ADDRESS)?;
+    let last_addr = addr.checked_add(count.max(1) - 1).ok_or(ILLEGAL_ADDRESS)?;
+    let last = param_slot(last_addr).ok_or(ILLEGAL_ADDRESS)?;
+    if last.0 >= params {
+        return Err(ILLEGAL_ADDRESS);
     }
+    Ok((first, last))
 }
 
 /// The parameter index and half (`true`: high word) of a window address.
-fn param_slot(addr: u16) -> Option<(usize, bool)> {
+fn param_slot(addr: u16) -> Option<WindowSlot> {
     let off = addr.checked_sub(PARAM_BASE)? as usize;
     Some((off / 2, off % 2 == 0))
 }
@@ -252,8 +239,10 @@ impl Server {
     /// Answers one request, an MBAP frame (header and PDU), into `out`: from the cache where it
     /// can, else through the drive.
     pub(crate) async fn answer(&self, conn: &mut Conn, frame: &[u8], out: &mut Vec<u8>) {
-        if !self.answer_cached(frame, out) {
-            self.answer_drive(conn, frame, out).await;
+        let Ok(Some(mbap)) = Mbap::parse(frame) else { return };
+        let Some(pdu) = frame.get(MBAP_LEN..mbap.frame_len()) else { return };
+        if !self.answer_cached(&mbap, pdu, out) {
+            self.answer_drive(conn, &mbap, pdu, out).await;
         }
     }
 
@@ -282,22 +271,25 @@ impl Server {
             len += n;
             let mut pos = 0;
             let mut close = false;
-            while len - pos >= 7 {
-                let h = &buf[pos..pos + 7];
-                let length = be16(h, 4) as usize;
-                if be16(h, 2) != 0 || !(2..=254).contains(&length) {
-                    close = true;
-                    break;
-                }
-                let total = 6 + length;
+            while len - pos >= MBAP_LEN {
+                let mbap = match Mbap::parse(&buf[pos..len]) {
+                    Ok(Some(h)) => h,
+                    Ok(None) => break,
+                    Err(_) => {
+                        close = true;
+                        break;
+                    }
+                };
+                let total = mbap.frame_len();
                 if len - pos < total {
                     break;
                 }
                 let frame = &buf[pos..pos + total];
+                let pdu = &frame[MBAP_LEN..];
                 let mut mark = out.len();
                 let mut started = std::time::Instant::now();
                 let mut via_bus = false;
-                if !self.answer_cached(frame, &mut out) {
+                if !self.answer_cached(&mbap, pdu, &mut out) {
                     via_bus = true;
                     // The drive's answer takes a bus transaction: send the answers before it first.
                     if !out.is_empty() {
@@ -307,7 +299,7 @@ impl Server {
                         started = std::time::Instant::now();
                     }
                     mark = 0;
-                    self.answer_drive(&mut conn, frame, &mut out).await;
+                    self.answer_drive(&mut conn, &mbap, pdu, &mut out).await;
                 }
                 // The answer's function code has bit 7 set for an exception.
                 let exception = out.get(mark + 7).is_some_and(|f| f & 0x80 != 0);
@@ -329,49 +321,58 @@ impl Server {
         }
     }
 
-    /// Answers `frame` into `out` from the cache; false when it needs the drive.
-    fn answer_cached(&self, frame: &[u8], out: &mut Vec<u8>) -> bool {
-        let (header, pdu) = frame.split_at(7);
-        let Some(d) = self.gw.drive_by_unit(header[6]) else {
-            exception(out, header, pdu[0], TARGET_FAILED);
+    /// Answers `pdu` into `out` from the cache; false when it needs the drive.
+    fn answer_cached(&self, mbap: &Mbap, pdu: &[u8], out: &mut Vec<u8>) -> bool {
+        let fc = pdu[0];
+        let Some(d) = self.gw.drive_by_unit(mbap.unit) else {
+            exception(out, mbap, fc, TARGET_FAILED);
             return true;
         };
-        let fc = pdu[0];
         let req = match parse(pdu) {
             Ok(r) => r,
             Err(code) => {
-                exception(out, header, fc, code);
+                exception(out, mbap, fc, code);
                 return true;
             }
         };
         match req {
             Request::Read { input: true, addr, count } => {
                 let Some(last) = addr.checked_add(count - 1).filter(|&l| l < INPUT_COUNT) else {
-                    exception(out, header, fc, ILLEGAL_ADDRESS);
+                    exception(out, mbap, fc, ILLEGAL_ADDRESS);
                     return true;
                 };
                 let mut regs = [0u16; INPUT_COUNT as usize];
                 input_registers(&d, &mut regs);
-                let start = begin(out, header);
-                out.extend_from_slice(&[fc, (count * 2) as u8]);
-                push_regs(out, regs[addr as usize..=last as usize].iter().copied());
-                end(out, start);
+                let values = Registers::from_values(&regs[addr as usize..=last as usize]);
+                reply(out, mbap, &ReplyPdu::ReadInputRegisters { values });
                 true
             }
             Request::Read { input: false, addr, count } if addr <= HR_SETPOINT => {
-                if u32::from(addr) + u32::from(count) > 2 {
-                    exception(out, header, fc, ILLEGAL_ADDRESS);
-                    return true;
+                match self.holding_range(&d, mbap.unit, addr, count) {
+                    Ok((regs, range)) => {
+                        let values = Registers::from_values(&regs[range]);
+                        reply(out, mbap, &ReplyPdu::ReadHoldingRegisters { values });
+                    }
+                    Err(code) => exception(out, mbap, fc, code),
                 }
-                let regs = self.holding(&d, header[6]);
-                let start = begin(out, header);
-                out.extend_from_slice(&[fc, (count * 2) as u8]);
-                push_regs(out, regs[addr as usize..(addr + count) as usize].iter().copied());
-                end(out, start);
                 true
             }
             Request::Read { .. } | Request::Write { .. } | Request::ReadWrite { .. } => false,
         }
+    }
+
+    /// Holding registers `addr..addr + count` of the command/setpoint pair, or exception 02.
+    fn holding_range(
+        &self,
+        d: &DriveEntry,
+        unit: u8,
+        addr: u16,
+        count: u16,
+    ) -> Result<([u16; 2], std::ops::Range<usize>), ExceptionCode> {
+        if u32::from(addr) + u32::from(count) > 2 {
+            return Err(ILLEGAL_ADDRESS);
+        }
+        Ok((self.holding(d, unit), addr as usize..(addr + count) as usize))
     }
 
     /// Holding registers 0 and 1 from the cache; bits 2 and 3 of the command word are the last
@@ -401,102 +402,82 @@ impl Server {
         })
     }
 
-    /// Answers a request that needs the drive: a parameter read or a write.
-    async fn answer_drive(&self, conn: &mut Conn, frame: &[u8], out: &mut Vec<u8>) {
-        let (header, pdu) = frame.split_at(7);
+    /// Answers a request that needs the drive: a parameter read or a write. The whole request
+    /// is checked before anything is written: a read/write whose read part is outside the map
+    /// writes nothing.
+    async fn answer_drive(&self, conn: &mut Conn, mbap: &Mbap, pdu: &[u8], out: &mut Vec<u8>) {
         let fc = pdu[0];
-        let Some(d) = self.gw.drive_by_unit(header[6]) else {
-            exception(out, header, fc, TARGET_FAILED);
+        let Some(d) = self.gw.drive_by_unit(mbap.unit) else {
+            exception(out, mbap, fc, TARGET_FAILED);
             return;
         };
-        let result: Result<(), u8> = match parse(pdu) {
-            Err(code) => Err(code),
-            Ok(Request::Read { addr, count, .. }) => {
-                let start = begin(out, header);
-                out.extend_from_slice(&[fc, (count * 2) as u8]);
-                match self.read_window(&d, addr, count, out).await {
-                    Ok(()) => {
-                        end(out, start);
-                        return;
-                    }
-                    Err(code) => {
-                        out.truncate(start);
-                        Err(code)
+        let answer: Result<ReplyValues, ExceptionCode> = async {
+            Ok(match parse(pdu)? {
+                Request::Read { addr, count, .. } => {
+                    ReplyValues::Read(self.read_window(&d, addr, count).await?)
+                }
+                Request::Write { addr, values } => {
+                    self.write(conn, mbap.unit, &d, addr, values).await?;
+                    ReplyValues::Written {
+                        addr,
+                        first: values.get(0).unwrap_or(0),
+                        quantity: values.len() as u16,
                     }
                 }
-            }
-            Ok(Request::Write { addr, values }) => {
-                match self.write(conn, header[6], &d, addr, values).await {
-                    Ok(()) => {
-                        let start = begin(out, header);
-                        if fc == 0x06 {
-                            out.extend_from_slice(pdu);
-                        } else {
-                            out.push(fc);
-                            out.extend_from_slice(&addr.to_be_bytes());
-                            out.extend_from_slice(&(values.len() as u16).to_be_bytes());
-                        }
-                        end(out, start);
-                        return;
+                Request::ReadWrite { addr, count, waddr, values } => {
+                    let window = addr >= PARAM_BASE;
+                    if window {
+                        param_window(d.catalog().len(), addr, count)?;
+                    } else {
+                        self.holding_range(&d, mbap.unit, addr, count)?;
                     }
-                    Err(code) => Err(code),
+                    self.write(conn, mbap.unit, &d, waddr, values).await?;
+                    ReplyValues::ReadWrite(if window {
+                        self.read_window(&d, addr, count).await?
+                    } else {
+                        let (regs, range) = self.holding_range(&d, mbap.unit, addr, count)?;
+                        regs[range].to_vec()
+                    })
                 }
+            })
+        }
+        .await;
+        match answer {
+            Ok(ReplyValues::Read(v)) => {
+                reply(out, mbap, &ReplyPdu::ReadHoldingRegisters { values: Registers::from_values(&v) })
             }
-            Ok(Request::ReadWrite { addr, count, waddr, values }) => {
-                match self.write(conn, header[6], &d, waddr, values).await {
-                    Err(code) => Err(code),
-                    Ok(()) => {
-                        let start = begin(out, header);
-                        out.extend_from_slice(&[fc, (count * 2) as u8]);
-                        let read = if addr >= PARAM_BASE {
-                            self.read_window(&d, addr, count, out).await
-                        } else if u32::from(addr) + u32::from(count) > 2 {
-                            Err(ILLEGAL_ADDRESS)
-                        } else {
-                            let regs = self.holding(&d, header[6]);
-                            push_regs(out, regs[addr as usize..(addr + count) as usize].iter().copied());
-                            Ok(())
-                        };
-                        match read {
-                            Ok(()) => {
-                                end(out, start);
-                                return;
-                            }
-                            Err(code) => {
-                                out.truncate(start);
-                                Err(code)
-                            }
-                        }
-                    }
-                }
+            Ok(ReplyValues::ReadWrite(v)) => {
+                reply(out, mbap, &ReplyPdu::ReadWriteMultipleRegisters { values: Registers::from_values(&v) })
             }
-        };
-        if let Err(code) = result {
-            exception(out, header, fc, code);
+            Ok(ReplyValues::Written { addr, first, .. }) if fc == 0x06 => reply(
+                out,
+                mbap,
+                &ReplyPdu::WriteSingleRegister { address: RegisterAddress(addr), value: first },
+            ),
+            Ok(ReplyValues::Written { addr, quantity, .. }) => {
+                reply(out, mbap, &ReplyPdu::WriteMultipleRegisters { start: RegisterAddress(addr), quantity })
+            }
+            Err(code) => exception(out, mbap, fc, code),
         }
     }
 
     /// Reads holding registers `addr..addr + count` of the parameter window from the drive.
-    async fn read_window(&self, d: &DriveEntry, addr: u16, count: u16, out: &mut Vec<u8>) -> Result<(), u8> {
+    async fn read_window(&self, d: &DriveEntry, addr: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
         let catalog = d.catalog();
-        let (first, first_high) = param_slot(addr).ok_or(ILLEGAL_ADDRESS)?;
-        let last_addr = addr.checked_add(count - 1).ok_or(ILLEGAL_ADDRESS)?;
-        let (last, last_high) = param_slot(last_addr).ok_or(ILLEGAL_ADDRESS)?;
-        if last >= catalog.len() {
-            return Err(ILLEGAL_ADDRESS);
-        }
+        let ((first, first_high), (last, last_high)) = param_window(catalog.len(), addr, count)?;
+        let mut values = Vec::with_capacity(count as usize);
         for i in first..=last {
             let name = &catalog.params()[i].name;
             let reading = self.gw.read_param(&d.config.name, name).await.map_err(|e| exception_of(&e))?;
             let bits = reading.raw as i32 as u32;
             if i != first || first_high {
-                out.extend_from_slice(&((bits >> 16) as u16).to_be_bytes());
+                values.push((bits >> 16) as u16);
             }
             if i != last || !last_high {
-                out.extend_from_slice(&(bits as u16).to_be_bytes());
+                values.push(bits as u16);
             }
         }
-        Ok(())
+        Ok(values)
     }
 
     /// Writes holding registers from `addr` on unit `unit` (drive `d`); Ok once the drive confirmed.
@@ -506,9 +487,10 @@ impl Server {
         unit: u8,
         d: &DriveEntry,
         addr: u16,
-        values: Regs<'_>,
-    ) -> Result<(), u8> {
+        values: Registers<'_>,
+    ) -> Result<(), ExceptionCode> {
         let n = values.len();
+        let value = |i: usize| values.get(i).unwrap_or(0);
         let (may_write, forbidden) = match conn.ip {
             Some(ip) => {
                 let rules = self.gw.config();
@@ -535,16 +517,21 @@ impl Server {
             if addr as usize + n > 2 {
                 return Err(ILLEGAL_ADDRESS);
             }
+            // A command word with bits the map does not define is refused before the setpoint
+            // is written: nothing of the request is done.
+            if addr == HR_COMMAND && value(0) & !CMD_MASK != 0 {
+                return Err(ILLEGAL_VALUE);
+            }
             // The setpoint first, so a drive told to run starts toward the new speed.
             if addr + n as u16 == 2 {
-                let raw = values.get(n - 1);
+                let raw = value(n - 1);
                 self.command(conn, d, Command::Speed(f64::from(raw) / 100.0)).await?;
                 let mut shown = self.shown[unit as usize].lock().unwrap_or_else(|p| p.into_inner());
                 shown.setpoint = raw;
                 shown.setpoint_at = Some(Instant::now());
             }
             if addr == HR_COMMAND {
-                self.command_word(conn, unit, d, values.get(0)).await?;
+                self.command_word(conn, unit, d, value(0)).await?;
             }
             return Ok(());
         }
@@ -565,25 +552,42 @@ impl Server {
         if defs.iter().any(|p| p.read_only) {
             return Err(ILLEGAL_ADDRESS);
         }
-        for (k, def) in defs.iter().enumerate() {
-            let raw = if high {
-                let v = (u32::from(values.get(2 * k)) << 16 | u32::from(values.get(2 * k + 1))) as i32;
-                if v < 0 && def.min >= 0 {
-                    i64::from(v as u32)
+        // Every value in its parameter's limits before the first is written.
+        let raws: Vec<i64> = defs
+            .iter()
+            .enumerate()
+            .map(|(k, def)| {
+                if high {
+                    let v = (u32::from(value(2 * k)) << 16 | u32::from(value(2 * k + 1))) as i32;
+                    if v < 0 && def.min >= 0 {
+                        i64::from(v as u32)
+                    } else {
+                        i64::from(v)
+                    }
                 } else {
-                    i64::from(v)
+                    i64::from(value(0) as i16)
                 }
-            } else {
-                i64::from(values.get(0) as i16)
-            };
-            let value = value_text(def, raw);
-            self.command(conn, d, Command::SetParam { name: def.name.clone(), value, eeprom: false }).await?;
+            })
+            .collect();
+        if defs.iter().zip(&raws).any(|(def, &raw)| def.check(raw).is_err()) {
+            return Err(ILLEGAL_VALUE);
+        }
+        for (def, raw) in defs.iter().zip(raws) {
+            let shown = value_text(def, raw);
+            self.command(conn, d, Command::SetParamRaw { name: def.name.clone(), raw, shown, eeprom: false })
+                .await?;
         }
         Ok(())
     }
 
     /// Writes the command word: sends only what differs from the drive's state.
-    async fn command_word(&self, conn: &mut Conn, unit: u8, d: &DriveEntry, word: u16) -> Result<(), u8> {
+    async fn command_word(
+        &self,
+        conn: &mut Conn,
+        unit: u8,
+        d: &DriveEntry,
+        word: u16,
+    ) -> Result<(), ExceptionCode> {
         if word & !CMD_MASK != 0 {
             return Err(ILLEGAL_VALUE);
         }
@@ -622,22 +626,23 @@ impl Server {
         Ok(())
     }
 
-    async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), u8> {
+    async fn command(&self, conn: &mut Conn, d: &DriveEntry, cmd: Command) -> Result<(), ExceptionCode> {
         self.gw.command(&d.config.name, cmd, &conn.actor).await.map_err(|e: CommandError| exception_of(&e))
     }
 }
 
 /// The Modbus exception code that says what happened to a command or parameter read
 /// (docs/register-map.md). A drive's own Modbus exception is passed through as it came.
-pub fn exception_of(e: &CommandError) -> u8 {
+pub fn exception_of(e: &CommandError) -> ExceptionCode {
     match e {
-        CommandError::UnknownDrive(_) => 0x0B,
-        CommandError::Locked(_) | CommandError::Unsupported(_) => 0x01,
-        CommandError::Invalid(_) => 0x03,
-        CommandError::Refused { code: code @ 1..=0xFF, space: CodeSpace::ModbusException, .. } => *code as u8,
-        CommandError::Refused { .. } | CommandError::Protocol(_) => 0x04,
-        CommandError::NoAnswer(_) => 0x0B,
-        CommandError::LinkDown(_) => 0x0A,
+        CommandError::UnknownDrive(_) | CommandError::NoAnswer(_) => ExceptionCode::GATEWAY_TARGET_FAILED,
+        CommandError::Locked(_) | CommandError::Unsupported(_) => ExceptionCode::ILLEGAL_FUNCTION,
+        CommandError::Invalid(_) => ExceptionCode::ILLEGAL_DATA_VALUE,
+        CommandError::Refused { code: code @ 1..=0xFF, space: CodeSpace::ModbusException, .. } => {
+            ExceptionCode(*code as u8)
+        }
+        CommandError::Refused { .. } | CommandError::Protocol(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
+        CommandError::LinkDown(_) => ExceptionCode::GATEWAY_PATH_UNAVAILABLE,
     }
 }
 

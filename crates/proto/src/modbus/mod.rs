@@ -17,6 +17,7 @@
 pub mod ascii;
 pub mod pdu;
 pub mod rtu;
+pub mod tcp;
 
 #[cfg(test)]
 mod tests;
@@ -374,6 +375,14 @@ impl Describe for Request<'_> {
                 out(Field::dec("byte count", 2 * values.len() as i64));
                 register_fields(Some(start), &values, out);
             }
+            RequestPdu::ReadWriteMultipleRegisters { read_start, read_quantity, write_start, values } => {
+                out(address_field("read starting address", read_start));
+                out(Field::dec("quantity to read", read_quantity as i64));
+                out(address_field("write starting address", write_start));
+                out(Field::dec("quantity to write", values.len() as i64));
+                out(Field::dec("write byte count", 2 * values.len() as i64));
+                register_fields(Some(write_start), &values, out);
+            }
             RequestPdu::ReadDeviceIdentification { code, object_id } => {
                 mei_fields(code, out);
                 out(object_id_field("object ID", object_id));
@@ -403,7 +412,9 @@ impl Describe for Reply<'_> {
     }
     fn fields(&self, out: &mut dyn FnMut(Field<'_>)) {
         match self.pdu {
-            ReplyPdu::ReadHoldingRegisters { values } | ReplyPdu::ReadInputRegisters { values } => {
+            ReplyPdu::ReadHoldingRegisters { values }
+            | ReplyPdu::ReadInputRegisters { values }
+            | ReplyPdu::ReadWriteMultipleRegisters { values } => {
                 out(Field::dec("byte count", 2 * values.len() as i64));
                 register_fields(None, &values, out);
             }

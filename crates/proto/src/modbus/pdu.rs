@@ -43,6 +43,8 @@ pub mod function {
     pub const WRITE_MULTIPLE_COILS: u8 = 0x0F;
     /// 10 write multiple registers.
     pub const WRITE_MULTIPLE_REGISTERS: u8 = 0x10;
+    /// 17: read/write multiple registers (the write is done before the read).
+    pub const READ_WRITE_MULTIPLE_REGISTERS: u8 = 0x17;
     /// 2B encapsulated interface transport (MEI); with MEI type 0E: read device identification.
     pub const ENCAPSULATED_INTERFACE: u8 = 0x2B;
     /// The bit an exception reply sets in the function code.
@@ -629,6 +631,19 @@ pub enum RequestPdu<'a> {
         /// The values.
         values: Registers<'a>,
     },
+    /// 17: write `values` (1..121 registers) from `write_start`, then read `read_quantity`
+    /// (1..125) holding registers from `read_start` ("the write operation is performed before
+    /// the read").
+    ReadWriteMultipleRegisters {
+        /// The first register read.
+        read_start: RegisterAddress,
+        /// How many registers are read, 1..125.
+        read_quantity: u16,
+        /// The first register written.
+        write_start: RegisterAddress,
+        /// The values written.
+        values: Registers<'a>,
+    },
     /// 2B/0E: read device identification.
     ReadDeviceIdentification {
         /// Which objects: basic, regular, extended stream, or one object.
@@ -678,6 +693,11 @@ pub enum ReplyPdu<'a> {
         start: RegisterAddress,
         /// How many.
         quantity: u16,
+    },
+    /// 17: the register values read (after the write).
+    ReadWriteMultipleRegisters {
+        /// The values.
+        values: Registers<'a>,
     },
     /// 2B/0E: the identification objects.
     ReadDeviceIdentification(DeviceIdReply<'a>),
@@ -948,6 +968,31 @@ impl<'a> RequestPdu<'a> {
                     values: Registers::from_data(pdu.slice(6, got)),
                 })
             }
+            0x17 => {
+                if got < 10 {
+                    return Err(FrameError::Truncated { what, expected: 10, got });
+                }
+                // "Quantity to Read 1 to 125", "Quantity to Write 1 to 121", "Byte Count 2 x N".
+                let read_quantity = pdu.word(3);
+                quantity_ok(read_quantity, 125)?;
+                let write_quantity = pdu.word(7);
+                quantity_ok(write_quantity, 121)?;
+                let count = pdu.at(9);
+                if count as u16 != 2 * write_quantity {
+                    return Err(FrameError::Inconsistent {
+                        field: "write byte count",
+                        value: count as u32,
+                        expected: 2 * write_quantity as u32,
+                    });
+                }
+                check_len(what, len, got)?;
+                Ok(RequestPdu::ReadWriteMultipleRegisters {
+                    read_start: RegisterAddress(pdu.word(1)),
+                    read_quantity,
+                    write_start: RegisterAddress(pdu.word(5)),
+                    values: Registers::from_data(pdu.slice(10, got)),
+                })
+            }
             0x2B => {
                 check_len(what, len, got)?;
                 let code = ReadDeviceIdCode(pdu.at(2));
@@ -976,6 +1021,7 @@ impl<'a> RequestPdu<'a> {
             RequestPdu::WriteSingleRegister { .. } => function::WRITE_SINGLE_REGISTER,
             RequestPdu::Diagnostics { .. } => function::DIAGNOSTICS,
             RequestPdu::WriteMultipleRegisters { .. } => function::WRITE_MULTIPLE_REGISTERS,
+            RequestPdu::ReadWriteMultipleRegisters { .. } => function::READ_WRITE_MULTIPLE_REGISTERS,
             RequestPdu::ReadDeviceIdentification { .. } => function::ENCAPSULATED_INTERFACE,
             RequestPdu::Other { function, .. } => *function,
         }
@@ -989,6 +1035,7 @@ impl<'a> RequestPdu<'a> {
             | RequestPdu::WriteSingleRegister { .. } => 5,
             RequestPdu::Diagnostics { data, .. } => 3 + data.len(),
             RequestPdu::WriteMultipleRegisters { values, .. } => 6 + 2 * values.len(),
+            RequestPdu::ReadWriteMultipleRegisters { values, .. } => 10 + 2 * values.len(),
             RequestPdu::ReadDeviceIdentification { .. } => 4,
             RequestPdu::Other { data, .. } => 1 + data.len(),
         }
@@ -1029,6 +1076,17 @@ impl<'a> RequestPdu<'a> {
                 put_word(out, 3, q as u16);
                 out[5] = (2 * q) as u8;
                 values.write_be(&mut out[6..n])?;
+            }
+            RequestPdu::ReadWriteMultipleRegisters { read_start, read_quantity, write_start, values } => {
+                emit_quantity(read_quantity, 125)?;
+                let q = values.len();
+                emit_quantity(q.min(u16::MAX as usize) as u16, 121)?;
+                put_word(out, 1, read_start.0);
+                put_word(out, 3, read_quantity);
+                put_word(out, 5, write_start.0);
+                put_word(out, 7, q as u16);
+                out[9] = (2 * q) as u8;
+                values.write_be(&mut out[10..n])?;
             }
             RequestPdu::ReadDeviceIdentification { code, object_id } => {
                 if !(1..=4).contains(&code.0) {
@@ -1113,7 +1171,7 @@ impl<'a> ReplyPdu<'a> {
             });
         }
         match fc {
-            0x03 | 0x04 => {
+            0x03 | 0x04 | 0x17 => {
                 if got < 2 {
                     return Err(FrameError::Truncated { what, expected: 2, got });
                 }
@@ -1144,10 +1202,10 @@ impl<'a> ReplyPdu<'a> {
                     });
                 }
                 let values = Registers::from_data(pdu.slice(2, got));
-                Ok(if fc == 0x03 {
-                    ReplyPdu::ReadHoldingRegisters { values }
-                } else {
-                    ReplyPdu::ReadInputRegisters { values }
+                Ok(match fc {
+                    0x03 => ReplyPdu::ReadHoldingRegisters { values },
+                    0x04 => ReplyPdu::ReadInputRegisters { values },
+                    _ => ReplyPdu::ReadWriteMultipleRegisters { values },
                 })
             }
             0x06 => {
@@ -1217,6 +1275,7 @@ impl<'a> ReplyPdu<'a> {
             ReplyPdu::WriteSingleRegister { .. } => function::WRITE_SINGLE_REGISTER,
             ReplyPdu::Diagnostics { .. } => function::DIAGNOSTICS,
             ReplyPdu::WriteMultipleRegisters { .. } => function::WRITE_MULTIPLE_REGISTERS,
+            ReplyPdu::ReadWriteMultipleRegisters { .. } => function::READ_WRITE_MULTIPLE_REGISTERS,
             ReplyPdu::ReadDeviceIdentification(_) => function::ENCAPSULATED_INTERFACE,
             ReplyPdu::Exception { function, .. } => function | function::EXCEPTION_BIT,
             ReplyPdu::Other { function, .. } => *function,
@@ -1236,9 +1295,9 @@ impl<'a> ReplyPdu<'a> {
     /// Bytes the PDU takes in binary.
     pub fn wire_len(&self) -> usize {
         match self {
-            ReplyPdu::ReadHoldingRegisters { values } | ReplyPdu::ReadInputRegisters { values } => {
-                2 + 2 * values.len()
-            }
+            ReplyPdu::ReadHoldingRegisters { values }
+            | ReplyPdu::ReadInputRegisters { values }
+            | ReplyPdu::ReadWriteMultipleRegisters { values } => 2 + 2 * values.len(),
             ReplyPdu::WriteSingleRegister { .. } | ReplyPdu::WriteMultipleRegisters { .. } => 5,
             ReplyPdu::Diagnostics { data, .. } => 3 + data.len(),
             ReplyPdu::ReadDeviceIdentification(r) => 7 + r.objects.wire_len(),
@@ -1261,7 +1320,9 @@ impl<'a> ReplyPdu<'a> {
         crate::error::need(out, n)?;
         out[0] = self.function();
         match *self {
-            ReplyPdu::ReadHoldingRegisters { values } | ReplyPdu::ReadInputRegisters { values } => {
+            ReplyPdu::ReadHoldingRegisters { values }
+            | ReplyPdu::ReadInputRegisters { values }
+            | ReplyPdu::ReadWriteMultipleRegisters { values } => {
                 emit_quantity(values.len().min(u16::MAX as usize) as u16, 125)?;
                 out[1] = (2 * values.len()) as u8;
                 values.write_be(&mut out[2..n])?;

@@ -1343,3 +1343,33 @@ fn session_t15_inside_a_reply_declares_it_incomplete_when_enforced() {
     assert!(cut.starts_with("incomplete: "), "{cut}");
     assert_eq!(run(false, Duration::from_millis(5)), "reply");
 }
+
+#[test]
+fn read_write_multiple_registers_round_trips_and_is_checked() {
+    // Modbus Application Protocol 6.17: read 6 from 0003, write 3 from 000E.
+    let wire =
+        [0x17, 0x00, 0x03, 0x00, 0x06, 0x00, 0x0E, 0x00, 0x03, 0x06, 0x00, 0xFF, 0x00, 0xFF, 0x00, 0xFF];
+    let req = RequestPdu::parse(&wire).expect("a valid 17 request");
+    let RequestPdu::ReadWriteMultipleRegisters { read_start, read_quantity, write_start, values } = req
+    else {
+        panic!("{req:?}")
+    };
+    assert_eq!((read_start.0, read_quantity, write_start.0, values.len()), (3, 6, 14, 3));
+    assert_eq!(values.iter().collect::<std::vec::Vec<_>>(), [0xFF, 0xFF, 0xFF]);
+    let mut out = [0u8; 32];
+    assert_eq!(req.emit(&mut out), Ok(wire.len()));
+    assert_eq!(&out[..wire.len()], &wire);
+    // The byte count must be twice the quantity to write; quantities have their limits.
+    let mut bad = wire;
+    bad[9] = 4;
+    assert!(RequestPdu::parse(&bad).is_err());
+    let mut bad = wire;
+    bad[4] = 0;
+    assert!(RequestPdu::parse(&bad).is_err(), "read quantity 0");
+    // The reply carries the registers read, like 03.
+    let reply = [0x17, 0x04, 0x00, 0xFE, 0x0A, 0xCD];
+    let rep = ReplyPdu::parse(&reply).expect("a valid 17 reply");
+    assert!(matches!(rep, ReplyPdu::ReadWriteMultipleRegisters { values } if values.len() == 2));
+    assert_eq!(rep.emit(&mut out), Ok(reply.len()));
+    assert_eq!(&out[..reply.len()], &reply);
+}

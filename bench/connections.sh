@@ -73,13 +73,13 @@ def timed(what, f):
     except Exception as e:
         print(f"  {what}: failed after {1000 * (time.monotonic() - t):.0f} ms ({e!r})")
 def http():
-    s = conn(hp); s.sendall(b"GET /api/drives/conveyor-1 HTTP/1.1\r\nHost: gw\r\nConnection: close\r\n\r\n")
+    s = conn(hp); s.sendall(b"GET /api/drives/conveyor-1 HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n")
     return s.recv(64).split(b"\r\n")[0].decode()
 def modbus():
     s = conn(mp); s.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 4, 0, 1))
     return f"function {s.recv(64)[7]:#04x}"
 def half():
-    s = conn(hp); s.settimeout(60); s.sendall(b"GET /api/drives HTTP/1.1\r\nHost: gw\r\nX-Slow: ")
+    s = conn(hp); s.settimeout(60); s.sendall(b"GET /api/drives HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
     return "closed" if s.recv(64) == b"" else "answered"
 timed("HTTP GET from 127.0.0.3", http)
 timed("Modbus TCP read from 127.0.0.3", modbus)

@@ -8,7 +8,7 @@ use std::process::{Child, Command, Stdio};
 #[path = "../../gateway/tests/mqtt_support/mod.rs"]
 mod mqtt_support;
 
-use mqtt_support::{demo_drives, free_port, rumqttd, wait_all_statuses, Subscriber};
+use mqtt_support::{demo_drives, free_port, rumqttd_both, wait_all_statuses, Subscriber};
 
 struct Serve(Child);
 
@@ -34,10 +34,10 @@ fn serve(name: &str, broker: SocketAddr) -> Serve {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_gateway_processes_side_by_side_on_one_broker() {
-    let broker = rumqttd().await;
+    let (broker, broker5) = rumqttd_both().await;
     let live = Subscriber::start(broker, "live", "drivebus/#").await;
-    let _a = serve("hall-a", broker);
-    let _b = serve("hall-b", broker);
+    let _a = serve("hall-a", broker5);
+    let _b = serve("hall-b", broker5);
 
     // Every demo drive of both gateways, as it is published...
     let drives = demo_drives();

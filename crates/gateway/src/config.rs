@@ -8,6 +8,7 @@
 //! [http]
 //! listen = "127.0.0.1:8080"
 //! anonymous_read = false                # reads without a token
+//! hosts = ["scada.plant.local"]         # names in Host besides addresses and localhost
 //!
 //! [modbus]
 //! listen = "127.0.0.1:5020"
@@ -17,6 +18,8 @@
 //!
 //! [store]
 //! path = "drivebus.db"
+//! retention_days = 365                  # events older are deleted (0: kept for ever)
+//! max_size_mb = 1024                    # beyond it the oldest events and trends go (0: no cap)
 //!
 //! [mqtt]                                # optional (docs/mqtt.md)
 //! url = "mqtt://127.0.0.1:1883"
@@ -114,6 +117,8 @@ pub struct GatewayConfig {
     pub modbus: ModbusConfig,
     /// Where events and trends are kept (`None`: not kept).
     pub store: Option<PathBuf>,
+    /// The store's retention and size cap (`[store] retention_days`, `max_size_mb`).
+    pub store_limits: drivebus_store::Limits,
     /// Bearer tokens.
     pub tokens: Vec<Token>,
     /// The buses.
@@ -157,6 +162,9 @@ pub struct HttpConfig {
     pub anonymous_read: bool,
     /// Largest request body, bytes.
     pub max_body: usize,
+    /// Names the gateway is reached by (`Host` header) besides its addresses and `localhost`;
+    /// checked when `anonymous_read` is on (`crate::http::host`).
+    pub hosts: Vec<String>,
 }
 
 /// The Modbus TCP listener.
@@ -421,6 +429,8 @@ struct FileHttp {
     listen: Option<Spanned<String>>,
     anonymous_read: Option<bool>,
     max_body: Option<Spanned<usize>>,
+    #[serde(default)]
+    hosts: Vec<Spanned<String>>,
 }
 
 #[derive(Deserialize, Default)]
@@ -433,12 +443,35 @@ struct FileModbus {
     max_connections: Option<Spanned<usize>>,
 }
 
-#[derive(Deserialize, Default)]
+#[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct FileStore {
     path: Option<String>,
     #[serde(default)]
     disabled: bool,
+    #[serde(default = "default_retention_days")]
+    retention_days: u64,
+    #[serde(default = "default_max_size_mb")]
+    max_size_mb: u64,
+}
+
+impl Default for FileStore {
+    fn default() -> Self {
+        FileStore {
+            path: None,
+            disabled: false,
+            retention_days: default_retention_days(),
+            max_size_mb: default_max_size_mb(),
+        }
+    }
+}
+
+fn default_retention_days() -> u64 {
+    365
+}
+
+fn default_max_size_mb() -> u64 {
+    1024
 }
 
 #[derive(Deserialize)]
@@ -739,6 +772,24 @@ impl GatewayConfig {
                 }
                 Some(m) => *m.get_ref(),
                 None => 64 * 1024,
+            },
+            hosts: {
+                let mut hosts = Vec::new();
+                for h in &raw.http.hosts {
+                    let name = h.get_ref().trim();
+                    if name.is_empty() || name.contains([':', '/', ' ', '[', ']', '@']) {
+                        return cx.err(
+                            h.span(),
+                            "http.hosts",
+                            format!(
+                                "{:?}: give a host name alone (scada.plant.local), without scheme or port",
+                                h.get_ref()
+                            ),
+                        );
+                    }
+                    hosts.push(name.to_ascii_lowercase());
+                }
+                hosts
             },
         };
         let allow = match &raw.modbus.allow {
@@ -1080,6 +1131,8 @@ impl GatewayConfig {
             Some(sp) => Some(sparkplug_section(&cx, sp)?),
         };
 
+        let store_limits =
+            drivebus_store::Limits::from_days_and_mb(raw.store.retention_days, raw.store.max_size_mb);
         let store = if raw.store.disabled {
             None
         } else {
@@ -1116,6 +1169,7 @@ impl GatewayConfig {
             http,
             modbus,
             store,
+            store_limits,
             tokens,
             buses,
             linkage,
@@ -1149,6 +1203,18 @@ mod tests {
 
     fn err(text: &str) -> String {
         GatewayConfig::from_toml("plant.toml", text).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn store_retention_and_size_cap() {
+        let c = GatewayConfig::from_toml("plant.toml", "").unwrap();
+        assert_eq!(c.store_limits, drivebus_store::Limits::default());
+        let c = GatewayConfig::from_toml("plant.toml", "[store]\nretention_days = 30\nmax_size_mb = 0\n")
+            .unwrap();
+        assert_eq!(c.store_limits, drivebus_store::Limits::from_days_and_mb(30, 0));
+        assert_eq!(c.store_limits.max_bytes, None);
+        let e = err("[store]\nmax_size_mb = -1\n");
+        assert!(e.starts_with("plant.toml:2: field `store.max_size_mb`"), "{e}");
     }
 
     #[test]

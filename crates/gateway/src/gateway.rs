@@ -9,7 +9,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus};
@@ -26,11 +26,23 @@ use tokio::sync::{broadcast, Notify};
 
 use crate::config::{BusConfig, DriveConfig, GatewayConfig};
 use crate::port::PortLink;
+use crate::refusals::{Refusals, Refused, Seen};
 
 /// Unix time now, ms.
 pub fn unix_ms() -> i64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
 }
+
+/// Most characters of a message (an error, an audit result) that may quote a user's value.
+pub const MAX_MESSAGE_CHARS: usize = 512;
+
+/// The largest speed, Hz, a command may ask for; beyond it the command is refused before any
+/// drive's profile sees it (no drive runs at 100 kHz; `1e308` is not worth 309 digits).
+pub const MAX_SPEED_HZ: f64 = 100_000.0;
+
+/// Failed logins from one address in a minute after which its requests with a token get 429
+/// until the minute is over.
+pub const MAX_LOGIN_FAILURES: u64 = 10;
 
 /// A command to a drive.
 #[derive(Clone, Debug, PartialEq)]
@@ -78,9 +90,10 @@ impl Command {
             Command::Reverse => "reverse".into(),
             Command::Jog => "jog".into(),
             Command::Reset => "reset".into(),
-            Command::Speed(hz) => format!("speed {hz} Hz"),
+            Command::Speed(hz) => format!("speed {} Hz", crate::text::number(*hz)),
             Command::SetParam { name, value: shown, eeprom }
             | Command::SetParamRaw { name, shown, eeprom, .. } => {
+                let (name, shown) = (crate::text::shown(name), crate::text::shown(shown));
                 format!("param {name} = {shown}{}", if *eeprom { " (eeprom)" } else { "" })
             }
         }
@@ -493,6 +506,8 @@ pub struct Gateway {
     log_events: AtomicBool,
     health: crate::health::Health,
     limits: crate::limits::Limits,
+    /// Refused writes counted per client and reason ([`Gateway::audit_refusal`]).
+    refusals: Mutex<Refusals>,
 }
 
 impl Gateway {
@@ -511,6 +526,7 @@ impl Gateway {
             counters: Counters::default(),
             log_events: AtomicBool::new(false),
             health: crate::health::Health::default(),
+            refusals: Mutex::new(Refusals::default()),
         });
         let topo = gw.topology();
         gw.record(Event {
@@ -528,6 +544,7 @@ impl Gateway {
             tokio::spawn(gw.clone().poll_bus(b.clone()));
         }
         tokio::spawn(gw.clone().publish_buses());
+        tokio::spawn(gw.clone().close_refusal_windows());
         Ok(gw)
     }
 
@@ -818,7 +835,7 @@ impl Gateway {
         };
         let outcome = match &result {
             Ok(()) => "ok".to_string(),
-            Err(e) => format!("{}: {e}", e.kind()),
+            Err(e) => crate::text::shown_max(&format!("{}: {e}", e.kind()), MAX_MESSAGE_CHARS),
         };
         self.audit_done(pending, outcome).await;
         if result.is_ok() {
@@ -914,15 +931,94 @@ impl Gateway {
     }
 
     /// Records a write that was refused before it became a command (a client not allowed to
-    /// write, a read-only listener, a locked drive), so the audit trail shows every attempt.
+    /// write, a read-only listener, a locked drive, a malformed MQTT command), so the audit
+    /// trail shows every attempt. `why` starts with the reason's kind (`forbidden: ...`). The
+    /// first refusal of a (client, reason) is written at once; repeats within a minute are
+    /// counted and written as one event when the minute is over ([`crate::refusals`]).
     pub async fn audit_refusal(self: &Arc<Self>, id: &str, actor: &str, action: &str, why: &str) {
-        let bus = self.drive(id).ok().map(|d| d.bus.clone());
         self.counters.commands_failed.fetch_add(1, Ordering::Relaxed);
-        self.audit(bus, id, actor, action, why.to_string()).await;
+        self.refusal(Some(id), actor, action, why).await;
+    }
+
+    /// Records a failed login (an unknown or malformed token) from `ip` like a refusal:
+    /// audited and logged, aggregated per address ([`Gateway::login_blocked`] counts them).
+    pub async fn login_failed(self: &Arc<Self>, ip: &str, why: &str) {
+        self.refusal(None, &format!("http:{ip}"), "login", why).await;
+    }
+
+    /// Whether `ip` failed to log in [`MAX_LOGIN_FAILURES`] times in its current minute.
+    pub fn login_blocked(&self, ip: &str) -> bool {
+        let seen = self
+            .refusals
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .seen(&format!("http:{ip}"), "unauthorized");
+        seen >= MAX_LOGIN_FAILURES
+    }
+
+    async fn refusal(self: &Arc<Self>, id: Option<&str>, actor: &str, action: &str, why: &str) {
+        let id = id.map(crate::text::shown);
+        let why = crate::text::shown_max(why, MAX_MESSAGE_CHARS);
+        let sample = Refused { drive: id.clone(), action: action.to_string(), why };
+        let client = crate::refusals::client_of(actor);
+        let seen = self.refusals.lock().unwrap_or_else(|p| p.into_inner()).refused(
+            tokio::time::Instant::now(),
+            &client,
+            sample.clone(),
+        );
+        if seen == Seen::First {
+            self.write_refusal(&sample, actor, sample.why.clone(), json!({})).await;
+        }
+    }
+
+    /// A refusal (or a window's count of them) in the audit trail.
+    async fn write_refusal(
+        self: &Arc<Self>,
+        r: &Refused,
+        actor: &str,
+        result: String,
+        detail: serde_json::Value,
+    ) {
+        let bus = r.drive.as_deref().and_then(|d| self.drive(d).ok()).map(|d| d.bus.clone());
+        self.record_async(Event {
+            id: 0,
+            time_ms: unix_ms(),
+            kind: EventKind::Command,
+            bus,
+            drive: r.drive.clone(),
+            actor: Some(actor.to_string()),
+            action: Some(r.action.clone()),
+            result: Some(result),
+            detail,
+        })
+        .await;
+    }
+
+    /// Writes the refusals counted over windows that closed: one event per client and reason.
+    async fn close_refusal_windows(self: Arc<Self>) {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tick.tick().await;
+            let due =
+                self.refusals.lock().unwrap_or_else(|p| p.into_inner()).due(tokio::time::Instant::now());
+            for s in due {
+                let detail =
+                    json!({ "repeated": s.count, "reason": s.reason, "window_s": s.window.as_secs() });
+                self.write_refusal(&s.sample, &s.client, s.result(), detail).await;
+            }
+        }
     }
 
     async fn execute(&self, d: &DriveEntry, command: &Command) -> Result<(), CommandError> {
         let map = CommandError::from;
+        let storage = |eeprom: bool| if eeprom { Storage::Eeprom } else { Storage::Ram };
+        // After a parameter write, a value read a moment ago is not the drive's any more.
+        let forget = |name: &str| {
+            if let Ok(def) = d.param(name) {
+                d.params.forget(&def.name);
+            }
+        };
         match command {
             Command::Run => d.command.run().await.map_err(map)?,
             Command::Stop => d.command.stop().await.map_err(map)?,
@@ -930,23 +1026,24 @@ impl Gateway {
             Command::Jog => d.command.jog().await.map_err(map)?,
             Command::Reset => d.command.reset().await.map_err(map)?,
             Command::Speed(hz) => {
-                if !hz.is_finite() {
-                    return Err(CommandError::Invalid(format!("speed {hz} is not a number of Hz")));
+                if !hz.is_finite() || hz.abs() > MAX_SPEED_HZ {
+                    return Err(CommandError::Invalid(format!(
+                        "speed {} Hz is not a speed: give a number of Hz within ±{MAX_SPEED_HZ}",
+                        crate::text::number(*hz)
+                    )));
                 }
                 d.command.set_speed(*hz).await.map_err(map)?;
                 d.state.write().unwrap_or_else(|p| p.into_inner()).commanded_hz = Some(*hz);
             }
             Command::SetParam { name, value, eeprom } => {
-                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
-                let written = d.command.write_param(name, value, storage).await;
-                if let Ok(def) = d.param(name) {
-                    d.params.forget(&def.name);
-                }
+                let written = d.command.write_param(name, value, storage(*eeprom)).await.map(|_| ());
+                forget(name);
                 written.map_err(map)?;
             }
             Command::SetParamRaw { name, raw, eeprom, .. } => {
-                let storage = if *eeprom { Storage::Eeprom } else { Storage::Ram };
-                d.command.write_param_raw(name, *raw, storage).await.map_err(map)?;
+                let written = d.command.write_param_raw(name, *raw, storage(*eeprom)).await;
+                forget(name);
+                written.map_err(map)?;
             }
         }
         Ok(())

@@ -16,13 +16,21 @@
 //! reaches no drive. At each (re)connection the gateway says it is online, subscribes to its
 //! command topics, and publishes every drive's latest status (and the Home Assistant discovery
 //! messages when configured), so a broker that restarted empty has the whole state again.
+//!
+//! The gateway speaks MQTT 5: its CONNECT gives the broker a Maximum Packet Size
+//! ([`MAX_INCOMING_PACKET`]), so a larger message is dropped by the broker instead of being
+//! sent and ending the connection, and its command subscription asks for the retain flag as
+//! published, so a retained command is recognised (and refused) on its first delivery too.
+//! Every refused command message gets a result and an audit record ([`Gateway::audit_refusal`]).
 //! docs/mqtt.md is the user's description.
 
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, Publish, QoS};
+use rumqttc::v5::mqttbytes::v5::{Filter, LastWill, Packet, Publish, RetainForwardRule};
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 use serde_json::{json, Value};
 use tokio::sync::{broadcast, mpsc};
 use tokio::time::Instant;
@@ -37,8 +45,12 @@ pub const COMMANDS: [&str; 6] = ["run", "stop", "reverse", "jog", "reset", "spee
 /// health changed.
 pub const MIN_INTERVAL: Duration = Duration::from_secs(1);
 
-/// Largest command payload accepted, bytes.
+/// Largest command payload accepted, bytes; a larger one is refused (`too_large`).
 pub const MAX_COMMAND_PAYLOAD: usize = 256;
+
+/// Largest MQTT packet the gateway takes from the broker, bytes (told to the broker at each
+/// connection as the MQTT 5 Maximum Packet Size: the broker drops larger messages for us).
+pub const MAX_INCOMING_PACKET: u32 = 1 << 20;
 
 /// Most MQTT commands in progress at once; more are refused (`busy`) rather than queued.
 pub const MAX_COMMANDS_IN_FLIGHT: usize = 32;
@@ -131,6 +143,9 @@ impl Pattern {
 pub fn parse_speed(payload: &[u8]) -> Result<f64, String> {
     let bad = || "speed wants a number of Hz: 40 or {\"hz\": 40}".to_string();
     let text = std::str::from_utf8(payload).map_err(|_| bad())?.trim();
+    if let Err(e) = crate::json::check_unique_keys(text.as_bytes()) {
+        return Err(format!("{e}: {}", bad()));
+    }
     let hz = match serde_json::from_str::<Value>(text) {
         Ok(Value::Number(n)) => n.as_f64(),
         Ok(Value::Object(o)) if o.len() == 1 => o.get("hz").and_then(Value::as_f64),
@@ -224,7 +239,7 @@ pub fn spawn(gw: Arc<Gateway>, cfg: &MqttConfig) -> Result<tokio::task::JoinHand
 enum FromBroker {
     Connected,
     Lost,
-    Message(Publish),
+    Message(Box<Publish>),
 }
 
 /// Per drive: when its status was last published, what it said, and what waits.
@@ -267,8 +282,16 @@ impl Publisher {
     fn on_connect(&self, throttle: &mut HashMap<String, Throttle>) {
         self.gw.counters.front_ends.mqtt_connected();
         self.send("availability", self.s.availability(), true, b"online".to_vec());
-        let filter = format!("{}/+/+/set/+", self.s.prefix);
-        if let Err(e) = self.client.try_subscribe(filter, QoS::AtLeastOnce) {
+        // The retain flag as published: a retained command is known as such when it is
+        // delivered live too, not only when a subscription brings it.
+        let filter = Filter {
+            path: format!("{}/+/+/set/+", self.s.prefix),
+            qos: QoS::AtLeastOnce,
+            nolocal: true,
+            preserve_retain: true,
+            retain_forward_rule: RetainForwardRule::OnEverySubscribe,
+        };
+        if let Err(e) = self.client.try_subscribe_many([filter]) {
             crate::log::warn(&format!("MQTT: cannot subscribe to the command topics: {e}"));
         }
         if self.s.discovery {
@@ -325,13 +348,24 @@ impl Publisher {
 
     /// Checks a command message; `Ok` with what to send to the gateway.
     fn check(&self, p: &Publish) -> Option<(String, String, String, Result<Command, Refusal>)> {
-        let (bus, drive, cmd) = self.s.command_topic(&p.topic)?;
+        let topic = std::str::from_utf8(&p.topic).ok()?;
+        let (bus, drive, cmd) = self.s.command_topic(topic)?;
         if p.payload.is_empty() {
             // How a retained message is cleared, not a command.
             return None;
         }
         let result_topic = self.s.drive_topic(bus, drive, "result");
         let verdict = (|| {
+            // The size first: nothing of an oversize payload is looked at.
+            if p.payload.len() > MAX_COMMAND_PAYLOAD {
+                return Err(refuse(
+                    "too_large",
+                    format!(
+                        "a command payload has at most {MAX_COMMAND_PAYLOAD} bytes, this one has {}",
+                        p.payload.len()
+                    ),
+                ));
+            }
             if p.retain {
                 return Err(refuse(
                     "retained",
@@ -355,18 +389,17 @@ impl Publisher {
                     format!("drive {drive:?} is on bus {:?}, not {bus:?}", d.bus),
                 ));
             }
-            if p.payload.len() > MAX_COMMAND_PAYLOAD {
-                return Err(refuse(
-                    "too_large",
-                    format!("a command payload has at most {MAX_COMMAND_PAYLOAD} bytes"),
-                ));
-            }
             if cmd == "speed" {
                 return parse_speed(&p.payload).map(Command::Speed).map_err(|m| refuse("invalid", m));
             }
             Command::from_name(cmd).ok_or_else(|| refuse("invalid", format!("no command {cmd:?}")))
         })();
         Some((result_topic, drive.to_string(), cmd.to_string(), verdict))
+    }
+
+    /// Who MQTT commands are by in the audit trail: `mqtt:<client id>`.
+    fn actor(&self) -> String {
+        format!("mqtt:{}", self.s.client_id)
     }
 
     fn on_message(&self, p: Publish) {
@@ -380,11 +413,15 @@ impl Publisher {
                 let body =
                     json!({ "command": cmd, "ok": false, "error": { "kind": r.kind, "message": r.message } });
                 self.send("result", topic, false, body.to_string().into_bytes());
+                let (gw, actor) = (self.gw.clone(), self.actor());
+                let action = format!("mqtt set/{cmd}");
+                let why = format!("{}: {}", r.kind, r.message);
+                tokio::spawn(async move { gw.audit_refusal(&drive, &actor, &action, &why).await });
                 return;
             }
         };
         let (gw, client) = (self.gw.clone(), self.client.clone());
-        let actor = format!("mqtt:{}", self.s.client_id);
+        let actor = self.actor();
         tokio::spawn(async move {
             let _permit = permit;
             let result = gw.command(&drive, command, &actor).await;
@@ -470,9 +507,9 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
     let s = Arc::new(s);
     let mut opts = MqttOptions::new(s.client_id.clone(), s.host.clone(), s.port);
     opts.set_keep_alive(Duration::from_secs(15));
-    opts.set_clean_session(true);
-    opts.set_last_will(LastWill::new(s.availability(), "offline", QoS::AtLeastOnce, true));
-    opts.set_max_packet_size(64 * 1024, 64 * 1024);
+    opts.set_clean_start(true);
+    opts.set_last_will(LastWill::new(s.availability(), "offline", QoS::AtLeastOnce, true, None));
+    opts.set_max_packet_size(Some(MAX_INCOMING_PACKET));
     if let Some((user, password)) = &s.credentials {
         opts.set_credentials(user.clone(), password.clone());
     }
@@ -495,7 +532,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                     reported = false;
                     Some(FromBroker::Connected)
                 }
-                Ok(Event::Incoming(Packet::Publish(p))) => Some(FromBroker::Message(p)),
+                Ok(Event::Incoming(Packet::Publish(p))) => Some(FromBroker::Message(Box::new(p))),
                 Ok(_) => None,
                 Err(e) => {
                     if !reported {
@@ -537,7 +574,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                     p.on_connect(&mut throttle);
                 }
                 Some(FromBroker::Lost) => p.connected = false,
-                Some(FromBroker::Message(m)) => p.on_message(m),
+                Some(FromBroker::Message(m)) => p.on_message(*m),
                 None => return,
             },
             c = changes.recv() => match c {
@@ -595,6 +632,7 @@ mod tests {
             b"\xff",
             b"NaN",
             b"1e999",
+            br#"{"hz":40,"hz":41}"#,
         ] {
             assert!(parse_speed(bad).is_err(), "{:?}", String::from_utf8_lossy(bad));
         }

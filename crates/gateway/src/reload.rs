@@ -110,6 +110,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("modbus.listen", old.modbus.listen != new.modbus.listen),
         ("modbus.max_connections", old.modbus.max_connections != new.modbus.max_connections),
         ("store", old.store != new.store),
+        ("store limits", old.store_limits != new.store_limits),
         ("mqtt", old.mqtt != new.mqtt),
         ("opcua", old.opcua != new.opcua),
         ("sparkplug", old.sparkplug != new.sparkplug),

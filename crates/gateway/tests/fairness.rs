@@ -144,7 +144,10 @@ async fn window_and_param_floods_leave_the_other_drives_polls_on_time() {
     assert!(worst < 4 * poll, "conveyor-1's data age reached {worst:?} (poll every {poll:?})");
     // The floods were served too, in their share of the bus.
     let (w, p) = (windows.load(Ordering::Relaxed), params.load(Ordering::Relaxed));
-    assert!(w >= 10 && p >= 100, "{w} windows and {p} parameters read in 20 s");
+    // The demo's generic bus keeps the manual's 10 ms silence before each request, so a read
+    // takes some 15 ms of bus time: half of 20 s is some 650 reads (a window is 62 of them).
+    let reads = w * 62 + p;
+    assert!(w >= 2 && p >= 100 && reads >= 500, "{w} windows and {p} parameters read in 20 s");
     // 4 connections are within one client's 8 reads waiting; 16 are not (those over are busy).
     assert_eq!(windows_busy.load(Ordering::Relaxed), 0);
     assert!(params_busy.load(Ordering::Relaxed) > 0);

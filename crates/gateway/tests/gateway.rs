@@ -205,3 +205,65 @@ async fn a_speed_set_shows_as_the_setpoint_in_the_next_poll_for_every_family() {
         assert_eq!(polled.setpoint_hz, Some(33.0), "{id}: {polled:?}");
     }
 }
+
+/// Refused writes do not flood the audit trail (issue 13, defect 5): 5 000 refusals from one
+/// address over many connections are the first one at once and one event with the count when
+/// the minute is over; another client's first refusal is audited at once as well.
+#[tokio::test(start_paused = true)]
+async fn repeated_refusals_are_one_audit_event_per_client_reason_and_minute() {
+    let path = std::env::temp_dir().join(format!("drivebus-refusal-flood-{}.db", std::process::id()));
+    let _ = std::fs::remove_file(&path);
+    let store = drivebus_store::Store::open(&path).unwrap();
+    let gw = Gateway::start(GatewayConfig::demo(), Some(store)).unwrap();
+    let why = "forbidden: client 127.0.0.2 may not write ([modbus] allow)";
+    for k in 0..5000u32 {
+        let actor = format!("modbus:127.0.0.2:{}", 40000 + k % 64);
+        gw.audit_refusal("pump-1", &actor, "modbus write of 1 register(s) at 0", why).await;
+    }
+    gw.audit_refusal("pump-1", "modbus:127.0.0.3:5000", "modbus write of 1 register(s) at 0", why).await;
+    let refused = || {
+        let filter = drivebus_store::EventFilter { limit: 10_000, ..Default::default() };
+        let events = gw.store().unwrap().events(&filter).unwrap();
+        events
+            .into_iter()
+            .filter(|e| e.actor.as_deref().is_some_and(|a| a.starts_with("modbus:127.0.0.")))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(refused().len(), 2, "{:?}", refused());
+    settle(61).await;
+    let events = refused();
+    assert_eq!(events.len(), 3, "{events:?}");
+    let summary = events.iter().find(|e| e.actor.as_deref() == Some("modbus:127.0.0.2")).expect("a summary");
+    assert_eq!(
+        summary.result.as_deref(),
+        Some(format!("4999 refused from modbus:127.0.0.2 in the last 60 s: {why}").as_str())
+    );
+    assert_eq!(summary.detail["repeated"], 4999);
+    assert_eq!(summary.drive.as_deref(), Some("pump-1"));
+    assert_eq!(gw.counters.commands_failed.load(std::sync::atomic::Ordering::Relaxed), 5001);
+    // Quiet for a minute: nothing more; the next refusal is audited at once again.
+    settle(120).await;
+    assert_eq!(refused().len(), 3);
+    gw.audit_refusal("pump-1", "modbus:127.0.0.2:1", "modbus write of 1 register(s) at 0", why).await;
+    assert_eq!(refused().len(), 4);
+    drop(gw);
+    let _ = std::fs::remove_file(&path);
+}
+
+/// An offline drive is still polled, and its `polls` counter keeps rising with its failed polls
+/// (issue 13, defect 10).
+#[tokio::test(start_paused = true)]
+async fn an_offline_drives_polls_keep_counting() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    settle(5).await;
+    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap().clone();
+    bus.line.as_ref().unwrap().lock().unwrap().set_silent(1, true);
+    let d = gw.drive("conveyor-1").unwrap();
+    settle(30).await;
+    let offline = gw.drive_view(&d);
+    assert_eq!(offline.online, Some(false), "{offline:?}");
+    settle(60).await;
+    let later = gw.drive_view(&d);
+    assert!(later.polls > offline.polls, "polls stopped at {} while offline", later.polls);
+    assert!(later.error_rate > offline.error_rate, "{offline:?} {later:?}");
+}

@@ -567,3 +567,119 @@ async fn trend_times_at_the_extremes_are_answered() {
     let r = call(&app, "GET", &format!("/api/drives/pump-1/trend?since={}", i64::MIN), None, None).await;
     assert_eq!(r.status, 200, "{}", r.json);
 }
+
+/// Issue 13, defect 10: a key given twice is refused; long user values are cut in answers and
+/// the audit trail; a speed of 1e308 is refused without 309 digits anywhere.
+#[tokio::test(start_paused = true)]
+async fn duplicate_keys_long_values_and_huge_numbers() {
+    let (gw, app) = app(false, true);
+    let r = call(&app, "POST", "/api/drives/pump-1/speed", Some(WRITE), Some(r#"{"hz":40,"hz":41}"#)).await;
+    let m = assert_error(&r, 422, "invalid");
+    assert!(m.starts_with("duplicate key \"hz\": give each key once"), "{m}");
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/pump-1/params/0010",
+        Some(WRITE),
+        Some(r#"{"value":"5","value":"6"}"#),
+    )
+    .await;
+    assert_error(&r, 422, "invalid");
+    assert_eq!(
+        gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed),
+        0,
+        "nothing reached a drive"
+    );
+
+    let r = call(&app, "POST", "/api/drives/pump-1/speed", Some(WRITE), Some(r#"{"hz": 1e308}"#)).await;
+    let m = assert_error(&r, 422, "invalid");
+    assert!(m.contains("1e308") && m.len() < 200, "{m}");
+    let audited = gw.store().unwrap().events(&drivebus_store::EventFilter::default()).unwrap();
+    let speed =
+        audited.iter().rev().find(|e| e.action.as_deref().is_some_and(|a| a.starts_with("speed "))).unwrap();
+    assert_eq!(speed.action.as_deref(), Some("speed 1e308 Hz"));
+    assert!(speed.result.as_deref().unwrap().len() < 200, "{speed:?}");
+
+    // A long value (this test's max_body is 1 KiB; the same cut holds for 60 KB).
+    let long = "9".repeat(900);
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/pump-1/params/0010",
+        Some(WRITE),
+        Some(&format!(r#"{{"value":"{long}"}}"#)),
+    )
+    .await;
+    let m = assert_error(&r, 422, "invalid");
+    assert!(m.contains("…(900 bytes)") && m.len() < 600, "{} bytes: {m}", m.len());
+    let r = call(&app, "GET", &format!("/api/drives/{long}"), Some(READ), None).await;
+    let m = assert_error(&r, 404, "unknown_drive");
+    assert!(m.len() < 200, "{m}");
+}
+
+/// Issue 13, defect 10: failed logins are audited once per address and minute with their count,
+/// and after ten in a minute the address's requests with a token get 429, the right token too,
+/// until the minute is over.
+#[tokio::test(start_paused = true)]
+async fn failed_logins_are_audited_and_rate_limited_per_address() {
+    let (gw, app) = app(false, true);
+    for _ in 0..10 {
+        assert_error(
+            &call(&app, "GET", "/api/drives", Some("guess-0123456789abcdef"), None).await,
+            401,
+            "unauthorized",
+        );
+    }
+    let r = call(&app, "GET", "/api/drives", Some(READ), None).await;
+    let m = assert_error(&r, 429, "too_many_failures");
+    assert!(m.contains("127.0.0.7"), "{m}");
+    // Another address is not concerned.
+    let other = router(gw.clone()).layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 8], 40000))));
+    assert_eq!(call(&other, "GET", "/api/drives", Some(READ), None).await.status, 200);
+    let logins = || {
+        let events = gw.store().unwrap().events(&drivebus_store::EventFilter::default()).unwrap();
+        events.into_iter().filter(|e| e.action.as_deref() == Some("login")).collect::<Vec<_>>()
+    };
+    assert_eq!(logins().len(), 1, "{:?}", logins());
+    assert_eq!(logins()[0].actor.as_deref(), Some("http:127.0.0.7"));
+    assert_eq!(logins()[0].result.as_deref(), Some("unauthorized: unknown token"));
+    settle(61).await;
+    let l = logins();
+    assert_eq!(l.len(), 2, "{l:?}");
+    assert!(
+        l[1].result.as_deref().unwrap().starts_with("9 refused from http:127.0.0.7 in the last 60 s"),
+        "{l:?}"
+    );
+    // The minute is over: the right token works again.
+    assert_eq!(call(&app, "GET", "/api/drives", Some(READ), None).await.status, 200);
+}
+
+/// Issue 13, defect 10: with anonymous reads, a Host that is not one of the gateway's names
+/// (DNS rebinding) gets 421; addresses, localhost and `[http] hosts` are served.
+#[tokio::test(start_paused = true)]
+async fn with_anonymous_reads_the_host_must_be_a_name_of_the_gateway() {
+    let get = |app: &Router, host: &str| {
+        let req = Request::get("/api/drives").header(header::HOST, host).body(Body::empty()).unwrap();
+        app.clone().oneshot(req)
+    };
+    let mut c = config(true);
+    c.http.hosts = vec!["scada.plant.local".into()];
+    let gw = Gateway::start(c, None).unwrap();
+    let named = app_with(&gw);
+    for ok in ["scada.plant.local:8080", "localhost:8080", "127.0.0.1:8080", "[::1]:8080", "10.0.0.5"] {
+        assert_eq!(get(&named, ok).await.unwrap().status(), 200, "{ok}");
+    }
+    let r = get(&named, "evil.example:8080").await.unwrap();
+    assert_eq!(r.status(), 421);
+    let body: Value = serde_json::from_slice(&r.into_body().collect().await.unwrap().to_bytes()).unwrap();
+    assert_eq!(body["error"]["kind"], "bad_host", "{body}");
+    // With tokens required, a foreign page has no token: nothing to check.
+    let (_gw, app) = app(false, false);
+    let req = Request::get("/api/drives")
+        .header(header::HOST, "evil.example")
+        .header(header::AUTHORIZATION, format!("Bearer {READ}"))
+        .body(Body::empty())
+        .unwrap();
+    assert_eq!(app.clone().oneshot(req).await.unwrap().status(), 200);
+    assert!(GatewayConfig::from_toml("t.toml", "[http]\nhosts = [\"http://x:80\"]\n").is_err());
+}

@@ -18,7 +18,7 @@ fn running_at(v: &Value, hz: f64) -> bool {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn statuses_are_retained_and_commands_move_a_drive() {
-    let broker = rumqttd().await;
+    let (broker, broker5) = rumqttd_both().await;
     let p = "drivebus/hall-a";
     let watcher = Subscriber::start(broker, "watcher", &format!("{p}/#")).await;
     // A retained command would run again at each reconnection of the gateway: refused.
@@ -26,7 +26,7 @@ async fn statuses_are_retained_and_commands_move_a_drive() {
     watcher.wait("the broker to hold the retained command", |log| (!log.is_empty()).then_some(())).await;
     let gw = demo_gateway(
         "hall-a",
-        broker,
+        broker5,
         &["line-toshiba/pump-1/*", "*/*/stop", "line-toshiba/pump-3/run"],
         false,
     );
@@ -116,8 +116,8 @@ async fn statuses_are_retained_and_commands_move_a_drive() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restarted_broker_gets_the_state_again_and_the_will_says_offline() {
-    let first = rumqttd().await;
-    let relay = Relay::start(first).await;
+    let (first, first5) = rumqttd_both().await;
+    let relay = Relay::start(first5).await;
     let _gw = demo_gateway("hall-r", relay.addr, &[], false);
     let p = "drivebus/hall-r";
     let on_first = Subscriber::start(first, "on-first", &format!("{p}/#")).await;
@@ -129,9 +129,9 @@ async fn a_restarted_broker_gets_the_state_again_and_the_will_says_offline() {
     wait_all_statuses(&Subscriber::start(first, "late-first", &format!("{p}/#")).await, p).await;
 
     // "Restart": every connection drops and the gateway finds an empty broker.
-    let second = rumqttd().await;
+    let (second, second5) = rumqttd_both().await;
     let on_second = Subscriber::start(second, "on-second", &format!("{p}/#")).await;
-    relay.switch(second);
+    relay.switch(second5);
 
     // The first broker saw the gateway go away: its last will.
     on_first
@@ -161,9 +161,9 @@ async fn a_restarted_broker_gets_the_state_again_and_the_will_says_offline() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_gateways_side_by_side_on_one_broker() {
-    let broker = rumqttd().await;
-    let _a = demo_gateway("hall-a", broker, &["*/*/*"], false);
-    let _b = demo_gateway("hall-b", broker, &[], false);
+    let (broker, broker5) = rumqttd_both().await;
+    let _a = demo_gateway("hall-a", broker5, &["*/*/*"], false);
+    let _b = demo_gateway("hall-b", broker5, &[], false);
     let plant = Subscriber::start(broker, "plant", "drivebus/#").await;
     plant
         .wait("both gateways online", |log| {
@@ -195,8 +195,8 @@ async fn two_gateways_side_by_side_on_one_broker() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn home_assistant_discovery() {
-    let broker = rumqttd().await;
-    let _gw = demo_gateway("hall-d", broker, &[], true);
+    let (broker, broker5) = rumqttd_both().await;
+    let _gw = demo_gateway("hall-d", broker5, &[], true);
     let first = Subscriber::start(broker, "ha-first", "homeassistant/#").await;
     first.wait_json("homeassistant/sensor/hall-d_mixer-2_fault/config", |_| true).await;
     // Home Assistant subscribing later (or restarting) finds them retained.

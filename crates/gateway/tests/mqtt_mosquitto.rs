@@ -111,3 +111,63 @@ fn which(name: &str) -> Option<PathBuf> {
     dirs.extend(["/usr/bin", "/usr/sbin"].map(PathBuf::from));
     dirs.into_iter().map(|d| d.join(name)).find(|p| p.is_file())
 }
+
+/// Oversize and retained command messages (issue 13, defects 3 and 7): a retained 100 KiB
+/// `set/stop` waiting on the broker, a retained `set/run` published while the gateway is
+/// connected, and a retained 2 MiB one. None is carried out, the first two get a result and an
+/// audit record, the third is dropped by the broker (above the gateway's Maximum Packet Size),
+/// and the gateway never loses its connection: one connection from start to end.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn oversize_and_retained_commands_are_refused_without_a_reconnection() {
+    let Some(bin) = mosquitto_binary() else {
+        assert!(
+            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
+            "mosquitto is required in CI but missing: apt-get install mosquitto"
+        );
+        eprintln!("NOT RUN: mosquitto is not installed (apt-get install mosquitto); .ci/run installs it");
+        return;
+    };
+    let broker = Mosquitto::start(&bin, free_port()).await;
+    let p = "drivebus/hall-o";
+    let big = Subscriber::start_with_max(broker.addr, "big", &format!("{p}/+/+/result"), 4 << 20).await;
+    big.publish(&format!("{p}/line-toshiba/pump-1/set/stop"), &"x".repeat(100 * 1024), true).await;
+    let gw = demo_gateway("hall-o", broker.addr, &["line-toshiba/pump-1/*"], false);
+    let events = collect_events(&gw);
+    let result = format!("{p}/line-toshiba/pump-1/result");
+    let r = big.wait_json(&result, |r| r["command"] == "stop").await;
+    assert_eq!(r["ok"], false, "{r}");
+    assert_eq!(r["error"]["kind"], "too_large", "{r}");
+
+    // Published retained while the gateway is subscribed: its first delivery is refused too.
+    big.publish(&format!("{p}/line-toshiba/pump-1/set/run"), "1", true).await;
+    let r = big.wait_json(&result, |r| r["command"] == "run").await;
+    assert_eq!(r["error"]["kind"], "retained", "{r}");
+    big.publish(&format!("{p}/line-toshiba/pump-1/set/speed"), &"9".repeat(2 << 20), true).await;
+
+    // The connection carries on: a good command after them is carried out.
+    big.publish(&format!("{p}/line-toshiba/pump-1/set/speed"), "31", false).await;
+    let r = big.wait_json(&result, |r| r["command"] == "speed").await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(gw.drive_view(&gw.drive("pump-1").unwrap()).running, Some(false));
+    let audited = |needle: &str| {
+        let needle = needle.to_string();
+        let events = events.clone();
+        async move {
+            let deadline = std::time::Instant::now() + PATIENCE;
+            loop {
+                let found = events.lock().unwrap().iter().any(|e: &drivebus_store::Event| {
+                    e.actor.as_deref() == Some("mqtt:drivebus-hall-o")
+                        && e.result.as_deref().is_some_and(|r| r.starts_with(&needle))
+                });
+                if found {
+                    return;
+                }
+                assert!(std::time::Instant::now() < deadline, "no audit record {needle:?}");
+                tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+            }
+        }
+    };
+    audited("too_large: ").await;
+    audited("retained: ").await;
+    assert_eq!(gw.counters.front_ends.mqtt_connections(), 1, "the gateway reconnected");
+}

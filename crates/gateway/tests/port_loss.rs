@@ -51,6 +51,11 @@ async fn a_lost_port_goes_offline_and_comes_back() {
     wait_for("m1 offline", Duration::from_secs(10), || m1().online == Some(false)).await;
     let before = m2_polls();
     wait_for("the other bus to keep polling", Duration::from_secs(30), || m2_polls() > before + 3).await;
+    let m1_polls = m1().polls;
+    wait_for("m1's polls to keep counting while its port is gone", Duration::from_secs(30), || {
+        m1().polls > m1_polls + 3
+    })
+    .await;
     let err = m1().last_error.unwrap_or_default();
     assert!(!err.is_empty());
     let mut kinds = Vec::new();
@@ -96,4 +101,9 @@ async fn a_port_missing_at_start_is_an_offline_bus_not_a_failure() {
     assert!(!bus.online, "{bus:?}");
     let err = gw.drive_view(&gw.drive("m1").unwrap()).last_error.unwrap();
     assert!(err.contains("/dev/drivebus-no-such-port"), "{err}");
+    // The offline drive is still polled: its counter keeps rising (issue 13, defect 10).
+    let polls = || gw.drive_view(&gw.drive("m1").unwrap()).polls;
+    let before = polls();
+    wait_for("m1's polls to keep counting while offline", Duration::from_secs(30), || polls() > before + 3)
+        .await;
 }

@@ -36,7 +36,14 @@
 //! batches average correctly); the minimum and maximum output frequency are kept per bucket. A
 //! 1 min average is over the samples, not over the 1 s averages. [`Store::prune`] deletes 1 s
 //! buckets older than a day and 1 min buckets older than a year; the background thread calls it
-//! when the store opens and every ten minutes. Events are never pruned.
+//! when the store opens and every ten minutes.
+//!
+//! ## Retention and size cap
+//!
+//! [`Limits`]: events older than the retention are deleted, and when the data outgrows the size
+//! cap the oldest events and trend buckets go first ([`Store::enforce_limits`]). Both are
+//! enforced when the store opens (before it is used), then by the background thread: the
+//! retention every ten minutes, the cap every [`SIZE_CHECK_INTERVAL`].
 //!
 //! ## Concurrency
 //!
@@ -50,6 +57,7 @@
 mod audit;
 mod error;
 mod event;
+mod limits;
 mod sparkplug;
 pub mod time;
 mod trend;
@@ -65,6 +73,7 @@ use rusqlite::{params, Connection, OpenFlags};
 pub use audit::PENDING;
 pub use error::StoreError;
 pub use event::{Event, EventFilter, EventKind, UnknownKind};
+pub use limits::{Enforced, Limits, SIZE_CHECK_INTERVAL};
 pub use sparkplug::{SpoolDropped, Spooled, SPARKPLUG_SCHEMA};
 pub use trend::{Resolution, Sample, TrendPoint, TrendQuery};
 
@@ -152,6 +161,7 @@ struct Shared {
     writer: Option<Mutex<Connection>>,
     queue: Mutex<Queue>,
     wake: Condvar,
+    limits: Limits,
 }
 
 #[derive(Default)]
@@ -179,11 +189,18 @@ impl Drop for Inner {
 impl Store {
     /// Opens the store at `path` for reading and writing, creating the file and its schema if it
     /// does not exist, and starts the background thread that commits samples and prunes.
+    /// No retention nor size cap ([`Limits::NONE`]; see [`Store::open_with_limits`]).
     ///
     /// Fails with [`StoreError::NotADatabase`] for a file that is not SQLite,
     /// [`StoreError::Foreign`] for another program's database and [`StoreError::TooNew`] for a
     /// store written by a newer drivebus.
     pub fn open(path: &Path) -> Result<Store, StoreError> {
+        Store::open_with_limits(path, Limits::NONE)
+    }
+
+    /// [`Store::open`] with the retention and size cap `limits`, enforced before this returns
+    /// and then periodically by the background thread.
+    pub fn open_with_limits(path: &Path, limits: Limits) -> Result<Store, StoreError> {
         let sq = |doing| move |e| StoreError::sqlite(path, doing, e);
         let mut writer = Connection::open(path).map_err(sq("opening"))?;
         writer.busy_timeout(BUSY_TIMEOUT).map_err(sq("setting the busy timeout"))?;
@@ -215,13 +232,21 @@ impl Store {
             tx.execute_batch(SPARKPLUG_SCHEMA).map_err(sq("creating the Sparkplug tables"))?;
             tx.commit().map_err(sq("creating the schema"))?;
         }
+        // The limits hold from the start: enforced before the store is used.
+        let mut queue = Queue::default();
+        if limits != Limits::NONE {
+            if let Err(e) = limits::enforce(&writer, path, &limits, time::now_ms()) {
+                queue.last_error = Some(e.to_string());
+            }
+        }
         let reader = open_reader(path)?;
         let shared = Arc::new(Shared {
             path: path.to_path_buf(),
             reader: Mutex::new(reader),
             writer: Some(Mutex::new(writer)),
-            queue: Mutex::new(Queue::default()),
+            queue: Mutex::new(queue),
             wake: Condvar::new(),
+            limits,
         });
         let worker = {
             let shared = Arc::clone(&shared);
@@ -249,6 +274,7 @@ impl Store {
             writer: None,
             queue: Mutex::new(Queue::default()),
             wake: Condvar::new(),
+            limits: Limits::NONE,
         });
         Ok(Store { inner: Arc::new(Inner { shared, worker: None }) })
     }
@@ -256,6 +282,25 @@ impl Store {
     /// The file this store is in.
     pub fn path(&self) -> &Path {
         &self.inner.shared.path
+    }
+
+    /// Deletes what [`Limits`] say is too old or too much, as of `now_ms` (the background thread
+    /// does this; tests call it with a virtual clock). Returns what was deleted.
+    pub fn enforce_limits(&self, now_ms: i64) -> Result<Enforced, StoreError> {
+        let conn = self.writer()?;
+        limits::enforce(&conn, self.path(), &self.inner.shared.limits, now_ms)
+    }
+
+    /// Bytes in use by the data (the file does not shrink when rows are deleted: freed pages
+    /// are reused).
+    pub fn used_bytes(&self) -> Result<u64, StoreError> {
+        let conn = lock(&self.inner.shared.reader);
+        limits::used_bytes(&conn).map_err(|e| StoreError::sqlite(self.path(), "reading the size", e))
+    }
+
+    /// The limits this store enforces.
+    pub fn limits(&self) -> Limits {
+        self.inner.shared.limits
     }
 
     /// Whether this store was opened with [`Store::open_read_only`].
@@ -615,6 +660,7 @@ fn write_batch(conn: &mut Connection, batch: &[Sample]) -> Result<(), rusqlite::
 /// [`PRUNE_INTERVAL`], and writes what is left when the last handle is dropped.
 fn background(shared: &Shared) {
     let mut last_prune: Option<Instant> = None;
+    let mut last_size_check: Option<Instant> = None;
     loop {
         let stop = {
             let q = lock(&shared.queue);
@@ -628,10 +674,20 @@ fn background(shared: &Shared) {
         if let Err(e) = write_queued(shared) {
             errors.push(e.to_string());
         }
-        if last_prune.map_or(true, |t| t.elapsed() >= PRUNE_INTERVAL) {
-            last_prune = Some(Instant::now());
-            if let Some(writer) = &shared.writer {
+        let prune = last_prune.map_or(true, |t| t.elapsed() >= PRUNE_INTERVAL);
+        let size_check = last_size_check.map_or(true, |t| t.elapsed() >= SIZE_CHECK_INTERVAL);
+        if let Some(writer) = &shared.writer {
+            if prune {
+                last_prune = Some(Instant::now());
                 if let Err(e) = prune_with(&lock(writer), &shared.path, time::now_ms()) {
+                    errors.push(e.to_string());
+                }
+            }
+            if prune || size_check {
+                last_size_check = Some(Instant::now());
+                // The retention with the pruning; the cap at every check.
+                let limits = if prune { shared.limits } else { Limits { retention: None, ..shared.limits } };
+                if let Err(e) = limits::enforce(&lock(writer), &shared.path, &limits, time::now_ms()) {
                     errors.push(e.to_string());
                 }
             }

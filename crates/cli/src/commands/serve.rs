@@ -206,7 +206,8 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     }
     let store = match &config.store {
         Some(path) => {
-            Some(drivebus_store::Store::open(path).map_err(|e| Failure { code: 2, message: e.to_string() })?)
+            let store = drivebus_store::Store::open_with_limits(path, config.store_limits);
+            Some(store.map_err(|e| Failure { code: 2, message: e.to_string() })?)
         }
         None => None,
     };

@@ -57,7 +57,7 @@ fn parse_json<T: DeserializeOwned>(bytes: &[u8], example: &str) -> Result<T, Api
     if bytes.iter().all(u8::is_ascii_whitespace) {
         return Err(ApiError::bad_json(format!("the body is empty: send JSON like {example}")));
     }
-    let value: Value = serde_json::from_slice(bytes).map_err(|e| {
+    let refuse = |e: serde_json::Error| {
         use serde_json::error::Category;
         match e.classify() {
             Category::Data => ApiError::invalid(format!("{e}: send JSON like {example}")),
@@ -65,7 +65,10 @@ fn parse_json<T: DeserializeOwned>(bytes: &[u8], example: &str) -> Result<T, Api
                 ApiError::bad_json(format!("the body is not JSON ({e}): send JSON like {example}"))
             }
         }
-    })?;
+    };
+    // A key given twice (`{"hz":40,"hz":41}`) is refused, not resolved to one of them.
+    crate::json::check_unique_keys(bytes).map_err(refuse)?;
+    let value: Value = serde_json::from_slice(bytes).map_err(refuse)?;
     // serde would take an array for the fields in order (`[25]` for `{"hz": 25}`): only the
     // documented object is a request.
     if !value.is_object() {
@@ -153,12 +156,16 @@ pub async fn write_param(
         Value::Number(n) => n.to_string(),
         other => {
             return Err(ApiError::invalid(format!(
-                "value {other} is not a string or a number: send {example}"
+                "value {} is not a string or a number: send {example}",
+                crate::text::shown(&other.to_string())
             )))
         }
     };
     // The catalog checks the value (unit, range, choices) before anything is sent.
-    d.param(&name)?.parse_value(&value).map_err(|e| ApiError::invalid(format!("{name} = {value:?}: {e}")))?;
+    d.param(&name)?.parse_value(&value).map_err(|e| {
+        let e = crate::text::shown_max(&e.to_string(), 256);
+        ApiError::invalid(format!("{name} = {:?}: {e}", crate::text::shown(&value)))
+    })?;
     run_command(&gw, &id, Command::SetParam { name, value, eeprom }, &caller.actor()).await
 }
 

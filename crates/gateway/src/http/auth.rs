@@ -1,6 +1,9 @@
 //! Bearer tokens: `Authorization: Bearer <token>`, compared in constant time against every
 //! configured token. Reads need a read or write token unless `[http] anonymous_read`; writes
-//! need a write token (401 without or with an unknown token, 403 with a read token).
+//! need a write token (401 without or with an unknown token, 403 with a read token). A failed
+//! login (an unknown or malformed token) is audited and logged like a refused write (aggregated
+//! per address, `crate::refusals`); after [`MAX_LOGIN_FAILURES`] in a minute, the address's
+//! requests with a token get 429 until the minute is over.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -11,7 +14,7 @@ use axum::http::request::Parts;
 use axum::http::{header, StatusCode};
 
 use crate::config::{Role, Token};
-use crate::gateway::Gateway;
+use crate::gateway::{Gateway, MAX_LOGIN_FAILURES};
 use crate::http::error::ApiError;
 
 /// Whether `a` and `b` are equal, in a time that depends only on `a`'s length.
@@ -75,10 +78,27 @@ impl Caller {
     }
 }
 
-fn authorize(parts: &Parts, gw: &Gateway, need: Role) -> Result<Caller, ApiError> {
+async fn authorize(parts: &Parts, gw: &Arc<Gateway>, need: Role) -> Result<Caller, ApiError> {
     let ip = client_ip(parts);
     let tokens = &gw.config().tokens;
-    match presented(parts)? {
+    let presented = match presented(parts) {
+        Ok(p) => p,
+        Err(e) => {
+            gw.login_failed(&ip, &format!("unauthorized: {}", e.message)).await;
+            return Err(e);
+        }
+    };
+    if presented.is_some() && gw.login_blocked(&ip) {
+        return Err(ApiError::new(
+            StatusCode::TOO_MANY_REQUESTS,
+            "too_many_failures",
+            format!(
+                "{MAX_LOGIN_FAILURES} failed logins from {ip} within a minute: requests with a token \
+                 from {ip} are refused until that minute is over; then use a configured token"
+            ),
+        ));
+    }
+    match presented {
         None if need == Role::Read && gw.config().http.anonymous_read => {
             Ok(Caller { token: None, role: None, ip })
         }
@@ -91,8 +111,10 @@ fn authorize(parts: &Parts, gw: &Gateway, need: Role) -> Result<Caller, ApiError
             },
         )),
         Some(p) => {
-            let t = find_token(tokens, p)
-                .ok_or_else(|| ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", "unknown token"))?;
+            let Some(t) = find_token(tokens, p) else {
+                gw.login_failed(&ip, "unauthorized: unknown token").await;
+                return Err(ApiError::new(StatusCode::UNAUTHORIZED, "unauthorized", "unknown token"));
+            };
             if t.role < need {
                 return Err(ApiError::new(
                     StatusCode::FORBIDDEN,
@@ -118,7 +140,7 @@ impl FromRequestParts<Arc<Gateway>> for ReadAccess {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, gw: &Arc<Gateway>) -> Result<Self, ApiError> {
-        authorize(parts, gw, Role::Read).map(ReadAccess)
+        authorize(parts, gw, Role::Read).await.map(ReadAccess)
     }
 }
 
@@ -127,7 +149,7 @@ impl FromRequestParts<Arc<Gateway>> for WriteAccess {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, gw: &Arc<Gateway>) -> Result<Self, ApiError> {
-        authorize(parts, gw, Role::Write).map(WriteAccess)
+        authorize(parts, gw, Role::Write).await.map(WriteAccess)
     }
 }
 

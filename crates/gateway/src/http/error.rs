@@ -21,7 +21,9 @@ pub struct ApiError {
 }
 
 impl ApiError {
-    /// An error with `status`, `kind` and `message` (newlines are folded into one line).
+    /// An error with `status`, `kind` and `message` (newlines are folded into one line, and a
+    /// message over [`crate::gateway::MAX_MESSAGE_CHARS`] characters is cut: it quotes a user's
+    /// value).
     pub fn new(status: StatusCode, kind: &'static str, message: impl Into<String>) -> Self {
         let message: String = message.into();
         let message = if message.contains(['\n', '\r']) {
@@ -29,6 +31,7 @@ impl ApiError {
         } else {
             message
         };
+        let message = crate::text::shown_max(&message, crate::gateway::MAX_MESSAGE_CHARS);
         ApiError { status, kind, message }
     }
 

@@ -11,6 +11,7 @@ pub mod api;
 pub mod auth;
 pub mod dashboard;
 pub mod error;
+pub mod host;
 pub mod stream;
 
 use std::sync::Arc;
@@ -73,6 +74,7 @@ pub fn router(gw: Arc<Gateway>) -> Router {
         .layer(middleware::from_fn_with_state(gw.clone(), crate::metrics::track))
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::map_response(json_errors))
+        .layer(middleware::from_fn_with_state(gw.clone(), host::check))
         .layer(middleware::from_fn_with_state(gw.clone(), guard))
         .with_state(gw)
 }

@@ -27,11 +27,18 @@ pub fn free_port() -> u16 {
 /// Starts a rumqttd broker (MQTT 3.1.1) on a free loopback port; it lives until the test
 /// process ends.
 pub async fn rumqttd() -> SocketAddr {
+    rumqttd_both().await.0
+}
+
+/// Starts a rumqttd broker listening for MQTT 3.1.1 and MQTT 5 clients (the gateway's MQTT
+/// client speaks 5, the test's subscribers 3.1.1): `(v4, v5)` addresses.
+pub async fn rumqttd_both() -> (SocketAddr, SocketAddr) {
     use rumqttd::{Broker, Config, ConnectionSettings, RouterConfig, ServerSettings};
-    let addr: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
-    let server = ServerSettings {
-        name: "v4".into(),
-        listen: addr,
+    let v4: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    let v5: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    let server = |name: &str, listen| ServerSettings {
+        name: name.into(),
+        listen,
         tls: None,
         next_connection_delay_ms: 1,
         connections: ConnectionSettings {
@@ -51,7 +58,8 @@ pub async fn rumqttd() -> SocketAddr {
             max_segment_count: 10,
             ..Default::default()
         },
-        v4: Some(HashMap::from([("1".to_string(), server)])),
+        v4: Some(HashMap::from([("1".to_string(), server("v4", v4))])),
+        v5: Some(HashMap::from([("2".to_string(), server("v5", v5))])),
         ..Default::default()
     };
     std::thread::spawn(move || {
@@ -60,8 +68,9 @@ pub async fn rumqttd() -> SocketAddr {
             eprintln!("rumqttd: {e}");
         }
     });
-    wait_listening(addr).await;
-    addr
+    wait_listening(v4).await;
+    wait_listening(v5).await;
+    (v4, v5)
 }
 
 /// Waits until something accepts connections on `addr`.
@@ -138,9 +147,14 @@ pub struct Subscriber {
 impl Subscriber {
     /// Connects to `broker` as `id` and subscribes to `filter`.
     pub async fn start(broker: SocketAddr, id: &str, filter: &str) -> Subscriber {
+        Subscriber::start_with_max(broker, id, filter, 64 * 1024).await
+    }
+
+    /// [`Subscriber::start`] able to publish packets of up to `max_out` bytes.
+    pub async fn start_with_max(broker: SocketAddr, id: &str, filter: &str, max_out: usize) -> Subscriber {
         let mut opts = MqttOptions::new(id, broker.ip().to_string(), broker.port());
         opts.set_keep_alive(Duration::from_secs(30));
-        opts.set_max_packet_size(1 << 20, 64 * 1024);
+        opts.set_max_packet_size(1 << 20, max_out);
         let (client, mut eventloop) = AsyncClient::new(opts, 100);
         client.subscribe(filter, QoS::AtLeastOnce).await.unwrap();
         let log: Arc<Mutex<Vec<Msg>>> = Arc::default();
@@ -232,6 +246,23 @@ pub fn demo_gateway_with(
     let gw = Gateway::start(config, None).unwrap();
     drivebus_gateway::mqtt::spawn(gw.clone(), &mqtt).unwrap();
     gw
+}
+
+/// Every event `gw` records from now on.
+pub fn collect_events(gw: &Arc<Gateway>) -> Arc<Mutex<Vec<drivebus_store::Event>>> {
+    let mut changes = gw.subscribe();
+    let events: Arc<Mutex<Vec<drivebus_store::Event>>> = Arc::default();
+    let kept = events.clone();
+    tokio::spawn(async move {
+        loop {
+            match changes.recv().await {
+                Ok(drivebus_gateway::gateway::Change::Event(e)) => kept.lock().unwrap().push(e),
+                Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+                Err(_) => return,
+            }
+        }
+    });
+    events
 }
 
 /// The demo's drives as `(bus, drive)`.

@@ -63,10 +63,16 @@ echo "wireshark-common wireshark-common/install-setuid boolean false" | $SUDO de
 apt_install tshark tshark
 # systemd-analyze verifies the packaged unit (.ci/package.sh).
 apt_install systemd-analyze systemd
-# cargo-deb builds the Debian package (.ci/package.sh).
-if ! cargo deb --version >/dev/null 2>&1; then
-  cargo install cargo-deb --locked --version 3.8.0 --quiet
-fi
+# cargo-deb builds the Debian package (.ci/package.sh); cargo-fuzz runs the fuzz targets
+# (fuzz/run-all.sh) on the nightly toolchain, installed here where it is missing.
+cargo_install() { # cargo_install SUBCOMMAND CRATE VERSION
+  if ! cargo "$1" --version >/dev/null 2>&1; then
+    cargo install "$2" --locked --version "$3" --quiet
+  fi
+}
+cargo_install deb cargo-deb 3.8.0
+cargo_install fuzz cargo-fuzz 0.12.0
+rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly --profile minimal
 
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 python3 -c "import asyncua; print('asyncua', asyncua.__version__)"

@@ -267,3 +267,47 @@ async fn an_offline_drives_polls_keep_counting() {
     assert!(later.polls > offline.polls, "polls stopped at {} while offline", later.polls);
     assert!(later.error_rate > offline.error_rate, "{offline:?} {later:?}");
 }
+
+/// A Danfoss drive's reference and MAV are 0x4000 = 100 % of 3-03: after a 3-03 write through
+/// the gateway its polls scale MAV with the new 3-03 (one profile per drive learns it), so the
+/// reported frequency is the one the drive runs at.
+#[tokio::test(start_paused = true)]
+async fn a_danfoss_3_03_write_changes_the_reported_scale() {
+    let gw = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    settle(2).await;
+    let bus = gw.buses().iter().find(|b| b.config.drives.iter().any(|d| d.name == "ahu-1")).unwrap().clone();
+    let actual = || {
+        let mut line = bus.line.as_ref().expect("a virtual bus").lock().unwrap();
+        let port = (0..line.devices())
+            .find(|&p| line.drive(p).is_some_and(|d| d.core().address == 1))
+            .expect("ahu-1 on its line");
+        line.drive(port).unwrap().core().model.output_hz()
+    };
+    let reported = |gw: &Gateway| gw.drive_view(&gw.drive("ahu-1").unwrap()).output_hz.unwrap_or(-1.0);
+    // Steady: the drive at its speed, a poll after it got there.
+    async fn steady(actual: &dyn Fn() -> f64, hz: f64) {
+        let mut waited = 0;
+        while (actual() - hz).abs() > 0.01 {
+            assert!(waited < 120, "ahu-1 runs at {} Hz, not {hz} Hz", actual());
+            settle(1).await;
+            waited += 1;
+        }
+        settle(2).await;
+    }
+    gw.command("ahu-1", Command::Speed(20.0), "test").await.unwrap();
+    gw.command("ahu-1", Command::Run, "test").await.unwrap();
+    steady(&actual, 20.0).await;
+    assert!(
+        (reported(&gw) - actual()).abs() < 0.05,
+        "reported {} Hz, runs at {} Hz",
+        reported(&gw),
+        actual()
+    );
+    let set = Command::SetParam { name: "3-03".into(), value: "100".into(), eeprom: false };
+    gw.command("ahu-1", set, "test").await.unwrap();
+    gw.command("ahu-1", Command::Speed(60.0), "test").await.unwrap();
+    // 60 Hz is above the old 3-03 (50 Hz): the profile took the new scale for the reference
+    // it sends and for the MAV it reads.
+    steady(&actual, 60.0).await;
+    assert!((reported(&gw) - 60.0).abs() < 0.05, "reported {} Hz, runs at {} Hz", reported(&gw), actual());
+}

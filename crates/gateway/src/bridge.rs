@@ -183,14 +183,7 @@ pub fn reply_pdu(ascii: bool, frame: &[u8]) -> Option<Vec<u8>> {
 pub async fn serve(gw: Arc<Gateway>, cfg: BridgeConfig, listener: TcpListener) -> std::io::Result<()> {
     let limits = gw.limits().listener(&format!("the Modbus bridge to {}", cfg.bus));
     loop {
-        let (sock, peer) = match listener.accept().await {
-            Ok(x) => x,
-            Err(_) => {
-                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
-                continue;
-            }
-        };
-        let Some(permit) = limits.admit(peer.ip()) else { continue };
+        let (sock, peer, permit) = limits.accept(&listener).await;
         let (gw, cfg) = (gw.clone(), cfg.clone());
         tokio::spawn(async move {
             let _permit = permit;

@@ -152,6 +152,31 @@ pub struct Listener {
 }
 
 impl Listener {
+    /// The next connection `listener` accepts that these limits admit, with its place. A failed
+    /// accept (out of descriptors, a connection reset before it) is logged once and retried
+    /// after a short pause: the listener keeps serving the others.
+    pub async fn accept(
+        self: &Arc<Self>,
+        listener: &tokio::net::TcpListener,
+    ) -> (tokio::net::TcpStream, std::net::SocketAddr, Permit) {
+        let mut warned = false;
+        loop {
+            match listener.accept().await {
+                Ok((sock, peer)) => {
+                    if let Some(permit) = self.admit(peer.ip()) {
+                        return (sock, peer, permit);
+                    }
+                }
+                Err(e) => {
+                    if !std::mem::replace(&mut warned, true) {
+                        crate::log::warn(&format!("{}: accept failed: {e} (retrying)", self.name));
+                    }
+                    tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+                }
+            }
+        }
+    }
+
     /// Admits a connection from `ip`, or refuses it (logged at a bounded rate): the returned
     /// [`Permit`] holds its place until dropped.
     pub fn admit(self: &Arc<Self>, ip: IpAddr) -> Option<Permit> {

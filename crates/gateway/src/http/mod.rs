@@ -87,15 +87,7 @@ pub async fn serve(gw: Arc<Gateway>, listener: tokio::net::TcpListener) -> std::
     let cfg = gw.limits().config().clone();
     let app = router(gw);
     loop {
-        let (sock, peer) = match listener.accept().await {
-            Ok(x) => x,
-            Err(_) => {
-                // Out of descriptors, or a connection reset before accept: serve the others.
-                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
-                continue;
-            }
-        };
-        let Some(permit) = limits.admit(peer.ip()) else { continue };
+        let (sock, peer, permit) = limits.accept(&listener).await;
         let (app, cfg) = (app.clone(), cfg.clone());
         tokio::spawn(async move {
             let _permit = permit;

@@ -14,7 +14,7 @@
 pub mod map;
 
 use std::net::{IpAddr, SocketAddr};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -87,20 +87,8 @@ impl Drop for Slot<'_> {
 pub async fn serve(gw: Arc<Gateway>, listener: TcpListener) -> std::io::Result<()> {
     let limits = gw.limits().listener("Modbus TCP");
     let server = Server::new(gw);
-    static WARNED: AtomicBool = AtomicBool::new(false);
     loop {
-        let (socket, peer) = match listener.accept().await {
-            Ok(x) => x,
-            Err(e) => {
-                // Out of descriptors or a connection reset before accept: keep serving the others.
-                if !WARNED.swap(true, Ordering::Relaxed) {
-                    crate::log::warn(&format!("Modbus TCP: accept failed: {e} (retrying)"));
-                }
-                tokio::time::sleep(std::time::Duration::from_millis(20)).await;
-                continue;
-            }
-        };
-        let Some(permit) = limits.admit(peer.ip()) else { continue };
+        let (socket, peer, permit) = limits.accept(&listener).await;
         if server.active.fetch_add(1, Ordering::Relaxed) >= server.config.max_connections {
             server.active.fetch_sub(1, Ordering::Relaxed);
             drop(socket);

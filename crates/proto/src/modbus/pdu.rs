@@ -947,50 +947,20 @@ impl<'a> RequestPdu<'a> {
                 Ok(RequestPdu::Diagnostics { sub_function: pdu.word(1), data: pdu.slice(3, got) })
             }
             0x10 => {
-                if got < 6 {
-                    return Err(FrameError::Truncated { what, expected: 6, got });
-                }
-                let start = RegisterAddress(pdu.word(1));
-                let quantity = pdu.word(3);
                 // "Quantity of Registers 1 to 123 (0x7B)", "Byte Count 2 x N".
-                quantity_ok(quantity, 123)?;
-                let count = pdu.at(5);
-                if count as u16 != 2 * quantity {
-                    return Err(FrameError::Inconsistent {
-                        field: "byte count",
-                        value: count as u32,
-                        expected: 2 * quantity as u32,
-                    });
-                }
-                check_len(what, len, got)?;
-                Ok(RequestPdu::WriteMultipleRegisters {
-                    start,
-                    values: Registers::from_data(pdu.slice(6, got)),
-                })
+                let values = counted_values(pdu, (what, len), 3, 123, "byte count")?;
+                Ok(RequestPdu::WriteMultipleRegisters { start: RegisterAddress(pdu.word(1)), values })
             }
             0x17 => {
-                if got < 10 {
-                    return Err(FrameError::Truncated { what, expected: 10, got });
-                }
                 // "Quantity to Read 1 to 125", "Quantity to Write 1 to 121", "Byte Count 2 x N".
+                let values = counted_values(pdu, (what, len), 7, 121, "write byte count")?;
                 let read_quantity = pdu.word(3);
                 quantity_ok(read_quantity, 125)?;
-                let write_quantity = pdu.word(7);
-                quantity_ok(write_quantity, 121)?;
-                let count = pdu.at(9);
-                if count as u16 != 2 * write_quantity {
-                    return Err(FrameError::Inconsistent {
-                        field: "write byte count",
-                        value: count as u32,
-                        expected: 2 * write_quantity as u32,
-                    });
-                }
-                check_len(what, len, got)?;
                 Ok(RequestPdu::ReadWriteMultipleRegisters {
                     read_start: RegisterAddress(pdu.word(1)),
                     read_quantity,
                     write_start: RegisterAddress(pdu.word(5)),
-                    values: Registers::from_data(pdu.slice(10, got)),
+                    values,
                 })
             }
             0x2B => {
@@ -1115,6 +1085,34 @@ impl<'a> RequestPdu<'a> {
         }
         Ok(n)
     }
+}
+
+/// The register values of a write request whose quantity is the word at `at`, followed by a
+/// byte count and the values (10 and 17): the quantity within `1..=max`, the byte count twice
+/// it, the PDU's length what the byte count says.
+fn counted_values<'a>(
+    pdu: Data<'a>,
+    (what, len): (&'static str, PduLen),
+    at: usize,
+    max: u16,
+    count_field: &'static str,
+) -> Result<Registers<'a>, FrameError> {
+    let got = pdu.len();
+    if got < at + 3 {
+        return Err(FrameError::Truncated { what, expected: at + 3, got });
+    }
+    let quantity = pdu.word(at);
+    quantity_ok(quantity, max)?;
+    let count = pdu.at(at + 2);
+    if count as u16 != 2 * quantity {
+        return Err(FrameError::Inconsistent {
+            field: count_field,
+            value: count as u32,
+            expected: 2 * quantity as u32,
+        });
+    }
+    check_len(what, len, got)?;
+    Ok(Registers::from_data(pdu.slice(at + 3, got)))
 }
 
 fn emit_quantity(q: u16, max: u16) -> Result<(), EmitError> {

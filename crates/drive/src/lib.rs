@@ -54,6 +54,7 @@
 //! [`CatalogError`], [`RangeError`], [`ValueError`] or [`WriteError`].
 
 mod catalog;
+mod config_error;
 mod family;
 mod param;
 mod store;
@@ -65,6 +66,7 @@ pub mod profile;
 pub mod registers;
 
 pub use catalog::{Catalog, CatalogError, ParamKey};
+pub use config_error::ConfigError;
 pub use family::{Family, UnknownFamily};
 pub use param::{format_fixed, Choice, ParamDef, RangeError, Size, Storage, ValueError};
 pub use store::{ParamStore, WriteError};

@@ -23,7 +23,6 @@
 //! keypad_hz = 40       # the master's keypad frequency setting
 //! ```
 
-use std::fmt;
 use std::str::FromStr;
 use std::time::Duration;
 
@@ -86,17 +85,8 @@ pub struct BusSpec {
     pub master: Option<MasterSpec>,
 }
 
-/// Why a bus description is not usable. Prints as one sentence naming the place.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct ConfigError(pub String);
-
-impl fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for ConfigError {}
+/// Why a bus description is not usable: one sentence naming the place.
+pub use drivebus_drive::ConfigError;
 
 impl FromStr for DriveSpec {
     type Err = ConfigError;

@@ -92,7 +92,7 @@ use serde::Deserialize;
 use toml::Spanned;
 
 /// The embedded demo: a virtual bus per family with simulated drives on each.
-pub const DEMO: &str = include_str!("demo.toml");
+pub const DEMO: &str = include_str!("../demo.toml");
 
 /// Why a configuration is not usable: one line naming the file, the line and the field.
 #[derive(Clone, Debug, PartialEq, Eq)]

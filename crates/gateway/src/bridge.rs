@@ -20,13 +20,12 @@ use drivebus_proto::checksum::{crc16_modbus, lrc};
 use drivebus_proto::modbus::rtu::RtuScanner;
 use drivebus_proto::{Deframer, Event as FrameEvent};
 use drivebus_store::{Event, EventKind};
-use serde::Deserialize;
 use serde_json::json;
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
-use toml::Spanned;
 
-use crate::config::{BusConfig, ConfigError, Ctx};
+pub use crate::config::bridge::{check_arg as check, parse_arg};
+pub use crate::config::{BridgeConfig, Framing};
 use crate::gateway::{unix_ms, Gateway};
 use crate::modbus_tcp::{ILLEGAL_FUNCTION, TARGET_FAILED};
 use drivebus_proto::modbus::tcp::{Mbap, MBAP_LEN};
@@ -34,112 +33,6 @@ use drivebus_proto::modbus::ExceptionCode;
 
 /// Exception 0A: gateway path unavailable (the bus is down).
 pub const PATH_UNAVAILABLE: ExceptionCode = ExceptionCode::GATEWAY_PATH_UNAVAILABLE;
-
-/// How requests come over TCP.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Framing {
-    /// Modbus TCP: MBAP header and PDU.
-    Mbap,
-    /// RTU frames (address, PDU, CRC) over TCP.
-    Rtu,
-}
-
-/// One `[[bridge]]`.
-#[derive(Clone, Debug, PartialEq)]
-pub struct BridgeConfig {
-    /// The bus's name.
-    pub bus: String,
-    /// Where to listen.
-    pub listen: SocketAddr,
-    /// How requests are framed.
-    pub framing: Framing,
-}
-
-/// A `[[bridge]]` as written.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(crate) struct FileBridge {
-    bus: Spanned<String>,
-    listen: Spanned<String>,
-    framing: Option<Spanned<String>>,
-}
-
-/// Reads the `[[bridge]]` sections: each names a Modbus bus of `buses` and a free address.
-pub(crate) fn configs(
-    cx: &Ctx<'_>,
-    file: &[FileBridge],
-    buses: &[BusConfig],
-) -> Result<Vec<BridgeConfig>, ConfigError> {
-    let mut out: Vec<BridgeConfig> = Vec::new();
-    for b in file {
-        let name = b.bus.get_ref();
-        let Some(bus) = buses.iter().find(|x| x.name == *name) else {
-            let known: Vec<&str> = buses.iter().map(|x| x.name.as_str()).collect();
-            return cx.err(
-                b.bus.span(),
-                "bridge.bus",
-                format!("no bus {name:?} (buses: {})", known.join(", ")),
-            );
-        };
-        if !bus.protocol.is_modbus() {
-            return cx.err(
-                b.bus.span(),
-                "bridge.bus",
-                format!(
-                    "bus {name:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
-                    bus.protocol
-                ),
-            );
-        }
-        let listen: SocketAddr = b.listen.get_ref().parse().or_else(|_| {
-            cx.err(
-                b.listen.span(),
-                "bridge.listen",
-                format!("{:?} is not HOST:PORT (e.g. 127.0.0.1:5021)", b.listen.get_ref()),
-            )
-        })?;
-        if listen.port() != 0 && out.iter().any(|x| x.listen == listen) {
-            return cx.err(b.listen.span(), "bridge.listen", format!("{listen} is already another bridge's"));
-        }
-        let framing = match b.framing.as_ref().map(|f| f.get_ref().as_str()) {
-            None | Some("mbap") => Framing::Mbap,
-            Some("rtu") => Framing::Rtu,
-            Some(other) => {
-                let span = b.framing.as_ref().map(|f| f.span()).unwrap_or_default();
-                return cx.err(span, "bridge.framing", format!("{other:?}: use mbap or rtu"));
-            }
-        };
-        out.push(BridgeConfig { bus: name.clone(), listen, framing });
-    }
-    Ok(out)
-}
-
-/// `--bridge BUS=HOST:PORT`: a bridge with MBAP framing.
-pub fn parse_arg(arg: &str) -> Result<BridgeConfig, String> {
-    let (bus, addr) = arg
-        .split_once('=')
-        .ok_or_else(|| format!("--bridge {arg:?}: write BUS=HOST:PORT, e.g. line-1=127.0.0.1:5021"))?;
-    let listen = addr
-        .parse()
-        .map_err(|_| format!("--bridge {arg:?}: {addr:?} is not HOST:PORT, e.g. 127.0.0.1:5021"))?;
-    Ok(BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap })
-}
-
-/// Checks a bridge given on the command line against the buses (as [`configs`] does for the file).
-pub fn check(b: &BridgeConfig, buses: &[BusConfig]) -> Result<(), String> {
-    match buses.iter().find(|x| x.name == b.bus) {
-        None => Err(format!(
-            "--bridge: no bus {:?} (buses: {})",
-            b.bus,
-            buses.iter().map(|x| x.name.as_str()).collect::<Vec<_>>().join(", ")
-        )),
-        Some(bus) if !bus.protocol.is_modbus() => Err(format!(
-            "--bridge: bus {:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
-            b.bus, bus.protocol
-        )),
-        Some(_) => Ok(()),
-    }
-}
 
 /// True for the function codes that change something in the drive.
 pub fn is_write(fc: u8) -> bool {
@@ -366,13 +259,5 @@ mod tests {
         assert_eq!(reply_pdu(true, &ascii).unwrap(), pdu);
         assert_eq!(reply_pdu(true, b":01\r\n"), None);
         assert!(is_write(0x06) && is_write(0x10) && !is_write(0x03));
-    }
-
-    #[test]
-    fn command_line_bridges_are_read_and_checked() {
-        let b = parse_arg("line-1=127.0.0.1:5021").unwrap();
-        assert_eq!((b.bus.as_str(), b.listen.port(), b.framing), ("line-1", 5021, Framing::Mbap));
-        assert!(parse_arg("line-1").unwrap_err().contains("BUS=HOST:PORT"));
-        assert!(parse_arg("line-1=nowhere").unwrap_err().contains("HOST:PORT"));
     }
 }

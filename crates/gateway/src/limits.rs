@@ -16,39 +16,7 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::time::Instant;
 
-/// The `[limits]` section.
-#[derive(Clone, Debug, PartialEq)]
-pub struct LimitsConfig {
-    /// Most connections from one address on each listener.
-    pub per_address: usize,
-    /// Time a client has to send a whole request header (HTTP), the rest of a frame it began
-    /// (Modbus TCP, the bridge), its HELLO (OPC UA, whole seconds).
-    pub header_timeout: Duration,
-    /// A connection with nothing sent either way for this long is closed (zero: never).
-    pub idle_timeout: Duration,
-    /// Descriptors kept free: new connections are refused while fewer are left.
-    pub reserve_fds: u64,
-}
-
-/// The default `per_address`.
-pub const PER_ADDRESS: usize = 64;
-/// The default `header_timeout_ms`.
-pub const HEADER_TIMEOUT_MS: u64 = 5_000;
-/// The default `idle_timeout_s`.
-pub const IDLE_TIMEOUT_S: u64 = 300;
-/// The default `reserve_fds`.
-pub const RESERVE_FDS: u64 = 256;
-
-impl Default for LimitsConfig {
-    fn default() -> Self {
-        LimitsConfig {
-            per_address: PER_ADDRESS,
-            header_timeout: Duration::from_millis(HEADER_TIMEOUT_MS),
-            idle_timeout: Duration::from_secs(IDLE_TIMEOUT_S),
-            reserve_fds: RESERVE_FDS,
-        }
-    }
-}
+pub use crate::config::{LimitsConfig, HEADER_TIMEOUT_MS, IDLE_TIMEOUT_S, PER_ADDRESS, RESERVE_FDS};
 
 /// How often refusals are logged at most (the first at once, then a count per interval).
 const LOG_EVERY: Duration = Duration::from_secs(10);

@@ -20,81 +20,14 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use drivebus_link::{Link, SerialLink};
-use drivebus_proto::line::{modbus_t15_t35, CharFormat};
+use drivebus_proto::line::modbus_t15_t35;
 use drivebus_proto::modbus::rtu::RtuScanner;
 use drivebus_proto::{Deframer, Event};
-use serde::Deserialize;
-use toml::Spanned;
 
 use crate::bridge::bus_frame;
-use crate::config::{ConfigError, Ctx};
+pub use crate::config::ModbusRtuConfig;
 use crate::gateway::Gateway;
 use crate::modbus_tcp::{Conn, Server};
-
-/// One `[[modbus_rtu]]` slave.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ModbusRtuConfig {
-    /// The serial device.
-    pub port: String,
-    /// Baud rate (default 19200).
-    pub baud: u32,
-    /// Character format (default 8E1).
-    pub format: CharFormat,
-    /// Accept writes (with `[modbus] read_only` off).
-    pub write: bool,
-}
-
-impl ModbusRtuConfig {
-    /// A slave on `port` at the Modbus serial-line defaults (19200 8E1), read-only.
-    pub fn new(port: &str) -> Self {
-        ModbusRtuConfig { port: port.to_string(), baud: 19200, format: CharFormat::EVEN_8E1, write: false }
-    }
-}
-
-/// A `[[modbus_rtu]]` as written.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-pub(crate) struct FileModbusRtu {
-    port: Spanned<String>,
-    baud: Option<Spanned<u32>>,
-    serial: Option<Spanned<String>>,
-    #[serde(default)]
-    write: bool,
-}
-
-/// Reads the `[[modbus_rtu]]` sections.
-pub(crate) fn configs(cx: &Ctx<'_>, file: &[FileModbusRtu]) -> Result<Vec<ModbusRtuConfig>, ConfigError> {
-    let mut out: Vec<ModbusRtuConfig> = Vec::new();
-    for m in file {
-        let mut c = ModbusRtuConfig::new(m.port.get_ref());
-        if c.port.is_empty() || c.port.starts_with("tcp://") || c.port == "virtual" {
-            return cx.err(m.port.span(), "modbus_rtu.port", "give a serial device, e.g. /dev/ttyS1");
-        }
-        if out.iter().any(|x| x.port == c.port) {
-            return cx.err(
-                m.port.span(),
-                "modbus_rtu.port",
-                format!("{} is already another slave's", c.port),
-            );
-        }
-        if let Some(b) = &m.baud {
-            if !(300..=4_000_000).contains(b.get_ref()) {
-                return cx.err(
-                    b.span(),
-                    "modbus_rtu.baud",
-                    format!("{} is outside 300..4000000", b.get_ref()),
-                );
-            }
-            c.baud = *b.get_ref();
-        }
-        if let Some(s) = &m.serial {
-            c.format = s.get_ref().parse().or_else(|e| cx.err(s.span(), "modbus_rtu.serial", e))?;
-        }
-        c.write = m.write;
-        out.push(c);
-    }
-    Ok(out)
-}
 
 /// A Modbus RTU slave with its port open.
 pub struct Slave {

@@ -35,11 +35,9 @@ use serde_json::{json, Value};
 use tokio::sync::{broadcast, mpsc};
 use tokio::time::Instant;
 
+pub use crate::config::mqtt::{check_prefix, parse_url, Pattern, COMMANDS};
 use crate::config::MqttConfig;
 use crate::gateway::{Change, Command, CommandError, DriveView, Gateway};
-
-/// The commands accepted on `set/<command>` topics.
-pub const COMMANDS: [&str; 6] = ["run", "stop", "reverse", "jog", "reset", "speed"];
 
 /// A drive's status is published at most this often unless its running state, fault or link
 /// health changed.
@@ -54,46 +52,6 @@ pub const MAX_INCOMING_PACKET: u32 = 1 << 20;
 
 /// Most MQTT commands in progress at once; more are refused (`busy`) rather than queued.
 pub const MAX_COMMANDS_IN_FLIGHT: usize = 32;
-
-/// `(host, port)` of an `mqtt://HOST[:PORT]` URL; an error names what is wrong.
-pub fn parse_url(url: &str) -> Result<(String, u16), String> {
-    let rest = url.strip_prefix("mqtt://").ok_or_else(|| format!("{url:?}: use mqtt://HOST:PORT"))?;
-    let rest = rest.strip_suffix('/').unwrap_or(rest);
-    if rest.is_empty() || rest.contains(['/', '@', '?', '#']) {
-        return Err(format!("{url:?}: use mqtt://HOST:PORT"));
-    }
-    // [v6]:port, host:port, or a host alone.
-    let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
-        let (h, p) = v6.split_once(']').ok_or_else(|| format!("{url:?}: unclosed [ in the host"))?;
-        (h, p.strip_prefix(':'))
-    } else {
-        match rest.rsplit_once(':') {
-            Some((h, p)) => (h, Some(p)),
-            None => (rest, None),
-        }
-    };
-    if host.is_empty() {
-        return Err(format!("{url:?}: no host"));
-    }
-    let port = match port {
-        None => 1883,
-        Some(p) => {
-            p.parse::<u16>().ok().filter(|&p| p > 0).ok_or_else(|| format!("{url:?}: bad port {p:?}"))?
-        }
-    };
-    Ok((host.to_string(), port))
-}
-
-/// Checks a configured topic prefix: levels without wildcards, no leading or trailing `/`.
-pub fn check_prefix(prefix: &str) -> Result<(), String> {
-    if prefix.is_empty() || prefix.starts_with('/') || prefix.ends_with('/') || prefix.contains("//") {
-        return Err(format!("{prefix:?}: give levels separated by / (e.g. plant/hall-1)"));
-    }
-    if prefix.contains(['+', '#', '\0']) {
-        return Err(format!("{prefix:?}: + and # are wildcards, not allowed in a topic"));
-    }
-    Ok(())
-}
 
 /// The default topic prefix of gateway `name`: `drivebus/<name>` with every character other
 /// than letters, digits, `-`, `_` and `.` replaced by `_`.
@@ -110,32 +68,6 @@ fn safe_level(s: &str) -> String {
         "_".into()
     } else {
         s
-    }
-}
-
-/// An `allow_commands` pattern: `<bus>/<drive>/<command>`, `*` matching any one level.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Pattern([String; 3]);
-
-impl Pattern {
-    /// Parses a pattern; an error says what is wrong.
-    pub fn parse(s: &str) -> Result<Pattern, String> {
-        let parts: Vec<&str> = s.split('/').collect();
-        if parts.len() != 3 || parts.iter().any(|p| p.is_empty()) {
-            return Err(format!("{s:?}: use <bus>/<drive>/<command>, * for any (e.g. line-1/*/stop)"));
-        }
-        if parts.iter().any(|p| *p != "*" && p.contains(['*', '+', '#'])) {
-            return Err(format!("{s:?}: * stands alone for a whole level; + and # are not used"));
-        }
-        if parts[2] != "*" && !COMMANDS.contains(&parts[2]) {
-            return Err(format!("{s:?}: no command {:?}: use {} or *", parts[2], COMMANDS.join(", ")));
-        }
-        Ok(Pattern([parts[0].to_string(), parts[1].to_string(), parts[2].to_string()]))
-    }
-
-    /// Whether the pattern allows `command` on `drive` of `bus`.
-    pub fn matches(&self, bus: &str, drive: &str, command: &str) -> bool {
-        self.0.iter().zip([bus, drive, command]).all(|(p, v)| p == "*" || p == v)
     }
 }
 
@@ -597,28 +529,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn urls() {
-        assert_eq!(parse_url("mqtt://10.0.0.9:1884").unwrap(), ("10.0.0.9".into(), 1884));
-        assert_eq!(parse_url("mqtt://broker").unwrap(), ("broker".into(), 1883));
-        assert_eq!(parse_url("mqtt://[::1]:1883").unwrap(), ("::1".into(), 1883));
-        for bad in ["tcp://x:1", "mqtt://", "mqtt://x:0", "mqtt://x:99999", "mqtt://x:1/a", "mqtt://:1883"] {
-            assert!(parse_url(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
-    fn patterns() {
-        let p = Pattern::parse("line-1/*/stop").unwrap();
-        assert!(p.matches("line-1", "pump-1", "stop"));
-        assert!(!p.matches("line-1", "pump-1", "run"));
-        assert!(!p.matches("line-2", "pump-1", "stop"));
-        assert!(Pattern::parse("*/*/*").unwrap().matches("a", "b", "speed"));
-        for bad in ["a/b", "a/b/c/d", "a//run", "a/b*/run", "a/+/run", "a/b/start", "#"] {
-            assert!(Pattern::parse(bad).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
     fn speed_payloads() {
         assert_eq!(parse_speed(b"40").unwrap(), 40.0);
         assert_eq!(parse_speed(b" 40.5\n").unwrap(), 40.5);
@@ -641,9 +551,5 @@ mod tests {
     #[test]
     fn prefixes() {
         assert_eq!(default_prefix("hall 1/a"), "drivebus/hall_1_a");
-        assert!(check_prefix("plant/hall-1").is_ok());
-        for bad in ["", "/a", "a/", "a//b", "a/+", "a/#"] {
-            assert!(check_prefix(bad).is_err(), "{bad}");
-        }
     }
 }

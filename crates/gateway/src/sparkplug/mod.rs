@@ -35,7 +35,7 @@ use prost::Message;
 use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, Publish, QoS};
 use tokio::sync::{broadcast, mpsc};
 
-pub use node::check_id;
+pub use crate::config::sparkplug::check_id;
 use node::{DeviceMessage, Node, NodeCommand, Refusal};
 use payload::Payload;
 
@@ -150,7 +150,7 @@ impl Settings {
         let brokers = cfg
             .urls
             .iter()
-            .map(|u| crate::mqtt::parse_url(u).map_err(|e| format!("Sparkplug: {e}")))
+            .map(|u| crate::config::mqtt::parse_url(u).map_err(|e| format!("Sparkplug: {e}")))
             .collect::<Result<Vec<_>, _>>()?;
         if brokers.is_empty() {
             return Err("Sparkplug: give at least one broker URL".into());

@@ -42,14 +42,6 @@ pub const REBIRTH: &str = "Node Control/Rebirth";
 const SETPOINT: usize = 1;
 const FIXED: usize = STATUS_METRICS.len() + COMMAND_METRICS.len();
 
-/// Checks a group, edge node or host id: not empty, no `/`, `+` or `#` (they are topic levels).
-pub fn check_id(id: &str) -> Result<(), String> {
-    if id.is_empty() || id.contains(['/', '+', '#', '\0']) {
-        return Err(format!("{id:?}: use a non-empty id without /, + or #"));
-    }
-    Ok(())
-}
-
 /// Why a command was refused: a short kind (metrics label) and the sentence logged.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Refusal {
@@ -783,13 +775,5 @@ mod tests {
         let f = birth(&mut n, "fan-1");
         let used: Vec<u64> = nb.metrics.iter().chain(&a.metrics).filter_map(|m| m.alias).collect();
         assert!(f.metrics.iter().all(|m| !used.contains(&m.alias.unwrap())));
-    }
-
-    #[test]
-    fn ids_are_topic_levels() {
-        assert!(check_id("hall-1").is_ok());
-        for bad in ["", "a/b", "a+", "#"] {
-            assert!(check_id(bad).is_err(), "{bad}");
-        }
     }
 }

@@ -1,0 +1,83 @@
+//! `[[bridge]]` and `--bridge`: transparent Modbus bridges to buses (bridge.rs serves
+//! them).
+
+use std::net::SocketAddr;
+
+use super::ctx::Ctx;
+use super::file::FileBridge;
+use super::{BridgeConfig, BusConfig, ConfigError, Framing};
+
+/// Why bus `name` of `buses` cannot be bridged (it is none of them, or it speaks no Modbus).
+fn unbridgeable(name: &str, buses: &[BusConfig]) -> Option<String> {
+    match buses.iter().find(|x| x.name == name) {
+        None => Some(format!(
+            "no bus {name:?} (buses: {})",
+            buses.iter().map(|x| x.name.as_str()).collect::<Vec<_>>().join(", ")
+        )),
+        Some(bus) if !bus.protocol.is_modbus() => Some(format!(
+            "bus {name:?} speaks {}: a Modbus bridge needs a modbus-rtu or modbus-ascii bus",
+            bus.protocol
+        )),
+        Some(_) => None,
+    }
+}
+
+/// Checks the `[[bridge]]` sections: each names a Modbus bus of `buses` and a free address.
+pub(super) fn check(
+    cx: &Ctx,
+    raw: &[FileBridge],
+    buses: &[BusConfig],
+) -> Result<Vec<BridgeConfig>, ConfigError> {
+    let mut out: Vec<BridgeConfig> = Vec::new();
+    for b in raw {
+        let name = b.bus.get_ref();
+        if let Some(why) = unbridgeable(name, buses) {
+            return cx.err(b.bus.span(), "bridge.bus", why);
+        }
+        let listen: SocketAddr = cx.addr(&b.listen, "bridge.listen", "127.0.0.1:5021")?;
+        if listen.port() != 0 && out.iter().any(|x| x.listen == listen) {
+            return cx.err(b.listen.span(), "bridge.listen", format!("{listen} is already another bridge's"));
+        }
+        let framing = match b.framing.as_ref().map(|f| (f.get_ref().as_str(), f.span())) {
+            None | Some(("mbap", _)) => Framing::Mbap,
+            Some(("rtu", _)) => Framing::Rtu,
+            Some((other, span)) => {
+                return cx.err(span, "bridge.framing", format!("{other:?}: use mbap or rtu"))
+            }
+        };
+        out.push(BridgeConfig { bus: name.clone(), listen, framing });
+    }
+    Ok(out)
+}
+
+/// `--bridge BUS=HOST:PORT`: a bridge with MBAP framing.
+pub fn parse_arg(arg: &str) -> Result<BridgeConfig, String> {
+    let (bus, addr) = arg
+        .split_once('=')
+        .ok_or_else(|| format!("--bridge {arg:?}: write BUS=HOST:PORT, e.g. line-1=127.0.0.1:5021"))?;
+    let listen = addr
+        .parse()
+        .map_err(|_| format!("--bridge {arg:?}: {addr:?} is not HOST:PORT, e.g. 127.0.0.1:5021"))?;
+    Ok(BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap })
+}
+
+/// Checks a bridge given on the command line against the buses (as [`check`] does for the file).
+pub fn check_arg(b: &BridgeConfig, buses: &[BusConfig]) -> Result<(), String> {
+    match unbridgeable(&b.bus, buses) {
+        Some(why) => Err(format!("--bridge: {why}")),
+        None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn command_line_bridges_are_read_and_checked() {
+        let b = parse_arg("line-1=127.0.0.1:5021").unwrap();
+        assert_eq!((b.bus.as_str(), b.listen.port(), b.framing), ("line-1", 5021, Framing::Mbap));
+        assert!(parse_arg("line-1").unwrap_err().contains("BUS=HOST:PORT"));
+        assert!(parse_arg("line-1=nowhere").unwrap_err().contains("HOST:PORT"));
+    }
+}

@@ -1,0 +1,332 @@
+//! The whole reader, from text to model or to the one error line.
+
+use std::collections::HashSet;
+use std::net::IpAddr;
+use std::time::Duration;
+
+use drivebus_drive::Family;
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
+
+use super::*;
+
+#[test]
+fn the_demo_parses_and_has_every_family() {
+    let c = GatewayConfig::demo();
+    let families: HashSet<Family> = c.drives().map(|(_, d)| d.family).collect();
+    assert_eq!(families.len(), 4);
+    assert!(c.buses.iter().all(|b| b.port == Port::Virtual));
+    assert!(c.drives().count() >= 8);
+}
+
+fn err(text: &str) -> String {
+    GatewayConfig::from_toml("plant.toml", text).unwrap_err().to_string()
+}
+
+#[test]
+fn store_retention_and_size_cap() {
+    let c = GatewayConfig::from_toml("plant.toml", "").unwrap();
+    assert_eq!(c.store_limits, drivebus_store::Limits::default());
+    let c =
+        GatewayConfig::from_toml("plant.toml", "[store]\nretention_days = 30\nmax_size_mb = 0\n").unwrap();
+    assert_eq!(c.store_limits, drivebus_store::Limits::from_days_and_mb(30, 0));
+    assert_eq!(c.store_limits.max_bytes, None);
+    let e = err("[store]\nmax_size_mb = -1\n");
+    assert!(e.starts_with("plant.toml:2: field `store.max_size_mb`"), "{e}");
+}
+
+#[test]
+fn errors_name_the_file_line_and_field() {
+    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"siemens\"\naddress = 1\n");
+    assert_eq!(e, "plant.toml:6: field `bus.drive.family`: use generic, toshiba, danfoss or b800");
+    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = 12\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 1\n");
+    assert_eq!(e, "plant.toml:4: field `bus.baud`: 12 is outside 300..1000000");
+    let e = err("[http]\nlisten = \"localhost\"\n");
+    assert!(e.starts_with("plant.toml:2: field `http.listen`"), "{e}");
+    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nspeed = 3\n");
+    assert!(e.starts_with("plant.toml:4: field `bus.speed`: unknown field `speed`"), "{e}");
+    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"b800\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"danfoss\"\naddress = 1\n");
+    assert!(
+        e.starts_with("plant.toml:4: field `bus.protocol`: drive \"x\": a danfoss drive does not speak"),
+        "{e}"
+    );
+    let e = err("[[token]]\nname = \"s\"\ntoken = \"short\"\nrole = \"write\"\n");
+    assert_eq!(e, "plant.toml:3: field `token.token`: a token needs at least 16 characters");
+    let e = err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n");
+    assert_eq!(e, "plant.toml:2: field `linkage.leader`: no drive is named \"a\"");
+}
+
+#[test]
+fn mqtt_settings_are_checked() {
+    let ok = GatewayConfig::from_toml(
+        "p.toml",
+        "[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"line-1/*/stop\", \"*/*/*\"]\n",
+    )
+    .unwrap();
+    assert_eq!(ok.mqtt.unwrap().allow_commands.len(), 2);
+    let e = err("[mqtt]\nurl = \"tcp://x:1883\"\n");
+    assert!(e.starts_with("plant.toml:2: field `mqtt.url`: "), "{e}");
+    let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\n  \"line-1/*\",\n]\n");
+    assert!(e.starts_with("plant.toml:4: field `mqtt.allow_commands`: "), "{e}");
+    let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\"a/b/start\"]\n");
+    assert!(e.contains("start"), "{e}");
+    let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\ntopic_prefix = \"plant/#\"\n");
+    assert!(e.starts_with("plant.toml:3: field `mqtt.topic_prefix`: "), "{e}");
+}
+
+#[test]
+fn values_of_the_wrong_type_name_their_field() {
+    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = \"fast\"\n");
+    assert!(e.starts_with("plant.toml:4: field `bus.baud`: invalid type"), "{e}");
+    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 300\n");
+    assert!(e.starts_with("plant.toml:7: field `bus.drive.address`: "), "{e}");
+    let e = err("[http]\nmax_body = 0\n");
+    assert_eq!(e, "plant.toml:2: field `http.max_body`: 0 is outside 256..16777216 bytes");
+    let e = err("[modbus]\nmax_connections = 0\n");
+    assert_eq!(e, "plant.toml:2: field `modbus.max_connections`: use 1 or more");
+}
+
+#[test]
+fn fair_use_and_limits_are_checked_and_have_defaults() {
+    let bus = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n";
+    let drive = "[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n";
+    let e = err(&format!("{bus}on_demand_share = 1.5\n{drive}"));
+    assert_eq!(
+        e,
+        "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)"
+    );
+    let e = err(&format!("{bus}on_demand_queue = 0\n{drive}"));
+    assert_eq!(e, "plant.toml:4: field `bus.on_demand_queue`: use 1 or more");
+    let e = err(&format!("{bus}on_demand_per_client = 0\n{drive}"));
+    assert_eq!(e, "plant.toml:4: field `bus.on_demand_per_client`: use 1 or more");
+    let e = err("[limits]\nper_address = 0\n");
+    assert_eq!(e, "plant.toml:2: field `limits.per_address`: use 1 or more");
+    let e = err("[limits]\nheader_timeout_ms = 5\n");
+    assert_eq!(e, "plant.toml:2: field `limits.header_timeout_ms`: 5 is outside 100..600000");
+
+    let c = GatewayConfig::from_toml("plant.toml", &format!("{bus}{drive}")).unwrap();
+    assert_eq!(c.buses[0].on_demand, drivebus_link::FairConfig { share: 0.5, queue: 32, per_client: 8 });
+    assert_eq!(c.buses[0].param_cache, Duration::from_millis(200));
+    assert_eq!(c.limits, LimitsConfig::default());
+    let c = GatewayConfig::from_toml(
+        "plant.toml",
+        &format!("[limits]\nper_address = 8\nidle_timeout_s = 0\n{bus}on_demand_share = 0.25\nparam_cache_ms = 0\n{drive}"),
+    )
+    .unwrap();
+    assert_eq!((c.limits.per_address, c.limits.idle_timeout), (8, Duration::ZERO));
+    assert_eq!((c.buses[0].on_demand.share, c.buses[0].param_cache), (0.25, Duration::ZERO));
+}
+
+#[test]
+fn the_gateway_name_follows_the_name_rule() {
+    let e = err("name = \"hall 3/west\"\n");
+    assert_eq!(
+        e,
+        "plant.toml:1: field `name`: use letters, digits, - and _ only (it is the MQTT topic level and client id)"
+    );
+    let ok = GatewayConfig::from_toml("p.toml", "name = \" hall-3_west \"\n").unwrap();
+    assert_eq!(ok.name, "hall-3_west");
+    assert_eq!(GatewayConfig::from_toml("p.toml", "").unwrap().name, "drivebus");
+}
+
+#[test]
+fn a_polled_drive_never_has_the_broadcast_address() {
+    let bus = |family: &str, protocol: &str, address: u8| {
+        format!("[[bus]]\nname = \"a\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"{protocol}\"\n[[bus.drive]]\nname = \"all\"\nfamily = \"{family}\"\naddress = {address}\n")
+    };
+    let e = err(&bus("generic", "modbus-rtu", 0));
+    assert_eq!(
+        e,
+        "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..254, not 0 (0 is the broadcast address: every drive obeys it)"
+    );
+    // The generic manual allows addresses up to FEH, beyond the Modbus specification's 247.
+    assert!(GatewayConfig::from_toml("p.toml", &bus("generic", "modbus-rtu", 254)).is_ok());
+    assert!(err(&bus("generic", "modbus-rtu", 255)).contains("1..254"));
+    assert!(err(&bus("toshiba", "modbus-rtu", 248)).contains("1..247"));
+    // Out of range for the protocol: the address's line and field, whatever the family.
+    let e = err(&bus("danfoss", "danfoss-fc", 127));
+    assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("1..126"), "{e}");
+    let e = err(&bus("b800", "b800", 64));
+    assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("1..63"), "{e}");
+    assert!(err(&bus("b800", "b800", 0)).contains("1..63"));
+    // A family that does not speak the protocol: the protocol's line.
+    let e = err(&bus("b800", "modbus-rtu", 1));
+    assert!(e.starts_with("plant.toml:4: field `bus.protocol`: "), "{e}");
+    assert!(
+        GatewayConfig::from_toml("p.toml", &bus("toshiba", "toshiba-binary", 0)).is_ok(),
+        "TIP drive 0 exists"
+    );
+    let e = err(&bus("toshiba", "toshiba-binary", 64));
+    assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("0..63"), "{e}");
+}
+
+#[test]
+fn linkage_loops_and_second_rules_are_refused() {
+    let drives = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"d1\"\nfamily = \"generic\"\naddress = 1\n[[bus.drive]]\nname = \"d2\"\nfamily = \"generic\"\naddress = 2\n[[bus.drive]]\nname = \"d3\"\nfamily = \"generic\"\naddress = 3\n";
+    let rule = |l: &str, f: &str| format!("[[linkage]]\nleader = \"{l}\"\nfollower = \"{f}\"\n");
+    let ok = format!("{drives}{}{}", rule("d1", "d2"), rule("d2", "d3"));
+    assert_eq!(GatewayConfig::from_toml("p.toml", &ok).unwrap().linkage.len(), 2, "a chain is fine");
+    let e = err(&format!("{drives}{}{}", rule("d1", "d2"), rule("d2", "d1")));
+    assert!(e.contains("field `linkage.follower`") && e.contains("closes a loop"), "{e}");
+    let e = err(&format!("{drives}{}{}{}", rule("d1", "d2"), rule("d2", "d3"), rule("d3", "d1")));
+    assert!(e.contains("closes a loop"), "{e}");
+    let e = err(&format!("{drives}{}{}", rule("d1", "d3"), rule("d2", "d3")));
+    assert!(e.contains("already follows another drive"), "{e}");
+}
+
+#[test]
+fn duplicate_names_addresses_and_units_are_refused() {
+    let two = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 1\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 2\n";
+    assert!(err(two).contains("two drives are named \"x\""));
+    let two = two.replace("address = 2", "address = 1").replacen("name = \"x\"", "name = \"y\"", 1);
+    assert!(err(&two).contains("have address 1"));
+}
+
+#[test]
+fn defaults_follow_the_family() {
+    let c = GatewayConfig::from_toml(
+        "p.toml",
+        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5:4001\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"toshiba\"\naddress = 1\n",
+    )
+    .unwrap();
+    let b = &c.buses[0];
+    assert_eq!(b.port, Port::Tcp("10.0.0.5:4001".into()));
+    assert_eq!((b.baud, b.format, b.protocol), (19200, CharFormat::EVEN_8E1, WireProtocol::ToshibaBinary));
+    assert_eq!(c.http.listen.to_string(), "127.0.0.1:8080");
+    assert_eq!(c.modbus.listen.to_string(), "127.0.0.1:5020");
+    assert_eq!(b.drives[0].unit_id, 1);
+    let loopback: Vec<IpAddr> = vec!["127.0.0.1".parse().unwrap(), "::1".parse().unwrap()];
+    assert_eq!(c.modbus.allow, loopback);
+    assert_eq!(c.modbus.max_connections, 16_384);
+}
+
+#[test]
+fn drives_past_the_247th_get_no_unit() {
+    let mut text = String::new();
+    for b in 0..9 {
+        text += &format!("[[bus]]\nname = \"b{b}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n");
+        for a in 1..=30 {
+            text += &format!("[[bus.drive]]\nname = \"d{b}-{a}\"\nfamily = \"generic\"\naddress = {a}\n");
+        }
+    }
+    let c = GatewayConfig::from_toml("p.toml", &text).unwrap();
+    let units: Vec<u8> = c.drives().map(|(_, d)| d.unit_id).collect();
+    assert_eq!(units[..247], (1..=247).collect::<Vec<u8>>()[..]);
+    assert!(units[247..].iter().all(|&u| u == 0));
+}
+
+#[test]
+fn modbus_allow_is_explicit_or_loopback() {
+    let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = []\nread_only = true\n").unwrap();
+    assert!(c.modbus.allow.is_empty() && c.modbus.read_only);
+    let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = [\"10.0.0.7\"]\n").unwrap();
+    assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
+    let e = err("[modbus]\nallow = [\"plc\"]\n");
+    assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
+}
+
+#[test]
+fn sparkplug_settings_have_defaults_and_are_checked() {
+    let c = GatewayConfig::from_toml(
+        "p.toml",
+        "name = \"hall-1\"\n[sparkplug]\nurls = [\"mqtt://a\", \"mqtt://b:1884\"]\n",
+    )
+    .unwrap();
+    let sp = c.sparkplug.unwrap();
+    assert_eq!(sp.urls, ["mqtt://a", "mqtt://b:1884"]);
+    assert_eq!(sp.group_id, "drivebus");
+    assert_eq!((sp.edge_node_id, sp.primary_host, sp.commands), (None, None, false));
+    assert_eq!(
+        (sp.store_forward_max, sp.store_forward_max_age_s),
+        (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S)
+    );
+    let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
+                primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
+                store_forward_max = 10\nstore_forward_max_age_s = 60\nstore_forward_rate = 500\n";
+    let sp = GatewayConfig::from_toml("p.toml", full).unwrap().sparkplug.unwrap();
+    assert_eq!(sp.edge_node_id.as_deref(), Some("hall-9"));
+    assert_eq!(sp.primary_host.as_deref(), Some("scada"));
+    assert_eq!(sp.credentials, Some(("u".into(), "p".into())));
+    assert!(sp.commands);
+    assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s, sp.store_forward_rate), (10, 60, 500));
+    let e = err("[sparkplug]\nurls = []\n");
+    assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: give at least one broker"), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\", \"tcp://b\"]\n");
+    assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: \"tcp://b\""), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"a/b\"\n");
+    assert!(e.starts_with("plant.toml:3: field `sparkplug.group_id`: "), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nprimary_host = \"#\"\n");
+    assert!(e.starts_with("plant.toml:3: field `sparkplug.primary_host`: "), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nstore_forward_max = 0\n");
+    assert!(e.starts_with("plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0"), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nusername = \"u\"\n");
+    assert!(e.starts_with("plant.toml:3: field `sparkplug.username`: give a password"), "{e}");
+    let e = err("[sparkplug]\nurl = \"mqtt://a\"\n");
+    assert!(e.contains("unknown field `url`"), "{e}");
+}
+
+#[test]
+fn mqtt_credentials_come_whole_or_not_at_all() {
+    let base = "[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\n";
+    let c = GatewayConfig::from_toml("p.toml", &format!("{base}username = \"plant\"\npassword = \"pw\"\n"))
+        .unwrap();
+    assert_eq!(c.mqtt.unwrap().credentials, Some(("plant".into(), "pw".into())));
+    assert_eq!(
+        err(&format!("{base}username = \"plant\"\n")),
+        "plant.toml:3: field `mqtt.username`: give a password (or password_env) with the user name"
+    );
+    assert_eq!(
+        err(&format!("{base}username = \"plant\"\npassword_env = \"DRIVEBUS_TEST_NO_SUCH_VARIABLE\"\n")),
+        "plant.toml:4: field `mqtt.password_env`: the environment variable \"DRIVEBUS_TEST_NO_SUCH_VARIABLE\" is not set"
+    );
+}
+
+#[test]
+fn damaged_files_are_errors_never_panics() {
+    // Deterministic damage to the demo file: characters replaced, lines dropped or doubled.
+    let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let lines: Vec<&str> = DEMO.lines().collect();
+    for _ in 0..2000 {
+        let mut text = String::new();
+        for l in &lines {
+            match next() % 40 {
+                0 => {}
+                1 => {
+                    text.push_str(l);
+                    text.push('\n');
+                    text.push_str(l);
+                    text.push('\n');
+                }
+                2 => {
+                    let mut b: Vec<char> = l.chars().collect();
+                    if !b.is_empty() {
+                        let i = (next() as usize) % b.len();
+                        b[i] = {
+                            const DAMAGE: &[u8] = b" =\"[]x0-9.,#\\\t";
+                            DAMAGE[(next() as usize) % DAMAGE.len()]
+                        } as char;
+                    }
+                    text.extend(b);
+                    text.push('\n');
+                }
+                _ => {
+                    text.push_str(l);
+                    text.push('\n');
+                }
+            }
+        }
+        let r = std::panic::catch_unwind(|| GatewayConfig::from_toml("d.toml", &text));
+        let r = r.unwrap_or_else(|_| panic!("from_toml panicked on:\n{text}"));
+        if let Err(e) = r {
+            let e = e.to_string();
+            assert!(e.starts_with("d.toml"), "{e}");
+            assert!(!e.contains('\n'), "one line: {e:?}");
+        }
+    }
+}

@@ -23,6 +23,12 @@ fn err(text: &str) -> String {
     GatewayConfig::from_toml("plant.toml", text).unwrap_err().to_string()
 }
 
+/// Asserts that `text` is refused with an error that begins with `start`.
+fn refused(text: &str, start: &str) {
+    let e = err(text);
+    assert!(e.starts_with(start), "{e}");
+}
+
 #[test]
 fn store_retention_and_size_cap() {
     let c = GatewayConfig::from_toml("plant.toml", "").unwrap();
@@ -31,29 +37,27 @@ fn store_retention_and_size_cap() {
         GatewayConfig::from_toml("plant.toml", "[store]\nretention_days = 30\nmax_size_mb = 0\n").unwrap();
     assert_eq!(c.store_limits, drivebus_store::Limits::from_days_and_mb(30, 0));
     assert_eq!(c.store_limits.max_bytes, None);
-    let e = err("[store]\nmax_size_mb = -1\n");
-    assert!(e.starts_with("plant.toml:2: field `store.max_size_mb`"), "{e}");
+    refused("[store]\nmax_size_mb = -1\n", "plant.toml:2: field `store.max_size_mb`");
 }
 
 #[test]
 fn errors_name_the_file_line_and_field() {
-    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"siemens\"\naddress = 1\n");
-    assert_eq!(e, "plant.toml:6: field `bus.drive.family`: use generic, toshiba, danfoss or b800");
-    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = 12\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 1\n");
-    assert_eq!(e, "plant.toml:4: field `bus.baud`: 12 is outside 300..1000000");
-    let e = err("[http]\nlisten = \"localhost\"\n");
-    assert!(e.starts_with("plant.toml:2: field `http.listen`"), "{e}");
-    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nspeed = 3\n");
-    assert!(e.starts_with("plant.toml:4: field `bus.speed`: unknown field `speed`"), "{e}");
-    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"b800\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"danfoss\"\naddress = 1\n");
-    assert!(
-        e.starts_with("plant.toml:4: field `bus.protocol`: drive \"x\": a danfoss drive does not speak"),
-        "{e}"
+    assert_eq!(err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"siemens\"\naddress = 1\n"), "plant.toml:6: field `bus.drive.family`: use generic, toshiba, danfoss or b800");
+    assert_eq!(err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = 12\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 1\n"), "plant.toml:4: field `bus.baud`: 12 is outside 300..1000000");
+    refused("[http]\nlisten = \"localhost\"\n", "plant.toml:2: field `http.listen`");
+    refused(
+        "[[bus]]\nname = \"a\"\nport = \"virtual\"\nspeed = 3\n",
+        "plant.toml:4: field `bus.speed`: unknown field `speed`",
     );
-    let e = err("[[token]]\nname = \"s\"\ntoken = \"short\"\nrole = \"write\"\n");
-    assert_eq!(e, "plant.toml:3: field `token.token`: a token needs at least 16 characters");
-    let e = err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n");
-    assert_eq!(e, "plant.toml:2: field `linkage.leader`: no drive is named \"a\"");
+    refused("[[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"b800\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"danfoss\"\naddress = 1\n", "plant.toml:4: field `bus.protocol`: drive \"x\": a danfoss drive does not speak");
+    assert_eq!(
+        err("[[token]]\nname = \"s\"\ntoken = \"short\"\nrole = \"write\"\n"),
+        "plant.toml:3: field `token.token`: a token needs at least 16 characters"
+    );
+    assert_eq!(
+        err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n"),
+        "plant.toml:2: field `linkage.leader`: no drive is named \"a\""
+    );
 }
 
 #[test]
@@ -64,45 +68,54 @@ fn mqtt_settings_are_checked() {
     )
     .unwrap();
     assert_eq!(ok.mqtt.unwrap().allow_commands.len(), 2);
-    let e = err("[mqtt]\nurl = \"tcp://x:1883\"\n");
-    assert!(e.starts_with("plant.toml:2: field `mqtt.url`: "), "{e}");
-    let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\n  \"line-1/*\",\n]\n");
-    assert!(e.starts_with("plant.toml:4: field `mqtt.allow_commands`: "), "{e}");
+    refused("[mqtt]\nurl = \"tcp://x:1883\"\n", "plant.toml:2: field `mqtt.url`: ");
+    refused(
+        "[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\n  \"line-1/*\",\n]\n",
+        "plant.toml:4: field `mqtt.allow_commands`: ",
+    );
     let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\nallow_commands = [\"a/b/start\"]\n");
     assert!(e.contains("start"), "{e}");
-    let e = err("[mqtt]\nurl = \"mqtt://x:1883\"\ntopic_prefix = \"plant/#\"\n");
-    assert!(e.starts_with("plant.toml:3: field `mqtt.topic_prefix`: "), "{e}");
+    refused(
+        "[mqtt]\nurl = \"mqtt://x:1883\"\ntopic_prefix = \"plant/#\"\n",
+        "plant.toml:3: field `mqtt.topic_prefix`: ",
+    );
 }
 
 #[test]
 fn values_of_the_wrong_type_name_their_field() {
-    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = \"fast\"\n");
-    assert!(e.starts_with("plant.toml:4: field `bus.baud`: invalid type"), "{e}");
-    let e = err("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 300\n");
-    assert!(e.starts_with("plant.toml:7: field `bus.drive.address`: "), "{e}");
-    let e = err("[http]\nmax_body = 0\n");
-    assert_eq!(e, "plant.toml:2: field `http.max_body`: 0 is outside 256..16777216 bytes");
-    let e = err("[modbus]\nmax_connections = 0\n");
-    assert_eq!(e, "plant.toml:2: field `modbus.max_connections`: use 1 or more");
+    refused(
+        "[[bus]]\nname = \"a\"\nport = \"virtual\"\nbaud = \"fast\"\n",
+        "plant.toml:4: field `bus.baud`: invalid type",
+    );
+    refused("[[bus]]\nname = \"a\"\nport = \"virtual\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"b800\"\naddress = 300\n", "plant.toml:7: field `bus.drive.address`: ");
+    assert_eq!(
+        err("[http]\nmax_body = 0\n"),
+        "plant.toml:2: field `http.max_body`: 0 is outside 256..16777216 bytes"
+    );
+    assert_eq!(
+        err("[modbus]\nmax_connections = 0\n"),
+        "plant.toml:2: field `modbus.max_connections`: use 1 or more"
+    );
 }
 
 #[test]
 fn fair_use_and_limits_are_checked_and_have_defaults() {
     let bus = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n";
     let drive = "[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n";
-    let e = err(&format!("{bus}on_demand_share = 1.5\n{drive}"));
+    assert_eq!(err(&format!("{bus}on_demand_share = 1.5\n{drive}")), "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)");
     assert_eq!(
-        e,
-        "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)"
+        err(&format!("{bus}on_demand_queue = 0\n{drive}")),
+        "plant.toml:4: field `bus.on_demand_queue`: use 1 or more"
     );
-    let e = err(&format!("{bus}on_demand_queue = 0\n{drive}"));
-    assert_eq!(e, "plant.toml:4: field `bus.on_demand_queue`: use 1 or more");
-    let e = err(&format!("{bus}on_demand_per_client = 0\n{drive}"));
-    assert_eq!(e, "plant.toml:4: field `bus.on_demand_per_client`: use 1 or more");
-    let e = err("[limits]\nper_address = 0\n");
-    assert_eq!(e, "plant.toml:2: field `limits.per_address`: use 1 or more");
-    let e = err("[limits]\nheader_timeout_ms = 5\n");
-    assert_eq!(e, "plant.toml:2: field `limits.header_timeout_ms`: 5 is outside 100..600000");
+    assert_eq!(
+        err(&format!("{bus}on_demand_per_client = 0\n{drive}")),
+        "plant.toml:4: field `bus.on_demand_per_client`: use 1 or more"
+    );
+    assert_eq!(err("[limits]\nper_address = 0\n"), "plant.toml:2: field `limits.per_address`: use 1 or more");
+    assert_eq!(
+        err("[limits]\nheader_timeout_ms = 5\n"),
+        "plant.toml:2: field `limits.header_timeout_ms`: 5 is outside 100..600000"
+    );
 
     let c = GatewayConfig::from_toml("plant.toml", &format!("{bus}{drive}")).unwrap();
     assert_eq!(c.buses[0].on_demand, drivebus_link::FairConfig { share: 0.5, queue: 32, per_client: 8 });
@@ -119,11 +132,7 @@ fn fair_use_and_limits_are_checked_and_have_defaults() {
 
 #[test]
 fn the_gateway_name_follows_the_name_rule() {
-    let e = err("name = \"hall 3/west\"\n");
-    assert_eq!(
-        e,
-        "plant.toml:1: field `name`: use letters, digits, - and _ only (it is the MQTT topic level and client id)"
-    );
+    assert_eq!(err("name = \"hall 3/west\"\n"), "plant.toml:1: field `name`: use letters, digits, - and _ only (it is the MQTT topic level and client id)");
     let ok = GatewayConfig::from_toml("p.toml", "name = \" hall-3_west \"\n").unwrap();
     assert_eq!(ok.name, "hall-3_west");
     assert_eq!(GatewayConfig::from_toml("p.toml", "").unwrap().name, "drivebus");
@@ -134,11 +143,7 @@ fn a_polled_drive_never_has_the_broadcast_address() {
     let bus = |family: &str, protocol: &str, address: u8| {
         format!("[[bus]]\nname = \"a\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"{protocol}\"\n[[bus.drive]]\nname = \"all\"\nfamily = \"{family}\"\naddress = {address}\n")
     };
-    let e = err(&bus("generic", "modbus-rtu", 0));
-    assert_eq!(
-        e,
-        "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..254, not 0 (0 is the broadcast address: every drive obeys it)"
-    );
+    assert_eq!(err(&bus("generic", "modbus-rtu", 0)), "plant.toml:8: field `bus.drive.address`: drive \"all\": a generic drive on modbus-rtu has an address in 1..254, not 0 (0 is the broadcast address: every drive obeys it)");
     // The generic manual allows addresses up to FEH, beyond the Modbus specification's 247.
     assert!(GatewayConfig::from_toml("p.toml", &bus("generic", "modbus-rtu", 254)).is_ok());
     assert!(err(&bus("generic", "modbus-rtu", 255)).contains("1..254"));
@@ -150,8 +155,7 @@ fn a_polled_drive_never_has_the_broadcast_address() {
     assert!(e.starts_with("plant.toml:8: field `bus.drive.address`: ") && e.contains("1..63"), "{e}");
     assert!(err(&bus("b800", "b800", 0)).contains("1..63"));
     // A family that does not speak the protocol: the protocol's line.
-    let e = err(&bus("b800", "modbus-rtu", 1));
-    assert!(e.starts_with("plant.toml:4: field `bus.protocol`: "), "{e}");
+    refused(&bus("b800", "modbus-rtu", 1), "plant.toml:4: field `bus.protocol`: ");
     assert!(
         GatewayConfig::from_toml("p.toml", &bus("toshiba", "toshiba-binary", 0)).is_ok(),
         "TIP drive 0 exists"
@@ -221,8 +225,10 @@ fn modbus_allow_is_explicit_or_loopback() {
     assert!(c.modbus.allow.is_empty() && c.modbus.read_only);
     let c = GatewayConfig::from_toml("p.toml", "[modbus]\nallow = [\"10.0.0.7\"]\n").unwrap();
     assert_eq!(c.modbus.allow, vec!["10.0.0.7".parse::<IpAddr>().unwrap()]);
-    let e = err("[modbus]\nallow = [\"plc\"]\n");
-    assert_eq!(e, "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address");
+    assert_eq!(
+        err("[modbus]\nallow = [\"plc\"]\n"),
+        "plant.toml:2: field `modbus.allow`: \"plc\" is not an IP address"
+    );
 }
 
 #[test]
@@ -249,18 +255,27 @@ fn sparkplug_settings_have_defaults_and_are_checked() {
     assert_eq!(sp.credentials, Some(("u".into(), "p".into())));
     assert!(sp.commands);
     assert_eq!((sp.store_forward_max, sp.store_forward_max_age_s, sp.store_forward_rate), (10, 60, 500));
-    let e = err("[sparkplug]\nurls = []\n");
-    assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: give at least one broker"), "{e}");
-    let e = err("[sparkplug]\nurls = [\"mqtt://a\", \"tcp://b\"]\n");
-    assert!(e.starts_with("plant.toml:2: field `sparkplug.urls`: \"tcp://b\""), "{e}");
-    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"a/b\"\n");
-    assert!(e.starts_with("plant.toml:3: field `sparkplug.group_id`: "), "{e}");
-    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nprimary_host = \"#\"\n");
-    assert!(e.starts_with("plant.toml:3: field `sparkplug.primary_host`: "), "{e}");
-    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nstore_forward_max = 0\n");
-    assert!(e.starts_with("plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0"), "{e}");
-    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\nusername = \"u\"\n");
-    assert!(e.starts_with("plant.toml:3: field `sparkplug.username`: give a password"), "{e}");
+    refused("[sparkplug]\nurls = []\n", "plant.toml:2: field `sparkplug.urls`: give at least one broker");
+    refused(
+        "[sparkplug]\nurls = [\"mqtt://a\", \"tcp://b\"]\n",
+        "plant.toml:2: field `sparkplug.urls`: \"tcp://b\"",
+    );
+    refused(
+        "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"a/b\"\n",
+        "plant.toml:3: field `sparkplug.group_id`: ",
+    );
+    refused(
+        "[sparkplug]\nurls = [\"mqtt://a\"]\nprimary_host = \"#\"\n",
+        "plant.toml:3: field `sparkplug.primary_host`: ",
+    );
+    refused(
+        "[sparkplug]\nurls = [\"mqtt://a\"]\nstore_forward_max = 0\n",
+        "plant.toml:3: field `sparkplug.store_forward_max`: give a number above 0",
+    );
+    refused(
+        "[sparkplug]\nurls = [\"mqtt://a\"]\nusername = \"u\"\n",
+        "plant.toml:3: field `sparkplug.username`: give a password",
+    );
     let e = err("[sparkplug]\nurl = \"mqtt://a\"\n");
     assert!(e.contains("unknown field `url`"), "{e}");
 }

@@ -1,7 +1,7 @@
 //! The drivebus gateway: many buses, one view.
 //!
 //! ```text
-//!  config.rs ──► Gateway::start ──► per bus: a bus owner (drivebus-link) + a poll scheduler
+//!  config/   ──► Gateway::start ──► per bus: a bus owner (drivebus-link) + a poll scheduler
 //!                      │                 │ status polls (Priority::Poll)    ▲ commands (Priority::Command)
 //!                      ▼                 ▼                                  │
 //!                 state cache ◄── update: values + age, trips, online ──► events ──► store (SQLite)

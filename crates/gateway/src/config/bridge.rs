@@ -80,4 +80,18 @@ mod tests {
         assert!(parse_arg("line-1").unwrap_err().contains("BUS=HOST:PORT"));
         assert!(parse_arg("line-1=nowhere").unwrap_err().contains("HOST:PORT"));
     }
+
+    #[test]
+    fn the_file_and_the_command_line_refuse_a_bus_in_the_same_words() {
+        let bus = "[[bus]]\nname = \"tosh\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"toshiba-binary\"\n";
+        let buses = super::super::GatewayConfig::from_toml("p.toml", bus).unwrap().buses;
+        let speaks =
+            "bus \"tosh\" speaks toshiba-binary: a Modbus bridge needs a modbus-rtu or modbus-ascii bus";
+        let refused = |arg: &str| check_arg(&parse_arg(arg).unwrap(), &buses).unwrap_err();
+        assert_eq!(refused("line-9=127.0.0.1:5021"), "--bridge: no bus \"line-9\" (buses: tosh)");
+        assert_eq!(refused("tosh=127.0.0.1:5021"), format!("--bridge: {speaks}"));
+        let file = format!("{bus}[[bridge]]\nbus = \"tosh\"\nlisten = \"127.0.0.1:5021\"\n");
+        let e = super::super::GatewayConfig::from_toml("p.toml", &file).unwrap_err();
+        assert_eq!(e.to_string(), format!("p.toml:6: field `bridge.bus`: {speaks}"));
+    }
 }

@@ -102,15 +102,14 @@ fn values_of_the_wrong_type_name_their_field() {
 fn fair_use_and_limits_are_checked_and_have_defaults() {
     let bus = "[[bus]]\nname = \"a\"\nport = \"virtual\"\n";
     let drive = "[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n";
-    assert_eq!(err(&format!("{bus}on_demand_share = 1.5\n{drive}")), "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)");
+    let field = |key: &str, value: &str| err(&format!("{bus}{key} = {value}\n{drive}"));
     assert_eq!(
-        err(&format!("{bus}on_demand_queue = 0\n{drive}")),
-        "plant.toml:4: field `bus.on_demand_queue`: use 1 or more"
+        field("on_demand_share", "1.5"),
+        "plant.toml:4: field `bus.on_demand_share`: 1.5 is not a share of the bus time: use 0.0..1.0 (0.5: half)"
     );
-    assert_eq!(
-        err(&format!("{bus}on_demand_per_client = 0\n{drive}")),
-        "plant.toml:4: field `bus.on_demand_per_client`: use 1 or more"
-    );
+    for key in ["on_demand_queue", "on_demand_per_client"] {
+        assert_eq!(field(key, "0"), format!("plant.toml:4: field `bus.{key}`: use 1 or more"));
+    }
     assert_eq!(err("[limits]\nper_address = 0\n"), "plant.toml:2: field `limits.per_address`: use 1 or more");
     assert_eq!(
         err("[limits]\nheader_timeout_ms = 5\n"),

@@ -24,6 +24,7 @@ use serde_json::json;
 use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 
+// A bridge's settings and their checks (file and --bridge) are the configuration's (config/bridge.rs).
 pub use crate::config::bridge::{check_arg as check, parse_arg};
 pub use crate::config::{BridgeConfig, Framing};
 use crate::gateway::{unix_ms, Gateway};

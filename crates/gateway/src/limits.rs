@@ -16,6 +16,7 @@ use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::time::Instant;
 
+// The settings and their defaults are the configuration's (config/model.rs).
 pub use crate::config::{LimitsConfig, HEADER_TIMEOUT_MS, IDLE_TIMEOUT_S, PER_ADDRESS, RESERVE_FDS};
 
 /// How often refusals are logged at most (the first at once, then a count per interval).

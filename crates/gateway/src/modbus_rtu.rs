@@ -25,6 +25,7 @@ use drivebus_proto::modbus::rtu::RtuScanner;
 use drivebus_proto::{Deframer, Event};
 
 use crate::bridge::bus_frame;
+// A slave's settings are the configuration's (config/modbus_rtu.rs).
 pub use crate::config::ModbusRtuConfig;
 use crate::gateway::Gateway;
 use crate::modbus_tcp::{Conn, Server};

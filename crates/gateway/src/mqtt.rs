@@ -35,6 +35,7 @@ use serde_json::{json, Value};
 use tokio::sync::{broadcast, mpsc};
 use tokio::time::Instant;
 
+// The URL, prefix and command pattern rules are the configuration's (config/mqtt.rs).
 pub use crate::config::mqtt::{check_prefix, parse_url, Pattern, COMMANDS};
 use crate::config::MqttConfig;
 use crate::gateway::{Change, Command, CommandError, DriveView, Gateway};

@@ -35,6 +35,7 @@ use prost::Message;
 use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, Publish, QoS};
 use tokio::sync::{broadcast, mpsc};
 
+// The id rule is the configuration's (config/sparkplug.rs).
 pub use crate::config::sparkplug::check_id;
 use node::{DeviceMessage, Node, NodeCommand, Refusal};
 use payload::Payload;

@@ -61,7 +61,7 @@ pub fn parse_arg(arg: &str) -> Result<BridgeConfig, String> {
     Ok(BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap })
 }
 
-/// Checks a bridge given on the command line against the buses (as [`check`] does for the file).
+/// Checks a bridge given on the command line against the buses, in the words of the file's check.
 pub fn check_arg(b: &BridgeConfig, buses: &[BusConfig]) -> Result<(), String> {
     match unbridgeable(&b.bus, buses) {
         Some(why) => Err(format!("--bridge: {why}")),

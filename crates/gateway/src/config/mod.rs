@@ -2,16 +2,16 @@
 //! listeners, the tokens, the linkage rules and the store. Every error names the file, the
 //! line and the field, and nothing starts until the whole file is right.
 //!
-//! [`GatewayConfig::from_toml`] reads in three steps, one file each:
-//! - the file schema ([`file`]): TOML reads the text into the `File*` sections, each value with
+//! [`GatewayConfig::from_toml`] reads in three steps, a file each:
+//! - the file schema (`file.rs`): TOML reads the text into the `File*` sections, each value with
 //!   its place; a value of the wrong type or an unknown key stops here;
-//! - one check per section, in the section's file ([`name`], [`http`], [`modbus`], [`token`],
-//!   [`bus`] with [`drive`], [`linkage`], [`mqtt`], [`sparkplug`], [`store`], [`opcua`],
-//!   [`limits`], [`bridge`], [`modbus_rtu`]); each turns its section into its part of the model
-//!   or returns the first error, through [`ctx`] (the place of a value, the checks several
-//!   sections share);
-//! - the checked model ([`model`]): [`GatewayConfig`] and its parts, what the rest of the gateway
-//!   uses.
+//! - one check per section, in the section's file (`http.rs`, `modbus.rs`, `token.rs`,
+//!   `name.rs`, `bus.rs` with `drive.rs`, `linkage.rs`, `mqtt.rs`, `sparkplug.rs`, `store.rs`,
+//!   `opcua.rs`, `limits.rs`, `bridge.rs`, `modbus_rtu.rs`), in that order: each turns its
+//!   section into its part of the model or returns the first error, through `ctx.rs` (the line
+//!   and field of a value, the checks several sections share);
+//! - the checked model (`model.rs`): [`GatewayConfig`] and its parts, what the rest of the
+//!   gateway uses.
 //!
 //! The rules a front end also applies at run time (an MQTT URL, topic prefix and command
 //! pattern, a Sparkplug id) live in their section's file here, and the front end imports them:

@@ -3,7 +3,7 @@
 //! confirmed, linkage rules, events to the store and to live subscribers.
 //!
 //! Every front end (HTTP, Modbus TCP, MQTT, the dashboard) goes through [`Gateway`]: reads come
-//! from the cache ([`Gateway::drive_view`], [`Gateway::registers`]) and never touch a bus;
+//! from the cache ([`Gateway::drive_view`], the Modbus TCP register map) and never touch a bus;
 //! writes go through [`Gateway::command`], which checks the lock, sends the command through the
 //! bus owner and writes the audit trail before it answers.
 //!

@@ -28,7 +28,6 @@ use tokio::net::{TcpListener, TcpStream};
 pub use crate::config::bridge::{check_arg as check, parse_arg};
 pub use crate::config::{BridgeConfig, Framing};
 use crate::gateway::{unix_ms, Gateway};
-use crate::modbus_tcp::{ILLEGAL_FUNCTION, TARGET_FAILED};
 use drivebus_proto::modbus::tcp::{Mbap, MBAP_LEN};
 use drivebus_proto::modbus::ExceptionCode;
 
@@ -202,7 +201,7 @@ async fn pass(
     let action = format!("modbus bridge: function {fc:02X} [{}]", hex(&r.pdu));
     if write && !may_write {
         audit(gw, &cfg.bus, &drive, actor, &action, forbidden.to_string()).await;
-        return if r.unit == 0 { None } else { exception(ILLEGAL_FUNCTION) };
+        return if r.unit == 0 { None } else { exception(ExceptionCode::ILLEGAL_FUNCTION) };
     }
     let exchange = Exchange { request: bus_frame(ascii, r.unit, &r.pdu), expect_reply: r.unit != 0 };
     let result = bus.owner().transact(r.unit, exchange, Priority::Bridge, None).await;
@@ -214,13 +213,16 @@ async fn pass(
                 (Some(p), format!("refused: exception {code:02X}"))
             }
             Some(p) => (Some(p), "ok".to_string()),
-            None => (exception(TARGET_FAILED), "failed: a reply the bridge cannot read".to_string()),
+            None => (
+                exception(ExceptionCode::GATEWAY_TARGET_FAILED),
+                "failed: a reply the bridge cannot read".to_string(),
+            ),
         },
-        Err(BusError::BadRequest(e)) => (exception(ILLEGAL_FUNCTION), format!("refused: {e}")),
+        Err(BusError::BadRequest(e)) => (exception(ExceptionCode::ILLEGAL_FUNCTION), format!("refused: {e}")),
         Err(e @ (BusError::Link(_) | BusError::Closed)) => {
             (exception(PATH_UNAVAILABLE), format!("failed: {e}"))
         }
-        Err(e) => (exception(TARGET_FAILED), format!("timeout: {e}")),
+        Err(e) => (exception(ExceptionCode::GATEWAY_TARGET_FAILED), format!("timeout: {e}")),
     };
     if write {
         audit(gw, &cfg.bus, &drive, actor, &action, outcome).await;

@@ -1,22 +1,13 @@
-//! Health for the monitoring that watches the box: `GET /healthz` (the process answers) and
-//! `GET /readyz` (every configured listener is up and the store is writable; 503 with the
-//! reasons otherwise). Both are open without a token and say nothing about drives. The same
-//! facts are metrics (`drivebus_ready`, `drivebus_listener_up`, `drivebus_store_writable`,
+//! Health for the monitoring that watches the box: which configured listeners are up, whether
+//! the store takes writes, how reloads went. `GET /healthz` and `GET /readyz` serve these facts
+//! (`http::health`; 503 with the reasons when not ready). The same facts are metrics
+//! (`drivebus_ready`, `drivebus_listener_up`, `drivebus_store_writable`,
 //! `drivebus_config_reloads_total`, `drivebus_config_reload_failed`; docs/metrics.md).
 
 use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
-
-use axum::extract::State;
-use axum::http::StatusCode;
-use axum::response::{IntoResponse, Response};
-use axum::routing::get;
-use axum::{Json, Router};
-use serde_json::json;
-
-use crate::gateway::Gateway;
+use std::sync::Mutex;
 
 /// A listener the configuration asks for (HTTP, Modbus TCP, ...).
 #[derive(Clone, Debug)]
@@ -78,6 +69,23 @@ impl Health {
         (self.reloads_ok.load(Ordering::Relaxed), self.reloads_failed.load(Ordering::Relaxed))
     }
 
+    /// Why the gateway is not ready (empty when it is): a configured listener is not up, the
+    /// store at `store` (when there is one) does not take writes.
+    pub fn not_ready(&self, store: Option<&Path>) -> Vec<String> {
+        let mut why: Vec<String> = self
+            .listeners()
+            .into_iter()
+            .filter(|l| !l.up)
+            .map(|l| format!("{} listener on {} is not up", l.name, l.addr))
+            .collect();
+        if let Some(path) = store {
+            if let Err(e) = store_writable(path) {
+                why.push(e);
+            }
+        }
+        why
+    }
+
     /// The error of the last reload, while the last one failed.
     pub fn last_reload_error(&self) -> Option<String> {
         self.last_reload_error.lock().unwrap_or_else(|p| p.into_inner()).clone()
@@ -104,43 +112,4 @@ pub fn store_writable(path: &Path) -> Result<(), String> {
         .open(path)
         .map(drop)
         .map_err(|e| format!("store: cannot write {}: {e}", path.display()))
-}
-
-/// Why the gateway is not ready (empty when it is): listeners down, store not writable.
-pub fn not_ready(gw: &Gateway) -> Vec<String> {
-    let mut why: Vec<String> = gw
-        .health()
-        .listeners()
-        .into_iter()
-        .filter(|l| !l.up)
-        .map(|l| format!("{} listener on {} is not up", l.name, l.addr))
-        .collect();
-    if let Some(path) = &gw.config().store {
-        if let Err(e) = store_writable(path) {
-            why.push(e);
-        }
-    }
-    why
-}
-
-/// `/healthz` and `/readyz`, to merge into the HTTP router (no token needed).
-pub fn routes() -> Router<Arc<Gateway>> {
-    Router::new().route("/healthz", get(healthz)).route("/readyz", get(readyz))
-}
-
-async fn healthz() -> Response {
-    Json(json!({ "status": "ok" })).into_response()
-}
-
-async fn readyz(State(gw): State<Arc<Gateway>>) -> Response {
-    let gw2 = gw.clone();
-    // The store check touches the disk: off the async workers.
-    let why = tokio::task::spawn_blocking(move || not_ready(&gw2))
-        .await
-        .unwrap_or_else(|e| vec![format!("the readiness check failed: {e}")]);
-    if why.is_empty() {
-        Json(json!({ "ready": true })).into_response()
-    } else {
-        (StatusCode::SERVICE_UNAVAILABLE, Json(json!({ "ready": false, "reasons": why }))).into_response()
-    }
 }

@@ -19,8 +19,13 @@
 //! What runs (configuration, buses, drives) is one [`gateway::Topology`], swapped whole by
 //! [`gateway::Gateway::reload`] on SIGHUP: [`reload`] compares the running configuration with
 //! the new one, and entries that did not change are carried over as they are (same bus owner,
-//! statistics and cache), so their polling never stops. [`health`] answers `/healthz` and
-//! `/readyz`; [`log`] writes the service's log lines as text or JSON.
+//! statistics and cache), so their polling never stops. [`health`] keeps what `/healthz` and
+//! `/readyz` answer; [`log`] writes the service's log lines as text or JSON.
+//!
+//! Layers, each importing only from those below it: the core ([`gateway`], [`config`],
+//! [`limits`], [`health`], [`log`], [`refusals`], [`text`], [`trip`], ...) knows no front end;
+//! [`metrics`] observes the core; the front ends ([`http`], [`modbus_tcp`], [`modbus_rtu`],
+//! [`bridge`], [`mqtt`], [`sparkplug`], [`opcua`]) use both; [`server`] starts them all.
 
 pub mod bridge;
 pub mod config;

@@ -2,7 +2,7 @@
 //! reads, the default) or JSON (`--log-format json`, for log shippers reading the journal).
 //!
 //! Text: `drivebus serve: MQTT: broker 127.0.0.1:1883: ...` and events as
-//! [`log_line`](crate::gateway::log_line) writes them. JSON: one object per line,
+//! [`log_line`] writes them. JSON: one object per line,
 //! `{"time": "...Z", "level": "info"|"warn", "message": "..."}`, and for an event the event's
 //! fields (`kind`, `bus`, `drive`, `actor`, `action`, `result`, `detail`) beside them.
 
@@ -39,7 +39,7 @@ pub fn set_format(f: Format) {
 }
 
 fn now() -> String {
-    drivebus_store::time::format_rfc3339(crate::gateway::unix_ms())
+    drivebus_store::time::format_rfc3339(drivebus_store::time::now_ms())
 }
 
 fn message(level: &str, msg: &str) {
@@ -67,7 +67,7 @@ pub fn event(e: &Event) {
         let mut v = json!({
             "time": drivebus_store::time::format_rfc3339(e.time_ms),
             "level": "info",
-            "message": crate::gateway::log_line(e),
+            "message": log_line(e),
             "kind": e.kind.as_str(),
         });
         let o = v.as_object_mut().expect("an object");
@@ -87,6 +87,30 @@ pub fn event(e: &Event) {
         }
         eprintln!("{v}");
     } else {
-        eprintln!("{}", crate::gateway::log_line(e));
+        eprintln!("{}", log_line(e));
     }
+}
+
+/// An event as one log line: `2026-11-22T00:06:01.123Z trip line-1/pump-1 {"code":3,...}`.
+pub fn log_line(e: &Event) -> String {
+    let mut line = format!("{} {}", drivebus_store::time::format_rfc3339(e.time_ms), e.kind.as_str());
+    match (&e.bus, &e.drive) {
+        (Some(b), Some(d)) => line.push_str(&format!(" {b}/{d}")),
+        (Some(b), None) => line.push_str(&format!(" {b}")),
+        (None, Some(d)) => line.push_str(&format!(" {d}")),
+        (None, None) => {}
+    }
+    if let Some(a) = &e.action {
+        line.push_str(&format!(" {a}"));
+    }
+    if let Some(who) = e.actor.as_deref().filter(|w| *w != "gateway") {
+        line.push_str(&format!(" by {who}"));
+    }
+    if let Some(r) = &e.result {
+        line.push_str(&format!(": {r}"));
+    }
+    if !e.detail.is_null() && e.detail.as_object().map_or(true, |o| !o.is_empty()) {
+        line.push_str(&format!(" {}", e.detail));
+    }
+    line
 }

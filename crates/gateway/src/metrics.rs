@@ -1,25 +1,18 @@
 //! `GET /metrics`: the gateway for Prometheus (OpenMetrics text, `prometheus-client`).
 //!
-//! Drive and bus series are read from the cache and the bus owners at each scrape (nothing is
-//! polled for a scrape); the gateway's own counts (HTTP requests and latencies, Modbus TCP
-//! requests, MQTT publishes) accumulate in [`FrontEndMetrics`], held by
-//! [`Counters::front_ends`](crate::gateway::Counters::front_ends). docs/metrics.md lists the
-//! series.
-//!
-//! HTTP requests are counted by [`track`], an axum middleware that
-//! [`http::router`](crate::http::router) layers over every route:
-//! `router.layer(axum::middleware::from_fn_with_state(gw.clone(), metrics::track))`.
+//! Metrics observe the core: drive and bus series are read from the cache and the bus owners
+//! at each scrape (nothing is polled for a scrape), the gateway's own work from the counters
+//! and health it exposes ([`Counters`](crate::gateway::Counters),
+//! [`Gateway::health`](crate::gateway::Gateway::health)). The front ends' own counts (HTTP
+//! requests and latencies, Modbus TCP requests, MQTT publishes) accumulate in
+//! [`FrontEndMetrics`] and the Sparkplug edge node's in [`SparkplugMetrics`], one of each per
+//! gateway ([`front_ends`], `sparkplug::metrics`); the core holds them without knowing them.
+//! docs/metrics.md lists the series. `GET /metrics` and the HTTP request count are served by
+//! the HTTP front end (`http::metrics`).
 
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
-use std::time::Instant;
 
-use axum::extract::{MatchedPath, Request, State};
-use axum::http::{header, StatusCode};
-use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
-use axum::routing::get;
-use axum::Router;
 use prometheus_client::encoding::text::encode;
 use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
@@ -88,7 +81,8 @@ fn latency_histogram() -> Histogram {
     Histogram::new(exponential_buckets(0.0005, 4.0, 8))
 }
 
-/// The front ends' own counts (HTTP, Modbus TCP, MQTT), shared with every scrape.
+/// The front ends' own counts (HTTP, Modbus TCP, MQTT) of one gateway, shared with every
+/// scrape ([`front_ends`]).
 #[derive(Debug)]
 pub struct FrontEndMetrics {
     http_requests: Family<HttpLabels, Counter>,
@@ -101,8 +95,6 @@ pub struct FrontEndMetrics {
     modbus_latency_bus: Histogram,
     mqtt_publishes: Family<MqttLabels, Counter>,
     mqtt_connections: Counter,
-    /// The Sparkplug B edge node's counts.
-    pub sparkplug: crate::sparkplug::Metrics,
 }
 
 impl Default for FrontEndMetrics {
@@ -120,7 +112,6 @@ impl Default for FrontEndMetrics {
             modbus_latency_bus,
             mqtt_publishes: Family::default(),
             mqtt_connections: Counter::default(),
-            sparkplug: crate::sparkplug::Metrics::default(),
         }
     }
 }
@@ -136,7 +127,7 @@ impl FrontEndMetrics {
 
     /// Counts a Modbus TCP request with function code `function`; `exception` when it was
     /// answered with an exception. For modbus_tcp.rs:
-    /// `gw.counters.front_ends.modbus_request(fc, exception.is_some())`.
+    /// `metrics::front_ends(&gw).modbus_request(fc, exception.is_some())`.
     pub fn modbus_request(&self, function: u8, exception: bool) {
         let result = if exception { "exception" } else { "ok" };
         self.modbus_requests.get_or_create(&ModbusLabels { function, result }).inc();
@@ -173,6 +164,89 @@ impl FrontEndMetrics {
     }
 }
 
+/// Labels of a Sparkplug message count.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct MessageLabels {
+    /// `nbirth`, `dbirth`, `ddata`, `ddata_historical`, `ddeath`, `ndata`.
+    pub kind: &'static str,
+}
+
+/// Labels of a refused command count.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct RefusedLabels {
+    /// What was wrong (the refusal's kind, `sparkplug::node::Refusal::kind`).
+    pub reason: &'static str,
+}
+
+/// The Sparkplug B edge node's counts (`sparkplug::metrics`), for `/metrics`.
+#[derive(Debug, Default)]
+pub struct SparkplugMetrics {
+    pub(crate) messages: Family<MessageLabels, Counter>,
+    pub(crate) refused: Family<RefusedLabels, Counter>,
+    pub(crate) connections: Counter,
+    pub(crate) stored: Counter,
+    pub(crate) dropped: Counter,
+    pub(crate) queued: Gauge,
+    pub(crate) bd_seq: Gauge,
+}
+
+impl SparkplugMetrics {
+    /// Messages of `kind` published so far.
+    pub fn messages(&self, kind: &'static str) -> u64 {
+        self.messages.get_or_create(&MessageLabels { kind }).get()
+    }
+
+    /// Commands refused for `reason` so far.
+    pub fn refused(&self, reason: &'static str) -> u64 {
+        self.refused.get_or_create(&RefusedLabels { reason }).get()
+    }
+
+    /// Data messages dropped from the store-and-forward queue (limits, or no store).
+    pub fn dropped(&self) -> u64 {
+        self.dropped.get()
+    }
+
+    /// Data messages put in the store-and-forward queue.
+    pub fn stored(&self) -> u64 {
+        self.stored.get()
+    }
+
+    /// Data messages waiting in the store-and-forward queue, as last counted.
+    pub fn queued(&self) -> i64 {
+        self.queued.get()
+    }
+
+    /// Connections made to a broker.
+    pub fn connections(&self) -> u64 {
+        self.connections.get()
+    }
+
+    /// Registers the series under `sparkplug_`.
+    pub fn register(&self, reg: &mut Registry) {
+        let reg = reg.sub_registry_with_prefix("sparkplug");
+        reg.register("messages", "Sparkplug messages published, by kind", self.messages.clone());
+        reg.register(
+            "commands_refused",
+            "DCMD/NCMD refused before reaching a drive, by reason",
+            self.refused.clone(),
+        );
+        reg.register("connections", "Connections made to a Sparkplug broker", self.connections.clone());
+        reg.register("stored", "Data messages kept for store-and-forward", self.stored.clone());
+        reg.register(
+            "dropped",
+            "Kept data messages dropped (queue limits, or no store)",
+            self.dropped.clone(),
+        );
+        reg.register("queued", "Data messages waiting in the store-and-forward queue", self.queued.clone());
+        reg.register("bd_seq", "The bdSeq of the current MQTT session", self.bd_seq.clone());
+    }
+}
+
+/// The front ends' counts of `gw`, made empty on first use.
+pub fn front_ends(gw: &Gateway) -> Arc<FrontEndMetrics> {
+    gw.attached()
+}
+
 /// Labels of a drive's series.
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 struct DriveLabels {
@@ -200,24 +274,6 @@ struct ListenerLabels {
 }
 
 type F64Gauge = Gauge<f64, std::sync::atomic::AtomicU64>;
-
-/// `GET /metrics`, to merge into the HTTP router.
-pub fn routes() -> Router<Arc<Gateway>> {
-    Router::new().route("/metrics", get(scrape))
-}
-
-/// Needs a read token unless `[http] anonymous_read`, as every other read does: the series carry
-/// every drive's values.
-async fn scrape(_access: crate::http::auth::ReadAccess, State(gw): State<Arc<Gateway>>) -> Response {
-    match render(&gw) {
-        Ok(text) => ([(header::CONTENT_TYPE, CONTENT_TYPE)], text).into_response(),
-        Err(e) => (
-            StatusCode::INTERNAL_SERVER_ERROR,
-            axum::Json(serde_json::json!({ "error": { "kind": "internal", "message": e } })),
-        )
-            .into_response(),
-    }
-}
 
 /// The exposition now, as `GET /metrics` serves it.
 pub fn render(gw: &Gateway) -> Result<String, String> {
@@ -339,7 +395,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         "Commands refused, not sent, because their audit record could not be committed",
         not_recorded,
     );
-    let f = &c.front_ends;
+    let f = front_ends(gw);
     reg.register(
         "http_requests",
         "HTTP requests answered, by route, method and status",
@@ -364,11 +420,11 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     );
     reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
     reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
-    f.sparkplug.register(&mut reg);
+    gw.attached::<SparkplugMetrics>().register(&mut reg);
 
     // Health (the facts of /readyz) and reloads.
     let h = gw.health();
-    let why = crate::health::not_ready(gw);
+    let why = gw.not_ready();
     let ready = Gauge::<i64>::default();
     ready.set(i64::from(why.is_empty()));
     reg.register("ready", "1 when every configured listener is up and the store is writable", ready);
@@ -398,27 +454,4 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let mut out = String::new();
     encode(&mut out, &reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
     Ok(out)
-}
-
-/// Axum middleware counting each HTTP request by route, method and status, with its latency.
-/// Wire it with `Router::layer(axum::middleware::from_fn_with_state(gw, track))` after the
-/// routes so the matched route is known.
-pub async fn track(State(gw): State<Arc<Gateway>>, req: Request, next: Next) -> Response {
-    let route = req
-        .extensions()
-        .get::<MatchedPath>()
-        .map_or_else(|| "unmatched".to_string(), |p| p.as_str().to_string());
-    let method = match req.method().as_str() {
-        m @ ("GET" | "HEAD" | "POST" | "PUT" | "PATCH" | "DELETE" | "OPTIONS") => m.to_string(),
-        _ => "other".to_string(),
-    };
-    let start = Instant::now();
-    let response = next.run(req).await;
-    gw.counters.front_ends.http_request(
-        &route,
-        &method,
-        response.status().as_u16(),
-        start.elapsed().as_secs_f64(),
-    );
-    response
 }

@@ -213,7 +213,7 @@ impl Publisher {
     }
 
     fn on_connect(&self, throttle: &mut HashMap<String, Throttle>) {
-        self.gw.counters.front_ends.mqtt_connected();
+        crate::metrics::front_ends(&self.gw).mqtt_connected();
         self.send("availability", self.s.availability(), true, b"online".to_vec());
         // The retain flag as published: a retained command is known as such when it is
         // delivered live too, not only when a subscription brings it.
@@ -377,7 +377,7 @@ fn send(
     payload: Vec<u8>,
 ) {
     match client.try_publish(topic, QoS::AtLeastOnce, retain, payload) {
-        Ok(()) => gw.counters.front_ends.mqtt_published(kind),
+        Ok(()) => crate::metrics::front_ends(gw).mqtt_published(kind),
         Err(e) => crate::log::warn(&format!("MQTT: a {kind} message was dropped: {e}")),
     }
 }

@@ -97,8 +97,8 @@ fn find<'a>(samples: &'a [Sample], name: &str, labels: &[(&str, &str)]) -> Optio
 fn app(gw: &Arc<Gateway>) -> Router {
     Router::new()
         .route("/api/ping", get(|| async { "pong" }))
-        .merge(drivebus_gateway::metrics::routes())
-        .layer(axum::middleware::from_fn_with_state(gw.clone(), drivebus_gateway::metrics::track))
+        .merge(drivebus_gateway::http::metrics::routes())
+        .layer(axum::middleware::from_fn_with_state(gw.clone(), drivebus_gateway::http::metrics::track))
         .with_state(gw.clone())
 }
 
@@ -108,8 +108,8 @@ async fn metrics_cover_drives_buses_and_the_gateway() {
     gw.command("pump-1", Command::Speed(40.0), "test").await.unwrap();
     gw.command("pump-1", Command::Run, "test").await.unwrap();
     gw.command("pump-3", Command::Run, "test").await.unwrap_err(); // locked
-    gw.counters.front_ends.modbus_request(3, false);
-    gw.counters.front_ends.modbus_request(6, true);
+    drivebus_gateway::metrics::front_ends(&gw).modbus_request(3, false);
+    drivebus_gateway::metrics::front_ends(&gw).modbus_request(6, true);
     tokio::time::sleep(Duration::from_secs(20)).await;
 
     let app = app(&gw);
@@ -231,8 +231,8 @@ async fn metrics_need_a_read_token_when_reads_do() {
         .unwrap();
     assert_eq!(resp.status(), StatusCode::OK);
     // Modbus TCP latencies are there once a request was answered.
-    gw.counters.front_ends.modbus_latency(false, 20e-6);
-    gw.counters.front_ends.modbus_latency(true, 0.030);
+    drivebus_gateway::metrics::front_ends(&gw).modbus_latency(false, 20e-6);
+    drivebus_gateway::metrics::front_ends(&gw).modbus_latency(true, 0.030);
     let text = drivebus_gateway::metrics::render(&gw).unwrap();
     assert!(text.contains("drivebus_modbus_request_duration_seconds_count{path=\"cache\"} 1"), "{text}");
     assert!(text.contains("drivebus_modbus_request_duration_seconds_count{path=\"bus\"} 1"), "{text}");
@@ -267,4 +267,27 @@ async fn bus_errors_on_a_noisy_line_are_counted() {
     let stats = noisy.stats();
     assert_eq!(value("drivebus_bus_checksum_errors_total", "line-generic"), stats.checksum_errors as f64);
     assert_eq!(value("drivebus_bus_timeouts_total", "line-generic"), stats.timeouts as f64);
+}
+
+#[tokio::test(start_paused = true)]
+async fn front_end_counts_belong_to_their_gateway() {
+    let one = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    let two = Gateway::start(GatewayConfig::demo(), None).unwrap();
+    // The counts a front end attaches are one per gateway and per type, made on first use.
+    assert!(Arc::ptr_eq(
+        &drivebus_gateway::metrics::front_ends(&one),
+        &drivebus_gateway::metrics::front_ends(&one)
+    ));
+    drivebus_gateway::metrics::front_ends(&one).mqtt_connected();
+    drivebus_gateway::metrics::front_ends(&one).modbus_request(3, false);
+    assert_eq!(drivebus_gateway::metrics::front_ends(&one).mqtt_connections(), 1);
+    assert_eq!(drivebus_gateway::metrics::front_ends(&two).mqtt_connections(), 0);
+    let (a, b) =
+        (drivebus_gateway::metrics::render(&one).unwrap(), drivebus_gateway::metrics::render(&two).unwrap());
+    assert!(a.contains("drivebus_mqtt_connections_total 1"), "{a}");
+    assert!(b.contains("drivebus_mqtt_connections_total 0"), "{b}");
+    assert!(a.contains("drivebus_modbus_requests_total{function=\"3\",result=\"ok\"} 1"), "{a}");
+    assert!(!b.contains("drivebus_modbus_requests_total{"), "{b}");
+    // The Sparkplug edge node's counts are there (zero) without an edge node.
+    assert!(b.contains("drivebus_sparkplug_connections_total 0"), "{b}");
 }

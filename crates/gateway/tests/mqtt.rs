@@ -102,8 +102,8 @@ async fn statuses_are_retained_and_commands_move_a_drive() {
     assert_eq!(fan.running, Some(false));
     let pump = gw.drive_view(&gw.drive("pump-1").unwrap());
     assert_eq!(pump.running, Some(false), "a refused command moved pump-1");
-    assert!(gw.counters.front_ends.mqtt_publishes("status") >= 10);
-    assert!(gw.counters.front_ends.mqtt_publishes("result") >= 10);
+    assert!(drivebus_gateway::metrics::front_ends(&gw).mqtt_publishes("status") >= 10);
+    assert!(drivebus_gateway::metrics::front_ends(&gw).mqtt_publishes("result") >= 10);
 
     // Statuses are not published faster than once a second per drive (changes of running
     // state aside): conveyor-1 is polled every 250 ms.

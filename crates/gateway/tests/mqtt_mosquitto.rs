@@ -95,13 +95,17 @@ async fn mosquitto_with_a_password() {
     let good = demo_gateway_with("hall-auth", addr, &[], false, Some(("plant", "s3cret-Passw0rd")));
     let bad = demo_gateway_with("hall-bad", addr, &[], false, Some(("plant", "wrong")));
     let start = std::time::Instant::now();
-    while good.counters.front_ends.mqtt_connections() == 0 {
+    while drivebus_gateway::metrics::front_ends(&good).mqtt_connections() == 0 {
         assert!(start.elapsed() < std::time::Duration::from_secs(60), "the gateway never logged in");
         tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     }
     // The wrong password has had as long and several retries: still not connected.
     tokio::time::sleep(std::time::Duration::from_millis(1500)).await;
-    assert_eq!(bad.counters.front_ends.mqtt_connections(), 0, "a wrong password was accepted");
+    assert_eq!(
+        drivebus_gateway::metrics::front_ends(&bad).mqtt_connections(),
+        0,
+        "a wrong password was accepted"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -169,5 +173,5 @@ async fn oversize_and_retained_commands_are_refused_without_a_reconnection() {
     };
     audited("too_large: ").await;
     audited("retained: ").await;
-    assert_eq!(gw.counters.front_ends.mqtt_connections(), 1, "the gateway reconnected");
+    assert_eq!(drivebus_gateway::metrics::front_ends(&gw).mqtt_connections(), 1, "the gateway reconnected");
 }

@@ -112,7 +112,7 @@ async fn the_store_and_forward_queue_keeps_the_newest_within_its_limit() {
     drivebus_gateway::sparkplug::spawn(gw.clone(), &sp).unwrap();
     gw.command("d1", Command::Speed(50.0), "test").await.unwrap();
     gw.command("d1", Command::Run, "test").await.unwrap();
-    let metrics = &gw.counters.front_ends.sparkplug;
+    let metrics = drivebus_gateway::sparkplug::metrics(&gw);
     let start = std::time::Instant::now();
     while metrics.stored() < 20 || metrics.queued() != 5 {
         assert!(start.elapsed() < PATIENCE, "stored {} queued {}", metrics.stored(), metrics.queued());

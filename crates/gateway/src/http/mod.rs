@@ -11,7 +11,9 @@ pub mod api;
 pub mod auth;
 pub mod dashboard;
 pub mod error;
+pub mod health;
 pub mod host;
+pub mod metrics;
 pub mod stream;
 
 use std::sync::Arc;
@@ -68,10 +70,10 @@ pub fn router(gw: Arc<Gateway>) -> Router {
     let max_body = gw.config().http.max_body;
     api_routes()
         .merge(dashboard::routes())
-        .merge(crate::metrics::routes())
-        .merge(crate::health::routes())
+        .merge(metrics::routes())
+        .merge(health::routes())
         .fallback(api::fallback)
-        .layer(middleware::from_fn_with_state(gw.clone(), crate::metrics::track))
+        .layer(middleware::from_fn_with_state(gw.clone(), metrics::track))
         .layer(DefaultBodyLimit::max(max_body))
         .layer(middleware::map_response(json_errors))
         .layer(middleware::from_fn_with_state(gw.clone(), host::check))

@@ -27,6 +27,7 @@ use tokio::net::TcpListener;
 
 use crate::config::ModbusConfig;
 use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
+use crate::metrics::FrontEndMetrics;
 use map::*;
 
 /// Exception 01: illegal function (also: writes refused by configuration or a lock).
@@ -55,6 +56,8 @@ struct Written {
 /// slave ([`crate::modbus_rtu`]).
 pub(crate) struct Server {
     gw: Arc<Gateway>,
+    /// The gateway's front-end counts, where each request is counted.
+    metrics: Arc<FrontEndMetrics>,
     /// The listener's settings at start (`max_connections`); the write rules are read live.
     config: ModbusConfig,
     active: AtomicUsize,
@@ -216,6 +219,7 @@ impl Server {
     pub(crate) fn new(gw: Arc<Gateway>) -> Arc<Server> {
         let config = gw.config().modbus.clone();
         Arc::new(Server {
+            metrics: crate::metrics::front_ends(&gw),
             gw,
             config,
             active: AtomicUsize::new(0),
@@ -300,9 +304,8 @@ impl Server {
                 }
                 // The answer's function code has bit 7 set for an exception.
                 let exception = out.get(mark + 7).is_some_and(|f| f & 0x80 != 0);
-                let front = &self.gw.counters.front_ends;
-                front.modbus_request(frame[7], exception);
-                front.modbus_latency(via_bus, started.elapsed().as_secs_f64());
+                self.metrics.modbus_request(frame[7], exception);
+                self.metrics.modbus_latency(via_bus, started.elapsed().as_secs_f64());
                 pos += total;
             }
             if !out.is_empty() {

@@ -26,11 +26,6 @@ pub mod payload;
 use std::sync::Arc;
 use std::time::Duration;
 
-use prometheus_client::encoding::EncodeLabelSet;
-use prometheus_client::metrics::counter::Counter;
-use prometheus_client::metrics::family::Family;
-use prometheus_client::metrics::gauge::Gauge;
-use prometheus_client::registry::Registry;
 use prost::Message;
 use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, Publish, QoS};
 use tokio::sync::{broadcast, mpsc};
@@ -42,6 +37,7 @@ use payload::Payload;
 
 use crate::config::SparkplugConfig;
 use crate::gateway::{unix_ms, Change, Command, DriveEntry, Gateway};
+use crate::metrics::{MessageLabels, RefusedLabels, SparkplugMetrics as Metrics};
 
 /// Most messages sent from the store-and-forward queue per batch.
 pub const DRAIN_BATCH: usize = 1000;
@@ -54,84 +50,6 @@ pub fn drain_pause(n: usize, rate: u64) -> Duration {
 
 /// How often kept data messages are written to the store, and the reload is looked for.
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(250);
-
-/// Labels of a Sparkplug message count.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct MessageLabels {
-    /// `nbirth`, `dbirth`, `ddata`, `ddata_historical`, `ddeath`, `ndata`.
-    pub kind: &'static str,
-}
-
-/// Labels of a refused command count.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-pub struct RefusedLabels {
-    /// What was wrong ([`Refusal::kind`]).
-    pub reason: &'static str,
-}
-
-/// The edge node's counts, for `/metrics`.
-#[derive(Debug, Default)]
-pub struct Metrics {
-    messages: Family<MessageLabels, Counter>,
-    refused: Family<RefusedLabels, Counter>,
-    connections: Counter,
-    stored: Counter,
-    dropped: Counter,
-    queued: Gauge,
-    bd_seq: Gauge,
-}
-
-impl Metrics {
-    /// Messages of `kind` published so far.
-    pub fn messages(&self, kind: &'static str) -> u64 {
-        self.messages.get_or_create(&MessageLabels { kind }).get()
-    }
-
-    /// Commands refused for `reason` so far.
-    pub fn refused(&self, reason: &'static str) -> u64 {
-        self.refused.get_or_create(&RefusedLabels { reason }).get()
-    }
-
-    /// Data messages dropped from the store-and-forward queue (limits, or no store).
-    pub fn dropped(&self) -> u64 {
-        self.dropped.get()
-    }
-
-    /// Data messages put in the store-and-forward queue.
-    pub fn stored(&self) -> u64 {
-        self.stored.get()
-    }
-
-    /// Data messages waiting in the store-and-forward queue, as last counted.
-    pub fn queued(&self) -> i64 {
-        self.queued.get()
-    }
-
-    /// Connections made to a broker.
-    pub fn connections(&self) -> u64 {
-        self.connections.get()
-    }
-
-    /// Registers the series under `sparkplug_`.
-    pub fn register(&self, reg: &mut Registry) {
-        let reg = reg.sub_registry_with_prefix("sparkplug");
-        reg.register("messages", "Sparkplug messages published, by kind", self.messages.clone());
-        reg.register(
-            "commands_refused",
-            "DCMD/NCMD refused before reaching a drive, by reason",
-            self.refused.clone(),
-        );
-        reg.register("connections", "Connections made to a Sparkplug broker", self.connections.clone());
-        reg.register("stored", "Data messages kept for store-and-forward", self.stored.clone());
-        reg.register(
-            "dropped",
-            "Kept data messages dropped (queue limits, or no store)",
-            self.dropped.clone(),
-        );
-        reg.register("queued", "Data messages waiting in the store-and-forward queue", self.queued.clone());
-        reg.register("bd_seq", "The bdSeq of the current MQTT session", self.bd_seq.clone());
-    }
-}
 
 struct Settings {
     brokers: Vec<(String, u16)>,
@@ -303,8 +221,9 @@ struct EdgeNode {
     written: mpsc::Sender<(String, String, f64)>,
 }
 
-fn metrics(gw: &Gateway) -> &Metrics {
-    &gw.counters.front_ends.sparkplug
+/// The edge node's counts of `gw` (one per gateway, made empty on first use).
+pub fn metrics(gw: &Gateway) -> Arc<Metrics> {
+    gw.attached()
 }
 
 fn device_list(drives: &[Arc<DriveEntry>]) -> Vec<(String, Vec<drivebus_drive::ParamDef>)> {

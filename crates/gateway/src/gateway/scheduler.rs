@@ -1,0 +1,71 @@
+//! The poll loops: one scheduler per bus that polls each drive at its interval, a status read
+//! ahead of polls after a command, and the buses' statistics for live subscribers.
+
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+use std::time::Duration;
+
+use super::cache::{BusEntry, DriveEntry};
+use super::hub::Gateway;
+use super::views::Change;
+
+impl Gateway {
+    /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do).
+    pub(super) async fn refresh(self: &Arc<Self>, d: &Arc<DriveEntry>) {
+        let Some(bus) = self.buses().iter().find(|b| b.config.name == d.bus).cloned() else { return };
+        let status = d.command.status().await;
+        self.update(&bus, d, status).await;
+    }
+
+    /// The scheduler of `bus`: polls each of its drives when due (the most urgent first, by
+    /// priority on a tie) until a reload retires the bus; a reload that changes its drives keeps
+    /// the kept drives' schedule and polls new ones at once.
+    pub(super) async fn poll_bus(self: Arc<Self>, bus: Arc<BusEntry>) {
+        let mut generation = u64::MAX;
+        let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
+        let mut due: Vec<tokio::time::Instant> = Vec::new();
+        loop {
+            if bus.retired.load(Ordering::Relaxed) {
+                return;
+            }
+            // A reload changed the drives: keep the kept drives' schedule, poll new ones now.
+            let now_gen = bus.generation.load(Ordering::Relaxed);
+            if now_gen != generation {
+                generation = now_gen;
+                let next = bus.members.read().unwrap_or_else(|p| p.into_inner()).clone();
+                let now = tokio::time::Instant::now();
+                due = next
+                    .iter()
+                    .map(|d| mine.iter().position(|m| Arc::ptr_eq(m, d)).map_or(now, |k| due[k]))
+                    .collect();
+                mine = next;
+            }
+            let wake = bus.wake.notified();
+            if mine.is_empty() {
+                wake.await;
+                continue;
+            }
+            let k = (0..mine.len()).min_by_key(|&k| (due[k], mine[k].config.priority)).expect("not empty");
+            tokio::select! {
+                _ = tokio::time::sleep_until(due[k]) => {}
+                _ = wake => continue,
+            }
+            let d = mine[k].clone();
+            let result = d.poll.status().await;
+            self.update(&bus, &d, result).await;
+            let next = due[k] + d.config.poll;
+            due[k] = next.max(tokio::time::Instant::now());
+        }
+    }
+
+    /// Sends every bus's view to live subscribers once a second.
+    pub(super) async fn publish_buses(self: Arc<Self>) {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            tick.tick().await;
+            for b in self.buses().iter() {
+                let _ = self.changes.send(Change::Bus(self.bus_view(b)));
+            }
+        }
+    }
+}

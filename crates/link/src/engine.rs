@@ -1,8 +1,9 @@
-//! The part of a bus master that never waits: admission of a job (offline drives, retries),
-//! one attempt at a time on the protocol's `MasterSession`, local echo stripping, statistics
-//! and per-drive health. The async bus owner ([`crate::owner`]) and the blocking bus
-//! ([`crate::blocking`]) drive it with their own I/O: it says what to write, until when to
-//! wait, and how the attempt ended.
+//! The part of a bus master that never waits: admission of a job (offline drives), what to do
+//! after each attempt (retry, reopen the link and retry, give up with which error), when a lost
+//! link is reopened (backoff), one attempt at a time on the protocol's `MasterSession`, local
+//! echo stripping, statistics and per-drive health. The async bus owner ([`crate::owner`]) and
+//! the blocking bus ([`crate::blocking`]) drive it with their own I/O: it says what to do next
+//! ([`Next`]), what to write, until when to wait, and they carry it out.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -13,7 +14,7 @@ use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{Disposition, MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
-use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
+use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 
 /// How one attempt ended.
 #[derive(Debug)]
@@ -41,6 +42,51 @@ pub(crate) enum Action {
     Done(Attempt),
 }
 
+/// What the driver of an engine does next for a job.
+#[derive(Debug)]
+pub(crate) enum Next {
+    /// Run the attempt the engine has started ([`Engine::poll`] until [`Action::Done`]), then
+    /// call [`Engine::attempted`].
+    Attempt,
+    /// Close and open the link again, then call [`Engine::reopened`].
+    Reopen,
+    /// The job is over: its result.
+    Done(Result<Option<Vec<u8>>, BusError>),
+}
+
+/// The first wait before a lost link is opened again; it doubles after each failed reopen.
+const REOPEN_FIRST: Duration = Duration::from_millis(250);
+/// The longest wait between two reopens of a lost link.
+const REOPEN_MAX: Duration = Duration::from_secs(5);
+
+/// A link that is lost: why, and when it is opened again.
+#[derive(Debug)]
+struct Lost {
+    /// The last error (of the link, or of the last reopen).
+    error: String,
+    /// When the next reopen is due.
+    reopen_at: Instant,
+    /// The wait after the next failed reopen.
+    backoff: Duration,
+}
+
+/// The job in progress.
+#[derive(Debug)]
+struct Job {
+    /// The link's name, for errors.
+    link: String,
+    address: u8,
+    broadcast: bool,
+    /// Attempts it may make.
+    attempts: u8,
+    /// Attempts started.
+    made: u8,
+    /// Whether the link was reopened for it already (once per job).
+    reopened: bool,
+    /// How the last attempt ended (a failed reopen before any attempt: that).
+    last: Option<Attempt>,
+}
+
 /// How a session's exchange ended, owned (the session's event borrows it).
 enum Ended {
     Reply,
@@ -66,13 +112,19 @@ pub(crate) struct Engine<P: Protocol> {
     /// When the listener last heard bytes (Modbus RTU: a silence of t3.5 since then ends a
     /// frame, so a partial frame never holds the listener).
     last_heard: Option<Instant>,
+    /// The request of the job in progress, as the profile encoded it.
+    frame: Vec<u8>,
+    /// The job in progress.
+    job: Option<Job>,
+    /// `Some` while the link is lost.
+    lost: Option<Lost>,
 }
 
 /// Calls `$body` with an engine of `$config`'s protocol (the one place that goes from a
 /// [`WireProtocol`](drivebus_proto::protocol::WireProtocol) to its session type).
 macro_rules! with_engine {
     ($config:expr, $stats:expr, $health:expr, |$engine:ident| $body:expr) => {{
-        let config: $crate::owner::BusConfig = $config;
+        let config: $crate::bus::BusConfig = $config;
         let timing = $crate::engine::timing_of(&config);
         use drivebus_proto::protocol::WireProtocol as W;
         use drivebus_proto::{b800, fc, modbus, toshiba};
@@ -134,12 +186,134 @@ impl<P: Protocol> Engine<P> {
             health,
             echo_left: Vec::new(),
             out: Vec::with_capacity(64),
+            frame: Vec::with_capacity(64),
+            job: None,
+            lost: None,
         }
     }
 
-    /// The bus configuration.
-    pub(crate) fn config(&self) -> &BusConfig {
-        &self.config
+    /// The link is lost (or was never opened) at session time `now` for `error`: the next job
+    /// reopens it first.
+    pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
+        let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
+        self.lost = Some(Lost { error, reopen_at: now, backoff });
+    }
+
+    /// Begins a job on link `link` at session time `now`: `frame` to drive `address` (a
+    /// broadcast when no reply is due), with `priority` and a response timeout of `timeout`
+    /// instead of the bus's. A drive that is offline until its next probe, a lost link whose
+    /// reopen is not due and a request that is not a frame end the job at once.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn begin(
+        &mut self,
+        now: Instant,
+        link: String,
+        address: u8,
+        frame: &[u8],
+        expect_reply: bool,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Next {
+        let broadcast = !expect_reply;
+        let attempts = match self.admit(now, address, broadcast, priority, timeout) {
+            Ok(n) => n,
+            Err(e) => return Next::Done(Err(e)),
+        };
+        self.frame.clear();
+        self.frame.extend_from_slice(frame);
+        self.job = Some(Job { link, address, broadcast, attempts, made: 0, reopened: false, last: None });
+        match &self.lost {
+            Some(lost) if now >= lost.reopen_at => Next::Reopen,
+            Some(lost) => {
+                let error = lost.error.clone();
+                self.end(now, Attempt::Link(error))
+            }
+            None => self.next_attempt(now),
+        }
+    }
+
+    /// The attempt [`Next::Attempt`] asked for ended as `attempt` at session time `now`.
+    pub(crate) fn attempted(&mut self, now: Instant, attempt: Attempt) -> Next {
+        let Some(job) = self.job.as_mut() else { return Next::Done(Err(BusError::Closed)) };
+        match attempt {
+            Attempt::Reply(_) | Attempt::NoneDue => {}
+            Attempt::Timeout | Attempt::Damaged(_) => {
+                if job.made < job.attempts {
+                    job.last = Some(attempt);
+                    return self.next_attempt(now);
+                }
+            }
+            Attempt::Link(ref e) => {
+                let error = e.clone();
+                // The port may have gone and come back: reopen it now, once in a job.
+                if !job.reopened {
+                    job.last = Some(attempt);
+                    self.link_lost(now, error);
+                    return Next::Reopen;
+                }
+                self.link_lost(now, error);
+            }
+        }
+        self.end(now, attempt)
+    }
+
+    /// The reopen [`Next::Reopen`] asked for ended with `result` at session time `now`: the
+    /// job goes on with its next attempt, or ends with the link's error. A failed reopen is
+    /// tried again by the first job after a backoff (250 ms, doubling up to 5 s); the jobs
+    /// before it end at once with the link's error.
+    pub(crate) fn reopened(&mut self, now: Instant, result: std::io::Result<()>) -> Next {
+        let Some(job) = self.job.as_mut() else { return Next::Done(Err(BusError::Closed)) };
+        job.reopened = true;
+        let last = job.last.take();
+        let more = job.made < job.attempts;
+        let error = match result {
+            Ok(()) => {
+                self.lost = None;
+                return match last {
+                    Some(last) if !more => self.end(now, last),
+                    _ => self.next_attempt(now),
+                };
+            }
+            // Opening errors name the port; others get its name.
+            Err(e) if e.to_string().contains(&job.link) => e.to_string(),
+            Err(e) => format!("{}: {e}", job.link),
+        };
+        let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
+        self.lost = Some(Lost {
+            error: error.clone(),
+            reopen_at: now + backoff,
+            backoff: (backoff * 2).min(REOPEN_MAX),
+        });
+        // The attempt's own link error says what went wrong first, where there was one.
+        let last = match last {
+            Some(a @ Attempt::Link(_)) => a,
+            _ => Attempt::Link(error),
+        };
+        self.end(now, last)
+    }
+
+    /// Starts the job's next attempt.
+    fn next_attempt(&mut self, now: Instant) -> Next {
+        let Some(job) = self.job.as_mut() else { return Next::Done(Err(BusError::Closed)) };
+        let i = job.made;
+        job.made += 1;
+        let frame = std::mem::take(&mut self.frame);
+        let started = self.start(now, &frame, i);
+        self.frame = frame;
+        match started {
+            Ok(()) => Next::Attempt,
+            Err(e) => {
+                // The caller's error: the drive's health is left alone.
+                self.job = None;
+                Next::Done(Err(e))
+            }
+        }
+    }
+
+    /// Ends the job with its last attempt.
+    fn end(&mut self, now: Instant, last: Attempt) -> Next {
+        let Some(job) = self.job.take() else { return Next::Done(Err(BusError::Closed)) };
+        Next::Done(self.finish(now, job.link, job.address, job.broadcast, job.attempts, last))
     }
 
     /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or

@@ -11,26 +11,8 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use crate::owner::BusError;
-
-/// How on-demand reads share a bus with polling.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FairConfig {
-    /// The part of the bus time on-demand reads get while polls wait, 0..=1 (0: only when no
-    /// poll waits; 1: always ahead of polls, as commands).
-    pub share: f64,
-    /// The most on-demand reads waiting on the bus, all clients together.
-    pub queue: usize,
-    /// The most on-demand reads one client may have waiting.
-    pub per_client: usize,
-}
-
-impl Default for FairConfig {
-    /// Half the bus time, 32 reads waiting, 8 of them per client.
-    fn default() -> Self {
-        FairConfig { share: 0.5, queue: 32, per_client: 8 }
-    }
-}
+use crate::bus::BusError;
+pub use crate::bus::FairConfig;
 
 /// The on-demand reads waiting, one queue per client, served round-robin.
 pub(crate) struct Queues<J> {

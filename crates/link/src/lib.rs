@@ -17,18 +17,23 @@
 //! waits; the async owner and the blocking bus ([`blocking`]) wait for it, each their way.
 
 pub mod blocking;
+pub mod bus;
 pub mod drive;
 mod engine;
 pub mod fair;
 pub mod link;
 pub mod listen;
 pub mod owner;
+pub mod port;
+pub mod port_link;
 #[cfg(feature = "virtual")]
 pub mod sim_link;
 pub mod timer;
 
-pub use fair::FairConfig;
-pub use link::{Clock, Link, Rs485, SerialLink, TcpLink};
-pub use owner::{Bus, BusConfig, BusError, BusStats, Health, Priority};
+pub use bus::{BusConfig, BusError, BusStats, FairConfig, Health, Priority};
+pub use link::{Clock, Link, SerialLink, TcpLink};
+pub use owner::Bus;
+pub use port::{Port, Rs485, SerialSettings};
+pub use port_link::PortLink;
 #[cfg(feature = "virtual")]
 pub use sim_link::SimLink;

@@ -243,6 +243,8 @@ pub struct BusConfig {
     pub echo: bool,
     /// Modbus RTU: discard replies with a silence over t1.5 inside (on-board UARTs only).
     pub strict_t15: bool,
+    /// RS-485 direction control on a serial port (`rs485`: off, auto, kernel or rts).
+    pub rs485: drivebus_link::Rs485,
     /// How on-demand reads (parameters) share the bus with polling: `on_demand_share`,
     /// `on_demand_queue`, `on_demand_per_client` (docs/gateway.md, "Fair use of a bus").
     pub on_demand: drivebus_link::FairConfig,
@@ -496,6 +498,7 @@ struct FileBus {
     echo: bool,
     #[serde(default)]
     strict_t15: bool,
+    rs485: Option<Spanned<String>>,
     on_demand_share: Option<Spanned<f64>>,
     on_demand_queue: Option<Spanned<usize>>,
     on_demand_per_client: Option<Spanned<usize>>,
@@ -878,6 +881,10 @@ impl GatewayConfig {
                 }
                 p => Port::Serial(p.to_string()),
             };
+            let rs485 = match &b.rs485 {
+                Some(m) => m.get_ref().parse().or_else(|e: String| cx.err(m.span(), "bus.rs485", e))?,
+                None => drivebus_link::Rs485::Off,
+            };
             let mut drives = Vec::new();
             for d in &b.drive {
                 let family: Family = d.family.get_ref().parse().or_else(|_| {
@@ -1032,6 +1039,7 @@ impl GatewayConfig {
                 retries: b.retries.unwrap_or(2),
                 echo: b.echo,
                 strict_t15: b.strict_t15,
+                rs485,
                 drives,
             });
         }

@@ -213,19 +213,20 @@ impl Io {
     fn reopen(&mut self) -> io::Result<()> {
         // Close first: opened for exclusive use, a serial device refuses a second open.
         self.open = None;
-        self.open =
-            Some(match self.port.open()? {
-                Opened::Serial(o) => Blocking::Serial(SerialPort::new(o)),
-                Opened::Tcp { addr, stream } => Blocking::Tcp(TcpPort { addr, stream }),
-                #[cfg(feature = "virtual")]
-                Opened::Virtual(v) => return Err(io::Error::new(
+        self.open = Some(match self.port.open()? {
+            Opened::Serial(o) => Blocking::Serial(SerialPort::new(o)),
+            Opened::Tcp { addr, stream } => Blocking::Tcp(TcpPort { addr, stream }),
+            #[cfg(feature = "virtual")]
+            Opened::Virtual(v) => {
+                return Err(io::Error::new(
                     io::ErrorKind::Unsupported,
                     format!(
                         "{}: a virtual line runs on the async bus (drivebus_link::Bus), not the blocking one",
                         v.name
                     ),
-                )),
-            });
+                ))
+            }
+        });
         Ok(())
     }
 

@@ -319,7 +319,7 @@ impl<P: Protocol> Engine<P> {
     /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or
     /// `Offline` when the drive is offline and its next probe is not due (polls and on-demand
     /// reads only).
-    pub(crate) fn admit(
+    fn admit(
         &mut self,
         now: Instant,
         address: u8,
@@ -449,7 +449,7 @@ impl<P: Protocol> Engine<P> {
 
     /// Ends a job after `attempts` attempts whose last ended as `last`: the job's result, and
     /// the drive's health updated.
-    pub(crate) fn finish(
+    fn finish(
         &mut self,
         now: Instant,
         link: String,
@@ -716,6 +716,99 @@ mod tests {
         // Our own request and the drive's reply are not broadcasts.
         e.input(now + Duration::from_millis(20), &read_reply());
         assert_eq!(stats.lock().unwrap().foreign_broadcasts, 1);
+    }
+
+    /// Begins a job that reads [`READ`] from drive 1 at `now` on link "port".
+    fn begin(e: &mut Engine<ModbusRtu>, now: Instant) -> Next {
+        e.begin(now, "port".to_string(), 1, &READ, true, Priority::Command, None)
+    }
+
+    fn ms(n: u64) -> Instant {
+        Instant::from_millis(n)
+    }
+
+    #[test]
+    fn a_timeout_is_retried_until_the_attempts_run_out() {
+        let (mut e, stats) = engine();
+        assert!(matches!(begin(&mut e, ms(0)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(100), Attempt::Timeout), Next::Attempt));
+        assert!(matches!(e.attempted(ms(200), Attempt::Damaged("crc".into())), Next::Attempt));
+        match e.attempted(ms(300), Attempt::Timeout) {
+            Next::Done(Err(BusError::Timeout { link, address: 1, attempts: 3 })) => assert_eq!(link, "port"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(stats.lock().unwrap().retries, 2);
+        // A reply ends the job at once.
+        assert!(matches!(begin(&mut e, ms(400)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(410), Attempt::Reply(read_reply())), Next::Done(Ok(Some(_)))));
+    }
+
+    #[test]
+    fn a_lost_link_is_reopened_once_in_a_job_and_the_attempt_made_again() {
+        let (mut e, _) = engine();
+        assert!(matches!(begin(&mut e, ms(0)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(10), Attempt::Link("port: gone".into())), Next::Reopen));
+        assert!(matches!(e.reopened(ms(20), Ok(())), Next::Attempt));
+        // Lost again in the same job: it ends with the link's error, and the next job reopens
+        // the link first, at once.
+        match e.attempted(ms(30), Attempt::Link("port: gone again".into())) {
+            Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: gone again"),
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(begin(&mut e, ms(30)), Next::Reopen));
+        assert!(matches!(e.reopened(ms(40), Ok(())), Next::Attempt));
+        assert!(matches!(e.attempted(ms(50), Attempt::Reply(read_reply())), Next::Done(Ok(Some(_)))));
+    }
+
+    #[test]
+    fn a_link_that_will_not_reopen_is_tried_again_after_a_doubling_backoff() {
+        let (mut e, stats) = engine();
+        assert!(matches!(begin(&mut e, ms(0)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(10), Attempt::Link("port: unplugged".into())), Next::Reopen));
+        // The reopen fails: the job ends with what went wrong first.
+        let refused =
+            || std::io::Error::new(std::io::ErrorKind::NotFound, "cannot open serial port port: gone");
+        match e.reopened(ms(10), Err(refused())) {
+            Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: unplugged"),
+            other => panic!("{other:?}"),
+        }
+        // Until the backoff has passed, jobs end at once with the reopen's error, nothing sent.
+        let mut at = 10;
+        for backoff in [250, 500, 1000, 2000, 4000, 5000, 5000] {
+            match begin(&mut e, ms(at + backoff - 1)) {
+                Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "cannot open serial port port: gone"),
+                other => panic!("{backoff} ms: {other:?}"),
+            }
+            at += backoff;
+            assert!(matches!(begin(&mut e, ms(at)), Next::Reopen), "{backoff} ms");
+            assert!(matches!(e.reopened(ms(at), Err(refused())), Next::Done(Err(BusError::Link(_)))));
+        }
+        assert_eq!(stats.lock().unwrap().transactions, 0);
+        // Back: the job goes on with its first attempt (not a retry), and the backoff starts over.
+        assert!(matches!(begin(&mut e, ms(at + 5000)), Next::Reopen));
+        assert!(matches!(e.reopened(ms(at + 5000), Ok(())), Next::Attempt));
+        assert_eq!(stats.lock().unwrap().retries, 0);
+        // Lost again: this job has had its reopen; the next one reopens at once.
+        assert!(matches!(e.attempted(ms(at + 5010), Attempt::Link("port: gone".into())), Next::Done(Err(_))));
+        assert!(matches!(begin(&mut e, ms(at + 5010)), Next::Reopen));
+        assert!(matches!(e.reopened(ms(at + 5010), Err(refused())), Next::Done(_)));
+        assert!(matches!(begin(&mut e, ms(at + 5010 + 249)), Next::Done(Err(BusError::Link(_)))));
+        assert!(matches!(begin(&mut e, ms(at + 5010 + 250)), Next::Reopen));
+    }
+
+    #[test]
+    fn a_link_never_opened_is_opened_by_the_first_job() {
+        let (mut e, _) = engine();
+        e.link_lost(ms(0), "port is not open".into());
+        assert!(matches!(begin(&mut e, ms(5)), Next::Reopen));
+        // An error that does not name the port is given its name.
+        match e.reopened(ms(5), Err(std::io::Error::other("refused"))) {
+            Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: refused"),
+            other => panic!("{other:?}"),
+        }
+        // The drive's health counts the failures like any other.
+        let h = e.health.lock().unwrap().get(&1).cloned().unwrap();
+        assert_eq!((h.transactions, h.errors), (1, 1));
     }
 
     #[test]

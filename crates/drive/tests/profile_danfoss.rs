@@ -4,7 +4,9 @@
 use std::time::Duration;
 
 use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
-use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
+use drivebus_drive::profile::{
+    run_blocking, CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step,
+};
 use drivebus_drive::Storage;
 use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
@@ -52,19 +54,13 @@ fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Optio
 
 /// Runs a plan to its end; the outcome and the number of telegrams sent.
 fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
-    let mut reply: Option<Vec<u8>> = None;
     let mut sent = 0;
-    loop {
-        match plan.step(reply.as_deref()) {
-            Err(e) => return (Err(e), sent),
-            Ok(Step::Done(outcome)) => return (Ok(outcome), sent),
-            Ok(Step::Send(x)) => {
-                sent += 1;
-                assert!(sent < 20, "a plan that does not end");
-                reply = transact(line, &x.request, x.expect_reply);
-            }
-        }
-    }
+    let outcome = run_blocking(&mut *plan, |x| {
+        sent += 1;
+        assert!(sent < 20, "a plan that does not end");
+        Ok(transact(line, &x.request, x.expect_reply))
+    });
+    (outcome, sent)
 }
 
 /// Runs `op` and expects it to succeed; returns the outcome and the telegram count.

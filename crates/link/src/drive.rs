@@ -29,7 +29,7 @@ use std::fmt;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Profile, Step};
+use drivebus_drive::profile::{self, DriveError, DriveStatus, Operation, Outcome, Profile};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
@@ -145,24 +145,12 @@ impl Drive {
     /// Runs `op` to completion.
     pub async fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
         let mut plan = self.profile.plan(op)?;
-        let mut reply: Option<Vec<u8>> = None;
-        loop {
-            match plan.step(reply.as_deref())? {
-                Step::Done(outcome) => return Ok(outcome),
-                Step::Send(exchange) => {
-                    reply = self
-                        .bus
-                        .transact_for(
-                            &self.client,
-                            self.profile.address(),
-                            exchange,
-                            self.priority,
-                            self.timeout,
-                        )
-                        .await?;
-                }
-            }
-        }
+        let this = self;
+        profile::run(&mut *plan, move |exchange| async move {
+            let address = this.profile.address();
+            Ok(this.bus.transact_for(&this.client, address, exchange, this.priority, this.timeout).await?)
+        })
+        .await
     }
 
     /// The drive's state.
@@ -268,17 +256,11 @@ impl BlockingDrive {
     /// Runs `op` to its end: one transaction after another, as the profile plans them.
     pub fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
         let mut plan = self.profile.plan(op)?;
-        let mut reply: Option<Vec<u8>> = None;
         let mut bus = self.bus.lock().unwrap_or_else(|p| p.into_inner());
-        loop {
-            match plan.step(reply.as_deref())? {
-                Step::Done(outcome) => return Ok(outcome),
-                Step::Send(exchange) => {
-                    reply =
-                        bus.transact(self.profile.address(), &exchange, Priority::Command, self.timeout)?;
-                }
-            }
-        }
+        let address = self.profile.address();
+        profile::run_blocking(&mut *plan, |exchange| {
+            Ok(bus.transact(address, &exchange, Priority::Command, self.timeout)?)
+        })
     }
 
     /// See [`Drive::status`].

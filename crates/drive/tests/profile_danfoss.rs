@@ -498,16 +498,15 @@ fn address_format_1_to_31() {
     let mut line = line_with(&[22]);
     let fc = DanfossProfile::with_address_format(22, AddressFormat::OneTo31).expect("profile");
     let mut plan = fc.plan(&Operation::Stop).expect("plan");
-    let mut reply = None;
-    let mut sent = 0;
     // A fresh profile's stop: 16-02, 16-00, then the stop; every one to ADR 16.
-    while let Ok(Step::Send(x)) = plan.step(reply.as_deref()) {
-        // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
-        assert_eq!(x.request[2], 0x16);
-        reply = transact(&mut line, &x.request, true);
-        sent += 1;
-    }
-    assert_eq!(sent, 3);
+    let mut adr = Vec::new();
+    run_blocking(&mut *plan, |x| {
+        adr.push(x.request[2]);
+        Ok::<_, DriveError>(transact(&mut line, &x.request, true))
+    })
+    .expect("stop");
+    // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
+    assert_eq!(adr, [0x16; 3]);
     assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
     assert!(DanfossProfile::with_address_format(32, AddressFormat::OneTo31).is_err());
     assert_eq!(

@@ -354,11 +354,14 @@ impl<P: Protocol> Engine<P> {
     pub(crate) fn start(&mut self, now: Instant, frame: &[u8], i: u8) -> Result<(), BusError> {
         self.session.abort();
         self.echo_left.clear();
-        // The typed request borrows the frame.
-        match self.session.protocol().parse_request(frame) {
-            Ok(req) => self.session.send(now, &req).map_err(|e| BusError::BadRequest(e.to_string()))?,
-            Err(e) => return Err(BusError::BadRequest(format!("the request is not a valid frame: {e}"))),
-        }
+        // The profile's bytes go on the wire as they are; what the reply must match comes from
+        // a look at the frame.
+        let pending = self
+            .session
+            .protocol()
+            .pending_of_frame(frame)
+            .map_err(|e| BusError::BadRequest(format!("the request is not a valid frame: {e}")))?;
+        self.session.send_frame(now, frame, pending).map_err(|e| BusError::BadRequest(e.to_string()))?;
         if i > 0 {
             self.stat(now, |s| s.retries += 1);
         }

@@ -134,7 +134,7 @@ pub enum Priority {
     /// A request passed through from a Modbus bridge: after commands, ahead of polling.
     Bridge,
     /// A read a client asked for now (a parameter): shares the bus with polling, client by
-    /// client ([`crate::fair`]).
+    /// client (the `fair` module).
     OnDemand,
     /// Cyclic polling.
     Poll,

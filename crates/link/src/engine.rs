@@ -1,8 +1,8 @@
 //! The part of a bus master that never waits: admission of a job (offline drives), what to do
 //! after each attempt (retry, reopen the link and retry, give up with which error), when a lost
 //! link is reopened (backoff), one attempt at a time on the protocol's `MasterSession`, local
-//! echo stripping, statistics and per-drive health. The async bus owner ([`crate::owner`]) and
-//! the blocking bus ([`crate::blocking`]) drive it with their own I/O: it says what to do next
+//! echo stripping, statistics and per-drive health. The async bus owner (`owner`) and
+//! the blocking bus (`blocking`) drive it with their own I/O: it says what to do next
 //! ([`Next`]), what to write, until when to wait, and they carry it out.
 
 use std::collections::HashMap;

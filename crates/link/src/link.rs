@@ -32,7 +32,7 @@ pub trait Link: Send + 'static {
     /// Closes and opens the link again (after a device server rebooted, a USB adapter
     /// came back).
     fn reopen(&mut self) -> impl Future<Output = io::Result<()>> + Send;
-    /// Whether it is open; a link made closed ([`crate::port_link::PortLink::new`]) is opened
+    /// Whether it is open; a link made closed (`PortLink::new`) is opened
     /// by the bus owner before its first transaction.
     fn is_open(&self) -> bool {
         true

@@ -72,7 +72,7 @@ impl Bus {
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the
     /// serial port free for another open). The owner ends once every clone of the handle is
-    /// dropped, so drop the others (and the [`crate::drive::Drive`]s holding them) first.
+    /// dropped, so drop the others (and the `Drive`s holding them) first.
     pub async fn close(self) {
         let Bus { commands, bridged, polls, mut ended, .. } = self;
         drop(commands);

@@ -1,7 +1,7 @@
 //! Where a bus is ([`Port`]: a serial device with its baud rate, format and RS-485 direction
 //! control, a serial device server over TCP, or a virtual line of simulated drives) and the one
-//! opener of it, used by the async bus owner ([`crate::port_link::PortLink`]), the blocking bus
-//! ([`crate::blocking`]) and the gateway. What to do when a port is lost (reopen it, and when)
+//! opener of it, used by the async bus owner (`PortLink`), the blocking bus
+//! (the `blocking` module) and the gateway. What to do when a port is lost (reopen it, and when)
 //! is the engine's decision, not the port's.
 
 use std::io;

@@ -64,8 +64,8 @@ impl BlockingBus {
         Self::open_port(Port::parse(port, config.baud, config.format, config.rs485), config)
     }
 
-    /// Opens `port` (a serial device or a serial device server; a virtual line is for the
-    /// async [`crate::Bus`]) and runs `config`'s protocol on it.
+    /// Opens `port` (a serial device, a serial device server or a virtual line) and runs
+    /// `config`'s protocol on it.
     pub fn open_port(port: Port, config: BusConfig) -> Result<Self, BusError> {
         let mut io = Io { port, open: None, clock: SyncClock::new(), buf: vec![0; 1024] };
         io.reopen().map_err(|e| BusError::Link(e.to_string()))?;
@@ -190,7 +190,7 @@ fn run_attempt<P: Protocol>(engine: &mut Engine<P>, io: &mut Io, now: &mut Insta
             }
             Action::Done(attempt) => return attempt,
             Action::Wait(deadline) => {
-                let read = io.read(io.clock.at(deadline));
+                let read = io.read(deadline);
                 *now = io.clock.now();
                 match read {
                     Ok(0) => engine.timeout(*now),
@@ -206,6 +206,8 @@ fn run_attempt<P: Protocol>(engine: &mut Engine<P>, io: &mut Io, now: &mut Insta
 enum Blocking {
     Serial(SerialPort),
     Tcp(TcpPort),
+    #[cfg(feature = "virtual")]
+    Virtual(VirtualIo),
 }
 
 impl Io {
@@ -217,15 +219,7 @@ impl Io {
             Opened::Serial(o) => Blocking::Serial(SerialPort::new(o)),
             Opened::Tcp { addr, stream } => Blocking::Tcp(TcpPort { addr, stream }),
             #[cfg(feature = "virtual")]
-            Opened::Virtual(v) => {
-                return Err(io::Error::new(
-                    io::ErrorKind::Unsupported,
-                    format!(
-                        "{}: a virtual line runs on the async bus (drivebus_link::Bus), not the blocking one",
-                        v.name
-                    ),
-                ))
-            }
+            Opened::Virtual(v) => Blocking::Virtual(VirtualIo { line: v.line, held: Vec::new() }),
         });
         Ok(())
     }
@@ -234,17 +228,65 @@ impl Io {
         match &mut self.open {
             Some(Blocking::Serial(s)) => s.write(bytes),
             Some(Blocking::Tcp(t)) => t.write(bytes),
+            #[cfg(feature = "virtual")]
+            Some(Blocking::Virtual(v)) => {
+                v.write(self.clock.now(), bytes);
+                Ok(())
+            }
             None => Err(not_open(&self.port.name())),
         }
     }
 
-    /// Reads what arrives before `deadline` into the buffer: `Ok(0)` when the deadline passed
-    /// with nothing.
-    fn read(&mut self, deadline: std::time::Instant) -> io::Result<usize> {
+    /// Reads what arrives before session time `deadline` into the buffer: `Ok(0)` when the
+    /// deadline passed with nothing.
+    fn read(&mut self, deadline: Instant) -> io::Result<usize> {
         match &mut self.open {
-            Some(Blocking::Serial(s)) => s.read(&mut self.buf, deadline),
-            Some(Blocking::Tcp(t)) => t.read(&mut self.buf, deadline),
+            Some(Blocking::Serial(s)) => s.read(&mut self.buf, self.clock.at(deadline)),
+            Some(Blocking::Tcp(t)) => t.read(&mut self.buf, self.clock.at(deadline)),
+            #[cfg(feature = "virtual")]
+            Some(Blocking::Virtual(v)) => Ok(v.read(&mut self.buf, &self.clock, deadline)),
             None => Err(not_open(&self.port.name())),
+        }
+    }
+}
+
+/// A virtual line of simulated drives in this process, on the bus's session time: the line
+/// is moved on to the clock's now before each look, and the thread sleeps until its next
+/// event or the deadline.
+#[cfg(feature = "virtual")]
+struct VirtualIo {
+    line: Arc<Mutex<drivebus_sim::bus::VirtualLine>>,
+    /// What the line gave that did not fit the read buffer.
+    held: Vec<u8>,
+}
+
+#[cfg(feature = "virtual")]
+impl VirtualIo {
+    fn write(&mut self, now: Instant, bytes: &[u8]) {
+        self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write(now, bytes);
+    }
+
+    /// Reads what the line brings before `deadline` (session time); 0 when nothing came.
+    fn read(&mut self, buf: &mut [u8], clock: &SyncClock, deadline: Instant) -> usize {
+        loop {
+            let now = clock.now();
+            let next = {
+                let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
+                line.advance_to(now);
+                line.master_read(&mut self.held);
+                line.next_deadline()
+            };
+            if !self.held.is_empty() {
+                let n = self.held.len().min(buf.len());
+                buf[..n].copy_from_slice(&self.held[..n]);
+                self.held.drain(..n);
+                return n;
+            }
+            if now >= deadline {
+                return 0;
+            }
+            let until = next.filter(|&t| t < deadline).unwrap_or(deadline);
+            std::thread::sleep(clock.at(until).saturating_duration_since(std::time::Instant::now()));
         }
     }
 }

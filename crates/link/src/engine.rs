@@ -274,8 +274,6 @@ impl<P: Protocol> Engine<P> {
                     _ => self.next_attempt(now),
                 };
             }
-            // Opening errors name the port; others get its name.
-            Err(e) if e.to_string().contains(&job.link) => e.to_string(),
             Err(e) => format!("{}: {e}", job.link),
         };
         let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
@@ -779,7 +777,9 @@ mod tests {
         let mut at = 10;
         for backoff in [250, 500, 1000, 2000, 4000, 5000, 5000] {
             match begin(&mut e, ms(at + backoff - 1)) {
-                Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "cannot open serial port port: gone"),
+                Next::Done(Err(BusError::Link(m))) => {
+                    assert_eq!(m, "port: cannot open serial port port: gone")
+                }
                 other => panic!("{backoff} ms: {other:?}"),
             }
             at += backoff;
@@ -804,7 +804,7 @@ mod tests {
         let (mut e, _) = engine();
         e.link_lost(ms(0), "port is not open".into());
         assert!(matches!(begin(&mut e, ms(5)), Next::Reopen));
-        // An error that does not name the port is given its name.
+        // The error is the port's, by its name.
         match e.reopened(ms(5), Err(std::io::Error::other("refused"))) {
             Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: refused"),
             other => panic!("{other:?}"),

@@ -9,7 +9,10 @@
 //! whatever the clients do. Commands are not here: they go ahead of both.
 
 use std::collections::VecDeque;
+use std::sync::Mutex;
 use std::time::Duration;
+
+use tokio::sync::Notify;
 
 use crate::bus::BusError;
 pub use crate::bus::FairConfig;
@@ -69,6 +72,46 @@ impl<J> Queues<J> {
     /// Whether no read waits.
     pub(crate) fn is_empty(&self) -> bool {
         self.waiting == 0
+    }
+}
+
+/// The on-demand reads waiting on a bus (its fair [`Queues`], shared by the handles that queue
+/// and the owner that serves them), and the owner's wake-up when one comes.
+pub(crate) struct OnDemand<J> {
+    queues: Mutex<Queues<J>>,
+    ready: Notify,
+}
+
+impl<J> OnDemand<J> {
+    /// Empty queues bounded by `config`.
+    pub(crate) fn new(config: FairConfig) -> Self {
+        OnDemand { queues: Mutex::new(Queues::new(config)), ready: Notify::new() }
+    }
+
+    fn queues(&self) -> std::sync::MutexGuard<'_, Queues<J>> {
+        self.queues.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Queues `job` of `client` and wakes the owner (see [`Queues::push`]).
+    pub(crate) fn push(&self, client: &str, job: J) -> Result<(), (J, BusError)> {
+        self.queues().push(client, job)?;
+        self.ready.notify_one();
+        Ok(())
+    }
+
+    /// The next read, client by client.
+    pub(crate) fn pop(&self) -> Option<J> {
+        self.queues().pop()
+    }
+
+    /// Whether no read waits.
+    pub(crate) fn is_empty(&self) -> bool {
+        self.queues().is_empty()
+    }
+
+    /// Until a read has been queued (at once if one was queued since the last wake-up).
+    pub(crate) async fn ready(&self) {
+        self.ready.notified().await
     }
 }
 

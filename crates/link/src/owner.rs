@@ -17,11 +17,11 @@ use std::time::Duration;
 use drivebus_drive::profile::Exchange;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
-use tokio::sync::{mpsc, oneshot, watch, Notify};
+use tokio::sync::{mpsc, oneshot, watch};
 
 pub use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 use crate::engine::{with_engine, Action, Attempt, Engine, Next};
-use crate::fair::{Queues, Share, Turn};
+use crate::fair::{OnDemand, Share, Turn};
 use crate::link::Link;
 
 struct Job {
@@ -37,7 +37,7 @@ pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
     bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
-    on_demand: Arc<OnDemand>,
+    on_demand: Arc<OnDemand<Job>>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
     name: String,
@@ -55,8 +55,7 @@ impl Bus {
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
-        let on_demand =
-            Arc::new(OnDemand { queues: Mutex::new(Queues::new(config.on_demand)), ready: Notify::new() });
+        let on_demand = Arc::new(OnDemand::new(config.on_demand));
         let share = Share::new(config.on_demand.share);
         let od = on_demand.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
@@ -121,13 +120,7 @@ impl Bus {
                 if self.commands.is_closed() {
                     return Err(BusError::Closed);
                 }
-                self.on_demand
-                    .queues
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner())
-                    .push(client, job)
-                    .map_err(|(_, e)| e)?;
-                self.on_demand.ready.notify_one();
+                self.on_demand.push(client, job).map_err(|(_, e)| e)?;
                 return rx.await.map_err(|_| BusError::Closed)?;
             }
         };
@@ -146,22 +139,6 @@ impl Bus {
     }
 }
 
-/// The on-demand reads waiting, and the owner's wake-up when one comes.
-struct OnDemand {
-    queues: Mutex<Queues<Job>>,
-    ready: Notify,
-}
-
-impl OnDemand {
-    fn pop(&self) -> Option<Job> {
-        self.queues.lock().unwrap_or_else(|p| p.into_inner()).pop()
-    }
-
-    fn is_empty(&self) -> bool {
-        self.queues.lock().unwrap_or_else(|p| p.into_inner()).is_empty()
-    }
-}
-
 struct Owner<L: Link, P: Protocol> {
     link: L,
     engine: Engine<P>,
@@ -177,7 +154,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         mut commands: mpsc::UnboundedReceiver<Job>,
         mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
-        on_demand: Arc<OnDemand>,
+        on_demand: Arc<OnDemand<Job>>,
         mut share: Share,
     ) {
         // A poll taken from its channel that waits for its turn.
@@ -218,7 +195,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                             poll = Some(j);
                             None
                         }
-                        _ = on_demand.ready.notified() => None,
+                        _ = on_demand.ready() => None,
                     };
                     if let Some((job, priority)) = woken {
                         let result = self.job(&job, priority).await;

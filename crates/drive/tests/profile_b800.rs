@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use drivebus_drive::profile::b800::B800Profile;
 use drivebus_drive::profile::{
-    CodeSpace, DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step,
+    run_blocking, CodeSpace, DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step,
 };
 use drivebus_drive::{Family, Storage};
 use drivebus_proto::b800::FrameScanner;
@@ -52,19 +52,13 @@ fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Optio
 
 /// Runs a plan to its end; the outcome and the frames sent, as text.
 fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, Vec<String>) {
-    let mut reply: Option<Vec<u8>> = None;
     let mut sent = Vec::new();
-    loop {
-        match plan.step(reply.as_deref()) {
-            Err(e) => return (Err(e), sent),
-            Ok(Step::Done(outcome)) => return (Ok(outcome), sent),
-            Ok(Step::Send(x)) => {
-                sent.push(String::from_utf8_lossy(&x.request[1..x.request.len() - 1]).into_owned());
-                assert!(sent.len() < 10, "a plan that does not end");
-                reply = transact(line, &x.request, x.expect_reply);
-            }
-        }
-    }
+    let outcome = run_blocking(&mut *plan, |x| {
+        sent.push(String::from_utf8_lossy(&x.request[1..x.request.len() - 1]).into_owned());
+        assert!(sent.len() < 10, "a plan that does not end");
+        Ok(transact(line, &x.request, x.expect_reply))
+    });
+    (outcome, sent)
 }
 
 /// The command letters of frames to drive 1 (DA 81): "81540D" -> 'T'.

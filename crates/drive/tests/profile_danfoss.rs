@@ -4,7 +4,9 @@
 use std::time::Duration;
 
 use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
-use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
+use drivebus_drive::profile::{
+    run_blocking, CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step,
+};
 use drivebus_drive::Storage;
 use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
@@ -52,19 +54,13 @@ fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Optio
 
 /// Runs a plan to its end; the outcome and the number of telegrams sent.
 fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
-    let mut reply: Option<Vec<u8>> = None;
     let mut sent = 0;
-    loop {
-        match plan.step(reply.as_deref()) {
-            Err(e) => return (Err(e), sent),
-            Ok(Step::Done(outcome)) => return (Ok(outcome), sent),
-            Ok(Step::Send(x)) => {
-                sent += 1;
-                assert!(sent < 20, "a plan that does not end");
-                reply = transact(line, &x.request, x.expect_reply);
-            }
-        }
-    }
+    let outcome = run_blocking(&mut *plan, |x| {
+        sent += 1;
+        assert!(sent < 20, "a plan that does not end");
+        Ok(transact(line, &x.request, x.expect_reply))
+    });
+    (outcome, sent)
 }
 
 /// Runs `op` and expects it to succeed; returns the outcome and the telegram count.
@@ -502,16 +498,15 @@ fn address_format_1_to_31() {
     let mut line = line_with(&[22]);
     let fc = DanfossProfile::with_address_format(22, AddressFormat::OneTo31).expect("profile");
     let mut plan = fc.plan(&Operation::Stop).expect("plan");
-    let mut reply = None;
-    let mut sent = 0;
     // A fresh profile's stop: 16-02, 16-00, then the stop; every one to ADR 16.
-    while let Ok(Step::Send(x)) = plan.step(reply.as_deref()) {
-        // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
-        assert_eq!(x.request[2], 0x16);
-        reply = transact(&mut line, &x.request, true);
-        sent += 1;
-    }
-    assert_eq!(sent, 3);
+    let mut adr = Vec::new();
+    run_blocking(&mut *plan, |x| {
+        adr.push(x.request[2]);
+        Ok::<_, DriveError>(transact(&mut line, &x.request, true))
+    })
+    .expect("stop");
+    // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
+    assert_eq!(adr, [0x16; 3]);
     assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
     assert!(DanfossProfile::with_address_format(32, AddressFormat::OneTo31).is_err());
     assert_eq!(

@@ -4,7 +4,9 @@
 use std::time::Duration;
 
 use drivebus_drive::profile::generic::{GenericProfile, GenericProtocol};
-use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step};
+use drivebus_drive::profile::{
+    run_blocking, DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step,
+};
 use drivebus_drive::Storage;
 use drivebus_proto::modbus::ascii::ModbusAscii;
 use drivebus_proto::modbus::rtu::ModbusRtu;
@@ -60,14 +62,12 @@ fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
 /// Runs `op` to completion, as a bus owner would.
 fn run<C: Codec>(line: &mut VirtualLine, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
     let mut plan = p.plan(&op)?;
-    let mut reply: Option<Vec<u8>> = None;
-    for _ in 0..32 {
-        match plan.step(reply.as_deref())? {
-            Step::Send(x) => reply = transact::<C>(line, &x),
-            Step::Done(outcome) => return Ok(outcome),
-        }
-    }
-    panic!("{op:?} did not finish in 32 exchanges");
+    let mut sent = 0;
+    run_blocking(&mut *plan, |x| {
+        sent += 1;
+        assert!(sent <= 32, "{op:?} did not finish in 32 exchanges");
+        Ok(transact::<C>(line, &x))
+    })
 }
 
 fn rtu(line: &mut VirtualLine, p: &GenericProfile, op: Operation) -> Result<Outcome, DriveError> {

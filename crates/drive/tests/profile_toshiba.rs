@@ -5,7 +5,9 @@
 use std::time::Duration;
 
 use drivebus_drive::profile::toshiba::{ToshibaProfile, ToshibaProtocol, TIP_BROADCAST};
-use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step};
+use drivebus_drive::profile::{
+    run_blocking, DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step,
+};
 use drivebus_drive::Storage;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::modbus::rtu::ModbusRtu;
@@ -64,14 +66,12 @@ impl Bus {
     /// Runs `op` to completion, as a bus owner would.
     fn run(&mut self, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
         let mut plan = p.plan(&op)?;
-        let mut reply: Option<Vec<u8>> = None;
-        for _ in 0..32 {
-            match plan.step(reply.as_deref())? {
-                Step::Send(x) => reply = self.transact(&x),
-                Step::Done(outcome) => return Ok(outcome),
-            }
-        }
-        panic!("{op:?} did not finish in 32 exchanges");
+        let mut sent = 0;
+        run_blocking(&mut *plan, |x| {
+            sent += 1;
+            assert!(sent <= 32, "{op:?} did not finish in 32 exchanges");
+            Ok(self.transact(&x))
+        })
     }
 
     fn ok(&mut self, p: &ToshibaProfile, op: Operation) {

@@ -41,7 +41,6 @@ pub mod modbus_tcp;
 pub mod mqtt;
 pub mod opcua;
 mod params;
-pub mod port;
 pub mod refusals;
 pub mod reload;
 pub mod server;

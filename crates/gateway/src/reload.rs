@@ -50,8 +50,9 @@ fn same_bus(a: &BusConfig, b: &BusConfig) -> bool {
         u8,
         bool,
         bool,
+        drivebus_link::Rs485,
     ) {
-        (&x.port, x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15)
+        (&x.port, x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15, x.rs485)
     }
     // The owner's queue and the parameter cache are built with the bus.
     let fair = |x: &BusConfig| (x.on_demand, x.param_cache);

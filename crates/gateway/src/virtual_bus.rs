@@ -4,7 +4,6 @@
 
 use std::sync::{Arc, Mutex};
 
-use drivebus_link::SimLink;
 use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::config::{BusSpec, DriveSpec};
@@ -37,9 +36,4 @@ pub fn virtual_line(bus: &BusConfig) -> Result<Arc<Mutex<VirtualLine>>, String> 
         line.add_device(drive);
     }
     Ok(Arc::new(Mutex::new(line)))
-}
-
-/// A link to a virtual line.
-pub fn sim_link(line: Arc<Mutex<VirtualLine>>, name: &str) -> SimLink {
-    SimLink::new(line, name)
 }

@@ -1,5 +1,6 @@
 //! A bus whose port disappears is reported offline and reopened when it returns; the other
-//! buses keep polling. Real time: the port is a pseudo-terminal served by the simulator.
+//! buses keep polling. A bus's `rs485` setting is applied to its serial port. Real time: the
+//! port is a pseudo-terminal served by the simulator.
 
 use std::time::{Duration, Instant};
 
@@ -106,4 +107,48 @@ async fn a_port_missing_at_start_is_an_offline_bus_not_a_failure() {
     let before = polls();
     wait_for("m1's polls to keep counting while offline", Duration::from_secs(30), || polls() > before + 3)
         .await;
+}
+
+/// A configuration of one b800 drive on the pty `pty`, whose port has RS-485 mode `rs485`.
+fn rs485_config(pty: &std::path::Path, rs485: &str) -> GatewayConfig {
+    let text = format!(
+        "[store]\ndisabled = true\n\
+         [[bus]]\nname = \"real\"\nport = \"{}\"\nprotocol = \"b800\"\nbaud = 9600\ntimeout_ms = 100\nretries = 0\nrs485 = \"{rs485}\"\n\
+         [[bus.drive]]\nname = \"m1\"\nfamily = \"b800\"\naddress = 1\npoll_ms = 50\n",
+        pty.display()
+    );
+    GatewayConfig::from_toml("t.toml", &text).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bus_opens_its_port_with_its_rs485_setting() {
+    let dir = std::env::temp_dir().join(format!("drivebus-rs485-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let pty = dir.join("ttyV0");
+    let sim = serve_pty(pty.clone());
+    wait_for("the pty", Duration::from_secs(10), || pty.exists()).await;
+
+    // A pty has no kernel RS-485 mode: asked for, the port does not open, and says why.
+    let gw = Gateway::start(rs485_config(&pty, "kernel"), None).unwrap();
+    let m1 = || gw.drive_view(&gw.drive("m1").unwrap());
+    wait_for("m1 offline", Duration::from_secs(10), || m1().online == Some(false)).await;
+    let err = m1().last_error.unwrap_or_default();
+    assert!(err.contains("no kernel RS-485 mode"), "{err}");
+
+    // `auto` falls back to RTS toggling, which a pty skips: the bus is opened again with it
+    // (a changed setting reopens the bus) and the drive answers.
+    let reload = gw.reload(rs485_config(&pty, "auto"), "test").await.unwrap();
+    assert!(reload.summary.contains("real"), "{reload:?}");
+    let m1 = || gw.drive_view(&gw.drive("m1").unwrap());
+    wait_for("m1 online", Duration::from_secs(10), || m1().online == Some(true)).await;
+
+    sim.abort();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn an_unknown_rs485_mode_is_refused_with_the_choices() {
+    let text = "[[bus]]\nname = \"b\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"b800\"\nrs485 = \"always\"\n";
+    let e = GatewayConfig::from_toml("t.toml", text).unwrap_err().to_string();
+    assert!(e.contains("bus.rs485") && e.contains("off, auto, kernel or rts"), "{e}");
 }

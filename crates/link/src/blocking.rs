@@ -33,13 +33,12 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use drivebus_drive::profile::Exchange;
-use drivebus_proto::line::CharFormat;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
 
-use crate::engine::{with_engine, Action, Attempt, Engine};
-use crate::link::{choose_direction, open_error, serial_builder, Direction, Rs485};
-use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
+use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
+use crate::engine::{with_engine, Action, Attempt, Engine, Next};
+use crate::port::{set_rts, Direction, Opened, OpenedSerial, Port};
 
 /// A bus run from the calling thread: one transaction per call, no runtime.
 pub struct BlockingBus {
@@ -52,6 +51,8 @@ pub struct BlockingBus {
 /// What an engine waits with: the port, the clock and the read buffer.
 struct Io {
     port: Port,
+    /// `None` while closed (a reopen that failed).
+    open: Option<Blocking>,
     clock: SyncClock,
     buf: Vec<u8>,
 }
@@ -60,23 +61,19 @@ impl BlockingBus {
     /// Opens `port` (a serial device, or `tcp://HOST:PORT` for a serial device server) and
     /// runs `config`'s protocol on it.
     pub fn open(port: &str, config: BusConfig) -> Result<Self, BusError> {
-        let port = match port.strip_prefix("tcp://") {
-            Some(addr) => Port::Tcp(TcpPort::connect(addr).map_err(|e| BusError::Link(e.to_string()))?),
-            None => Port::Serial(
-                SerialPort::open(port, config.baud, config.format, config.rs485)
-                    .map_err(|e| BusError::Link(e.to_string()))?,
-            ),
-        };
+        Self::open_port(Port::parse(port, config.baud, config.format, config.rs485), config)
+    }
+
+    /// Opens `port` (a serial device, a serial device server or a virtual line) and runs
+    /// `config`'s protocol on it.
+    pub fn open_port(port: Port, config: BusConfig) -> Result<Self, BusError> {
+        let mut io = Io { port, open: None, clock: SyncClock::new(), buf: vec![0; 1024] };
+        io.reopen().map_err(|e| BusError::Link(e.to_string()))?;
         let stats = Arc::new(Mutex::new(BusStats::default()));
         let health = Arc::new(Mutex::new(HashMap::new()));
         let master: Box<dyn Master> =
             with_engine!(config, stats.clone(), health.clone(), |engine| Box::new(engine) as Box<dyn Master>);
-        Ok(BlockingBus {
-            io: Io { port, clock: SyncClock::new(), buf: vec![0; 1024] },
-            master,
-            stats,
-            health,
-        })
+        Ok(BlockingBus { io, master, stats, health })
     }
 
     /// Where the bus goes (`/dev/ttyUSB0`, `tcp://10.0.0.5:4001`).
@@ -86,9 +83,9 @@ impl BlockingBus {
 
     /// The RS-485 direction control in force (serial ports; `None` over TCP).
     pub fn direction(&self) -> Direction {
-        match &self.io.port {
-            Port::Serial(s) => s.direction,
-            Port::Closed { .. } | Port::Tcp(_) => Direction::None,
+        match &self.io.open {
+            Some(Blocking::Serial(s)) => s.direction,
+            _ => Direction::None,
         }
     }
 
@@ -149,6 +146,7 @@ impl<P: Protocol> Master for Engine<P>
 where
     Engine<P>: Send,
 {
+    /// Carries out what the engine decides for the job.
     fn job(
         &mut self,
         io: &mut Io,
@@ -157,119 +155,145 @@ where
         priority: Priority,
         timeout: Option<Duration>,
     ) -> Result<Option<Vec<u8>>, BusError> {
-        let clock = &io.clock;
-        let broadcast = !exchange.expect_reply;
         // One reading of the clock per step that can take time (the start, each wait), shared
         // by the engine calls between them.
-        let mut now = clock.now();
-        let attempts = self.admit(now, address, broadcast, priority, timeout)?;
-        let mut last = Attempt::Timeout;
-        for i in 0..attempts {
-            self.start(now, &exchange.request, i)?;
-            last = run_attempt(self, &mut io.port, clock, &mut io.buf, &mut now);
-            match last {
-                Attempt::Reply(_) | Attempt::NoneDue => break,
-                Attempt::Link(_) => {
-                    // The port may have gone and come back: reopen once, then give up.
-                    let reopened = io.port.reopen(self.config());
-                    now = clock.now();
-                    if reopened.is_err() {
-                        break;
-                    }
+        let mut now = io.clock.now();
+        let ex = exchange;
+        let mut next =
+            self.begin(now, io.port.name(), address, &ex.request, ex.expect_reply, priority, timeout);
+        loop {
+            next = match next {
+                Next::Attempt => {
+                    let attempt = run_attempt(self, io, &mut now);
+                    self.attempted(now, attempt)
                 }
-                Attempt::Timeout | Attempt::Damaged(_) => now = clock.now(),
+                Next::Reopen => {
+                    let reopened = io.reopen();
+                    now = io.clock.now();
+                    self.reopened(now, reopened)
+                }
+                Next::Done(result) => return result,
             }
         }
-        self.finish(now, io.port.name(), address, broadcast, attempts, last)
     }
 }
 
 /// Runs one attempt from session time `now`, which it keeps up to date across its waits.
-fn run_attempt<P: Protocol>(
-    engine: &mut Engine<P>,
-    port: &mut Port,
-    clock: &SyncClock,
-    buf: &mut [u8],
-    now: &mut Instant,
-) -> Attempt {
+fn run_attempt<P: Protocol>(engine: &mut Engine<P>, io: &mut Io, now: &mut Instant) -> Attempt {
     loop {
         match engine.poll(*now) {
             Action::Transmit => {
-                if let Err(e) = port.write(engine.outgoing()) {
-                    return Attempt::Link(format!("{}: {e}", port.name()));
+                if let Err(e) = io.write(engine.outgoing()) {
+                    return Attempt::Link(format!("{}: {e}", io.port.name()));
                 }
                 engine.sent(*now);
             }
             Action::Done(attempt) => return attempt,
             Action::Wait(deadline) => {
-                let read = port.read(buf, clock.at(deadline));
-                *now = clock.now();
+                let read = io.read(deadline);
+                *now = io.clock.now();
                 match read {
                     Ok(0) => engine.timeout(*now),
-                    Ok(n) => engine.input(*now, &buf[..n]),
-                    Err(e) => return Attempt::Link(format!("{}: {e}", port.name())),
+                    Ok(n) => engine.input(*now, &io.buf[..n]),
+                    Err(e) => return Attempt::Link(format!("{}: {e}", io.port.name())),
                 }
             }
         }
     }
 }
 
-enum Port {
+/// An open port, read and written with blocking system calls.
+enum Blocking {
     Serial(SerialPort),
-    /// A serial port whose reopening failed: closed, to be opened again on the next attempt.
-    Closed {
-        path: String,
-        rs485: Rs485,
-    },
     Tcp(TcpPort),
+    #[cfg(feature = "virtual")]
+    Virtual(VirtualIo),
 }
 
-impl Port {
-    fn name(&self) -> String {
-        match self {
-            Port::Serial(SerialPort { path, .. }) | Port::Closed { path, .. } => path.clone(),
-            Port::Tcp(t) => format!("tcp://{}", t.addr),
-        }
+impl Io {
+    /// Closes the port and opens it again with its settings.
+    fn reopen(&mut self) -> io::Result<()> {
+        // Close first: opened for exclusive use, a serial device refuses a second open.
+        self.open = None;
+        self.open = Some(match self.port.open()? {
+            Opened::Serial(o) => Blocking::Serial(SerialPort::new(o)),
+            Opened::Tcp { addr, stream } => Blocking::Tcp(TcpPort { addr, stream }),
+            #[cfg(feature = "virtual")]
+            Opened::Virtual(v) => Blocking::Virtual(VirtualIo { line: v.line, held: Vec::new() }),
+        });
+        Ok(())
     }
 
     fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
-        match self {
-            Port::Serial(s) => s.write(bytes),
-            Port::Closed { path, .. } => Err(not_open(path)),
-            Port::Tcp(t) => t.write(bytes),
+        match &mut self.open {
+            Some(Blocking::Serial(s)) => s.write(bytes),
+            Some(Blocking::Tcp(t)) => t.write(bytes),
+            #[cfg(feature = "virtual")]
+            Some(Blocking::Virtual(v)) => {
+                v.write(self.clock.now(), bytes);
+                Ok(())
+            }
+            None => Err(not_open(&self.port.name())),
         }
     }
 
-    /// Reads what arrives before `deadline`: `Ok(0)` when the deadline passed with nothing.
-    fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
-        match self {
-            Port::Serial(s) => s.read(buf, deadline),
-            Port::Closed { path, .. } => Err(not_open(path)),
-            Port::Tcp(t) => t.read(buf, deadline),
-        }
-    }
-
-    fn reopen(&mut self, config: &BusConfig) -> io::Result<()> {
-        match self {
-            Port::Serial(SerialPort { path, rs485, .. }) | Port::Closed { path, rs485 } => {
-                let (path, rs485) = (std::mem::take(path), *rs485);
-                // Close first: opened for exclusive use, the device refuses a second open.
-                *self = Port::Closed { path: path.clone(), rs485 };
-                *self = Port::Serial(SerialPort::open(&path, config.baud, config.format, rs485)?);
-                Ok(())
-            }
-            Port::Tcp(t) => {
-                t.stream = None;
-                t.stream = Some(TcpPort::dial(&t.addr)?);
-                Ok(())
-            }
+    /// Reads what arrives before session time `deadline` into the buffer: `Ok(0)` when the
+    /// deadline passed with nothing.
+    fn read(&mut self, deadline: Instant) -> io::Result<usize> {
+        match &mut self.open {
+            Some(Blocking::Serial(s)) => s.read(&mut self.buf, self.clock.at(deadline)),
+            Some(Blocking::Tcp(t)) => t.read(&mut self.buf, self.clock.at(deadline)),
+            #[cfg(feature = "virtual")]
+            Some(Blocking::Virtual(v)) => Ok(v.read(&mut self.buf, &self.clock, deadline)),
+            None => Err(not_open(&self.port.name())),
         }
     }
 }
 
-/// The error for a serial port whose reopening failed.
-fn not_open(path: &str) -> io::Error {
-    io::Error::new(io::ErrorKind::NotConnected, format!("{path} is not open (reopening it failed)"))
+/// A virtual line of simulated drives in this process, on the bus's session time: the line
+/// is moved on to the clock's now before each look, and the thread sleeps until its next
+/// event or the deadline.
+#[cfg(feature = "virtual")]
+struct VirtualIo {
+    line: Arc<Mutex<drivebus_sim::bus::VirtualLine>>,
+    /// What the line gave that did not fit the read buffer.
+    held: Vec<u8>,
+}
+
+#[cfg(feature = "virtual")]
+impl VirtualIo {
+    fn write(&mut self, now: Instant, bytes: &[u8]) {
+        self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write(now, bytes);
+    }
+
+    /// Reads what the line brings before `deadline` (session time); 0 when nothing came.
+    fn read(&mut self, buf: &mut [u8], clock: &SyncClock, deadline: Instant) -> usize {
+        loop {
+            let now = clock.now();
+            let next = {
+                let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
+                line.advance_to(now);
+                line.master_read(&mut self.held);
+                line.next_deadline()
+            };
+            if !self.held.is_empty() {
+                let n = self.held.len().min(buf.len());
+                buf[..n].copy_from_slice(&self.held[..n]);
+                self.held.drain(..n);
+                return n;
+            }
+            if now >= deadline {
+                return 0;
+            }
+            let until = next.filter(|&t| t < deadline).unwrap_or(deadline);
+            std::thread::sleep(clock.at(until).saturating_duration_since(std::time::Instant::now()));
+        }
+    }
+}
+
+/// The error for a port whose reopening failed.
+fn not_open(name: &str) -> io::Error {
+    io::Error::new(io::ErrorKind::NotConnected, format!("{name} is not open (reopening it failed)"))
 }
 
 /// Waits until `fd` is readable or `deadline` passes; true when readable (or hung up: the
@@ -295,7 +319,6 @@ fn wait_readable(fd: impl AsFd, deadline: std::time::Instant) -> io::Result<bool
 struct SerialPort {
     path: String,
     file: File,
-    rs485: Rs485,
     direction: Direction,
     /// The port has no modem lines (a pty): RTS toggles are skipped.
     no_rts: bool,
@@ -304,18 +327,13 @@ struct SerialPort {
 }
 
 impl SerialPort {
-    fn open(path: &str, baud: u32, format: CharFormat, rs485: Rs485) -> io::Result<Self> {
-        // serialport sets the line up (raw mode, baud, format, exclusive access) and leaves the
-        // descriptor blocking.
-        let tty = serial_builder(path, baud, format).open_native().map_err(|e| open_error(path, e))?;
+    fn new(opened: OpenedSerial) -> Self {
+        let OpenedSerial { settings, tty, direction, no_rts } = opened;
         // SAFETY: `into_raw_fd` hands over an open descriptor that nothing else owns or closes
         // (the port forgets it), so the `OwnedFd` is its only owner.
         #[allow(unsafe_code)]
         let fd = unsafe { OwnedFd::from_raw_fd(tty.into_raw_fd()) };
-        let file = File::from(fd);
-        let raw = file.as_raw_fd();
-        let (direction, no_rts) = choose_direction(path, raw, rs485, || set_rts(raw, false))?;
-        Ok(SerialPort { path: path.to_string(), file, rs485, direction, no_rts, vtime: None })
+        SerialPort { path: settings.path, file: File::from(fd), direction, no_rts, vtime: None }
     }
 
     fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
@@ -381,90 +399,31 @@ impl SerialPort {
     }
 }
 
-/// Switches RTS on or off (`TIOCMBIS` / `TIOCMBIC`).
-fn set_rts(fd: std::os::fd::RawFd, on: bool) -> io::Result<()> {
-    let bits: libc::c_int = libc::TIOCM_RTS;
-    let request = if on { libc::TIOCMBIS } else { libc::TIOCMBIC };
-    // SAFETY: `fd` is an open descriptor owned by the caller for the whole call; TIOCMBIS and
-    // TIOCMBIC read one `int` through the pointer, which points at `bits`, alive until return.
-    #[allow(unsafe_code)]
-    let r = unsafe { libc::ioctl(fd, request as _, &bits as *const libc::c_int) };
-    if r == 0 {
-        Ok(())
-    } else {
-        Err(io::Error::last_os_error())
-    }
-}
-
 /// Raw bytes over TCP to a serial device server.
 struct TcpPort {
     addr: String,
-    stream: Option<TcpStream>,
+    stream: TcpStream,
 }
 
 impl TcpPort {
-    fn connect(addr: &str) -> io::Result<Self> {
-        Ok(TcpPort { addr: addr.to_string(), stream: Some(Self::dial(addr)?) })
-    }
-
-    fn dial(addr: &str) -> io::Result<TcpStream> {
-        use std::net::ToSocketAddrs;
-        let mut last = io::Error::new(io::ErrorKind::NotFound, format!("tcp://{addr}: no such host"));
-        for a in addr
-            .to_socket_addrs()
-            .map_err(|e| io::Error::new(e.kind(), format!("cannot resolve tcp://{addr}: {e}")))?
-        {
-            match TcpStream::connect_timeout(&a, Duration::from_secs(3)) {
-                Ok(s) => {
-                    s.set_nodelay(true)?;
-                    return Ok(s);
-                }
-                Err(e) => last = io::Error::new(e.kind(), format!("cannot connect to tcp://{addr}: {e}")),
-            }
-        }
-        Err(last)
-    }
-
-    fn stream(&mut self) -> io::Result<&mut TcpStream> {
-        let addr = &self.addr;
-        self.stream.as_mut().ok_or_else(|| {
-            io::Error::new(io::ErrorKind::NotConnected, format!("tcp://{addr} is not connected"))
-        })
-    }
-
     fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
-        let r = self.stream()?.write_all(bytes);
-        if r.is_err() {
-            self.stream = None;
-        }
-        r
+        self.stream.write_all(bytes)
     }
 
     fn read(&mut self, buf: &mut [u8], deadline: std::time::Instant) -> io::Result<usize> {
-        let TcpPort { addr, stream: slot } = self;
-        let Some(stream) = slot.as_mut() else {
-            return Err(io::Error::new(
-                io::ErrorKind::NotConnected,
-                format!("tcp://{addr} is not connected"),
-            ));
-        };
         loop {
-            if !wait_readable(&*stream, deadline)? {
+            if !wait_readable(&self.stream, deadline)? {
                 return Ok(0);
             }
-            let r = match stream.read(buf) {
+            return match self.stream.read(buf) {
                 Ok(0) => Err(io::Error::new(
                     io::ErrorKind::UnexpectedEof,
-                    format!("tcp://{addr} closed the connection"),
+                    format!("tcp://{} closed the connection", self.addr),
                 )),
                 Ok(n) => Ok(n),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 Err(e) => Err(e),
             };
-            if r.is_err() {
-                *slot = None;
-            }
-            return r;
         }
     }
 }
@@ -487,28 +446,33 @@ mod tests {
     fn a_serial_port_reopens_on_the_same_device_and_stays_closed_while_it_cannot() {
         let (_master, device, link) = pty("blocking");
         let path = link.to_str().unwrap().to_string();
-        let config =
-            BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
-        let mut port =
-            Port::Serial(SerialPort::open(&path, config.baud, config.format, Rs485::Off).expect("open"));
+        let settings = crate::port::SerialSettings {
+            path: path.clone(),
+            baud: 9600,
+            format: "8N1".parse().unwrap(),
+            rs485: crate::port::Rs485::Off,
+        };
+        let port = Port::Serial(settings.clone());
+        let mut io = Io { port, open: None, clock: SyncClock::new(), buf: vec![0; 64] };
+        io.reopen().expect("open");
         // Opened for exclusive use: without closing first, the second open of the device fails.
-        port.reopen(&config).expect("reopen the same device");
-        assert!(matches!(port, Port::Serial(_)));
+        io.reopen().expect("reopen the same device");
+        assert!(matches!(io.open, Some(Blocking::Serial(_))));
         // Another program holding the port is named as such.
-        let e = SerialPort::open(&path, config.baud, config.format, Rs485::Off).err().expect("in use");
+        let e = settings.open().err().expect("in use");
         assert!(e.to_string().contains("another program has it open"), "{e}");
 
         std::fs::remove_file(&link).unwrap();
-        assert!(port.reopen(&config).is_err(), "the device is gone");
-        assert!(matches!(port, Port::Closed { .. }));
-        let e = port.write(&[1, 2, 3]).unwrap_err();
+        assert!(io.reopen().is_err(), "the device is gone");
+        assert!(io.open.is_none());
+        let e = io.write(&[1, 2, 3]).unwrap_err();
         assert_eq!(e.to_string(), format!("{path} is not open (reopening it failed)"));
-        assert_eq!(port.name(), path);
+        assert_eq!(io.port.name(), path);
 
         std::os::unix::fs::symlink(&device, &link).unwrap();
-        port.reopen(&config).expect("the device is back");
-        assert!(matches!(port, Port::Serial(_)));
-        port.write(&[1, 2, 3]).expect("a write to the reopened port");
+        io.reopen().expect("the device is back");
+        assert!(matches!(io.open, Some(Blocking::Serial(_))));
+        io.write(&[1, 2, 3]).expect("a write to the reopened port");
         let _ = std::fs::remove_file(&link);
     }
 }

@@ -26,19 +26,19 @@
 //! ```
 
 use std::fmt;
-use std::io;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_drive::profile::{DriveError, DriveStatus, Operation, Outcome, Profile, Step};
+use drivebus_drive::profile::{self, DriveError, DriveStatus, Operation, Outcome, Profile};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
-use drivebus_proto::Instant;
 
 use crate::blocking::BlockingBus;
-use crate::link::{Clock, Link, SerialLink, TcpLink};
-use crate::owner::{Bus, BusConfig, BusError, BusStats, Priority};
+use crate::bus::{BusConfig, BusError, BusStats, Priority};
+use crate::owner::Bus;
+use crate::port::Port;
+use crate::port_link::PortLink;
 
 /// Why an operation on a drive failed.
 #[derive(Debug)]
@@ -72,50 +72,6 @@ impl From<BusError> for Error {
     }
 }
 
-/// A serial port or a TCP serial server, chosen by the port's spelling.
-pub enum AnyLink {
-    /// A serial device (`/dev/ttyUSB0`, a pty path).
-    Serial(SerialLink),
-    /// `tcp://host:port`.
-    Tcp(TcpLink),
-}
-
-impl Link for AnyLink {
-    fn name(&self) -> String {
-        match self {
-            AnyLink::Serial(l) => l.name(),
-            AnyLink::Tcp(l) => l.name(),
-        }
-    }
-    fn clock(&self) -> Clock {
-        match self {
-            AnyLink::Serial(l) => l.clock(),
-            AnyLink::Tcp(l) => l.clock(),
-        }
-    }
-    fn now(&self) -> Instant {
-        self.clock().now()
-    }
-    async fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
-        match self {
-            AnyLink::Serial(l) => l.write(bytes).await,
-            AnyLink::Tcp(l) => l.write(bytes).await,
-        }
-    }
-    async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        match self {
-            AnyLink::Serial(l) => l.read(buf).await,
-            AnyLink::Tcp(l) => l.read(buf).await,
-        }
-    }
-    async fn reopen(&mut self) -> io::Result<()> {
-        match self {
-            AnyLink::Serial(l) => l.reopen().await,
-            AnyLink::Tcp(l) => l.reopen().await,
-        }
-    }
-}
-
 /// Opens `port` (a device path or `tcp://host:port`) and starts a bus owner for `protocol`.
 pub async fn open(port: &str, protocol: WireProtocol, baud: u32, format: CharFormat) -> Result<Bus, Error> {
     open_with(port, BusConfig::new(protocol, baud, format)).await
@@ -123,13 +79,8 @@ pub async fn open(port: &str, protocol: WireProtocol, baud: u32, format: CharFor
 
 /// Opens `port` and starts a bus owner with `config`.
 pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
-    let link = match port.strip_prefix("tcp://") {
-        Some(addr) => AnyLink::Tcp(TcpLink::connect(addr).await.map_err(|e| BusError::Link(e.to_string()))?),
-        None => AnyLink::Serial(
-            SerialLink::open_rs485(port, config.baud, config.format, config.rs485)
-                .map_err(|e| BusError::Link(e.to_string()))?,
-        ),
-    };
+    let port = Port::parse(port, config.baud, config.format, config.rs485);
+    let link = PortLink::open(port).await.map_err(|e| BusError::Link(e.to_string()))?;
     Ok(Bus::spawn(link, config)?)
 }
 
@@ -194,24 +145,12 @@ impl Drive {
     /// Runs `op` to completion.
     pub async fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
         let mut plan = self.profile.plan(op)?;
-        let mut reply: Option<Vec<u8>> = None;
-        loop {
-            match plan.step(reply.as_deref())? {
-                Step::Done(outcome) => return Ok(outcome),
-                Step::Send(exchange) => {
-                    reply = self
-                        .bus
-                        .transact_for(
-                            &self.client,
-                            self.profile.address(),
-                            exchange,
-                            self.priority,
-                            self.timeout,
-                        )
-                        .await?;
-                }
-            }
-        }
+        let this = self;
+        profile::run(&mut *plan, move |exchange| async move {
+            let address = this.profile.address();
+            Ok(this.bus.transact_for(&this.client, address, exchange, this.priority, this.timeout).await?)
+        })
+        .await
     }
 
     /// The drive's state.
@@ -317,17 +256,11 @@ impl BlockingDrive {
     /// Runs `op` to its end: one transaction after another, as the profile plans them.
     pub fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
         let mut plan = self.profile.plan(op)?;
-        let mut reply: Option<Vec<u8>> = None;
         let mut bus = self.bus.lock().unwrap_or_else(|p| p.into_inner());
-        loop {
-            match plan.step(reply.as_deref())? {
-                Step::Done(outcome) => return Ok(outcome),
-                Step::Send(exchange) => {
-                    reply =
-                        bus.transact(self.profile.address(), &exchange, Priority::Command, self.timeout)?;
-                }
-            }
-        }
+        let address = self.profile.address();
+        profile::run_blocking(&mut *plan, |exchange| {
+            Ok(bus.transact(address, &exchange, Priority::Command, self.timeout)?)
+        })
     }
 
     /// See [`Drive::status`].

@@ -1,8 +1,9 @@
-//! The part of a bus master that never waits: admission of a job (offline drives, retries),
-//! one attempt at a time on the protocol's `MasterSession`, local echo stripping, statistics
-//! and per-drive health. The async bus owner ([`crate::owner`]) and the blocking bus
-//! ([`crate::blocking`]) drive it with their own I/O: it says what to write, until when to
-//! wait, and how the attempt ended.
+//! The part of a bus master that never waits: admission of a job (offline drives), what to do
+//! after each attempt (retry, reopen the link and retry, give up with which error), when a lost
+//! link is reopened (backoff), one attempt at a time on the protocol's `MasterSession`, local
+//! echo stripping, statistics and per-drive health. The async bus owner (`owner`) and
+//! the blocking bus (`blocking`) drive it with their own I/O: it says what to do next
+//! ([`Next`]), what to write, until when to wait, and they carry it out.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -13,7 +14,7 @@ use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{Disposition, MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
-use crate::owner::{BusConfig, BusError, BusStats, Health, Priority};
+use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 
 /// How one attempt ended.
 #[derive(Debug)]
@@ -41,6 +42,51 @@ pub(crate) enum Action {
     Done(Attempt),
 }
 
+/// What the driver of an engine does next for a job.
+#[derive(Debug)]
+pub(crate) enum Next {
+    /// Run the attempt the engine has started ([`Engine::poll`] until [`Action::Done`]), then
+    /// call [`Engine::attempted`].
+    Attempt,
+    /// Close and open the link again, then call [`Engine::reopened`].
+    Reopen,
+    /// The job is over: its result.
+    Done(Result<Option<Vec<u8>>, BusError>),
+}
+
+/// The first wait before a lost link is opened again; it doubles after each failed reopen.
+const REOPEN_FIRST: Duration = Duration::from_millis(250);
+/// The longest wait between two reopens of a lost link.
+const REOPEN_MAX: Duration = Duration::from_secs(5);
+
+/// A link that is lost: why, and when it is opened again.
+#[derive(Debug)]
+struct Lost {
+    /// The last error (of the link, or of the last reopen).
+    error: String,
+    /// When the next reopen is due.
+    reopen_at: Instant,
+    /// The wait after the next failed reopen.
+    backoff: Duration,
+}
+
+/// The job in progress.
+#[derive(Debug)]
+struct Job {
+    /// The link's name, for errors.
+    link: String,
+    address: u8,
+    broadcast: bool,
+    /// Attempts it may make.
+    attempts: u8,
+    /// Attempts started.
+    made: u8,
+    /// Whether the link was reopened for it already (once per job).
+    reopened: bool,
+    /// How the last attempt ended (a failed reopen before any attempt: that).
+    last: Option<Attempt>,
+}
+
 /// How a session's exchange ended, owned (the session's event borrows it).
 enum Ended {
     Reply,
@@ -66,13 +112,19 @@ pub(crate) struct Engine<P: Protocol> {
     /// When the listener last heard bytes (Modbus RTU: a silence of t3.5 since then ends a
     /// frame, so a partial frame never holds the listener).
     last_heard: Option<Instant>,
+    /// The request of the job in progress, as the profile encoded it.
+    frame: Vec<u8>,
+    /// The job in progress.
+    job: Option<Job>,
+    /// `Some` while the link is lost.
+    lost: Option<Lost>,
 }
 
 /// Calls `$body` with an engine of `$config`'s protocol (the one place that goes from a
 /// [`WireProtocol`](drivebus_proto::protocol::WireProtocol) to its session type).
 macro_rules! with_engine {
     ($config:expr, $stats:expr, $health:expr, |$engine:ident| $body:expr) => {{
-        let config: $crate::owner::BusConfig = $config;
+        let config: $crate::bus::BusConfig = $config;
         let timing = $crate::engine::timing_of(&config);
         use drivebus_proto::protocol::WireProtocol as W;
         use drivebus_proto::{b800, fc, modbus, toshiba};
@@ -134,18 +186,138 @@ impl<P: Protocol> Engine<P> {
             health,
             echo_left: Vec::new(),
             out: Vec::with_capacity(64),
+            frame: Vec::with_capacity(64),
+            job: None,
+            lost: None,
         }
     }
 
-    /// The bus configuration.
-    pub(crate) fn config(&self) -> &BusConfig {
-        &self.config
+    /// The link is lost (or was never opened) at session time `now` for `error`: the next job
+    /// reopens it first.
+    pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
+        let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
+        self.lost = Some(Lost { error, reopen_at: now, backoff });
+    }
+
+    /// Begins a job on link `link` at session time `now`: `frame` to drive `address` (a
+    /// broadcast when no reply is due), with `priority` and a response timeout of `timeout`
+    /// instead of the bus's. A drive that is offline until its next probe, a lost link whose
+    /// reopen is not due and a request that is not a frame end the job at once.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn begin(
+        &mut self,
+        now: Instant,
+        link: String,
+        address: u8,
+        frame: &[u8],
+        expect_reply: bool,
+        priority: Priority,
+        timeout: Option<Duration>,
+    ) -> Next {
+        let broadcast = !expect_reply;
+        let attempts = match self.admit(now, address, broadcast, priority, timeout) {
+            Ok(n) => n,
+            Err(e) => return Next::Done(Err(e)),
+        };
+        self.frame.clear();
+        self.frame.extend_from_slice(frame);
+        self.job = Some(Job { link, address, broadcast, attempts, made: 0, reopened: false, last: None });
+        match &self.lost {
+            Some(lost) if now >= lost.reopen_at => Next::Reopen,
+            Some(lost) => {
+                let error = lost.error.clone();
+                self.end(now, Attempt::Link(error))
+            }
+            None => self.next_attempt(now),
+        }
+    }
+
+    /// The attempt [`Next::Attempt`] asked for ended as `attempt` at session time `now`.
+    pub(crate) fn attempted(&mut self, now: Instant, attempt: Attempt) -> Next {
+        let Some(job) = self.job.as_mut() else { return Next::Done(Err(BusError::Closed)) };
+        match attempt {
+            Attempt::Reply(_) | Attempt::NoneDue => {}
+            Attempt::Timeout | Attempt::Damaged(_) => {
+                if job.made < job.attempts {
+                    job.last = Some(attempt);
+                    return self.next_attempt(now);
+                }
+            }
+            Attempt::Link(ref e) => {
+                let error = e.clone();
+                // The port may have gone and come back: reopen it now, once in a job.
+                if !job.reopened {
+                    job.last = Some(attempt);
+                    self.link_lost(now, error);
+                    return Next::Reopen;
+                }
+                self.link_lost(now, error);
+            }
+        }
+        self.end(now, attempt)
+    }
+
+    /// The reopen [`Next::Reopen`] asked for ended with `result` at session time `now`: the
+    /// job goes on with its next attempt, or ends with the link's error. A failed reopen is
+    /// tried again by the first job after a backoff (250 ms, doubling up to 5 s); the jobs
+    /// before it end at once with the link's error.
+    pub(crate) fn reopened(&mut self, now: Instant, result: std::io::Result<()>) -> Next {
+        let Some(job) = self.job.as_mut() else { return Next::Done(Err(BusError::Closed)) };
+        job.reopened = true;
+        let last = job.last.take();
+        let more = job.made < job.attempts;
+        let error = match result {
+            Ok(()) => {
+                self.lost = None;
+                return match last {
+                    Some(last) if !more => self.end(now, last),
+                    _ => self.next_attempt(now),
+                };
+            }
+            Err(e) => format!("{}: {e}", job.link),
+        };
+        let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
+        self.lost = Some(Lost {
+            error: error.clone(),
+            reopen_at: now + backoff,
+            backoff: (backoff * 2).min(REOPEN_MAX),
+        });
+        // The attempt's own link error says what went wrong first, where there was one.
+        let last = match last {
+            Some(a @ Attempt::Link(_)) => a,
+            _ => Attempt::Link(error),
+        };
+        self.end(now, last)
+    }
+
+    /// Starts the job's next attempt.
+    fn next_attempt(&mut self, now: Instant) -> Next {
+        let Some(job) = self.job.as_mut() else { return Next::Done(Err(BusError::Closed)) };
+        let i = job.made;
+        job.made += 1;
+        let frame = std::mem::take(&mut self.frame);
+        let started = self.start(now, &frame, i);
+        self.frame = frame;
+        match started {
+            Ok(()) => Next::Attempt,
+            Err(e) => {
+                // The caller's error: the drive's health is left alone.
+                self.job = None;
+                Next::Done(Err(e))
+            }
+        }
+    }
+
+    /// Ends the job with its last attempt.
+    fn end(&mut self, now: Instant, last: Attempt) -> Next {
+        let Some(job) = self.job.take() else { return Next::Done(Err(BusError::Closed)) };
+        Next::Done(self.finish(now, job.link, job.address, job.broadcast, job.attempts, last))
     }
 
     /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or
     /// `Offline` when the drive is offline and its next probe is not due (polls and on-demand
     /// reads only).
-    pub(crate) fn admit(
+    fn admit(
         &mut self,
         now: Instant,
         address: u8,
@@ -180,11 +352,14 @@ impl<P: Protocol> Engine<P> {
     pub(crate) fn start(&mut self, now: Instant, frame: &[u8], i: u8) -> Result<(), BusError> {
         self.session.abort();
         self.echo_left.clear();
-        // The typed request borrows the frame.
-        match self.session.protocol().parse_request(frame) {
-            Ok(req) => self.session.send(now, &req).map_err(|e| BusError::BadRequest(e.to_string()))?,
-            Err(e) => return Err(BusError::BadRequest(format!("the request is not a valid frame: {e}"))),
-        }
+        // The profile's bytes go on the wire as they are; what the reply must match comes from
+        // a look at the frame.
+        let pending = self
+            .session
+            .protocol()
+            .pending_of_frame(frame)
+            .map_err(|e| BusError::BadRequest(format!("the request is not a valid frame: {e}")))?;
+        self.session.send_frame(now, frame, pending).map_err(|e| BusError::BadRequest(e.to_string()))?;
         if i > 0 {
             self.stat(now, |s| s.retries += 1);
         }
@@ -275,7 +450,7 @@ impl<P: Protocol> Engine<P> {
 
     /// Ends a job after `attempts` attempts whose last ended as `last`: the job's result, and
     /// the drive's health updated.
-    pub(crate) fn finish(
+    fn finish(
         &mut self,
         now: Instant,
         link: String,
@@ -542,6 +717,101 @@ mod tests {
         // Our own request and the drive's reply are not broadcasts.
         e.input(now + Duration::from_millis(20), &read_reply());
         assert_eq!(stats.lock().unwrap().foreign_broadcasts, 1);
+    }
+
+    /// Begins a job that reads [`READ`] from drive 1 at `now` on link "port".
+    fn begin(e: &mut Engine<ModbusRtu>, now: Instant) -> Next {
+        e.begin(now, "port".to_string(), 1, &READ, true, Priority::Command, None)
+    }
+
+    fn ms(n: u64) -> Instant {
+        Instant::from_millis(n)
+    }
+
+    #[test]
+    fn a_timeout_is_retried_until_the_attempts_run_out() {
+        let (mut e, stats) = engine();
+        assert!(matches!(begin(&mut e, ms(0)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(100), Attempt::Timeout), Next::Attempt));
+        assert!(matches!(e.attempted(ms(200), Attempt::Damaged("crc".into())), Next::Attempt));
+        match e.attempted(ms(300), Attempt::Timeout) {
+            Next::Done(Err(BusError::Timeout { link, address: 1, attempts: 3 })) => assert_eq!(link, "port"),
+            other => panic!("{other:?}"),
+        }
+        assert_eq!(stats.lock().unwrap().retries, 2);
+        // A reply ends the job at once.
+        assert!(matches!(begin(&mut e, ms(400)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(410), Attempt::Reply(read_reply())), Next::Done(Ok(Some(_)))));
+    }
+
+    #[test]
+    fn a_lost_link_is_reopened_once_in_a_job_and_the_attempt_made_again() {
+        let (mut e, _) = engine();
+        assert!(matches!(begin(&mut e, ms(0)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(10), Attempt::Link("port: gone".into())), Next::Reopen));
+        assert!(matches!(e.reopened(ms(20), Ok(())), Next::Attempt));
+        // Lost again in the same job: it ends with the link's error, and the next job reopens
+        // the link first, at once.
+        match e.attempted(ms(30), Attempt::Link("port: gone again".into())) {
+            Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: gone again"),
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(begin(&mut e, ms(30)), Next::Reopen));
+        assert!(matches!(e.reopened(ms(40), Ok(())), Next::Attempt));
+        assert!(matches!(e.attempted(ms(50), Attempt::Reply(read_reply())), Next::Done(Ok(Some(_)))));
+    }
+
+    #[test]
+    fn a_link_that_will_not_reopen_is_tried_again_after_a_doubling_backoff() {
+        let (mut e, stats) = engine();
+        assert!(matches!(begin(&mut e, ms(0)), Next::Attempt));
+        assert!(matches!(e.attempted(ms(10), Attempt::Link("port: unplugged".into())), Next::Reopen));
+        // The reopen fails: the job ends with what went wrong first.
+        let refused =
+            || std::io::Error::new(std::io::ErrorKind::NotFound, "cannot open serial port port: gone");
+        match e.reopened(ms(10), Err(refused())) {
+            Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: unplugged"),
+            other => panic!("{other:?}"),
+        }
+        // Until the backoff has passed, jobs end at once with the reopen's error, nothing sent.
+        let mut at = 10;
+        for backoff in [250, 500, 1000, 2000, 4000, 5000, 5000] {
+            match begin(&mut e, ms(at + backoff - 1)) {
+                Next::Done(Err(BusError::Link(m))) => {
+                    assert_eq!(m, "port: cannot open serial port port: gone")
+                }
+                other => panic!("{backoff} ms: {other:?}"),
+            }
+            at += backoff;
+            assert!(matches!(begin(&mut e, ms(at)), Next::Reopen), "{backoff} ms");
+            assert!(matches!(e.reopened(ms(at), Err(refused())), Next::Done(Err(BusError::Link(_)))));
+        }
+        assert_eq!(stats.lock().unwrap().transactions, 0);
+        // Back: the job goes on with its first attempt (not a retry), and the backoff starts over.
+        assert!(matches!(begin(&mut e, ms(at + 5000)), Next::Reopen));
+        assert!(matches!(e.reopened(ms(at + 5000), Ok(())), Next::Attempt));
+        assert_eq!(stats.lock().unwrap().retries, 0);
+        // Lost again: this job has had its reopen; the next one reopens at once.
+        assert!(matches!(e.attempted(ms(at + 5010), Attempt::Link("port: gone".into())), Next::Done(Err(_))));
+        assert!(matches!(begin(&mut e, ms(at + 5010)), Next::Reopen));
+        assert!(matches!(e.reopened(ms(at + 5010), Err(refused())), Next::Done(_)));
+        assert!(matches!(begin(&mut e, ms(at + 5010 + 249)), Next::Done(Err(BusError::Link(_)))));
+        assert!(matches!(begin(&mut e, ms(at + 5010 + 250)), Next::Reopen));
+    }
+
+    #[test]
+    fn a_link_never_opened_is_opened_by_the_first_job() {
+        let (mut e, _) = engine();
+        e.link_lost(ms(0), "port is not open".into());
+        assert!(matches!(begin(&mut e, ms(5)), Next::Reopen));
+        // The error is the port's, by its name.
+        match e.reopened(ms(5), Err(std::io::Error::other("refused"))) {
+            Next::Done(Err(BusError::Link(m))) => assert_eq!(m, "port: refused"),
+            other => panic!("{other:?}"),
+        }
+        // The drive's health counts the failures like any other.
+        let h = e.health.lock().unwrap().get(&1).cloned().unwrap();
+        assert_eq!((h.transactions, h.errors), (1, 1));
     }
 
     #[test]

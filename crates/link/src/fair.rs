@@ -9,28 +9,13 @@
 //! whatever the clients do. Commands are not here: they go ahead of both.
 
 use std::collections::VecDeque;
+use std::sync::Mutex;
 use std::time::Duration;
 
-use crate::owner::BusError;
+use tokio::sync::Notify;
 
-/// How on-demand reads share a bus with polling.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct FairConfig {
-    /// The part of the bus time on-demand reads get while polls wait, 0..=1 (0: only when no
-    /// poll waits; 1: always ahead of polls, as commands).
-    pub share: f64,
-    /// The most on-demand reads waiting on the bus, all clients together.
-    pub queue: usize,
-    /// The most on-demand reads one client may have waiting.
-    pub per_client: usize,
-}
-
-impl Default for FairConfig {
-    /// Half the bus time, 32 reads waiting, 8 of them per client.
-    fn default() -> Self {
-        FairConfig { share: 0.5, queue: 32, per_client: 8 }
-    }
-}
+use crate::bus::BusError;
+pub use crate::bus::FairConfig;
 
 /// The on-demand reads waiting, one queue per client, served round-robin.
 pub(crate) struct Queues<J> {
@@ -87,6 +72,46 @@ impl<J> Queues<J> {
     /// Whether no read waits.
     pub(crate) fn is_empty(&self) -> bool {
         self.waiting == 0
+    }
+}
+
+/// The on-demand reads waiting on a bus (its fair [`Queues`], shared by the handles that queue
+/// and the owner that serves them), and the owner's wake-up when one comes.
+pub(crate) struct OnDemand<J> {
+    queues: Mutex<Queues<J>>,
+    ready: Notify,
+}
+
+impl<J> OnDemand<J> {
+    /// Empty queues bounded by `config`.
+    pub(crate) fn new(config: FairConfig) -> Self {
+        OnDemand { queues: Mutex::new(Queues::new(config)), ready: Notify::new() }
+    }
+
+    fn queues(&self) -> std::sync::MutexGuard<'_, Queues<J>> {
+        self.queues.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Queues `job` of `client` and wakes the owner (see [`Queues::push`]).
+    pub(crate) fn push(&self, client: &str, job: J) -> Result<(), (J, BusError)> {
+        self.queues().push(client, job)?;
+        self.ready.notify_one();
+        Ok(())
+    }
+
+    /// The next read, client by client.
+    pub(crate) fn pop(&self) -> Option<J> {
+        self.queues().pop()
+    }
+
+    /// Whether no read waits.
+    pub(crate) fn is_empty(&self) -> bool {
+        self.queues().is_empty()
+    }
+
+    /// Until a read has been queued (at once if one was queued since the last wake-up).
+    pub(crate) async fn ready(&self) {
+        self.ready.notified().await
     }
 }
 

@@ -8,7 +8,7 @@ use std::time::Duration;
 use drivebus_proto::line::{CharFormat, Parity};
 use tokio_serial::SerialPort;
 
-use crate::link::{open_error, serial_builder};
+use crate::port::{open_error, serial_builder};
 
 /// A serial port that is only read from: nothing is ever written to it.
 pub struct Listener {

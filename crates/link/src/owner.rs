@@ -11,209 +11,18 @@
 //! costs the others at most one timeout per backoff interval.
 
 use std::collections::HashMap;
-use std::fmt;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use drivebus_drive::profile::Exchange;
-use drivebus_proto::line::CharFormat;
-use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::Protocol;
 use drivebus_proto::Instant;
-use tokio::sync::{mpsc, oneshot, watch, Notify};
+use tokio::sync::{mpsc, oneshot, watch};
 
-use crate::engine::{with_engine, Action, Attempt, Engine};
-use crate::fair::{FairConfig, Queues, Share, Turn};
+pub use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
+use crate::engine::{with_engine, Action, Attempt, Engine, Next};
+use crate::fair::{OnDemand, Share, Turn};
 use crate::link::Link;
-
-/// How a bus is run.
-#[derive(Clone, Debug)]
-pub struct BusConfig {
-    /// The protocol on the bus.
-    pub protocol: WireProtocol,
-    /// Baud rate (for character times and gaps).
-    pub baud: u32,
-    /// Character format.
-    pub format: CharFormat,
-    /// Response timeout; `None`: the protocol's default.
-    pub response_timeout: Option<Duration>,
-    /// Retries after a timeout or a damaged reply.
-    pub retries: u8,
-    /// Discard the local echo that 2-wire adapters hear of their own transmission.
-    pub echo: bool,
-    /// Failed transactions in a row after which a drive is offline.
-    pub offline_after: u32,
-    /// Longest wait between probes of an offline drive.
-    pub max_backoff: Duration,
-    /// The silence kept before each request; `None`: the protocol's (Modbus RTU t3.5, FC 2
-    /// characters, ...). `Some(ZERO)` for links with no line behind them (a pty to a
-    /// simulator, a TCP server that frames by itself).
-    pub gap: Option<Duration>,
-    /// RS-485 direction control on a serial port (off by default: USB-RS485 adapters switch
-    /// by themselves).
-    pub rs485: crate::link::Rs485,
-    /// Modbus RTU: discard a reply with a silence over t1.5 between two of its bytes, as the
-    /// Modbus serial-line specification says. Off by default: USB adapters and device servers
-    /// deliver bytes in bursts with gaps of their own (an FTDI chip's latency timer is 16 ms),
-    /// and would lose good replies. For on-board UARTs where a frame's bytes come as sent.
-    pub strict_t15: bool,
-    /// The family of the drives on the bus, where its manual adds to the protocol's timing:
-    /// a generic bus in Modbus RTU keeps at least 10 ms of silence before each request (seed
-    /// 004), not only t3.5. `None`: the protocol's timing alone. `gap` overrides both.
-    pub family: Option<drivebus_drive::Family>,
-    /// How on-demand reads share the bus with polling.
-    pub on_demand: FairConfig,
-}
-
-impl BusConfig {
-    /// A configuration with the protocol's defaults: 2 retries, no echo, offline after 3
-    /// failures, probes at most every 30 s.
-    pub fn new(protocol: WireProtocol, baud: u32, format: CharFormat) -> Self {
-        BusConfig {
-            protocol,
-            baud,
-            format,
-            response_timeout: None,
-            retries: 2,
-            echo: false,
-            offline_after: 3,
-            max_backoff: Duration::from_secs(30),
-            gap: None,
-            rs485: crate::link::Rs485::Off,
-            strict_t15: false,
-            family: None,
-            on_demand: FairConfig::default(),
-        }
-    }
-}
-
-/// Why a transaction failed. The drive's own refusal is not here: it is a valid reply.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum BusError {
-    /// No (whole) reply within the response timeout, after every retry.
-    Timeout {
-        /// The link.
-        link: String,
-        /// The drive's address.
-        address: u8,
-        /// Attempts made.
-        attempts: u8,
-    },
-    /// Replies came back damaged every time (bad checksum, cut short).
-    Corrupt {
-        /// The link.
-        link: String,
-        /// The last error.
-        error: String,
-    },
-    /// The drive is offline and its next probe is not due yet.
-    Offline {
-        /// The drive's address.
-        address: u8,
-    },
-    /// The link failed (port gone, connection refused).
-    Link(String),
-    /// The request itself is not a valid frame of the bus's protocol (a caller bug).
-    BadRequest(String),
-    /// The bus owner has stopped.
-    Closed,
-    /// Too many on-demand reads wait on the bus (or from this client); nothing was sent.
-    Busy(String),
-}
-
-impl fmt::Display for BusError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            BusError::Timeout { link, address, attempts } => write!(
-                f,
-                "no answer from drive {address} on {link} after {attempts} attempt{}: check the address, baud rate, serial format and wiring",
-                if *attempts == 1 { "" } else { "s" }
-            ),
-            BusError::Corrupt { link, error } => {
-                write!(f, "damaged replies on {link} ({error}): check termination, grounding and the serial format")
-            }
-            BusError::Offline { address } => write!(f, "drive {address} is offline; it is probed again after its backoff"),
-            BusError::Link(e) => f.write_str(e),
-            BusError::BadRequest(e) => write!(f, "cannot send that request: {e}"),
-            BusError::Closed => f.write_str("the bus has stopped"),
-            BusError::Busy(e) => write!(f, "the bus is busy: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for BusError {}
-
-/// Whether a job may wait behind others.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Priority {
-    /// A user's command: goes ahead of polling.
-    Command,
-    /// A request passed through from a Modbus bridge: after commands, ahead of polling.
-    Bridge,
-    /// A read a client asked for now (a parameter): shares the bus with polling, client by
-    /// client ([`crate::fair`]).
-    OnDemand,
-    /// Cyclic polling.
-    Poll,
-}
-
-/// Counts of one bus.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct BusStats {
-    /// Requests put on the line (retries included).
-    pub transactions: u64,
-    /// Matching replies.
-    pub replies: u64,
-    /// Requests that got no reply in time.
-    pub timeouts: u64,
-    /// Damaged replies (bad checksum, cut short, malformed).
-    pub checksum_errors: u64,
-    /// Retries.
-    pub retries: u64,
-    /// Broadcasts sent.
-    pub broadcasts: u64,
-    /// Broadcasts heard on the line that this master did not send: another talker commands
-    /// every drive (a drive acting as bus master, seed 004 9.2.2 (2), Toshiba f806 = 3/4).
-    pub foreign_broadcasts: u64,
-    /// Session time of the last of them, seconds.
-    pub last_foreign_broadcast_s: Option<f64>,
-    /// Time the line carried our requests and the replies, seconds.
-    pub wire_seconds: f64,
-    /// Bytes of our requests and their replies on the line (what `wire_seconds` reckons).
-    pub wire_bytes: u64,
-    /// Session time since the bus started, seconds.
-    pub elapsed_seconds: f64,
-}
-
-impl BusStats {
-    /// Time on the wire divided by elapsed time, 0..=1. Wire time is reckoned at the baud rate,
-    /// so a link that carries bytes faster than that (a pty, a simulator without pacing) could
-    /// reckon more than the time that passed: the figure stops at 1.
-    pub fn utilization(&self) -> f64 {
-        if self.elapsed_seconds > 0.0 {
-            (self.wire_seconds / self.elapsed_seconds).min(1.0)
-        } else {
-            0.0
-        }
-    }
-}
-
-/// One drive's link health.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Health {
-    /// True until `offline_after` failures in a row.
-    pub online: bool,
-    /// Session time of the last good reply, seconds.
-    pub last_seen_s: Option<f64>,
-    /// Failed transactions in a row.
-    pub failures_in_row: u32,
-    /// Transactions attempted.
-    pub transactions: u64,
-    /// Transactions that failed.
-    pub errors: u64,
-    pub(crate) backoff: Duration,
-    pub(crate) next_probe: Option<Instant>,
-}
 
 struct Job {
     address: u8,
@@ -228,7 +37,7 @@ pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
     bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
-    on_demand: Arc<OnDemand>,
+    on_demand: Arc<OnDemand<Job>>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
     name: String,
@@ -246,11 +55,14 @@ impl Bus {
         let (ptx, prx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
-        let on_demand =
-            Arc::new(OnDemand { queues: Mutex::new(Queues::new(config.on_demand)), ready: Notify::new() });
+        let on_demand = Arc::new(OnDemand::new(config.on_demand));
         let share = Share::new(config.on_demand.share);
         let od = on_demand.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
+            let mut engine = engine;
+            if !link.is_open() {
+                engine.link_lost(link.now(), format!("{name} is not open"));
+            }
             let owner = Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx };
             tokio::spawn(owner.run(crx, brx, prx, od, share));
         });
@@ -259,7 +71,7 @@ impl Bus {
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the
     /// serial port free for another open). The owner ends once every clone of the handle is
-    /// dropped, so drop the others (and the [`crate::drive::Drive`]s holding them) first.
+    /// dropped, so drop the others (and the `Drive`s holding them) first.
     pub async fn close(self) {
         let Bus { commands, bridged, polls, mut ended, .. } = self;
         drop(commands);
@@ -308,13 +120,7 @@ impl Bus {
                 if self.commands.is_closed() {
                     return Err(BusError::Closed);
                 }
-                self.on_demand
-                    .queues
-                    .lock()
-                    .unwrap_or_else(|p| p.into_inner())
-                    .push(client, job)
-                    .map_err(|(_, e)| e)?;
-                self.on_demand.ready.notify_one();
+                self.on_demand.push(client, job).map_err(|(_, e)| e)?;
                 return rx.await.map_err(|_| BusError::Closed)?;
             }
         };
@@ -333,22 +139,6 @@ impl Bus {
     }
 }
 
-/// The on-demand reads waiting, and the owner's wake-up when one comes.
-struct OnDemand {
-    queues: Mutex<Queues<Job>>,
-    ready: Notify,
-}
-
-impl OnDemand {
-    fn pop(&self) -> Option<Job> {
-        self.queues.lock().unwrap_or_else(|p| p.into_inner()).pop()
-    }
-
-    fn is_empty(&self) -> bool {
-        self.queues.lock().unwrap_or_else(|p| p.into_inner()).is_empty()
-    }
-}
-
 struct Owner<L: Link, P: Protocol> {
     link: L,
     engine: Engine<P>,
@@ -364,7 +154,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         mut commands: mpsc::UnboundedReceiver<Job>,
         mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
-        on_demand: Arc<OnDemand>,
+        on_demand: Arc<OnDemand<Job>>,
         mut share: Share,
     ) {
         // A poll taken from its channel that waits for its turn.
@@ -405,7 +195,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                             poll = Some(j);
                             None
                         }
-                        _ = on_demand.ready.notified() => None,
+                        _ = on_demand.ready() => None,
                     };
                     if let Some((job, priority)) = woken {
                         let result = self.job(&job, priority).await;
@@ -430,26 +220,32 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         }
     }
 
+    /// Carries out what the engine decides for `job`.
     async fn job(&mut self, job: &Job, priority: Priority) -> Result<Option<Vec<u8>>, BusError> {
-        let broadcast = !job.exchange.expect_reply;
-        let attempts = self.engine.admit(self.link.now(), job.address, broadcast, priority, job.timeout)?;
-        let mut last = Attempt::Timeout;
-        for i in 0..attempts {
-            self.engine.start(self.link.now(), &job.exchange.request, i)?;
-            last = self.attempt().await;
-            match last {
-                Attempt::Reply(_) | Attempt::NoneDue => break,
-                Attempt::Link(_) => {
-                    // The port may have gone and come back: reopen once, then give up.
-                    if self.link.reopen().await.is_err() {
-                        break;
-                    }
+        let ex = &job.exchange;
+        let now = self.link.now();
+        let mut next = self.engine.begin(
+            now,
+            self.link.name(),
+            job.address,
+            &ex.request,
+            ex.expect_reply,
+            priority,
+            job.timeout,
+        );
+        loop {
+            next = match next {
+                Next::Attempt => {
+                    let attempt = self.attempt().await;
+                    self.engine.attempted(self.link.now(), attempt)
                 }
-                Attempt::Timeout | Attempt::Damaged(_) => {}
+                Next::Reopen => {
+                    let reopened = self.link.reopen().await;
+                    self.engine.reopened(self.link.now(), reopened)
+                }
+                Next::Done(result) => return result,
             }
         }
-        let (now, link) = (self.link.now(), self.link.name());
-        self.engine.finish(now, link, job.address, broadcast, attempts, last)
     }
 
     async fn attempt(&mut self) -> Attempt {

@@ -20,7 +20,12 @@ pub struct SimLink {
 impl SimLink {
     /// A link to `line` (whose simulated time starts with this link).
     pub fn new(line: Arc<Mutex<VirtualLine>>, name: &str) -> Self {
-        SimLink { line, clock: Clock::new(), name: name.to_string() }
+        Self::with_clock(line, name, Clock::new())
+    }
+
+    /// A link to `line` telling time by `clock`.
+    pub(crate) fn with_clock(line: Arc<Mutex<VirtualLine>>, name: &str, clock: Clock) -> Self {
+        SimLink { line, clock, name: name.to_string() }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, VirtualLine> {

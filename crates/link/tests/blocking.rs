@@ -219,3 +219,31 @@ fn a_line_that_hangs_up_is_a_link_error_at_once_not_a_timeout() {
     }
     assert!(t0.elapsed() < Duration::from_secs(2), "not the 5 s response timeout: {:?}", t0.elapsed());
 }
+
+#[test]
+fn a_virtual_line_is_a_port_of_the_blocking_bus_too() {
+    use drivebus_link::port::{Port, VirtualPort};
+    use drivebus_proto::line::CharFormat;
+    use drivebus_proto::protocol::WireProtocol;
+    let mut line =
+        drivebus_sim::bus::VirtualLine::new(19200, CharFormat::NONE_8N2, drivebus_proto::Instant::ZERO);
+    let spec = "generic@1".parse::<drivebus_sim::config::DriveSpec>().unwrap();
+    let spec = drivebus_sim::config::DriveSpec { protocol: Some(WireProtocol::ModbusRtu), ..spec };
+    line.add_device(drivebus_sim::family::build(&spec, drivebus_proto::Instant::ZERO).unwrap());
+    let port =
+        Port::Virtual(VirtualPort { line: Arc::new(std::sync::Mutex::new(line)), name: "virtual:t".into() });
+    let mut config = BusConfig::new(WireProtocol::ModbusRtu, 19200, CharFormat::NONE_8N2);
+    config.response_timeout = Some(Duration::from_secs(2));
+    let mut bus = BlockingBus::open_port(port, config).expect("a virtual line opens");
+    assert_eq!(bus.name(), "virtual:t");
+    let ex = Exchange { request: vec![0x01, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x37], expect_reply: true };
+    let reply = bus.transact(1, &ex, Priority::Command, None).expect("a reply");
+    assert_eq!(&reply.expect("a reply is due")[..3], &[0x01, 0x03, 0x04]);
+    // No drive 2 on the line: its read times out (once, and twice more as retries).
+    let ex = Exchange { request: vec![0x02, 0x03, 0x21, 0x00, 0x00, 0x02, 0xCE, 0x04], expect_reply: true };
+    match bus.transact(2, &ex, Priority::Command, Some(Duration::from_millis(20))) {
+        Err(BusError::Timeout { attempts: 3, .. }) => {}
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(bus.stats().retries, 2);
+}

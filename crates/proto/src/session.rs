@@ -4,7 +4,8 @@
 //! A session never reads a clock and never does I/O. The caller drives it:
 //!
 //! ```text
-//! master.send(now, &request)?;               // queue one request
+//! master.send(now, &request)?;               // queue one request (or send_frame: one already
+//!                                            // encoded, its bytes sent as they are)
 //! loop {
 //!     if let Some(bytes) = master.poll_transmit(now) { write(bytes) }
 //!     if let Some(event) = master.poll_event() { break event }   // reply, timeout, ...
@@ -54,6 +55,15 @@ pub trait Protocol {
     fn pending(&self, req: &Self::Request<'_>) -> Option<Self::Pending>;
     /// Whether `rep` answers the request that `pending` describes.
     fn matches(&self, pending: &Self::Pending, rep: &Self::Reply<'_>) -> bool;
+    /// What a reply to the request frame `bytes` (whole, checksum included, as
+    /// [`emit_request`](Self::emit_request) writes it) must match, or `None` when no reply is
+    /// due; an error when it is not a request of this protocol. For a frame encoded elsewhere
+    /// (a drive profile) and sent as it is with [`MasterSession::send_frame`]. Default: the
+    /// request parsed, then [`pending`](Self::pending); a protocol may look at the header only.
+    fn pending_of_frame(&self, bytes: &[u8]) -> Result<Option<Self::Pending>, FrameError> {
+        let req = self.parse_request(bytes)?;
+        Ok(self.pending(&req))
+    }
     /// How a slave numbered `me` treats `req`.
     fn disposition(&self, req: &Self::Request<'_>, me: u8) -> Disposition;
     /// How a slave numbered `me` treats a rejected request frame (some protocols answer a bad
@@ -236,10 +246,38 @@ impl<P: Protocol> MasterSession<P> {
             return Err(SessionError::Busy);
         }
         let len = self.proto.emit_request(req, self.tx.as_mut())?;
+        self.queue(len, self.proto.pending(req));
+        Ok(())
+    }
+
+    /// Queues `frame`, a request already encoded (whole, checksum included), whose reply must
+    /// match `pending` (`None`: no reply is due; [`Protocol::pending_of_frame`] tells it from the
+    /// frame). The bytes go on the wire as they are, at [`poll_transmit`](Self::poll_transmit).
+    pub fn send_frame(
+        &mut self,
+        now: Instant,
+        frame: &[u8],
+        pending: Option<P::Pending>,
+    ) -> Result<(), SessionError> {
+        let _ = now;
+        if !self.is_idle() {
+            return Err(SessionError::Busy);
+        }
+        let tx = self.tx.as_mut();
+        let Some(room) = tx.get_mut(..frame.len()) else {
+            return Err(EmitError::BufferTooSmall { needed: frame.len(), capacity: tx.len() }.into());
+        };
+        room.copy_from_slice(frame);
+        self.queue(frame.len(), pending);
+        Ok(())
+    }
+
+    /// The request of `len` bytes in the transmit buffer waits for the line, its reply to match
+    /// `pending`.
+    fn queue(&mut self, len: usize, pending: Option<P::Pending>) {
         self.tx_len = len;
         self.last_rx = None;
-        self.state = MasterState::Queued { pending: self.proto.pending(req) };
-        Ok(())
+        self.state = MasterState::Queued { pending };
     }
 
     /// The request bytes to write now, once; `None` until the line is ready.

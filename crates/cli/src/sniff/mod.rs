@@ -10,7 +10,7 @@ pub mod detect;
 mod tests {
     use std::time::Duration;
 
-    use drivebus_drive::profile::{for_drive, Operation, Step};
+    use drivebus_drive::profile::{for_drive, run_blocking, DriveError, Operation};
     use drivebus_proto::line::{CharFormat, Parity};
     use drivebus_proto::{Direction, Instant};
     use drivebus_sim::bus::VirtualLine;
@@ -41,8 +41,7 @@ mod tests {
         let mut tap = Vec::new();
         for _ in 0..exchanges {
             let mut plan = profile.plan(&Operation::Status).expect("plan");
-            let mut reply: Option<Vec<u8>> = None;
-            while let Step::Send(ex) = plan.step(reply.as_deref()).expect("step") {
+            let status = run_blocking(&mut *plan, |ex| {
                 line.run_until(t);
                 line.master_write(t, &ex.request);
                 let end = t + Duration::from_millis(300);
@@ -58,9 +57,10 @@ mod tests {
                 line.advance_to(end);
                 let mut got = Vec::new();
                 line.master_read(&mut got);
-                reply = ex.expect_reply.then_some(got);
                 t = end;
-            }
+                Ok::<_, DriveError>(ex.expect_reply.then_some(got))
+            });
+            status.expect("a status");
         }
         (bus.baud, bus.format, bursts)
     }

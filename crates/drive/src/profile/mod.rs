@@ -14,6 +14,9 @@
 //!     }
 //! }
 //! ```
+//!
+//! That loop is [`run`] (for async callers) and [`run_blocking`]: give either the plan and a
+//! closure that sends an exchange and returns its reply.
 
 use std::fmt;
 
@@ -195,6 +198,49 @@ pub trait Plan: Send {
     fn step(&mut self, reply: Option<&[u8]>) -> Result<Step, DriveError>;
 }
 
+/// Runs `plan` to its end: each exchange it asks for goes to `transact`, whose reply (`None`
+/// when none was due) the plan gets back. The one loop that drives a plan: async callers await
+/// it, the others use [`run_blocking`].
+pub async fn run<E, F, Fut>(plan: &mut dyn Plan, mut transact: F) -> Result<Outcome, E>
+where
+    E: From<DriveError>,
+    F: FnMut(Exchange) -> Fut,
+    Fut: std::future::Future<Output = Result<Option<Vec<u8>>, E>>,
+{
+    let mut reply: Option<Vec<u8>> = None;
+    loop {
+        match plan.step(reply.as_deref())? {
+            Step::Done(outcome) => return Ok(outcome),
+            Step::Send(exchange) => reply = transact(exchange).await?,
+        }
+    }
+}
+
+/// [`run`] with a `transact` that returns its reply without waiting on a runtime (a blocking
+/// bus, a virtual line stepped by hand).
+pub fn run_blocking<E>(
+    plan: &mut dyn Plan,
+    mut transact: impl FnMut(Exchange) -> Result<Option<Vec<u8>>, E>,
+) -> Result<Outcome, E>
+where
+    E: From<DriveError>,
+{
+    use std::future::Future;
+    use std::task::{Context, Poll, Wake, Waker};
+    /// Nothing waits, so nothing is woken.
+    struct NoWake;
+    impl Wake for NoWake {
+        fn wake(self: std::sync::Arc<Self>) {}
+    }
+    let run = std::pin::pin!(run(plan, |x| std::future::ready(transact(x))));
+    let waker = Waker::from(std::sync::Arc::new(NoWake));
+    match run.poll(&mut Context::from_waker(&waker)) {
+        Poll::Ready(result) => result,
+        // Every future in it is ready at once: it never waits.
+        Poll::Pending => Err(DriveError::Protocol("a blocking plan run had to wait".to_string()).into()),
+    }
+}
+
 /// One drive family spoken in one protocol, for one drive address.
 pub trait Profile: Send + Sync {
     /// The family.
@@ -229,4 +275,45 @@ pub fn for_drive(
         Family::Danfoss => Box::new(danfoss::DanfossProfile::new(address)?),
         Family::B800 => Box::new(b800::B800Profile::new(address)?),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Sends `n` exchanges, each carrying the length of the last reply, then is done.
+    struct Counting {
+        left: u8,
+        replies: Vec<Option<Vec<u8>>>,
+    }
+
+    impl Plan for Counting {
+        fn step(&mut self, reply: Option<&[u8]>) -> Result<Step, DriveError> {
+            if self.left < 3 {
+                self.replies.push(reply.map(<[u8]>::to_vec));
+            }
+            if self.left == 0 {
+                return Ok(Step::Done(Outcome::Param(self.replies.len() as i64)));
+            }
+            self.left -= 1;
+            Ok(Step::Send(Exchange { request: vec![self.left], expect_reply: self.left != 1 }))
+        }
+    }
+
+    #[test]
+    fn a_plan_runs_to_its_end_with_each_reply_handed_back() {
+        let mut plan = Counting { left: 3, replies: Vec::new() };
+        let mut sent = Vec::new();
+        let outcome = run_blocking(&mut plan, |x| {
+            sent.push(x.request[0]);
+            Ok::<_, DriveError>(x.expect_reply.then(|| vec![x.request[0]; 2]))
+        });
+        assert_eq!(outcome, Ok(Outcome::Param(3)));
+        assert_eq!(sent, [2, 1, 0]);
+        assert_eq!(plan.replies, [Some(vec![2, 2]), None, Some(vec![0, 0])]);
+        // The transaction's error ends the run with it.
+        let mut plan = Counting { left: 3, replies: Vec::new() };
+        let e = run_blocking(&mut plan, |_| Err(DriveError::Protocol("no answer".into())));
+        assert_eq!(e, Err(DriveError::Protocol("no answer".into())));
+    }
 }

@@ -25,6 +25,10 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
             return cx.err(b.name.span(), "bus.name", format!("two buses are named {name:?}"));
         }
         let port = port(cx, b)?;
+        let rs485 = match &b.rs485 {
+            Some(m) => m.get_ref().parse().or_else(|e: String| cx.err(m.span(), "bus.rs485", e))?,
+            None => drivebus_link::Rs485::Off,
+        };
         let mut drives = Vec::new();
         for d in &b.drive {
             let checked = all.check(cx, &name, d, &drives)?;
@@ -77,6 +81,7 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
             retries: b.retries.unwrap_or(2),
             echo: b.echo,
             strict_t15: b.strict_t15,
+            rs485,
             drives,
         });
     }

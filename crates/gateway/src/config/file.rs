@@ -137,6 +137,7 @@ pub(super) struct FileBus {
     pub(super) echo: bool,
     #[serde(default)]
     pub(super) strict_t15: bool,
+    pub(super) rs485: Option<Spanned<String>>,
     pub(super) on_demand_share: Option<Spanned<f64>>,
     pub(super) on_demand_queue: Option<Spanned<usize>>,
     pub(super) on_demand_per_client: Option<Spanned<usize>>,

@@ -147,6 +147,8 @@ pub struct BusConfig {
     pub echo: bool,
     /// Modbus RTU: discard replies with a silence over t1.5 inside (on-board UARTs only).
     pub strict_t15: bool,
+    /// RS-485 direction control on a serial port (`rs485`: off, auto, kernel or rts).
+    pub rs485: drivebus_link::Rs485,
     /// How on-demand reads (parameters) share the bus with polling: `on_demand_share`,
     /// `on_demand_queue`, `on_demand_per_client` (docs/gateway.md, "Fair use of a bus").
     pub on_demand: drivebus_link::FairConfig,

@@ -16,7 +16,10 @@ use super::cache::{BusEntry, DriveEntry, DriveState};
 use super::hub::{Gateway, Topology};
 use super::linkage::LINKAGE_NONE;
 use crate::config::{BusConfig, DriveConfig, GatewayConfig};
-use crate::port::PortLink;
+#[cfg(feature = "virtual")]
+use drivebus_link::port::VirtualPort;
+use drivebus_link::port::{Port as LinkPort, SerialSettings};
+use drivebus_link::PortLink;
 
 impl Gateway {
     /// Builds every bus and drive of `config` and starts polling (on the current tokio runtime).
@@ -165,17 +168,31 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         .map(|d| d.family)
         .find(|&f| drivebus_drive::registers::generic::line_silence(f, b.protocol).is_some());
     owner.on_demand = b.on_demand;
-    #[cfg(feature = "virtual")]
-    let (bus, line) = match b.port {
+    // Opened by the bus owner before its first transaction, and again after a loss.
+    let port = match &b.port {
+        crate::config::Port::Serial(path) => LinkPort::Serial(SerialSettings {
+            path: path.clone(),
+            baud: b.baud,
+            format: b.format,
+            rs485: b.rs485,
+        }),
+        crate::config::Port::Tcp(addr) => LinkPort::Tcp(addr.clone()),
+        #[cfg(feature = "virtual")]
         crate::config::Port::Virtual => {
             let line = crate::virtual_bus::virtual_line(b)?;
-            let link = crate::virtual_bus::sim_link(line.clone(), &format!("virtual:{}", b.name));
-            (Bus::spawn(link, owner).map_err(|e| format!("bus {}: {e}", b.name))?, Some(line))
+            LinkPort::Virtual(VirtualPort { line, name: format!("virtual:{}", b.name) })
         }
-        _ => (Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?, None),
+        #[cfg(not(feature = "virtual"))]
+        crate::config::Port::Virtual => {
+            return Err(format!("bus {}: this build has no virtual buses", b.name))
+        }
     };
-    #[cfg(not(feature = "virtual"))]
-    let bus = Bus::spawn(PortLink::new(b), owner).map_err(|e| format!("bus {}: {e}", b.name))?;
+    #[cfg(feature = "virtual")]
+    let line = match &port {
+        LinkPort::Virtual(v) => Some(v.line.clone()),
+        _ => None,
+    };
+    let bus = Bus::spawn(PortLink::new(port), owner).map_err(|e| format!("bus {}: {e}", b.name))?;
     let wake = Arc::new(Notify::new());
     let members = b.drives.iter().map(|d| drive_entry(b, d, &bus).map(Arc::new)).collect::<Result<_, _>>()?;
     Ok(Arc::new(BusEntry {

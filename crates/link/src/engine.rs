@@ -274,7 +274,11 @@ impl<P: Protocol> Engine<P> {
                     _ => self.next_attempt(now),
                 };
             }
-            Err(e) => format!("{}: {e}", job.link),
+            // An open error names its port already ("cannot open serial port /dev/ttyUSB0: ...").
+            Err(e) => match e.to_string() {
+                named if named.contains(job.link.as_str()) => named,
+                other => format!("{}: {other}", job.link),
+            },
         };
         let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
         self.lost = Some(Lost {
@@ -778,7 +782,7 @@ mod tests {
         for backoff in [250, 500, 1000, 2000, 4000, 5000, 5000] {
             match begin(&mut e, ms(at + backoff - 1)) {
                 Next::Done(Err(BusError::Link(m))) => {
-                    assert_eq!(m, "port: cannot open serial port port: gone")
+                    assert_eq!(m, "cannot open serial port port: gone")
                 }
                 other => panic!("{backoff} ms: {other:?}"),
             }

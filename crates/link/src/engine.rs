@@ -89,7 +89,8 @@ struct Job {
 
 /// How a session's exchange ended, owned (the session's event borrows it).
 enum Ended {
-    Reply,
+    /// The reply frame (checksum checked, answering the request), for the profile to parse.
+    Reply(Vec<u8>),
     BroadcastDone,
     Timeout,
     Damaged(String),
@@ -381,15 +382,14 @@ impl<P: Protocol> Engine<P> {
             }
             return Action::Transmit;
         }
-        let event = self.session.poll_event().map(|e| match e {
-            MasterEvent::Reply(_) => Ended::Reply,
+        let event = self.session.poll_frame_event().map(|e| match e {
+            MasterEvent::Reply(frame) => Ended::Reply(frame.to_vec()),
             MasterEvent::BroadcastDone => Ended::BroadcastDone,
             MasterEvent::Timeout => Ended::Timeout,
             MasterEvent::Corrupt(e) | MasterEvent::Invalid(e) => Ended::Damaged(e.to_string()),
         });
         match event {
-            Some(Ended::Reply) => {
-                let bytes = self.session.reply_bytes().to_vec();
+            Some(Ended::Reply(bytes)) => {
                 let wire = (self.timing.char_time * bytes.len() as u32).as_secs_f64();
                 self.stat(now, |s| {
                     s.replies += 1;

@@ -64,6 +64,15 @@ pub trait Protocol {
         let req = self.parse_request(bytes)?;
         Ok(self.pending(&req))
     }
+    /// Whether the reply frame `bytes` (checksum already checked by the scanner) answers the
+    /// request that `pending` describes; an error when it is not a reply of this protocol. A
+    /// master that hands the frame on to be parsed elsewhere (a drive profile) needs no more.
+    /// Default: the reply parsed, then [`matches`](Self::matches); a protocol may look at the
+    /// header only, so that the frame is parsed once, by whoever uses it.
+    fn reply_matches(&self, pending: &Self::Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+        let rep = self.parse_reply(bytes)?;
+        Ok(self.matches(pending, &rep))
+    }
     /// How a slave numbered `me` treats `req`.
     fn disposition(&self, req: &Self::Request<'_>, me: u8) -> Disposition;
     /// How a slave numbered `me` treats a rejected request frame (some protocols answer a bad
@@ -171,6 +180,19 @@ enum Outcome {
     Invalid(FrameError),
     Timeout,
     BroadcastDone,
+}
+
+impl Outcome {
+    /// The outcome as an event, a reply's made by `reply` (parsed or as bytes).
+    fn event<R>(self, reply: impl FnOnce() -> MasterEvent<R>) -> MasterEvent<R> {
+        match self {
+            Outcome::Reply => reply(),
+            Outcome::Corrupt(e) => MasterEvent::Corrupt(e),
+            Outcome::Invalid(e) => MasterEvent::Invalid(e),
+            Outcome::Timeout => MasterEvent::Timeout,
+            Outcome::BroadcastDone => MasterEvent::BroadcastDone,
+        }
+    }
 }
 
 /// The master side of a protocol: one request at a time.
@@ -379,20 +401,31 @@ impl<P: Protocol> MasterSession<P> {
 
     /// The outcome of the transaction, once it has one; the session is then idle again.
     pub fn poll_event(&mut self) -> Option<MasterEvent<P::Reply<'_>>> {
+        let outcome = self.take_outcome()?;
+        let (proto, frame) = (&self.proto, &self.rx.as_ref()[..self.rx_len]);
+        Some(outcome.event(|| match proto.parse_reply(frame) {
+            Ok(r) => MasterEvent::Reply(r),
+            Err(e) => MasterEvent::Invalid(e),
+        }))
+    }
+
+    /// Like [`poll_event`](Self::poll_event), with the reply as the frame's bytes, not parsed:
+    /// for a master that hands the frame to whoever parses it (a drive profile), so that it is
+    /// parsed once. Its checksum is checked and it answers the request
+    /// ([`Protocol::reply_matches`]).
+    pub fn poll_frame_event(&mut self) -> Option<MasterEvent<&[u8]>> {
+        let outcome = self.take_outcome()?;
+        let frame = &self.rx.as_ref()[..self.rx_len];
+        Some(outcome.event(|| MasterEvent::Reply(frame)))
+    }
+
+    /// The finished transaction's outcome, once; the session is idle after it.
+    fn take_outcome(&mut self) -> Option<Outcome> {
         let MasterState::Done(outcome) = self.state else {
             return None;
         };
         self.state = MasterState::Idle;
-        Some(match outcome {
-            Outcome::Reply => match self.proto.parse_reply(&self.rx.as_ref()[..self.rx_len]) {
-                Ok(r) => MasterEvent::Reply(r),
-                Err(e) => MasterEvent::Invalid(e),
-            },
-            Outcome::Corrupt(e) => MasterEvent::Corrupt(e),
-            Outcome::Invalid(e) => MasterEvent::Invalid(e),
-            Outcome::Timeout => MasterEvent::Timeout,
-            Outcome::BroadcastDone => MasterEvent::BroadcastDone,
-        })
+        Some(outcome)
     }
 
     /// The bytes of the last reply delivered by [`poll_event`](Self::poll_event), as received.
@@ -424,14 +457,14 @@ impl<P: Protocol> Sink<'_, P> {
             return;
         };
         match e {
-            Event::Frame { bytes, .. } => match self.proto.parse_reply(bytes) {
-                Ok(rep) if self.proto.matches(&pending, &rep) => {
+            Event::Frame { bytes, .. } => match self.proto.reply_matches(&pending, bytes) {
+                Ok(true) => {
                     self.rx[..bytes.len()].copy_from_slice(bytes);
                     *self.rx_len = bytes.len();
                     self.stats.replies += 1;
                     *self.state = MasterState::Done(Outcome::Reply);
                 }
-                Ok(_) => self.stats.unexpected += 1,
+                Ok(false) => self.stats.unexpected += 1,
                 Err(err) => {
                     self.stats.corrupt += 1;
                     *self.state = MasterState::Done(Outcome::Invalid(err));

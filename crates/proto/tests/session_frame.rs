@@ -60,3 +60,43 @@ fn a_broadcast_frame_awaits_no_reply_and_a_bad_frame_is_refused() {
     }
     assert!(s.is_idle(), "nothing was queued");
 }
+
+#[test]
+fn a_reply_is_handed_on_as_its_frame_for_one_parse_by_whoever_uses_it() {
+    let mut s = session();
+    let request = rtu_frame(&[0x01, 0x03, 0x21, 0x00, 0x00, 0x02]);
+    let pending = ModbusRtu.pending_of_frame(&request).expect("a request");
+    s.send_frame(Instant::ZERO, &request, pending).unwrap();
+    let now = s.ready_at();
+    s.poll_transmit(now).expect("the request");
+    // An exception answers the request too (function | 0x80).
+    let exception = rtu_frame(&[0x01, 0x83, 0x02]);
+    s.handle_input(now, &exception);
+    match s.poll_frame_event() {
+        Some(MasterEvent::Reply(frame)) => assert_eq!(frame, &exception[..]),
+        other => panic!("{other:?}"),
+    }
+    assert!(s.poll_frame_event().is_none(), "once");
+}
+
+#[test]
+fn the_header_look_at_a_reply_agrees_with_the_whole_parse() {
+    let pending =
+        ModbusRtu.pending_of_frame(&rtu_frame(&[0x05, 0x03, 0x21, 0x00, 0x00, 0x01])).unwrap().unwrap();
+    let replies = [
+        rtu_frame(&[0x05, 0x03, 0x02, 0x12, 0x34]),
+        rtu_frame(&[0x05, 0x83, 0x02]),
+        rtu_frame(&[0x06, 0x03, 0x02, 0x12, 0x34]),
+        rtu_frame(&[0x05, 0x04, 0x02, 0x12, 0x34]),
+        rtu_frame(&[0x05, 0x06, 0x21, 0x00, 0x00, 0x01]),
+    ];
+    for reply in &replies {
+        let parsed = ModbusRtu.parse_reply(reply).expect("a reply");
+        assert_eq!(
+            ModbusRtu.reply_matches(&pending, reply),
+            Ok(ModbusRtu.matches(&pending, &parsed)),
+            "{reply:02X?}"
+        );
+    }
+    assert!(ModbusRtu.reply_matches(&pending, &[0x05, 0x03]).is_err(), "too short");
+}

@@ -516,6 +516,14 @@ impl Protocol for ModbusRtu {
     fn matches(&self, pending: &Pending, rep: &Reply<'_>) -> bool {
         pending.matches(rep)
     }
+    /// The header only (unit, function or its exception): whoever uses the reply parses it.
+    fn reply_matches(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+        match bytes {
+            [unit, function, _, _, _, ..] => Ok(*unit == pending.unit.0
+                && function & !super::pdu::function::EXCEPTION_BIT == pending.function),
+            _ => Err(FrameError::Truncated { what: "Modbus RTU reply", expected: 5, got: bytes.len() }),
+        }
+    }
     fn disposition(&self, req: &Request<'_>, me: u8) -> Disposition {
         req.disposition(me)
     }

@@ -100,3 +100,33 @@ fn the_header_look_at_a_reply_agrees_with_the_whole_parse() {
     }
     assert!(ModbusRtu.reply_matches(&pending, &[0x05, 0x03]).is_err(), "too short");
 }
+
+#[test]
+fn the_header_look_at_a_modbus_ascii_reply_agrees_with_the_whole_parse() {
+    use drivebus_proto::modbus::ascii::ModbusAscii;
+    let lrc = |body: &[u8]| body.iter().fold(0u8, |a, b| a.wrapping_add(*b)).wrapping_neg();
+    let frame = |body: &[u8]| {
+        let mut f = b":".to_vec();
+        for b in body.iter().chain([lrc(body)].iter()) {
+            f.extend_from_slice(format!("{b:02X}").as_bytes());
+        }
+        f.extend_from_slice(b"\r\n");
+        f
+    };
+    let pending =
+        ModbusAscii.pending_of_frame(&frame(&[0x05, 0x03, 0x21, 0x00, 0x00, 0x01])).unwrap().unwrap();
+    for body in [
+        &[0x05, 0x03, 0x02, 0x12, 0x34][..],
+        &[0x05, 0x83, 0x02],
+        &[0x06, 0x03, 0x02, 0x12, 0x34],
+        &[0x05, 0x04, 0x02, 0x12, 0x34],
+    ] {
+        let reply = frame(body);
+        let parsed = ModbusAscii.parse_reply(&reply).expect("a reply");
+        assert_eq!(
+            ModbusAscii.reply_matches(&pending, &reply),
+            Ok(ModbusAscii.matches(&pending, &parsed)),
+            "{body:02X?}"
+        );
+    }
+}

@@ -323,6 +323,18 @@ impl Protocol for ModbusAscii {
     fn matches(&self, pending: &Pending, rep: &Reply<'_>) -> bool {
         pending.matches(rep)
     }
+    /// The header only (`:` then the unit's and the function's digits): whoever uses the reply
+    /// parses it.
+    fn reply_matches(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+        let digits = |at: usize| bytes.get(at..at + 2).and_then(|d| crate::hex::decode_pair(d[0], d[1]));
+        match (digits(1), digits(3)) {
+            (Some(unit), Some(function)) => {
+                Ok(unit == pending.unit.0
+                    && function & !super::pdu::function::EXCEPTION_BIT == pending.function)
+            }
+            _ => Reply::parse_ascii_unchecked(bytes).map(|rep| pending.matches(&rep)),
+        }
+    }
     fn disposition(&self, req: &Request<'_>, me: u8) -> Disposition {
         req.disposition(me)
     }

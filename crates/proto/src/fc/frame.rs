@@ -72,7 +72,7 @@ impl<'a> Frame<'a> {
 pub struct DanfossFc;
 
 impl Codec for DanfossFc {
-    const NAME: &'static str = crate::protocol::WireProtocol::DanfossFc.name();
+    const NAME: &'static str = "danfoss-fc";
     type Scanner = FcScanner;
     type Frame<'a> = Frame<'a>;
 

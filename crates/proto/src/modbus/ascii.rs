@@ -339,7 +339,7 @@ impl Protocol for ModbusAscii {
 }
 
 impl Codec for ModbusAscii {
-    const NAME: &'static str = crate::protocol::WireProtocol::ModbusAscii.name();
+    const NAME: &'static str = "modbus-ascii";
     type Scanner = AsciiScanner;
     type Frame<'a> = Frame<'a>;
 

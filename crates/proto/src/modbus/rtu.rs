@@ -17,7 +17,7 @@ use core::time::Duration;
 
 use super::pdu::{self, PduLen, ReplyPdu, RequestPdu};
 use super::{parse_either, Frame, Pending, Reply, Request, UnitId};
-use crate::checksum::{crc16_modbus, crc16_modbus_update};
+use crate::checksum::{crc16_modbus, crc16_modbus_one_byte, crc16_modbus_rewind, crc16_modbus_update};
 use crate::codec::Codec;
 use crate::deframe::{Scan, Scanner};
 use crate::describe::Direction;
@@ -241,14 +241,8 @@ pub fn mismatch_hint(body: &[u8], carried: u16) -> Option<MismatchHint> {
     }
     let (&first, rest) = body.split_first()?;
     // The CRC register after the address byte that would end in `carried` over the rest.
-    let state = crc16_rewind(carried, rest);
-    // After one byte x from 0xFFFF the register is 0x00FF ^ T[x ^ 0xFF].
-    let t = state ^ 0x00FF;
-    let idx = INV_HIGH[(t >> 8) as usize];
-    if CRC_TABLE[idx as usize] != t {
-        return None;
-    }
-    let address = idx ^ 0xFF;
+    let state = crc16_modbus_rewind(carried, rest);
+    let address = crc16_modbus_one_byte(state)?;
     (address != first).then_some(MismatchHint::OtherAddress { address })
 }
 
@@ -262,45 +256,6 @@ fn prefix_match(body: &[u8], carried: u16) -> Option<usize> {
         }
     }
     None
-}
-
-/// The CRC table (the same as `checksum`'s), and the inverse of its high bytes: the high
-/// byte of `T[i]` is different for every `i`, so one step of the CRC can be undone.
-const CRC_TABLE: [u16; 256] = {
-    let mut table = [0u16; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut crc = i as u16;
-        let mut bit = 0;
-        while bit < 8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xA001 } else { crc >> 1 };
-            bit += 1;
-        }
-        table[i] = crc;
-        i += 1;
-    }
-    table
-};
-
-const INV_HIGH: [u8; 256] = {
-    let mut inv = [0u8; 256];
-    let mut i = 0;
-    while i < 256 {
-        inv[(CRC_TABLE[i] >> 8) as usize] = i as u8;
-        i += 1;
-    }
-    inv
-};
-
-/// The CRC register before `bytes` that ends as `crc` after them.
-pub fn crc16_rewind(mut crc: u16, bytes: &[u8]) -> u16 {
-    for &b in bytes.iter().rev() {
-        // Forward: crc' = (crc >> 8) ^ T[(crc ^ b) & 0xFF]; the high byte of crc' is T's.
-        let idx = INV_HIGH[(crc >> 8) as usize];
-        let high = (crc ^ CRC_TABLE[idx as usize]) & 0xFF;
-        crc = high << 8 | (idx ^ b) as u16;
-    }
-    crc
 }
 
 /// "03 request, whose CRC is that of its first 4 bytes only," for truncated-frame messages.
@@ -534,7 +489,7 @@ impl Protocol for ModbusRtu {
 }
 
 impl Codec for ModbusRtu {
-    const NAME: &'static str = crate::protocol::WireProtocol::ModbusRtu.name();
+    const NAME: &'static str = "modbus-rtu";
     type Scanner = RtuScanner;
     type Frame<'a> = Frame<'a>;
 

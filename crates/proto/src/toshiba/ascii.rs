@@ -995,7 +995,7 @@ impl Protocol for TipAscii {
 pub struct AsciiCodec;
 
 impl Codec for AsciiCodec {
-    const NAME: &'static str = crate::protocol::WireProtocol::ToshibaAscii.name();
+    const NAME: &'static str = "toshiba-ascii";
     type Scanner = AsciiScanner;
     type Frame<'a> = AsciiFrame;
 

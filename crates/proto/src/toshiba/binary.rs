@@ -1075,7 +1075,7 @@ impl Protocol for TipBinary {
 pub struct BinaryCodec;
 
 impl Codec for BinaryCodec {
-    const NAME: &'static str = crate::protocol::WireProtocol::ToshibaBinary.name();
+    const NAME: &'static str = "toshiba-binary";
     type Scanner = BinaryScanner;
     type Frame<'a> = BinaryFrame;
 

@@ -9,6 +9,7 @@ use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outc
 use drivebus_drive::Storage;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::modbus::rtu::ModbusRtu;
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::toshiba::ascii::AsciiCodec;
 use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryCodec, BinaryRequest};
 use drivebus_proto::toshiba::{CommNo, ErrorCode};
@@ -19,8 +20,8 @@ use drivebus_sim::family::toshiba as sim;
 use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, Trip};
 
-const ALL: [ToshibaProtocol; 3] =
-    [ToshibaProtocol::ModbusRtu, ToshibaProtocol::TipAscii, ToshibaProtocol::TipBinary];
+const ALL: [WireProtocol; 3] =
+    [WireProtocol::ModbusRtu, WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary];
 /// Silence left before each request (the drive needs none in TIP; Modbus t3.5 is 1.75 ms).
 const GAP: Duration = Duration::from_millis(5);
 const RESPONSE_TIMEOUT: Duration = Duration::from_millis(500);
@@ -29,18 +30,15 @@ const TURNAROUND: Duration = Duration::from_millis(100);
 /// A line at the VF-AS1's default 19200 8E1 and a bus owner that counts its exchanges.
 struct Bus {
     line: VirtualLine,
-    protocol: ToshibaProtocol,
+    protocol: WireProtocol,
     exchanges: usize,
 }
 
 impl Bus {
     /// Drives numbered `addresses`, speaking `protocol` (f829 set to match).
-    fn new(protocol: ToshibaProtocol, addresses: &[u8]) -> Bus {
+    fn new(protocol: WireProtocol, addresses: &[u8]) -> Bus {
         let mut line = VirtualLine::new(19200, CharFormat::EVEN_8E1, Instant::ZERO);
-        let kind = match protocol {
-            ToshibaProtocol::ModbusRtu => sim::ToshibaProtocol::ModbusRtu,
-            _ => sim::ToshibaProtocol::Tip,
-        };
+        let kind = ToshibaProtocol::of(protocol).unwrap_or_else(|| panic!("the VF-AS1 speaks no {protocol}"));
         for &a in addresses {
             match sim::ToshibaDrive::new(a, kind, Instant::ZERO) {
                 Ok(d) => {
@@ -55,9 +53,10 @@ impl Bus {
     fn transact(&mut self, x: &Exchange) -> Option<Vec<u8>> {
         self.exchanges += 1;
         match self.protocol {
-            ToshibaProtocol::ModbusRtu => transact::<ModbusRtu>(&mut self.line, x),
-            ToshibaProtocol::TipAscii => transact::<AsciiCodec>(&mut self.line, x),
-            ToshibaProtocol::TipBinary => transact::<BinaryCodec>(&mut self.line, x),
+            WireProtocol::ModbusRtu => transact::<ModbusRtu>(&mut self.line, x),
+            WireProtocol::ToshibaAscii => transact::<AsciiCodec>(&mut self.line, x),
+            WireProtocol::ToshibaBinary => transact::<BinaryCodec>(&mut self.line, x),
+            other => panic!("the VF-AS1 speaks no {other}"),
         }
     }
 
@@ -127,7 +126,7 @@ fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
 }
 
 /// Inverter 1 (Modbus numbers start at 1; TIP has 0 too).
-fn profile(protocol: ToshibaProtocol) -> ToshibaProfile {
+fn profile(protocol: WireProtocol) -> ToshibaProfile {
     ToshibaProfile::new(1, protocol).unwrap_or_else(|e| panic!("{e}"))
 }
 
@@ -147,7 +146,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
     for protocol in ALL {
         let mut bus = Bus::new(protocol, &[1]);
         let p = profile(protocol);
-        assert_eq!(p.protocol(), protocol.wire());
+        assert_eq!(p.protocol(), protocol);
         let s = bus.status(&p);
         assert_eq!(s.address, 1);
         assert!(!s.running, "{protocol}");
@@ -155,7 +154,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
         assert_eq!(s.current_a, Some(0.0));
         // FD01, FD00, FE02, FE03 and, the first time, FE70; in binary mode f875-f879 (once),
         // the X block, FE02 and FE70.
-        let first = if protocol == ToshibaProtocol::TipBinary { 8 } else { 5 };
+        let first = if protocol == WireProtocol::ToshibaBinary { 8 } else { 5 };
         assert_eq!(bus.exchanges, first, "{protocol}");
 
         bus.ok(&p, Operation::SetSpeed(40.0));
@@ -163,7 +162,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
         bus.wait(Duration::from_secs(2));
         let before = bus.exchanges;
         let s = bus.status(&p);
-        let each = if protocol == ToshibaProtocol::TipBinary { 2 } else { 4 };
+        let each = if protocol == WireProtocol::ToshibaBinary { 2 } else { 4 };
         assert_eq!(bus.exchanges - before, each, "FE70 and f875-f879 are read once per profile ({protocol})");
         assert!(s.running, "{protocol}");
         assert_eq!(s.direction.as_deref(), Some("forward"));
@@ -193,9 +192,9 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
 /// bytes instead of 56).
 #[test]
 fn binary_block_status_reads_in_two_exchanges() {
-    let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
-    let plain = profile(ToshibaProtocol::TipBinary).with_block_status(false);
-    let block = profile(ToshibaProtocol::TipBinary);
+    let mut bus = Bus::new(WireProtocol::ToshibaBinary, &[1]);
+    let plain = profile(WireProtocol::ToshibaBinary).with_block_status(false);
+    let block = profile(WireProtocol::ToshibaBinary);
     bus.ok(&plain, Operation::SetSpeed(30.0));
     bus.ok(&plain, Operation::Run);
     bus.wait(Duration::from_secs(10));
@@ -217,8 +216,8 @@ fn binary_block_status_reads_in_two_exchanges() {
     assert_eq!(bus.exchanges - before, 3, "X, FE02 and FC90");
     assert_eq!((f.code, f.text.as_str()), (0x03, "OC3: over-current during constant speed operation"));
     // Other protocols ignore the option.
-    let mut rtu = Bus::new(ToshibaProtocol::ModbusRtu, &[1]);
-    rtu.status(&profile(ToshibaProtocol::ModbusRtu).with_block_status(true));
+    let mut rtu = Bus::new(WireProtocol::ModbusRtu, &[1]);
+    rtu.status(&profile(WireProtocol::ModbusRtu).with_block_status(true));
     assert_eq!(rtu.exchanges, 5);
 }
 
@@ -227,8 +226,8 @@ fn binary_block_status_reads_in_two_exchanges() {
 /// block, a tripped drive costs one more read.
 #[test]
 fn block_status_follows_the_drives_read_item_selection() {
-    let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
-    let p = profile(ToshibaProtocol::TipBinary);
+    let mut bus = Bus::new(WireProtocol::ToshibaBinary, &[1]);
+    let p = profile(WireProtocol::ToshibaBinary);
     // f876 = 4: output voltage instead of output frequency.
     bus.ok(&p, write("f876", 4, Storage::Ram));
     bus.status(&p);
@@ -335,8 +334,8 @@ fn reverse_turns_a_running_drive_and_jog_runs_at_5_hz() {
 
 #[test]
 fn set_speed_out_of_range_is_refused_before_any_byte_is_written() {
-    let mut bus = Bus::new(ToshibaProtocol::TipAscii, &[1]);
-    let p = profile(ToshibaProtocol::TipAscii);
+    let mut bus = Bus::new(WireProtocol::ToshibaAscii, &[1]);
+    let p = profile(WireProtocol::ToshibaAscii);
     let before = bus.master_bytes();
     for (hz, sentence) in [
         (60.01, "60.01 Hz is above the upper limit 0012 = 60.00 Hz"),
@@ -370,7 +369,7 @@ fn set_speed_out_of_range_is_refused_before_any_byte_is_written() {
 #[test]
 fn parameters_round_trip_with_ram_and_eeprom_as_the_protocol_allows() {
     // TIP: P writes RAM, W writes RAM and EEPROM.
-    for protocol in [ToshibaProtocol::TipAscii, ToshibaProtocol::TipBinary] {
+    for protocol in [WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary] {
         let mut bus = Bus::new(protocol, &[1]);
         let p = profile(protocol);
         assert_eq!(bus.read(&p, "dEC"), 100);
@@ -385,8 +384,8 @@ fn parameters_round_trip_with_ram_and_eeprom_as_the_protocol_allows() {
         assert_eq!(bus.read(&p, "FE70"), 175);
     }
     // Modbus-RTU: 06 always stores in EEPROM; a RAM-only write is refused before sending.
-    let mut bus = Bus::new(ToshibaProtocol::ModbusRtu, &[1]);
-    let p = profile(ToshibaProtocol::ModbusRtu);
+    let mut bus = Bus::new(WireProtocol::ModbusRtu, &[1]);
+    let p = profile(WireProtocol::ModbusRtu);
     let before = bus.master_bytes();
     match bus.run(&p, write("0010", 50, Storage::Ram)) {
         Err(DriveError::Unsupported(s)) => {
@@ -423,7 +422,7 @@ fn the_drives_refusals_carry_the_manuals_codes() {
         // UL above FH: data error (TIP 0001, Modbus 03).
         let (code, meaning) = refusal(bus.run(&p, write("0012", 9000, Storage::Eeprom)));
         match protocol {
-            ToshibaProtocol::ModbusRtu => {
+            WireProtocol::ModbusRtu => {
                 assert_eq!(code, 3);
                 assert!(meaning.starts_with("illegal data value: data error"), "{meaning}");
             }
@@ -436,7 +435,7 @@ fn the_drives_refusals_carry_the_manuals_codes() {
         // FH while running: impossible to execute (TIP 0000, Modbus 04).
         bus.ok(&p, Operation::Run);
         let (code, meaning) = refusal(bus.run(&p, write("FH", 7000, Storage::Eeprom)));
-        let expected = if protocol == ToshibaProtocol::ModbusRtu { 4 } else { 0 };
+        let expected = if protocol == WireProtocol::ModbusRtu { 4 } else { 0 };
         assert_eq!(code, expected, "{protocol}");
         assert!(meaning.contains("impossible to execute"), "{meaning}");
         assert_eq!(p.speed_limits(), (8000, 6000), "a refused write teaches nothing");
@@ -445,7 +444,7 @@ fn the_drives_refusals_carry_the_manuals_codes() {
 
 #[test]
 fn a_tip_error_reply_and_garbage_are_told_apart() {
-    let p = profile(ToshibaProtocol::TipBinary);
+    let p = profile(WireProtocol::ToshibaBinary);
     let mut plan = p.plan(&Operation::ReadParam("0010".into())).unwrap_or_else(|e| panic!("{e}"));
     let Ok(Step::Send(x)) = plan.step(None) else { panic!("a request") };
     assert_eq!(x.request, [0x2F, 0x01, 0x52, 0x00, 0x10, 0x92]);
@@ -478,12 +477,12 @@ fn a_tip_error_reply_and_garbage_are_told_apart() {
 fn broadcasts_reach_every_drive_and_wait_for_no_reply() {
     for protocol in ALL {
         let mut bus = Bus::new(protocol, &[1, 2]);
-        let address = if protocol == ToshibaProtocol::ModbusRtu { 0 } else { TIP_BROADCAST };
+        let address = if protocol == WireProtocol::ModbusRtu { 0 } else { TIP_BROADCAST };
         let all = ToshibaProfile::new(address, protocol).unwrap_or_else(|e| panic!("{e}"));
         assert!(all.is_broadcast());
         bus.ok(&all, Operation::SetSpeed(30.0));
         bus.ok(&all, Operation::Run);
-        let storage = if protocol == ToshibaProtocol::ModbusRtu { Storage::Eeprom } else { Storage::Ram };
+        let storage = if protocol == WireProtocol::ModbusRtu { Storage::Eeprom } else { Storage::Ram };
         bus.ok(&all, write("ACC", 50, storage));
         bus.wait(Duration::from_secs(10));
         for port in [1, 2] {
@@ -516,26 +515,32 @@ fn broadcasts_reach_every_drive_and_wait_for_no_reply() {
 #[test]
 fn inverter_numbers_are_checked_per_protocol() {
     let refused =
-        |a: u8, p: ToshibaProtocol| matches!(ToshibaProfile::new(a, p), Err(DriveError::OutOfRange(_)));
-    assert!(refused(248, ToshibaProtocol::ModbusRtu));
-    assert!(refused(255, ToshibaProtocol::ModbusRtu));
-    assert!(refused(100, ToshibaProtocol::TipAscii));
-    assert!(refused(64, ToshibaProtocol::TipBinary));
-    assert!(!refused(0, ToshibaProtocol::TipBinary));
-    assert!(!refused(99, ToshibaProtocol::TipAscii));
-    assert!(!refused(247, ToshibaProtocol::ModbusRtu));
+        |a: u8, p: WireProtocol| matches!(ToshibaProfile::new(a, p), Err(DriveError::OutOfRange(_)));
+    assert!(refused(248, WireProtocol::ModbusRtu));
+    assert!(refused(255, WireProtocol::ModbusRtu));
+    assert!(refused(100, WireProtocol::ToshibaAscii));
+    assert!(refused(64, WireProtocol::ToshibaBinary));
+    assert!(!refused(0, WireProtocol::ToshibaBinary));
+    assert!(!refused(99, WireProtocol::ToshibaAscii));
+    assert!(!refused(247, WireProtocol::ModbusRtu));
     assert_eq!(
-        ToshibaProfile::new(64, ToshibaProtocol::TipBinary).err(),
+        ToshibaProfile::new(64, WireProtocol::ToshibaBinary).err(),
         Some(DriveError::OutOfRange(
             "a VF-AS1 speaking toshiba-binary has inverter number 0..63, or 255 for a broadcast; not 64"
                 .into()
         ))
     );
-    assert_eq!("Toshiba-ASCII".parse::<ToshibaProtocol>(), Ok(ToshibaProtocol::TipAscii));
-    assert!("profibus".parse::<ToshibaProtocol>().is_err());
+    assert_eq!(
+        ToshibaProfile::new(1, WireProtocol::DanfossFc).err(),
+        Some(DriveError::Unsupported(
+            "the VF-AS1 speaks toshiba-ascii, toshiba-binary or modbus-rtu, not danfoss-fc".into()
+        ))
+    );
+    assert_eq!(ToshibaProtocol::of(WireProtocol::ToshibaBinary), Some(ToshibaProtocol::Tip));
+    assert_eq!(ToshibaProtocol::from_f829(1), ToshibaProtocol::ModbusRtu);
     // TIP inverter 0 is a drive, not a broadcast.
-    let mut bus = Bus::new(ToshibaProtocol::TipAscii, &[0]);
-    let zero = ToshibaProfile::new(0, ToshibaProtocol::TipAscii).unwrap_or_else(|e| panic!("{e}"));
+    let mut bus = Bus::new(WireProtocol::ToshibaAscii, &[0]);
+    let zero = ToshibaProfile::new(0, WireProtocol::ToshibaAscii).unwrap_or_else(|e| panic!("{e}"));
     assert!(!zero.is_broadcast());
     assert_eq!(bus.read(&zero, "FE70"), 175);
 }

@@ -10,8 +10,9 @@ use drivebus_drive::{Family, ParamStore};
 use drivebus_proto::Instant;
 use serde::Serialize;
 
-use crate::bus::Device;
-use crate::model::{DriveModel, ModelSettings, Rotation, RunRefusal, RunState};
+use drivebus_drive::profile::Fault;
+
+use crate::model::{DriveModel, ModelSettings, Rotation, RunRefusal, RunState, Trip};
 
 /// The state shared by every family.
 #[derive(Clone, Debug)]
@@ -98,6 +99,33 @@ pub struct DriveSnapshot {
     pub display: String,
 }
 
+/// A device on a [`crate::bus::VirtualLine`]: it hears every byte and may answer (a virtual
+/// drive, a drive acting as bus master, a test's echo).
+pub trait Device {
+    /// Bytes that arrived from the line at `now` (in order, all of them whole characters).
+    fn receive(&mut self, now: Instant, bytes: &[u8]);
+    /// The line has been quiet for t3.5 after the last byte (Modbus RTU frame end).
+    fn silence(&mut self, now: Instant) {
+        let _ = now;
+    }
+    /// Bytes to put on the line now, if an answer is due.
+    fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>>;
+    /// When the device next needs [`Device::poll_transmit`] or [`Device::advance_to`].
+    fn poll_timeout(&self) -> Option<Instant>;
+    /// Lets the device's own state (a motor ramp) reach `now`.
+    fn advance_to(&mut self, now: Instant) {
+        let _ = now;
+    }
+    /// This device as a virtual drive, if it is one (for the control interface).
+    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
+        None
+    }
+    /// This device as a virtual drive, mutable.
+    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
+        None
+    }
+}
+
 /// A virtual drive: a [`Device`] with a model and parameters that a control interface can
 /// inspect and disturb.
 pub trait VirtualDrive: Device + Send {
@@ -152,9 +180,14 @@ pub trait VirtualDrive: Device + Send {
             self.family()
         ))
     }
+    /// What the panel shows for `trip`, code and text. Default: drivebus' number of the trip
+    /// ([`Trip::code`]) and its name; a family with trip codes of its own says its own.
+    fn panel_fault(&self, trip: Trip) -> Fault {
+        Fault { code: u32::from(trip.code()), text: trip.name().to_string() }
+    }
     /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
-        let display = panel_display(self.family(), self.core());
+        let display = panel_display(self);
         DriveSnapshot {
             display,
             ..snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
@@ -213,22 +246,18 @@ pub fn snapshot_of(
 }
 
 /// What the panel of `drive` shows now (see `drivebus_drive::panel`): a Toshiba drive with
-/// FA10 = 1 shows the LED data FA11/FA12; otherwise the trip in force, or the frequency.
-pub fn panel_display(family: Family, core: &DriveCore) -> String {
+/// FA10 = 1 shows the LED data FA11/FA12; otherwise the trip in force
+/// ([`VirtualDrive::panel_fault`]), or the frequency.
+pub fn panel_display<D: VirtualDrive + ?Sized>(drive: &D) -> String {
     use drivebus_drive::panel;
-    use drivebus_drive::profile::{DriveStatus, Fault};
+    use drivebus_drive::profile::DriveStatus;
+    let (family, core) = (drive.family(), drive.core());
     let p = |n: u32| core.params.get(n).unwrap_or(0);
     if family == Family::Toshiba && p(0xFA10) == 1 {
         return panel::led_text(p(0xFA11) as u16, p(0xFA12) as u16);
     }
     let m = &core.model;
-    let fault = m.trip().map(|t| match family {
-        Family::Toshiba => {
-            let code = crate::family::toshiba::trip_code(t);
-            Fault { code: u32::from(code), text: drivebus_drive::profile::toshiba::trip_text(code) }
-        }
-        _ => Fault { code: u32::from(crate::family::generic::fault_code(t)), text: t.name().to_string() },
-    });
+    let fault = m.trip().map(|t| drive.panel_fault(t));
     let status = DriveStatus {
         address: core.address,
         running: m.is_running(),
@@ -254,4 +283,29 @@ pub fn set_param_as_keypad(core: &mut DriveCore, name: &str, value: &str) -> Res
     let raw = def.parse_value(value).map_err(|e| e.to_string())?;
     let running = core.model.is_running();
     core.params.set(def.name.as_str(), raw, drivebus_drive::Storage::Ram, running).map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::family::b800::B800Drive;
+    use crate::family::generic::{GenericDrive, GenericProtocol};
+    use crate::family::toshiba::{ToshibaDrive, ToshibaProtocol};
+
+    fn tripped(mut drive: Box<dyn VirtualDrive>) -> String {
+        drive.core_mut().model.trip_now(Trip::OverCurrent);
+        drive.snapshot().display
+    }
+
+    #[test]
+    fn the_panel_shows_a_trip_in_the_family_s_own_code() {
+        let toshiba =
+            ToshibaDrive::new(1, ToshibaProtocol::Tip, Instant::ZERO).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(tripped(Box::new(toshiba)), "OC3");
+        let generic =
+            GenericDrive::new(1, GenericProtocol::Rtu, Instant::ZERO).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(tripped(Box::new(generic)), "E-01");
+        let b800 = B800Drive::new(1, Instant::ZERO).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(tripped(Box::new(b800)), "E01");
+    }
 }

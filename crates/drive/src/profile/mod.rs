@@ -222,10 +222,7 @@ pub fn for_drive(
             let p = generic::GenericProtocol::from_wire(protocol).ok_or_else(wrong)?;
             Box::new(generic::GenericProfile::new(address, p)?)
         }
-        Family::Toshiba => {
-            let p = toshiba::ToshibaProtocol::from_wire(protocol).ok_or_else(wrong)?;
-            Box::new(toshiba::ToshibaProfile::new(address, p)?)
-        }
+        Family::Toshiba => Box::new(toshiba::ToshibaProfile::new(address, protocol)?),
         Family::Danfoss => Box::new(danfoss::DanfossProfile::new(address)?),
         Family::B800 => Box::new(b800::B800Profile::new(address)?),
     })

@@ -202,6 +202,18 @@ fn adu_error(e: FrameError) -> FrameError {
     }
 }
 
+/// Writes the ASCII frame of `unit` and the PDU `emit_pdu` writes; returns its length.
+fn emit_adu(
+    out: &mut [u8],
+    unit: UnitId,
+    emit_pdu: impl FnOnce(&mut [u8]) -> Result<usize, EmitError>,
+) -> Result<usize, EmitError> {
+    let mut bin = [0u8; 1 + pdu::MAX_PDU];
+    bin[0] = unit.0;
+    let n = emit_pdu(&mut bin[1..])?;
+    encode(&bin[..1 + n], out)
+}
+
 impl<'a> Request<'a> {
     /// Parses an ASCII request frame (`:` ... CR LF), checking digits and LRC.
     pub fn parse_ascii(frame: &'a [u8]) -> Result<Self, FrameError> {
@@ -235,10 +247,7 @@ impl<'a> Request<'a> {
 
     /// Writes the ASCII frame into `out`; returns its length.
     pub fn emit_ascii(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        let mut bin = [0u8; 1 + pdu::MAX_PDU];
-        bin[0] = self.unit.0;
-        let n = self.pdu.emit(&mut bin[1..])?;
-        encode(&bin[..1 + n], out)
+        emit_adu(out, self.unit, |b| self.pdu.emit(b))
     }
 }
 
@@ -260,10 +269,7 @@ impl<'a> Reply<'a> {
 
     /// Writes the ASCII frame into `out`; returns its length.
     pub fn emit_ascii(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        let mut bin = [0u8; 1 + pdu::MAX_PDU];
-        bin[0] = self.unit.0;
-        let n = self.pdu.emit(&mut bin[1..])?;
-        encode(&bin[..1 + n], out)
+        emit_adu(out, self.unit, |b| self.pdu.emit(b))
     }
 }
 

@@ -390,6 +390,21 @@ fn check(frame: &[u8]) -> Result<(), FrameError> {
     Ok(())
 }
 
+/// Writes the RTU frame of `unit` and the PDU `emit_pdu` writes (`pdu_len` bytes): address,
+/// PDU, CRC; returns its length.
+#[inline]
+fn emit_adu(
+    out: &mut [u8],
+    unit: UnitId,
+    pdu_len: usize,
+    emit_pdu: impl FnOnce(&mut [u8]) -> Result<usize, EmitError>,
+) -> Result<usize, EmitError> {
+    crate::error::need(out, pdu_len + 3)?;
+    out[0] = unit.0;
+    let n = emit_pdu(&mut out[1..])?;
+    put_crc(out, 1 + n)
+}
+
 impl<'a> Request<'a> {
     /// Parses an RTU request frame, CRC included, and checks the CRC.
     pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
@@ -406,10 +421,7 @@ impl<'a> Request<'a> {
 
     /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
     pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        crate::error::need(out, self.pdu.wire_len() + 3)?;
-        out[0] = self.unit.0;
-        let n = self.pdu.emit(&mut out[1..])?;
-        put_crc(out, 1 + n)
+        emit_adu(out, self.unit, self.pdu.wire_len(), |b| self.pdu.emit(b))
     }
 }
 
@@ -429,10 +441,7 @@ impl<'a> Reply<'a> {
 
     /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
     pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        crate::error::need(out, self.pdu.wire_len() + 3)?;
-        out[0] = self.unit.0;
-        let n = self.pdu.emit(&mut out[1..])?;
-        put_crc(out, 1 + n)
+        emit_adu(out, self.unit, self.pdu.wire_len(), |b| self.pdu.emit(b))
     }
 }
 

@@ -1,6 +1,8 @@
 //! The FC profile against the simulated Danfoss FC drive on a paced virtual line, on simulated
 //! time: every operation run to completion, refusals, range checks, parameters, broadcast.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
@@ -8,11 +10,11 @@ use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus, Operation, Out
 use drivebus_drive::Storage;
 use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
-use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::danfoss::DanfossDrive;
 use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
+use support::{refusal, wait, write};
 
 /// How long the helper waits for a reply: the FC response timeout, 50 ms.
 const TIMEOUT: Duration = Duration::from_millis(50);
@@ -21,21 +23,7 @@ const TURNAROUND: Duration = Duration::from_millis(20);
 
 /// A 9600 baud 8E1 line with one FC drive per address; ports 1, 2, ... in that order.
 fn line_with(addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
-    for &a in addresses {
-        line.add_device(Box::new(DanfossDrive::new(a, Instant::ZERO).expect("a drive")));
-    }
-    line
-}
-
-/// Runs the line until `end`, event by event.
-fn run_until(line: &mut VirtualLine, end: Instant) {
-    line.run_until(end);
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let end = line.now() + d;
-    run_until(line, end);
+    support::line_with(9600, CharFormat::EVEN_8E1, addresses, DanfossDrive::new)
 }
 
 /// Writes `request` and runs the line until a whole telegram has come back (or the timeout);
@@ -51,20 +39,9 @@ fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Optio
 }
 
 /// Runs a plan to its end; the outcome and the number of telegrams sent.
-fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
-    let mut reply: Option<Vec<u8>> = None;
-    let mut sent = 0;
-    loop {
-        match plan.step(reply.as_deref()) {
-            Err(e) => return (Err(e), sent),
-            Ok(Step::Done(outcome)) => return (Ok(outcome), sent),
-            Ok(Step::Send(x)) => {
-                sent += 1;
-                assert!(sent < 20, "a plan that does not end");
-                reply = transact(line, &x.request, x.expect_reply);
-            }
-        }
-    }
+fn execute(line: &mut VirtualLine, plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
+    let (outcome, sent) = support::execute(plan, |x| transact(line, &x.request, x.expect_reply));
+    (outcome, sent.len())
 }
 
 /// Runs `op` and expects it to succeed; returns the outcome and the telegram count.
@@ -90,19 +67,8 @@ fn read(line: &mut VirtualLine, profile: &DanfossProfile, name: &str) -> i64 {
     }
 }
 
-fn write(name: &str, raw: i64, storage: Storage) -> Operation {
-    Operation::WriteParam { name: name.to_string(), raw, storage }
-}
-
 fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
     &line.drive(port).expect("a drive").core().model
-}
-
-fn refusal(result: Result<Outcome, DriveError>) -> (u32, String) {
-    match result {
-        Err(DriveError::Refused { code, meaning, .. }) => (code, meaning),
-        other => panic!("a refusal, not {other:?}"),
-    }
 }
 
 #[test]

@@ -1,6 +1,8 @@
 //! The generic VFD profile (`seeds/004_e8ea1998fe1a671e.txt`) run to completion against the
 //! simulated generic drive on a paced `VirtualLine`, on simulated time, in Modbus RTU and ASCII.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::generic::{GenericProfile, GenericProtocol};
@@ -8,12 +10,12 @@ use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outc
 use drivebus_drive::Storage;
 use drivebus_proto::modbus::ascii::ModbusAscii;
 use drivebus_proto::modbus::rtu::ModbusRtu;
-use drivebus_proto::{Codec, Direction, Instant};
+use drivebus_proto::{Codec, Direction};
 use drivebus_sim::bus::VirtualLine;
-use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::generic as sim;
 use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
+use support::{drive, drive_mut, refusal, wait};
 
 const BAUD: u32 = 9600;
 /// The silence seed 004 asks for between frames ("保持无输入信号大于等于 10ms").
@@ -25,20 +27,8 @@ const TURNAROUND: Duration = Duration::from_millis(100);
 
 /// A line in the protocol's default format with simulated drives at `addresses`.
 fn line_with(protocol: sim::GenericProtocol, addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(
-        BAUD,
-        drivebus_drive::Family::Generic.serial_default(protocol.wire()).1,
-        Instant::ZERO,
-    );
-    for &a in addresses {
-        match sim::GenericDrive::new(a, protocol, Instant::ZERO) {
-            Ok(d) => {
-                line.add_device(Box::new(d));
-            }
-            Err(e) => panic!("{e}"),
-        }
-    }
-    line
+    let format = drivebus_drive::Family::Generic.serial_default(protocol.wire()).1;
+    support::line_with(BAUD, format, addresses, |a, now| sim::GenericDrive::new(a, protocol, now))
 }
 
 fn profile(address: u8, protocol: GenericProtocol) -> GenericProfile {
@@ -59,15 +49,7 @@ fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
 
 /// Runs `op` to completion, as a bus owner would.
 fn run<C: Codec>(line: &mut VirtualLine, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
-    let mut plan = p.plan(&op)?;
-    let mut reply: Option<Vec<u8>> = None;
-    for _ in 0..32 {
-        match plan.step(reply.as_deref())? {
-            Step::Send(x) => reply = transact::<C>(line, &x),
-            Step::Done(outcome) => return Ok(outcome),
-        }
-    }
-    panic!("{op:?} did not finish in 32 exchanges");
+    support::execute(p.plan(&op)?, |x| transact::<C>(line, x)).0
 }
 
 fn rtu(line: &mut VirtualLine, p: &GenericProfile, op: Operation) -> Result<Outcome, DriveError> {
@@ -97,30 +79,13 @@ fn read(line: &mut VirtualLine, p: &GenericProfile, name: &str) -> i64 {
 }
 
 fn write(name: &str, raw: i64) -> Operation {
-    Operation::WriteParam { name: name.into(), raw, storage: Storage::Eeprom }
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let t = line.now() + d;
-    line.advance_to(t);
-}
-
-fn drive(line: &mut VirtualLine, port: usize) -> &dyn VirtualDrive {
-    line.drive(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
-}
-
-fn drive_mut(line: &mut VirtualLine, port: usize) -> &mut dyn VirtualDrive {
-    line.drive_mut(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
+    support::write(name, raw, Storage::Eeprom)
 }
 
 fn refused_code(r: Result<Outcome, DriveError>) -> u32 {
-    match r {
-        Err(DriveError::Refused { code, meaning, .. }) => {
-            assert!(!meaning.is_empty());
-            code
-        }
-        other => panic!("expected a refusal, got {other:?}"),
-    }
+    let (code, meaning) = refusal(r);
+    assert!(!meaning.is_empty());
+    code
 }
 
 #[test]

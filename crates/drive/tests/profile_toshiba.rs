@@ -2,6 +2,8 @@
 //! simulated VF-AS1 on a paced `VirtualLine`, on simulated time, in Modbus-RTU, TIP ASCII and
 //! TIP binary.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::toshiba::{ToshibaProfile, ToshibaProtocol, TIP_BROADCAST};
@@ -13,12 +15,13 @@ use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::toshiba::ascii::AsciiCodec;
 use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryCodec, BinaryRequest};
 use drivebus_proto::toshiba::{CommNo, ErrorCode};
-use drivebus_proto::{Codec, Direction, Instant};
+use drivebus_proto::{Codec, Direction};
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::toshiba as sim;
 use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, Trip};
+use support::{refusal, write};
 
 const ALL: [WireProtocol; 3] =
     [WireProtocol::ModbusRtu, WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary];
@@ -37,16 +40,10 @@ struct Bus {
 impl Bus {
     /// Drives numbered `addresses`, speaking `protocol` (f829 set to match).
     fn new(protocol: WireProtocol, addresses: &[u8]) -> Bus {
-        let mut line = VirtualLine::new(19200, CharFormat::EVEN_8E1, Instant::ZERO);
         let kind = ToshibaProtocol::of(protocol).unwrap_or_else(|| panic!("the VF-AS1 speaks no {protocol}"));
-        for &a in addresses {
-            match sim::ToshibaDrive::new(a, kind, Instant::ZERO) {
-                Ok(d) => {
-                    line.add_device(Box::new(d));
-                }
-                Err(e) => panic!("{e}"),
-            }
-        }
+        let line = support::line_with(19200, CharFormat::EVEN_8E1, addresses, |a, now| {
+            sim::ToshibaDrive::new(a, kind, now)
+        });
         Bus { line, protocol, exchanges: 0 }
     }
 
@@ -62,15 +59,7 @@ impl Bus {
 
     /// Runs `op` to completion, as a bus owner would.
     fn run(&mut self, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
-        let mut plan = p.plan(&op)?;
-        let mut reply: Option<Vec<u8>> = None;
-        for _ in 0..32 {
-            match plan.step(reply.as_deref())? {
-                Step::Send(x) => reply = self.transact(&x),
-                Step::Done(outcome) => return Ok(outcome),
-            }
-        }
-        panic!("{op:?} did not finish in 32 exchanges");
+        support::execute(p.plan(&op)?, |x| self.transact(x)).0
     }
 
     fn ok(&mut self, p: &ToshibaProfile, op: Operation) {
@@ -96,16 +85,15 @@ impl Bus {
     }
 
     fn wait(&mut self, d: Duration) {
-        let t = self.line.now() + d;
-        self.line.advance_to(t);
+        support::wait(&mut self.line, d);
     }
 
     fn drive(&mut self, port: usize) -> &dyn VirtualDrive {
-        self.line.drive(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
+        support::drive(&mut self.line, port)
     }
 
     fn drive_mut(&mut self, port: usize) -> &mut dyn VirtualDrive {
-        self.line.drive_mut(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
+        support::drive_mut(&mut self.line, port)
     }
 
     fn master_bytes(&self) -> u64 {
@@ -128,17 +116,6 @@ fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
 /// Inverter 1 (Modbus numbers start at 1; TIP has 0 too).
 fn profile(protocol: WireProtocol) -> ToshibaProfile {
     ToshibaProfile::new(1, protocol).unwrap_or_else(|e| panic!("{e}"))
-}
-
-fn write(name: &str, raw: i64, storage: Storage) -> Operation {
-    Operation::WriteParam { name: name.into(), raw, storage }
-}
-
-fn refusal(r: Result<Outcome, DriveError>) -> (u32, String) {
-    match r {
-        Err(DriveError::Refused { code, meaning, .. }) => (code, meaning),
-        other => panic!("expected a refusal, got {other:?}"),
-    }
 }
 
 #[test]

@@ -10,20 +10,15 @@ use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outc
 use drivebus_drive::Storage;
 use drivebus_proto::modbus::ascii::ModbusAscii;
 use drivebus_proto::modbus::rtu::ModbusRtu;
-use drivebus_proto::{Codec, Direction};
+use drivebus_proto::Codec;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::generic as sim;
-use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
 use support::{drive, drive_mut, refusal, wait};
 
 const BAUD: u32 = 9600;
 /// The silence seed 004 asks for between frames ("保持无输入信号大于等于 10ms").
 const GAP: Duration = Duration::from_millis(10);
-/// How long the bus waits for a reply.
-const RESPONSE_TIMEOUT: Duration = Duration::from_millis(500);
-/// How long the bus waits after a broadcast.
-const TURNAROUND: Duration = Duration::from_millis(100);
 
 /// A line in the protocol's default format with simulated drives at `addresses`.
 fn line_with(protocol: sim::GenericProtocol, addresses: &[u8]) -> VirtualLine {
@@ -35,16 +30,9 @@ fn profile(address: u8, protocol: GenericProtocol) -> GenericProfile {
     GenericProfile::new(address, protocol).unwrap_or_else(|e| panic!("{e}"))
 }
 
-/// Puts one request on the line (after the minimum gap) and waits until the codec's deframer
-/// has a whole reply; `None` after a broadcast or when nothing came in time.
+/// Puts one request on the line (after the minimum gap) and waits for a whole reply.
 fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
-    let master = LineMaster {
-        gap_before: GAP,
-        gap_after: Duration::ZERO,
-        timeout: RESPONSE_TIMEOUT,
-        turnaround: TURNAROUND,
-    };
-    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
+    support::transact::<C>(line, x, GAP)
 }
 
 /// Runs `op` to completion, as a bus owner would.

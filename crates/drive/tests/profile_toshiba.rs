@@ -15,11 +15,10 @@ use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::toshiba::ascii::AsciiCodec;
 use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryCodec, BinaryRequest};
 use drivebus_proto::toshiba::{CommNo, ErrorCode};
-use drivebus_proto::{Codec, Direction};
+use drivebus_proto::Codec;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::toshiba as sim;
-use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, Trip};
 use support::{refusal, write};
 
@@ -27,8 +26,6 @@ const ALL: [WireProtocol; 3] =
     [WireProtocol::ModbusRtu, WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary];
 /// Silence left before each request (the drive needs none in TIP; Modbus t3.5 is 1.75 ms).
 const GAP: Duration = Duration::from_millis(5);
-const RESPONSE_TIMEOUT: Duration = Duration::from_millis(500);
-const TURNAROUND: Duration = Duration::from_millis(100);
 
 /// A line at the VF-AS1's default 19200 8E1 and a bus owner that counts its exchanges.
 struct Bus {
@@ -101,16 +98,9 @@ impl Bus {
     }
 }
 
-/// Puts one request on the line (after the minimum gap) and waits until the codec's deframer
-/// has a whole reply; `None` after a broadcast or when nothing came in time.
+/// Puts one request on the line (after the minimum gap) and waits for a whole reply.
 fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
-    let master = LineMaster {
-        gap_before: GAP,
-        gap_after: Duration::ZERO,
-        timeout: RESPONSE_TIMEOUT,
-        turnaround: TURNAROUND,
-    };
-    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
+    support::transact::<C>(line, x, GAP)
 }
 
 /// Inverter 1 (Modbus numbers start at 1; TIP has 0 too).

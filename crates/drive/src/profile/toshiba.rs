@@ -825,10 +825,7 @@ struct ToshibaPlan {
     finished: bool,
 }
 
-enum Next {
-    Send(Ask),
-    Done(Outcome),
-}
+type Next = super::Next<Ask>;
 
 fn data(answer: &Option<Answer>) -> (u16, bool) {
     match answer {
@@ -1051,21 +1048,10 @@ impl Plan for ToshibaPlan {
             None => None,
         };
         let next = self.advance(answer);
-        match next {
-            Ok(Next::Send(ask)) => {
-                let request = self.link.encode(ask)?;
-                self.sent = Some(ask);
-                Ok(Step::Send(Exchange { request, expect_reply: !self.link.broadcast }))
-            }
-            Ok(Next::Done(outcome)) => {
-                self.finished = true;
-                Ok(Step::Done(outcome))
-            }
-            Err(e) => {
-                self.finished = true;
-                Err(e)
-            }
-        }
+        let link = self.link;
+        super::step_to(next, &mut self.sent, &mut self.finished, |ask| {
+            Ok(Exchange { request: link.encode(ask)?, expect_reply: !link.broadcast })
+        })
     }
 }
 

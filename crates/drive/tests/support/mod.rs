@@ -7,9 +7,10 @@ use std::time::Duration;
 use drivebus_drive::profile::{DriveError, Exchange, Operation, Outcome, Plan, Step};
 use drivebus_drive::Storage;
 use drivebus_proto::line::CharFormat;
-use drivebus_proto::Instant;
+use drivebus_proto::{Codec, Direction, Instant};
 use drivebus_sim::bus::{Device, VirtualLine};
 use drivebus_sim::drive::VirtualDrive;
+use drivebus_sim::master::LineMaster;
 
 /// The most exchanges a plan may take before the test calls it endless.
 pub const MAX_EXCHANGES: usize = 32;
@@ -32,6 +33,23 @@ pub fn line_with<D: Device + Send + 'static>(
         }
     }
     line
+}
+
+/// How long [`transact`] waits for a reply.
+pub const RESPONSE_TIMEOUT: Duration = Duration::from_millis(500);
+/// How long [`transact`] waits after a broadcast.
+pub const TURNAROUND: Duration = Duration::from_millis(100);
+
+/// Puts one request on the line after `gap` of silence and waits until codec `C`'s deframer
+/// has a whole reply; `None` after a broadcast or when nothing came in time.
+pub fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange, gap: Duration) -> Option<Vec<u8>> {
+    let master = LineMaster {
+        gap_before: gap,
+        gap_after: Duration::ZERO,
+        timeout: RESPONSE_TIMEOUT,
+        turnaround: TURNAROUND,
+    };
+    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
 }
 
 /// Runs `plan` to its end, `transact` putting each request on the line and giving the reply;

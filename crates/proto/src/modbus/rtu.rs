@@ -390,105 +390,58 @@ fn check(frame: &[u8]) -> Result<(), FrameError> {
     Ok(())
 }
 
-/// Writes the RTU frame of `unit` and the PDU `emit_pdu` writes (`pdu_len` bytes): address,
-/// PDU, CRC; returns its length.
-#[inline]
-fn emit_adu(
-    out: &mut [u8],
-    unit: UnitId,
-    pdu_len: usize,
-    emit_pdu: impl FnOnce(&mut [u8]) -> Result<usize, EmitError>,
-) -> Result<usize, EmitError> {
-    crate::error::need(out, pdu_len + 3)?;
-    out[0] = unit.0;
-    let n = emit_pdu(&mut out[1..])?;
-    put_crc(out, 1 + n)
+/// The RTU frame methods of a request and of a reply: the same but for the PDU type.
+macro_rules! rtu_frame {
+    ($adu:ident, $pdu:ident, $what:literal) => {
+        impl<'a> $adu<'a> {
+            #[doc = concat!("Parses an RTU ", $what, " frame, CRC included, and checks the CRC.")]
+            pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
+                check(frame)?;
+                Self::parse_rtu_unchecked(frame)
+            }
+
+            #[doc = concat!("Parses an RTU ", $what, " frame whose CRC has been checked (by [`RtuScanner`]).")]
+            #[inline]
+            pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
+                let (unit, pdu) = split(frame)?;
+                Ok($adu { unit, pdu: $pdu::parse(pdu).map_err(adu_error)? })
+            }
+
+            /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
+            pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
+                crate::error::need(out, self.pdu.wire_len() + 3)?;
+                out[0] = self.unit.0;
+                let n = self.pdu.emit(&mut out[1..])?;
+                put_crc(out, 1 + n)
+            }
+        }
+    };
 }
 
-impl<'a> Request<'a> {
-    /// Parses an RTU request frame, CRC included, and checks the CRC.
-    pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
-        check(frame)?;
-        Self::parse_rtu_unchecked(frame)
-    }
-
-    /// Parses an RTU request frame whose CRC has been checked (by [`RtuScanner`]).
-    #[inline]
-    pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
-        let (unit, pdu) = split(frame)?;
-        Ok(Request { unit, pdu: RequestPdu::parse(pdu).map_err(adu_error)? })
-    }
-
-    /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
-    pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        emit_adu(out, self.unit, self.pdu.wire_len(), |b| self.pdu.emit(b))
-    }
-}
-
-impl<'a> Reply<'a> {
-    /// Parses an RTU reply frame, CRC included, and checks the CRC.
-    pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
-        check(frame)?;
-        Self::parse_rtu_unchecked(frame)
-    }
-
-    /// Parses an RTU reply frame whose CRC has been checked (by [`RtuScanner`]).
-    #[inline]
-    pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
-        let (unit, pdu) = split(frame)?;
-        Ok(Reply { unit, pdu: ReplyPdu::parse(pdu).map_err(adu_error)? })
-    }
-
-    /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
-    pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        emit_adu(out, self.unit, self.pdu.wire_len(), |b| self.pdu.emit(b))
-    }
-}
+rtu_frame!(Request, RequestPdu, "request");
+rtu_frame!(Reply, ReplyPdu, "reply");
 
 /// Modbus RTU for the sessions and the tools (`Protocol` and `Codec`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct ModbusRtu;
 
-impl Protocol for ModbusRtu {
-    type ReplyScanner = RtuScanner;
-    type RequestScanner = RtuScanner;
-    type Request<'a> = Request<'a>;
-    type Reply<'a> = Reply<'a>;
-    type Pending = Pending;
+modbus_protocol!(
+    ModbusRtu,
+    RtuScanner,
+    replies: RtuScanner::replies(),
+    requests: RtuScanner::requests(),
+    emit_rtu,
+    parse_rtu_unchecked
+);
 
-    fn reply_scanner(&self) -> RtuScanner {
-        RtuScanner::replies()
-    }
-    fn request_scanner(&self) -> RtuScanner {
-        RtuScanner::requests()
-    }
-    fn emit_request(&self, req: &Request<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit_rtu(out)
-    }
-    fn emit_reply(&self, rep: &Reply<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit_rtu(out)
-    }
-    fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Request<'a>, FrameError> {
-        Request::parse_rtu_unchecked(bytes)
-    }
-    fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Reply<'a>, FrameError> {
-        Reply::parse_rtu_unchecked(bytes)
-    }
-    fn pending(&self, req: &Request<'_>) -> Option<Pending> {
-        req.pending()
-    }
-    fn matches(&self, pending: &Pending, rep: &Reply<'_>) -> bool {
-        pending.matches(rep)
-    }
-    fn disposition(&self, req: &Request<'_>, me: u8) -> Disposition {
-        req.disposition(me)
-    }
-    /// A frame with a bad CRC is dropped without a word (seed 004: "如果两值不同则接收消息有错误
-    /// 丢弃该消息帧,并不作任何回应": if the two values differ the message is in error, the
-    /// frame is discarded and nothing is answered). A frame with a good CRC that does not
-    /// parse (quantity 0, unknown function) is the addressee's to answer with an exception
-    /// ([`pdu::ExceptionCode::for_error`]); nobody answers a broadcast.
-    fn rejected_disposition(&self, bytes: &[u8], _error: &FrameError, me: u8) -> Disposition {
+impl ModbusRtu {
+    /// How drive `me` treats a frame that did not parse. A frame with a bad CRC is dropped
+    /// without a word (seed 004: "如果两值不同则接收消息有错误丢弃该消息帧,并不作任何回应": if the
+    /// two values differ the message is in error, the frame is discarded and nothing is
+    /// answered). A frame with a good CRC that does not parse (quantity 0, unknown function) is
+    /// the addressee's to answer with an exception ([`pdu::ExceptionCode::for_error`]); nobody
+    /// answers a broadcast.
+    pub fn rejected(&self, bytes: &[u8], me: u8) -> Disposition {
         if bytes.len() >= MIN_ADU && bytes.len() <= MAX_ADU && crc_ok(bytes) {
             super::disposition(bytes[0], me)
         } else {

@@ -78,7 +78,7 @@ impl AsciiAddress {
         }
     }
 
-    /// The address for [`Describe`]: `**` is a broadcast.
+    /// The address for [`Describe`](crate::describe::Describe): `**` is a broadcast.
     pub const fn target(self) -> Target {
         match self {
             AsciiAddress::Omitted => Target::Implicit,

@@ -270,7 +270,7 @@ pub(super) fn rejection(bytes: &[u8]) -> Option<(AsciiAddress, bool, ErrorCode)>
 
 /// The error reply inverter `me` sends to a request frame it rejected (a bad SUM, an unknown
 /// command, a bad COMNO or DATA), or `None` when it stays silent (format errors, frames for
-/// others are the caller's business: see [`TipAscii`]'s `rejected_disposition`).
+/// others are the caller's business: see [`TipAscii`](super::TipAscii)'s `rejected_disposition`).
 pub fn rejection_reply(bytes: &[u8], me: u8, tripped: bool) -> Option<AsciiReply> {
     let (inv_no, sum, code) = rejection(bytes)?;
     let inv_no = match inv_no {

@@ -38,7 +38,7 @@ impl BinaryAddress {
         }
     }
 
-    /// The address for [`Describe`].
+    /// The address for [`Describe`](crate::describe::Describe).
     pub const fn target(self) -> Target {
         match self {
             BinaryAddress::Omitted => Target::Implicit,

@@ -6,9 +6,7 @@ use crate::error::{need, EmitError, FrameError};
 
 use super::address::unit_byte;
 use super::parse::parse_frame;
-use super::{
-    BinaryAddress, Cmd, CommNo, BLOCK, BLOCK_REPLY, MAX_FRAME, MAX_READ_GROUPS, MAX_WRITE_GROUPS, START,
-};
+use super::{BinaryAddress, Cmd, CommNo, BLOCK, BLOCK_REPLY, MAX_FRAME, MAX_READ_GROUPS, N_R, N_W, START};
 use crate::toshiba::{ErrorCode, ERROR_LETTER};
 
 /// The body of an `X` block-communication request.
@@ -28,17 +26,10 @@ pub struct BlockRequest {
 impl BlockRequest {
     /// Writes `wdata` (0–2 groups) and reads `n_r` groups.
     pub fn new(wdata: &[u16], n_r: u8) -> Result<Self, EmitError> {
-        if wdata.len() > MAX_WRITE_GROUPS as usize {
-            return Err(EmitError::OutOfRange {
-                field: "nW (number of write data groups)",
-                value: wdata.len() as u32,
-                min: 0,
-                max: MAX_WRITE_GROUPS as u32,
-            });
-        }
+        let n_w = N_W.emit(wdata.len())?;
         let mut w = [0; 2];
         w[..wdata.len()].copy_from_slice(wdata);
-        Ok(BlockRequest { n_w: wdata.len() as u8, n_r, wdata: w })
+        Ok(BlockRequest { n_w, n_r, wdata: w })
     }
 
     /// The write groups sent.
@@ -68,17 +59,10 @@ pub struct BlockReply {
 impl BlockReply {
     /// A reply carrying `rdata` (0–5 groups).
     pub fn new(rdata: &[u16]) -> Result<Self, EmitError> {
-        if rdata.len() > MAX_READ_GROUPS as usize {
-            return Err(EmitError::OutOfRange {
-                field: "nR (number of read data groups)",
-                value: rdata.len() as u32,
-                min: 0,
-                max: MAX_READ_GROUPS as u32,
-            });
-        }
+        let n_r = N_R.emit(rdata.len())?;
         let mut r = [0; 5];
         r[..rdata.len()].copy_from_slice(rdata);
-        Ok(BlockReply { n_r: rdata.len() as u8, rdata: r })
+        Ok(BlockReply { n_r, rdata: r })
     }
 
     /// The read groups carried.
@@ -260,14 +244,7 @@ impl BinaryRequest {
                 w.word(data);
             }
             BinaryRequestBody::Block(b) => {
-                if b.n_w > MAX_WRITE_GROUPS {
-                    return Err(EmitError::OutOfRange {
-                        field: "nW (number of write data groups)",
-                        value: b.n_w as u32,
-                        min: 0,
-                        max: MAX_WRITE_GROUPS as u32,
-                    });
-                }
+                N_W.emit(b.n_w as usize)?;
                 w.push(b.n_w);
                 w.push(b.n_r);
                 for &d in b.wdata() {
@@ -366,14 +343,7 @@ impl BinaryReply {
                 w.word(data);
             }
             BinaryReplyBody::Block(b) => {
-                if b.n_r > MAX_READ_GROUPS {
-                    return Err(EmitError::OutOfRange {
-                        field: "nR (number of read data groups)",
-                        value: b.n_r as u32,
-                        min: 0,
-                        max: MAX_READ_GROUPS as u32,
-                    });
-                }
+                N_R.emit(b.n_r as usize)?;
                 w.push(BLOCK_REPLY | case);
                 w.push(b.n_r);
                 for &d in b.rdata() {

@@ -68,6 +68,42 @@ pub const MAX_READ_GROUPS: u8 = 5;
 /// The longest binary-mode frame: a Y reply with INV-NO and 5 read groups, 15 bytes.
 pub const MAX_FRAME: usize = 15;
 
+/// A count of data groups and its limit: nW of an `X` request or nR of a `Y` reply.
+#[derive(Clone, Copy)]
+struct Groups {
+    field: &'static str,
+    max: u8,
+}
+
+/// nW, at most [`MAX_WRITE_GROUPS`].
+const N_W: Groups = Groups { field: "nW (number of write data groups)", max: MAX_WRITE_GROUPS };
+/// nR, at most [`MAX_READ_GROUPS`].
+const N_R: Groups = Groups { field: "nR (number of read data groups)", max: MAX_READ_GROUPS };
+
+impl Groups {
+    /// `n` within the limit, else the error for a frame the caller cannot build.
+    fn emit(self, n: usize) -> Result<u8, EmitError> {
+        match u8::try_from(n) {
+            Ok(n) if n <= self.max => Ok(n),
+            _ => Err(EmitError::OutOfRange {
+                field: self.field,
+                value: n as u32,
+                min: 0,
+                max: self.max as u32,
+            }),
+        }
+    }
+
+    /// `n` within the limit, else the format error of a frame that says more (no reply).
+    fn frame(self, n: u8) -> Result<u8, FrameError> {
+        if n <= self.max {
+            Ok(n)
+        } else {
+            Err(FrameError::OutOfRange { field: self.field, value: n as u32, min: 0, max: self.max as u32 })
+        }
+    }
+}
+
 /// What a reply must carry to answer a request.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Expect {

@@ -6,7 +6,7 @@ use crate::deframe::{Scan, Scanner};
 use crate::describe::Direction;
 use crate::error::{ChecksumKind, FrameError};
 
-use super::{BLOCK, BROADCAST, MAX_FRAME, MAX_INV_NO, MAX_READ_GROUPS, MAX_WRITE_GROUPS, START};
+use super::{BLOCK, BROADCAST, MAX_FRAME, MAX_INV_NO, N_R, N_W, START};
 use crate::toshiba::{prefix_hint, ASCII_START};
 
 /// INV-NO (if any), CMD and the bytes through CMD.
@@ -45,26 +45,12 @@ pub(super) fn shape(buf: &[u8], h: &Head) -> Result<Option<Shape>, FrameError> {
         BLOCK => {
             let Some(&n_w) = buf.get(base) else { return Ok(None) };
             // manual: nW out of range is a format error (no reply).
-            if n_w > MAX_WRITE_GROUPS {
-                return Err(FrameError::OutOfRange {
-                    field: "nW (number of write data groups)",
-                    value: n_w as u32,
-                    min: 0,
-                    max: MAX_WRITE_GROUPS as u32,
-                });
-            }
+            N_W.frame(n_w)?;
             Shape::Fixed(base + 3 + 2 * n_w as usize)
         }
         b'Y' | b'y' => {
             let Some(&n_r) = buf.get(base) else { return Ok(None) };
-            if n_r > MAX_READ_GROUPS {
-                return Err(FrameError::OutOfRange {
-                    field: "nR (number of read data groups)",
-                    value: n_r as u32,
-                    min: 0,
-                    max: MAX_READ_GROUPS as u32,
-                });
-            }
+            N_R.frame(n_r)?;
             Shape::Fixed(base + 2 + 2 * n_r as usize)
         }
         // manual: "Any other command is rejected" (binary mode: no reply).

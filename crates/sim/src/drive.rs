@@ -1,8 +1,8 @@
 //! What every virtual drive has, whatever its family: the motor model, the parameter values,
 //! the address, the response time, and a snapshot for the control interface.
 //!
-//! A family (`crate::family::*`) wraps a [`DriveCore`] with its protocol behaviour and
-//! implements [`VirtualDrive`] (and so [`Device`], to sit on a [`crate::bus::VirtualLine`]).
+//! A family (`family/`) wraps a [`DriveCore`] with its protocol behaviour and implements
+//! [`VirtualDrive`] (and so [`Device`], to sit on the virtual line of `bus.rs`).
 
 use std::time::Duration;
 
@@ -99,7 +99,7 @@ pub struct DriveSnapshot {
     pub display: String,
 }
 
-/// A device on a [`crate::bus::VirtualLine`]: it hears every byte and may answer (a virtual
+/// A device on the virtual line (`bus.rs`): it hears every byte and may answer (a virtual
 /// drive, a drive acting as bus master, a test's echo).
 pub trait Device {
     /// Bytes that arrived from the line at `now` (in order, all of them whole characters).
@@ -283,29 +283,4 @@ pub fn set_param_as_keypad(core: &mut DriveCore, name: &str, value: &str) -> Res
     let raw = def.parse_value(value).map_err(|e| e.to_string())?;
     let running = core.model.is_running();
     core.params.set(def.name.as_str(), raw, drivebus_drive::Storage::Ram, running).map_err(|e| e.to_string())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::family::b800::B800Drive;
-    use crate::family::generic::{GenericDrive, GenericProtocol};
-    use crate::family::toshiba::{ToshibaDrive, ToshibaProtocol};
-
-    fn tripped(mut drive: Box<dyn VirtualDrive>) -> String {
-        drive.core_mut().model.trip_now(Trip::OverCurrent);
-        drive.snapshot().display
-    }
-
-    #[test]
-    fn the_panel_shows_a_trip_in_the_family_s_own_code() {
-        let toshiba =
-            ToshibaDrive::new(1, ToshibaProtocol::Tip, Instant::ZERO).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(tripped(Box::new(toshiba)), "OC3");
-        let generic =
-            GenericDrive::new(1, GenericProtocol::Rtu, Instant::ZERO).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(tripped(Box::new(generic)), "E-01");
-        let b800 = B800Drive::new(1, Instant::ZERO).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(tripped(Box::new(b800)), "E01");
-    }
 }

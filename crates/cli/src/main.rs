@@ -188,7 +188,7 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => ExitCode::from(code),
         Err(e) => {
-            let code = e.downcast_ref::<commands::drive::Failure>().map_or(EXIT_USAGE, |f| f.code);
+            let code = e.downcast_ref::<commands::target::Failure>().map_or(EXIT_USAGE, |f| f.code);
             let line = format!("{e:#}").replace('\n', " ");
             eprintln!("drivebus: {line}");
             ExitCode::from(code)

@@ -12,7 +12,7 @@
 use clap::parser::ValueSource;
 use clap::{Arg, ArgAction, ArgMatches, Command};
 
-use crate::commands::drive::{usage, Target};
+use crate::commands::target::{usage, Target};
 
 /// `--port`.
 fn port() -> Arg {
@@ -47,7 +47,7 @@ fn baud(help: &'static str) -> Arg {
     Arg::new("baud")
         .long("baud")
         .value_name("BAUD|auto")
-        .value_parser(crate::commands::drive::parse_baud)
+        .value_parser(crate::commands::target::parse_baud)
         .help(help)
 }
 

@@ -2,40 +2,30 @@
 //! time: every operation run to completion, the seed's error codes as refusals, range checks,
 //! the global address.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::b800::B800Profile;
 use drivebus_drive::profile::{
-    run_blocking, CodeSpace, DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step,
+    CodeSpace, DriveError, DriveStatus, Fault, Operation, Outcome, Plan, Profile, Step,
 };
 use drivebus_drive::{Family, Storage};
 use drivebus_proto::b800::FrameScanner;
 use drivebus_proto::line::CharFormat;
-use drivebus_proto::{Direction, Instant};
+use drivebus_proto::Direction;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::b800::B800Drive;
 use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{DriveModel, Rotation, RunState, Trip};
+use support::wait;
 
 /// The master's response timeout (project decision: 100 ms).
 const TIMEOUT: Duration = Duration::from_millis(100);
 
 /// A 9600 bps 8N1 line with one B800 per address; ports 1, 2, ... in that order.
 fn line_with(addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(9600, CharFormat::NONE_8N1, Instant::ZERO);
-    for &a in addresses {
-        line.add_device(Box::new(B800Drive::new(a, Instant::ZERO).expect("a drive")));
-    }
-    line
-}
-
-fn run_until(line: &mut VirtualLine, end: Instant) {
-    line.run_until(end);
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let end = line.now() + d;
-    run_until(line, end);
+    support::line_with(9600, CharFormat::NONE_8N1, addresses, B800Drive::new)
 }
 
 /// Writes `request` and runs the line until a whole frame has come back (or the timeout); one
@@ -51,14 +41,10 @@ fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Optio
 }
 
 /// Runs a plan to its end; the outcome and the frames sent, as text.
-fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, Vec<String>) {
-    let mut sent = Vec::new();
-    let outcome = run_blocking(&mut *plan, |x| {
-        sent.push(String::from_utf8_lossy(&x.request[1..x.request.len() - 1]).into_owned());
-        assert!(sent.len() < 10, "a plan that does not end");
-        Ok(transact(line, &x.request, x.expect_reply))
-    });
-    (outcome, sent)
+fn execute(line: &mut VirtualLine, plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, Vec<String>) {
+    let (outcome, sent) = support::execute(plan, |x| transact(line, &x.request, x.expect_reply));
+    let text = sent.iter().map(|r| String::from_utf8_lossy(&r[1..r.len() - 1]).into_owned()).collect();
+    (outcome, text)
 }
 
 /// The command letters of frames to drive 1 (DA 81): "81540D" -> 'T'.

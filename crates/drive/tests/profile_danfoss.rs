@@ -1,20 +1,20 @@
 //! The FC profile against the simulated Danfoss FC drive on a paced virtual line, on simulated
 //! time: every operation run to completion, refusals, range checks, parameters, broadcast.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::danfoss::{DanfossProfile, ReferenceRange};
-use drivebus_drive::profile::{
-    run_blocking, CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step,
-};
+use drivebus_drive::profile::{CodeSpace, DriveError, DriveStatus, Operation, Outcome, Plan, Profile, Step};
 use drivebus_drive::Storage;
 use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
-use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::danfoss::DanfossDrive;
 use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
+use support::{refusal, wait, write};
 
 /// How long the helper waits for a reply: the FC response timeout, 50 ms.
 const TIMEOUT: Duration = Duration::from_millis(50);
@@ -23,21 +23,7 @@ const TURNAROUND: Duration = Duration::from_millis(20);
 
 /// A 9600 baud 8E1 line with one FC drive per address; ports 1, 2, ... in that order.
 fn line_with(addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
-    for &a in addresses {
-        line.add_device(Box::new(DanfossDrive::new(a, Instant::ZERO).expect("a drive")));
-    }
-    line
-}
-
-/// Runs the line until `end`, event by event.
-fn run_until(line: &mut VirtualLine, end: Instant) {
-    line.run_until(end);
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let end = line.now() + d;
-    run_until(line, end);
+    support::line_with(9600, CharFormat::EVEN_8E1, addresses, DanfossDrive::new)
 }
 
 /// Writes `request` and runs the line until a whole telegram has come back (or the timeout);
@@ -53,14 +39,9 @@ fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Optio
 }
 
 /// Runs a plan to its end; the outcome and the number of telegrams sent.
-fn execute(line: &mut VirtualLine, mut plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
-    let mut sent = 0;
-    let outcome = run_blocking(&mut *plan, |x| {
-        sent += 1;
-        assert!(sent < 20, "a plan that does not end");
-        Ok(transact(line, &x.request, x.expect_reply))
-    });
-    (outcome, sent)
+fn execute(line: &mut VirtualLine, plan: Box<dyn Plan>) -> (Result<Outcome, DriveError>, usize) {
+    let (outcome, sent) = support::execute(plan, |x| transact(line, &x.request, x.expect_reply));
+    (outcome, sent.len())
 }
 
 /// Runs `op` and expects it to succeed; returns the outcome and the telegram count.
@@ -86,19 +67,8 @@ fn read(line: &mut VirtualLine, profile: &DanfossProfile, name: &str) -> i64 {
     }
 }
 
-fn write(name: &str, raw: i64, storage: Storage) -> Operation {
-    Operation::WriteParam { name: name.to_string(), raw, storage }
-}
-
 fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
     &line.drive(port).expect("a drive").core().model
-}
-
-fn refusal(result: Result<Outcome, DriveError>) -> (u32, String) {
-    match result {
-        Err(DriveError::Refused { code, meaning, .. }) => (code, meaning),
-        other => panic!("a refusal, not {other:?}"),
-    }
 }
 
 #[test]
@@ -498,15 +468,16 @@ fn address_format_1_to_31() {
     let mut line = line_with(&[22]);
     let fc = DanfossProfile::with_address_format(22, AddressFormat::OneTo31).expect("profile");
     let mut plan = fc.plan(&Operation::Stop).expect("plan");
+    let mut reply = None;
+    let mut sent = 0;
     // A fresh profile's stop: 16-02, 16-00, then the stop; every one to ADR 16.
-    let mut adr = Vec::new();
-    run_blocking(&mut *plan, |x| {
-        adr.push(x.request[2]);
-        Ok::<_, DriveError>(transact(&mut line, &x.request, true))
-    })
-    .expect("stop");
-    // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
-    assert_eq!(adr, [0x16; 3]);
+    while let Ok(Step::Send(x)) = plan.step(reply.as_deref()) {
+        // protocols.md 2.3: address 22 in format 1-31 is ADR 16.
+        assert_eq!(x.request[2], 0x16);
+        reply = transact(&mut line, &x.request, true);
+        sent += 1;
+    }
+    assert_eq!(sent, 3);
     assert_eq!(fc.last_command().map(|(c, _)| c.0), Some(0x043C));
     assert!(DanfossProfile::with_address_format(32, AddressFormat::OneTo31).is_err());
     assert_eq!(

@@ -1,73 +1,43 @@
 //! The generic VFD profile (`seeds/004_e8ea1998fe1a671e.txt`) run to completion against the
 //! simulated generic drive on a paced `VirtualLine`, on simulated time, in Modbus RTU and ASCII.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::generic::{GenericProfile, GenericProtocol};
-use drivebus_drive::profile::{
-    run_blocking, DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step,
-};
+use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step};
 use drivebus_drive::Storage;
 use drivebus_proto::modbus::ascii::ModbusAscii;
 use drivebus_proto::modbus::rtu::ModbusRtu;
-use drivebus_proto::{Codec, Direction, Instant};
+use drivebus_proto::Codec;
 use drivebus_sim::bus::VirtualLine;
-use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::generic as sim;
-use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
+use support::{drive, drive_mut, refusal, wait};
 
 const BAUD: u32 = 9600;
 /// The silence seed 004 asks for between frames ("保持无输入信号大于等于 10ms").
 const GAP: Duration = Duration::from_millis(10);
-/// How long the bus waits for a reply.
-const RESPONSE_TIMEOUT: Duration = Duration::from_millis(500);
-/// How long the bus waits after a broadcast.
-const TURNAROUND: Duration = Duration::from_millis(100);
 
 /// A line in the protocol's default format with simulated drives at `addresses`.
 fn line_with(protocol: sim::GenericProtocol, addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(
-        BAUD,
-        drivebus_drive::Family::Generic.serial_default(protocol.wire()).1,
-        Instant::ZERO,
-    );
-    for &a in addresses {
-        match sim::GenericDrive::new(a, protocol, Instant::ZERO) {
-            Ok(d) => {
-                line.add_device(Box::new(d));
-            }
-            Err(e) => panic!("{e}"),
-        }
-    }
-    line
+    let format = drivebus_drive::Family::Generic.serial_default(protocol.wire()).1;
+    support::line_with(BAUD, format, addresses, |a, now| sim::GenericDrive::new(a, protocol, now))
 }
 
 fn profile(address: u8, protocol: GenericProtocol) -> GenericProfile {
     GenericProfile::new(address, protocol).unwrap_or_else(|e| panic!("{e}"))
 }
 
-/// Puts one request on the line (after the minimum gap) and waits until the codec's deframer
-/// has a whole reply; `None` after a broadcast or when nothing came in time.
+/// Puts one request on the line (after the minimum gap) and waits for a whole reply.
 fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
-    let master = LineMaster {
-        gap_before: GAP,
-        gap_after: Duration::ZERO,
-        timeout: RESPONSE_TIMEOUT,
-        turnaround: TURNAROUND,
-    };
-    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
+    support::transact::<C>(line, x, GAP)
 }
 
 /// Runs `op` to completion, as a bus owner would.
 fn run<C: Codec>(line: &mut VirtualLine, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
-    let mut plan = p.plan(&op)?;
-    let mut sent = 0;
-    run_blocking(&mut *plan, |x| {
-        sent += 1;
-        assert!(sent <= 32, "{op:?} did not finish in 32 exchanges");
-        Ok(transact::<C>(line, &x))
-    })
+    support::execute(p.plan(&op)?, |x| transact::<C>(line, x)).0
 }
 
 fn rtu(line: &mut VirtualLine, p: &GenericProfile, op: Operation) -> Result<Outcome, DriveError> {
@@ -97,30 +67,13 @@ fn read(line: &mut VirtualLine, p: &GenericProfile, name: &str) -> i64 {
 }
 
 fn write(name: &str, raw: i64) -> Operation {
-    Operation::WriteParam { name: name.into(), raw, storage: Storage::Eeprom }
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let t = line.now() + d;
-    line.advance_to(t);
-}
-
-fn drive(line: &mut VirtualLine, port: usize) -> &dyn VirtualDrive {
-    line.drive(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
-}
-
-fn drive_mut(line: &mut VirtualLine, port: usize) -> &mut dyn VirtualDrive {
-    line.drive_mut(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
+    support::write(name, raw, Storage::Eeprom)
 }
 
 fn refused_code(r: Result<Outcome, DriveError>) -> u32 {
-    match r {
-        Err(DriveError::Refused { code, meaning, .. }) => {
-            assert!(!meaning.is_empty());
-            code
-        }
-        other => panic!("expected a refusal, got {other:?}"),
-    }
+    let (code, meaning) = refusal(r);
+    assert!(!meaning.is_empty());
+    code
 }
 
 #[test]

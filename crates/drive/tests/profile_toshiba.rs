@@ -2,76 +2,61 @@
 //! simulated VF-AS1 on a paced `VirtualLine`, on simulated time, in Modbus-RTU, TIP ASCII and
 //! TIP binary.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::profile::toshiba::{ToshibaProfile, ToshibaProtocol, TIP_BROADCAST};
-use drivebus_drive::profile::{
-    run_blocking, DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step,
-};
+use drivebus_drive::profile::{DriveError, DriveStatus, Exchange, Operation, Outcome, Profile, Step};
 use drivebus_drive::Storage;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::modbus::rtu::ModbusRtu;
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::toshiba::ascii::AsciiCodec;
 use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryCodec, BinaryRequest};
 use drivebus_proto::toshiba::{CommNo, ErrorCode};
-use drivebus_proto::{Codec, Direction, Instant};
+use drivebus_proto::Codec;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::family::toshiba as sim;
-use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, Trip};
+use support::{refusal, write};
 
-const ALL: [ToshibaProtocol; 3] =
-    [ToshibaProtocol::ModbusRtu, ToshibaProtocol::TipAscii, ToshibaProtocol::TipBinary];
+const ALL: [WireProtocol; 3] =
+    [WireProtocol::ModbusRtu, WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary];
 /// Silence left before each request (the drive needs none in TIP; Modbus t3.5 is 1.75 ms).
 const GAP: Duration = Duration::from_millis(5);
-const RESPONSE_TIMEOUT: Duration = Duration::from_millis(500);
-const TURNAROUND: Duration = Duration::from_millis(100);
 
 /// A line at the VF-AS1's default 19200 8E1 and a bus owner that counts its exchanges.
 struct Bus {
     line: VirtualLine,
-    protocol: ToshibaProtocol,
+    protocol: WireProtocol,
     exchanges: usize,
 }
 
 impl Bus {
     /// Drives numbered `addresses`, speaking `protocol` (f829 set to match).
-    fn new(protocol: ToshibaProtocol, addresses: &[u8]) -> Bus {
-        let mut line = VirtualLine::new(19200, CharFormat::EVEN_8E1, Instant::ZERO);
-        let kind = match protocol {
-            ToshibaProtocol::ModbusRtu => sim::ToshibaProtocol::ModbusRtu,
-            _ => sim::ToshibaProtocol::Tip,
-        };
-        for &a in addresses {
-            match sim::ToshibaDrive::new(a, kind, Instant::ZERO) {
-                Ok(d) => {
-                    line.add_device(Box::new(d));
-                }
-                Err(e) => panic!("{e}"),
-            }
-        }
+    fn new(protocol: WireProtocol, addresses: &[u8]) -> Bus {
+        let kind = ToshibaProtocol::of(protocol).unwrap_or_else(|| panic!("the VF-AS1 speaks no {protocol}"));
+        let line = support::line_with(19200, CharFormat::EVEN_8E1, addresses, |a, now| {
+            sim::ToshibaDrive::new(a, kind, now)
+        });
         Bus { line, protocol, exchanges: 0 }
     }
 
     fn transact(&mut self, x: &Exchange) -> Option<Vec<u8>> {
         self.exchanges += 1;
         match self.protocol {
-            ToshibaProtocol::ModbusRtu => transact::<ModbusRtu>(&mut self.line, x),
-            ToshibaProtocol::TipAscii => transact::<AsciiCodec>(&mut self.line, x),
-            ToshibaProtocol::TipBinary => transact::<BinaryCodec>(&mut self.line, x),
+            WireProtocol::ModbusRtu => transact::<ModbusRtu>(&mut self.line, x),
+            WireProtocol::ToshibaAscii => transact::<AsciiCodec>(&mut self.line, x),
+            WireProtocol::ToshibaBinary => transact::<BinaryCodec>(&mut self.line, x),
+            other => panic!("the VF-AS1 speaks no {other}"),
         }
     }
 
     /// Runs `op` to completion, as a bus owner would.
     fn run(&mut self, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
-        let mut plan = p.plan(&op)?;
-        let mut sent = 0;
-        run_blocking(&mut *plan, |x| {
-            sent += 1;
-            assert!(sent <= 32, "{op:?} did not finish in 32 exchanges");
-            Ok(self.transact(&x))
-        })
+        support::execute(p.plan(&op)?, |x| self.transact(x)).0
     }
 
     fn ok(&mut self, p: &ToshibaProfile, op: Operation) {
@@ -97,16 +82,15 @@ impl Bus {
     }
 
     fn wait(&mut self, d: Duration) {
-        let t = self.line.now() + d;
-        self.line.advance_to(t);
+        support::wait(&mut self.line, d);
     }
 
     fn drive(&mut self, port: usize) -> &dyn VirtualDrive {
-        self.line.drive(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
+        support::drive(&mut self.line, port)
     }
 
     fn drive_mut(&mut self, port: usize) -> &mut dyn VirtualDrive {
-        self.line.drive_mut(port).unwrap_or_else(|| panic!("port {port} holds a drive"))
+        support::drive_mut(&mut self.line, port)
     }
 
     fn master_bytes(&self) -> u64 {
@@ -114,32 +98,14 @@ impl Bus {
     }
 }
 
-/// Puts one request on the line (after the minimum gap) and waits until the codec's deframer
-/// has a whole reply; `None` after a broadcast or when nothing came in time.
+/// Puts one request on the line (after the minimum gap) and waits for a whole reply.
 fn transact<C: Codec>(line: &mut VirtualLine, x: &Exchange) -> Option<Vec<u8>> {
-    let master = LineMaster {
-        gap_before: GAP,
-        gap_after: Duration::ZERO,
-        timeout: RESPONSE_TIMEOUT,
-        turnaround: TURNAROUND,
-    };
-    master.transact(line, C::scanner(Some(Direction::Drive)), &x.request, x.expect_reply)
+    support::transact::<C>(line, x, GAP)
 }
 
 /// Inverter 1 (Modbus numbers start at 1; TIP has 0 too).
-fn profile(protocol: ToshibaProtocol) -> ToshibaProfile {
+fn profile(protocol: WireProtocol) -> ToshibaProfile {
     ToshibaProfile::new(1, protocol).unwrap_or_else(|e| panic!("{e}"))
-}
-
-fn write(name: &str, raw: i64, storage: Storage) -> Operation {
-    Operation::WriteParam { name: name.into(), raw, storage }
-}
-
-fn refusal(r: Result<Outcome, DriveError>) -> (u32, String) {
-    match r {
-        Err(DriveError::Refused { code, meaning, .. }) => (code, meaning),
-        other => panic!("expected a refusal, got {other:?}"),
-    }
 }
 
 #[test]
@@ -147,7 +113,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
     for protocol in ALL {
         let mut bus = Bus::new(protocol, &[1]);
         let p = profile(protocol);
-        assert_eq!(p.protocol(), protocol.wire());
+        assert_eq!(p.protocol(), protocol);
         let s = bus.status(&p);
         assert_eq!(s.address, 1);
         assert!(!s.running, "{protocol}");
@@ -155,7 +121,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
         assert_eq!(s.current_a, Some(0.0));
         // FD01, FD00, FE02, FE03 and, the first time, FE70; in binary mode f875-f879 (once),
         // the X block, FE02 and FE70.
-        let first = if protocol == ToshibaProtocol::TipBinary { 8 } else { 5 };
+        let first = if protocol == WireProtocol::ToshibaBinary { 8 } else { 5 };
         assert_eq!(bus.exchanges, first, "{protocol}");
 
         bus.ok(&p, Operation::SetSpeed(40.0));
@@ -163,7 +129,7 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
         bus.wait(Duration::from_secs(2));
         let before = bus.exchanges;
         let s = bus.status(&p);
-        let each = if protocol == ToshibaProtocol::TipBinary { 2 } else { 4 };
+        let each = if protocol == WireProtocol::ToshibaBinary { 2 } else { 4 };
         assert_eq!(bus.exchanges - before, each, "FE70 and f875-f879 are read once per profile ({protocol})");
         assert!(s.running, "{protocol}");
         assert_eq!(s.direction.as_deref(), Some("forward"));
@@ -193,9 +159,9 @@ fn run_and_set_speed_show_running_and_the_output_ramping_in_every_protocol() {
 /// bytes instead of 56).
 #[test]
 fn binary_block_status_reads_in_two_exchanges() {
-    let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
-    let plain = profile(ToshibaProtocol::TipBinary).with_block_status(false);
-    let block = profile(ToshibaProtocol::TipBinary);
+    let mut bus = Bus::new(WireProtocol::ToshibaBinary, &[1]);
+    let plain = profile(WireProtocol::ToshibaBinary).with_block_status(false);
+    let block = profile(WireProtocol::ToshibaBinary);
     bus.ok(&plain, Operation::SetSpeed(30.0));
     bus.ok(&plain, Operation::Run);
     bus.wait(Duration::from_secs(10));
@@ -217,8 +183,8 @@ fn binary_block_status_reads_in_two_exchanges() {
     assert_eq!(bus.exchanges - before, 3, "X, FE02 and FC90");
     assert_eq!((f.code, f.text.as_str()), (0x03, "OC3: over-current during constant speed operation"));
     // Other protocols ignore the option.
-    let mut rtu = Bus::new(ToshibaProtocol::ModbusRtu, &[1]);
-    rtu.status(&profile(ToshibaProtocol::ModbusRtu).with_block_status(true));
+    let mut rtu = Bus::new(WireProtocol::ModbusRtu, &[1]);
+    rtu.status(&profile(WireProtocol::ModbusRtu).with_block_status(true));
     assert_eq!(rtu.exchanges, 5);
 }
 
@@ -227,8 +193,8 @@ fn binary_block_status_reads_in_two_exchanges() {
 /// block, a tripped drive costs one more read.
 #[test]
 fn block_status_follows_the_drives_read_item_selection() {
-    let mut bus = Bus::new(ToshibaProtocol::TipBinary, &[1]);
-    let p = profile(ToshibaProtocol::TipBinary);
+    let mut bus = Bus::new(WireProtocol::ToshibaBinary, &[1]);
+    let p = profile(WireProtocol::ToshibaBinary);
     // f876 = 4: output voltage instead of output frequency.
     bus.ok(&p, write("f876", 4, Storage::Ram));
     bus.status(&p);
@@ -335,8 +301,8 @@ fn reverse_turns_a_running_drive_and_jog_runs_at_5_hz() {
 
 #[test]
 fn set_speed_out_of_range_is_refused_before_any_byte_is_written() {
-    let mut bus = Bus::new(ToshibaProtocol::TipAscii, &[1]);
-    let p = profile(ToshibaProtocol::TipAscii);
+    let mut bus = Bus::new(WireProtocol::ToshibaAscii, &[1]);
+    let p = profile(WireProtocol::ToshibaAscii);
     let before = bus.master_bytes();
     for (hz, sentence) in [
         (60.01, "60.01 Hz is above the upper limit 0012 = 60.00 Hz"),
@@ -370,7 +336,7 @@ fn set_speed_out_of_range_is_refused_before_any_byte_is_written() {
 #[test]
 fn parameters_round_trip_with_ram_and_eeprom_as_the_protocol_allows() {
     // TIP: P writes RAM, W writes RAM and EEPROM.
-    for protocol in [ToshibaProtocol::TipAscii, ToshibaProtocol::TipBinary] {
+    for protocol in [WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary] {
         let mut bus = Bus::new(protocol, &[1]);
         let p = profile(protocol);
         assert_eq!(bus.read(&p, "dEC"), 100);
@@ -385,8 +351,8 @@ fn parameters_round_trip_with_ram_and_eeprom_as_the_protocol_allows() {
         assert_eq!(bus.read(&p, "FE70"), 175);
     }
     // Modbus-RTU: 06 always stores in EEPROM; a RAM-only write is refused before sending.
-    let mut bus = Bus::new(ToshibaProtocol::ModbusRtu, &[1]);
-    let p = profile(ToshibaProtocol::ModbusRtu);
+    let mut bus = Bus::new(WireProtocol::ModbusRtu, &[1]);
+    let p = profile(WireProtocol::ModbusRtu);
     let before = bus.master_bytes();
     match bus.run(&p, write("0010", 50, Storage::Ram)) {
         Err(DriveError::Unsupported(s)) => {
@@ -423,7 +389,7 @@ fn the_drives_refusals_carry_the_manuals_codes() {
         // UL above FH: data error (TIP 0001, Modbus 03).
         let (code, meaning) = refusal(bus.run(&p, write("0012", 9000, Storage::Eeprom)));
         match protocol {
-            ToshibaProtocol::ModbusRtu => {
+            WireProtocol::ModbusRtu => {
                 assert_eq!(code, 3);
                 assert!(meaning.starts_with("illegal data value: data error"), "{meaning}");
             }
@@ -436,7 +402,7 @@ fn the_drives_refusals_carry_the_manuals_codes() {
         // FH while running: impossible to execute (TIP 0000, Modbus 04).
         bus.ok(&p, Operation::Run);
         let (code, meaning) = refusal(bus.run(&p, write("FH", 7000, Storage::Eeprom)));
-        let expected = if protocol == ToshibaProtocol::ModbusRtu { 4 } else { 0 };
+        let expected = if protocol == WireProtocol::ModbusRtu { 4 } else { 0 };
         assert_eq!(code, expected, "{protocol}");
         assert!(meaning.contains("impossible to execute"), "{meaning}");
         assert_eq!(p.speed_limits(), (8000, 6000), "a refused write teaches nothing");
@@ -445,7 +411,7 @@ fn the_drives_refusals_carry_the_manuals_codes() {
 
 #[test]
 fn a_tip_error_reply_and_garbage_are_told_apart() {
-    let p = profile(ToshibaProtocol::TipBinary);
+    let p = profile(WireProtocol::ToshibaBinary);
     let mut plan = p.plan(&Operation::ReadParam("0010".into())).unwrap_or_else(|e| panic!("{e}"));
     let Ok(Step::Send(x)) = plan.step(None) else { panic!("a request") };
     assert_eq!(x.request, [0x2F, 0x01, 0x52, 0x00, 0x10, 0x92]);
@@ -478,12 +444,12 @@ fn a_tip_error_reply_and_garbage_are_told_apart() {
 fn broadcasts_reach_every_drive_and_wait_for_no_reply() {
     for protocol in ALL {
         let mut bus = Bus::new(protocol, &[1, 2]);
-        let address = if protocol == ToshibaProtocol::ModbusRtu { 0 } else { TIP_BROADCAST };
+        let address = if protocol == WireProtocol::ModbusRtu { 0 } else { TIP_BROADCAST };
         let all = ToshibaProfile::new(address, protocol).unwrap_or_else(|e| panic!("{e}"));
         assert!(all.is_broadcast());
         bus.ok(&all, Operation::SetSpeed(30.0));
         bus.ok(&all, Operation::Run);
-        let storage = if protocol == ToshibaProtocol::ModbusRtu { Storage::Eeprom } else { Storage::Ram };
+        let storage = if protocol == WireProtocol::ModbusRtu { Storage::Eeprom } else { Storage::Ram };
         bus.ok(&all, write("ACC", 50, storage));
         bus.wait(Duration::from_secs(10));
         for port in [1, 2] {
@@ -516,26 +482,32 @@ fn broadcasts_reach_every_drive_and_wait_for_no_reply() {
 #[test]
 fn inverter_numbers_are_checked_per_protocol() {
     let refused =
-        |a: u8, p: ToshibaProtocol| matches!(ToshibaProfile::new(a, p), Err(DriveError::OutOfRange(_)));
-    assert!(refused(248, ToshibaProtocol::ModbusRtu));
-    assert!(refused(255, ToshibaProtocol::ModbusRtu));
-    assert!(refused(100, ToshibaProtocol::TipAscii));
-    assert!(refused(64, ToshibaProtocol::TipBinary));
-    assert!(!refused(0, ToshibaProtocol::TipBinary));
-    assert!(!refused(99, ToshibaProtocol::TipAscii));
-    assert!(!refused(247, ToshibaProtocol::ModbusRtu));
+        |a: u8, p: WireProtocol| matches!(ToshibaProfile::new(a, p), Err(DriveError::OutOfRange(_)));
+    assert!(refused(248, WireProtocol::ModbusRtu));
+    assert!(refused(255, WireProtocol::ModbusRtu));
+    assert!(refused(100, WireProtocol::ToshibaAscii));
+    assert!(refused(64, WireProtocol::ToshibaBinary));
+    assert!(!refused(0, WireProtocol::ToshibaBinary));
+    assert!(!refused(99, WireProtocol::ToshibaAscii));
+    assert!(!refused(247, WireProtocol::ModbusRtu));
     assert_eq!(
-        ToshibaProfile::new(64, ToshibaProtocol::TipBinary).err(),
+        ToshibaProfile::new(64, WireProtocol::ToshibaBinary).err(),
         Some(DriveError::OutOfRange(
             "a VF-AS1 speaking toshiba-binary has inverter number 0..63, or 255 for a broadcast; not 64"
                 .into()
         ))
     );
-    assert_eq!("Toshiba-ASCII".parse::<ToshibaProtocol>(), Ok(ToshibaProtocol::TipAscii));
-    assert!("profibus".parse::<ToshibaProtocol>().is_err());
+    assert_eq!(
+        ToshibaProfile::new(1, WireProtocol::DanfossFc).err(),
+        Some(DriveError::Unsupported(
+            "the VF-AS1 speaks toshiba-ascii, toshiba-binary or modbus-rtu, not danfoss-fc".into()
+        ))
+    );
+    assert_eq!(ToshibaProtocol::of(WireProtocol::ToshibaBinary), Some(ToshibaProtocol::Tip));
+    assert_eq!(ToshibaProtocol::from_f829(1), ToshibaProtocol::ModbusRtu);
     // TIP inverter 0 is a drive, not a broadcast.
-    let mut bus = Bus::new(ToshibaProtocol::TipAscii, &[0]);
-    let zero = ToshibaProfile::new(0, ToshibaProtocol::TipAscii).unwrap_or_else(|e| panic!("{e}"));
+    let mut bus = Bus::new(WireProtocol::ToshibaAscii, &[0]);
+    let zero = ToshibaProfile::new(0, WireProtocol::ToshibaAscii).unwrap_or_else(|e| panic!("{e}"));
     assert!(!zero.is_broadcast());
     assert_eq!(bus.read(&zero, "FE70"), 175);
 }

@@ -42,6 +42,39 @@ const CRC16_TABLE: [u16; 256] = {
     table
 };
 
+/// The inverse of the high bytes of [`CRC16_TABLE`]: the high byte of `T[i]` is different for
+/// every `i`, so one step of the CRC can be undone.
+const CRC16_INV_HIGH: [u8; 256] = {
+    let mut inv = [0u8; 256];
+    let mut i = 0;
+    while i < 256 {
+        inv[(CRC16_TABLE[i] >> 8) as usize] = i as u8;
+        i += 1;
+    }
+    inv
+};
+
+/// Runs CRC-16/MODBUS backwards: the register before `bytes` that ends as `crc` after them
+/// (`crc16_modbus_update(crc16_modbus_rewind(crc, b), b) == crc`).
+pub fn crc16_modbus_rewind(mut crc: u16, bytes: &[u8]) -> u16 {
+    for &b in bytes.iter().rev() {
+        // Forward: crc' = (crc >> 8) ^ T[(crc ^ b) & 0xFF]; the high byte of crc' is T's.
+        let idx = CRC16_INV_HIGH[(crc >> 8) as usize];
+        let high = (crc ^ CRC16_TABLE[idx as usize]) & 0xFF;
+        crc = high << 8 | (idx ^ b) as u16;
+    }
+    crc
+}
+
+/// The byte `x` whose CRC-16/MODBUS register, after `x` alone from 0xFFFF, is `crc`; `None`
+/// when no single byte gets there.
+pub fn crc16_modbus_one_byte(crc: u16) -> Option<u8> {
+    // After one byte x from 0xFFFF the register is 0x00FF ^ T[x ^ 0xFF].
+    let t = crc ^ 0x00FF;
+    let idx = CRC16_INV_HIGH[(t >> 8) as usize];
+    (CRC16_TABLE[idx as usize] == t).then_some(idx ^ 0xFF)
+}
+
 /// Modbus ASCII LRC: the two's complement of the 8-bit sum of the binary bytes.
 #[inline]
 pub fn lrc(bytes: &[u8]) -> u8 {
@@ -74,6 +107,19 @@ pub fn xor8(bytes: &[u8]) -> u8 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn crc16_runs_backwards_and_finds_the_one_byte() {
+        let frame = [0x01, 0x06, 0x00, 0x02, 0x13, 0x88];
+        let state = crc16_modbus(&frame[..1]);
+        assert_eq!(crc16_modbus_rewind(crc16_modbus(&frame), &frame[1..]), state);
+        assert_eq!(crc16_modbus_update(crc16_modbus_rewind(0x1234, &frame), &frame), 0x1234);
+        for x in 0..=255u8 {
+            assert_eq!(crc16_modbus_one_byte(crc16_modbus(&[x])), Some(x));
+        }
+        // 256 registers are reachable in one byte; most are not.
+        assert_eq!((0..=u16::MAX).filter(|&c| crc16_modbus_one_byte(c).is_some()).count(), 256);
+    }
 
     #[test]
     fn crc16_check_value() {

@@ -1,5 +1,6 @@
-//! The six wire protocols as one type: the names users type and read, parsed and printed here
-//! and nowhere else, and the dispatch from a protocol to its codec and session types.
+//! The six wire protocols as one type: the names users type and read (each codec carries its
+//! own, [`Codec::NAME`]), parsed and printed here and nowhere else, and the dispatch from a
+//! protocol to its codec and session types. The codecs know nothing of this module.
 //!
 //! ```
 //! use drivebus_proto::protocol::WireProtocol;
@@ -46,14 +47,15 @@ impl WireProtocol {
     ];
 
     /// The name users type and read on the command line, in TOML and JSON (`modbus-rtu`, ...).
+    /// Each codec carries its name ([`Codec::NAME`]); this reads it.
     pub const fn name(self) -> &'static str {
         match self {
-            WireProtocol::ModbusRtu => "modbus-rtu",
-            WireProtocol::ModbusAscii => "modbus-ascii",
-            WireProtocol::ToshibaAscii => "toshiba-ascii",
-            WireProtocol::ToshibaBinary => "toshiba-binary",
-            WireProtocol::DanfossFc => "danfoss-fc",
-            WireProtocol::B800 => "b800",
+            WireProtocol::ModbusRtu => <modbus::rtu::ModbusRtu as Codec>::NAME,
+            WireProtocol::ModbusAscii => <modbus::ascii::ModbusAscii as Codec>::NAME,
+            WireProtocol::ToshibaAscii => <toshiba::ascii::AsciiCodec as Codec>::NAME,
+            WireProtocol::ToshibaBinary => <toshiba::binary::BinaryCodec as Codec>::NAME,
+            WireProtocol::DanfossFc => <fc::DanfossFc as Codec>::NAME,
+            WireProtocol::B800 => <b800::B800 as Codec>::NAME,
         }
     }
 

@@ -18,37 +18,12 @@ use std::time::Duration;
 use drivebus_proto::line::{modbus_t15_t35, CharFormat};
 use drivebus_proto::Instant;
 
+pub use crate::drive::Device;
 use crate::drive::VirtualDrive;
 use crate::rng::Rng;
 
 /// The port of the external master.
 pub const MASTER: usize = 0;
-
-/// A device on the line: it hears every byte and may answer.
-pub trait Device {
-    /// Bytes that arrived from the line at `now` (in order, all of them whole characters).
-    fn receive(&mut self, now: Instant, bytes: &[u8]);
-    /// The line has been quiet for t3.5 after the last byte (Modbus RTU frame end).
-    fn silence(&mut self, now: Instant) {
-        let _ = now;
-    }
-    /// Bytes to put on the line now, if an answer is due.
-    fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>>;
-    /// When the device next needs [`Device::poll_transmit`] or [`Device::advance_to`].
-    fn poll_timeout(&self) -> Option<Instant>;
-    /// Lets the device's own state (a motor ramp) reach `now`.
-    fn advance_to(&mut self, now: Instant) {
-        let _ = now;
-    }
-    /// This device as a virtual drive, if it is one (for the control interface).
-    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
-        None
-    }
-    /// This device as a virtual drive, mutable.
-    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
-        None
-    }
-}
 
 /// Faults to inject, settable at run time.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

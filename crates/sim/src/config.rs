@@ -23,7 +23,6 @@
 //! keypad_hz = 40       # the master's keypad frequency setting
 //! ```
 
-use std::str::FromStr;
 use std::time::Duration;
 
 use drivebus_drive::Family;
@@ -35,23 +34,7 @@ use drivebus_proto::Instant;
 
 use crate::bus::{Faults, VirtualLine};
 use crate::interdrive::{BusMaster, DEFAULT_CYCLE};
-
-/// One drive on the virtual bus.
-#[derive(Clone, Debug, PartialEq)]
-pub struct DriveSpec {
-    /// The family.
-    pub family: Family,
-    /// Its number on the bus.
-    pub address: u8,
-    /// The wire protocol, where the family speaks several (`None`: the family default).
-    pub protocol: Option<WireProtocol>,
-    /// Its response time.
-    pub response: Duration,
-    /// Its load, fraction of rated torque.
-    pub load: f64,
-    /// Parameters set at start (name, value in its unit), as on the keypad.
-    pub params: Vec<(String, String)>,
-}
+pub use crate::spec::{ConfigError, DriveSpec};
 
 /// The drive that is the line's bus master (`role = "master"`, or a Toshiba drive with f806 =
 /// 3 or 4), see [`crate::interdrive`].
@@ -83,42 +66,6 @@ pub struct BusSpec {
     pub seed: u64,
     /// The drive acting as bus master, if one does.
     pub master: Option<MasterSpec>,
-}
-
-/// Why a bus description is not usable: one sentence naming the place.
-pub use drivebus_drive::ConfigError;
-
-impl FromStr for DriveSpec {
-    type Err = ConfigError;
-
-    /// `KIND@ADDR[:PROTOCOL]`, e.g. `generic@1:modbus-rtu`, `b800@5`.
-    fn from_str(s: &str) -> Result<Self, ConfigError> {
-        let bad = |why: String| {
-            ConfigError(format!(
-                "--drive {s:?}: {why} (expected KIND@ADDR[:PROTOCOL], e.g. generic@1:modbus-rtu)"
-            ))
-        };
-        let (kind, rest) = s.split_once('@').ok_or_else(|| bad("no '@' between kind and address".into()))?;
-        let family: Family = kind
-            .parse()
-            .map_err(|_| bad(format!("unknown kind {kind:?}: use generic, toshiba, danfoss or b800")))?;
-        let (addr, protocol) = match rest.split_once(':') {
-            Some((a, p)) => (a, Some(p.parse::<WireProtocol>().map_err(|e| bad(e.to_string()))?)),
-            None => (rest, None),
-        };
-        let address: u8 =
-            addr.parse().map_err(|_| bad(format!("address {addr:?} is not a number 0..255")))?;
-        let spec = DriveSpec {
-            family,
-            address,
-            protocol,
-            response: Duration::from_millis(5),
-            load: 0.5,
-            params: Vec::new(),
-        };
-        spec.check().map_err(|e| bad(e.0))?;
-        Ok(spec)
-    }
 }
 
 /// The master role a bus file's drive takes, if it takes one: `role = "master"`, or for a
@@ -161,34 +108,6 @@ fn master_of(index: usize, spec: &DriveSpec, d: &FileDrive) -> Result<Option<Mas
         }
     }
     Ok(Some(MasterSpec { drive: index, cycle, keypad_hz: d.keypad_hz }))
-}
-
-impl DriveSpec {
-    /// Checks the address range and protocol of the family.
-    pub fn check(&self) -> Result<(), ConfigError> {
-        if let Some(p) = self.protocol {
-            self.family.check_protocol(p).map_err(ConfigError)?;
-        }
-        // A drive answers every protocol it speaks on the line (a TOSHIBA drive both TIP modes):
-        // its address is good if one of them can carry it.
-        let answered = crate::family::wire_protocols(self);
-        if !answered.iter().any(|&p| self.family.check_address(p, self.address).is_ok()) {
-            let widest =
-                answered.iter().map(|&p| self.family.address_range(p)).max_by_key(|(lo, hi)| hi - lo);
-            let (lo, hi) = widest.unwrap_or((0, 0));
-            return Err(ConfigError(format!(
-                "a {} drive's address is {lo}..{hi}, not {}",
-                self.family, self.address
-            )));
-        }
-        if !(0.0..=5.0).contains(&self.load) {
-            return Err(ConfigError(format!(
-                "load {} is outside 0..5 (fraction of rated torque)",
-                self.load
-            )));
-        }
-        Ok(())
-    }
 }
 
 #[derive(Deserialize)]

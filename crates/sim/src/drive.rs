@@ -1,8 +1,8 @@
 //! What every virtual drive has, whatever its family: the motor model, the parameter values,
 //! the address, the response time, and a snapshot for the control interface.
 //!
-//! A family (`crate::family::*`) wraps a [`DriveCore`] with its protocol behaviour and
-//! implements [`VirtualDrive`] (and so [`Device`], to sit on a [`crate::bus::VirtualLine`]).
+//! A family (`family/`) wraps a [`DriveCore`] with its protocol behaviour and implements
+//! [`VirtualDrive`] (and so [`Device`], to sit on the virtual line of `bus.rs`).
 
 use std::time::Duration;
 
@@ -10,8 +10,9 @@ use drivebus_drive::{Family, ParamStore};
 use drivebus_proto::Instant;
 use serde::Serialize;
 
-use crate::bus::Device;
-use crate::model::{DriveModel, ModelSettings, Rotation, RunRefusal, RunState};
+use drivebus_drive::profile::Fault;
+
+use crate::model::{DriveModel, ModelSettings, Rotation, RunRefusal, RunState, Trip};
 
 /// The state shared by every family.
 #[derive(Clone, Debug)]
@@ -98,6 +99,33 @@ pub struct DriveSnapshot {
     pub display: String,
 }
 
+/// A device on the virtual line (`bus.rs`): it hears every byte and may answer (a virtual
+/// drive, a drive acting as bus master, a test's echo).
+pub trait Device {
+    /// Bytes that arrived from the line at `now` (in order, all of them whole characters).
+    fn receive(&mut self, now: Instant, bytes: &[u8]);
+    /// The line has been quiet for t3.5 after the last byte (Modbus RTU frame end).
+    fn silence(&mut self, now: Instant) {
+        let _ = now;
+    }
+    /// Bytes to put on the line now, if an answer is due.
+    fn poll_transmit(&mut self, now: Instant) -> Option<Vec<u8>>;
+    /// When the device next needs [`Device::poll_transmit`] or [`Device::advance_to`].
+    fn poll_timeout(&self) -> Option<Instant>;
+    /// Lets the device's own state (a motor ramp) reach `now`.
+    fn advance_to(&mut self, now: Instant) {
+        let _ = now;
+    }
+    /// This device as a virtual drive, if it is one (for the control interface).
+    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
+        None
+    }
+    /// This device as a virtual drive, mutable.
+    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
+        None
+    }
+}
+
 /// A virtual drive: a [`Device`] with a model and parameters that a control interface can
 /// inspect and disturb.
 pub trait VirtualDrive: Device + Send {
@@ -152,9 +180,14 @@ pub trait VirtualDrive: Device + Send {
             self.family()
         ))
     }
+    /// What the panel shows for `trip`, code and text. Default: drivebus' number of the trip
+    /// ([`Trip::code`]) and its name; a family with trip codes of its own says its own.
+    fn panel_fault(&self, trip: Trip) -> Fault {
+        Fault { code: u32::from(trip.code()), text: trip.name().to_string() }
+    }
     /// The drive's state for the control interface.
     fn snapshot(&self) -> DriveSnapshot {
-        let display = panel_display(self.family(), self.core());
+        let display = panel_display(self);
         DriveSnapshot {
             display,
             ..snapshot_of(self.core(), self.family(), self.protocol(), self.control_source())
@@ -213,22 +246,18 @@ pub fn snapshot_of(
 }
 
 /// What the panel of `drive` shows now (see `drivebus_drive::panel`): a Toshiba drive with
-/// FA10 = 1 shows the LED data FA11/FA12; otherwise the trip in force, or the frequency.
-pub fn panel_display(family: Family, core: &DriveCore) -> String {
+/// FA10 = 1 shows the LED data FA11/FA12; otherwise the trip in force
+/// ([`VirtualDrive::panel_fault`]), or the frequency.
+pub fn panel_display<D: VirtualDrive + ?Sized>(drive: &D) -> String {
     use drivebus_drive::panel;
-    use drivebus_drive::profile::{DriveStatus, Fault};
+    use drivebus_drive::profile::DriveStatus;
+    let (family, core) = (drive.family(), drive.core());
     let p = |n: u32| core.params.get(n).unwrap_or(0);
     if family == Family::Toshiba && p(0xFA10) == 1 {
         return panel::led_text(p(0xFA11) as u16, p(0xFA12) as u16);
     }
     let m = &core.model;
-    let fault = m.trip().map(|t| match family {
-        Family::Toshiba => {
-            let code = crate::family::toshiba::trip_code(t);
-            Fault { code: u32::from(code), text: drivebus_drive::profile::toshiba::trip_text(code) }
-        }
-        _ => Fault { code: u32::from(crate::family::generic::fault_code(t)), text: t.name().to_string() },
-    });
+    let fault = m.trip().map(|t| drive.panel_fault(t));
     let status = DriveStatus {
         address: core.address,
         running: m.is_running(),

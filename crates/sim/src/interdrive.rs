@@ -25,8 +25,7 @@ use drivebus_proto::modbus::{RegisterAddress, Request, RequestPdu, UnitId};
 use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryRequest, BlockRequest};
 use drivebus_proto::Instant;
 
-use crate::bus::Device;
-use crate::drive::{DriveCore, DriveSnapshot, VirtualDrive};
+use crate::drive::{Device, DriveCore, DriveSnapshot, VirtualDrive};
 use crate::model::{Rotation, RunState};
 
 /// How often a master drive broadcasts unless the bus file says otherwise (`cycle_ms`).

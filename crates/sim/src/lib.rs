@@ -20,6 +20,8 @@
 //! - [`family`]: generic, toshiba, danfoss, b800: each family's registers, commands, errors and
 //!   addressing rules.
 //! - [`bus`]: the virtual line; sans-IO, advanced by the caller's clock.
+//! - [`spec`]: one drive as `--drive KIND@ADDR[:PROTOCOL]` or a bus file describes it;
+//!   [`config`]: the whole bus.
 //! - [`interdrive`]: a drive as bus master, broadcasting its run/stop and frequency.
 //!
 //! Nothing here reads a clock: tests run the whole bus on simulated time.
@@ -34,3 +36,4 @@ pub mod model;
 pub mod monitor;
 pub mod rng;
 pub mod runtime;
+pub mod spec;

@@ -65,6 +65,21 @@ impl Trip {
             Trip::External => "external trip",
         }
     }
+
+    /// drivebus' number for the trip: 1 over-current, 2 over-voltage, 3 under-voltage, 4
+    /// over-temperature, 5 external, 6 communication time-out. It is the generic drive's 2100H
+    /// fault code (its manual gives no list), and the code a panel shows for a family without
+    /// trip codes of its own.
+    pub fn code(self) -> u16 {
+        match self {
+            Trip::OverCurrent => 1,
+            Trip::OverVoltage => 2,
+            Trip::UnderVoltage => 3,
+            Trip::OverTemperature => 4,
+            Trip::External => 5,
+            Trip::CommunicationTimeout => 6,
+        }
+    }
 }
 
 /// One entry of the trip log.

@@ -56,7 +56,7 @@ impl Simulator {
         let line = bus.build_line()?;
         let mut protocols: Vec<WireProtocol> = Vec::new();
         for spec in &bus.drives {
-            for &p in crate::family::wire_protocols(spec) {
+            for &p in spec.wire_protocols() {
                 if !protocols.contains(&p) {
                     protocols.push(p);
                 }

@@ -11,7 +11,7 @@ use drivebus_proto::session::{MasterEvent, MasterSession};
 use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::drive::VirtualDrive;
-use drivebus_sim::family::generic::{fault_code, reg, status, GenericDrive, GenericProtocol};
+use drivebus_sim::family::generic::{reg, status, GenericDrive, GenericProtocol};
 use drivebus_sim::model::{RunState, Trip};
 
 const BAUD: u32 = 9600;
@@ -482,7 +482,7 @@ fn trips_show_in_2100h_refuse_run_and_reset_with_0a() {
     // Overload: over-current.
     drive_mut(&mut line).core_mut().model.set_load(4.0);
     wait(&mut line, Duration::from_millis(10));
-    assert_eq!(read1(&mut line, reg::FAULT_CODE), fault_code(Trip::OverCurrent));
+    assert_eq!(read1(&mut line, reg::FAULT_CODE), Trip::OverCurrent.code());
     assert_eq!(read1(&mut line, reg::FAULT_CODE), 1);
     assert_eq!(read1(&mut line, reg::STATUS) & status::RUN, 0);
     // The fault records: P4.00 last fault, P4.02 output frequency at the fault.

@@ -1,6 +1,8 @@
 //! Toshiba VF-AS1 with f829 = 1 (Modbus-RTU), driven through a real `VirtualLine` on simulated
 //! time. Frames from `seeds/002_43d8a4399c8be05f.txt` and protocols.md section 5.4.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_proto::checksum::crc16_modbus;
@@ -12,29 +14,10 @@ use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::toshiba::{ToshibaDrive, ToshibaProtocol, TRIP_ERR5_COMMUNICATION};
 use drivebus_sim::model::Trip;
+use support::{exchange, model, params, toshiba_line, wait};
 
 fn line_with(addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(19200, CharFormat::EVEN_8E1, Instant::ZERO);
-    for &a in addresses {
-        line.add_device(Box::new(ToshibaDrive::new(a, ToshibaProtocol::ModbusRtu, Instant::ZERO).unwrap()));
-    }
-    line
-}
-
-fn exchange(line: &mut VirtualLine, bytes: &[u8]) -> Vec<u8> {
-    let now = line.now();
-    line.master_write(now, bytes);
-    while let Some(t) = line.next_deadline() {
-        line.advance_to(t);
-    }
-    let mut got = Vec::new();
-    line.master_read(&mut got);
-    got
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let t = line.now() + d;
-    line.advance_to(t);
+    toshiba_line(ToshibaProtocol::ModbusRtu, addresses)
 }
 
 /// `body` and its CRC, low byte first.
@@ -42,14 +25,6 @@ fn rtu(body: &[u8]) -> Vec<u8> {
     let mut f = body.to_vec();
     f.extend(crc16_modbus(body).to_le_bytes());
     f
-}
-
-fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
-    &line.drive(port).unwrap().core().model
-}
-
-fn params(line: &mut VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
-    &line.drive(port).unwrap().core().params
 }
 
 /// TM5 and FA00 = C400 to drive 1: run forward at 60.00 Hz.

@@ -2,10 +2,11 @@
 //! through a real `VirtualLine` on simulated time. Frames from protocols.md section 5.2/5.3
 //! (`seeds/002_43d8a4399c8be05f.txt` and the public VF-AS1/VF-S11 manuals).
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_proto::checksum::sum8;
-use drivebus_proto::line::CharFormat;
 use drivebus_proto::session::{MasterEvent, MasterSession};
 use drivebus_proto::toshiba::ascii::{AsciiAddress, AsciiRequest};
 use drivebus_proto::toshiba::{default_timing, CommNo, Tip, TipRequest};
@@ -13,30 +14,10 @@ use drivebus_proto::Instant;
 use drivebus_sim::bus::{Device, VirtualLine};
 use drivebus_sim::family::toshiba::{ToshibaDrive, ToshibaProtocol, TRIP_E, TRIP_ERR5_COMMUNICATION};
 use drivebus_sim::model::Trip;
+use support::{exchange, model, params, toshiba_line, wait};
 
 fn line_with(addresses: &[u8]) -> VirtualLine {
-    let mut line = VirtualLine::new(19200, CharFormat::EVEN_8E1, Instant::ZERO);
-    for &a in addresses {
-        line.add_device(Box::new(ToshibaDrive::new(a, ToshibaProtocol::Tip, Instant::ZERO).unwrap()));
-    }
-    line
-}
-
-/// The master writes `bytes` now; the line runs until nothing is pending; what reached the master.
-fn exchange(line: &mut VirtualLine, bytes: &[u8]) -> Vec<u8> {
-    let now = line.now();
-    line.master_write(now, bytes);
-    while let Some(t) = line.next_deadline() {
-        line.advance_to(t);
-    }
-    let mut got = Vec::new();
-    line.master_read(&mut got);
-    got
-}
-
-fn wait(line: &mut VirtualLine, d: Duration) {
-    let t = line.now() + d;
-    line.advance_to(t);
+    toshiba_line(ToshibaProtocol::Tip, addresses)
 }
 
 /// A binary frame: `body` and its SUM.
@@ -44,14 +25,6 @@ fn bin(body: &[u8]) -> Vec<u8> {
     let mut f = body.to_vec();
     f.push(sum8(body));
     f
-}
-
-fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
-    &line.drive(port).unwrap().core().model
-}
-
-fn params(line: &mut VirtualLine, port: usize) -> &drivebus_drive::ParamStore {
-    &line.drive(port).unwrap().core().params
 }
 
 #[test]

@@ -480,7 +480,7 @@ fn set_quantity(field: &mut FieldReport, value: f64, unit: &str, decimals: usize
 }
 
 /// Runs `drivebus decode`; returns the exit status (0 a valid frame was found, 1 none).
-pub fn run(args: &DecodeArgs, target: &crate::commands::drive::Target) -> Result<u8> {
+pub fn run(args: &DecodeArgs, target: &crate::commands::target::Target) -> Result<u8> {
     let name = target.protocol.as_deref().ok_or_else(|| {
         anyhow::anyhow!(
             "say which wire format: --protocol {}",
@@ -497,11 +497,11 @@ pub fn run(args: &DecodeArgs, target: &crate::commands::drive::Target) -> Result
     let family = match target.drive.as_slice() {
         [] => None,
         [one] => Some(one.parse::<Family>().map_err(|_| {
-            crate::commands::drive::usage(format!(
+            crate::commands::target::usage(format!(
                 "unknown drive family {one:?}: use generic or toshiba to name Modbus registers"
             ))
         })?),
-        _ => return Err(crate::commands::drive::usage("give one --drive FAMILY to name the registers by")),
+        _ => return Err(crate::commands::target::usage("give one --drive FAMILY to name the registers by")),
     };
     let (protocol, items) = decode_by_name(protocol, &bytes, from, family);
     let stdout = std::io::stdout();

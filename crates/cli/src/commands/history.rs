@@ -8,7 +8,7 @@ use clap::Args;
 use drivebus_store::time::{format_rfc3339, now_ms, parse_time};
 use drivebus_store::{EventFilter, EventKind, Resolution, Store, StoreError, TrendQuery};
 
-use crate::commands::drive::{link_failure, usage, Target};
+use crate::commands::target::{link_failure, usage, Target};
 
 /// The store file both the gateway and these commands use when not told otherwise.
 pub const DEFAULT_DB: &str = "drivebus.db";

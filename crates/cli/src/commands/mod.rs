@@ -10,4 +10,5 @@ pub mod scan;
 pub mod serve;
 pub mod simulate;
 pub mod sniff;
+pub mod target;
 pub mod trips;

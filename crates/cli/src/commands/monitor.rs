@@ -26,7 +26,8 @@ use ratatui::widgets::{Block, Borders, Cell, Paragraph, Row, Sparkline, Table};
 use ratatui::Frame;
 use serde_json::json;
 
-use crate::commands::drive::{classify, link_failure, resolve_for, runtime, usage, Target};
+use crate::commands::drive::{classify, resolve_for, runtime};
+use crate::commands::target::{link_failure, usage, Target};
 
 /// Samples kept per drive for the trend.
 pub const HISTORY: usize = 240;

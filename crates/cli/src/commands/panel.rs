@@ -9,7 +9,8 @@ use drivebus_drive::{panel, Family, Storage};
 use drivebus_link::drive::Drive;
 use serde_json::json;
 
-use crate::commands::drive::{classify, connect, fail, runtime, status_json, Target, EXIT_USAGE};
+use crate::commands::drive::{classify, connect, runtime, status_json};
+use crate::commands::target::{fail, Target, EXIT_USAGE};
 
 /// `panel` options.
 #[derive(Args, Debug)]

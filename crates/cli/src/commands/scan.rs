@@ -14,7 +14,7 @@ use drivebus_proto::protocol::WireProtocol;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
-use crate::commands::drive::Target;
+use crate::commands::target::Target;
 
 /// Arguments of `drivebus scan` (with `crate::options`' --port, --drive FAMILY|auto, --protocol,
 /// --baud, --serial, --timeout, --json).
@@ -63,8 +63,9 @@ fn shared(protocol: WireProtocol) -> bool {
 fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
     let mut out = Vec::new();
     for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let bad =
-            || crate::commands::drive::usage(format!("{what} {part:?} is not a number or a range like 1-32"));
+        let bad = || {
+            crate::commands::target::usage(format!("{what} {part:?} is not a number or a range like 1-32"))
+        };
         match part.split_once('-') {
             Some((a, b)) => {
                 let (a, b): (u32, u32) =
@@ -83,11 +84,11 @@ fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
 /// Runs `drivebus scan`; exit 0 when a drive answered, 2 when none did.
 pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
     let port = t.one_port()?.ok_or_else(|| {
-        crate::commands::drive::usage("say which line: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
+        crate::commands::target::usage("say which line: --port /dev/ttyUSB0 or --port tcp://HOST:PORT")
     })?;
     let families: Vec<Family> = match t.drive.as_slice() {
         [] => {
-            return Err(crate::commands::drive::usage(
+            return Err(crate::commands::target::usage(
                 "say which drive family, or --drive auto to try them all",
             ))
         }
@@ -96,7 +97,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             .iter()
             .map(|n| {
                 n.parse().map_err(|_| {
-                    crate::commands::drive::usage(format!(
+                    crate::commands::target::usage(format!(
                         "unknown drive family {n:?}: use generic, toshiba, danfoss, b800 or auto"
                     ))
                 })
@@ -113,13 +114,13 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 .filter(|f| !f.is_empty())
                 .map(|f| {
                     f.parse::<CharFormat>()
-                        .map_err(|e| crate::commands::drive::usage(format!("--formats: {f:?}: {e}")))
+                        .map_err(|e| crate::commands::target::usage(format!("--formats: {f:?}: {e}")))
                 })
                 .collect::<Result<_>>()?,
         ),
         (None, Some(s)) => Some(vec![s
             .parse::<CharFormat>()
-            .map_err(|e| crate::commands::drive::usage(format!("--serial {s:?}: {e}")))?]),
+            .map_err(|e| crate::commands::target::usage(format!("--serial {s:?}: {e}")))?]),
         (None, None) => None,
     };
     // Every (family, protocol, baud, format, address) to try.
@@ -128,7 +129,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
         let protocols: Vec<WireProtocol> = match &t.protocol {
             Some(p) => vec![p
                 .parse()
-                .map_err(|e| crate::commands::drive::usage(format!("--protocol {p:?}: {e}")))?],
+                .map_err(|e| crate::commands::target::usage(format!("--protocol {p:?}: {e}")))?],
             None => family.protocols().to_vec(),
         };
         for protocol in protocols {
@@ -165,7 +166,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
         }
     }
     if combos.is_empty() {
-        return Err(crate::commands::drive::usage(
+        return Err(crate::commands::target::usage(
             "nothing to scan: check --drive, --protocol, --addresses, --bauds and --formats",
         ));
     }
@@ -194,7 +195,7 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 config.offline_after = u32::MAX;
                 let bus = open_with(&port, config)
                     .await
-                    .map_err(|e| crate::commands::drive::link_failure(e.to_string()))?;
+                    .map_err(|e| crate::commands::target::link_failure(e.to_string()))?;
                 current = Some((key, bus));
             }
             let Some((_, bus)) = &current else { continue };
@@ -270,5 +271,5 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             );
         }
     }
-    Ok(if found.is_empty() { crate::commands::drive::EXIT_LINK } else { 0 })
+    Ok(if found.is_empty() { crate::commands::target::EXIT_LINK } else { 0 })
 }

@@ -8,7 +8,7 @@ use clap::Args;
 use drivebus_gateway::config::{MqttConfig, Role, SparkplugConfig, Token};
 use drivebus_gateway::{Gateway, GatewayConfig};
 
-use crate::commands::drive::Failure;
+use crate::commands::target::Failure;
 
 /// Arguments of `drivebus serve`.
 #[derive(Args, Clone, Debug)]

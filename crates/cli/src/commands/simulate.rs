@@ -42,7 +42,7 @@ pub struct SimulateArgs {
 }
 
 /// Builds the bus the arguments describe.
-pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Result<BusSpec> {
+pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::target::Target) -> Result<BusSpec> {
     let format = match target.serial() {
         Some(s) => Some(s.parse::<CharFormat>().map_err(|e| anyhow::anyhow!("--serial {s:?}: {e}"))?),
         None => None,
@@ -86,7 +86,7 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::drive::Target) ->
 }
 
 /// Runs `drivebus simulate` until interrupted.
-pub fn run(args: &SimulateArgs, target: &crate::commands::drive::Target) -> Result<u8> {
+pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Result<u8> {
     let endpoint = match (&args.pty, &args.tcp) {
         (Some(p), None) => Endpoint::Pty(p.clone()),
         (None, Some(a)) => Endpoint::Tcp(*a),

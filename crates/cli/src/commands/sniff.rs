@@ -14,7 +14,7 @@ use drivebus_link::listen::Listener;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::Direction;
 
-use crate::commands::drive::{fail, Target, EXIT_LINK, EXIT_REFUSED, EXIT_USAGE};
+use crate::commands::target::{fail, Target, EXIT_LINK, EXIT_REFUSED, EXIT_USAGE};
 use crate::sniff::analyze::{Analyzer, Kind, Record, Settings, Side, PROTOCOLS};
 use crate::sniff::capture::{self, PcapWriter};
 use crate::sniff::detect;

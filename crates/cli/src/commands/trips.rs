@@ -5,7 +5,8 @@ use anyhow::Result;
 use drivebus_drive::profile::trips::{history_of, history_reads, TripHistory};
 use serde_json::{json, Value};
 
-use super::drive::{classify, connect, runtime, Target};
+use super::drive::{classify, connect, runtime};
+use super::target::Target;
 
 /// The history as JSON: `{"address", "family", "current": {"code", "text"} | null, "history":
 /// [{"index", "code", "text", "output_hz", "current_a"}], "source"}`.

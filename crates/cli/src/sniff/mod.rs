@@ -34,7 +34,7 @@ mod tests {
         let mut line = VirtualLine::new(bus.baud, bus.format, Instant::ZERO);
         line.add_device(drivebus_sim::family::build(d, Instant::ZERO).expect("drive"));
         line.attach_tap();
-        let protocol = d.protocol.unwrap_or_else(|| drivebus_sim::family::wire_protocols(d)[0]);
+        let protocol = d.protocol.unwrap_or_else(|| d.wire_protocols()[0]);
         let profile = for_drive(d.family, protocol, d.address).expect("profile");
         let mut bursts = Vec::new();
         let mut t = Instant::from_millis(10);

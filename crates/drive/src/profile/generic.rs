@@ -622,10 +622,7 @@ struct GenericPlan {
 }
 
 /// What a plan does next.
-enum Next {
-    Send(ModbusAsk),
-    Done(Outcome),
-}
+type Next = super::Next<ModbusAsk>;
 
 impl GenericPlan {
     fn broadcast(&self) -> bool {
@@ -765,21 +762,11 @@ impl Plan for GenericPlan {
             },
             None => None,
         };
-        match self.advance(answer) {
-            Ok(Next::Send(ask)) => {
-                let request = self.framing.encode(self.unit, ask)?;
-                self.sent = Some(ask);
-                Ok(Step::Send(Exchange { request, expect_reply: !self.broadcast() }))
-            }
-            Ok(Next::Done(outcome)) => {
-                self.finished = true;
-                Ok(Step::Done(outcome))
-            }
-            Err(e) => {
-                self.finished = true;
-                Err(e)
-            }
-        }
+        let next = self.advance(answer);
+        let (framing, unit, expect_reply) = (self.framing, self.unit, !self.broadcast());
+        super::step_to(next, &mut self.sent, &mut self.finished, |ask| {
+            Ok(Exchange { request: framing.encode(unit, ask)?, expect_reply })
+        })
     }
 }
 

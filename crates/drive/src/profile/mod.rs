@@ -106,6 +106,39 @@ pub enum Outcome {
     Param(i64),
 }
 
+/// What a plan that sends requests of type `A` does next (the generic and Toshiba plans).
+pub(crate) enum Next<A> {
+    /// Send this request.
+    Send(A),
+    /// End with this outcome.
+    Done(Outcome),
+}
+
+/// The step a plan takes after deciding `next`: the request `encode` frames (kept in `sent`
+/// to read its reply), or the end. Once the plan has ended, done or failed, `finished` is set.
+pub(crate) fn step_to<A: Copy>(
+    next: Result<Next<A>, DriveError>,
+    sent: &mut Option<A>,
+    finished: &mut bool,
+    encode: impl FnOnce(A) -> Result<Exchange, DriveError>,
+) -> Result<Step, DriveError> {
+    match next {
+        Ok(Next::Send(ask)) => {
+            let exchange = encode(ask)?;
+            *sent = Some(ask);
+            Ok(Step::Send(exchange))
+        }
+        Ok(Next::Done(outcome)) => {
+            *finished = true;
+            Ok(Step::Done(outcome))
+        }
+        Err(e) => {
+            *finished = true;
+            Err(e)
+        }
+    }
+}
+
 /// One request to put on the line.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Exchange {
@@ -268,10 +301,7 @@ pub fn for_drive(
             let p = generic::GenericProtocol::from_wire(protocol).ok_or_else(wrong)?;
             Box::new(generic::GenericProfile::new(address, p)?)
         }
-        Family::Toshiba => {
-            let p = toshiba::ToshibaProtocol::from_wire(protocol).ok_or_else(wrong)?;
-            Box::new(toshiba::ToshibaProfile::new(address, p)?)
-        }
+        Family::Toshiba => Box::new(toshiba::ToshibaProfile::new(address, protocol)?),
         Family::Danfoss => Box::new(danfoss::DanfossProfile::new(address)?),
         Family::B800 => Box::new(b800::B800Profile::new(address)?),
     })

@@ -1,6 +1,7 @@
 //! Toshiba VF-AS1 (manual E6581315, `seeds/002_43d8a4399c8be05f.txt`; protocols.md section 1):
 //! one profile for the three ways the drive talks, Modbus-RTU, the TOSHIBA Inverter Protocol
-//! (TIP) in ASCII mode and TIP in binary mode ([`ToshibaProtocol`]).
+//! (TIP) in ASCII mode and TIP in binary mode, one [`WireProtocol`] per profile ([`ToshibaProtocol`]
+//! is the drive's own setting, f829, that picks TIP or Modbus-RTU).
 //!
 //! | operation | exchanges |
 //! |---|---|
@@ -47,7 +48,6 @@
 //!   drive reports 03 (OC3), 0C (OP3), 10 (OH), 11 (E), 18 (Err5) and 1E (UP1).
 
 use std::fmt;
-use std::str::FromStr;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 
@@ -91,68 +91,63 @@ const FC90: u16 = 0xFC90;
 /// Command and frequency priority: every FA00 word the profile writes has them.
 const PRIORITY: u16 = Command1::COMMAND_PRIORITY | Command1::FREQUENCY_PRIORITY;
 
-/// Which protocol the profile speaks to the VF-AS1.
+/// Which protocol a VF-AS1 is set to speak (parameter f829): the TOSHIBA Inverter Protocol,
+/// whose ASCII and binary modes it tells apart per frame, or Modbus-RTU. The profile speaks one
+/// [`WireProtocol`] of it; the simulated VF-AS1 of `drivebus-sim` answers all of it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ToshibaProtocol {
-    /// Modbus-RTU (f829 = 1): 03 reads one word, 06 writes RAM and EEPROM (FAxx RAM only).
+    /// f829 = 0: TOSHIBA Inverter Protocol, ASCII and binary mode on one line.
+    Tip,
+    /// f829 = 1: Modbus-RTU.
     ModbusRtu,
-    /// TOSHIBA Inverter Protocol, ASCII mode (f829 = 0): `(` INV-NO CMD COMNO DATA `&` SUM `)` CR.
-    TipAscii,
-    /// TOSHIBA Inverter Protocol, binary mode (f829 = 0): 2F INV-NO CMD COMNO DATA SUM.
-    TipBinary,
 }
 
 impl ToshibaProtocol {
-    /// The wire protocol.
-    pub fn wire(self) -> WireProtocol {
-        match self {
-            ToshibaProtocol::ModbusRtu => WireProtocol::ModbusRtu,
-            ToshibaProtocol::TipAscii => WireProtocol::ToshibaAscii,
-            ToshibaProtocol::TipBinary => WireProtocol::ToshibaBinary,
-        }
-    }
-
-    /// The profile's protocol for `protocol`, if the VF-AS1 speaks it.
-    pub fn from_wire(protocol: WireProtocol) -> Option<Self> {
+    /// The setting that speaks `protocol`, if the VF-AS1 speaks it.
+    pub fn of(protocol: WireProtocol) -> Option<Self> {
         match protocol {
             WireProtocol::ModbusRtu => Some(ToshibaProtocol::ModbusRtu),
-            WireProtocol::ToshibaAscii => Some(ToshibaProtocol::TipAscii),
-            WireProtocol::ToshibaBinary => Some(ToshibaProtocol::TipBinary),
+            WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary => Some(ToshibaProtocol::Tip),
             _ => None,
         }
     }
 
-    /// The inverter numbers a single drive can have: Modbus 1..=247, TIP ASCII 0..=99,
-    /// TIP binary 0..=63 (the family's capability table).
-    pub fn unit_range(self) -> std::ops::RangeInclusive<u8> {
-        let (lo, hi) = Family::Toshiba.address_range(self.wire());
-        lo..=hi
+    /// The wire protocols a master may use with a drive so set.
+    pub fn wire_protocols(self) -> &'static [WireProtocol] {
+        match self {
+            ToshibaProtocol::Tip => &[WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary],
+            ToshibaProtocol::ModbusRtu => &[WireProtocol::ModbusRtu],
+        }
+    }
+
+    /// Its name: the protocols' names joined by `+` (`toshiba-ascii+toshiba-binary`).
+    pub fn name(self) -> String {
+        self.wire_protocols().iter().map(|p| p.name()).collect::<Vec<_>>().join("+")
+    }
+
+    /// The value of f829 that selects it.
+    pub fn f829(self) -> i64 {
+        match self {
+            ToshibaProtocol::Tip => 0,
+            ToshibaProtocol::ModbusRtu => 1,
+        }
+    }
+
+    /// The protocol f829 = `value` selects (anything but 1 is TOSHIBA, the shipment setting).
+    pub fn from_f829(value: i64) -> Self {
+        if value == 1 {
+            ToshibaProtocol::ModbusRtu
+        } else {
+            ToshibaProtocol::Tip
+        }
     }
 
     /// The address that broadcasts: 0 in Modbus-RTU, [`TIP_BROADCAST`] in TIP.
     pub fn broadcast_address(self) -> u8 {
         match self {
             ToshibaProtocol::ModbusRtu => 0,
-            ToshibaProtocol::TipAscii | ToshibaProtocol::TipBinary => TIP_BROADCAST,
+            ToshibaProtocol::Tip => TIP_BROADCAST,
         }
-    }
-}
-
-impl fmt::Display for ToshibaProtocol {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        self.wire().fmt(f)
-    }
-}
-
-impl FromStr for ToshibaProtocol {
-    type Err = DriveError;
-
-    /// `modbus-rtu`, `toshiba-ascii` or `toshiba-binary`, any letter case.
-    fn from_str(s: &str) -> Result<Self, DriveError> {
-        s.parse().ok().and_then(ToshibaProtocol::from_wire).ok_or_else(|| {
-            let names: Vec<&str> = Family::Toshiba.protocols().iter().map(|p| p.name()).collect();
-            DriveError::Unsupported(format!("the VF-AS1 speaks {}, not {:?}", names.join(", "), s.trim()))
-        })
     }
 }
 
@@ -302,7 +297,9 @@ impl BlockMap {
 #[derive(Debug)]
 pub struct ToshibaProfile {
     address: u8,
-    protocol: ToshibaProtocol,
+    protocol: WireProtocol,
+    /// The broadcast address of `protocol`.
+    broadcast: u8,
     catalog: Arc<Catalog>,
     limits: Arc<SpeedLimits>,
     memory: Arc<Memory>,
@@ -311,15 +308,21 @@ pub struct ToshibaProfile {
 
 impl ToshibaProfile {
     /// A profile for inverter `address` speaking `protocol`: Modbus-RTU 1..=247 (0 =
-    /// broadcast), TIP ASCII 0..=99, TIP binary 0..=63 ([`TIP_BROADCAST`] = broadcast).
-    pub fn new(address: u8, protocol: ToshibaProtocol) -> Result<Self, DriveError> {
-        if !protocol.unit_range().contains(&address) && address != protocol.broadcast_address() {
-            let range = protocol.unit_range();
+    /// broadcast), TIP ASCII 0..=99, TIP binary 0..=63 ([`TIP_BROADCAST`] = broadcast); the
+    /// ranges are the family's capability table ([`Family::address_range`]).
+    pub fn new(address: u8, protocol: WireProtocol) -> Result<Self, DriveError> {
+        let Some(setting) = ToshibaProtocol::of(protocol) else {
+            return Err(DriveError::Unsupported(format!(
+                "the VF-AS1 speaks {} or {}, not {protocol}",
+                ToshibaProtocol::Tip.name().replace('+', ", "),
+                ToshibaProtocol::ModbusRtu.name()
+            )));
+        };
+        let broadcast = setting.broadcast_address();
+        let (lo, hi) = Family::Toshiba.address_range(protocol);
+        if !(lo..=hi).contains(&address) && address != broadcast {
             return Err(DriveError::OutOfRange(format!(
-                "a VF-AS1 speaking {protocol} has inverter number {}..{}, or {} for a broadcast; not {address}",
-                range.start(),
-                range.end(),
-                protocol.broadcast_address()
+                "a VF-AS1 speaking {protocol} has inverter number {lo}..{hi}, or {broadcast} for a broadcast; not {address}"
             )));
         }
         let catalog = Catalog::load(Family::Toshiba)
@@ -328,6 +331,7 @@ impl ToshibaProfile {
         Ok(ToshibaProfile {
             address,
             protocol,
+            broadcast,
             catalog,
             limits: Arc::new(limits),
             memory: Arc::new(Memory::default()),
@@ -347,13 +351,13 @@ impl ToshibaProfile {
     }
 
     /// The protocol in use.
-    pub fn wire(&self) -> ToshibaProtocol {
+    pub fn wire(&self) -> WireProtocol {
         self.protocol
     }
 
     /// True for the broadcast address of the protocol.
     pub fn is_broadcast(&self) -> bool {
-        self.address == self.protocol.broadcast_address()
+        self.address == self.broadcast
     }
 
     /// The limits SetSpeed is checked against, raw 0.01 Hz: (0011 FH maximum frequency, 0012
@@ -395,7 +399,7 @@ impl ToshibaProfile {
                 "{} lives in RAM only ({}): it cannot be stored in EEPROM; ask for Storage::Ram",
                 def.name, def.title
             )),
-            (Storage::Eeprom, Storage::Ram, ToshibaProtocol::ModbusRtu) => Err(format!(
+            (Storage::Eeprom, Storage::Ram, WireProtocol::ModbusRtu) => Err(format!(
                 "Modbus-RTU has no RAM-only write on the VF-AS1: 06 stores {} in RAM and EEPROM (every \
                  number but FAxx); ask for Storage::Eeprom, or use the TOSHIBA protocol's P command \
                  (f829 = 0) to change RAM only",
@@ -431,7 +435,7 @@ impl Profile for ToshibaProfile {
     }
 
     fn protocol(&self) -> WireProtocol {
-        self.protocol.wire()
+        self.protocol
     }
 
     fn address(&self) -> u8 {
@@ -454,7 +458,7 @@ impl Profile for ToshibaProfile {
         let job = match op {
             Operation::Status => {
                 self.needs_reply("Status")?;
-                let block = self.block_status && self.protocol == ToshibaProtocol::TipBinary;
+                let block = self.block_status && self.protocol == WireProtocol::ToshibaBinary;
                 let mut todo = match (block, self.memory.block()) {
                     (true, BlockMap::Unknown) => (F875..=F879).map(Ask::Read).collect(),
                     (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
@@ -569,7 +573,7 @@ enum Answer {
 
 #[derive(Clone, Copy, Debug)]
 struct Link {
-    protocol: ToshibaProtocol,
+    protocol: WireProtocol,
     address: u8,
     broadcast: bool,
 }
@@ -586,12 +590,12 @@ impl Link {
     fn encode(&self, ask: Ask) -> Result<Vec<u8>, DriveError> {
         let cannot = |e: &dyn fmt::Display| DriveError::Protocol(format!("the {ask} cannot be framed: {e}"));
         match self.protocol {
-            ToshibaProtocol::ModbusRtu => {
+            WireProtocol::ModbusRtu => {
                 let m = Link::modbus_ask(ask)
                     .ok_or_else(|| cannot(&"block communication is TIP binary mode only"))?;
                 ModbusFraming::Rtu.encode(if self.broadcast { 0 } else { self.address }, m)
             }
-            ToshibaProtocol::TipAscii => {
+            WireProtocol::ToshibaAscii => {
                 let inv = if self.broadcast { AsciiAddress::ALL } else { AsciiAddress::Unit(self.address) };
                 let request = match ask {
                     Ask::Read(c) => AsciiRequest::read(inv, CommNo(c)),
@@ -605,7 +609,7 @@ impl Link {
                 let n = request.with_sum().emit(&mut out).map_err(|e| cannot(&e))?;
                 Ok(out[..n].to_vec())
             }
-            ToshibaProtocol::TipBinary => {
+            WireProtocol::ToshibaBinary => {
                 let inv =
                     if self.broadcast { BinaryAddress::Broadcast } else { BinaryAddress::Unit(self.address) };
                 let request = match ask {
@@ -622,6 +626,7 @@ impl Link {
                 let n = request.emit(&mut out).map_err(|e| cannot(&e))?;
                 Ok(out[..n].to_vec())
             }
+            other => Err(cannot(&format_args!("the VF-AS1 does not speak {other}"))),
         }
     }
 
@@ -643,7 +648,7 @@ impl Link {
             meaning: format!("{} (in reply to the {ask}: {what})", tip_error_meaning(code.0)),
         };
         match self.protocol {
-            ToshibaProtocol::ModbusRtu => {
+            WireProtocol::ModbusRtu => {
                 let m = Link::modbus_ask(ask).ok_or_else(|| bad("was not expected".to_string()))?;
                 match ModbusFraming::Rtu.decode(self.address, m, bytes)? {
                     ModbusAnswer::Registers(r) => {
@@ -659,7 +664,7 @@ impl Link {
                     }),
                 }
             }
-            ToshibaProtocol::TipAscii => {
+            WireProtocol::ToshibaAscii => {
                 let reply = AsciiReply::parse(bytes)
                     .map_err(|e| bad(format!("is not a valid TOSHIBA ASCII frame: {e}")))?;
                 if reply.inv_no != Some(self.address) {
@@ -676,7 +681,7 @@ impl Link {
                     }
                 }
             }
-            ToshibaProtocol::TipBinary => {
+            WireProtocol::ToshibaBinary => {
                 let reply = BinaryReply::parse(bytes)
                     .map_err(|e| bad(format!("is not a valid TOSHIBA binary frame: {e}")))?;
                 if reply.inv_no != Some(self.address) {
@@ -700,6 +705,7 @@ impl Link {
                     _ => Err(bad("is not the kind of reply the request asks for".to_string())),
                 }
             }
+            other => Err(bad(format!("cannot be read: the VF-AS1 does not speak {other}"))),
         }
     }
 }
@@ -819,10 +825,7 @@ struct ToshibaPlan {
     finished: bool,
 }
 
-enum Next {
-    Send(Ask),
-    Done(Outcome),
-}
+type Next = super::Next<Ask>;
 
 fn data(answer: &Option<Answer>) -> (u16, bool) {
     match answer {
@@ -1045,21 +1048,10 @@ impl Plan for ToshibaPlan {
             None => None,
         };
         let next = self.advance(answer);
-        match next {
-            Ok(Next::Send(ask)) => {
-                let request = self.link.encode(ask)?;
-                self.sent = Some(ask);
-                Ok(Step::Send(Exchange { request, expect_reply: !self.link.broadcast }))
-            }
-            Ok(Next::Done(outcome)) => {
-                self.finished = true;
-                Ok(Step::Done(outcome))
-            }
-            Err(e) => {
-                self.finished = true;
-                Err(e)
-            }
-        }
+        let link = self.link;
+        super::step_to(next, &mut self.sent, &mut self.finished, |ask| {
+            Ok(Exchange { request: link.encode(ask)?, expect_reply: !link.broadcast })
+        })
     }
 }
 
@@ -1089,7 +1081,7 @@ mod tests {
     /// number per request, and the profile does not ask again.
     #[test]
     fn a_refused_block_selection_falls_back_to_single_reads() {
-        let p = ToshibaProfile::new(1, ToshibaProtocol::TipBinary).unwrap_or_else(|e| panic!("{e}"));
+        let p = ToshibaProfile::new(1, WireProtocol::ToshibaBinary).unwrap_or_else(|e| panic!("{e}"));
         let request = |step: Result<Step, DriveError>| match step {
             Ok(Step::Send(x)) => BinaryRequest::parse(&x.request).unwrap_or_else(|e| panic!("{e}")),
             other => panic!("expected a request, got {other:?}"),

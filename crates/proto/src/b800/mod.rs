@@ -199,7 +199,7 @@ impl Protocol for B800 {
 }
 
 impl Codec for B800 {
-    const NAME: &'static str = crate::protocol::WireProtocol::B800.name();
+    const NAME: &'static str = "b800";
     type Scanner = FrameScanner;
     type Frame<'a> = Frame<'a>;
 

@@ -72,7 +72,7 @@ impl<'a> Frame<'a> {
 pub struct DanfossFc;
 
 impl Codec for DanfossFc {
-    const NAME: &'static str = crate::protocol::WireProtocol::DanfossFc.name();
+    const NAME: &'static str = "danfoss-fc";
     type Scanner = FcScanner;
     type Frame<'a> = Frame<'a>;
 
@@ -151,6 +151,30 @@ fn header_fields(
         Some(m) => ind_field.with_meaning(m),
         None => ind_field,
     });
+}
+
+/// The LGE and ADR fields of a telegram with `block`.
+fn lge_adr_fields<A: Copy>(block: &Block<'_, A>, adr: Adr, out: &mut dyn FnMut(Field<'_>)) {
+    out(Field::hex("LGE", block.lge() as u32, 2).with_meaning(block_meaning(block)));
+    out(Field::hex("ADR", u32::from(adr.byte()), 2).with_meaning(adr.meaning()));
+}
+
+/// What IND means in a request with `ak`: a description element, a text index or an array index.
+fn command_ind(ak: ParameterCommand, ind: u16) -> Option<&'static str> {
+    match ak {
+        ParameterCommand::ReadDescription => description_element(ind),
+        ParameterCommand::Text => Some(text_ind_meaning(ind)),
+        _ => value_ind_meaning(ind),
+    }
+}
+
+/// What IND means in a reply with `ak`, as [`command_ind`] for a request.
+fn response_ind(ak: ParameterResponse, ind: u16) -> Option<&'static str> {
+    match ak {
+        ParameterResponse::Description => description_element(ind),
+        ParameterResponse::Text => Some(text_ind_meaning(ind)),
+        _ => value_ind_meaning(ind),
+    }
 }
 
 fn text_ind_meaning(ind: u16) -> &'static str {
@@ -242,27 +266,16 @@ impl Describe for Frame<'_> {
         let adr = self.adr();
         match self.message {
             Message::Request(r) => {
-                out(Field::hex("LGE", r.block.lge() as u32, 2).with_meaning(block_meaning(&r.block)));
-                out(Field::hex("ADR", u32::from(adr.byte()), 2).with_meaning(adr.meaning()));
+                lge_adr_fields(&r.block, adr, out);
                 match r.block {
                     Block::Process => {}
                     Block::Parameter(p) => {
-                        let ind_meaning = match p.ak {
-                            ParameterCommand::ReadDescription => description_element(p.ind),
-                            ParameterCommand::Text => Some(text_ind_meaning(p.ind)),
-                            _ => value_ind_meaning(p.ind),
-                        };
-                        header_fields(p.ak.ak(), p.ak.name(), p.pnu, p.ind, ind_meaning, out);
+                        header_fields(p.ak.ak(), p.ak.name(), p.pnu, p.ind, command_ind(p.ak, p.ind), out);
                         let pwe = Field::hex("PWE", p.pwe, 8);
                         out(if p.ak.is_write() { pwe.with_meaning("value to write") } else { pwe });
                     }
                     Block::Text(t) => {
-                        let ind_meaning = match t.ak {
-                            ParameterCommand::Text => Some(text_ind_meaning(t.ind)),
-                            ParameterCommand::ReadDescription => description_element(t.ind),
-                            _ => value_ind_meaning(t.ind),
-                        };
-                        header_fields(t.ak.ak(), t.ak.name(), t.pnu, t.ind, ind_meaning, out);
+                        header_fields(t.ak.ak(), t.ak.name(), t.pnu, t.ind, command_ind(t.ak, t.ind), out);
                         out(Field::text("text", t.text));
                     }
                 }
@@ -270,17 +283,11 @@ impl Describe for Frame<'_> {
                 out(reference_field("MRV", r.reference));
             }
             Message::Reply(r) => {
-                out(Field::hex("LGE", r.block.lge() as u32, 2).with_meaning(block_meaning(&r.block)));
-                out(Field::hex("ADR", u32::from(adr.byte()), 2).with_meaning(adr.meaning()));
+                lge_adr_fields(&r.block, adr, out);
                 match r.block {
                     Block::Process => {}
                     Block::Parameter(p) => {
-                        let ind_meaning = match p.ak {
-                            ParameterResponse::Description => description_element(p.ind),
-                            ParameterResponse::Text => Some(text_ind_meaning(p.ind)),
-                            _ => value_ind_meaning(p.ind),
-                        };
-                        header_fields(p.ak.ak(), p.ak.name(), p.pnu, p.ind, ind_meaning, out);
+                        header_fields(p.ak.ak(), p.ak.name(), p.pnu, p.ind, response_ind(p.ak, p.ind), out);
                         out(Field::hex("PWE", p.pwe, 8));
                         match p.ak {
                             ParameterResponse::CannotPerform => {
@@ -305,12 +312,7 @@ impl Describe for Frame<'_> {
                         }
                     }
                     Block::Text(t) => {
-                        let ind_meaning = match t.ak {
-                            ParameterResponse::Text => Some(text_ind_meaning(t.ind)),
-                            ParameterResponse::Description => description_element(t.ind),
-                            _ => value_ind_meaning(t.ind),
-                        };
-                        header_fields(t.ak.ak(), t.ak.name(), t.pnu, t.ind, ind_meaning, out);
+                        header_fields(t.ak.ak(), t.ak.name(), t.pnu, t.ind, response_ind(t.ak, t.ind), out);
                         out(Field::text("text", t.text));
                     }
                 }

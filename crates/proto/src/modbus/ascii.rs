@@ -202,17 +202,37 @@ fn adu_error(e: FrameError) -> FrameError {
     }
 }
 
+/// The ASCII frame methods of a request and of a reply, around each one's `parse_ascii_with`.
+macro_rules! ascii_frame {
+    ($adu:ident, $what:literal) => {
+        impl<'a> $adu<'a> {
+            #[doc = concat!("Parses an ASCII ", $what, " frame (`:` ... CR LF), checking digits and LRC.")]
+            pub fn parse_ascii(frame: &'a [u8]) -> Result<Self, FrameError> {
+                Self::parse_ascii_with(frame, true)
+            }
+
+            #[doc = concat!(
+                "Parses an ASCII ", $what, " frame whose digits and LRC have been checked (by [`AsciiScanner`])."
+            )]
+            pub fn parse_ascii_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
+                Self::parse_ascii_with(frame, false)
+            }
+
+            /// Writes the ASCII frame into `out`; returns its length.
+            pub fn emit_ascii(&self, out: &mut [u8]) -> Result<usize, EmitError> {
+                let mut bin = [0u8; 1 + pdu::MAX_PDU];
+                bin[0] = self.unit.0;
+                let n = self.pdu.emit(&mut bin[1..])?;
+                encode(&bin[..1 + n], out)
+            }
+        }
+    };
+}
+
+ascii_frame!(Request, "request");
+ascii_frame!(Reply, "reply");
+
 impl<'a> Request<'a> {
-    /// Parses an ASCII request frame (`:` ... CR LF), checking digits and LRC.
-    pub fn parse_ascii(frame: &'a [u8]) -> Result<Self, FrameError> {
-        Self::parse_ascii_with(frame, true)
-    }
-
-    /// Parses an ASCII request frame whose digits and LRC have been checked (by [`AsciiScanner`]).
-    pub fn parse_ascii_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
-        Self::parse_ascii_with(frame, false)
-    }
-
     fn parse_ascii_with(frame: &'a [u8], check: bool) -> Result<Self, FrameError> {
         let (unit, pdu) = split_with(frame, check)?;
         match RequestPdu::parse_data(pdu) {
@@ -232,38 +252,12 @@ impl<'a> Request<'a> {
             Err(e) => Err(adu_error(e)),
         }
     }
-
-    /// Writes the ASCII frame into `out`; returns its length.
-    pub fn emit_ascii(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        let mut bin = [0u8; 1 + pdu::MAX_PDU];
-        bin[0] = self.unit.0;
-        let n = self.pdu.emit(&mut bin[1..])?;
-        encode(&bin[..1 + n], out)
-    }
 }
 
 impl<'a> Reply<'a> {
-    /// Parses an ASCII reply frame (`:` ... CR LF), checking digits and LRC.
-    pub fn parse_ascii(frame: &'a [u8]) -> Result<Self, FrameError> {
-        Self::parse_ascii_with(frame, true)
-    }
-
-    /// Parses an ASCII reply frame whose digits and LRC have been checked (by [`AsciiScanner`]).
-    pub fn parse_ascii_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
-        Self::parse_ascii_with(frame, false)
-    }
-
     fn parse_ascii_with(frame: &'a [u8], check: bool) -> Result<Self, FrameError> {
         let (unit, pdu) = split_with(frame, check)?;
         Ok(Reply { unit, pdu: ReplyPdu::parse_data(pdu).map_err(adu_error)? })
-    }
-
-    /// Writes the ASCII frame into `out`; returns its length.
-    pub fn emit_ascii(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        let mut bin = [0u8; 1 + pdu::MAX_PDU];
-        bin[0] = self.unit.0;
-        let n = self.pdu.emit(&mut bin[1..])?;
-        encode(&bin[..1 + n], out)
     }
 }
 
@@ -292,57 +286,31 @@ pub fn encode(bin: &[u8], out: &mut [u8]) -> Result<usize, EmitError> {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct ModbusAscii;
 
-impl Protocol for ModbusAscii {
-    type ReplyScanner = AsciiScanner;
-    type RequestScanner = AsciiScanner;
-    type Request<'a> = Request<'a>;
-    type Reply<'a> = Reply<'a>;
-    type Pending = Pending;
+modbus_protocol!(
+    ModbusAscii,
+    AsciiScanner,
+    replies: AsciiScanner,
+    requests: AsciiScanner,
+    emit_ascii,
+    parse_ascii_unchecked
+);
 
-    fn reply_scanner(&self) -> AsciiScanner {
-        AsciiScanner
-    }
-    fn request_scanner(&self) -> AsciiScanner {
-        AsciiScanner
-    }
-    fn emit_request(&self, req: &Request<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit_ascii(out)
-    }
-    fn emit_reply(&self, rep: &Reply<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit_ascii(out)
-    }
-    fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Request<'a>, FrameError> {
-        Request::parse_ascii_unchecked(bytes)
-    }
-    fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Reply<'a>, FrameError> {
-        Reply::parse_ascii_unchecked(bytes)
-    }
-    fn pending(&self, req: &Request<'_>) -> Option<Pending> {
-        req.pending()
-    }
-    fn matches(&self, pending: &Pending, rep: &Reply<'_>) -> bool {
-        pending.matches(rep)
-    }
-    /// The header only (`:` then the unit's and the function's digits): whoever uses the reply
-    /// parses it.
-    fn reply_matches(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+impl ModbusAscii {
+    /// Whether the reply frame `bytes` answers `pending`, by its header only (`:` then the
+    /// unit's and the function's digits): whoever uses the reply parses it, once.
+    pub fn answers(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
         let digits = |at: usize| bytes.get(at..at + 2).and_then(|d| crate::hex::decode_pair(d[0], d[1]));
         match (digits(1), digits(3)) {
-            (Some(unit), Some(function)) => {
-                Ok(unit == pending.unit.0
-                    && function & !super::pdu::function::EXCEPTION_BIT == pending.function)
-            }
+            (Some(unit), Some(function)) => Ok(pending.matches_header(unit, function)),
             _ => Reply::parse_ascii_unchecked(bytes).map(|rep| pending.matches(&rep)),
         }
     }
-    fn disposition(&self, req: &Request<'_>, me: u8) -> Disposition {
-        req.disposition(me)
-    }
-    /// A frame with a bad LRC is dropped without a word (seed 004: "如果校验错误,则丢弃该消息帧,
-    /// 并不作任何回应": if the check fails, the frame is discarded and nothing is answered).
-    /// A whole frame with a good LRC that does not parse is the addressee's to answer with an
-    /// exception; nobody answers a broadcast.
-    fn rejected_disposition(&self, bytes: &[u8], _error: &FrameError, me: u8) -> Disposition {
+
+    /// How drive `me` treats a frame that did not parse. A frame with a bad LRC is dropped
+    /// without a word (seed 004: "如果校验错误,则丢弃该消息帧,并不作任何回应": if the check fails,
+    /// the frame is discarded and nothing is answered). A whole frame with a good LRC that does
+    /// not parse is the addressee's to answer with an exception; nobody answers a broadcast.
+    pub fn rejected(&self, bytes: &[u8], me: u8) -> Disposition {
         match split(bytes) {
             Ok((unit, _)) => super::disposition(unit.0, me),
             Err(_) => Disposition::NotMine,
@@ -351,7 +319,7 @@ impl Protocol for ModbusAscii {
 }
 
 impl Codec for ModbusAscii {
-    const NAME: &'static str = crate::protocol::WireProtocol::ModbusAscii.name();
+    const NAME: &'static str = "modbus-ascii";
     type Scanner = AsciiScanner;
     type Frame<'a> = Frame<'a>;
 

@@ -14,6 +14,55 @@
 //! broadcast address the slaves do not answer). drivebus accepts 1..=255 as unit numbers
 //! and leaves the 247 limit of the specification to the user.
 
+/// The session [`Protocol`](crate::session::Protocol) of a Modbus framing: the same for RTU and
+/// ASCII but for the scanners, the frame methods and the framing's own `rejected` (which frames
+/// that do not parse the addressee answers).
+macro_rules! modbus_protocol {
+    ($framing:ty, $scanner:ty, replies: $replies:expr, requests: $requests:expr, $emit:ident, $parse:ident) => {
+        impl Protocol for $framing {
+            type ReplyScanner = $scanner;
+            type RequestScanner = $scanner;
+            type Request<'a> = Request<'a>;
+            type Reply<'a> = Reply<'a>;
+            type Pending = Pending;
+
+            fn reply_scanner(&self) -> $scanner {
+                $replies
+            }
+            fn request_scanner(&self) -> $scanner {
+                $requests
+            }
+            fn emit_request(&self, req: &Request<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
+                req.$emit(out)
+            }
+            fn emit_reply(&self, rep: &Reply<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
+                rep.$emit(out)
+            }
+            fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Request<'a>, FrameError> {
+                Request::$parse(bytes)
+            }
+            fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Reply<'a>, FrameError> {
+                Reply::$parse(bytes)
+            }
+            fn pending(&self, req: &Request<'_>) -> Option<Pending> {
+                req.pending()
+            }
+            fn matches(&self, pending: &Pending, rep: &Reply<'_>) -> bool {
+                pending.matches(rep)
+            }
+            fn reply_matches(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+                self.answers(pending, bytes)
+            }
+            fn disposition(&self, req: &Request<'_>, me: u8) -> Disposition {
+                req.disposition(me)
+            }
+            fn rejected_disposition(&self, bytes: &[u8], _error: &FrameError, me: u8) -> Disposition {
+                self.rejected(bytes, me)
+            }
+        }
+    };
+}
+
 pub mod ascii;
 pub mod pdu;
 pub mod rtu;
@@ -157,6 +206,13 @@ impl Pending {
     #[inline]
     pub fn matches(&self, rep: &Reply<'_>) -> bool {
         rep.unit == self.unit && rep.pdu.answers_function() == self.function
+    }
+
+    /// True when a reply from `unit` with `function` in its header answers it (the function or
+    /// its exception), whatever follows.
+    #[inline]
+    pub fn matches_header(&self, unit: u8, function: u8) -> bool {
+        unit == self.unit.0 && function & !pdu::function::EXCEPTION_BIT == self.function
     }
 }
 

@@ -179,7 +179,7 @@ impl<'a> Data<'a> {
 
     /// The bytes, one by one.
     pub fn iter(&self) -> DataIter<'a> {
-        DataIter { data: *self, at: 0 }
+        DataIter { view: *self, at: 0 }
     }
 
     /// Copies the bytes into `out` (binary); returns how many. `out` must hold [`len`](Self::len).
@@ -219,28 +219,38 @@ impl fmt::Debug for Data<'_> {
     }
 }
 
-/// The bytes of a [`Data`].
-#[derive(Clone)]
-pub struct DataIter<'a> {
-    data: Data<'a>,
-    at: usize,
+/// An iterator over a view with `get(index)` and `len()` ([`Data`], [`Registers`]).
+macro_rules! view_iter {
+    ($(#[$m:meta])* $name:ident over $view:ident as $item:ty) => {
+        $(#[$m])*
+        #[derive(Clone)]
+        pub struct $name<'a> {
+            view: $view<'a>,
+            at: usize,
+        }
+
+        impl Iterator for $name<'_> {
+            type Item = $item;
+            #[inline]
+            fn next(&mut self) -> Option<$item> {
+                let v = self.view.get(self.at)?;
+                self.at += 1;
+                Some(v)
+            }
+            fn size_hint(&self) -> (usize, Option<usize>) {
+                let n = self.view.len().saturating_sub(self.at);
+                (n, Some(n))
+            }
+        }
+
+        impl ExactSizeIterator for $name<'_> {}
+    };
 }
 
-impl Iterator for DataIter<'_> {
-    type Item = u8;
-    #[inline]
-    fn next(&mut self) -> Option<u8> {
-        let b = self.data.get(self.at)?;
-        self.at += 1;
-        Some(b)
-    }
-    fn size_hint(&self) -> (usize, Option<usize>) {
-        let n = self.data.len().saturating_sub(self.at);
-        (n, Some(n))
-    }
+view_iter! {
+    /// The bytes of a [`Data`].
+    DataIter over Data as u8
 }
-
-impl ExactSizeIterator for DataIter<'_> {}
 
 /// 16-bit register values: a view over big-endian wire bytes (parsed frames) or a slice of
 /// values (frames the caller builds).
@@ -296,7 +306,7 @@ impl<'a> Registers<'a> {
 
     /// The values in order.
     pub fn iter(&self) -> RegistersIter<'a> {
-        RegistersIter { regs: *self, at: 0 }
+        RegistersIter { view: *self, at: 0 }
     }
 
     /// Writes the values big-endian into `out`; returns the bytes written.
@@ -332,28 +342,10 @@ impl fmt::Debug for Hex4 {
     }
 }
 
-/// The values of a [`Registers`].
-#[derive(Clone)]
-pub struct RegistersIter<'a> {
-    regs: Registers<'a>,
-    at: usize,
+view_iter! {
+    /// The values of a [`Registers`].
+    RegistersIter over Registers as u16
 }
-
-impl Iterator for RegistersIter<'_> {
-    type Item = u16;
-    #[inline]
-    fn next(&mut self) -> Option<u16> {
-        let v = self.regs.get(self.at)?;
-        self.at += 1;
-        Some(v)
-    }
-    fn size_hint(&self) -> (usize, Option<usize>) {
-        let n = self.regs.len().saturating_sub(self.at);
-        (n, Some(n))
-    }
-}
-
-impl ExactSizeIterator for RegistersIter<'_> {}
 
 /// An exception code (the byte after `function | 0x80`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

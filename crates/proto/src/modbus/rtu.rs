@@ -17,7 +17,7 @@ use core::time::Duration;
 
 use super::pdu::{self, PduLen, ReplyPdu, RequestPdu};
 use super::{parse_either, Frame, Pending, Reply, Request, UnitId};
-use crate::checksum::{crc16_modbus, crc16_modbus_update};
+use crate::checksum::{crc16_modbus, crc16_modbus_one_byte, crc16_modbus_rewind, crc16_modbus_update};
 use crate::codec::Codec;
 use crate::deframe::{Scan, Scanner};
 use crate::describe::Direction;
@@ -241,14 +241,8 @@ pub fn mismatch_hint(body: &[u8], carried: u16) -> Option<MismatchHint> {
     }
     let (&first, rest) = body.split_first()?;
     // The CRC register after the address byte that would end in `carried` over the rest.
-    let state = crc16_rewind(carried, rest);
-    // After one byte x from 0xFFFF the register is 0x00FF ^ T[x ^ 0xFF].
-    let t = state ^ 0x00FF;
-    let idx = INV_HIGH[(t >> 8) as usize];
-    if CRC_TABLE[idx as usize] != t {
-        return None;
-    }
-    let address = idx ^ 0xFF;
+    let state = crc16_modbus_rewind(carried, rest);
+    let address = crc16_modbus_one_byte(state)?;
     (address != first).then_some(MismatchHint::OtherAddress { address })
 }
 
@@ -262,45 +256,6 @@ fn prefix_match(body: &[u8], carried: u16) -> Option<usize> {
         }
     }
     None
-}
-
-/// The CRC table (the same as `checksum`'s), and the inverse of its high bytes: the high
-/// byte of `T[i]` is different for every `i`, so one step of the CRC can be undone.
-const CRC_TABLE: [u16; 256] = {
-    let mut table = [0u16; 256];
-    let mut i = 0;
-    while i < 256 {
-        let mut crc = i as u16;
-        let mut bit = 0;
-        while bit < 8 {
-            crc = if crc & 1 != 0 { (crc >> 1) ^ 0xA001 } else { crc >> 1 };
-            bit += 1;
-        }
-        table[i] = crc;
-        i += 1;
-    }
-    table
-};
-
-const INV_HIGH: [u8; 256] = {
-    let mut inv = [0u8; 256];
-    let mut i = 0;
-    while i < 256 {
-        inv[(CRC_TABLE[i] >> 8) as usize] = i as u8;
-        i += 1;
-    }
-    inv
-};
-
-/// The CRC register before `bytes` that ends as `crc` after them.
-pub fn crc16_rewind(mut crc: u16, bytes: &[u8]) -> u16 {
-    for &b in bytes.iter().rev() {
-        // Forward: crc' = (crc >> 8) ^ T[(crc ^ b) & 0xFF]; the high byte of crc' is T's.
-        let idx = INV_HIGH[(crc >> 8) as usize];
-        let high = (crc ^ CRC_TABLE[idx as usize]) & 0xFF;
-        crc = high << 8 | (idx ^ b) as u16;
-    }
-    crc
 }
 
 /// "03 request, whose CRC is that of its first 4 bytes only," for truncated-frame messages.
@@ -435,104 +390,67 @@ fn check(frame: &[u8]) -> Result<(), FrameError> {
     Ok(())
 }
 
-impl<'a> Request<'a> {
-    /// Parses an RTU request frame, CRC included, and checks the CRC.
-    pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
-        check(frame)?;
-        Self::parse_rtu_unchecked(frame)
-    }
+/// The RTU frame methods of a request and of a reply: the same but for the PDU type.
+macro_rules! rtu_frame {
+    ($adu:ident, $pdu:ident, $what:literal) => {
+        impl<'a> $adu<'a> {
+            #[doc = concat!("Parses an RTU ", $what, " frame, CRC included, and checks the CRC.")]
+            pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
+                check(frame)?;
+                Self::parse_rtu_unchecked(frame)
+            }
 
-    /// Parses an RTU request frame whose CRC has been checked (by [`RtuScanner`]).
-    #[inline]
-    pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
-        let (unit, pdu) = split(frame)?;
-        Ok(Request { unit, pdu: RequestPdu::parse(pdu).map_err(adu_error)? })
-    }
+            #[doc = concat!("Parses an RTU ", $what, " frame whose CRC has been checked (by [`RtuScanner`]).")]
+            #[inline]
+            pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
+                let (unit, pdu) = split(frame)?;
+                Ok($adu { unit, pdu: $pdu::parse(pdu).map_err(adu_error)? })
+            }
 
-    /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
-    pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        crate::error::need(out, self.pdu.wire_len() + 3)?;
-        out[0] = self.unit.0;
-        let n = self.pdu.emit(&mut out[1..])?;
-        put_crc(out, 1 + n)
-    }
+            /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
+            pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
+                crate::error::need(out, self.pdu.wire_len() + 3)?;
+                out[0] = self.unit.0;
+                let n = self.pdu.emit(&mut out[1..])?;
+                put_crc(out, 1 + n)
+            }
+        }
+    };
 }
 
-impl<'a> Reply<'a> {
-    /// Parses an RTU reply frame, CRC included, and checks the CRC.
-    pub fn parse_rtu(frame: &'a [u8]) -> Result<Self, FrameError> {
-        check(frame)?;
-        Self::parse_rtu_unchecked(frame)
-    }
-
-    /// Parses an RTU reply frame whose CRC has been checked (by [`RtuScanner`]).
-    #[inline]
-    pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
-        let (unit, pdu) = split(frame)?;
-        Ok(Reply { unit, pdu: ReplyPdu::parse(pdu).map_err(adu_error)? })
-    }
-
-    /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.
-    pub fn emit_rtu(&self, out: &mut [u8]) -> Result<usize, EmitError> {
-        crate::error::need(out, self.pdu.wire_len() + 3)?;
-        out[0] = self.unit.0;
-        let n = self.pdu.emit(&mut out[1..])?;
-        put_crc(out, 1 + n)
-    }
-}
+rtu_frame!(Request, RequestPdu, "request");
+rtu_frame!(Reply, ReplyPdu, "reply");
 
 /// Modbus RTU for the sessions and the tools (`Protocol` and `Codec`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct ModbusRtu;
 
-impl Protocol for ModbusRtu {
-    type ReplyScanner = RtuScanner;
-    type RequestScanner = RtuScanner;
-    type Request<'a> = Request<'a>;
-    type Reply<'a> = Reply<'a>;
-    type Pending = Pending;
+modbus_protocol!(
+    ModbusRtu,
+    RtuScanner,
+    replies: RtuScanner::replies(),
+    requests: RtuScanner::requests(),
+    emit_rtu,
+    parse_rtu_unchecked
+);
 
-    fn reply_scanner(&self) -> RtuScanner {
-        RtuScanner::replies()
-    }
-    fn request_scanner(&self) -> RtuScanner {
-        RtuScanner::requests()
-    }
-    fn emit_request(&self, req: &Request<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit_rtu(out)
-    }
-    fn emit_reply(&self, rep: &Reply<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit_rtu(out)
-    }
-    fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Request<'a>, FrameError> {
-        Request::parse_rtu_unchecked(bytes)
-    }
-    fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Reply<'a>, FrameError> {
-        Reply::parse_rtu_unchecked(bytes)
-    }
-    fn pending(&self, req: &Request<'_>) -> Option<Pending> {
-        req.pending()
-    }
-    fn matches(&self, pending: &Pending, rep: &Reply<'_>) -> bool {
-        pending.matches(rep)
-    }
-    /// The header only (unit, function or its exception): whoever uses the reply parses it.
-    fn reply_matches(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+impl ModbusRtu {
+    /// Whether the reply frame `bytes` answers `pending`, by its header only (unit, function or
+    /// its exception): whoever uses the reply parses it, once.
+    pub fn answers(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
         match bytes {
-            [unit, function, _, _, _, ..] => Ok(*unit == pending.unit.0
-                && function & !super::pdu::function::EXCEPTION_BIT == pending.function),
+            [unit, function, _, _, _, ..] => Ok(pending.matches_header(*unit, *function)),
             _ => Err(FrameError::Truncated { what: "Modbus RTU reply", expected: 5, got: bytes.len() }),
         }
     }
-    fn disposition(&self, req: &Request<'_>, me: u8) -> Disposition {
-        req.disposition(me)
-    }
-    /// A frame with a bad CRC is dropped without a word (seed 004: "如果两值不同则接收消息有错误
-    /// 丢弃该消息帧,并不作任何回应": if the two values differ the message is in error, the
-    /// frame is discarded and nothing is answered). A frame with a good CRC that does not
-    /// parse (quantity 0, unknown function) is the addressee's to answer with an exception
-    /// ([`pdu::ExceptionCode::for_error`]); nobody answers a broadcast.
-    fn rejected_disposition(&self, bytes: &[u8], _error: &FrameError, me: u8) -> Disposition {
+
+    /// How drive `me` treats a frame that did not parse. A frame with a bad CRC is dropped
+    /// without a word (seed 004: "如果两值不同则接收消息有错误丢弃该消息帧,并不作任何回应": if the
+    /// two values differ the message is in error, the frame is discarded and nothing is
+    /// answered). A frame with a good CRC that does not parse (quantity 0, unknown function) is
+    /// the addressee's to answer with an exception ([`pdu::ExceptionCode::for_error`]); nobody
+    /// answers a broadcast.
+    pub fn rejected(&self, bytes: &[u8], me: u8) -> Disposition {
         if bytes.len() >= MIN_ADU && bytes.len() <= MAX_ADU && crc_ok(bytes) {
             super::disposition(bytes[0], me)
         } else {
@@ -542,7 +460,7 @@ impl Protocol for ModbusRtu {
 }
 
 impl Codec for ModbusRtu {
-    const NAME: &'static str = crate::protocol::WireProtocol::ModbusRtu.name();
+    const NAME: &'static str = "modbus-rtu";
     type Scanner = RtuScanner;
     type Frame<'a> = Frame<'a>;
 

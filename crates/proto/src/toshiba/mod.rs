@@ -35,6 +35,11 @@ mod session_tests;
 
 pub use tip::{Tip, TipPending, TipReply, TipRequest, TipScanner};
 
+/// ASCII mode's start code `(` (28H): a frame that starts with it is an ASCII-mode frame.
+pub const ASCII_START: u8 = b'(';
+/// Binary mode's start code 2FH (`/`): a frame that starts with it is a binary-mode frame.
+pub const BINARY_START: u8 = 0x2F;
+
 /// The serial speed a VF-AS1 ships with (project decision; 9600, 19200 and 38400 allowed).
 pub const DEFAULT_BAUD: u32 = 19200;
 /// 8 data bits, even parity, 1 stop bit: the drive's default (it sends with 2 stop bits).
@@ -572,6 +577,16 @@ pub const BLOCK_READ_DEFAULTS: [CommNo; 5] = [
 ];
 /// The write targets of a block-communication request by default (f870/f871, project decision).
 pub const BLOCK_WRITE_DEFAULTS: [CommNo; 2] = [CommNo::COMMAND_1, CommNo::FREQUENCY_COMMAND];
+
+/// The "tripped" field of a reply.
+pub(crate) fn tripped_field(tripped: bool) -> Field<'static> {
+    let f = Field::flag("tripped", tripped);
+    if tripped {
+        f.with_meaning("lower-case CMD: the inverter is tripped")
+    } else {
+        f
+    }
+}
 
 /// The checksum hint for a SUM that is the sum of a prefix of the covered bytes only.
 pub(crate) fn prefix_hint(covered: &[u8], carried: u8) -> Option<crate::error::MismatchHint> {

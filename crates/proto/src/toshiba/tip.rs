@@ -24,7 +24,7 @@ impl Scanner for TipScanner {
     #[inline]
     fn scan(&self, buf: &[u8], checked: usize) -> Scan {
         match buf.first() {
-            Some(&binary::START) => binary::scan_binary(buf, self.from, true),
+            Some(&binary::START) => binary::scan_binary(buf, self.from, Some(ascii_frame_at)),
             _ => ascii::scan_ascii(buf, checked, true),
         }
     }
@@ -34,6 +34,15 @@ impl Scanner for TipScanner {
             Some(&binary::START) => binary::truncated(buf, self.from),
             _ => ascii::AsciiScanner.truncated(buf),
         }
+    }
+}
+
+/// Whether a whole ASCII-mode frame starts `buf`: one without SUM has no check, so it must at
+/// least parse (the binary scanner asks, to tell a `(` in its data from a new frame).
+fn ascii_frame_at(buf: &[u8]) -> bool {
+    match ascii::scan_ascii(buf, 0, true) {
+        Scan::Frame { len } => buf.get(..len).is_some_and(|f| ascii::parse_frame(f, None).is_ok()),
+        _ => false,
     }
 }
 

@@ -62,8 +62,7 @@ use drivebus_proto::b800::{
 use drivebus_proto::session::{Incoming, Responder, SlaveSession};
 use drivebus_proto::Instant;
 
-use crate::bus::Device;
-use crate::drive::{DriveCore, VirtualDrive};
+use crate::drive::{Device, DriveCore, VirtualDrive};
 use crate::model::{ModelSettings, Rotation, RunRefusal, RunState, Trip};
 
 /// The protocol name the drive reports (the codec's name).

@@ -57,8 +57,7 @@ use drivebus_proto::fc::{
 use drivebus_proto::session::{Disposition, Incoming, Protocol, Responder, SlaveSession};
 use drivebus_proto::Instant;
 
-use crate::bus::Device;
-use crate::drive::{DriveCore, VirtualDrive};
+use crate::drive::{Device, DriveCore, VirtualDrive};
 use crate::model::{ModelSettings, Rotation, RunState, Trip};
 
 use channel::Answer;

@@ -36,7 +36,7 @@
 //!   P0.02, P0.05 and P0.06 above the maximum frequency P0.04 are exception 03, so is
 //!   P0.06 above P0.05.
 //! - 2100H fault codes: 0 none, 1 over-current, 2 over-voltage, 3 under-voltage, 4 module
-//!   over-temperature, 5 external fault, 6 communication time-out ([`fault_code`]). The P4
+//!   over-temperature, 5 external fault, 6 communication time-out ([`Trip::code`]). The P4
 //!   fault records follow the trips.
 //! - 2000H and 2001H read back the last command and setpoint written; 2109H/210AH (VI, CI) read
 //!   the values the control interface forces into those catalog entries (0 by default);
@@ -64,8 +64,7 @@ use drivebus_proto::modbus::{
 use drivebus_proto::session::{Incoming, SlaveSession};
 use drivebus_proto::{FrameError, Instant};
 
-use crate::bus::Device;
-use crate::drive::{DriveCore, VirtualDrive};
+use crate::drive::{Device, DriveCore, VirtualDrive};
 use crate::model::{ModelSettings, Rotation, Trip};
 
 /// The register map of this drive, shared with the master profile.
@@ -122,18 +121,6 @@ fn p3_10(protocol: GenericProtocol) -> i64 {
     match protocol {
         GenericProtocol::Rtu => 3,
         GenericProtocol::Ascii => 0,
-    }
-}
-
-/// The 2100H fault code of a trip (the manual gives no list; drivebus' numbering).
-pub fn fault_code(trip: Trip) -> u16 {
-    match trip {
-        Trip::OverCurrent => 1,
-        Trip::OverVoltage => 2,
-        Trip::UnderVoltage => 3,
-        Trip::OverTemperature => 4,
-        Trip::External => 5,
-        Trip::CommunicationTimeout => 6,
     }
 }
 
@@ -565,7 +552,7 @@ impl State {
                 let current = (self.current_before_a * 10.0).round() as i64;
                 let params = &mut self.core.params;
                 let _ = params.force(P4_01_PREVIOUS_FAULT, 0, previous);
-                let _ = params.force(P4_00_LAST_FAULT, 0, i64::from(fault_code(record.trip)));
+                let _ = params.force(P4_00_LAST_FAULT, 0, i64::from(record.trip.code()));
                 let _ = params.force(P4_02_FAULT_FREQ, 0, (record.output_mhz / 10).clamp(0, 40000));
                 let _ = params.force(P4_03_FAULT_CURRENT, 0, current.clamp(0, 65535));
             }
@@ -646,7 +633,7 @@ impl State {
     fn read_register(&self, address: u16) -> Option<u16> {
         let m = &self.core.model;
         Some(match address {
-            reg::FAULT_CODE => m.trip().map_or(0, fault_code),
+            reg::FAULT_CODE => m.trip().map_or(0, Trip::code),
             reg::STATUS => self.status(),
             reg::SET_FREQUENCY => unsigned(m.setpoint_hz() * 100.0),
             // Truncated: 40.00 Hz only once the ramp is there.

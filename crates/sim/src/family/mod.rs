@@ -13,11 +13,10 @@ pub mod generic;
 pub mod toshiba;
 
 use drivebus_drive::Family;
-use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::Instant;
 
-use crate::config::{ConfigError, DriveSpec};
 use crate::drive::VirtualDrive;
+use crate::spec::{ConfigError, DriveSpec};
 
 /// Builds the virtual drive `spec` describes, at simulated time `now`.
 pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, ConfigError> {
@@ -31,24 +30,10 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
             Box::new(generic::GenericDrive::new(spec.address, protocol, now).map_err(err)?)
         }
         Family::Toshiba => {
-            let protocol = match spec.protocol {
-                Some(WireProtocol::ModbusRtu) => toshiba::ToshibaProtocol::ModbusRtu,
-                _ => toshiba::ToshibaProtocol::Tip,
-            };
+            let protocol =
+                spec.protocol.and_then(toshiba::ToshibaProtocol::of).unwrap_or(toshiba::ToshibaProtocol::Tip);
             Box::new(toshiba::ToshibaDrive::new(spec.address, protocol, now).map_err(err)?)
         }
         Family::Danfoss => Box::new(danfoss::DanfossDrive::new(spec.address, now).map_err(err)?),
     })
-}
-
-/// The protocols a master may use to talk to the drive `spec` describes: the one it was given,
-/// or its family's default (a TOSHIBA drive answers both TIP modes on one line).
-pub fn wire_protocols(spec: &DriveSpec) -> &'static [WireProtocol] {
-    match (spec.family, spec.protocol) {
-        (Family::Toshiba, None | Some(WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary)) => {
-            toshiba::ToshibaProtocol::Tip.wire_protocols()
-        }
-        (family, Some(p)) => family.protocols().iter().find(|&&x| x == p).map_or(&[], core::slice::from_ref),
-        (family, None) => &family.protocols()[..1],
-    }
 }

@@ -32,13 +32,13 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use drivebus_drive::profile::Fault;
 use drivebus_drive::{Family, ParamStore, Storage, WriteError};
 use drivebus_proto::modbus::rtu::ModbusRtu;
 use drivebus_proto::modbus::{
     DeviceIdReply, DeviceObject, DeviceObjects, ExceptionCode, Registers, Reply, ReplyPdu, Request,
     RequestPdu, UnitId,
 };
-use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{Incoming, Responder, SlaveSession};
 use drivebus_proto::toshiba::binary::{BinaryRequestBody, BlockRequest};
 use drivebus_proto::toshiba::{
@@ -46,50 +46,11 @@ use drivebus_proto::toshiba::{
 };
 use drivebus_proto::Instant;
 
-use crate::bus::Device;
-use crate::drive::{DriveCore, VirtualDrive};
+use crate::drive::{Device, DriveCore, VirtualDrive};
 use crate::model::{ModelSettings, Rotation, Trip};
 
-/// Which protocol the drive speaks (parameter f829).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ToshibaProtocol {
-    /// f829 = 0: TOSHIBA Inverter Protocol, ASCII and binary mode on one line.
-    Tip,
-    /// f829 = 1: Modbus-RTU.
-    ModbusRtu,
-}
-
-impl ToshibaProtocol {
-    /// The wire protocols a master may use with it.
-    pub fn wire_protocols(self) -> &'static [WireProtocol] {
-        match self {
-            ToshibaProtocol::Tip => &[WireProtocol::ToshibaAscii, WireProtocol::ToshibaBinary],
-            ToshibaProtocol::ModbusRtu => &[WireProtocol::ModbusRtu],
-        }
-    }
-
-    /// Its name: the protocols' names joined by `+` (`toshiba-ascii+toshiba-binary`).
-    pub fn name(self) -> String {
-        self.wire_protocols().iter().map(|p| p.name()).collect::<Vec<_>>().join("+")
-    }
-
-    /// The value of f829 that selects it.
-    pub fn f829(self) -> i64 {
-        match self {
-            ToshibaProtocol::Tip => 0,
-            ToshibaProtocol::ModbusRtu => 1,
-        }
-    }
-
-    /// The protocol f829 = `value` selects (anything but 1 is TOSHIBA, the shipment setting).
-    pub fn from_f829(value: i64) -> Self {
-        if value == 1 {
-            ToshibaProtocol::ModbusRtu
-        } else {
-            ToshibaProtocol::Tip
-        }
-    }
-}
+/// Which protocol the drive speaks (parameter f829), as the Toshiba profile knows it.
+pub use drivebus_drive::profile::toshiba::ToshibaProtocol;
 
 /// The model the drive claims to be (Modbus 2B/0E ProductCode): 200 V class, 3.7 kW.
 pub const MODEL_NAME: &str = "VFAS1-2037PM";
@@ -384,6 +345,12 @@ impl VirtualDrive for ToshibaDrive {
 
     fn protocol(&self) -> String {
         self.inner.protocol.name()
+    }
+
+    /// The VF-AS1's own trip code (FC90) and its panel name.
+    fn panel_fault(&self, trip: Trip) -> Fault {
+        let code = trip_code(trip);
+        Fault { code: u32::from(code), text: drivebus_drive::profile::toshiba::trip_text(code) }
     }
 
     fn core(&self) -> &DriveCore {

@@ -6,6 +6,9 @@ use std::process::{Child, Command, Stdio};
 
 use serde_json::Value;
 
+#[path = "support/output.rs"]
+mod output;
+
 /// The simulator, killed on drop.
 struct Sim {
     child: Child,
@@ -41,16 +44,12 @@ impl Drop for Sim {
 }
 
 fn drivebus(port: &str, args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["--port", port, "--drive", "generic", "--protocol", "modbus-rtu"])
-        .args(args)
-        .output()
-        .expect("run drivebus");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    let out = output::output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["--port", port, "--drive", "generic", "--protocol", "modbus-rtu"])
+            .args(args),
+    );
+    (out.code, out.stdout, out.stderr)
 }
 
 #[test]

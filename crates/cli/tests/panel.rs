@@ -54,24 +54,17 @@ impl Drop for Sim {
     }
 }
 
-struct Out {
-    code: i32,
-    stdout: String,
-    stderr: String,
-}
+#[path = "support/output.rs"]
+mod output;
+use output::{output, Out};
 
 fn panel(pty: &str, drive: &[&str], args: &[&str]) -> Out {
-    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["panel", "--port", pty, "--timeout", "300"])
-        .args(drive)
-        .args(args)
-        .output()
-        .expect("run drivebus panel");
-    Out {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["panel", "--port", pty, "--timeout", "300"])
+            .args(drive)
+            .args(args),
+    )
 }
 
 fn json(o: &Out) -> Value {

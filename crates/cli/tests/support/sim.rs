@@ -8,6 +8,11 @@ use std::process::{Child, Command, Stdio};
 
 use serde_json::Value;
 
+#[path = "output.rs"]
+mod output;
+use output::output;
+pub use output::Out;
+
 /// A background process killed on drop, with the line it printed when ready.
 pub struct Proc {
     child: Child,
@@ -56,16 +61,6 @@ pub fn simulate(drive: &str, endpoint: &[&str]) -> Proc {
     Proc::start(cmd, "listening on ")
 }
 
-/// What a `drivebus` run printed, and its exit status.
-pub struct Out {
-    /// The exit status (-1 when killed).
-    pub code: i32,
-    /// Standard output.
-    pub stdout: String,
-    /// Standard error.
-    pub stderr: String,
-}
-
 /// `drivebus --port <port> --drive <family> --address <address> [--protocol P] <args>`.
 pub fn drivebus(port: &str, family: &str, protocol: Option<&str>, address: u8, args: &[&str]) -> Out {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
@@ -73,17 +68,17 @@ pub fn drivebus(port: &str, family: &str, protocol: Option<&str>, address: u8, a
     if let Some(p) = protocol {
         cmd.args(["--protocol", p]);
     }
-    let out = cmd.args(args).output().expect("run drivebus");
-    Out {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    output(cmd.args(args))
 }
 
 /// Asserts exit status 0.
 pub fn ok(o: &Out, what: &str) {
     assert_eq!(o.code, 0, "{what}: {}{}", o.stdout, o.stderr);
+}
+
+/// The Python Modbus master (pymodbus) that drives a simulated line: tests/interop/pymodbus_client.py.
+pub fn pymodbus_client() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_client.py")
 }
 
 /// A pty path of its own for a test.

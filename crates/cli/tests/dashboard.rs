@@ -155,9 +155,17 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
         ),
     )
     .expect("write the configuration");
+    let (serve, http) = serve_config(&config, &[]);
+    (sim, serve, http, control)
+}
+
+/// `drivebus serve --config <config> <extra>` on ports of the system's choosing; its HTTP
+/// address once it says where its dashboard is.
+fn serve_config(config: &Path, extra: &[&str]) -> (Proc, SocketAddr) {
     let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["serve", "--no-opcua", "--config"])
-        .arg(&config)
+        .arg(config)
+        .args(extra)
         .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
@@ -165,7 +173,7 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
         .expect("start drivebus serve --config");
     let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
     let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (sim, Proc(serve), http, control)
+    (Proc(serve), http)
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -633,17 +641,7 @@ fn start_plant_of_1000(dir: &Path) -> (Proc, SocketAddr) {
     assert_eq!(n, 1000);
     let config = dir.join("plant.toml");
     std::fs::write(&config, toml).expect("write the configuration");
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--no-opcua", "--config"])
-        .arg(&config)
-        .args(["--no-store", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start drivebus serve --config");
-    let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
-    let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (Proc(serve), http)
+    serve_config(&config, &["--no-store"])
 }
 
 /// A hall's worth of drives: the page opens on the table (drive, bus, state, output and set Hz,

@@ -231,24 +231,20 @@ fn serve_warns_when_no_token_can_read_or_write() {
     assert!(!err.contains("warning") && !err.contains("note:"), "{err}");
 }
 
+/// `drivebus serve --demo --no-store --no-opcua` on free loopback ports, to be given more flags.
+fn serve_demo_without_store() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["serve", "--demo", "--no-store", "--no-opcua"])
+        .args(["--http", &format!("127.0.0.1:{}", free_port())])
+        .args(["--modbus", &format!("127.0.0.1:{}", free_port())]);
+    cmd
+}
+
 #[test]
 fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
     let bridge: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args([
-            "serve",
-            "--demo",
-            "--no-store",
-            "--no-opcua",
-            "--http",
-            &format!("127.0.0.1:{}", free_port()),
-        ])
-        .args([
-            "--modbus",
-            &format!("127.0.0.1:{}", free_port()),
-            "--bridge",
-            &format!("line-generic={bridge}"),
-        ])
+    let mut child = serve_demo_without_store()
+        .args(["--bridge", &format!("line-generic={bridge}")])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -276,19 +272,7 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
         (vec!["--bridge", "line-generic"], 3, "BUS=HOST:PORT"),
         (vec!["--modbus-rtu", "/nonexistent/ttyS9"], 2, "/nonexistent/ttyS9"),
     ] {
-        let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-            .args([
-                "serve",
-                "--demo",
-                "--no-store",
-                "--no-opcua",
-                "--http",
-                &format!("127.0.0.1:{}", free_port()),
-            ])
-            .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
-            .args(&args)
-            .output()
-            .unwrap();
+        let out = serve_demo_without_store().args(&args).output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
         let last = err.lines().last().unwrap_or_default();

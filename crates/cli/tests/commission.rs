@@ -13,6 +13,10 @@ mod sim;
 
 use sim::{drivebus, ok, simulate, status, wait_status, Proc};
 
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
+
 /// speed, run, status shows it running and ramping, stop; out-of-range speed refused with 3
 /// before anything is sent; a missing drive is exit 2.
 fn commission(port: &str, family: &str, protocol: Option<&str>, address: u8) {
@@ -173,10 +177,7 @@ fn params_backup_restore_diff_between_two_drives() {
 
 #[test]
 fn the_generic_profile_drives_a_pymodbus_server() {
-    let has = Command::new("python3").args(["-c", "import pymodbus"]).status().is_ok_and(|s| s.success());
-    if !has {
-        assert!(std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(), "pymodbus is required in CI");
-        eprintln!("NOT RUN: pymodbus is not installed (pip install pymodbus); .ci/run installs it");
+    if !witness("pymodbus", witness::python_has("pymodbus"), "pip install pymodbus") {
         return;
     }
     let port_no = 20000 + (std::process::id() % 20000) as u16;

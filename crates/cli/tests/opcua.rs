@@ -16,6 +16,9 @@ use std::process::{Child, Command, Stdio};
 mod http;
 #[path = "support/lines.rs"]
 mod lines;
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
 use lines::wait_for_lines as lines;
 
 struct Proc(Child);
@@ -31,18 +34,10 @@ fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/opcua_client.py")
 }
 
-fn has_asyncua() -> bool {
-    Command::new("python3").args(["-c", "import asyncua"]).output().is_ok_and(|o| o.status.success())
-}
 
 #[test]
 fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {
-    if !has_asyncua() {
-        assert!(
-            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
-            "Python asyncua is required in CI but missing: pip install asyncua"
-        );
-        eprintln!("NOT RUN: Python asyncua is not installed; .ci/install-witnesses.sh installs it");
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
         return;
     }
     let dir = std::env::temp_dir().join(format!("drivebus-opcua-{}", std::process::id()));

@@ -1,17 +1,19 @@
 //! `drivebus monitor` end to end against `drivebus simulate`: with stdout not a terminal it
 //! prints one line per drive per refresh, and `--count` stops it.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 use serde_json::Value;
 
 #[path = "support/output.rs"]
 mod output;
+#[path = "support/sim.rs"]
+mod sim;
+use sim::Proc;
 
 /// The simulator, killed on drop.
 struct Sim {
-    child: Child,
+    _proc: Proc,
     port: String,
 }
 
@@ -23,23 +25,8 @@ impl Sim {
             cmd.args(["--drive", d]);
         }
         cmd.args(["--tcp", "127.0.0.1:0"]);
-        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start");
-        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        let port = loop {
-            let line = lines.next().expect("ready line").expect("utf-8");
-            if let Some(rest) = line.strip_prefix("listening on tcp ") {
-                break format!("tcp://{}", rest.trim());
-            }
-        };
-        std::thread::spawn(move || for _ in lines {});
-        Sim { child, port }
-    }
-}
-
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        let proc = Proc::start(cmd, "listening on tcp ");
+        Sim { port: format!("tcp://{}", proc.ready), _proc: proc }
     }
 }
 

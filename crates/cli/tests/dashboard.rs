@@ -17,7 +17,7 @@
 use std::io::{BufRead, BufReader, Write};
 use std::net::{SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
@@ -30,7 +30,7 @@ mod http;
 use http::http_json;
 #[path = "support/lines.rs"]
 mod lines;
-use lines::wait_for_lines;
+use lines::{wait_for_lines, Killed};
 
 const DEMO_DRIVES: [&str; 10] = [
     "conveyor-1",
@@ -44,16 +44,6 @@ const DEMO_DRIVES: [&str; 10] = [
     "mixer-1",
     "mixer-2",
 ];
-
-/// A child process killed on drop.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn find_program(names: &[&str]) -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;
@@ -93,7 +83,7 @@ fn seed_history(db: &Path) {
 }
 
 /// `drivebus serve --demo` on free loopback ports: its HTTP address and the demo write token.
-fn start_serve() -> (Proc, SocketAddr, String) {
+fn start_serve() -> (Killed, SocketAddr, String) {
     // A store of its own, so the page's event log and trends also come from it.
     let db =
         std::env::temp_dir().join(format!("drivebus-dashboard-{}-{}.db", std::process::id(), free_port()));
@@ -106,7 +96,7 @@ fn start_serve() -> (Proc, SocketAddr, String) {
         .spawn()
         .expect("start drivebus serve --demo");
     let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let proc = Proc(child);
+    let proc = Killed(child);
     let mut http = None;
     let mut token = None;
     // Wait for the lines that say where it listens and the token (events, not sleeps).
@@ -129,7 +119,7 @@ fn start_serve() -> (Proc, SocketAddr, String) {
 /// A plant with trouble: a generic drive on a `drivebus simulate` process over TCP, to be tripped
 /// through the simulator's control interface, and a drive on a serial port that does not exist.
 /// Returns the processes, the gateway's HTTP address and the simulator's control address.
-fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
+fn start_faulted_plant(dir: &Path) -> (Killed, Killed, SocketAddr, SocketAddr) {
     let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
         .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
@@ -138,7 +128,7 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
         .spawn()
         .expect("start drivebus simulate");
     let at = wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
-    let sim = Proc(sim);
+    let sim = Killed(sim);
     let control: SocketAddr = at[1].trim_end_matches("/drives").parse().expect("the control address");
 
     let config = dir.join("faulted.toml");
@@ -161,7 +151,7 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
 
 /// `drivebus serve --config <config> <extra>` on ports of the system's choosing; its HTTP
 /// address once it says where its dashboard is.
-fn serve_config(config: &Path, extra: &[&str]) -> (Proc, SocketAddr) {
+fn serve_config(config: &Path, extra: &[&str]) -> (Killed, SocketAddr) {
     let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["serve", "--no-opcua", "--config"])
         .arg(config)
@@ -173,7 +163,7 @@ fn serve_config(config: &Path, extra: &[&str]) -> (Proc, SocketAddr) {
         .expect("start drivebus serve --config");
     let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
     let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (Proc(serve), http)
+    (Killed(serve), http)
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -204,7 +194,7 @@ fn base64_decode(s: &str) -> Vec<u8> {
 struct Browser {
     driver: SocketAddr,
     session: String,
-    _chromedriver: Proc,
+    _chromedriver: Killed,
 }
 
 const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
@@ -221,7 +211,7 @@ impl Browser {
                 .stderr(Stdio::null())
                 .spawn()
                 .expect("start chromedriver");
-            let mut proc = Proc(child);
+            let mut proc = Killed(child);
             let driver: SocketAddr = ([127, 0, 0, 1], port).into();
             let deadline = Instant::now() + PATIENCE;
             let ready = loop {
@@ -625,7 +615,7 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
 }
 
 /// The bench's plant (bench/gateway_load.sh): 1000 simulated generic drives on 32 virtual buses.
-fn start_plant_of_1000(dir: &Path) -> (Proc, SocketAddr) {
+fn start_plant_of_1000(dir: &Path) -> (Killed, SocketAddr) {
     let mut toml = String::from("name = \"plant\"\n[http]\nanonymous_read = true\n");
     let mut n = 0;
     for b in 1..=32 {

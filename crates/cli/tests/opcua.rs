@@ -10,7 +10,7 @@
 //! a missing witness is a failure; locally the test says on stderr that it did not run.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 
 #[path = "support/http.rs"]
 mod http;
@@ -19,16 +19,8 @@ mod lines;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 use witness::witness;
-use lines::wait_for_lines as lines;
+use lines::{wait_for_lines as lines, Killed};
 
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/opcua_client.py")
@@ -56,7 +48,7 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
         .spawn()
         .unwrap();
     let at = lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
-    let _sim = Proc(sim);
+    let _sim = Killed(sim);
     let control = format!("http://{}", at[1].trim_end_matches("/drives"));
 
     let token = "opcua-test-token-0123456789";
@@ -96,7 +88,7 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
         .spawn()
         .unwrap();
     let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
-    let _serve = Proc(serve);
+    let _serve = Killed(serve);
     let http: std::net::SocketAddr =
         at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
     let url = at[1].split_whitespace().next().unwrap().to_string();

@@ -3,23 +3,18 @@
 //! other off the broker (their client ids differ).
 
 use std::net::SocketAddr;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 
+#[path = "support/lines.rs"]
+mod lines;
 #[path = "../../gateway/tests/mqtt_support/mod.rs"]
 mod mqtt_support;
 
+use lines::Killed;
+
 use mqtt_support::{free_port, rumqttd_both, wait_all_statuses, wait_every_status, Subscriber};
 
-struct Serve(Child);
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn serve(name: &str, broker: SocketAddr) -> Serve {
+fn serve(name: &str, broker: SocketAddr) -> Killed {
     let child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["serve", "--demo", "--no-opcua", "--no-store", "--name", name])
         .args(["--http", &format!("127.0.0.1:{}", free_port())])
@@ -29,7 +24,7 @@ fn serve(name: &str, broker: SocketAddr) -> Serve {
         .stderr(Stdio::null())
         .spawn()
         .expect("start drivebus serve");
-    Serve(child)
+    Killed(child)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

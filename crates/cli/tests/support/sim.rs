@@ -4,18 +4,21 @@
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 
 use serde_json::Value;
 
+#[path = "lines.rs"]
+mod lines;
 #[path = "output.rs"]
 mod output;
+use lines::Killed;
 use output::output;
 pub use output::Out;
 
 /// A background process killed on drop, with the line it printed when ready.
 pub struct Proc {
-    child: Child,
+    _child: Killed,
     /// The rest of the ready line.
     pub ready: String,
     /// The lines printed before the ready line.
@@ -36,7 +39,7 @@ impl Proc {
             before.push(line);
         };
         std::thread::spawn(move || for _ in lines {});
-        Proc { child, ready, before }
+        Proc { _child: Killed(child), ready, before }
     }
 
     /// The simulator's control interface (`--control`), from the line it printed.
@@ -44,13 +47,6 @@ impl Proc {
         let line =
             self.before.iter().find_map(|l| l.strip_prefix("control http://")).expect("a control line");
         line.trim_end_matches("/drives").parse().expect("the control address")
-    }
-}
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 

@@ -14,7 +14,7 @@
 //! The WebDriver client is a few lines over `std::net::TcpStream` (JSON with serde_json): the
 //! protocol is plain HTTP/1.1 on loopback, and no crate is needed for it.
 
-use std::io::{BufRead, BufReader, Write};
+use std::io::Write;
 use std::net::{SocketAddr, TcpListener};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -88,32 +88,24 @@ fn start_serve() -> (Killed, SocketAddr, String) {
     let db =
         std::env::temp_dir().join(format!("drivebus-dashboard-{}-{}.db", std::process::id(), free_port()));
     seed_history(&db);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-opcua", "--db"])
-        .arg(&db)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start drivebus serve --demo");
-    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let proc = Killed(child);
-    let mut http = None;
-    let mut token = None;
+    let mut proc = Killed(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-opcua", "--db"])
+            .arg(&db)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start drivebus serve --demo"),
+    );
     // Wait for the lines that say where it listens and the token (events, not sleeps).
-    while http.is_none() || token.is_none() {
-        let line = match lines.next() {
-            Some(Ok(l)) => l,
-            _ => panic!("drivebus serve --demo ended before printing its dashboard URL and token"),
-        };
-        if let Some(rest) = line.trim().strip_prefix("dashboard") {
-            let url = rest.trim().trim_start_matches("http://").trim_end_matches('/');
-            http = Some(url.parse::<SocketAddr>().unwrap_or_else(|e| panic!("dashboard URL {line:?}: {e}")));
-        } else if let Some(t) = line.trim().strip_prefix("demo write token:") {
-            token = Some(t.trim().to_string());
-        }
-    }
-    std::thread::spawn(move || for _ in lines {});
-    (proc, http.unwrap(), token.unwrap())
+    let said = wait_for_lines(&mut proc.0, "drivebus serve --demo", &["dashboard", "demo write token:"]);
+    (proc, dashboard_address(&said[0]), said[1].clone())
+}
+
+/// The HTTP address in the dashboard URL `serve` prints (`http://127.0.0.1:PORT/`).
+fn dashboard_address(url: &str) -> SocketAddr {
+    let addr = url.trim_start_matches("http://").trim_end_matches('/');
+    addr.parse().unwrap_or_else(|e| panic!("dashboard URL {url:?}: {e}"))
 }
 
 /// A plant with trouble: a generic drive on a `drivebus simulate` process over TCP, to be tripped
@@ -152,18 +144,20 @@ fn start_faulted_plant(dir: &Path) -> (Killed, Killed, SocketAddr, SocketAddr) {
 /// `drivebus serve --config <config> <extra>` on ports of the system's choosing; its HTTP
 /// address once it says where its dashboard is.
 fn serve_config(config: &Path, extra: &[&str]) -> (Killed, SocketAddr) {
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--no-opcua", "--config"])
-        .arg(config)
-        .args(extra)
-        .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start drivebus serve --config");
-    let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
-    let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (Killed(serve), http)
+    let mut serve = Killed(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["serve", "--no-opcua", "--config"])
+            .arg(config)
+            .args(extra)
+            .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start drivebus serve --config"),
+    );
+    let url = wait_for_lines(&mut serve.0, "drivebus serve --config", &["dashboard"]);
+    let http = dashboard_address(&url[0]);
+    (serve, http)
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {

@@ -2,22 +2,17 @@
 //! it did not send and shows the bus as a drive-master line, in the bus view (HTTP API) and
 //! the metrics. Real time: the line is a pseudo-terminal served by the simulator.
 
+mod support;
+
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use drivebus_gateway::{Gateway, GatewayConfig};
 use drivebus_sim::config::BusSpec;
 use drivebus_sim::runtime::{Endpoint, Simulator};
+use support::wait_for;
 use tokio::task::JoinHandle;
-
-async fn wait_for(what: &str, limit: Duration, mut ok: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !ok() {
-        assert!(start.elapsed() < limit, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
 
 const LINE: &str = r#"
 [[drive]]

@@ -15,7 +15,7 @@
 //! protocol is plain HTTP/1.1 on loopback, and no crate is needed for it.
 
 use std::io::Write;
-use std::net::{SocketAddr, TcpListener};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -27,7 +27,7 @@ const PATIENCE: Duration = Duration::from_secs(90);
 
 #[path = "support/http.rs"]
 mod http;
-use http::http_json;
+use http::{free_port, http_json};
 #[path = "support/lines.rs"]
 mod lines;
 use lines::{wait_for_lines, Killed};
@@ -56,10 +56,6 @@ fn find_program(names: &[&str]) -> Option<PathBuf> {
         }
     }
     None
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("a free loopback port").port()
 }
 
 /// Four minutes of mixer-2 at 12.5 Hz, from 5 to 1 minute ago: what a trend can only show when

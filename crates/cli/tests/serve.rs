@@ -3,7 +3,7 @@
 //! prints.
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -12,12 +12,7 @@ use serde_json::Value;
 
 #[path = "support/http.rs"]
 mod http;
-use http::request as raw;
-
-/// A free loopback port (bound, read, released).
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
+use http::{free_port, request as raw};
 
 /// A `drivebus serve --demo` process, killed on drop.
 struct Serve {

@@ -25,8 +25,8 @@ impl Sim {
             cmd.args(["--drive", d]);
         }
         cmd.args(["--tcp", "127.0.0.1:0"]);
-        let proc = Proc::start(cmd, "listening on tcp ");
-        Sim { port: format!("tcp://{}", proc.ready), _proc: proc }
+        let proc = Proc::start(cmd, "listening on ");
+        Sim { port: proc.tcp_port(), _proc: proc }
     }
 }
 

@@ -42,6 +42,12 @@ impl Proc {
         Proc { _child: Killed(child), ready, before }
     }
 
+    /// Where a simulator started with `--tcp` listens, as `--port` takes it (`tcp://HOST:PORT`),
+    /// from its ready line (`listening on tcp HOST:PORT`).
+    pub fn tcp_port(&self) -> String {
+        format!("tcp://{}", self.ready.trim_start_matches("tcp "))
+    }
+
     /// The simulator's control interface (`--control`), from the line it printed.
     pub fn control(&self) -> std::net::SocketAddr {
         let line =

@@ -86,7 +86,16 @@ fn start_serve() -> (Killed, SocketAddr, String) {
     seed_history(&db);
     let mut proc = Killed(
         Command::new(env!("CARGO_BIN_EXE_drivebus"))
-            .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-opcua", "--db"])
+            .args([
+                "serve",
+                "--demo",
+                "--http",
+                "127.0.0.1:0",
+                "--modbus",
+                "127.0.0.1:0",
+                "--no-opcua",
+                "--db",
+            ])
             .arg(&db)
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())

@@ -108,16 +108,7 @@ fn toshiba_ascii_examples() {
     valid(&["-p", "toshiba-ascii", "28 57 30 30 31 30 30 30 36 34 29 0D"], &["0010", "10.0 s"]);
     // TA13: the wildcard *2 and the answer from inverter 02.
     valid(&["-p", "toshiba-ascii", "28 2A 32 52 30 30 30 30 29 0D"], &["wildcard"]);
-    valid(
-        &[
-            "-p",
-            "toshiba-ascii",
-            "--from",
-            "drive",
-            &hex(b"(02R00000000)\r"),
-        ],
-        &["drive 2 to master"],
-    );
+    valid(&["-p", "toshiba-ascii", "--from", "drive", &hex(b"(02R00000000)\r")], &["drive 2 to master"]);
     // With a checksum: (R0000&60)CR.
     valid(&["-p", "toshiba-ascii", "28 52 30 30 30 30 26 36 30 29 0D"], &["SUM"]);
 }
@@ -201,14 +192,7 @@ fn modbus_generic_examples() {
         &["-p", "modbus-ascii", "3A 30 31 30 36 30 34 30 35 31 32 33 34 41 41 0D 0A"],
         &["master to drive 1"],
     );
-    valid(
-        &[
-            "-p",
-            "modbus-ascii",
-            &hex(b":010321020002D7\r\n"),
-        ],
-        &["2102"],
-    );
+    valid(&["-p", "modbus-ascii", &hex(b":010321020002D7\r\n")], &["2102"]);
     valid(&["-p", "modbus-ascii", "3A 30 31 30 33 30 34 30 31 30 30 30 31 46 36 0D 0A"], &["0401"]);
     valid(&["-p", "modbus-ascii", "3A 30 31 30 36 30 30 30 32 31 33 38 38 35 43 0D 0A"], &["0002", "1388"]);
     valid(&["-p", "modbus-ascii", "3A 30 31 30 38 30 31 30 32 30 33 30 34 45 44 0D 0A"], &["08"]);

@@ -60,7 +60,12 @@ fn pymodbus(family: &str, drive: &str, extra: &[&str]) {
         return;
     }
     let sim = Sim::start_with(&[drive], extra);
-    let out = Command::new("python3").arg(pymodbus_client()).arg(family).arg(&sim.pty).output().expect("run python3");
+    let out = Command::new("python3")
+        .arg(pymodbus_client())
+        .arg(family)
+        .arg(&sim.pty)
+        .output()
+        .expect("run python3");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "pymodbus against {drive}: {stdout}{stderr}");

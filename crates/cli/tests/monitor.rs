@@ -5,11 +5,9 @@ use std::process::Command;
 
 use serde_json::Value;
 
-#[path = "support/output.rs"]
-mod output;
 #[path = "support/sim.rs"]
 mod sim;
-use sim::Proc;
+use sim::{output, Proc};
 
 /// The simulator, killed on drop.
 struct Sim {
@@ -31,7 +29,7 @@ impl Sim {
 }
 
 fn drivebus(port: &str, args: &[&str]) -> (i32, String, String) {
-    let out = output::output(
+    let out = output(
         Command::new(env!("CARGO_BIN_EXE_drivebus"))
             .args(["--port", port, "--drive", "generic", "--protocol", "modbus-rtu"])
             .args(args),

@@ -18,14 +18,12 @@ mod http;
 mod lines;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
-use witness::witness;
 use lines::{wait_for_lines as lines, Killed};
-
+use witness::witness;
 
 fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/opcua_client.py")
 }
-
 
 #[test]
 fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {

@@ -29,13 +29,10 @@ impl Sim {
 
 #[path = "support/http.rs"]
 mod http;
-#[path = "support/output.rs"]
-mod output;
 #[path = "support/sim.rs"]
 mod sim;
 use http::http_json;
-use sim::Proc;
-use output::{output, Out};
+use sim::{output, Out, Proc};
 
 fn panel(pty: &str, drive: &[&str], args: &[&str]) -> Out {
     output(

@@ -129,8 +129,12 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
     let tap = dir.path().join("tap");
     let mut sniff =
         Sniff::start(&["--port", tap.to_str().unwrap(), "--json", "--write", pcap.to_str().unwrap()]);
-    let out =
-        Command::new("python3").arg(pymodbus_client()).arg("generic").arg(dir.path().join("bus")).output().unwrap();
+    let out = Command::new("python3")
+        .arg(pymodbus_client())
+        .arg("generic")
+        .arg(dir.path().join("bus"))
+        .output()
+        .unwrap();
     let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "pymodbus: {text}");
     // pymodbus got every reply, so every one crossed the line: wait until sniff shows them all.
@@ -243,7 +247,13 @@ impl Dump {
 
     /// `drivebus sniff <args> --read line.hex`, run to its end.
     fn read(&self, args: &[&str]) -> std::process::Output {
-        Command::new(bin()).arg("sniff").args(args).arg("--read").arg(self.dir.path().join("line.hex")).output().unwrap()
+        Command::new(bin())
+            .arg("sniff")
+            .args(args)
+            .arg("--read")
+            .arg(self.dir.path().join("line.hex"))
+            .output()
+            .unwrap()
     }
 }
 

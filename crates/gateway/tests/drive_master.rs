@@ -78,7 +78,7 @@ async fn a_drive_master_line_is_shown() {
     let json = serde_json::to_value(bus()).unwrap();
     assert_eq!(json["drive_master"], true, "{json}");
 
-    let metrics = drivebus_gateway::metrics::render(&gw).unwrap();
+    let metrics = drivebus_gateway::metrics::render(gw).unwrap();
     assert!(metrics.contains("drivebus_bus_drive_master{bus=\"line\"} 1"), "{metrics}");
     assert!(metrics.contains("drivebus_bus_foreign_broadcasts_total{bus=\"line\"}"), "{metrics}");
 }

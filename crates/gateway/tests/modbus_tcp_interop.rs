@@ -95,7 +95,8 @@ async fn mbpoll_reads_input_registers() {
         loop {
             let unit_text = unit.to_string();
             let out =
-                mbpoll_ok(&port, &["-a", &unit_text, "-t", "3", "-r", "1", "-c", "10", "-1", "127.0.0.1"]).await;
+                mbpoll_ok(&port, &["-a", &unit_text, "-t", "3", "-r", "1", "-c", "10", "-1", "127.0.0.1"])
+                    .await;
             let values = mbpoll_values(&out);
             assert_eq!(values.iter().map(|v| v.0).collect::<Vec<_>>(), (1..=10).collect::<Vec<_>>(), "{out}");
             let family = if unit <= 3 {
@@ -117,7 +118,9 @@ async fn mbpoll_reads_input_registers() {
         }
     }
     // An unknown unit: mbpoll reports the gateway's exception.
-    let out = mbpoll(&port, &["-a", "42", "-t", "3", "-r", "1", "-c", "1", "-1", "127.0.0.1"]).await.unwrap_or_else(|e| e);
+    let out = mbpoll(&port, &["-a", "42", "-t", "3", "-r", "1", "-c", "1", "-1", "127.0.0.1"])
+        .await
+        .unwrap_or_else(|e| e);
     assert!(out.to_lowercase().contains("target device failed to respond"), "{out}");
 
     // Writes: fan-1's (unit 3) setpoint to 35.00 Hz (FC 06, answered when the drive confirmed),

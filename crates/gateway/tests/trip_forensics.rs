@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use drivebus_gateway::gateway::Command;
 use drivebus_gateway::{Gateway, GatewayConfig};
-use support::fresh_store;
 use drivebus_store::{EventFilter, EventKind};
+use support::fresh_store;
 
 #[tokio::test(start_paused = true)]
 async fn a_trip_is_stored_with_the_values_before_it() {

@@ -13,8 +13,7 @@ mod lines;
 #[path = "output.rs"]
 mod output;
 use lines::Killed;
-use output::output;
-pub use output::Out;
+pub use output::{output, Out};
 
 /// A background process killed on drop, with the line it printed when ready.
 pub struct Proc {

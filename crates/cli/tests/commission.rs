@@ -13,6 +13,10 @@ mod sim;
 
 use sim::{drivebus, ok, simulate, status, wait_status, Proc};
 
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
+
 /// speed, run, status shows it running and ramping, stop; out-of-range speed refused with 3
 /// before anything is sent; a missing drive is exit 2.
 fn commission(port: &str, family: &str, protocol: Option<&str>, address: u8) {
@@ -70,7 +74,7 @@ fn commission(port: &str, family: &str, protocol: Option<&str>, address: u8) {
 #[test]
 fn generic_over_tcp_and_pty() {
     let sim = simulate("generic@1:modbus-rtu", &["--tcp", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     commission(&port, "generic", Some("modbus-rtu"), 1);
     // Parameters by the manual's names, RAM and EEPROM.
     ok(&drivebus(&port, "generic", Some("modbus-rtu"), 1, &["param", "set", "P0.02", "45"]), "param set");
@@ -113,7 +117,7 @@ fn every_other_family_and_protocol_over_a_pty() {
 #[test]
 fn generic_ascii_over_tcp() {
     let sim = simulate("generic@3:modbus-ascii", &["--tcp", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     commission(&port, "generic", Some("modbus-ascii"), 3);
 }
 
@@ -125,7 +129,7 @@ fn toshiba_in_every_protocol() {
         ("toshiba@1:modbus-rtu", "modbus-rtu"),
     ] {
         let sim = simulate(drive, &["--tcp", "127.0.0.1:0"]);
-        let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+        let port = sim.tcp_port();
         commission(&port, "toshiba", Some(protocol), 1);
     }
 }
@@ -133,7 +137,7 @@ fn toshiba_in_every_protocol() {
 #[test]
 fn danfoss_over_tcp() {
     let sim = simulate("danfoss@3", &["--tcp", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     commission(&port, "danfoss", None, 3);
     // A read-only parameter cannot be written: the drive says no (AK 7), exit 1.
     let o = drivebus(&port, "danfoss", None, 3, &["param", "set", "16-13", "1"]);
@@ -143,14 +147,14 @@ fn danfoss_over_tcp() {
 #[test]
 fn b800_over_tcp() {
     let sim = simulate("b800@5", &["--tcp", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     commission(&port, "b800", None, 5);
 }
 
 #[test]
 fn params_backup_restore_diff_between_two_drives() {
     let sim = simulate("generic@1:modbus-rtu", &["--tcp", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     let dir = std::env::temp_dir().join(format!("drivebus-params-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("drive1.json");
@@ -173,10 +177,7 @@ fn params_backup_restore_diff_between_two_drives() {
 
 #[test]
 fn the_generic_profile_drives_a_pymodbus_server() {
-    let has = Command::new("python3").args(["-c", "import pymodbus"]).status().is_ok_and(|s| s.success());
-    if !has {
-        assert!(std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(), "pymodbus is required in CI");
-        eprintln!("NOT RUN: pymodbus is not installed (pip install pymodbus); .ci/run installs it");
+    if !witness("pymodbus", witness::python_has("pymodbus"), "pip install pymodbus") {
         return;
     }
     let port_no = 20000 + (std::process::id() % 20000) as u16;
@@ -217,7 +218,7 @@ fn raw_refuses_a_request_that_is_not_a_valid_frame() {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
     cmd.args(["simulate", "--drive", "generic@1:modbus-rtu", "--tcp", "127.0.0.1:0"]);
     let sim = Proc::start(cmd, "listening on ");
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     // The right CRC of this read is CF CB.
     let o = drivebus(&port, "generic", Some("modbus-rtu"), 1, &["raw", "01 03 20 00 00 02 00 00"]);
     assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
@@ -248,7 +249,7 @@ fn scan_finds_the_drives_on_a_mixed_line() {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
     cmd.args(["simulate", "--drive", "generic@3:modbus-rtu", "--drive", "b800@5", "--tcp", "127.0.0.1:0"]);
     let sim = Proc::start(cmd, "listening on ");
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["scan", "--port", &port, "--drive", "auto", "--addresses", "1-6", "--json"])
         .output()
@@ -387,7 +388,7 @@ fn a_backup_restored_onto_another_drive_keeps_its_address() {
 #[test]
 fn b800_parameters_are_refused_with_what_to_do() {
     let sim = simulate("b800@5", &["--tcp", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("b800.json");
     let o = drivebus(&port, "b800", None, 5, &["params", "backup", &file.to_string_lossy()]);
@@ -412,7 +413,7 @@ fn b800_parameters_are_refused_with_what_to_do() {
 #[test]
 fn danfoss_commands_from_separate_processes() {
     let sim = simulate("danfoss@3", &["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]);
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     for cmd in [&["speed", "30"][..], &["run"], &["stop"]] {
         ok(&drivebus(&port, "danfoss", None, 3, cmd), cmd[0]);
     }
@@ -441,7 +442,7 @@ fn a_broadcast_says_it_is_unconfirmed() {
     cmd.args(["simulate", "--drive", "generic@1:modbus-rtu", "--drive", "generic@2:modbus-rtu"]);
     cmd.args(["--tcp", "127.0.0.1:0"]);
     let sim = Proc::start(cmd, "listening on ");
-    let port = format!("tcp://{}", sim.ready.trim_start_matches("tcp "));
+    let port = sim.tcp_port();
     let o = drivebus(&port, "generic", Some("modbus-rtu"), 0, &["run"]);
     ok(&o, "broadcast run");
     assert!(o.stdout.contains("run sent to all drives (broadcast: no confirmation)"), "{}", o.stdout);

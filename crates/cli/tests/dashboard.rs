@@ -14,10 +14,10 @@
 //! The WebDriver client is a few lines over `std::net::TcpStream` (JSON with serde_json): the
 //! protocol is plain HTTP/1.1 on loopback, and no crate is needed for it.
 
-use std::io::{BufRead, BufReader, Write};
-use std::net::{SocketAddr, TcpListener};
+use std::io::Write;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
@@ -27,10 +27,10 @@ const PATIENCE: Duration = Duration::from_secs(90);
 
 #[path = "support/http.rs"]
 mod http;
-use http::http_json;
+use http::{free_port, http_json};
 #[path = "support/lines.rs"]
 mod lines;
-use lines::wait_for_lines;
+use lines::{wait_for_lines, Killed};
 
 const DEMO_DRIVES: [&str; 10] = [
     "conveyor-1",
@@ -45,16 +45,6 @@ const DEMO_DRIVES: [&str; 10] = [
     "mixer-2",
 ];
 
-/// A child process killed on drop.
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 fn find_program(names: &[&str]) -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;
     for dir in std::env::split_paths(&path) {
@@ -66,10 +56,6 @@ fn find_program(names: &[&str]) -> Option<PathBuf> {
         }
     }
     None
-}
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("a free loopback port").port()
 }
 
 /// Four minutes of mixer-2 at 12.5 Hz, from 5 to 1 minute ago: what a trend can only show when
@@ -93,43 +79,44 @@ fn seed_history(db: &Path) {
 }
 
 /// `drivebus serve --demo` on free loopback ports: its HTTP address and the demo write token.
-fn start_serve() -> (Proc, SocketAddr, String) {
+fn start_serve() -> (Killed, SocketAddr, String) {
     // A store of its own, so the page's event log and trends also come from it.
     let db =
         std::env::temp_dir().join(format!("drivebus-dashboard-{}-{}.db", std::process::id(), free_port()));
     seed_history(&db);
-    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--no-opcua", "--db"])
-        .arg(&db)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start drivebus serve --demo");
-    let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-    let proc = Proc(child);
-    let mut http = None;
-    let mut token = None;
+    let mut proc = Killed(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args([
+                "serve",
+                "--demo",
+                "--http",
+                "127.0.0.1:0",
+                "--modbus",
+                "127.0.0.1:0",
+                "--no-opcua",
+                "--db",
+            ])
+            .arg(&db)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start drivebus serve --demo"),
+    );
     // Wait for the lines that say where it listens and the token (events, not sleeps).
-    while http.is_none() || token.is_none() {
-        let line = match lines.next() {
-            Some(Ok(l)) => l,
-            _ => panic!("drivebus serve --demo ended before printing its dashboard URL and token"),
-        };
-        if let Some(rest) = line.trim().strip_prefix("dashboard") {
-            let url = rest.trim().trim_start_matches("http://").trim_end_matches('/');
-            http = Some(url.parse::<SocketAddr>().unwrap_or_else(|e| panic!("dashboard URL {line:?}: {e}")));
-        } else if let Some(t) = line.trim().strip_prefix("demo write token:") {
-            token = Some(t.trim().to_string());
-        }
-    }
-    std::thread::spawn(move || for _ in lines {});
-    (proc, http.unwrap(), token.unwrap())
+    let said = wait_for_lines(&mut proc.0, "drivebus serve --demo", &["dashboard", "demo write token:"]);
+    (proc, dashboard_address(&said[0]), said[1].clone())
+}
+
+/// The HTTP address in the dashboard URL `serve` prints (`http://127.0.0.1:PORT/`).
+fn dashboard_address(url: &str) -> SocketAddr {
+    let addr = url.trim_start_matches("http://").trim_end_matches('/');
+    addr.parse().unwrap_or_else(|e| panic!("dashboard URL {url:?}: {e}"))
 }
 
 /// A plant with trouble: a generic drive on a `drivebus simulate` process over TCP, to be tripped
 /// through the simulator's control interface, and a drive on a serial port that does not exist.
 /// Returns the processes, the gateway's HTTP address and the simulator's control address.
-fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
+fn start_faulted_plant(dir: &Path) -> (Killed, Killed, SocketAddr, SocketAddr) {
     let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
         .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
@@ -138,7 +125,7 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
         .spawn()
         .expect("start drivebus simulate");
     let at = wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
-    let sim = Proc(sim);
+    let sim = Killed(sim);
     let control: SocketAddr = at[1].trim_end_matches("/drives").parse().expect("the control address");
 
     let config = dir.join("faulted.toml");
@@ -155,17 +142,27 @@ fn start_faulted_plant(dir: &Path) -> (Proc, Proc, SocketAddr, SocketAddr) {
         ),
     )
     .expect("write the configuration");
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--no-opcua", "--config"])
-        .arg(&config)
-        .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start drivebus serve --config");
-    let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
-    let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (sim, Proc(serve), http, control)
+    let (serve, http) = serve_config(&config, &[]);
+    (sim, serve, http, control)
+}
+
+/// `drivebus serve --config <config> <extra>` on ports of the system's choosing; its HTTP
+/// address once it says where its dashboard is.
+fn serve_config(config: &Path, extra: &[&str]) -> (Killed, SocketAddr) {
+    let mut serve = Killed(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["serve", "--no-opcua", "--config"])
+            .arg(config)
+            .args(extra)
+            .args(["--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start drivebus serve --config"),
+    );
+    let url = wait_for_lines(&mut serve.0, "drivebus serve --config", &["dashboard"]);
+    let http = dashboard_address(&url[0]);
+    (serve, http)
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -196,7 +193,7 @@ fn base64_decode(s: &str) -> Vec<u8> {
 struct Browser {
     driver: SocketAddr,
     session: String,
-    _chromedriver: Proc,
+    _chromedriver: Killed,
 }
 
 const ELEMENT: &str = "element-6066-11e4-a52e-4f735466cecf";
@@ -213,7 +210,7 @@ impl Browser {
                 .stderr(Stdio::null())
                 .spawn()
                 .expect("start chromedriver");
-            let mut proc = Proc(child);
+            let mut proc = Killed(child);
             let driver: SocketAddr = ([127, 0, 0, 1], port).into();
             let deadline = Instant::now() + PATIENCE;
             let ready = loop {
@@ -617,7 +614,7 @@ fn the_dashboard_runs_a_drive_in_a_real_browser() {
 }
 
 /// The bench's plant (bench/gateway_load.sh): 1000 simulated generic drives on 32 virtual buses.
-fn start_plant_of_1000(dir: &Path) -> (Proc, SocketAddr) {
+fn start_plant_of_1000(dir: &Path) -> (Killed, SocketAddr) {
     let mut toml = String::from("name = \"plant\"\n[http]\nanonymous_read = true\n");
     let mut n = 0;
     for b in 1..=32 {
@@ -633,17 +630,7 @@ fn start_plant_of_1000(dir: &Path) -> (Proc, SocketAddr) {
     assert_eq!(n, 1000);
     let config = dir.join("plant.toml");
     std::fs::write(&config, toml).expect("write the configuration");
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--no-opcua", "--config"])
-        .arg(&config)
-        .args(["--no-store", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start drivebus serve --config");
-    let url = wait_for_lines(&mut serve, "drivebus serve --config", &["dashboard"]);
-    let http = url[0].trim_start_matches("http://").trim_end_matches('/').parse().expect("the dashboard URL");
-    (Proc(serve), http)
+    serve_config(&config, &["--no-store"])
 }
 
 /// A hall's worth of drives: the page opens on the table (drive, bus, state, output and set Hz,

@@ -9,20 +9,12 @@ use serde_json::Value;
 #[path = "support/closed_pipe.rs"]
 mod closed_pipe;
 
-struct Run {
-    code: i32,
-    stdout: String,
-    stderr: String,
-}
+#[path = "support/output.rs"]
+mod output;
+use output::{output, Out};
 
-fn decode(args: &[&str]) -> Run {
-    let out =
-        Command::new(env!("CARGO_BIN_EXE_drivebus")).arg("decode").args(args).output().expect("run drivebus");
-    Run {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+fn decode(args: &[&str]) -> Out {
+    output(Command::new(env!("CARGO_BIN_EXE_drivebus")).arg("decode").args(args))
 }
 
 fn json(args: &[&str]) -> (i32, Vec<Value>) {
@@ -32,6 +24,11 @@ fn json(args: &[&str]) -> (i32, Vec<Value>) {
     let frames =
         r.stdout.lines().map(|l| serde_json::from_str(l).expect("one JSON object per line")).collect();
     (r.code, frames)
+}
+
+/// `bytes` as the hex the command reads ("28 52 ...").
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02X}")).collect::<Vec<_>>().join(" ")
 }
 
 /// Asserts a valid frame decodes with `needles` in the text output.
@@ -111,22 +108,7 @@ fn toshiba_ascii_examples() {
     valid(&["-p", "toshiba-ascii", "28 57 30 30 31 30 30 30 36 34 29 0D"], &["0010", "10.0 s"]);
     // TA13: the wildcard *2 and the answer from inverter 02.
     valid(&["-p", "toshiba-ascii", "28 2A 32 52 30 30 30 30 29 0D"], &["wildcard"]);
-    valid(
-        &[
-            "-p",
-            "toshiba-ascii",
-            "--from",
-            "drive",
-            "(02R00000000)\r"
-                .as_bytes()
-                .iter()
-                .map(|b| format!("{b:02X}"))
-                .collect::<Vec<_>>()
-                .join(" ")
-                .as_str(),
-        ],
-        &["drive 2 to master"],
-    );
+    valid(&["-p", "toshiba-ascii", "--from", "drive", &hex(b"(02R00000000)\r")], &["drive 2 to master"]);
     // With a checksum: (R0000&60)CR.
     valid(&["-p", "toshiba-ascii", "28 52 30 30 30 30 26 36 30 29 0D"], &["SUM"]);
 }
@@ -210,20 +192,7 @@ fn modbus_generic_examples() {
         &["-p", "modbus-ascii", "3A 30 31 30 36 30 34 30 35 31 32 33 34 41 41 0D 0A"],
         &["master to drive 1"],
     );
-    valid(
-        &[
-            "-p",
-            "modbus-ascii",
-            ":010321020002D7\r\n"
-                .as_bytes()
-                .iter()
-                .map(|b| format!("{b:02X}"))
-                .collect::<Vec<_>>()
-                .join(" ")
-                .as_str(),
-        ],
-        &["2102"],
-    );
+    valid(&["-p", "modbus-ascii", &hex(b":010321020002D7\r\n")], &["2102"]);
     valid(&["-p", "modbus-ascii", "3A 30 31 30 33 30 34 30 31 30 30 30 31 46 36 0D 0A"], &["0401"]);
     valid(&["-p", "modbus-ascii", "3A 30 31 30 36 30 30 30 32 31 33 38 38 35 43 0D 0A"], &["0002", "1388"]);
     valid(&["-p", "modbus-ascii", "3A 30 31 30 38 30 31 30 32 30 33 30 34 45 44 0D 0A"], &["08"]);
@@ -393,9 +362,7 @@ fn danfoss_replies_without_from_are_the_drives() {
     let mut t =
         vec![0x02, 0x0E, 0x81, 0x11, 0x9E, 0x00, 0x00, 0x00, 0x00, 0x02, 0x8A, 0x06, 0x07, 0x00, 0x00];
     t.push(t.iter().fold(0, |a, b| a ^ b));
-    let hex: Vec<String> = t.iter().map(|b| format!("{b:02X}")).collect();
-    let hex = hex.join(" ");
-    valid(&["-p", "danfoss-fc", &hex], &["drive 1 to master: 01 parameter value transferred (word)"]);
+    valid(&["-p", "danfoss-fc", &hex(&t)], &["drive 1 to master: 01 parameter value transferred (word)"]);
 }
 
 // ---- A drive acting as bus master (seed 004 9.2.2 (2), Toshiba f806) ----

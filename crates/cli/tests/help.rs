@@ -3,13 +3,12 @@
 
 use std::process::Command;
 
+#[path = "support/output.rs"]
+mod output;
+
 fn drivebus(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_drivebus")).args(args).output().expect("run drivebus");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    let out = output::output(Command::new(env!("CARGO_BIN_EXE_drivebus")).args(args));
+    (out.code, out.stdout, out.stderr)
 }
 
 fn help(command: &[&str]) -> String {

@@ -11,23 +11,19 @@ use serde_json::{json, Value};
 #[path = "support/closed_pipe.rs"]
 mod closed_pipe;
 
-struct Run {
-    code: i32,
-    stdout: String,
-    stderr: String,
+#[path = "support/output.rs"]
+mod output;
+use output::{output, Out};
+
+fn run_in(dir: &Path, args: &[&str]) -> Out {
+    output(Command::new(env!("CARGO_BIN_EXE_drivebus")).current_dir(dir).args(args))
 }
 
-fn run_in(dir: &Path, args: &[&str]) -> Run {
-    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .expect("run drivebus");
-    Run {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+/// Asserts a run that found nothing: success, nothing on stdout, `said` on stderr.
+fn assert_found_nothing(r: &Out, said: &str) {
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert_eq!(r.stdout, "");
+    assert!(r.stderr.contains(said), "{}", r.stderr);
 }
 
 /// The fixture's start: the last whole hour at least an hour ago. Trends of 1 s are kept for a
@@ -173,9 +169,7 @@ fn events_with_db_elsewhere_and_none_matching() {
     let other = tempfile::tempdir().unwrap();
     let db = dir.path().join("drivebus.db");
     let r = run_in(other.path(), &["events", "--db", db.to_str().unwrap(), "--kind", "bus_offline"]);
-    assert_eq!(r.code, 0, "{}", r.stderr);
-    assert_eq!(r.stdout, "");
-    assert!(r.stderr.contains("no events match"), "{}", r.stderr);
+    assert_found_nothing(&r, "no events match");
 }
 
 #[test]
@@ -240,9 +234,7 @@ fn trend_default_resolution_follows_since() {
     assert_eq!(json_lines(&r.stdout).len(), 2, "{}", r.stdout);
     // an unknown drive: nothing, said on stderr, still success
     let r = run_in(dir.path(), &["trend", "--drive", "nope", "--since", "0", "--resolution", "1m"]);
-    assert_eq!(r.code, 0, "{}", r.stderr);
-    assert_eq!(r.stdout, "");
-    assert!(r.stderr.contains("no 1m trend for drive nope"), "{}", r.stderr);
+    assert_found_nothing(&r, "no 1m trend for drive nope");
 }
 
 #[test]

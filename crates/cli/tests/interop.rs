@@ -4,20 +4,22 @@
 //! `.ci/run` installs both and sets `DRIVEBUS_REQUIRE_INTEROP=1`, so in CI a missing witness is
 //! a failure. Locally, without them, each test says on stderr that it did not run.
 
-use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::Command;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
+#[path = "support/sim.rs"]
+mod sim;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
+use sim::{pymodbus_client, Proc};
 use witness::witness;
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
 /// A `drivebus simulate` process with a pty, killed on drop.
 struct Sim {
-    child: Child,
+    _proc: Proc,
     pty: PathBuf,
 }
 
@@ -38,49 +40,32 @@ impl Sim {
             cmd.arg("--drive").arg(d);
         }
         cmd.args(extra);
-        let mut child =
-            cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start drivebus simulate");
-        let out = child.stdout.take().expect("stdout");
-        let mut lines = BufReader::new(out).lines();
-        // Wait for the line that says where it listens (an event, not a sleep).
-        loop {
-            match lines.next() {
-                Some(Ok(l)) if l.starts_with("listening on") => break,
-                Some(Ok(_)) => continue,
-                _ => panic!("drivebus simulate ended before listening"),
-            }
-        }
-        std::thread::spawn(move || for _ in lines {});
-        Sim { child, pty }
+        // Ready once it says where it listens (an event, not a sleep).
+        Sim { _proc: Proc::start(cmd, "listening on"), pty }
     }
 }
 
 impl Drop for Sim {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
         let _ = std::fs::remove_file(&self.pty);
     }
-}
-
-fn has_pymodbus() -> bool {
-    witness::python_has("pymodbus")
 }
 
 fn has_mbpoll() -> bool {
     witness::runs("mbpoll", &["-V"], false)
 }
 
-fn script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_client.py")
-}
-
 fn pymodbus(family: &str, drive: &str, extra: &[&str]) {
-    if !witness("pymodbus", has_pymodbus(), "pip install pymodbus pyserial") {
+    if !witness("pymodbus", witness::python_has("pymodbus"), "pip install pymodbus pyserial") {
         return;
     }
     let sim = Sim::start_with(&[drive], extra);
-    let out = Command::new("python3").arg(script()).arg(family).arg(&sim.pty).output().expect("run python3");
+    let out = Command::new("python3")
+        .arg(pymodbus_client())
+        .arg(family)
+        .arg(&sim.pty)
+        .output()
+        .expect("run python3");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "pymodbus against {drive}: {stdout}{stderr}");

@@ -1,14 +1,17 @@
 //! `drivebus monitor` end to end against `drivebus simulate`: with stdout not a terminal it
 //! prints one line per drive per refresh, and `--count` stops it.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 use serde_json::Value;
 
+#[path = "support/sim.rs"]
+mod sim;
+use sim::{output, Proc};
+
 /// The simulator, killed on drop.
 struct Sim {
-    child: Child,
+    _proc: Proc,
     port: String,
 }
 
@@ -20,37 +23,18 @@ impl Sim {
             cmd.args(["--drive", d]);
         }
         cmd.args(["--tcp", "127.0.0.1:0"]);
-        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start");
-        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        let port = loop {
-            let line = lines.next().expect("ready line").expect("utf-8");
-            if let Some(rest) = line.strip_prefix("listening on tcp ") {
-                break format!("tcp://{}", rest.trim());
-            }
-        };
-        std::thread::spawn(move || for _ in lines {});
-        Sim { child, port }
-    }
-}
-
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        let proc = Proc::start(cmd, "listening on ");
+        Sim { port: proc.tcp_port(), _proc: proc }
     }
 }
 
 fn drivebus(port: &str, args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["--port", port, "--drive", "generic", "--protocol", "modbus-rtu"])
-        .args(args)
-        .output()
-        .expect("run drivebus");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    let out = output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["--port", port, "--drive", "generic", "--protocol", "modbus-rtu"])
+            .args(args),
+    );
+    (out.code, out.stdout, out.stderr)
 }
 
 #[test]

@@ -10,39 +10,24 @@
 //! a missing witness is a failure; locally the test says on stderr that it did not run.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 
 #[path = "support/http.rs"]
 mod http;
 #[path = "support/lines.rs"]
 mod lines;
-use lines::wait_for_lines as lines;
-
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use lines::{wait_for_lines as lines, Killed};
+use witness::witness;
 
 fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/opcua_client.py")
 }
 
-fn has_asyncua() -> bool {
-    Command::new("python3").args(["-c", "import asyncua"]).output().is_ok_and(|o| o.status.success())
-}
-
 #[test]
 fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {
-    if !has_asyncua() {
-        assert!(
-            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
-            "Python asyncua is required in CI but missing: pip install asyncua"
-        );
-        eprintln!("NOT RUN: Python asyncua is not installed; .ci/install-witnesses.sh installs it");
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
         return;
     }
     let dir = std::env::temp_dir().join(format!("drivebus-opcua-{}", std::process::id()));
@@ -61,7 +46,7 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
         .spawn()
         .unwrap();
     let at = lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
-    let _sim = Proc(sim);
+    let _sim = Killed(sim);
     let control = format!("http://{}", at[1].trim_end_matches("/drives"));
 
     let token = "opcua-test-token-0123456789";
@@ -101,7 +86,7 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
         .spawn()
         .unwrap();
     let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
-    let _serve = Proc(serve);
+    let _serve = Killed(serve);
     let http: std::net::SocketAddr =
         at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
     let url = at[1].split_whitespace().next().unwrap().to_string();

@@ -3,7 +3,7 @@
 //! the store's folder cannot be written), JSON logs, `config check` and `--version`.
 
 use std::io::{BufRead, BufReader};
-use std::net::{SocketAddr, TcpListener};
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
@@ -13,10 +13,7 @@ use serde_json::Value;
 
 #[path = "support/http.rs"]
 mod http;
-
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
+use http::free_port;
 
 const OPS_A: &str = "aaaaaaaaaaaaaaaaaaaa";
 const OPS_B: &str = "bbbbbbbbbbbbbbbbbbbb";

@@ -1,16 +1,13 @@
 //! `drivebus panel` end to end over a simulator's pty: the display as the drive shows it, key
 //! presses, the Toshiba panel's LEDs set by communication (FA10, FA11, FA12), and bad usage.
 
-use std::io::{BufRead, BufReader, Read, Write};
-use std::net::TcpStream;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 use serde_json::Value;
 
 /// `drivebus simulate` on a pty with a control interface, killed on drop.
 struct Sim {
-    child: Child,
-    control: String,
+    proc: Proc,
 }
 
 impl Sim {
@@ -21,57 +18,29 @@ impl Sim {
             cmd.args(["--drive", d]);
         }
         cmd.args(["--pty", pty, "--control", "127.0.0.1:0"]);
-        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().expect("start simulate");
-        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        let mut control = None;
-        loop {
-            let line = lines.next().expect("simulate printed where it listens").expect("utf-8");
-            if let Some(a) = line.strip_prefix("control http://") {
-                control = Some(a.trim_end_matches("/drives").to_string());
-            }
-            if line.starts_with("listening on ") {
-                break;
-            }
-        }
-        std::thread::spawn(move || for _ in lines {});
-        Sim { child, control: control.expect("a control line") }
+        Sim { proc: Proc::start(cmd, "listening on ") }
     }
 
     /// `GET /drives/{n}` of the control interface.
     fn drive(&self, n: usize) -> Value {
-        let mut s = TcpStream::connect(&self.control).expect("connect control");
-        write!(s, "GET /drives/{n} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").unwrap();
-        let mut text = String::new();
-        s.read_to_string(&mut text).unwrap();
-        serde_json::from_str(text.split("\r\n\r\n").nth(1).unwrap_or("null")).expect("drive JSON")
+        http_json(self.proc.control(), "GET", &format!("/drives/{n}"), None).expect("drive JSON").1
     }
 }
 
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-struct Out {
-    code: i32,
-    stdout: String,
-    stderr: String,
-}
+#[path = "support/http.rs"]
+mod http;
+#[path = "support/sim.rs"]
+mod sim;
+use http::http_json;
+use sim::{output, Out, Proc};
 
 fn panel(pty: &str, drive: &[&str], args: &[&str]) -> Out {
-    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["panel", "--port", pty, "--timeout", "300"])
-        .args(drive)
-        .args(args)
-        .output()
-        .expect("run drivebus panel");
-    Out {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["panel", "--port", pty, "--timeout", "300"])
+            .args(drive)
+            .args(args),
+    )
 }
 
 fn json(o: &Out) -> Value {

@@ -3,7 +3,7 @@
 //! prints.
 
 use std::io::{BufRead, BufReader, Read, Write};
-use std::net::{SocketAddr, TcpListener, TcpStream};
+use std::net::{SocketAddr, TcpStream};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -12,12 +12,7 @@ use serde_json::Value;
 
 #[path = "support/http.rs"]
 mod http;
-use http::request as raw;
-
-/// A free loopback port (bound, read, released).
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
+use http::{free_port, request as raw};
 
 /// A `drivebus serve --demo` process, killed on drop.
 struct Serve {
@@ -231,24 +226,20 @@ fn serve_warns_when_no_token_can_read_or_write() {
     assert!(!err.contains("warning") && !err.contains("note:"), "{err}");
 }
 
+/// `drivebus serve --demo --no-store --no-opcua` on free loopback ports, to be given more flags.
+fn serve_demo_without_store() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["serve", "--demo", "--no-store", "--no-opcua"])
+        .args(["--http", &format!("127.0.0.1:{}", free_port())])
+        .args(["--modbus", &format!("127.0.0.1:{}", free_port())]);
+    cmd
+}
+
 #[test]
 fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
     let bridge: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args([
-            "serve",
-            "--demo",
-            "--no-store",
-            "--no-opcua",
-            "--http",
-            &format!("127.0.0.1:{}", free_port()),
-        ])
-        .args([
-            "--modbus",
-            &format!("127.0.0.1:{}", free_port()),
-            "--bridge",
-            &format!("line-generic={bridge}"),
-        ])
+    let mut child = serve_demo_without_store()
+        .args(["--bridge", &format!("line-generic={bridge}")])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -276,19 +267,7 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
         (vec!["--bridge", "line-generic"], 3, "BUS=HOST:PORT"),
         (vec!["--modbus-rtu", "/nonexistent/ttyS9"], 2, "/nonexistent/ttyS9"),
     ] {
-        let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-            .args([
-                "serve",
-                "--demo",
-                "--no-store",
-                "--no-opcua",
-                "--http",
-                &format!("127.0.0.1:{}", free_port()),
-            ])
-            .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
-            .args(&args)
-            .output()
-            .unwrap();
+        let out = serve_demo_without_store().args(&args).output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(code), "{args:?}: {err}");
         let last = err.lines().last().unwrap_or_default();

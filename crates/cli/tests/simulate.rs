@@ -3,62 +3,37 @@
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use serde_json::Value;
 
+#[path = "support/http.rs"]
+mod http;
+#[path = "support/sim.rs"]
+mod sim;
+use http::request;
+use sim::Proc;
+
+/// `drivebus simulate <args>` on TCP with a control interface, killed on drop.
 struct Sim {
-    child: Child,
+    proc: Proc,
     bus: String,
-    control: String,
 }
 
 impl Sim {
     fn start(args: &[&str]) -> Sim {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-            .arg("simulate")
-            .args(args)
-            .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start drivebus simulate");
-        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        let (mut bus, mut control) = (None, None);
-        while bus.is_none() || control.is_none() {
-            let line = lines.next().expect("simulate printed where it listens").expect("utf-8");
-            if let Some(a) = line.strip_prefix("listening on tcp ") {
-                bus = Some(a.to_string());
-            }
-            if let Some(a) = line.strip_prefix("control http://") {
-                control = Some(a.trim_end_matches("/drives").to_string());
-            }
-        }
-        std::thread::spawn(move || for _ in lines {});
-        Sim { child, bus: bus.unwrap_or_default(), control: control.unwrap_or_default() }
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+        cmd.arg("simulate").args(args).args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]);
+        let proc = Proc::start(cmd, "listening on tcp ");
+        Sim { bus: proc.ready.clone(), proc }
     }
 
+    /// `method path` with a JSON body to the control interface: the status and the JSON answer
+    /// (null when the answer is not JSON).
     fn http(&self, method: &str, path: &str, body: &str) -> (u16, Value) {
-        let mut s = TcpStream::connect(&self.control).expect("connect control");
-        write!(
-            s,
-            "{method} {path} HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
-            body.len()
-        )
-        .unwrap();
-        let mut text = String::new();
-        s.read_to_string(&mut text).unwrap();
-        let status: u16 = text.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-        let json = text.split("\r\n\r\n").nth(1).unwrap_or("null");
-        (status, serde_json::from_str(json).unwrap_or(Value::Null))
-    }
-}
-
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        let (status, text) = request(self.proc.control(), method, path, None, Some(body));
+        (status, serde_json::from_str(&text).unwrap_or(Value::Null))
     }
 }
 

@@ -6,55 +6,29 @@
 //! one is a failure. Locally, without them, the test says on stderr that it did not run.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+#[path = "support/sim.rs"]
+mod sim;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
+use sim::{pymodbus_client, Proc};
 use witness::witness;
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_drivebus")
 }
 
-/// `drivebus simulate` with a pty and a tap, killed on drop.
-struct Sim {
-    child: Child,
-}
-
-impl Sim {
-    fn start(dir: &Path, drive: &str) -> Sim {
-        let mut child = Command::new(bin())
-            .args(["simulate", "--drive", drive, "--pty"])
-            .arg(dir.join("bus"))
-            .arg("--tap")
-            .arg(dir.join("tap"))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start drivebus simulate");
-        let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines();
-        loop {
-            match lines.next() {
-                Some(Ok(l)) if l.starts_with("listening on") => break,
-                Some(Ok(_)) => continue,
-                _ => panic!("drivebus simulate ended before listening"),
-            }
-        }
-        std::thread::spawn(move || for _ in lines {});
-        Sim { child }
-    }
-}
-
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// `drivebus simulate` with a pty `bus` and a tap `tap` in `dir`, killed on drop.
+fn simulate(dir: &Path, drive: &str) -> Proc {
+    let mut cmd = Command::new(bin());
+    cmd.args(["simulate", "--drive", drive, "--pty"]).arg(dir.join("bus")).arg("--tap").arg(dir.join("tap"));
+    Proc::start(cmd, "listening on")
 }
 
 /// `drivebus sniff` running, its JSON lines arriving on a channel.
@@ -126,16 +100,8 @@ impl Sniff {
     }
 }
 
-fn has_pymodbus() -> bool {
-    witness::python_has("pymodbus")
-}
-
 fn has_tshark() -> bool {
     witness::runs("tshark", &["--version"], true)
-}
-
-fn script() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_client.py")
 }
 
 fn masters(v: &[Value]) -> usize {
@@ -152,19 +118,23 @@ fn register(f: &Value, name: &str) -> Option<u64> {
 
 #[test]
 fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_capture() {
-    if !witness("pymodbus", has_pymodbus(), "pip install pymodbus pyserial")
+    if !witness("pymodbus", witness::python_has("pymodbus"), "pip install pymodbus pyserial")
         || !witness("tshark", has_tshark(), "apt-get install tshark")
     {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let _sim = Sim::start(dir.path(), "generic@1:modbus-rtu");
+    let _sim = simulate(dir.path(), "generic@1:modbus-rtu");
     let pcap = dir.path().join("cap.pcap");
     let tap = dir.path().join("tap");
     let mut sniff =
         Sniff::start(&["--port", tap.to_str().unwrap(), "--json", "--write", pcap.to_str().unwrap()]);
-    let out =
-        Command::new("python3").arg(script()).arg("generic").arg(dir.path().join("bus")).output().unwrap();
+    let out = Command::new("python3")
+        .arg(pymodbus_client())
+        .arg("generic")
+        .arg(dir.path().join("bus"))
+        .output()
+        .unwrap();
     let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "pymodbus: {text}");
     // pymodbus got every reply, so every one crossed the line: wait until sniff shows them all.
@@ -263,17 +233,37 @@ fn sniff_sees_every_pymodbus_read_and_write_on_the_tap_and_tshark_decodes_the_ca
     assert!(summary.contains("modbus-rtu") && summary.contains("p99"), "{summary}");
 }
 
+/// A hex dump (`line.hex`) in a directory of its own, removed on drop.
+struct Dump {
+    dir: tempfile::TempDir,
+}
+
+impl Dump {
+    fn new(text: &str) -> Dump {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("line.hex"), text).unwrap();
+        Dump { dir }
+    }
+
+    /// `drivebus sniff <args> --read line.hex`, run to its end.
+    fn read(&self, args: &[&str]) -> std::process::Output {
+        Command::new(bin())
+            .arg("sniff")
+            .args(args)
+            .arg("--read")
+            .arg(self.dir.path().join("line.hex"))
+            .output()
+            .unwrap()
+    }
+}
+
 #[test]
 fn a_hex_dump_is_read_and_its_protocol_found() {
-    let dir = tempfile::tempdir().unwrap();
-    let dump = dir.path().join("line.hex");
     // B800 (seed 000): P 40.00 Hz to drive 5, its 'p', R to drive 1, its 'r'.
-    std::fs::write(
-        &dump,
+    let dump = Dump::new(
         "# a B800 line\n7E 38 35 35 30 30 39 36 30 35 45 7F\n7E 30 35 37 30 33 33 7F\n7E 38 31 35 32 32 46 7F\n7E 30 31 37 32 33 35 7F\n",
-    )
-    .unwrap();
-    let r = Command::new(bin()).args(["sniff", "--read"]).arg(&dump).output().unwrap();
+    );
+    let r = dump.read(&[]);
     let out = String::from_utf8_lossy(&r.stdout);
     let err = String::from_utf8_lossy(&r.stderr);
     assert_eq!(r.status.code(), Some(0), "{out}{err}");
@@ -305,19 +295,15 @@ fn bad_usage_exits_3_with_one_line() {
 
 #[test]
 fn a_drive_masters_broadcasts_are_named() {
-    let dir = tempfile::tempdir().unwrap();
-    let dump = dir.path().join("line.hex");
     // A generic master drive's cycle, twice: 2001H = 40.00 Hz, then 2000H = 2 (forward run).
-    std::fs::write(
-        &dump,
+    let dump = Dump::new(
         "00 06 20 01 0F A0 D7 93\n00 06 20 00 00 02 02 1A\n00 06 20 01 0F A0 D7 93\n00 06 20 00 00 02 02 1A\n",
-    )
-    .unwrap();
-    let r = Command::new(bin()).args(["sniff", "--read"]).arg(&dump).output().unwrap();
+    );
+    let r = dump.read(&[]);
     let out = String::from_utf8_lossy(&r.stdout);
     assert_eq!(r.status.code(), Some(0), "{out}");
     assert_eq!(out.matches("broadcast as a drive acting as bus master").count(), 4, "{out}");
-    let r = Command::new(bin()).args(["sniff", "--json", "--read"]).arg(&dump).output().unwrap();
+    let r = dump.read(&["--json"]);
     let frames: Vec<Value> =
         String::from_utf8_lossy(&r.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert_eq!(frames.len(), 4);

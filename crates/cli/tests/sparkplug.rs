@@ -320,6 +320,17 @@ async fn wait_metric(gw: &Serve, series: &str, at_least: f64) {
     }
 }
 
+/// Waits for live (not historical) DDATA of pump-1 from hall-s after `from`; `what` names the
+/// wait in the timeout's message.
+async fn wait_live(host: &Host, from: usize, what: &str) {
+    host.wait(what, |log| {
+        of(log, "DDATA", "hall-s")
+            .any(|(i, m)| i > from && m["device"] == "pump-1" && m["metrics"][0]["historical"] == false)
+            .then_some(())
+    })
+    .await
+}
+
 /// Waits for historical DDATA of pump-1 (after `from`) that reach `hz`.
 async fn wait_kept(host: &Host, from: usize, hz: f64) {
     host.wait(&format!("kept data of pump-1 up to {hz} Hz"), |log| {
@@ -383,12 +394,7 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     wait_kept(&host, back, 40.0).await;
     // Something new, to see live data after the kept.
     host.send("dcmd hall-s pump-1 Setpoint double 35");
-    host.wait("the kept ramp and live data", |log| {
-        of(log, "DDATA", "hall-s")
-            .any(|(i, m)| i > back && m["device"] == "pump-1" && m["metrics"][0]["historical"] == false)
-            .then_some(())
-    })
-    .await;
+    wait_live(&host, back, "the kept ramp and live data").await;
     check_history(&host.log(), "hall-s", "pump-1", back, 40.0);
     host.assert_no_violation();
 
@@ -408,12 +414,7 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     assert_ne!(host.log()[back]["bdSeq"].as_u64(), Some(bd_seq), "a new session has a new bdSeq");
     wait_kept(&host, back, 20.0).await;
     host.send("dcmd hall-s pump-1 Setpoint double 25");
-    host.wait("the kept ramp down and live data", |log| {
-        of(log, "DDATA", "hall-s")
-            .any(|(i, m)| i > back && m["device"] == "pump-1" && m["metrics"][0]["historical"] == false)
-            .then_some(())
-    })
-    .await;
+    wait_live(&host, back, "the kept ramp down and live data").await;
     let log = host.log();
     let ddata: Vec<&Value> = of(&log, "DDATA", "hall-s")
         .filter(|(i, m)| *i > back && m["device"] == "pump-1")

@@ -53,7 +53,11 @@ listen = "127.0.0.1:0"
 
 /// The gateway and its bridge's address.
 async fn start(modbus: &str) -> (Arc<Gateway>, std::net::SocketAddr) {
-    let cfg = config(modbus);
+    start_config(config(modbus)).await
+}
+
+/// The gateway of `cfg` with its first bridge serving: the gateway and the bridge's address.
+async fn start_config(cfg: GatewayConfig) -> (Arc<Gateway>, std::net::SocketAddr) {
     let bridge = cfg.bridges[0].clone();
     let gw = Gateway::start(cfg, None).unwrap();
     let l = TcpListener::bind(bridge.listen).await.unwrap();
@@ -333,12 +337,7 @@ bus = "line-a"
 listen = "127.0.0.1:0"
 framing = "rtu"
 "#;
-    let cfg = GatewayConfig::from_toml("ascii.toml", text).unwrap();
-    let bridge = cfg.bridges[0].clone();
-    let gw = Gateway::start(cfg, None).unwrap();
-    let l = TcpListener::bind(bridge.listen).await.unwrap();
-    let addr = l.local_addr().unwrap();
-    tokio::spawn(drivebus_gateway::bridge::serve(gw.clone(), bridge, l));
+    let (_gw, addr) = start_config(GatewayConfig::from_toml("ascii.toml", text).unwrap()).await;
     let mut sock = TcpStream::connect(addr).await.unwrap();
     // An RTU frame in (03 of 210BH from address 2), an RTU frame out: the bus spoke ASCII.
     let req = drivebus_gateway::bridge::bus_frame(false, 2, &[0x03, 0x21, 0x0B, 0, 1]);

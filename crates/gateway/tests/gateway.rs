@@ -1,15 +1,11 @@
 //! The gateway over virtual buses on a virtual clock: polling fills the cache, commands go
 //! through and are audited, linkage follows, locks refuse.
 
-use std::time::Duration;
+mod support;
 
 use drivebus_gateway::gateway::{Change, Command, CommandError};
 use drivebus_gateway::{Gateway, GatewayConfig};
-
-async fn settle(secs: u64) {
-    // Paused time: sleeping advances the virtual clock as far as the tasks need.
-    tokio::time::sleep(Duration::from_secs(secs)).await;
-}
+use support::{fresh_store, settle};
 
 #[tokio::test(start_paused = true)]
 async fn the_demo_polls_every_drive_and_runs_one() {
@@ -126,9 +122,7 @@ fn events_log_as_one_line() {
 /// command in between do not make the failure look new.
 #[tokio::test(start_paused = true)]
 async fn a_failing_linkage_is_audited_once_while_the_follower_polls_fine() {
-    let path = std::env::temp_dir().join(format!("drivebus-linkage-fail-{}.db", std::process::id()));
-    let _ = std::fs::remove_file(&path);
-    let store = drivebus_store::Store::open(&path).unwrap();
+    let (path, store) = fresh_store("linkage-fail");
     let text = "[store]\ndisabled = true\n\
         [[bus]]\nname = \"line\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n\
         [[bus.drive]]\nname = \"lead\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 250\n\
@@ -161,9 +155,7 @@ async fn a_failing_linkage_is_audited_once_while_the_follower_polls_fine() {
 
 #[tokio::test(start_paused = true)]
 async fn linkage_taking_hold_is_audited_once_not_per_poll() {
-    let path = std::env::temp_dir().join(format!("drivebus-linkage-audit-{}.db", std::process::id()));
-    let _ = std::fs::remove_file(&path);
-    let store = drivebus_store::Store::open(&path).unwrap();
+    let (path, store) = fresh_store("linkage-audit");
     let gw = Gateway::start(GatewayConfig::demo(), Some(store)).unwrap();
     gw.command("conveyor-1", Command::Speed(30.0), "test").await.unwrap();
     gw.command("conveyor-1", Command::Run, "test").await.unwrap();
@@ -211,9 +203,7 @@ async fn a_speed_set_shows_as_the_setpoint_in_the_next_poll_for_every_family() {
 /// the minute is over; another client's first refusal is audited at once as well.
 #[tokio::test(start_paused = true)]
 async fn repeated_refusals_are_one_audit_event_per_client_reason_and_minute() {
-    let path = std::env::temp_dir().join(format!("drivebus-refusal-flood-{}.db", std::process::id()));
-    let _ = std::fs::remove_file(&path);
-    let store = drivebus_store::Store::open(&path).unwrap();
+    let (path, store) = fresh_store("refusal-flood");
     let gw = Gateway::start(GatewayConfig::demo(), Some(store)).unwrap();
     let why = "forbidden: client 127.0.0.2 may not write ([modbus] allow)";
     for k in 0..5000u32 {

@@ -1,6 +1,8 @@
 //! The HTTP API in process (tower `oneshot`) on the demo gateway over a virtual clock: every
 //! route, every error answer, the auth matrix, the live stream and the OpenAPI document.
 
+mod support;
+
 use std::collections::{BTreeMap, BTreeSet};
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -16,6 +18,7 @@ use drivebus_gateway::http::{api::OPENAPI, router, API_ROUTES};
 use drivebus_gateway::GatewayConfig;
 use http_body_util::BodyExt;
 use serde_json::{json, Value};
+use support::settle;
 use tower::ServiceExt;
 
 const WRITE: &str = "write-token-0123456789abcdef";
@@ -81,10 +84,6 @@ fn assert_error(r: &Reply, status: u16, kind: &str) -> String {
     assert!(!m.is_empty() && !m.contains('\n'), "{m:?}");
     assert_eq!(r.headers[header::CONTENT_TYPE], "application/json");
     m
-}
-
-async fn settle(secs: u64) {
-    tokio::time::sleep(Duration::from_secs(secs)).await;
 }
 
 #[tokio::test(start_paused = true)]

@@ -4,6 +4,8 @@
 //!
 //! Waits poll with generous timeouts; nothing here depends on how fast the machine is.
 
+mod support;
+
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
@@ -415,9 +417,8 @@ async fn writes_are_refused_by_configuration() {
 async fn a_flood_of_refused_writes_adds_one_audit_event() {
     let mut config = GatewayConfig::demo();
     config.modbus.allow = vec!["10.9.8.7".parse().unwrap()];
-    let path = std::env::temp_dir().join(format!("drivebus-modbus-flood-{}.db", std::process::id()));
-    let _ = std::fs::remove_file(&path);
-    let gw = Gateway::start(config, Some(drivebus_store::Store::open(&path).unwrap())).unwrap();
+    let (path, store) = support::fresh_store("modbus-flood");
+    let gw = Gateway::start(config, Some(store)).unwrap();
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
     tokio::spawn(drivebus_gateway::modbus_tcp::serve(gw.clone(), listener));

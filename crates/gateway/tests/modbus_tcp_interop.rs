@@ -12,26 +12,16 @@ use std::time::Duration;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use tokio::net::TcpListener;
 
-fn required() -> bool {
-    std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_some()
-}
-
-/// True when the witness is here; otherwise says so (and fails in CI).
-fn witness(name: &str, present: bool, how: &str) -> bool {
-    if present {
-        return true;
-    }
-    assert!(!required(), "{name} is required in CI but missing: {how}");
-    eprintln!("NOT RUN: {name} is not installed ({how}); .ci/install-witnesses.sh installs it");
-    false
-}
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
+use witness::witness;
 
 fn has_pymodbus() -> bool {
-    Command::new("python3").args(["-c", "import pymodbus"]).status().is_ok_and(|s| s.success())
+    witness::python_has("pymodbus")
 }
 
 fn has_mbpoll() -> bool {
-    Command::new("mbpoll").arg("-V").output().is_ok()
+    witness::runs("mbpoll", &["-V"], false)
 }
 
 async fn serve_demo() -> SocketAddr {
@@ -71,6 +61,18 @@ async fn pymodbus_reads_the_map_and_runs_a_drive() {
     }
 }
 
+/// `mbpoll -m tcp -p <port> <args>`: its stdout, or the failure with its stderr.
+async fn mbpoll(port: &str, args: &[&str]) -> Result<String, String> {
+    let mut cmd = Command::new("mbpoll");
+    cmd.args(["-m", "tcp", "-p", port]).args(args);
+    run(cmd).await
+}
+
+/// `mbpoll -m tcp -p <port> <args>` that succeeds: its stdout.
+async fn mbpoll_ok(port: &str, args: &[&str]) -> String {
+    mbpoll(port, args).await.unwrap_or_else(|e| panic!("mbpoll {args:?}: {e}"))
+}
+
 /// mbpoll's lines `[N]: \tVALUE` (N counts from 1).
 fn mbpoll_values(out: &str) -> Vec<(u32, i64)> {
     out.lines()
@@ -91,24 +93,10 @@ async fn mbpoll_reads_input_registers() {
     let deadline = tokio::time::Instant::now() + Duration::from_secs(60);
     for unit in 1..=10u16 {
         loop {
-            let mut cmd = Command::new("mbpoll");
-            cmd.args([
-                "-m",
-                "tcp",
-                "-p",
-                &port,
-                "-a",
-                &unit.to_string(),
-                "-t",
-                "3",
-                "-r",
-                "1",
-                "-c",
-                "10",
-                "-1",
-            ]);
-            cmd.arg("127.0.0.1");
-            let out = run(cmd).await.unwrap_or_else(|e| panic!("mbpoll unit {unit}: {e}"));
+            let unit_text = unit.to_string();
+            let out =
+                mbpoll_ok(&port, &["-a", &unit_text, "-t", "3", "-r", "1", "-c", "10", "-1", "127.0.0.1"])
+                    .await;
             let values = mbpoll_values(&out);
             assert_eq!(values.iter().map(|v| v.0).collect::<Vec<_>>(), (1..=10).collect::<Vec<_>>(), "{out}");
             let family = if unit <= 3 {
@@ -130,35 +118,22 @@ async fn mbpoll_reads_input_registers() {
         }
     }
     // An unknown unit: mbpoll reports the gateway's exception.
-    let mut cmd = Command::new("mbpoll");
-    cmd.args(["-m", "tcp", "-p", &port, "-a", "42", "-t", "3", "-r", "1", "-c", "1", "-1", "127.0.0.1"]);
-    let out = run(cmd).await.unwrap_or_else(|e| e);
+    let out = mbpoll(&port, &["-a", "42", "-t", "3", "-r", "1", "-c", "1", "-1", "127.0.0.1"])
+        .await
+        .unwrap_or_else(|e| e);
     assert!(out.to_lowercase().contains("target device failed to respond"), "{out}");
 
     // Writes: fan-1's (unit 3) setpoint to 35.00 Hz (FC 06, answered when the drive confirmed),
     // read back from holding register 1; then command word and setpoint together (FC 16).
-    let mbpoll = |args: &[&str]| {
-        let mut cmd = Command::new("mbpoll");
-        cmd.args(["-m", "tcp", "-p", &port]).args(args);
-        cmd
-    };
-    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "2", "127.0.0.1", "3500"]))
-        .await
-        .unwrap_or_else(|e| panic!("{e}"));
+    let out = mbpoll_ok(&port, &["-a", "3", "-t", "4", "-r", "2", "127.0.0.1", "3500"]).await;
     assert!(out.contains("Written 1 references"), "{out}");
-    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "2", "-c", "1", "-1", "127.0.0.1"]))
-        .await
-        .unwrap_or_else(|e| panic!("{e}"));
+    let out = mbpoll_ok(&port, &["-a", "3", "-t", "4", "-r", "2", "-c", "1", "-1", "127.0.0.1"]).await;
     assert_eq!(mbpoll_values(&out), vec![(2, 3500)], "{out}");
-    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "1", "127.0.0.1", "1", "3000"]))
-        .await
-        .unwrap_or_else(|e| panic!("{e}"));
+    let out = mbpoll_ok(&port, &["-a", "3", "-t", "4", "-r", "1", "127.0.0.1", "1", "3000"]).await;
     assert!(out.contains("Written 2 references"), "{out}");
-    let out = run(mbpoll(&["-a", "3", "-t", "4", "-r", "1", "-c", "2", "-1", "127.0.0.1"]))
-        .await
-        .unwrap_or_else(|e| panic!("{e}"));
+    let out = mbpoll_ok(&port, &["-a", "3", "-t", "4", "-r", "1", "-c", "2", "-1", "127.0.0.1"]).await;
     assert_eq!(mbpoll_values(&out), vec![(1, 1), (2, 3000)], "{out}");
     // pump-3 (unit 6) is locked: mbpoll shows the exception.
-    let out = run(mbpoll(&["-a", "6", "-t", "4", "-r", "1", "127.0.0.1", "1"])).await.unwrap_or_else(|e| e);
+    let out = mbpoll(&port, &["-a", "6", "-t", "4", "-r", "1", "127.0.0.1", "1"]).await.unwrap_or_else(|e| e);
     assert!(out.to_lowercase().contains("illegal function"), "{out}");
 }

@@ -145,15 +145,7 @@ async fn a_restarted_broker_gets_the_state_again_and_the_will_says_offline() {
             log.iter().any(|m| m.topic == format!("{p}/status") && m.text == "online").then_some(())
         })
         .await;
-    let drives = demo_drives();
-    on_second
-        .wait("every drive's status on the new broker", |log| {
-            drives
-                .iter()
-                .all(|(b, d)| log.iter().any(|m| m.topic == format!("{p}/{b}/{d}/status")))
-                .then_some(())
-        })
-        .await;
+    wait_every_status(&on_second, p, "every drive's status on the new broker").await;
     // ...retained, for whoever comes later.
     let later = Subscriber::start(second, "later", &format!("{p}/#")).await;
     wait_all_statuses(&later, p).await;

@@ -6,21 +6,19 @@
 //! so in CI a missing broker is a failure; locally without it the test says it did not run.
 
 mod mqtt_support;
+#[path = "../../../tests/interop/witness.rs"]
+mod witness;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::Command;
 
 use mqtt_support::*;
+use witness::witness;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mosquitto_statuses_commands_and_restart() {
-    let Some(bin) = mosquitto_binary() else {
-        assert!(
-            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
-            "mosquitto is required in CI but missing: apt-get install mosquitto"
-        );
-        eprintln!("NOT RUN: mosquitto is not installed (apt-get install mosquitto); .ci/run installs it");
+    let Some(bin) = mosquitto() else {
         return;
     };
     let port = free_port();
@@ -48,15 +46,7 @@ async fn mosquitto_statuses_commands_and_restart() {
     broker.stop();
     let broker = Mosquitto::start(&bin, port).await;
     let again = Subscriber::start(broker.addr, "again", &format!("{p}/#")).await;
-    let drives = demo_drives();
-    again
-        .wait("every drive's status after the restart", |log| {
-            drives
-                .iter()
-                .all(|(b, d)| log.iter().any(|m| m.topic == format!("{p}/{b}/{d}/status")))
-                .then_some(())
-        })
-        .await;
+    wait_every_status(&again, p, "every drive's status after the restart").await;
     wait_all_statuses(&Subscriber::start(broker.addr, "after", &format!("{p}/#")).await, p).await;
     let pump = again.wait_json(&format!("{p}/line-toshiba/pump-1/status"), |v| v["running"] == true).await;
     assert_eq!(pump["setpoint_hz"], 30.0);
@@ -67,11 +57,7 @@ async fn mosquitto_statuses_commands_and_restart() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn mosquitto_with_a_password() {
     let (Some(bin), Some(passwd)) = (mosquitto_binary(), which("mosquitto_passwd")) else {
-        assert!(
-            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
-            "mosquitto and mosquitto_passwd are required in CI but missing: apt-get install mosquitto"
-        );
-        eprintln!("NOT RUN: mosquitto or mosquitto_passwd is not installed; .ci/run installs them");
+        witness("mosquitto and mosquitto_passwd", false, "apt-get install mosquitto");
         return;
     };
     let port = free_port();
@@ -109,6 +95,13 @@ async fn mosquitto_with_a_password() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The broker's program, or None (said on stderr, a failure in CI) when it is not installed.
+fn mosquitto() -> Option<PathBuf> {
+    let bin = mosquitto_binary();
+    witness("mosquitto", bin.is_some(), "apt-get install mosquitto");
+    bin
+}
+
 fn which(name: &str) -> Option<PathBuf> {
     let mut dirs: Vec<PathBuf> =
         std::env::var_os("PATH").map(|p| std::env::split_paths(&p).collect()).unwrap_or_default();
@@ -123,12 +116,7 @@ fn which(name: &str) -> Option<PathBuf> {
 /// and the gateway never loses its connection: one connection from start to end.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn oversize_and_retained_commands_are_refused_without_a_reconnection() {
-    let Some(bin) = mosquitto_binary() else {
-        assert!(
-            std::env::var_os("DRIVEBUS_REQUIRE_INTEROP").is_none(),
-            "mosquitto is required in CI but missing: apt-get install mosquitto"
-        );
-        eprintln!("NOT RUN: mosquitto is not installed (apt-get install mosquitto); .ci/run installs it");
+    let Some(bin) = mosquitto() else {
         return;
     };
     let broker = Mosquitto::start(&bin, free_port()).await;

@@ -2,11 +2,14 @@
 //! buses keep polling. A bus's `rs485` setting is applied to its serial port. Real time: the
 //! port is a pseudo-terminal served by the simulator.
 
-use std::time::{Duration, Instant};
+mod support;
+
+use std::time::Duration;
 
 use drivebus_gateway::{Gateway, GatewayConfig};
 use drivebus_sim::config::BusSpec;
 use drivebus_sim::runtime::{Endpoint, Simulator};
+use support::wait_for;
 
 fn serve_pty(path: std::path::PathBuf) -> tokio::task::JoinHandle<()> {
     let bus = BusSpec::new(vec!["b800@1".parse().unwrap()], Some(9600), None).unwrap();
@@ -14,14 +17,6 @@ fn serve_pty(path: std::path::PathBuf) -> tokio::task::JoinHandle<()> {
     tokio::spawn(async move {
         let _ = sim.serve(Endpoint::Pty(path), false, |_| {}).await;
     })
-}
-
-async fn wait_for(what: &str, limit: Duration, mut ok: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !ok() {
-        assert!(start.elapsed() < limit, "timed out waiting for {what}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,17 +1,18 @@
 //! A drive tripping while the gateway polls it: the `trip` event in the store keeps the drive's
 //! values just before the trip (from the cache) and at the poll that saw it.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_gateway::gateway::Command;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use drivebus_store::{EventFilter, EventKind};
+use support::fresh_store;
 
 #[tokio::test(start_paused = true)]
 async fn a_trip_is_stored_with_the_values_before_it() {
-    let path = std::env::temp_dir().join(format!("drivebus-trip-forensics-{}.db", std::process::id()));
-    let _ = std::fs::remove_file(&path);
-    let store = drivebus_store::Store::open(&path).unwrap();
+    let (path, store) = fresh_store("trip-forensics");
     let text = "[store]\ndisabled = true\n\
         [[bus]]\nname = \"line\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n\
         [[bus.drive]]\nname = \"fan\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 250\n";

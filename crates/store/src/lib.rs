@@ -96,8 +96,30 @@ pub const PRUNE_INTERVAL: Duration = Duration::from_secs(600);
 /// ([`Store::dropped_samples`]) rather than growing memory without bound when the disk stalls.
 pub const MAX_QUEUED_SAMPLES: usize = 262_144;
 
+/// `CREATE TABLE <name>` of one trend resolution (`trend_1s`, `trend_1m`): a row per drive and
+/// bucket, with the sums and counts the averages are made of.
+macro_rules! trend_table {
+    ($name:literal) => {
+        concat!(
+            "CREATE TABLE ",
+            $name,
+            " (
+    drive   TEXT NOT NULL,
+    time_ms INTEGER NOT NULL,
+    samples INTEGER NOT NULL,
+    hz_sum  REAL NOT NULL, hz_n INTEGER NOT NULL, hz_min REAL, hz_max REAL,
+    a_sum   REAL NOT NULL, a_n  INTEGER NOT NULL,
+    sp_sum  REAL NOT NULL, sp_n INTEGER NOT NULL,
+    PRIMARY KEY (drive, time_ms)
+) WITHOUT ROWID;
+"
+        )
+    };
+}
+
 /// The schema, created in one transaction when a new file is opened with [`Store::open`].
-pub const SCHEMA: &str = "
+pub const SCHEMA: &str = concat!(
+    "
 CREATE TABLE events (
     id      INTEGER PRIMARY KEY AUTOINCREMENT,
     time_ms INTEGER NOT NULL,
@@ -111,25 +133,10 @@ CREATE TABLE events (
 );
 CREATE INDEX events_time ON events (time_ms);
 CREATE INDEX events_drive ON events (drive, time_ms);
-CREATE TABLE trend_1s (
-    drive   TEXT NOT NULL,
-    time_ms INTEGER NOT NULL,
-    samples INTEGER NOT NULL,
-    hz_sum  REAL NOT NULL, hz_n INTEGER NOT NULL, hz_min REAL, hz_max REAL,
-    a_sum   REAL NOT NULL, a_n  INTEGER NOT NULL,
-    sp_sum  REAL NOT NULL, sp_n INTEGER NOT NULL,
-    PRIMARY KEY (drive, time_ms)
-) WITHOUT ROWID;
-CREATE TABLE trend_1m (
-    drive   TEXT NOT NULL,
-    time_ms INTEGER NOT NULL,
-    samples INTEGER NOT NULL,
-    hz_sum  REAL NOT NULL, hz_n INTEGER NOT NULL, hz_min REAL, hz_max REAL,
-    a_sum   REAL NOT NULL, a_n  INTEGER NOT NULL,
-    sp_sum  REAL NOT NULL, sp_n INTEGER NOT NULL,
-    PRIMARY KEY (drive, time_ms)
-) WITHOUT ROWID;
-";
+",
+    trend_table!("trend_1s"),
+    trend_table!("trend_1m"),
+);
 
 /// A handle on one store file. Clones share the connections and the background thread, which
 /// stops (after writing the queued samples) when the last clone is dropped.

@@ -1,11 +1,18 @@
 //! A small HTTP/1.1 client for the tests (the simulator's control interface, the gateway,
-//! chromedriver): JSON in and out ([`http_json`]), or a token and text ([`request`]).
+//! chromedriver): JSON in and out ([`http_json`]), or a token and text ([`request`]); and a
+//! free loopback port for a server the test starts ([`free_port`]).
 
 use std::io::{Read, Write};
-use std::net::{SocketAddr, TcpStream};
+use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::time::Duration;
 
 use serde_json::Value;
+
+/// A free loopback port (bound, read, released).
+#[allow(dead_code)]
+pub fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").and_then(|l| l.local_addr()).expect("a free loopback port").port()
+}
 
 /// How long an answer may take.
 const PATIENCE: Duration = Duration::from_secs(90);

@@ -1,4 +1,7 @@
-//! Waiting for a child process to say something on stdout (an event, not a sleep).
+//! The tests' child processes: killed on drop ([`Killed`]), and waited on until they say
+//! something on stdout (an event, not a sleep).
+
+#![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
 use std::process::Child;
@@ -22,4 +25,14 @@ pub fn wait_for_lines(child: &mut Child, what: &str, want: &[&str]) -> Vec<Strin
     }
     std::thread::spawn(move || for _ in lines {});
     found.into_iter().flatten().collect()
+}
+
+/// A child process killed (and reaped) on drop.
+pub struct Killed(pub Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }

@@ -4,13 +4,20 @@
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 
 use serde_json::Value;
 
+#[path = "lines.rs"]
+mod lines;
+#[path = "output.rs"]
+mod output;
+use lines::Killed;
+pub use output::{output, Out};
+
 /// A background process killed on drop, with the line it printed when ready.
 pub struct Proc {
-    child: Child,
+    _child: Killed,
     /// The rest of the ready line.
     pub ready: String,
     /// The lines printed before the ready line.
@@ -31,7 +38,13 @@ impl Proc {
             before.push(line);
         };
         std::thread::spawn(move || for _ in lines {});
-        Proc { child, ready, before }
+        Proc { _child: Killed(child), ready, before }
+    }
+
+    /// Where a simulator started with `--tcp` listens, as `--port` takes it (`tcp://HOST:PORT`),
+    /// from its ready line (`listening on tcp HOST:PORT`).
+    pub fn tcp_port(&self) -> String {
+        format!("tcp://{}", self.ready.trim_start_matches("tcp "))
     }
 
     /// The simulator's control interface (`--control`), from the line it printed.
@@ -42,28 +55,11 @@ impl Proc {
     }
 }
 
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 /// `drivebus simulate --drive <drive> <endpoint...>`, ready once it listens.
 pub fn simulate(drive: &str, endpoint: &[&str]) -> Proc {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
     cmd.args(["simulate", "--drive", drive]).args(endpoint);
     Proc::start(cmd, "listening on ")
-}
-
-/// What a `drivebus` run printed, and its exit status.
-pub struct Out {
-    /// The exit status (-1 when killed).
-    pub code: i32,
-    /// Standard output.
-    pub stdout: String,
-    /// Standard error.
-    pub stderr: String,
 }
 
 /// `drivebus --port <port> --drive <family> --address <address> [--protocol P] <args>`.
@@ -73,17 +69,17 @@ pub fn drivebus(port: &str, family: &str, protocol: Option<&str>, address: u8, a
     if let Some(p) = protocol {
         cmd.args(["--protocol", p]);
     }
-    let out = cmd.args(args).output().expect("run drivebus");
-    Out {
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    output(cmd.args(args))
 }
 
 /// Asserts exit status 0.
 pub fn ok(o: &Out, what: &str) {
     assert_eq!(o.code, 0, "{what}: {}{}", o.stdout, o.stderr);
+}
+
+/// The Python Modbus master (pymodbus) that drives a simulated line: tests/interop/pymodbus_client.py.
+pub fn pymodbus_client() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_client.py")
 }
 
 /// A pty path of its own for a test.

@@ -270,6 +270,19 @@ pub fn demo_drives() -> Vec<(String, String)> {
     GatewayConfig::demo().drives().map(|(b, d)| (b.name.clone(), d.name.clone())).collect()
 }
 
+/// Waits until `sub` has heard a status, retained or not, of every demo drive under `prefix`;
+/// `what` names the wait in the timeout's message.
+pub async fn wait_every_status(sub: &Subscriber, prefix: &str, what: &str) {
+    let drives = demo_drives();
+    sub.wait(what, |log| {
+        drives
+            .iter()
+            .all(|(b, d)| log.iter().any(|m| m.topic == format!("{prefix}/{b}/{d}/status")))
+            .then_some(())
+    })
+    .await
+}
+
 /// Waits until `sub` holds a retained status of every demo drive under `prefix` (what a
 /// broker keeps for whoever subscribes) and the latest status of each says online.
 pub async fn wait_all_statuses(sub: &Subscriber, prefix: &str) {

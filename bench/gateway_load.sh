@@ -13,6 +13,10 @@
 #  3. 10 000 concurrent connections to the gateway: all connected, then each reads once.
 #  4. RSS of `drivebus serve` with 1000 simulated drives on 32 virtual buses, after 10 s.
 #
+# The load generator's clients all come from 127.0.0.1: the gateway runs the demo plant with
+# `[limits] per_address` raised to $PER_ADDRESS (the default, 64, would refuse all but 64 of
+# them; a plant's clients come from many addresses).
+#
 # SECS=10 HTTP_PATH=/api/drives bench/gateway_load.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -24,6 +28,7 @@ SERVER_CORE=${SERVER_CORE:-0}
 CLIENT_CORE=${CLIENT_CORE:-1}
 # The rate of the unsaturated run (requests/s from all 128 clients together).
 RATE=${RATE:-50000}
+PER_ADDRESS=${PER_ADDRESS:-100000}
 
 cargo build --release -q -p drivebus
 cargo build --release -q -p drivebus-gateway --example loadgen
@@ -32,6 +37,11 @@ LOADGEN=target/release/examples/loadgen
 ulimit -n "$(ulimit -Hn)"
 
 . bench/lib/run.sh
+
+# The demo plant with the per-address connection limit raised (see above).
+DEMO="$TMP/demo.toml"
+sed "0,/^name = \"demo\"$/s//name = \"demo\"\n[limits]\nper_address = $PER_ADDRESS/" \
+  crates/gateway/src/demo.toml >"$DEMO"
 
 load() { taskset -c "$CLIENT_CORE" "$LOADGEN" load --secs "$SECS" "$@"; }
 # serve_other NAME PROGRAM ARGS...: starts a server on the server core with a free port as its
@@ -44,9 +54,9 @@ serve_other() {
   wait_port "$SRV_PORT"
 }
 
-echo "== gateway: drivebus serve --demo on core $SERVER_CORE, load generator on core $CLIENT_CORE, ${SECS} s per run"
+echo "== gateway: the demo plant (per_address $PER_ADDRESS) on core $SERVER_CORE, load generator on core $CLIENT_CORE, ${SECS} s per run"
 MP=$(free_port); HP=$(free_port)
-taskset -c "$SERVER_CORE" "$BIN" serve --demo --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw.log" 2>&1 &
+taskset -c "$SERVER_CORE" "$BIN" serve --config "$DEMO" --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw.log" 2>&1 &
 GW=$!; PIDS+=("$GW")
 wait_port "$MP"; wait_port "$HP"; sleep 2
 load --modbus "127.0.0.1:$MP" --clients 128 --units 1-10
@@ -84,7 +94,7 @@ fi
 
 echo "== $CONNS concurrent connections to the gateway"
 MP=$(free_port); HP=$(free_port)
-taskset -c "$SERVER_CORE" "$BIN" serve --demo --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw2.log" 2>&1 &
+taskset -c "$SERVER_CORE" "$BIN" serve --config "$DEMO" --no-store --modbus "127.0.0.1:$MP" --http "127.0.0.1:$HP" >"$TMP/gw2.log" 2>&1 &
 GW=$!; PIDS+=("$GW")
 wait_port "$MP"; sleep 1
 taskset -c "$CLIENT_CORE" "$LOADGEN" conns --modbus "127.0.0.1:$MP" --n "$CONNS"

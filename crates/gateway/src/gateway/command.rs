@@ -124,7 +124,7 @@ impl std::fmt::Display for CommandError {
             CommandError::UnknownDrive(id) => {
                 // A name is short; a client that sends a page of text gets its start back.
                 let (shown, more) = crate::text::cut(id, 64);
-                write!(f, "no drive {shown:?}{more}: GET /api/drives lists them")
+                write!(f, "no drive {shown:?}{more}")
             }
             CommandError::Locked(id) => {
                 write!(f, "drive {id:?} is locked against writes: unlock it in the configuration")

@@ -121,7 +121,12 @@ pub fn status_of(e: &CommandError) -> StatusCode {
 
 impl From<CommandError> for ApiError {
     fn from(e: CommandError) -> Self {
-        ApiError::new(status_of(&e), e.kind(), e.to_string())
+        let message = match e {
+            // Where an HTTP client finds the names.
+            CommandError::UnknownDrive(_) => format!("{e}: GET /api/drives lists them"),
+            _ => e.to_string(),
+        };
+        ApiError::new(status_of(&e), e.kind(), message)
     }
 }
 

@@ -71,10 +71,18 @@ async fn mosquitto_with_a_password() {
         .status()
         .expect("run mosquitto_passwd");
     assert!(made.success());
+    // The broker's log, where it says whom it refused (writable for the user it runs as).
+    let log = dir.join("broker.log");
+    std::fs::write(&log, "").unwrap();
+    std::fs::set_permissions(&log, std::os::unix::fs::PermissionsExt::from_mode(0o666)).unwrap();
     let _broker = Mosquitto::start_with(
         &bin,
         port,
-        &format!("allow_anonymous false\npassword_file {}\n", file.display()),
+        &format!(
+            "allow_anonymous false\npassword_file {}\nlog_dest file {}\nlog_type all\n",
+            file.display(),
+            log.display()
+        ),
     )
     .await;
     let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
@@ -85,8 +93,22 @@ async fn mosquitto_with_a_password() {
         assert!(start.elapsed() < std::time::Duration::from_secs(60), "the gateway never logged in");
         tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     }
-    // The wrong password has had as long and several retries: still not connected.
-    tokio::time::sleep(std::time::Duration::from_millis(1500)).await;
+    // Once the broker has refused the wrong password (it logs the client as <unknown>, having
+    // refused it before it had a name), it is still not connected.
+    let refusals = || {
+        std::fs::read_to_string(&log)
+            .unwrap_or_default()
+            .lines()
+            .filter(|l| l.contains("disconnected, not authorised"))
+            .count()
+    };
+    while refusals() < 1 {
+        assert!(
+            start.elapsed() < std::time::Duration::from_secs(60),
+            "the broker never refused the wrong password"
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
     assert_eq!(
         drivebus_gateway::metrics::front_ends(&bad).mqtt_connections(),
         0,

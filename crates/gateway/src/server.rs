@@ -4,7 +4,7 @@
 use std::net::SocketAddr;
 use std::sync::Arc;
 
-use tokio::net::TcpListener;
+use tokio::net::{TcpListener, TcpSocket};
 
 use crate::config::GatewayConfig;
 use crate::gateway::Gateway;
@@ -27,8 +27,20 @@ pub struct Bound {
 /// `Err` is the one-line reason it cannot be used.
 pub type Loader = Box<dyn Fn() -> Result<GatewayConfig, String> + Send + Sync>;
 
-async fn bind(addr: SocketAddr, what: &str, option: &str) -> Result<TcpListener, String> {
-    TcpListener::bind(addr).await.map_err(|e| {
+/// Connections the kernel may hold completed for a listener before it accepts them (capped by
+/// `net.core.somaxconn`). A plant's SCADA that restarts opens its connections all at once; with
+/// the 128 of `TcpListener::bind` the excess handshakes were dropped and each of those clients
+/// waited a second or more for its retry.
+const BACKLOG: u32 = 4096;
+
+fn bind(addr: SocketAddr, what: &str, option: &str) -> Result<TcpListener, String> {
+    let listen = || -> std::io::Result<TcpListener> {
+        let socket = if addr.is_ipv4() { TcpSocket::new_v4()? } else { TcpSocket::new_v6()? };
+        socket.set_reuseaddr(true)?;
+        socket.bind(addr)?;
+        socket.listen(BACKLOG)
+    };
+    listen().map_err(|e| {
         format!("cannot listen for {what} on {addr}: {e}: give another address with {option} HOST:PORT")
     })
 }
@@ -43,12 +55,12 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     if let Some(o) = &cfg.opcua {
         gw.health().listener("opcua", o.listen, false);
     }
-    let http = bind(cfg.http.listen, "HTTP", "--http").await?;
-    let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus").await?;
+    let http = bind(cfg.http.listen, "HTTP", "--http")?;
+    let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus")?;
     // OPC UA is on by default: a box where 4840 is taken (another OPC UA server) still gets its
     // gateway, with the listener reported down (log, /readyz, metrics) instead of no gateway.
     let opcua = match &cfg.opcua {
-        Some(o) => match bind(o.listen, "OPC UA", "--opcua").await {
+        Some(o) => match bind(o.listen, "OPC UA", "--opcua") {
             Ok(l) => Some(l),
             Err(e) => {
                 log::warn(&format!("{e}, or --no-opcua; serving without OPC UA"));
@@ -88,7 +100,7 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
         tokio::spawn(reload_on_hangup(gw.clone(), loader));
     }
     for b in &cfg.bridges {
-        let l = bind(b.listen, &format!("the Modbus bridge to bus {}", b.bus), "--bridge BUS=").await?;
+        let l = bind(b.listen, &format!("the Modbus bridge to bus {}", b.bus), "--bridge BUS=")?;
         let addr = l.local_addr().map_err(|e| e.to_string())?;
         gw.health().listener(&format!("bridge-{}", b.bus), addr, true);
         bound.bridges.push((b.bus.clone(), addr));
@@ -153,5 +165,38 @@ pub async fn reload_with(gw: &Arc<Gateway>, next: Result<GatewayConfig, String>,
             log::warn(&format!("configuration not reloaded, the running one stays: {e}"));
             gw.reload_refused(actor, &e).await;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A burst of clients that connect while the listener is busy elsewhere is held by the
+    /// kernel, not dropped: 600 handshakes complete with nothing accepted yet (with a backlog
+    /// of 128 the 130th would wait for ever here).
+    #[tokio::test]
+    async fn a_burst_of_connections_waits_in_the_backlog() {
+        let listener = bind("127.0.0.1:0".parse().unwrap(), "a test", "--test").expect("listen");
+        let addr = listener.local_addr().unwrap();
+        let somaxconn: usize = std::fs::read_to_string("/proc/sys/net/core/somaxconn")
+            .ok()
+            .and_then(|s| s.trim().parse().ok())
+            .unwrap_or(4096);
+        let n = somaxconn.min(600);
+        let held = tokio::task::spawn_blocking(move || {
+            (0..n)
+                .map(|i| {
+                    std::net::TcpStream::connect_timeout(&addr, std::time::Duration::from_secs(20))
+                        .unwrap_or_else(|e| {
+                            panic!("connection {i} of {n} not taken while none was accepted: {e}")
+                        })
+                })
+                .collect::<Vec<_>>()
+        })
+        .await
+        .unwrap();
+        assert_eq!(held.len(), n);
+        drop(listener);
     }
 }

@@ -129,8 +129,9 @@ type ReplyHeader = (Option<u8>, Option<(Cmd, CommNo)>);
 
 /// INV-NO and CMD with COMNO (`None`: an `N`/`n` error reply) of a reply frame, from its header
 /// only: the framing, INV-NO, CMD, COMNO and the number of DATA digits a reply has (1 to 4, or
-/// a 4-digit error code). The DATA digits are not decoded and SUM is not checked (the scanner
-/// has); `None` when the header is not a reply's.
+/// a 4-digit error code). DATA is not decoded and SUM is not checked (the scanner has); `None`
+/// when the header is not a reply's, or a DATA digit is no hex digit (a byte changed on a line
+/// without SUM: an error, as the parse says, so the attempt is retried as before).
 pub(crate) fn reply_header(bytes: &[u8]) -> Option<ReplyHeader> {
     let lx = lex(bytes).ok()?;
     let inv_no = match lx.inv_no {
@@ -138,6 +139,9 @@ pub(crate) fn reply_header(bytes: &[u8]) -> Option<ReplyHeader> {
         AsciiAddress::Unit(n) => Some(n),
         AsciiAddress::Wildcard { .. } => return None,
     };
+    if lx.rest.iter().any(|&c| HEX[c as usize] > 0x0F) {
+        return None;
+    }
     if lx.letter | 0x20 == ERROR_LETTER | 0x20 {
         return (lx.rest.len() == 4).then_some((inv_no, None));
     }

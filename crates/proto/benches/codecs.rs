@@ -82,6 +82,20 @@ fn run_parse(c: &mut Criterion) {
     }
 }
 
+/// The generic function `f` for the session `Protocol` of the sample named `name`.
+macro_rules! for_protocol {
+    ($name:expr, $f:ident) => {
+        match $name {
+            "modbus-rtu" => $f::<modbus::rtu::ModbusRtu>,
+            "modbus-ascii" => $f::<modbus::ascii::ModbusAscii>,
+            "toshiba-ascii" => $f::<toshiba::ascii::TipAscii>,
+            "toshiba-binary" => $f::<toshiba::binary::TipBinary>,
+            "danfoss-fc" => $f::<fc::Fc>,
+            _ => $f::<b800::B800>,
+        }
+    };
+}
+
 /// Emits the request `frame` (parsed once) `FRAMES` times into one buffer; returns the bytes written.
 fn emit_all<P: Protocol + Default>(frame: &[u8], out: &mut [u8]) -> usize {
     let proto = P::default();
@@ -98,14 +112,7 @@ fn run_encode(c: &mut Criterion) {
     g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
     for (name, frame) in samples() {
         let mut out = vec![0u8; frame.len() * FRAMES];
-        let f: fn(&[u8], &mut [u8]) -> usize = match name {
-            "modbus-rtu" => emit_all::<modbus::rtu::ModbusRtu>,
-            "modbus-ascii" => emit_all::<modbus::ascii::ModbusAscii>,
-            "toshiba-ascii" => emit_all::<toshiba::ascii::TipAscii>,
-            "toshiba-binary" => emit_all::<toshiba::binary::TipBinary>,
-            "danfoss-fc" => emit_all::<fc::Fc>,
-            _ => emit_all::<b800::B800>,
-        };
+        let f: fn(&[u8], &mut [u8]) -> usize = for_protocol!(name, emit_all);
         assert_eq!(f(&frame, &mut out), out.len(), "{name}: the emitted frames have the sample's size");
         assert_eq!(&out[..frame.len()], &frame[..], "{name}: emit gives back the manual's bytes");
         g.throughput(Throughput::Elements(FRAMES as u64));
@@ -167,14 +174,8 @@ fn run_reply_matches(c: &mut Criterion) {
     let mut g = c.benchmark_group("reply_matches");
     g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
     for (name, request, reply) in exchanges() {
-        let f: fn(&mut BenchmarkGroup<'_, WallTime>, &str, &[u8], &[u8]) = match name {
-            "modbus-rtu" => bench_reply_matches::<modbus::rtu::ModbusRtu>,
-            "modbus-ascii" => bench_reply_matches::<modbus::ascii::ModbusAscii>,
-            "toshiba-ascii" => bench_reply_matches::<toshiba::ascii::TipAscii>,
-            "toshiba-binary" => bench_reply_matches::<toshiba::binary::TipBinary>,
-            "danfoss-fc" => bench_reply_matches::<fc::Fc>,
-            _ => bench_reply_matches::<b800::B800>,
-        };
+        let f: fn(&mut BenchmarkGroup<'_, WallTime>, &str, &[u8], &[u8]) =
+            for_protocol!(name, bench_reply_matches);
         f(&mut g, name, &request, &reply);
     }
     g.finish();

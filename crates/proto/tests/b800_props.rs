@@ -14,7 +14,7 @@ use drivebus_proto::{Codec, FrameError};
 use proptest::prelude::*;
 
 mod common;
-use common::{changed, echo_refused, header_agrees, header_answers};
+use common::{changed, damage, echo_refused, header_agrees, header_answers};
 
 fn address() -> impl Strategy<Value = Address> {
     (1u8..=63).prop_map(|n| Address::new(n).unwrap())
@@ -311,8 +311,8 @@ proptest! {
         (other, from_drive) in (slave_reply(), any::<bool>()),
         other_drive in address(),
         code in any::<u8>(),
-        (at, to) in (any::<prop::sample::Index>(), any::<u8>()),
-        junk in b800ish(),
+        (at, to, junk) in damage(),
+        framed in b800ish(),
     ) {
         let req = Request::to_drive(drive, cmd);
         let pending = B800.pending(&req).expect("a drive answers");
@@ -324,7 +324,7 @@ proptest! {
         let mut lettered = wire(&Packet::Reply(Reply::new(drive, other)));
         lettered[3..5].copy_from_slice(&byte_digits(cmd.reply_letter()));
         let lettered = recs(lettered);
-        for bytes in [reply.clone(), lettered, recs(changed(&reply, at, to)), junk] {
+        for bytes in [reply.clone(), lettered, recs(changed(&reply, at, to)), junk, framed] {
             header_agrees(&B800, &pending, &bytes)?;
         }
         echo_refused(&B800, &pending, &wire(&Packet::Request(req)))?;

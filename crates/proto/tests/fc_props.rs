@@ -13,7 +13,7 @@ use drivebus_proto::session::Protocol;
 use proptest::prelude::*;
 
 mod common;
-use common::{changed, echo_refused, header_agrees, header_answers};
+use common::{changed, damage, echo_refused, header_agrees, header_answers};
 
 const COMMANDS: [u8; 8] = [0x0, 0x1, 0x2, 0x3, 0x4, 0xD, 0xE, 0xF];
 const RESPONSES: [u8; 6] = [0x0, 0x1, 0x2, 0x3, 0x7, 0xF];
@@ -275,8 +275,7 @@ proptest! {
         req in spec(),
         other in spec(),
         (same_adr, same_pnu) in (any::<bool>(), any::<bool>()),
-        (at, to) in (any::<prop::sample::Index>(), any::<u8>()),
-        junk in proptest::collection::vec(any::<u8>(), 0..40),
+        (at, to, junk) in damage(),
     ) {
         let proto = Fc::default();
         let pending = proto.pending(&request(&req));

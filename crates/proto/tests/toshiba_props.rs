@@ -16,7 +16,7 @@ use drivebus_proto::toshiba::{Cmd, CommNo, ErrorCode, Tip, TipReply, TipRequest,
 use proptest::prelude::*;
 
 mod common;
-use common::{changed, echo_refused, header_agrees, header_answers};
+use common::{changed, damage, echo_refused, header_agrees, header_answers};
 
 // ---------------------------------------------------------------- strategies
 
@@ -110,6 +110,11 @@ fn binary_reply() -> impl Strategy<Value = BinaryReply> {
 }
 
 // ---------------------------------------------------------------- helpers
+
+/// What an inverter numbered in `inv` answers: its number, tripped, DATA and an error code.
+fn answer_parts(inv: std::ops::RangeInclusive<u8>) -> impl Strategy<Value = (u8, bool, u16, u16)> {
+    (inv, any::<bool>(), any::<u16>(), any::<u16>())
+}
 
 /// `frame` with its binary-mode SUM (the last byte) made right again.
 fn resummed(mut frame: Vec<u8>) -> Vec<u8> {
@@ -375,9 +380,8 @@ proptest! {
     fn ascii_header_look_agrees_with_the_parse(
         req in ascii_request(),
         other in ascii_reply(),
-        (me, tripped, data, code) in (0u8..=99, any::<bool>(), any::<u16>(), any::<u16>()),
-        (at, to) in (any::<prop::sample::Index>(), any::<u8>()),
-        junk in proptest::collection::vec(any::<u8>(), 0..20),
+        (me, tripped, data, code) in answer_parts(0u8..=99),
+        (at, to, junk) in damage(),
     ) {
         let proto = TipAscii::default();
         let pending = proto.pending(&req).expect("a wildcard is answered by default");
@@ -400,9 +404,8 @@ proptest! {
     fn binary_header_look_agrees_with_the_parse(
         req in binary_request(),
         other in binary_reply(),
-        (me, tripped, data, code) in (0u8..=0x3F, any::<bool>(), any::<u16>(), any::<u16>()),
-        (at, to) in (any::<prop::sample::Index>(), any::<u8>()),
-        junk in proptest::collection::vec(any::<u8>(), 0..20),
+        (me, tripped, data, code) in answer_parts(0u8..=0x3F),
+        (at, to, junk) in damage(),
     ) {
         let proto = TipBinary::default();
         let pending = proto.pending(&req).expect("a broadcast is answered by default");

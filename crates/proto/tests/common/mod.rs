@@ -39,6 +39,11 @@ pub fn echo_refused<P: Protocol>(proto: &P, pending: &P::Pending, bytes: &[u8]) 
     Ok(())
 }
 
+/// Where to change a frame and to what (see [`changed`]), and some junk bytes.
+pub fn damage() -> impl Strategy<Value = (prop::sample::Index, u8, Vec<u8>)> {
+    (any::<prop::sample::Index>(), any::<u8>(), proptest::collection::vec(any::<u8>(), 0..40))
+}
+
 /// `frame` with the byte at `at` (modulo its length) replaced by `to`.
 pub fn changed(frame: &[u8], at: prop::sample::Index, to: u8) -> Vec<u8> {
     let mut f = frame.to_vec();

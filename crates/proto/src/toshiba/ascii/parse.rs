@@ -139,7 +139,7 @@ pub(crate) fn reply_header(bytes: &[u8]) -> Option<ReplyHeader> {
         AsciiAddress::Unit(n) => Some(n),
         AsciiAddress::Wildcard { .. } => return None,
     };
-    if lx.rest.iter().any(|&c| HEX[c as usize] > 0x0F) {
+    if lx.rest.iter().fold(0, |marks, &c| marks | HEX[c as usize]) & 0x10 != 0 {
         return None;
     }
     if lx.letter | 0x20 == ERROR_LETTER | 0x20 {

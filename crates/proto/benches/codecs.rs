@@ -5,10 +5,16 @@
 //! through `Deframer::push` and every frame through `Codec::parse`, as a receiver does it.
 //! Reported twice: frames/s (`parse_frames`) and bytes/s (`parse_bytes`).
 //! Encode: the same frame emitted 1024 times into a buffer (`encode_frames`).
+//! Reply matching: whether one reply answers its request, by the header look the master
+//! session uses (`Protocol::reply_matches`, `reply_matches/header`) against the whole parse
+//! then `Protocol::matches` (`reply_matches/parse`), the trait's default.
 //!
 //! Run: `cargo bench -p drivebus-proto --bench codecs` (or `bench/codecs.sh` for a summary).
 
-use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use criterion::measurement::WallTime;
+use criterion::{
+    black_box, criterion_group, criterion_main, BenchmarkGroup, BenchmarkId, Criterion, Throughput,
+};
 use drivebus_proto::session::Protocol;
 use drivebus_proto::{b800, fc, modbus, toshiba};
 use drivebus_proto::{Codec, Deframer, Direction, Event};
@@ -76,6 +82,20 @@ fn run_parse(c: &mut Criterion) {
     }
 }
 
+/// The generic function `f` for the session `Protocol` of the sample named `name`.
+macro_rules! for_protocol {
+    ($name:expr, $f:ident) => {
+        match $name {
+            "modbus-rtu" => $f::<modbus::rtu::ModbusRtu>,
+            "modbus-ascii" => $f::<modbus::ascii::ModbusAscii>,
+            "toshiba-ascii" => $f::<toshiba::ascii::TipAscii>,
+            "toshiba-binary" => $f::<toshiba::binary::TipBinary>,
+            "danfoss-fc" => $f::<fc::Fc>,
+            _ => $f::<b800::B800>,
+        }
+    };
+}
+
 /// Emits the request `frame` (parsed once) `FRAMES` times into one buffer; returns the bytes written.
 fn emit_all<P: Protocol + Default>(frame: &[u8], out: &mut [u8]) -> usize {
     let proto = P::default();
@@ -92,14 +112,7 @@ fn run_encode(c: &mut Criterion) {
     g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
     for (name, frame) in samples() {
         let mut out = vec![0u8; frame.len() * FRAMES];
-        let f: fn(&[u8], &mut [u8]) -> usize = match name {
-            "modbus-rtu" => emit_all::<modbus::rtu::ModbusRtu>,
-            "modbus-ascii" => emit_all::<modbus::ascii::ModbusAscii>,
-            "toshiba-ascii" => emit_all::<toshiba::ascii::TipAscii>,
-            "toshiba-binary" => emit_all::<toshiba::binary::TipBinary>,
-            "danfoss-fc" => emit_all::<fc::Fc>,
-            _ => emit_all::<b800::B800>,
-        };
+        let f: fn(&[u8], &mut [u8]) -> usize = for_protocol!(name, emit_all);
         assert_eq!(f(&frame, &mut out), out.len(), "{name}: the emitted frames have the sample's size");
         assert_eq!(&out[..frame.len()], &frame[..], "{name}: emit gives back the manual's bytes");
         g.throughput(Throughput::Elements(FRAMES as u64));
@@ -108,9 +121,69 @@ fn run_encode(c: &mut Criterion) {
     g.finish();
 }
 
+/// One request and a reply that answers it per protocol, from the manuals (protocols.md
+/// section 5).
+fn exchanges() -> Vec<(&'static str, Vec<u8>, Vec<u8>)> {
+    vec![
+        // TM1/TM2: read FD00, 60.00 Hz.
+        (
+            "modbus-rtu",
+            vec![0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA6],
+            vec![0x01, 0x03, 0x02, 0x17, 0x70, 0xB6, 0x50],
+        ),
+        // M3: write 0x1234 to 0405H; the reply is identical.
+        ("modbus-ascii", b":010604051234AA\r\n".to_vec(), b":010604051234AA\r\n".to_vec()),
+        // TA4/TA5: read FE03, 077B.
+        ("toshiba-ascii", b"(RFE03)\r".to_vec(), b"(RFE03077B)\r".to_vec()),
+        // TB2: W decel time 10.0 s; the reply is identical.
+        (
+            "toshiba-binary",
+            vec![0x2F, 0x57, 0x00, 0x10, 0x00, 0x64, 0xFA],
+            vec![0x2F, 0x57, 0x00, 0x10, 0x00, 0x64, 0xFA],
+        ),
+        // D3/D4: read parameter 520 at address 1, a double word.
+        (
+            "danfoss-fc",
+            vec![0x02, 0x0E, 0x01, 0x12, 0x08, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0x17],
+            vec![0x02, 0x0E, 0x01, 0x22, 0x08, 0, 0, 0, 0, 0x02, 0x0C, 0x06, 0x07, 0, 0, 0x28],
+        ),
+        // B2/B6: drive 5, P 40.0 Hz; 'p'.
+        ("b800", b"\x7E85500960\x35\x45\x7F".to_vec(), b"\x7E057033\x7F".to_vec()),
+    ]
+}
+
+/// Benchmarks whether `reply` answers `request` both ways, after checking that both say yes.
+fn bench_reply_matches<P: Protocol + Default>(
+    g: &mut BenchmarkGroup<'_, WallTime>,
+    name: &str,
+    request: &[u8],
+    reply: &[u8],
+) {
+    let proto = P::default();
+    let pending = proto.pending_of_frame(request).expect("sample parses").expect("a reply is due");
+    let parsed = |bytes: &[u8]| proto.parse_reply(bytes).map(|rep| proto.matches(&pending, &rep));
+    assert_eq!(proto.reply_matches(&pending, reply), Ok(true), "{name}: the header answers");
+    assert_eq!(parsed(reply), Ok(true), "{name}: the parsed reply answers");
+    g.bench_with_input(BenchmarkId::new("header", name), reply, |b, r| {
+        b.iter(|| proto.reply_matches(black_box(&pending), black_box(r)))
+    });
+    g.bench_with_input(BenchmarkId::new("parse", name), reply, |b, r| b.iter(|| parsed(black_box(r))));
+}
+
+fn run_reply_matches(c: &mut Criterion) {
+    let mut g = c.benchmark_group("reply_matches");
+    g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
+    for (name, request, reply) in exchanges() {
+        let f: fn(&mut BenchmarkGroup<'_, WallTime>, &str, &[u8], &[u8]) =
+            for_protocol!(name, bench_reply_matches);
+        f(&mut g, name, &request, &reply);
+    }
+    g.finish();
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default();
-    targets = run_parse, run_encode
+    targets = run_parse, run_encode, run_reply_matches
 }
 criterion_main!(benches);

@@ -9,8 +9,12 @@ use drivebus_proto::checksum::not_sum8;
 use drivebus_proto::deframe::{Deframer, Event, Scan, Scanner, Stats};
 use drivebus_proto::describe::{Describe, Direction};
 use drivebus_proto::hex::byte_digits;
+use drivebus_proto::session::Protocol;
 use drivebus_proto::{Codec, FrameError};
 use proptest::prelude::*;
+
+mod common;
+use common::{changed, damage, echo_refused, header_agrees, header_answers};
 
 fn address() -> impl Strategy<Value = Address> {
     (1u8..=63).prop_map(|n| Address::new(n).unwrap())
@@ -284,5 +288,45 @@ proptest! {
         prop_assert!(bad.is_empty());
         let parsed: Vec<Packet> = good.iter().map(|f| Packet::parse(f).unwrap()).collect();
         prop_assert_eq!(parsed, ps);
+    }
+}
+
+/// `frame` with its CS digits made right again (and its flags left as they are).
+fn recs(mut frame: Vec<u8>) -> Vec<u8> {
+    let n = frame.len();
+    if n >= 4 {
+        let cs = byte_digits(not_sum8(&frame[1..n - 3]));
+        frame[n - 3..n - 1].copy_from_slice(&cs);
+    }
+    frame
+}
+
+proptest! {
+    /// The header look at a reply (DA and REPLY digits) agrees with the whole parse: any
+    /// reply from the drive asked or another, an error reply, a changed digit with its CS made
+    /// right, and junk.
+    #[test]
+    fn header_look_agrees_with_the_parse(
+        (drive, cmd) in (address(), command()),
+        (other, from_drive) in (slave_reply(), any::<bool>()),
+        other_drive in address(),
+        code in any::<u8>(),
+        (at, to, junk) in damage(),
+        framed in b800ish(),
+    ) {
+        let req = Request::to_drive(drive, cmd);
+        let pending = B800.pending(&req).expect("a drive answers");
+        let refusal = wire(&Packet::Reply(Reply::new(drive, SlaveReply::error(ErrorCode(code)))));
+        header_answers(&B800, &pending, &refusal)?;
+        let from = if from_drive { drive } else { other_drive };
+        let reply = wire(&Packet::Reply(Reply::new(from, other)));
+        // The reply with the letter that answers, whatever DATA it carries.
+        let mut lettered = wire(&Packet::Reply(Reply::new(drive, other)));
+        lettered[3..5].copy_from_slice(&byte_digits(cmd.reply_letter()));
+        let lettered = recs(lettered);
+        for bytes in [reply.clone(), lettered, recs(changed(&reply, at, to)), junk, framed] {
+            header_agrees(&B800, &pending, &bytes)?;
+        }
+        echo_refused(&B800, &pending, &wire(&Packet::Request(req)))?;
     }
 }

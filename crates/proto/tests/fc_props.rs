@@ -4,11 +4,16 @@
 use drivebus_proto::codec::Codec;
 use drivebus_proto::deframe::{Deframer, Event, Scan, Scanner};
 use drivebus_proto::describe::{Describe, Direction};
+use drivebus_proto::fc::Fc;
 use drivebus_proto::fc::{
     Adr, Block, ControlWord, DanfossFc, FcScanner, Message, ParameterBlock, ParameterCommand,
     ParameterNumber, ParameterResponse, Reference, Reply, Request, StatusWord, TextBlock, MAX_TELEGRAM,
 };
+use drivebus_proto::session::Protocol;
 use proptest::prelude::*;
+
+mod common;
+use common::{changed, damage, echo_refused, header_agrees, header_answers};
 
 const COMMANDS: [u8; 8] = [0x0, 0x1, 0x2, 0x3, 0x4, 0xD, 0xE, 0xF];
 const RESPONSES: [u8; 6] = [0x0, 0x1, 0x2, 0x3, 0x7, 0xF];
@@ -250,5 +255,46 @@ proptest! {
         prop_assert_eq!(split, whole);
         let bytes: Vec<&[u8]> = stream.chunks(1).collect();
         prop_assert_eq!(deframe(&bytes).0, frames);
+    }
+}
+
+/// `telegram` with its BCC (the last byte) made right again.
+fn rebcc(mut telegram: Vec<u8>) -> Vec<u8> {
+    if let Some((last, covered)) = telegram.split_last_mut() {
+        *last = drivebus_proto::checksum::xor8(covered);
+    }
+    telegram
+}
+
+proptest! {
+    /// The header look at a reply (ADR, LGE, PKE) agrees with the whole parse: the drive's
+    /// answer, replies with the request's ADR or PNU or neither, a changed byte with its BCC
+    /// made right, and junk.
+    #[test]
+    fn header_look_agrees_with_the_parse(
+        req in spec(),
+        other in spec(),
+        (same_adr, same_pnu) in (any::<bool>(), any::<bool>()),
+        (at, to, junk) in damage(),
+    ) {
+        let proto = Fc::default();
+        let pending = proto.pending(&request(&req));
+        prop_assume!(pending.is_some(), "a broadcast gets no reply");
+        let pending = pending.unwrap();
+        // The drive's answer: the same ADR, the same kind of block, the PNU echoed.
+        let kind = if req.kind == 0 { 0 } else { 1 + other.kind % 2 };
+        let answer = Spec { adr: req.adr, pnu: req.pnu, kind, ..other.clone() };
+        header_answers(&proto, &pending, &emit_reply(&answer))?;
+        let mut near = other.clone();
+        if same_adr {
+            near.adr = req.adr;
+        }
+        if same_pnu {
+            near.pnu = req.pnu;
+        }
+        for bytes in [emit_reply(&near), emit_reply(&other), rebcc(changed(&emit_reply(&answer), at, to)), junk] {
+            header_agrees(&proto, &pending, &bytes)?;
+        }
+        echo_refused(&proto, &pending, &emit_request(&req))?;
     }
 }

@@ -12,8 +12,11 @@ use drivebus_proto::toshiba::binary::{
     BinaryAddress, BinaryCodec, BinaryFrame, BinaryReply, BinaryReplyBody, BinaryRequest, BinaryRequestBody,
     BinaryScanner, BlockReply, BlockRequest, TipBinary,
 };
-use drivebus_proto::toshiba::{Cmd, CommNo, ErrorCode, Tip, TipScanner};
+use drivebus_proto::toshiba::{Cmd, CommNo, ErrorCode, Tip, TipReply, TipRequest, TipScanner};
 use proptest::prelude::*;
+
+mod common;
+use common::{changed, damage, echo_refused, header_agrees, header_answers};
 
 // ---------------------------------------------------------------- strategies
 
@@ -107,6 +110,19 @@ fn binary_reply() -> impl Strategy<Value = BinaryReply> {
 }
 
 // ---------------------------------------------------------------- helpers
+
+/// What an inverter numbered in `inv` answers: its number, tripped, DATA and an error code.
+fn answer_parts(inv: std::ops::RangeInclusive<u8>) -> impl Strategy<Value = (u8, bool, u16, u16)> {
+    (inv, any::<bool>(), any::<u16>(), any::<u16>())
+}
+
+/// `frame` with its binary-mode SUM (the last byte) made right again.
+fn resummed(mut frame: Vec<u8>) -> Vec<u8> {
+    if let Some((last, covered)) = frame.split_last_mut() {
+        *last = drivebus_proto::checksum::sum8(covered);
+    }
+    frame
+}
 
 fn emit_with(f: impl Fn(&mut [u8]) -> Result<usize, drivebus_proto::EmitError>) -> Vec<u8> {
     let mut b = [0u8; 32];
@@ -352,6 +368,80 @@ proptest! {
     fn frequency_round_trip(centi in any::<u16>()) {
         let f = drivebus_proto::toshiba::Frequency(centi);
         prop_assert_eq!(drivebus_proto::toshiba::Frequency::from_hz(f.hz()), Some(f));
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    /// The header look at an ASCII-mode reply agrees with the whole parse: the inverter's own
+    /// answer, its error reply, any other reply, a changed byte, and junk.
+    #[test]
+    fn ascii_header_look_agrees_with_the_parse(
+        req in ascii_request(),
+        other in ascii_reply(),
+        (me, tripped, data, code) in answer_parts(0u8..=99),
+        (at, to, junk) in damage(),
+    ) {
+        let proto = TipAscii::default();
+        let pending = proto.pending(&req).expect("a wildcard is answered by default");
+        let me = pending.inv_no.unwrap_or(me);
+        let answer = emit_with(|b| req.reply(me, tripped, data).emit(b));
+        header_answers(&proto, &pending, &answer)?;
+        let refusal = emit_with(|b| req.error_reply(me, tripped, ErrorCode(code)).emit(b));
+        header_answers(&proto, &pending, &refusal)?;
+        header_agrees(&proto, &pending, &emit_with(|b| other.emit(b)))?;
+        header_agrees(&proto, &pending, &changed(&answer, at, to))?;
+        header_agrees(&proto, &pending, &junk)?;
+        // The request itself, heard as an echo: R without DATA is no reply, an error as the
+        // parse says; a W or P echo reads as the reply it looks like.
+        echo_refused(&proto, &pending, &emit_with(|b| req.emit(b)))?;
+    }
+
+    /// The same for binary mode: the answer, the error reply, any reply, a changed byte with
+    /// its SUM made right, and junk.
+    #[test]
+    fn binary_header_look_agrees_with_the_parse(
+        req in binary_request(),
+        other in binary_reply(),
+        (me, tripped, data, code) in answer_parts(0u8..=0x3F),
+        (at, to, junk) in damage(),
+    ) {
+        let proto = TipBinary::default();
+        let pending = proto.pending(&req).expect("a broadcast is answered by default");
+        let me = pending.inv_no.unwrap_or(me);
+        if let Some(answer) = req.reply(me, tripped, data) {
+            let answer = emit_with(|b| answer.emit(b));
+            header_answers(&proto, &pending, &answer)?;
+            header_agrees(&proto, &pending, &resummed(changed(&answer, at, to)))?;
+        }
+        let refusal = emit_with(|b| req.error_reply(me, tripped, ErrorCode(code)).emit(b));
+        header_answers(&proto, &pending, &refusal)?;
+        let other = emit_with(|b| other.emit(b));
+        header_agrees(&proto, &pending, &other)?;
+        header_agrees(&proto, &pending, &resummed(changed(&other, at, to)))?;
+        header_agrees(&proto, &pending, &junk)?;
+        // The request heard as an echo: R and X are no replies.
+        echo_refused(&proto, &pending, &emit_with(|b| req.emit(b)))?;
+    }
+
+    /// Both modes on one line: a reply of either mode against a request of either mode.
+    #[test]
+    fn tip_header_look_agrees_with_the_parse(
+        (ascii, binary) in (ascii_request(), binary_request()),
+        (ascii_rep, binary_rep) in (ascii_reply(), binary_reply()),
+        binary_first in any::<bool>(),
+    ) {
+        let proto = Tip::default();
+        let (a, b) = (TipRequest::Ascii(ascii), TipRequest::Binary(binary));
+        let req = if binary_first { b } else { a };
+        let pending = proto.pending(&req).expect("answered by default");
+        for rep in [TipReply::Ascii(ascii_rep), TipReply::Binary(binary_rep)] {
+            header_agrees(&proto, &pending, &emit_with(|buf| rep.emit(buf)))?;
+        }
+        if let Some(answer) = req.reply(0, false, 0x1234) {
+            header_agrees(&proto, &pending, &emit_with(|buf| answer.emit(buf)))?;
+        }
     }
 }
 

@@ -11,7 +11,7 @@ use crate::error::{need, ChecksumKind, EmitError, FrameError, MismatchHint};
 use crate::hex::byte_digits;
 
 use super::values::{Address, Current, Destination, DriveStatus, ErrorCode, Rpm, Speed, Version};
-use super::{FG1, FG2, MASTER_OFFSET};
+use super::{ERROR_LETTER, FG1, FG2, MASTER_OFFSET};
 
 /// Hex digit values by byte, 0xFF for a byte that is not `0-9 A-F a-f`.
 pub(crate) const HEX: [u8; 256] = {
@@ -186,7 +186,7 @@ impl SlaveReply {
             SlaveReply::SetSpeed => b'p',
             SlaveReply::Increase => b'i',
             SlaveReply::Reduce => b'l',
-            SlaveReply::Error { .. } => b'e',
+            SlaveReply::Error { .. } => ERROR_LETTER,
         }
     }
 
@@ -253,7 +253,7 @@ impl SlaveReply {
                 let w = word(data, "the DATA of v (software version returned)")?;
                 return Ok(SlaveReply::Version(Version::from_raw(w)));
             }
-            b'e' => {
+            ERROR_LETTER => {
                 // seed 000: "[Start Flag], [Drive Addr], ['e'], [error code], [checksum],
                 // [stop flag]": a byte code (0x02..0x9A); a 4-digit word is accepted too.
                 let n = data_bytes(data, 1, 2, "the DATA of e (error code)")?;
@@ -454,6 +454,20 @@ pub(crate) fn split(bytes: &[u8]) -> Result<Wire<'_>, FrameError> {
     match digits {
         [a0, a1, c0, c1, data @ .., _, _] => Ok(Wire { da: pair(*a0, *a1), cmd: pair(*c0, *c1), data }),
         _ => Err(short(bytes.len())),
+    }
+}
+
+/// The DA and CMD/REPLY bytes of a frame, from its header only: the flags in place, an even
+/// count of at least 6 digits between them, the DA and CMD digits hex. Neither the DATA nor the
+/// CS is looked at (the scanner has checked the CS); `None` when the header does not read.
+#[inline]
+pub(crate) fn header(bytes: &[u8]) -> Option<(u8, u8)> {
+    match bytes {
+        [FG1, a0, a1, c0, c1, rest @ .., FG2] if rest.len() >= 2 && rest.len() % 2 == 0 => {
+            let hex = [a0, a1, c0, c1].iter().all(|&&c| HEX[c as usize] <= 0x0F);
+            hex.then(|| (pair(*a0, *a1), pair(*c0, *c1)))
+        }
+        _ => None,
     }
 }
 

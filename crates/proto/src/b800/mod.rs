@@ -88,7 +88,14 @@ pub struct Pending {
 impl Pending {
     /// True when `rep` comes from the drive and is the expected reply or an `e`.
     pub fn matches(&self, rep: &Reply) -> bool {
-        rep.da == self.from && (rep.reply.letter() == self.reply || rep.reply.is_error())
+        self.matches_header(rep.da.get(), rep.reply.letter())
+    }
+
+    /// True when a reply from DA `da` with the REPLY letter `letter` in its header answers:
+    /// this drive, the expected reply or an `e`, whatever DATA follows.
+    #[inline]
+    pub fn matches_header(&self, da: u8, letter: u8) -> bool {
+        da == self.from.get() && (letter == self.reply || letter == ERROR_LETTER)
     }
 }
 
@@ -104,12 +111,26 @@ impl Request {
     }
 }
 
+/// The letter of the `e` reply (seed 000: "'e' (0x65) Error – command not executed").
+pub(crate) const ERROR_LETTER: u8 = b'e';
+
 /// The B800 protocol: [`Protocol`] for the master and slave sessions, and the [`Codec`]
 /// named `"b800"`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct B800;
 
 impl B800 {
+    /// Whether the reply frame `bytes` answers `pending`, by its header only (the flags, the DA
+    /// and REPLY digits): the reply is parsed once, by whoever uses it. A frame whose header
+    /// does not read, or does not answer, is parsed whole, so that it is told apart as before
+    /// (a frame that is no reply is an error, another drive's reply is not).
+    pub fn answers(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+        match frame::header(bytes) {
+            Some((da, letter)) if pending.matches_header(da, letter) => Ok(true),
+            _ => Reply::parse(bytes).map(|rep| pending.matches(&rep)),
+        }
+    }
+
     /// The `e` reply drive `me` owes a rejected frame, if any (project decision): a frame
     /// for this drive with a wrong checksum gets 0x95, one with an unknown command 0x97.
     pub fn rejected_reply(&self, bytes: &[u8], error: &FrameError, me: u8) -> Option<Reply> {
@@ -173,6 +194,10 @@ impl Protocol for B800 {
 
     fn matches(&self, pending: &Pending, rep: &Reply) -> bool {
         pending.matches(rep)
+    }
+
+    fn reply_matches(&self, pending: &Pending, bytes: &[u8]) -> Result<bool, FrameError> {
+        self.answers(pending, bytes)
     }
 
     /// DA = `me` + 128: mine; `G`: act without replying; anything else: ignore.

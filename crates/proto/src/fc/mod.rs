@@ -114,6 +114,41 @@ pub struct FcPending {
     pub parameter: Option<(ParameterCommand, ParameterNumber)>,
 }
 
+impl FcPending {
+    /// Whether a reply with `adr` and `parameter` (AK and PNU; `None` for a process block) in
+    /// its header answers the request: the same ADR byte; a process block answers a process
+    /// block and a parameter or text block answers one of those; the PNU must be echoed,
+    /// except in an AK 7 refusal and in the answer to AK 0 "no command" (the manuals do not
+    /// say what PNU those carry).
+    #[inline]
+    pub fn matches_header(&self, adr: Adr, parameter: Option<(ParameterResponse, ParameterNumber)>) -> bool {
+        if adr != self.adr {
+            return false;
+        }
+        match (self.parameter, parameter) {
+            (None, None) => true,
+            (Some((cmd, pnu)), Some((ak, rpnu))) => {
+                rpnu == pnu || ak == ParameterResponse::CannotPerform || cmd == ParameterCommand::NoCommand
+            }
+            _ => false,
+        }
+    }
+}
+
+impl Fc {
+    /// Whether the reply telegram `bytes` answers `pending`, by its header only (ADR, LGE, PKE;
+    /// IND, PWE, the text and PCD1/PCD2 are not read): the reply is parsed once, by whoever
+    /// uses it. A telegram whose header does not read, or does not answer, is parsed whole, so
+    /// that it is told apart as before (a telegram that is no reply is an error, another
+    /// drive's reply is not).
+    pub fn answers(&self, pending: &FcPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        match telegram::reply_header(bytes) {
+            Some((adr, parameter)) if pending.matches_header(adr, parameter) => Ok(true),
+            _ => Reply::parse(bytes).map(|rep| self.matches(pending, &rep)),
+        }
+    }
+}
+
 impl Protocol for Fc {
     type ReplyScanner = FcScanner;
     type RequestScanner = FcScanner;
@@ -153,20 +188,13 @@ impl Protocol for Fc {
         Some(FcPending { adr: req.adr, parameter: req.block.header().map(|(ak, pnu, _)| (ak, pnu)) })
     }
 
-    /// Same ADR byte; a process block answers a process block and a parameter or text block
-    /// answers one of those; the PNU must be echoed, except in an AK 7 refusal and in the
-    /// answer to AK 0 "no command" (the manuals do not say what PNU those carry).
+    /// See [`FcPending::matches_header`].
     fn matches(&self, pending: &FcPending, rep: &Reply<'_>) -> bool {
-        if rep.adr != pending.adr {
-            return false;
-        }
-        match (pending.parameter, rep.block.header()) {
-            (None, None) => true,
-            (Some((cmd, pnu)), Some((ak, rpnu, _))) => {
-                rpnu == pnu || ak == ParameterResponse::CannotPerform || cmd == ParameterCommand::NoCommand
-            }
-            _ => false,
-        }
+        pending.matches_header(rep.adr, rep.block.header().map(|(ak, pnu, _)| (ak, pnu)))
+    }
+
+    fn reply_matches(&self, pending: &FcPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        self.answers(pending, bytes)
     }
 
     /// The drive's number in either address format is [`Disposition::Mine`]; a broadcast in

@@ -378,6 +378,25 @@ impl<'a> RawTelegram<'a> {
     }
 }
 
+/// ADR and, unless this is a process block, AK and PNU of a reply telegram, from its header
+/// only: STX, LGE (against the telegram's length), ADR and PKE. IND, PWE, the text, PCD1 and
+/// PCD2 are not read and BCC is not checked (the scanner has); `None` when the header does not
+/// read (or its AK is not in the drive's table).
+#[inline]
+pub fn reply_header(bytes: &[u8]) -> Option<(Adr, Option<(ParameterResponse, ParameterNumber)>)> {
+    let (&[stx, lge, adr], rest) = bytes.split_first_chunk::<3>()?;
+    if stx != STX || check_lge(lge).is_err() || bytes.len() != lge as usize + 2 {
+        return None;
+    }
+    let adr = Adr::from_byte(adr).ok()?;
+    if lge == LGE_PROCESS {
+        return Some((adr, None));
+    }
+    let &[k0, k1, ..] = rest else { return None };
+    let (ak, pnu) = split_pke(be16([k0, k1]));
+    Some((adr, Some((ParameterResponse::from_ak(ak)?, pnu))))
+}
+
 /// The BCC mismatch error.
 pub(crate) const fn bcc_mismatch(carried: u8, computed: u8) -> FrameError {
     FrameError::ChecksumMismatch {

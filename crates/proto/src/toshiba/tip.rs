@@ -224,6 +224,15 @@ impl Protocol for Tip {
             _ => false,
         }
     }
+    /// By the header only, in the pending request's mode (see [`TipAscii::answers`],
+    /// [`TipBinary::answers`]); a frame of the other mode is parsed whole.
+    fn reply_matches(&self, pending: &TipPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        match (pending, bytes.first()) {
+            (TipPending::Ascii(p), Some(&ascii::START)) => self.ascii.answers(p, bytes),
+            (TipPending::Binary(p), Some(&binary::START)) => self.binary.answers(p, bytes),
+            _ => self.parse_reply(bytes).map(|rep| self.matches(pending, &rep)),
+        }
+    }
     fn disposition(&self, req: &TipRequest, me: u8) -> Disposition {
         match req {
             TipRequest::Ascii(r) => r.inv_no.disposition(me),

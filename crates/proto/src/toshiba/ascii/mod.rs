@@ -79,10 +79,21 @@ pub struct AsciiPending {
 impl AsciiPending {
     /// Whether `rep` answers the request.
     pub fn matches(&self, rep: &AsciiReply) -> bool {
-        rep.inv_no == self.inv_no
-            && match rep.body {
-                AsciiReplyBody::Error(_) => true,
-                AsciiReplyBody::Data { cmd, comm_no, .. } => cmd == self.cmd && comm_no == self.comm_no,
+        let data = match rep.body {
+            AsciiReplyBody::Error(_) => None,
+            AsciiReplyBody::Data { cmd, comm_no, .. } => Some((cmd, comm_no)),
+        };
+        self.matches_header(rep.inv_no, data)
+    }
+
+    /// Whether a reply with `inv_no` and `data` (CMD and COMNO; `None` for an error reply) in
+    /// its header answers the request, whatever DATA follows.
+    #[inline]
+    pub fn matches_header(&self, inv_no: Option<u8>, data: Option<(Cmd, CommNo)>) -> bool {
+        inv_no == self.inv_no
+            && match data {
+                None => true,
+                Some((cmd, comm_no)) => cmd == self.cmd && comm_no == self.comm_no,
             }
     }
 }
@@ -103,6 +114,17 @@ impl Default for TipAscii {
 }
 
 impl TipAscii {
+    /// Whether the reply frame `bytes` answers `pending`, by its header only (INV-NO, CMD,
+    /// COMNO; DATA is not decoded): the reply is parsed once, by whoever uses it. A frame whose
+    /// header is not a reply's, or does not answer, is parsed whole, so that it is told apart
+    /// as before (a frame that is no reply is an error, another inverter's reply is not).
+    pub fn answers(&self, pending: &AsciiPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        match parse::reply_header(bytes) {
+            Some((inv_no, data)) if pending.matches_header(inv_no, data) => Ok(true),
+            _ => AsciiReply::parse(bytes).map(|rep| pending.matches(&rep)),
+        }
+    }
+
     /// What a reply to `req` must match; `None` when no reply is due.
     pub fn pending(&self, req: &AsciiRequest) -> Option<AsciiPending> {
         if matches!(req.inv_no, AsciiAddress::Wildcard { .. }) && !self.broadcast_reply {
@@ -151,6 +173,9 @@ impl Protocol for TipAscii {
     }
     fn matches(&self, pending: &AsciiPending, rep: &AsciiReply) -> bool {
         pending.matches(rep)
+    }
+    fn reply_matches(&self, pending: &AsciiPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        self.answers(pending, bytes)
     }
     fn disposition(&self, req: &AsciiRequest, me: u8) -> Disposition {
         req.inv_no.disposition(me)

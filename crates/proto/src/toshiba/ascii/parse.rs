@@ -124,6 +124,36 @@ fn hex_value(digits: &[u8], at: usize) -> Result<u16, FrameError> {
     Ok(v)
 }
 
+/// What a reply's header says: INV-NO, and CMD with COMNO (`None`: an `N`/`n` error reply).
+type ReplyHeader = (Option<u8>, Option<(Cmd, CommNo)>);
+
+/// INV-NO and CMD with COMNO (`None`: an `N`/`n` error reply) of a reply frame, from its header
+/// only: the framing, INV-NO, CMD, COMNO and the number of DATA digits a reply has (1 to 4, or
+/// a 4-digit error code). DATA is not decoded and SUM is not checked (the scanner has); `None`
+/// when the header is not a reply's, or a DATA digit is no hex digit (a byte changed on a line
+/// without SUM: an error, as the parse says, so the attempt is retried as before).
+pub(crate) fn reply_header(bytes: &[u8]) -> Option<ReplyHeader> {
+    let lx = lex(bytes).ok()?;
+    let inv_no = match lx.inv_no {
+        AsciiAddress::Omitted => None,
+        AsciiAddress::Unit(n) => Some(n),
+        AsciiAddress::Wildcard { .. } => return None,
+    };
+    if lx.rest.iter().fold(0, |marks, &c| marks | HEX[c as usize]) & 0x10 != 0 {
+        return None;
+    }
+    if lx.letter | 0x20 == ERROR_LETTER | 0x20 {
+        return (lx.rest.len() == 4).then_some((inv_no, None));
+    }
+    let (cmd, _) = Cmd::from_letter(lx.letter).filter(|(c, _)| *c != Cmd::G)?;
+    // COMNO, then 1 to 4 DATA digits: without DATA it is a read request, not a reply.
+    if !(5..=8).contains(&lx.rest.len()) {
+        return None;
+    }
+    let comm_no = CommNo(hex_value(&lx.rest[..4], lx.rest_at).ok()?);
+    Some((inv_no, Some((cmd, comm_no))))
+}
+
 const MISPLACED_AMP: &str =
     "format error: '&' must be followed by exactly two SUM digits and ')'; a drive does not answer";
 

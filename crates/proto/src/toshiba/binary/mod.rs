@@ -130,15 +130,19 @@ pub struct BinaryPending {
 impl BinaryPending {
     /// Whether `rep` answers the request.
     pub fn matches(&self, rep: &BinaryReply) -> bool {
-        rep.inv_no == self.inv_no
-            && match (rep.body, self.expect) {
-                (BinaryReplyBody::Error(_), _) => true,
-                (BinaryReplyBody::Data { cmd, comm_no, .. }, Expect::Data { cmd: c, comm_no: n }) => {
-                    cmd == c && comm_no == n
-                }
-                (BinaryReplyBody::Block(_), Expect::Block) => true,
-                _ => false,
-            }
+        let kind = match rep.body {
+            BinaryReplyBody::Error(_) => None,
+            BinaryReplyBody::Data { cmd, comm_no, .. } => Some(Expect::Data { cmd, comm_no }),
+            BinaryReplyBody::Block(_) => Some(Expect::Block),
+        };
+        self.matches_header(rep.inv_no, kind)
+    }
+
+    /// Whether a reply with `inv_no` and of `kind` (`None`: an error reply, which answers any
+    /// request) in its header answers the request, whatever DATA follows.
+    #[inline]
+    pub fn matches_header(&self, inv_no: Option<u8>, kind: Option<Expect>) -> bool {
+        inv_no == self.inv_no && kind.map_or(true, |k| k == self.expect)
     }
 }
 
@@ -157,6 +161,17 @@ impl Default for TipBinary {
 }
 
 impl TipBinary {
+    /// Whether the reply frame `bytes` answers `pending`, by its header only (INV-NO, CMD,
+    /// COMNO; DATA is not read): the reply is parsed once, by whoever uses it. A frame whose
+    /// header is not a reply's, or does not answer, is parsed whole, so that it is told apart
+    /// as before (a frame that is no reply is an error, another inverter's reply is not).
+    pub fn answers(&self, pending: &BinaryPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        match parse::reply_header(bytes) {
+            Some((inv_no, kind)) if pending.matches_header(inv_no, kind) => Ok(true),
+            _ => BinaryReply::parse(bytes).map(|rep| pending.matches(&rep)),
+        }
+    }
+
     /// What a reply to `req` must match; `None` when no reply is due.
     pub fn pending(&self, req: &BinaryRequest) -> Option<BinaryPending> {
         if req.inv_no == BinaryAddress::Broadcast && !self.broadcast_reply {
@@ -209,6 +224,9 @@ impl Protocol for TipBinary {
     }
     fn matches(&self, pending: &BinaryPending, rep: &BinaryReply) -> bool {
         pending.matches(rep)
+    }
+    fn reply_matches(&self, pending: &BinaryPending, bytes: &[u8]) -> Result<bool, FrameError> {
+        self.answers(pending, bytes)
     }
     fn disposition(&self, req: &BinaryRequest, me: u8) -> Disposition {
         req.inv_no.disposition(me)

@@ -4,10 +4,10 @@ use crate::checksum::sum8;
 use crate::describe::Direction;
 use crate::error::{ChecksumKind, FrameError};
 
-use super::scan::{head, shape, Shape};
+use super::scan::{head, shape, Head, Shape};
 use super::{
     BinaryAddress, BinaryFrame, BinaryReply, BinaryReplyBody, BinaryRequest, BinaryRequestBody, BlockReply,
-    BlockRequest, Cmd, CommNo,
+    BlockRequest, Cmd, CommNo, Expect,
 };
 use super::{BLOCK, BLOCK_REPLY, BROADCAST, START};
 use crate::toshiba::{prefix_hint, ErrorCode, ERROR_LETTER};
@@ -43,17 +43,20 @@ fn word(bytes: &[u8], at: usize) -> u16 {
     }
 }
 
-pub(super) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<BinaryFrame, Fault> {
+/// The head of a whole frame, its length, and whether it goes to a drive (a request): the
+/// start code, CMD and the length CMD gives checked; of what follows CMD only the group count
+/// of X and Y is read.
+fn layout(bytes: &[u8], from: Option<Direction>) -> Result<(Head, usize, bool), FrameError> {
     let n = bytes.len();
     let Some(&first) = bytes.first() else {
-        return Err(FrameError::Truncated { what: "a binary-mode frame", expected: 5, got: 0 }.into());
+        return Err(FrameError::Truncated { what: "a binary-mode frame", expected: 5, got: 0 });
     };
     if first != START {
-        return Err(FrameError::Unknown { field: "start code", value: first as u32 }.into());
+        return Err(FrameError::Unknown { field: "start code", value: first as u32 });
     }
     let truncated = |expected| FrameError::Truncated { what: "a binary-mode frame", expected, got: n };
-    let Some(h) = head(bytes) else { return Err(truncated(5).into()) };
-    let Some(shape) = shape(bytes, &h)? else { return Err(truncated(h.base + 3).into()) };
+    let Some(h) = head(bytes) else { return Err(truncated(5)) };
+    let Some(shape) = shape(bytes, &h)? else { return Err(truncated(h.base + 3)) };
     let what = frame_name(h.cmd);
     let (len, to_drive) = match shape {
         Shape::Fixed(len) => {
@@ -68,11 +71,40 @@ pub(super) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<Binar
         Shape::Read { reply, .. } => (reply, false),
     };
     if n < len {
-        return Err(FrameError::Truncated { what, expected: len, got: n }.into());
+        return Err(FrameError::Truncated { what, expected: len, got: n });
     }
     if n > len {
-        return Err(FrameError::TooLong { what, max: len, got: n }.into());
+        return Err(FrameError::TooLong { what, max: len, got: n });
     }
+    Ok((h, len, to_drive))
+}
+
+/// What a reply with head `h` is, by its CMD and COMNO: `None` for an error reply.
+fn reply_kind(bytes: &[u8], h: &Head) -> Result<Option<Expect>, FrameError> {
+    Ok(match h.cmd & !0x20 {
+        ERROR_LETTER => None,
+        BLOCK_REPLY => Some(Expect::Block),
+        letter => match Cmd::from_letter(letter) {
+            Some((cmd, _)) => Some(Expect::Data { cmd, comm_no: CommNo(word(bytes, h.base)) }),
+            None => return Err(FrameError::Unknown { field: "binary-mode CMD", value: h.cmd as u32 }),
+        },
+    })
+}
+
+/// The INV-NO and the kind of a reply frame (`None`: an error reply), from its header only:
+/// the start code, INV-NO, CMD, COMNO and the length CMD gives. DATA is not read and SUM not
+/// checked (the scanner has); `None` when the header is not a reply's.
+pub(super) fn reply_header(bytes: &[u8]) -> Option<(Option<u8>, Option<Expect>)> {
+    let (h, _, to_drive) = layout(bytes, Some(Direction::Drive)).ok()?;
+    match h.inv {
+        Some(BROADCAST) => None,
+        _ if to_drive => None,
+        inv_no => Some((inv_no, reply_kind(bytes, &h).ok()?)),
+    }
+}
+
+pub(super) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<BinaryFrame, Fault> {
+    let (h, len, to_drive) = layout(bytes, from)?;
     let covered = &bytes[..len - 1];
     let carried = bytes[len - 1];
     let computed = sum8(covered);
@@ -119,9 +151,9 @@ pub(super) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<Binar
         inv => inv,
     };
     let tripped = h.cmd & 0x20 != 0;
-    let body = match h.cmd & !0x20 {
-        ERROR_LETTER => BinaryReplyBody::Error(ErrorCode(word(bytes, b))),
-        BLOCK_REPLY => {
+    let body = match reply_kind(bytes, &h)? {
+        None => BinaryReplyBody::Error(ErrorCode(word(bytes, b))),
+        Some(Expect::Block) => {
             let n_r = bytes.get(b).copied().unwrap_or(0);
             let mut rdata = [0u16; 5];
             for (i, slot) in rdata.iter_mut().enumerate().take(n_r as usize) {
@@ -129,12 +161,9 @@ pub(super) fn parse_frame(bytes: &[u8], from: Option<Direction>) -> Result<Binar
             }
             BinaryReplyBody::Block(BlockReply { n_r, rdata })
         }
-        letter => match Cmd::from_letter(letter) {
-            Some((cmd, _)) => {
-                BinaryReplyBody::Data { cmd, comm_no: CommNo(word(bytes, b)), data: word(bytes, b + 2) }
-            }
-            None => return Err(FrameError::Unknown { field: "binary-mode CMD", value: h.cmd as u32 }.into()),
-        },
+        Some(Expect::Data { cmd, comm_no }) => {
+            BinaryReplyBody::Data { cmd, comm_no, data: word(bytes, b + 2) }
+        }
     };
     Ok(BinaryFrame::Reply(BinaryReply { inv_no, tripped, body }))
 }

@@ -59,13 +59,13 @@ use drivebus_proto::toshiba::binary::{
 use drivebus_proto::toshiba::{block_read_item, Cmd, CommNo, Command1, ErrorCode, Status1};
 
 use super::generic::{
-    checked_write, raw_of, register_of, ModbusAnswer, ModbusAsk, ModbusFraming, SpeedLimits,
+    raw_of, ModbusAnswer, ModbusAsk, ModbusFraming, RegisterJob, RegisterRules, SpeedLimits,
 };
 use super::{
     CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
     WireProtocol,
 };
-use crate::{format_fixed, Catalog, Family, ParamDef, Storage};
+use crate::{Catalog, Family, ParamDef, Storage};
 
 /// The address that makes a TIP profile a broadcast (`**` in ASCII mode, FF in binary mode).
 /// A Modbus-RTU profile broadcasts with address 0.
@@ -475,33 +475,21 @@ impl Profile for ToshibaProfile {
             Operation::Reverse => command(CommandKind::Reverse)?,
             Operation::Reset => command(CommandKind::Reset)?,
             Operation::Stop => write_fa00(PRIORITY | self.direction_bit(), "stop"),
-            Operation::SetSpeed(hz) => {
-                let def = self.def("FA01")?;
-                let raw = self.limits.check(*hz, def)?;
-                Job::Write {
-                    comm: FA01,
-                    value: raw,
-                    ram: true,
-                    what: format!("FA01 = {} Hz", format_fixed(i64::from(raw), 2)),
-                    learn: None,
-                }
-            }
-            Operation::ReadParam(name) => {
-                let def = self.def(name)?;
-                self.needs_reply(&format!("ReadParam {}", def.name))?;
-                let comm = register_of(def)?;
-                Job::Read { comm, signed: def.min < 0, name: def.name.clone() }
-            }
-            Operation::WriteParam { name, raw, storage } => {
-                let def = self.def(name)?;
-                let comm = register_of(def)?;
-                let value = checked_write(def, *raw, *storage, &self.storage_check())?;
-                Job::Write {
-                    comm,
-                    value,
-                    ram: *storage == Storage::Ram,
-                    what: format!("{} = {}", def.name, def.format(*raw)),
-                    learn: Some((def.number, *raw)),
+            Operation::SetSpeed(_) | Operation::ReadParam(_) | Operation::WriteParam { .. } => {
+                let rules = RegisterRules {
+                    setpoint: ("FA01", FA01),
+                    def: &|name| self.def(name),
+                    needs_reply: &|what| self.needs_reply(what),
+                    limits: &self.limits,
+                    storage_check: &self.storage_check(),
+                };
+                match rules.job(op)? {
+                    RegisterJob::Write { register, value, ram, what, learn } => {
+                        Job::Write { comm: register, value, ram, what, learn }
+                    }
+                    RegisterJob::Read { register, signed, name } => {
+                        Job::Read { comm: register, signed, name }
+                    }
                 }
             }
         };

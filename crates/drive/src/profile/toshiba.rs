@@ -635,6 +635,11 @@ impl Link {
             space: CodeSpace::ToshibaError,
             meaning: format!("{} (in reply to the {ask}: {what})", tip_error_meaning(code.0)),
         };
+        // A TIP data reply: the echo of the request, with the data and the trip flag.
+        let echoed = |got_cmd: Cmd, got_comm: u16, value: u16, tripped: bool| {
+            check_echo(cmd, comm, written, got_cmd, got_comm, value).map_err(bad)?;
+            Ok(Answer::Data { value, tripped })
+        };
         match self.protocol {
             WireProtocol::ModbusRtu => {
                 let m = Link::modbus_ask(ask).ok_or_else(|| bad("was not expected".to_string()))?;
@@ -664,8 +669,7 @@ impl Link {
                 match reply.body {
                     AsciiReplyBody::Error(code) => Err(tip_refusal(code)),
                     AsciiReplyBody::Data { cmd: c, comm_no, data } => {
-                        check_echo(cmd, comm, written, c, comm_no.0, data).map_err(bad)?;
-                        Ok(Answer::Data { value: data, tripped: reply.tripped })
+                        echoed(c, comm_no.0, data, reply.tripped)
                     }
                 }
             }
@@ -687,8 +691,7 @@ impl Link {
                         Ok(Answer::Block { items: b.rdata().to_vec() })
                     }
                     (BinaryReplyBody::Data { cmd: c, comm_no, data }, Ask::Read(_) | Ask::Write { .. }) => {
-                        check_echo(cmd, comm, written, c, comm_no.0, data).map_err(bad)?;
-                        Ok(Answer::Data { value: data, tripped: reply.tripped })
+                        echoed(c, comm_no.0, data, reply.tripped)
                     }
                     _ => Err(bad("is not the kind of reply the request asks for".to_string())),
                 }

@@ -388,20 +388,20 @@ impl DriveModel {
 
     /// Starts the motor (or keeps it running) toward the setpoint.
     pub fn run(&mut self) -> Result<(), RunRefusal> {
-        if let Some(r) = self.run_refusal() {
-            return Err(r);
-        }
-        self.jog = false;
-        self.state = RunState::Running;
-        Ok(())
+        self.start(false)
     }
 
     /// Starts jogging at the jog frequency.
     pub fn jog(&mut self) -> Result<(), RunRefusal> {
+        self.start(true)
+    }
+
+    /// Runs toward the setpoint, or jogs, unless the drive refuses to start.
+    fn start(&mut self, jog: bool) -> Result<(), RunRefusal> {
         if let Some(r) = self.run_refusal() {
             return Err(r);
         }
-        self.jog = true;
+        self.jog = jog;
         self.state = RunState::Running;
         Ok(())
     }

@@ -607,12 +607,18 @@ mod tests {
         Instant::from_millis(ms)
     }
 
+    /// A drive with the default settings, started at time 0 towards `hz`.
+    fn started(hz: f64) -> DriveModel {
+        let mut m = DriveModel::new(ModelSettings::default(), at(0));
+        m.set_setpoint_hz(hz);
+        m.run().unwrap();
+        m
+    }
+
     #[test]
     fn ramp_reaches_40_hz_at_8_s_and_not_before() {
         // 10 s acceleration to 50 Hz: 5 Hz/s, so 40 Hz is reached at exactly 8 s.
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(40.0);
-        m.run().unwrap();
+        let mut m = started(40.0);
         // Slice the time unevenly: the result must not depend on the slicing.
         let mut t = 0u64;
         let mut step = 1u64;
@@ -631,9 +637,7 @@ mod tests {
 
     #[test]
     fn decelerates_to_stop_then_reports_stopped() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(50.0);
-        m.run().unwrap();
+        let mut m = started(50.0);
         m.advance_to(at(10_000));
         assert_eq!(m.output_hz(), 50.0);
         m.stop();
@@ -647,9 +651,7 @@ mod tests {
 
     #[test]
     fn reversing_ramps_through_zero() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(25.0);
-        m.run().unwrap();
+        let mut m = started(25.0);
         m.advance_to(at(5000));
         m.set_rotation(Rotation::Reverse);
         m.advance_to(at(7500));
@@ -663,9 +665,7 @@ mod tests {
 
     #[test]
     fn trips_refuse_run_until_reset_and_are_logged() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(30.0);
-        m.run().unwrap();
+        let mut m = started(30.0);
         m.advance_to(at(3000));
         m.set_load(4.0);
         m.advance_to(at(3001));
@@ -682,18 +682,14 @@ mod tests {
 
     #[test]
     fn reversal_in_one_long_step_continues_past_zero() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(20.0);
-        m.run().unwrap();
+        let mut m = started(20.0);
         m.advance_to(at(4000));
         m.set_rotation(Rotation::Reverse);
         // 4 s down to zero, then 4 s up to 20 Hz the other way: all in one step.
         m.advance_to(at(12_000));
         assert_eq!((m.output_mhz(), m.output_rotation()), (20_000, Rotation::Reverse));
         // Half way: sliced or not, the same.
-        let mut n = DriveModel::new(ModelSettings::default(), at(0));
-        n.set_setpoint_hz(20.0);
-        n.run().unwrap();
+        let mut n = started(20.0);
         n.advance_to(at(4000));
         n.set_rotation(Rotation::Reverse);
         n.advance_to(at(10_000));
@@ -723,9 +719,7 @@ mod tests {
 
     #[test]
     fn undervoltage_and_overtemperature() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(50.0);
-        m.run().unwrap();
+        let mut m = started(50.0);
         m.set_supply(0.5);
         m.advance_to(at(10));
         assert_eq!(m.trip(), Some(Trip::UnderVoltage));
@@ -751,9 +745,7 @@ mod tests {
 
     #[test]
     fn rpm_follows_frequency_with_slip() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(50.0);
-        m.run().unwrap();
+        let mut m = started(50.0);
         m.advance_to(at(10_000));
         let rpm = m.motor_rpm();
         assert!(rpm > 1440.0 && rpm < 1500.0, "{rpm}");

@@ -635,6 +635,13 @@ impl Link {
             space: CodeSpace::ToshibaError,
             meaning: format!("{} (in reply to the {ask}: {what})", tip_error_meaning(code.0)),
         };
+        // A TIP reply must come from the inverter asked (`number` as the mode writes it).
+        let from_inverter = |inv_no: Option<u8>, number: String| {
+            if inv_no == Some(self.address) {
+                return Ok(());
+            }
+            Err(bad(format!("carries inverter number {inv_no:?}, not {number}")))
+        };
         // A TIP data reply: the echo of the request, with the data and the trip flag.
         let echoed = |got_cmd: Cmd, got_comm: u16, value: u16, tripped: bool| {
             check_echo(cmd, comm, written, got_cmd, got_comm, value).map_err(bad)?;
@@ -660,12 +667,7 @@ impl Link {
             WireProtocol::ToshibaAscii => {
                 let reply = AsciiReply::parse(bytes)
                     .map_err(|e| bad(format!("is not a valid TOSHIBA ASCII frame: {e}")))?;
-                if reply.inv_no != Some(self.address) {
-                    return Err(bad(format!(
-                        "carries inverter number {:?}, not {:02}",
-                        reply.inv_no, self.address
-                    )));
-                }
+                from_inverter(reply.inv_no, format!("{:02}", self.address))?;
                 match reply.body {
                     AsciiReplyBody::Error(code) => Err(tip_refusal(code)),
                     AsciiReplyBody::Data { cmd: c, comm_no, data } => {
@@ -676,12 +678,7 @@ impl Link {
             WireProtocol::ToshibaBinary => {
                 let reply = BinaryReply::parse(bytes)
                     .map_err(|e| bad(format!("is not a valid TOSHIBA binary frame: {e}")))?;
-                if reply.inv_no != Some(self.address) {
-                    return Err(bad(format!(
-                        "carries inverter number {:?}, not {}",
-                        reply.inv_no, self.address
-                    )));
-                }
+                from_inverter(reply.inv_no, self.address.to_string())?;
                 match (reply.body, ask) {
                     (BinaryReplyBody::Error(code), _) => Err(tip_refusal(code)),
                     (BinaryReplyBody::Block(b), Ask::Block(n)) => {

@@ -615,6 +615,14 @@ mod tests {
         m
     }
 
+    /// [`started`] towards `hz`, told to reverse at `ms`.
+    fn reversed_at(hz: f64, ms: u64) -> DriveModel {
+        let mut m = started(hz);
+        m.advance_to(at(ms));
+        m.set_rotation(Rotation::Reverse);
+        m
+    }
+
     #[test]
     fn ramp_reaches_40_hz_at_8_s_and_not_before() {
         // 10 s acceleration to 50 Hz: 5 Hz/s, so 40 Hz is reached at exactly 8 s.
@@ -651,9 +659,7 @@ mod tests {
 
     #[test]
     fn reversing_ramps_through_zero() {
-        let mut m = started(25.0);
-        m.advance_to(at(5000));
-        m.set_rotation(Rotation::Reverse);
+        let mut m = reversed_at(25.0, 5000);
         m.advance_to(at(7500));
         assert_eq!(m.output_hz(), 12.5);
         assert_eq!(m.output_rotation(), Rotation::Forward);
@@ -682,16 +688,12 @@ mod tests {
 
     #[test]
     fn reversal_in_one_long_step_continues_past_zero() {
-        let mut m = started(20.0);
-        m.advance_to(at(4000));
-        m.set_rotation(Rotation::Reverse);
+        let mut m = reversed_at(20.0, 4000);
         // 4 s down to zero, then 4 s up to 20 Hz the other way: all in one step.
         m.advance_to(at(12_000));
         assert_eq!((m.output_mhz(), m.output_rotation()), (20_000, Rotation::Reverse));
         // Half way: sliced or not, the same.
-        let mut n = started(20.0);
-        n.advance_to(at(4000));
-        n.set_rotation(Rotation::Reverse);
+        let mut n = reversed_at(20.0, 4000);
         n.advance_to(at(10_000));
         assert_eq!((n.output_mhz(), n.output_rotation()), (10_000, Rotation::Reverse));
     }

@@ -9,23 +9,13 @@ use serde_json::Value;
 mod sim;
 use sim::{output, Proc};
 
-/// The simulator, killed on drop.
-struct Sim {
-    _proc: Proc,
-    port: String,
-}
-
-impl Sim {
-    fn start(drives: &[&str]) -> Sim {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
-        cmd.arg("simulate");
-        for d in drives {
-            cmd.args(["--drive", d]);
-        }
-        cmd.args(["--tcp", "127.0.0.1:0"]);
-        let proc = Proc::start(cmd, "listening on ");
-        Sim { port: proc.tcp_port(), _proc: proc }
-    }
+/// `drivebus simulate` of `drives` on TCP (killed on drop), and its address as `--port` takes it.
+fn start(drives: &[&str]) -> (Proc, String) {
+    let args: Vec<&str> =
+        drives.iter().flat_map(|d| ["--drive", d]).chain(["--tcp", "127.0.0.1:0"]).collect();
+    let proc = sim::simulate_with(&args);
+    let port = proc.tcp_port();
+    (proc, port)
 }
 
 fn drivebus(port: &str, args: &[&str]) -> (i32, String, String) {
@@ -39,14 +29,14 @@ fn drivebus(port: &str, args: &[&str]) -> (i32, String, String) {
 
 #[test]
 fn plain_lines_per_drive_per_refresh() {
-    let sim = Sim::start(&["generic@1:modbus-rtu", "generic@2:modbus-rtu"]);
-    let (code, out, err) = drivebus(&sim.port, &["--address", "1", "speed", "30"]);
+    let (_sim, port) = start(&["generic@1:modbus-rtu", "generic@2:modbus-rtu"]);
+    let (code, out, err) = drivebus(&port, &["--address", "1", "speed", "30"]);
     assert_eq!(code, 0, "{out}{err}");
-    let (code, out, err) = drivebus(&sim.port, &["--address", "1", "run"]);
+    let (code, out, err) = drivebus(&port, &["--address", "1", "run"]);
     assert_eq!(code, 0, "{out}{err}");
     // Drive 9 is not there: it goes offline after 3 failed refreshes (no retries).
     let (code, out, err) = drivebus(
-        &sim.port,
+        &port,
         &[
             "monitor",
             "--address",
@@ -82,9 +72,9 @@ fn plain_lines_per_drive_per_refresh() {
 
 #[test]
 fn plain_json_and_errors() {
-    let sim = Sim::start(&["generic@4:modbus-rtu"]);
+    let (_sim, port) = start(&["generic@4:modbus-rtu"]);
     let (code, out, err) =
-        drivebus(&sim.port, &["monitor", "--address", "4", "--count", "2", "--interval", "20", "--json"]);
+        drivebus(&port, &["monitor", "--address", "4", "--count", "2", "--interval", "20", "--json"]);
     assert_eq!(code, 0, "{out}{err}");
     let rows: Vec<Value> = out.lines().map(|l| serde_json::from_str(l).expect("JSON line")).collect();
     assert_eq!(rows.len(), 2);
@@ -94,22 +84,20 @@ fn plain_json_and_errors() {
     assert!(rows[1]["t"].as_f64().unwrap() >= rows[0]["t"].as_f64().unwrap());
 
     // Nobody answers: exit 2, one line naming the port.
-    let (code, out, err) = drivebus(
-        &sim.port,
-        &["monitor", "--address", "5", "--count", "1", "--timeout", "50", "--retries", "0"],
-    );
+    let (code, out, err) =
+        drivebus(&port, &["monitor", "--address", "5", "--count", "1", "--timeout", "50", "--retries", "0"]);
     assert_eq!(code, 2, "{out}{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
-    assert!(err.contains("no answer from any drive") && err.contains(&sim.port), "{err}");
+    assert!(err.contains("no answer from any drive") && err.contains(&port), "{err}");
 
     // Bad usage: exit 3.
-    let (code, _, err) = drivebus(&sim.port, &["monitor", "--count", "1"]);
+    let (code, _, err) = drivebus(&port, &["monitor", "--count", "1"]);
     assert_eq!(code, 3, "{err}");
     assert!(err.contains("--address"), "{err}");
-    let (code, _, err) = drivebus(&sim.port, &["monitor", "--address", "4", "--interval", "0"]);
+    let (code, _, err) = drivebus(&port, &["monitor", "--address", "4", "--interval", "0"]);
     assert_eq!(code, 3, "{err}");
     // Other commands still want exactly one drive.
-    let (code, _, err) = drivebus(&sim.port, &["--address", "4", "--address", "5", "status"]);
+    let (code, _, err) = drivebus(&port, &["--address", "4", "--address", "5", "status"]);
     assert_eq!(code, 3, "{err}");
     assert!(err.contains("give one --address"), "{err}");
 }

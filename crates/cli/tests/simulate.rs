@@ -23,10 +23,9 @@ struct Sim {
 
 impl Sim {
     fn start(args: &[&str]) -> Sim {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
-        cmd.arg("simulate").args(args).args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]);
-        let proc = Proc::start(cmd, "listening on tcp ");
-        Sim { bus: proc.ready.clone(), proc }
+        let proc =
+            sim::simulate_with(&[args, &["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"]].concat());
+        Sim { bus: proc.ready.trim_start_matches("tcp ").to_string(), proc }
     }
 
     /// `method path` with a JSON body to the control interface: the status and the JSON answer

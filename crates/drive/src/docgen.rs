@@ -4,6 +4,19 @@
 
 use std::path::Path;
 
+use crate::{format_fixed, ParamDef};
+
+/// `text` for a cell of a Markdown table: its `|` escaped.
+pub fn cell(text: &str) -> String {
+    text.replace('|', "\\|")
+}
+
+/// The range of `p` in its unit, as the generated tables show it (`0.00..50.00 Hz`).
+pub fn range(p: &ParamDef) -> String {
+    let unit = if p.unit.is_empty() { String::new() } else { format!(" {}", p.unit) };
+    format!("{}..{}{unit}", format_fixed(p.min, p.scale), format_fixed(p.max, p.scale))
+}
+
 /// Checks that `path` holds, after the comment that starts with `marker`, exactly `rendered`;
 /// rewrites it when the environment has `DRIVEBUS_BLESS`. The error says to run `bless`.
 pub fn check_section(path: &Path, marker: &str, rendered: &str, bless: &str) -> Result<(), String> {

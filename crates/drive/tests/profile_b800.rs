@@ -16,9 +16,8 @@ use drivebus_proto::line::CharFormat;
 use drivebus_proto::Direction;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::b800::B800Drive;
-use drivebus_sim::master::LineMaster;
-use drivebus_sim::model::{DriveModel, Rotation, RunState, Trip};
-use support::wait;
+use drivebus_sim::model::{Rotation, RunState, Trip};
+use support::{model, model_mut, wait};
 
 /// The master's response timeout (project decision: 100 ms).
 const TIMEOUT: Duration = Duration::from_millis(100);
@@ -31,13 +30,8 @@ fn line_with(addresses: &[u8]) -> VirtualLine {
 /// Writes `request` and runs the line until a whole frame has come back (or the timeout); one
 /// character of silence after it. No reply to a global frame: a response time's wait.
 fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Option<Vec<u8>> {
-    let master = LineMaster {
-        gap_before: Duration::ZERO,
-        gap_after: line.char_time(),
-        timeout: TIMEOUT,
-        turnaround: TIMEOUT,
-    };
-    master.transact(line, FrameScanner::new(Some(Direction::Drive)), request, expect_reply)
+    let scanner = FrameScanner::new(Some(Direction::Drive));
+    support::transact_frame(line, scanner, request, expect_reply, (1, TIMEOUT, TIMEOUT))
 }
 
 /// Runs a plan to its end; the outcome and the frames sent, as text.
@@ -54,11 +48,8 @@ fn letters(frames: &[String]) -> String {
 
 /// Runs `op`, expecting success; the outcome and the command letters sent.
 fn run(line: &mut VirtualLine, profile: &B800Profile, op: Operation) -> (Outcome, String) {
-    let plan = profile.plan(&op).unwrap_or_else(|e| panic!("{op:?}: {e}"));
-    match execute(line, plan) {
-        (Ok(outcome), sent) => (outcome, letters(&sent)),
-        (Err(e), _) => panic!("{op:?}: {e}"),
-    }
+    let (outcome, sent) = support::run_ok(profile, op, |plan| execute(line, plan));
+    (outcome, letters(&sent))
 }
 
 /// Runs `op`, expecting an error; the error and the command letters sent.
@@ -71,18 +62,7 @@ fn fail(line: &mut VirtualLine, profile: &B800Profile, op: Operation) -> (DriveE
 }
 
 fn status(line: &mut VirtualLine, profile: &B800Profile) -> DriveStatus {
-    match run(line, profile, Operation::Status).0 {
-        Outcome::Status(s) => s,
-        other => panic!("a status, not {other:?}"),
-    }
-}
-
-fn model(line: &mut VirtualLine, port: usize) -> &DriveModel {
-    &line.drive(port).expect("a drive").core().model
-}
-
-fn model_mut(line: &mut VirtualLine, port: usize) -> &mut DriveModel {
-    &mut line.drive_mut(port).expect("a drive").core_mut().model
+    support::status_of("Status", Ok(run(line, profile, Operation::Status).0))
 }
 
 fn set_f12(line: &mut VirtualLine, port: usize, value: i64) {

@@ -12,9 +12,8 @@ use drivebus_proto::fc::{AddressFormat, ControlWord, FcScanner};
 use drivebus_proto::line::CharFormat;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::danfoss::DanfossDrive;
-use drivebus_sim::master::LineMaster;
 use drivebus_sim::model::{Rotation, RunState, Trip};
-use support::{refusal, wait, write};
+use support::{model, refusal, wait, write};
 
 /// How long the helper waits for a reply: the FC response timeout, 50 ms.
 const TIMEOUT: Duration = Duration::from_millis(50);
@@ -29,13 +28,7 @@ fn line_with(addresses: &[u8]) -> VirtualLine {
 /// Writes `request` and runs the line until a whole telegram has come back (or the timeout);
 /// two characters of silence after it (protocols.md 2.9).
 fn transact(line: &mut VirtualLine, request: &[u8], expect_reply: bool) -> Option<Vec<u8>> {
-    let master = LineMaster {
-        gap_before: Duration::ZERO,
-        gap_after: line.char_time() * 2,
-        timeout: TIMEOUT,
-        turnaround: TURNAROUND,
-    };
-    master.transact(line, FcScanner, request, expect_reply)
+    support::transact_frame(line, FcScanner, request, expect_reply, (2, TIMEOUT, TURNAROUND))
 }
 
 /// Runs a plan to its end; the outcome and the number of telegrams sent.
@@ -46,29 +39,15 @@ fn execute(line: &mut VirtualLine, plan: Box<dyn Plan>) -> (Result<Outcome, Driv
 
 /// Runs `op` and expects it to succeed; returns the outcome and the telegram count.
 fn run(line: &mut VirtualLine, profile: &DanfossProfile, op: Operation) -> (Outcome, usize) {
-    let plan = profile.plan(&op).unwrap_or_else(|e| panic!("{op:?}: {e}"));
-    match execute(line, plan) {
-        (Ok(outcome), n) => (outcome, n),
-        (Err(e), _) => panic!("{op:?}: {e}"),
-    }
+    support::run_ok(profile, op, |plan| execute(line, plan))
 }
 
 fn status(line: &mut VirtualLine, profile: &DanfossProfile) -> DriveStatus {
-    match run(line, profile, Operation::Status).0 {
-        Outcome::Status(s) => s,
-        other => panic!("a status, not {other:?}"),
-    }
+    support::status_of("Status", Ok(run(line, profile, Operation::Status).0))
 }
 
 fn read(line: &mut VirtualLine, profile: &DanfossProfile, name: &str) -> i64 {
-    match run(line, profile, Operation::ReadParam(name.to_string())).0 {
-        Outcome::Param(v) => v,
-        other => panic!("a value, not {other:?}"),
-    }
-}
-
-fn model(line: &mut VirtualLine, port: usize) -> &drivebus_sim::model::DriveModel {
-    &line.drive(port).expect("a drive").core().model
+    support::param_of(name, Ok(run(line, profile, Operation::ReadParam(name.to_string())).0))
 }
 
 #[test]

@@ -46,24 +46,15 @@ fn rtu(line: &mut VirtualLine, p: &GenericProfile, op: Operation) -> Result<Outc
 
 fn ok(line: &mut VirtualLine, p: &GenericProfile, op: Operation) {
     let what = format!("{op:?}");
-    match rtu(line, p, op) {
-        Ok(Outcome::Done) => {}
-        other => panic!("{what}: {other:?}"),
-    }
+    support::done(&what, rtu(line, p, op));
 }
 
 fn status(line: &mut VirtualLine, p: &GenericProfile) -> DriveStatus {
-    match rtu(line, p, Operation::Status) {
-        Ok(Outcome::Status(s)) => s,
-        other => panic!("Status: {other:?}"),
-    }
+    support::status_of("Status", rtu(line, p, Operation::Status))
 }
 
 fn read(line: &mut VirtualLine, p: &GenericProfile, name: &str) -> i64 {
-    match rtu(line, p, Operation::ReadParam(name.into())) {
-        Ok(Outcome::Param(raw)) => raw,
-        other => panic!("ReadParam {name}: {other:?}"),
-    }
+    support::param_of(&format!("ReadParam {name}"), rtu(line, p, Operation::ReadParam(name.into())))
 }
 
 fn write(name: &str, raw: i64) -> Operation {

@@ -61,24 +61,17 @@ impl Bus {
 
     fn ok(&mut self, p: &ToshibaProfile, op: Operation) {
         let what = format!("{op:?} in {}", self.protocol);
-        match self.run(p, op) {
-            Ok(Outcome::Done) => {}
-            other => panic!("{what}: {other:?}"),
-        }
+        support::done(&what, self.run(p, op));
     }
 
     fn status(&mut self, p: &ToshibaProfile) -> DriveStatus {
-        match self.run(p, Operation::Status) {
-            Ok(Outcome::Status(s)) => s,
-            other => panic!("Status in {}: {other:?}", self.protocol),
-        }
+        let what = format!("Status in {}", self.protocol);
+        support::status_of(&what, self.run(p, Operation::Status))
     }
 
     fn read(&mut self, p: &ToshibaProfile, name: &str) -> i64 {
-        match self.run(p, Operation::ReadParam(name.into())) {
-            Ok(Outcome::Param(raw)) => raw,
-            other => panic!("ReadParam {name} in {}: {other:?}", self.protocol),
-        }
+        let what = format!("ReadParam {name} in {}", self.protocol);
+        support::param_of(&what, self.run(p, Operation::ReadParam(name.into())))
     }
 
     fn wait(&mut self, d: Duration) {

@@ -4,14 +4,16 @@
 
 mod support;
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use drivebus_gateway::{Gateway, GatewayConfig};
 use drivebus_sim::config::BusSpec;
 use drivebus_sim::runtime::{Endpoint, Simulator};
 use support::wait_for;
+use tokio::task::JoinHandle;
 
-fn serve_pty(path: std::path::PathBuf) -> tokio::task::JoinHandle<()> {
+fn serve_pty(path: PathBuf) -> JoinHandle<()> {
     let bus = BusSpec::new(vec!["b800@1".parse().unwrap()], Some(9600), None).unwrap();
     let sim = Simulator::new(&bus).unwrap();
     tokio::spawn(async move {
@@ -19,13 +21,20 @@ fn serve_pty(path: std::path::PathBuf) -> tokio::task::JoinHandle<()> {
     })
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_lost_port_goes_offline_and_comes_back() {
-    let dir = std::env::temp_dir().join(format!("drivebus-port-loss-{}", std::process::id()));
+/// A B800 served on a pty in a directory of its own (`drivebus-<tag>-<pid>`), once the pty is
+/// there: the directory, the pty's path and the server.
+async fn served_pty(tag: &str) -> (PathBuf, PathBuf, JoinHandle<()>) {
+    let dir = std::env::temp_dir().join(format!("drivebus-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let pty = dir.join("ttyV0");
     let sim = serve_pty(pty.clone());
     wait_for("the pty", Duration::from_secs(10), || pty.exists()).await;
+    (dir, pty, sim)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_port_goes_offline_and_comes_back() {
+    let (dir, pty, sim) = served_pty("port-loss").await;
 
     let text = format!(
         "[store]\ndisabled = true\n\
@@ -117,11 +126,7 @@ fn rs485_config(pty: &std::path::Path, rs485: &str) -> GatewayConfig {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_bus_opens_its_port_with_its_rs485_setting() {
-    let dir = std::env::temp_dir().join(format!("drivebus-rs485-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let pty = dir.join("ttyV0");
-    let sim = serve_pty(pty.clone());
-    wait_for("the pty", Duration::from_secs(10), || pty.exists()).await;
+    let (dir, pty, sim) = served_pty("rs485").await;
 
     // A pty has no kernel RS-485 mode: asked for, the port does not open, and says why.
     let gw = Gateway::start(rs485_config(&pty, "kernel"), None).unwrap();

@@ -99,7 +99,7 @@ impl BlockingBus {
         priority: Priority,
         timeout: Option<Duration>,
     ) -> Result<Option<Vec<u8>>, BusError> {
-        self.master.job(&mut self.io, address, exchange, priority, timeout)
+        self.master.job(&mut self.io, Job { address, exchange, priority, timeout })
     }
 
     /// The bus's counts so far.
@@ -130,16 +130,17 @@ impl SyncClock {
     }
 }
 
+/// One job for the bus: the arguments of [`BlockingBus::transact`].
+struct Job<'a> {
+    address: u8,
+    exchange: &'a Exchange,
+    priority: Priority,
+    timeout: Option<Duration>,
+}
+
 /// An engine of some protocol, run with blocking I/O.
 trait Master: Send {
-    fn job(
-        &mut self,
-        io: &mut Io,
-        address: u8,
-        exchange: &Exchange,
-        priority: Priority,
-        timeout: Option<Duration>,
-    ) -> Result<Option<Vec<u8>>, BusError>;
+    fn job(&mut self, io: &mut Io, job: Job<'_>) -> Result<Option<Vec<u8>>, BusError>;
 }
 
 impl<P: Protocol> Master for Engine<P>
@@ -147,18 +148,11 @@ where
     Engine<P>: Send,
 {
     /// Carries out what the engine decides for the job.
-    fn job(
-        &mut self,
-        io: &mut Io,
-        address: u8,
-        exchange: &Exchange,
-        priority: Priority,
-        timeout: Option<Duration>,
-    ) -> Result<Option<Vec<u8>>, BusError> {
+    fn job(&mut self, io: &mut Io, job: Job<'_>) -> Result<Option<Vec<u8>>, BusError> {
         // One reading of the clock per step that can take time (the start, each wait), shared
         // by the engine calls between them.
         let mut now = io.clock.now();
-        let ex = exchange;
+        let Job { address, exchange: ex, priority, timeout } = job;
         let mut next =
             self.begin(now, io.port.name(), address, &ex.request, ex.expect_reply, priority, timeout);
         loop {

@@ -9,6 +9,7 @@ use drivebus_drive::Family;
 use drivebus_link::blocking::BlockingBus;
 use drivebus_link::drive::{BlockingDrive, Error};
 use drivebus_link::{BusConfig, BusError, Priority};
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_sim::config::BusSpec;
 use drivebus_sim::runtime::{Endpoint, Simulator};
 
@@ -50,7 +51,7 @@ fn a_generic_drive_over_a_pty_is_set_run_and_read_back() {
     let drive = BlockingDrive::open(
         &port,
         Family::Generic,
-        drivebus_proto::protocol::WireProtocol::ModbusRtu,
+        WireProtocol::ModbusRtu,
         1,
         19200,
         "8N2".parse().unwrap(),
@@ -88,8 +89,7 @@ fn a_generic_drive_over_a_pty_is_set_run_and_read_back() {
 #[test]
 fn a_missing_drive_times_out_with_retries_then_goes_offline() {
     let port = simulator(&["generic@1:modbus-rtu"], 115200, pty_path("missing"));
-    let mut config =
-        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 115200, "8N1".parse().unwrap());
+    let mut config = BusConfig::new(WireProtocol::ModbusRtu, 115200, "8N1".parse().unwrap());
     config.response_timeout = Some(Duration::from_millis(30));
     config.retries = 1;
     let mut bus = BlockingBus::open(&port, config).expect("open");
@@ -125,29 +125,16 @@ fn b800_and_danfoss_drives_over_tcp() {
     let port = simulator(&["b800@5", "danfoss@3"], 9600, Endpoint::Tcp("127.0.0.1:0".parse().unwrap()));
     // Two protocols on one line is not a real bus; each drive ignores the other's frames, and
     // each BlockingDrive opens its own connection in turn.
-    let b800 = BlockingDrive::open(
-        &port,
-        Family::B800,
-        drivebus_proto::protocol::WireProtocol::B800,
-        5,
-        9600,
-        "8N1".parse().unwrap(),
-    )
-    .expect("connect");
+    let b800 = BlockingDrive::open(&port, Family::B800, WireProtocol::B800, 5, 9600, "8N1".parse().unwrap())
+        .expect("connect");
     b800.set_speed(30.0).expect("speed");
     b800.run().expect("run");
     let s = b800.status().expect("status");
     assert!(s.running, "{s:?}");
     drop(b800);
-    let fc = BlockingDrive::open(
-        &port,
-        Family::Danfoss,
-        drivebus_proto::protocol::WireProtocol::DanfossFc,
-        3,
-        9600,
-        "8E1".parse().unwrap(),
-    )
-    .expect("connect");
+    let fc =
+        BlockingDrive::open(&port, Family::Danfoss, WireProtocol::DanfossFc, 3, 9600, "8E1".parse().unwrap())
+            .expect("connect");
     let s = fc.status().expect("status");
     assert!(!s.running, "{s:?}");
 }
@@ -156,7 +143,7 @@ fn b800_and_danfoss_drives_over_tcp() {
 fn a_missing_port_is_a_clear_error() {
     match BlockingBus::open(
         "/dev/drivebus-no-such-port",
-        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, "8E1".parse().unwrap()),
+        BusConfig::new(WireProtocol::ModbusRtu, 9600, "8E1".parse().unwrap()),
     ) {
         Err(BusError::Link(e)) => assert!(e.contains("/dev/drivebus-no-such-port"), "{e}"),
         Err(e) => panic!("a link error naming the port: {e}"),
@@ -167,7 +154,7 @@ fn a_missing_port_is_a_clear_error() {
     drop(listener);
     match BlockingBus::open(
         &format!("tcp://{addr}"),
-        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, "8E1".parse().unwrap()),
+        BusConfig::new(WireProtocol::ModbusRtu, 9600, "8E1".parse().unwrap()),
     ) {
         Err(BusError::Link(e)) => assert!(e.contains(&addr.to_string()), "{e}"),
         Err(e) => panic!("a link error naming the address: {e}"),
@@ -183,8 +170,7 @@ fn rs485_auto_falls_back_to_rts_on_a_pty_and_kernel_mode_is_refused() {
     use drivebus_link::link::Direction;
     use drivebus_link::Rs485;
     let port = simulator(&["generic@1:modbus-rtu"], 9600, pty_path("rs485"));
-    let mut config =
-        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, "8N2".parse().unwrap());
+    let mut config = BusConfig::new(WireProtocol::ModbusRtu, 9600, "8N2".parse().unwrap());
     config.rs485 = Rs485::Kernel;
     match BlockingBus::open(&port, config.clone()) {
         Err(BusError::Link(e)) => assert!(e.contains("no kernel RS-485 mode"), "{e}"),
@@ -204,8 +190,7 @@ fn a_line_that_hangs_up_is_a_link_error_at_once_not_a_timeout() {
     use std::os::fd::AsFd;
     let pair = nix::pty::openpty(None, None).expect("a pty");
     let path = nix::unistd::ttyname(pair.slave.as_fd()).expect("its name");
-    let mut config =
-        BusConfig::new(drivebus_proto::protocol::WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
+    let mut config = BusConfig::new(WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
     config.response_timeout = Some(Duration::from_secs(5));
     config.retries = 0;
     let mut bus = BlockingBus::open(&path.to_string_lossy(), config).expect("open the pty");

@@ -535,6 +535,15 @@ mod tests {
         )
     }
 
+    /// A line at `baud` 8E1 from time 0 with an echo answering after `delay_ms` on port 1; what
+    /// the echo heard and how many silences it saw.
+    fn echo_line(baud: u32, delay_ms: u64) -> (VirtualLine, Heard, Arc<Mutex<u32>>) {
+        let mut line = VirtualLine::new(baud, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (dev, heard, silences) = echo(delay_ms);
+        line.add_device(Box::new(dev));
+        (line, heard, silences)
+    }
+
     fn run_until_idle(line: &mut VirtualLine) {
         while let Some(t) = line.next_deadline() {
             line.advance_to(t);
@@ -543,10 +552,8 @@ mod tests {
 
     #[test]
     fn without_pacing_bytes_arrive_at_once() {
-        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        let (mut line, heard, _) = echo_line(9600, 0);
         line.set_pacing(false);
-        let (dev, heard, _) = echo(0);
-        line.add_device(Box::new(dev));
         let t = Instant::from_millis(3);
         line.master_write(t, &[1, 2, 3]);
         line.advance_to(t);
@@ -562,9 +569,7 @@ mod tests {
 
     #[test]
     fn bytes_take_their_wire_time() {
-        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
-        let (dev, heard, _) = echo(5);
-        line.add_device(Box::new(dev));
+        let (mut line, heard, _) = echo_line(9600, 5);
         line.master_write(Instant::ZERO, &[1, 2, 3]);
         // 11 bits at 9600: the first byte is whole after 1.146 ms, the third after 3.438 ms.
         line.advance_to(Instant::from_nanos(1_145_833));
@@ -578,9 +583,7 @@ mod tests {
 
     #[test]
     fn device_answers_after_silence_and_delay_and_master_reads_it() {
-        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
-        let (dev, _, silences) = echo(5);
-        line.add_device(Box::new(dev));
+        let (mut line, _, silences) = echo_line(9600, 5);
         line.master_write(Instant::ZERO, &[0xAB, 0xCD]);
         run_until_idle(&mut line);
         assert_eq!(*silences.lock().unwrap(), 2, "after the request and after the reply");
@@ -597,9 +600,7 @@ mod tests {
 
     #[test]
     fn the_tap_hears_both_directions_when_they_arrive() {
-        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
-        let (dev, _, _) = echo(5);
-        line.add_device(Box::new(dev));
+        let (mut line, _, _) = echo_line(9600, 5);
         line.attach_tap();
         line.master_write(Instant::ZERO, &[0xAB, 0xCD]);
         let mut tap = Vec::new();
@@ -632,9 +633,7 @@ mod tests {
 
     #[test]
     fn two_talkers_at_once_garble() {
-        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
-        let (dev, _, _) = echo(0);
-        line.add_device(Box::new(dev));
+        let (mut line, _, _) = echo_line(9600, 0);
         line.master_write(Instant::ZERO, &[1, 2, 3, 4]);
         // The device hears t3.5 of silence at 4.583 + 4.010 ms and starts its echo at once;
         // at 9 ms the master talks over it.
@@ -649,10 +648,8 @@ mod tests {
 
     #[test]
     fn silent_device_never_answers_and_noise_is_counted() {
-        let mut line = VirtualLine::new(115200, CharFormat::EVEN_8E1, Instant::ZERO);
-        let (dev, heard, _) = echo(1);
-        let port = line.add_device(Box::new(dev));
-        line.set_silent(port, true);
+        let (mut line, heard, _) = echo_line(115200, 1);
+        line.set_silent(1, true);
         line.set_faults(Faults { corrupt_rate: 1.0, ..Default::default() });
         line.master_write(Instant::ZERO, &[0u8; 10]);
         run_until_idle(&mut line);

@@ -126,11 +126,43 @@ pub trait Device {
     }
 }
 
+/// Fills in [`Device::as_drive`] and [`Device::as_drive_mut`] inside the `impl Device` of a
+/// type that is a [`VirtualDrive`]: the device is its own drive.
+macro_rules! device_is_a_drive {
+    () => {
+        fn as_drive(&self) -> Option<&dyn $crate::drive::VirtualDrive> {
+            Some(self)
+        }
+
+        fn as_drive_mut(&mut self) -> Option<&mut dyn $crate::drive::VirtualDrive> {
+            Some(self)
+        }
+    };
+}
+pub(crate) use device_is_a_drive;
+
+/// Fills in [`VirtualDrive::core`] and [`VirtualDrive::core_mut`] inside the `impl VirtualDrive`
+/// of a type whose [`DriveCore`] is the field at `path` (`core`, `state.core`).
+macro_rules! drive_core_at {
+    ($($path:ident).+) => {
+        fn core(&self) -> &$crate::drive::DriveCore {
+            &self.$($path).+
+        }
+
+        fn core_mut(&mut self) -> &mut $crate::drive::DriveCore {
+            &mut self.$($path).+
+        }
+    };
+}
+pub(crate) use drive_core_at;
+
 /// A virtual drive: a [`Device`] with a model and parameters that a control interface can
 /// inspect and disturb.
 pub trait VirtualDrive: Device + Send {
-    /// The family.
-    fn family(&self) -> Family;
+    /// The family: that of its parameter catalog.
+    fn family(&self) -> Family {
+        self.core().params.catalog().family()
+    }
     /// The wire protocol it answers, as a user would name it.
     fn protocol(&self) -> String;
     /// The shared state.

@@ -191,20 +191,10 @@ impl Device for BusMaster {
         self.drive.advance_to(now);
     }
 
-    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
-        Some(self)
-    }
-
-    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
-        Some(self)
-    }
+    crate::drive::device_is_a_drive!();
 }
 
 impl VirtualDrive for BusMaster {
-    fn family(&self) -> Family {
-        self.drive.family()
-    }
-
     fn protocol(&self) -> String {
         self.drive.protocol()
     }

@@ -388,20 +388,20 @@ impl DriveModel {
 
     /// Starts the motor (or keeps it running) toward the setpoint.
     pub fn run(&mut self) -> Result<(), RunRefusal> {
-        if let Some(r) = self.run_refusal() {
-            return Err(r);
-        }
-        self.jog = false;
-        self.state = RunState::Running;
-        Ok(())
+        self.start(false)
     }
 
     /// Starts jogging at the jog frequency.
     pub fn jog(&mut self) -> Result<(), RunRefusal> {
+        self.start(true)
+    }
+
+    /// Runs toward the setpoint, or jogs, unless the drive refuses to start.
+    fn start(&mut self, jog: bool) -> Result<(), RunRefusal> {
         if let Some(r) = self.run_refusal() {
             return Err(r);
         }
-        self.jog = true;
+        self.jog = jog;
         self.state = RunState::Running;
         Ok(())
     }
@@ -607,12 +607,26 @@ mod tests {
         Instant::from_millis(ms)
     }
 
+    /// A drive with the default settings, started at time 0 towards `hz`.
+    fn started(hz: f64) -> DriveModel {
+        let mut m = DriveModel::new(ModelSettings::default(), at(0));
+        m.set_setpoint_hz(hz);
+        m.run().unwrap();
+        m
+    }
+
+    /// [`started`] towards `hz`, told to reverse at `ms`.
+    fn reversed_at(hz: f64, ms: u64) -> DriveModel {
+        let mut m = started(hz);
+        m.advance_to(at(ms));
+        m.set_rotation(Rotation::Reverse);
+        m
+    }
+
     #[test]
     fn ramp_reaches_40_hz_at_8_s_and_not_before() {
         // 10 s acceleration to 50 Hz: 5 Hz/s, so 40 Hz is reached at exactly 8 s.
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(40.0);
-        m.run().unwrap();
+        let mut m = started(40.0);
         // Slice the time unevenly: the result must not depend on the slicing.
         let mut t = 0u64;
         let mut step = 1u64;
@@ -631,9 +645,7 @@ mod tests {
 
     #[test]
     fn decelerates_to_stop_then_reports_stopped() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(50.0);
-        m.run().unwrap();
+        let mut m = started(50.0);
         m.advance_to(at(10_000));
         assert_eq!(m.output_hz(), 50.0);
         m.stop();
@@ -647,11 +659,7 @@ mod tests {
 
     #[test]
     fn reversing_ramps_through_zero() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(25.0);
-        m.run().unwrap();
-        m.advance_to(at(5000));
-        m.set_rotation(Rotation::Reverse);
+        let mut m = reversed_at(25.0, 5000);
         m.advance_to(at(7500));
         assert_eq!(m.output_hz(), 12.5);
         assert_eq!(m.output_rotation(), Rotation::Forward);
@@ -663,9 +671,7 @@ mod tests {
 
     #[test]
     fn trips_refuse_run_until_reset_and_are_logged() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(30.0);
-        m.run().unwrap();
+        let mut m = started(30.0);
         m.advance_to(at(3000));
         m.set_load(4.0);
         m.advance_to(at(3001));
@@ -682,20 +688,12 @@ mod tests {
 
     #[test]
     fn reversal_in_one_long_step_continues_past_zero() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(20.0);
-        m.run().unwrap();
-        m.advance_to(at(4000));
-        m.set_rotation(Rotation::Reverse);
+        let mut m = reversed_at(20.0, 4000);
         // 4 s down to zero, then 4 s up to 20 Hz the other way: all in one step.
         m.advance_to(at(12_000));
         assert_eq!((m.output_mhz(), m.output_rotation()), (20_000, Rotation::Reverse));
         // Half way: sliced or not, the same.
-        let mut n = DriveModel::new(ModelSettings::default(), at(0));
-        n.set_setpoint_hz(20.0);
-        n.run().unwrap();
-        n.advance_to(at(4000));
-        n.set_rotation(Rotation::Reverse);
+        let mut n = reversed_at(20.0, 4000);
         n.advance_to(at(10_000));
         assert_eq!((n.output_mhz(), n.output_rotation()), (10_000, Rotation::Reverse));
     }
@@ -723,9 +721,7 @@ mod tests {
 
     #[test]
     fn undervoltage_and_overtemperature() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(50.0);
-        m.run().unwrap();
+        let mut m = started(50.0);
         m.set_supply(0.5);
         m.advance_to(at(10));
         assert_eq!(m.trip(), Some(Trip::UnderVoltage));
@@ -751,9 +747,7 @@ mod tests {
 
     #[test]
     fn rpm_follows_frequency_with_slip() {
-        let mut m = DriveModel::new(ModelSettings::default(), at(0));
-        m.set_setpoint_hz(50.0);
-        m.run().unwrap();
+        let mut m = started(50.0);
         m.advance_to(at(10_000));
         let rpm = m.motor_rpm();
         assert!(rpm > 1440.0 && rpm < 1500.0, "{rpm}");

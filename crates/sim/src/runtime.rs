@@ -329,6 +329,18 @@ fn parse_trip(s: &str) -> Option<Trip> {
     })
 }
 
+/// `value` of the field `name` when it lies in 0..=`max`; else a 422 that says so, with what the
+/// field means.
+fn within(name: &str, value: f64, max: f64, meaning: &str) -> Result<f64, (StatusCode, Json<Value>)> {
+    if (0.0..=max).contains(&value) {
+        return Ok(value);
+    }
+    Err(api_error(
+        StatusCode::UNPROCESSABLE_ENTITY,
+        format!("{name} {value} is outside 0..{max} ({meaning})"),
+    ))
+}
+
 async fn patch_drive(
     State(sim): State<Arc<Simulator>>,
     UrlPath(n): UrlPath<usize>,
@@ -359,21 +371,11 @@ async fn patch_drive(
         d.power_cycle(now);
     }
     if let Some(load) = p.load {
-        if !(0.0..=5.0).contains(&load) {
-            return Err(api_error(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("load {load} is outside 0..5 (fraction of rated torque)"),
-            ));
-        }
+        let load = within("load", load, 5.0, "fraction of rated torque")?;
         d.core_mut().model.set_load(load);
     }
     if let Some(supply) = p.supply {
-        if !(0.0..=2.0).contains(&supply) {
-            return Err(api_error(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                format!("supply {supply} is outside 0..2 (fraction of nominal)"),
-            ));
-        }
+        let supply = within("supply", supply, 2.0, "fraction of nominal")?;
         d.core_mut().model.set_supply(supply);
     }
     if let Some(on) = p.hardware_enable {

@@ -2,6 +2,8 @@
 //! examples (`seeds/000_04b515f0e0c1734e.txt`) byte for byte, every error code with its reply
 //! bytes, global commands, reversing, ramps and parameters.
 
+mod support;
+
 use std::time::Duration;
 
 use drivebus_drive::{Storage, WriteError};
@@ -544,24 +546,7 @@ fn ask(line: &mut VirtualLine, master: &mut MasterSession<B800>, req: Request) -
 
 /// Runs the master session and the line until the session has an outcome.
 fn drive_session(line: &mut VirtualLine, master: &mut MasterSession<B800>) -> MasterEvent<b800::Reply> {
-    for _ in 0..10_000 {
-        let now = line.now();
-        if let Some(bytes) = master.poll_transmit(now) {
-            let bytes = bytes.to_vec();
-            line.master_write(now, &bytes);
-        }
-        let mut input = Vec::new();
-        line.master_read(&mut input);
-        master.handle_input(now, &input);
-        master.handle_timeout(now);
-        if let Some(event) = master.poll_event() {
-            return event;
-        }
-        let next = [line.next_deadline(), master.poll_timeout()].into_iter().flatten().min();
-        let next = next.expect("something pending").max(now + Duration::from_micros(1));
-        line.advance_to(next);
-    }
-    panic!("the master session never finished");
+    support::master_outcome(line, master, |event| event)
 }
 
 // ------------------------------------------------------------------------------------------

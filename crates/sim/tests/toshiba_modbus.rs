@@ -179,24 +179,12 @@ fn master_session_over_the_line() {
     let mut line = line_with(&[9]);
     let mut master = MasterSession::new(ModbusRtu, rtu::timing(19200, CharFormat::EVEN_8E1));
     let req = Request::read_holding_registers(UnitId(9), 0xFE70, 1);
-    let mut now = line.now();
-    master.send(now, &req).unwrap();
-    let bytes = master.poll_transmit(now).unwrap().to_vec();
-    line.master_write(now, &bytes);
-    let value = loop {
-        let next = [line.next_deadline(), master.poll_timeout()].into_iter().flatten().min().unwrap();
-        now = next.max(now);
-        line.advance_to(now);
-        let mut got = Vec::new();
-        line.master_read(&mut got);
-        master.handle_input(now, &got);
-        master.handle_timeout(now);
-        if let Some(e) = master.poll_event() {
-            let MasterEvent::Reply(r) = e else { panic!("{e:?}") };
-            let ReplyPdu::ReadHoldingRegisters { values } = r.pdu else { panic!("{r:?}") };
-            break values.get(0);
-        }
-    };
+    master.send(line.now(), &req).unwrap();
+    let value = support::master_outcome(&mut line, &mut master, |e| {
+        let MasterEvent::Reply(r) = e else { panic!("{e:?}") };
+        let ReplyPdu::ReadHoldingRegisters { values } = r.pdu else { panic!("{r:?}") };
+        values.get(0)
+    });
     assert_eq!(value, Some(175), "FE70 rated current 17.5 A");
 }
 

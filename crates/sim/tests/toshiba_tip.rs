@@ -477,22 +477,8 @@ fn master_session_reads_through_the_line() {
     let mut line = line_with(&[4]);
     let mut master = MasterSession::new(Tip::default(), default_timing());
     let req = TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(4), CommNo::RATED_CURRENT));
-    let mut now = line.now();
-    master.send(now, &req).unwrap();
-    let bytes = master.poll_transmit(now).unwrap().to_vec();
-    line.master_write(now, &bytes);
-    let event = loop {
-        let next = [line.next_deadline(), master.poll_timeout()].into_iter().flatten().min().unwrap();
-        now = next.max(now);
-        line.advance_to(now);
-        let mut got = Vec::new();
-        line.master_read(&mut got);
-        master.handle_input(now, &got);
-        master.handle_timeout(now);
-        if let Some(e) = master.poll_event() {
-            break e;
-        }
-    };
+    master.send(line.now(), &req).unwrap();
+    let event = support::master_outcome(&mut line, &mut master, |e| e);
     let MasterEvent::Reply(reply) = event else { panic!("{event:?}") };
     assert_eq!(reply.data(), Some(175));
     assert_eq!(reply.error(), None);

@@ -81,6 +81,22 @@ pub struct FrameReport {
     pub error: Option<String>,
 }
 
+impl FrameReport {
+    /// The report of the bytes at `offset` that are no valid frame, and why.
+    pub fn invalid(offset: u64, bytes: &[u8], direction: Option<Direction>, error: String) -> Self {
+        FrameReport {
+            offset,
+            bytes: bytes.to_vec(),
+            direction,
+            target: None,
+            command: None,
+            refusal: false,
+            fields: Vec::new(),
+            error: Some(error),
+        }
+    }
+}
+
 /// Decodes `bytes` as a stream of frames of codec `C`.
 ///
 /// Without `from`, a frame that reads as a request or as a reply alike (a Modbus 03 answer, an
@@ -106,16 +122,7 @@ pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Ite
             awaiting = None;
         }
         let report = match error {
-            Some(error) => FrameReport {
-                offset: position,
-                bytes: frame.to_vec(),
-                direction: from,
-                target: None,
-                command: None,
-                refusal: false,
-                fields: Vec::new(),
-                error: Some(error),
-            },
+            Some(error) => FrameReport::invalid(position, frame, from, error),
             None => match reply_to::<C>(awaiting.take(), frame, from)
                 .map_or_else(|| C::parse(frame, from), Ok::<_, drivebus_proto::FrameError>)
             {
@@ -125,16 +132,7 @@ pub fn decode_stream<C: Codec>(input: &[u8], from: Option<Direction>) -> Vec<Ite
                     }
                     describe(position, frame, &parsed)
                 }
-                Err(error) => FrameReport {
-                    offset: position,
-                    bytes: frame.to_vec(),
-                    direction: from,
-                    target: None,
-                    command: None,
-                    refusal: false,
-                    fields: Vec::new(),
-                    error: Some(error.to_string()),
-                },
+                Err(error) => FrameReport::invalid(position, frame, from, error.to_string()),
             },
         };
         items.push(Item::Frame(report));

@@ -744,16 +744,7 @@ impl Analyzer {
                 }
                 let direction =
                     side.direction().unwrap_or(if reply_due { Direction::Drive } else { Direction::Master });
-                let mut frame = FrameReport {
-                    offset: 0,
-                    bytes: cut.bytes,
-                    direction: Some(direction),
-                    target: None,
-                    command: None,
-                    refusal: false,
-                    fields: Vec::new(),
-                    error: Some(error),
-                };
+                let mut frame = FrameReport::invalid(0, &cut.bytes, Some(direction), error);
                 // A damaged reply answers the waiting request: an error for that drive.
                 if direction == Direction::Drive {
                     if let Some(p) = self.pending.remove(protocol) {

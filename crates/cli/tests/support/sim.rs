@@ -57,8 +57,13 @@ impl Proc {
 
 /// `drivebus simulate --drive <drive> <endpoint...>`, ready once it listens.
 pub fn simulate(drive: &str, endpoint: &[&str]) -> Proc {
+    simulate_with(&[&["--drive", drive], endpoint].concat())
+}
+
+/// `drivebus simulate <args...>`, ready once it listens.
+pub fn simulate_with(args: &[&str]) -> Proc {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
-    cmd.args(["simulate", "--drive", drive]).args(endpoint);
+    cmd.arg("simulate").args(args);
     Proc::start(cmd, "listening on ")
 }
 

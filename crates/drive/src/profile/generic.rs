@@ -267,31 +267,19 @@ impl Profile for GenericProfile {
                 self.needs_reply("Reverse (it reads which way the drive turns)")?;
                 Job::Reverse
             }
-            Operation::SetSpeed(hz) => {
-                let def = self.def("2001H")?;
-                let raw = self.limits.check(*hz, def)?;
-                Job::Write {
-                    register: reg::FREQUENCY,
-                    value: raw,
-                    what: format!("2001H = {} Hz", format_fixed(i64::from(raw), 2)),
-                    learn: None,
-                }
-            }
-            Operation::ReadParam(name) => {
-                let def = self.def(name)?;
-                self.needs_reply(&format!("ReadParam {}", def.name))?;
-                let register = register_of(def)?;
-                Job::Read { register, signed: def.min < 0, name: def.name.clone() }
-            }
-            Operation::WriteParam { name, raw, storage } => {
-                let def = self.def(name)?;
-                let register = register_of(def)?;
-                let value = checked_write(def, *raw, *storage, &storage_rule)?;
-                Job::Write {
-                    register,
-                    value,
-                    what: format!("{} = {}", def.name, def.format(*raw)),
-                    learn: Some((def.number, *raw)),
+            Operation::SetSpeed(_) | Operation::ReadParam(_) | Operation::WriteParam { .. } => {
+                let rules = RegisterRules {
+                    setpoint: ("2001H", reg::FREQUENCY),
+                    def: &|name| self.def(name),
+                    needs_reply: &|what| self.needs_reply(what),
+                    limits: &self.limits,
+                    storage_check: &storage_rule,
+                };
+                match rules.job(op)? {
+                    RegisterJob::Write { register, value, what, learn, .. } => {
+                        Job::Write { register, value, what, learn }
+                    }
+                    RegisterJob::Read { register, signed, name } => Job::Read { register, signed, name },
                 }
             }
         };
@@ -353,6 +341,64 @@ pub(crate) fn checked_write(
         u16::try_from(raw).map_err(|_| {
             DriveError::OutOfRange(format!("{} = {raw} does not fit a 16-bit register", def.name))
         })
+    }
+}
+
+/// What SetSpeed, ReadParam and WriteParam are on a drive whose parameters are 16-bit registers
+/// (the generic drive, the VF-AS1): one write or one read of one register.
+#[derive(Debug)]
+pub(crate) enum RegisterJob {
+    /// One write of `value` to `register`: `ram` for the setpoint and a [`Storage::Ram`] write,
+    /// `what` in words, `learn` a parameter value the speed limits take note of.
+    Write { register: u16, value: u16, ram: bool, what: String, learn: Option<(u32, i64)> },
+    /// One read of `register`, two's complement where `signed`.
+    Read { register: u16, signed: bool, name: String },
+}
+
+/// How a register profile checks SetSpeed, ReadParam and WriteParam before anything is sent.
+pub(crate) struct RegisterRules<'a> {
+    /// The setpoint's catalog name and register (`2001H`, `FA01`).
+    pub(crate) setpoint: (&'static str, u16),
+    /// The catalog entry of a parameter name, or the profile's refusal.
+    pub(crate) def: &'a dyn Fn(&str) -> Result<&'a ParamDef, DriveError>,
+    /// Refuses an operation that needs an answer at a broadcast address.
+    pub(crate) needs_reply: &'a dyn Fn(&str) -> Result<(), DriveError>,
+    /// The limits SetSpeed is checked against.
+    pub(crate) limits: &'a SpeedLimits,
+    /// The storage rules of the protocol in use.
+    pub(crate) storage_check: &'a dyn Fn(&ParamDef, Storage) -> Result<(), String>,
+}
+
+impl RegisterRules<'_> {
+    /// The job of `op`, a SetSpeed, ReadParam or WriteParam, after its checks.
+    pub(crate) fn job(&self, op: &Operation) -> Result<RegisterJob, DriveError> {
+        match op {
+            Operation::SetSpeed(hz) => {
+                let (name, register) = self.setpoint;
+                let value = self.limits.check(*hz, (self.def)(name)?)?;
+                let what = format!("{name} = {} Hz", format_fixed(i64::from(value), 2));
+                Ok(RegisterJob::Write { register, value, ram: true, what, learn: None })
+            }
+            Operation::ReadParam(name) => {
+                let def = (self.def)(name)?;
+                (self.needs_reply)(&format!("ReadParam {}", def.name))?;
+                let register = register_of(def)?;
+                Ok(RegisterJob::Read { register, signed: def.min < 0, name: def.name.clone() })
+            }
+            Operation::WriteParam { name, raw, storage } => {
+                let def = (self.def)(name)?;
+                let register = register_of(def)?;
+                let value = checked_write(def, *raw, *storage, self.storage_check)?;
+                Ok(RegisterJob::Write {
+                    register,
+                    value,
+                    ram: *storage == Storage::Ram,
+                    what: format!("{} = {}", def.name, def.format(*raw)),
+                    learn: Some((def.number, *raw)),
+                })
+            }
+            other => Err(DriveError::Unsupported(format!("{other:?} is not a parameter read or write"))),
+        }
     }
 }
 

@@ -59,13 +59,13 @@ use drivebus_proto::toshiba::binary::{
 use drivebus_proto::toshiba::{block_read_item, Cmd, CommNo, Command1, ErrorCode, Status1};
 
 use super::generic::{
-    checked_write, raw_of, register_of, ModbusAnswer, ModbusAsk, ModbusFraming, SpeedLimits,
+    raw_of, ModbusAnswer, ModbusAsk, ModbusFraming, RegisterJob, RegisterRules, SpeedLimits,
 };
 use super::{
     CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
     WireProtocol,
 };
-use crate::{format_fixed, Catalog, Family, ParamDef, Storage};
+use crate::{Catalog, Family, ParamDef, Storage};
 
 /// The address that makes a TIP profile a broadcast (`**` in ASCII mode, FF in binary mode).
 /// A Modbus-RTU profile broadcasts with address 0.
@@ -475,33 +475,21 @@ impl Profile for ToshibaProfile {
             Operation::Reverse => command(CommandKind::Reverse)?,
             Operation::Reset => command(CommandKind::Reset)?,
             Operation::Stop => write_fa00(PRIORITY | self.direction_bit(), "stop"),
-            Operation::SetSpeed(hz) => {
-                let def = self.def("FA01")?;
-                let raw = self.limits.check(*hz, def)?;
-                Job::Write {
-                    comm: FA01,
-                    value: raw,
-                    ram: true,
-                    what: format!("FA01 = {} Hz", format_fixed(i64::from(raw), 2)),
-                    learn: None,
-                }
-            }
-            Operation::ReadParam(name) => {
-                let def = self.def(name)?;
-                self.needs_reply(&format!("ReadParam {}", def.name))?;
-                let comm = register_of(def)?;
-                Job::Read { comm, signed: def.min < 0, name: def.name.clone() }
-            }
-            Operation::WriteParam { name, raw, storage } => {
-                let def = self.def(name)?;
-                let comm = register_of(def)?;
-                let value = checked_write(def, *raw, *storage, &self.storage_check())?;
-                Job::Write {
-                    comm,
-                    value,
-                    ram: *storage == Storage::Ram,
-                    what: format!("{} = {}", def.name, def.format(*raw)),
-                    learn: Some((def.number, *raw)),
+            Operation::SetSpeed(_) | Operation::ReadParam(_) | Operation::WriteParam { .. } => {
+                let rules = RegisterRules {
+                    setpoint: ("FA01", FA01),
+                    def: &|name| self.def(name),
+                    needs_reply: &|what| self.needs_reply(what),
+                    limits: &self.limits,
+                    storage_check: &self.storage_check(),
+                };
+                match rules.job(op)? {
+                    RegisterJob::Write { register, value, ram, what, learn } => {
+                        Job::Write { comm: register, value, ram, what, learn }
+                    }
+                    RegisterJob::Read { register, signed, name } => {
+                        Job::Read { comm: register, signed, name }
+                    }
                 }
             }
         };
@@ -647,6 +635,18 @@ impl Link {
             space: CodeSpace::ToshibaError,
             meaning: format!("{} (in reply to the {ask}: {what})", tip_error_meaning(code.0)),
         };
+        // A TIP reply must come from the inverter asked (`number` as the mode writes it).
+        let from_inverter = |inv_no: Option<u8>, number: String| {
+            if inv_no == Some(self.address) {
+                return Ok(());
+            }
+            Err(bad(format!("carries inverter number {inv_no:?}, not {number}")))
+        };
+        // A TIP data reply: the echo of the request, with the data and the trip flag.
+        let echoed = |got_cmd: Cmd, got_comm: u16, value: u16, tripped: bool| {
+            check_echo(cmd, comm, written, got_cmd, got_comm, value).map_err(bad)?;
+            Ok(Answer::Data { value, tripped })
+        };
         match self.protocol {
             WireProtocol::ModbusRtu => {
                 let m = Link::modbus_ask(ask).ok_or_else(|| bad("was not expected".to_string()))?;
@@ -667,29 +667,18 @@ impl Link {
             WireProtocol::ToshibaAscii => {
                 let reply = AsciiReply::parse(bytes)
                     .map_err(|e| bad(format!("is not a valid TOSHIBA ASCII frame: {e}")))?;
-                if reply.inv_no != Some(self.address) {
-                    return Err(bad(format!(
-                        "carries inverter number {:?}, not {:02}",
-                        reply.inv_no, self.address
-                    )));
-                }
+                from_inverter(reply.inv_no, format!("{:02}", self.address))?;
                 match reply.body {
                     AsciiReplyBody::Error(code) => Err(tip_refusal(code)),
                     AsciiReplyBody::Data { cmd: c, comm_no, data } => {
-                        check_echo(cmd, comm, written, c, comm_no.0, data).map_err(bad)?;
-                        Ok(Answer::Data { value: data, tripped: reply.tripped })
+                        echoed(c, comm_no.0, data, reply.tripped)
                     }
                 }
             }
             WireProtocol::ToshibaBinary => {
                 let reply = BinaryReply::parse(bytes)
                     .map_err(|e| bad(format!("is not a valid TOSHIBA binary frame: {e}")))?;
-                if reply.inv_no != Some(self.address) {
-                    return Err(bad(format!(
-                        "carries inverter number {:?}, not {}",
-                        reply.inv_no, self.address
-                    )));
-                }
+                from_inverter(reply.inv_no, self.address.to_string())?;
                 match (reply.body, ask) {
                     (BinaryReplyBody::Error(code), _) => Err(tip_refusal(code)),
                     (BinaryReplyBody::Block(b), Ask::Block(n)) => {
@@ -699,8 +688,7 @@ impl Link {
                         Ok(Answer::Block { items: b.rdata().to_vec() })
                     }
                     (BinaryReplyBody::Data { cmd: c, comm_no, data }, Ask::Read(_) | Ask::Write { .. }) => {
-                        check_echo(cmd, comm, written, c, comm_no.0, data).map_err(bad)?;
-                        Ok(Answer::Data { value: data, tripped: reply.tripped })
+                        echoed(c, comm_no.0, data, reply.tripped)
                     }
                     _ => Err(bad("is not the kind of reply the request asks for".to_string())),
                 }

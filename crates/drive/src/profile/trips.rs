@@ -86,45 +86,35 @@ pub fn history_of(family: Family, status: &DriveStatus, raws: &[i64]) -> TripHis
         output_hz: None,
         current_a: None,
     };
-    let mut entries = Vec::new();
-    match family {
+    // Per family: how many trip codes lead the reads (newest first), their text, and where
+    // the newest trip's output frequency and current are (catalog name, place in the reads).
+    type At = Option<(&'static str, usize)>;
+    let (codes, text, hz, amps): (usize, fn(i64) -> String, At, At) = match family {
         Family::Generic => {
-            for (k, code) in [raw(0), raw(1)].into_iter().enumerate() {
-                if code != 0 {
-                    let mut e = entry(k + 1, code, generic::fault_text(code as u16));
-                    if k == 0 {
-                        e.output_hz = scaled("P4.02", raw(2));
-                        e.current_a = scaled("P4.03", raw(3));
-                    }
-                    entries.push(e);
-                }
-            }
+            (2, |code| generic::fault_text(code as u16), Some(("P4.02", 2)), Some(("P4.03", 3)))
         }
-        Family::Toshiba => {
-            for k in 0..4 {
-                let code = raw(k);
-                if code != 0 {
-                    let mut e = entry(k + 1, code, toshiba::trip_text(code as u16));
-                    if k == 0 {
-                        e.output_hz = scaled("FE00", raw(4));
-                    }
-                    entries.push(e);
-                }
-            }
+        Family::Toshiba => (4, |code| toshiba::trip_text(code as u16), Some(("FE00", 4)), None),
+        Family::Danfoss => (
+            10,
+            |code| {
+                danfoss::alarm_text(code as u32)
+                    .map_or_else(|| format!("alarm {code} (not in drivebus' alarm list)"), str::to_string)
+            },
+            None,
+            None,
+        ),
+        Family::B800 => (0, |code| code.to_string(), None, None),
+    };
+    let at_trip = |at: At| at.and_then(|(name, i)| scaled(name, raw(i)));
+    let mut entries = Vec::new();
+    for k in (0..codes).filter(|&k| raw(k) != 0) {
+        let code = raw(k);
+        let mut e = entry(k + 1, code, text(code));
+        if k == 0 {
+            e.output_hz = at_trip(hz);
+            e.current_a = at_trip(amps);
         }
-        Family::Danfoss => {
-            for k in 0..10 {
-                let code = raw(k);
-                if code != 0 {
-                    let text = danfoss::alarm_text(code as u32).map_or_else(
-                        || format!("alarm {code} (not in drivebus' alarm list)"),
-                        str::to_string,
-                    );
-                    entries.push(entry(k + 1, code, text));
-                }
-            }
-        }
-        Family::B800 => {}
+        entries.push(e);
     }
     // Entries are numbered by their place in the drive's log; gaps (a cleared slot) close up.
     for (i, e) in entries.iter_mut().enumerate() {

@@ -4,13 +4,17 @@
 
 use std::time::Duration;
 
-use drivebus_drive::profile::{run_blocking, DriveError, Exchange, Operation, Outcome, Plan};
+use drivebus_drive::profile::{
+    run_blocking, DriveError, DriveStatus, Exchange, Operation, Outcome, Plan, Profile,
+};
 use drivebus_drive::Storage;
+use drivebus_proto::deframe::Scanner;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::{Codec, Direction, Instant};
 use drivebus_sim::bus::{Device, VirtualLine};
 use drivebus_sim::drive::VirtualDrive;
 use drivebus_sim::master::LineMaster;
+use drivebus_sim::model::DriveModel;
 
 /// The most exchanges a plan may take before the test calls it endless.
 pub const MAX_EXCHANGES: usize = 32;
@@ -66,6 +70,73 @@ pub fn execute(
         Ok::<_, DriveError>(reply)
     });
     (outcome, sent)
+}
+
+/// Writes `request` at once and runs the line until `scanner` has a whole reply (or `timeout`
+/// passed), then `chars_after` characters of silence; a request without a reply waits
+/// `turnaround`.
+pub fn transact_frame<S: Scanner>(
+    line: &mut VirtualLine,
+    scanner: S,
+    request: &[u8],
+    expect_reply: bool,
+    (chars_after, timeout, turnaround): (u32, Duration, Duration),
+) -> Option<Vec<u8>> {
+    let master = LineMaster {
+        gap_before: Duration::ZERO,
+        gap_after: line.char_time() * chars_after,
+        timeout,
+        turnaround,
+    };
+    master.transact(line, scanner, request, expect_reply)
+}
+
+/// Plans `op` on `profile` and runs the plan with `execute`, expecting success; the outcome and
+/// what `execute` tells of the requests sent.
+pub fn run_ok<T>(
+    profile: &dyn Profile,
+    op: Operation,
+    execute: impl FnOnce(Box<dyn Plan>) -> (Result<Outcome, DriveError>, T),
+) -> (Outcome, T) {
+    let plan = profile.plan(&op).unwrap_or_else(|e| panic!("{op:?}: {e}"));
+    match execute(plan) {
+        (Ok(outcome), sent) => (outcome, sent),
+        (Err(e), _) => panic!("{op:?}: {e}"),
+    }
+}
+
+/// That an operation (`what`) ended done; panics on anything else.
+pub fn done(what: &str, r: Result<Outcome, DriveError>) {
+    match r {
+        Ok(Outcome::Done) => {}
+        other => panic!("{what}: {other:?}"),
+    }
+}
+
+/// The drive's state a Status (`what`) ended with; panics on anything else.
+pub fn status_of(what: &str, r: Result<Outcome, DriveError>) -> DriveStatus {
+    match r {
+        Ok(Outcome::Status(s)) => s,
+        other => panic!("{what}: a status, not {other:?}"),
+    }
+}
+
+/// The raw value a ReadParam (`what`) ended with; panics on anything else.
+pub fn param_of(what: &str, r: Result<Outcome, DriveError>) -> i64 {
+    match r {
+        Ok(Outcome::Param(raw)) => raw,
+        other => panic!("{what}: a value, not {other:?}"),
+    }
+}
+
+/// The motor model of the drive on `port`.
+pub fn model(line: &mut VirtualLine, port: usize) -> &DriveModel {
+    &drive(line, port).core().model
+}
+
+/// The motor model of the drive on `port`, mutable.
+pub fn model_mut(line: &mut VirtualLine, port: usize) -> &mut DriveModel {
+    &mut drive_mut(line, port).core_mut().model
 }
 
 /// Lets `d` of simulated time pass on the line.

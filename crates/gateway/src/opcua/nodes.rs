@@ -320,17 +320,31 @@ pub fn build(
     (drives, buses)
 }
 
+/// Adds the object `obj` named `name`, of the type and in the folder `(type, folder)`, whose
+/// events clients may subscribe to.
+fn add_object(
+    space: &mut AddressSpace,
+    ids: &Ids,
+    obj: &NodeId,
+    name: &str,
+    (type_definition, folder): (NodeId, NodeId),
+    description: String,
+) {
+    ObjectBuilder::new(obj, ids.name(name), name)
+        .has_type_definition(type_definition)
+        .organized_by(folder)
+        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
+        .description(description)
+        .insert(space);
+}
+
 /// Adds one drive: its object, variables, methods and parameters. Returns every node made, for
 /// [`remove`] when a reload takes the drive away.
 pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) -> Vec<NodeId> {
     let name = d.config.name.as_str();
     let obj = ids.drive(name);
-    ObjectBuilder::new(&obj, ids.name(name), name)
-        .has_type_definition(ids.drive_type())
-        .organized_by(ids.drives())
-        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
-        .description(format!("{} drive at address {} on bus {}", d.config.family, d.config.address, d.bus))
-        .insert(space);
+    let description = format!("{} drive at address {} on bus {}", d.config.family, d.config.address, d.bus);
+    add_object(space, ids, &obj, name, (ids.drive_type(), ids.drives()), description);
     let mut made = vec![obj.clone()];
     for def in DRIVE_VARIABLES {
         made.extend(add_variable(space, ids, &ids.drive_member(name, def.name), &obj, def));
@@ -379,15 +393,9 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) -> Vec<Nod
 pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) -> Vec<NodeId> {
     let name = b.config.name.as_str();
     let obj = ids.bus(name);
-    ObjectBuilder::new(&obj, ids.name(name), name)
-        .has_type_definition(ids.bus_type())
-        .organized_by(ids.buses())
-        .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
-        .description(format!(
-            "{} on {} at {} {}",
-            b.config.protocol, b.config.port, b.config.baud, b.config.format
-        ))
-        .insert(space);
+    let c = &b.config;
+    let description = format!("{} on {} at {} {}", c.protocol, c.port, c.baud, c.format);
+    add_object(space, ids, &obj, name, (ids.bus_type(), ids.buses()), description);
     let mut made = vec![obj.clone()];
     for def in BUS_VARIABLES {
         made.extend(add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def));

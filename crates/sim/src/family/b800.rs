@@ -517,31 +517,15 @@ impl Device for B800Drive {
         self.refresh_trip_log();
     }
 
-    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
-        Some(self)
-    }
-
-    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
-        Some(self)
-    }
+    crate::drive::device_is_a_drive!();
 }
 
 impl VirtualDrive for B800Drive {
-    fn family(&self) -> Family {
-        Family::B800
-    }
-
     fn protocol(&self) -> String {
         PROTOCOL.name().to_string()
     }
 
-    fn core(&self) -> &DriveCore {
-        &self.core
-    }
-
-    fn core_mut(&mut self) -> &mut DriveCore {
-        &mut self.core
-    }
+    crate::drive::drive_core_at!(core);
 
     /// `F-12 = 1 keypad`, `F-12 = 0 terminals`, `F-12 = 2 host run/stop`.
     fn control_source(&self) -> String {

@@ -249,31 +249,15 @@ impl Device for DanfossDrive {
         self.state.advance_to(now);
     }
 
-    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
-        Some(self)
-    }
-
-    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
-        Some(self)
-    }
+    crate::drive::device_is_a_drive!();
 }
 
 impl VirtualDrive for DanfossDrive {
-    fn family(&self) -> Family {
-        Family::Danfoss
-    }
-
     fn protocol(&self) -> String {
         PROTOCOL.name().to_string()
     }
 
-    fn core(&self) -> &DriveCore {
-        &self.state.core
-    }
-
-    fn core_mut(&mut self) -> &mut DriveCore {
-        &mut self.state.core
-    }
+    crate::drive::drive_core_at!(state.core);
 
     fn control_source(&self) -> String {
         let p = &self.state.core.params;

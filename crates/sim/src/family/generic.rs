@@ -327,31 +327,15 @@ impl Device for GenericDrive {
         self.state.sync_fault_records();
     }
 
-    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
-        Some(self)
-    }
-
-    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
-        Some(self)
-    }
+    crate::drive::device_is_a_drive!();
 }
 
 impl VirtualDrive for GenericDrive {
-    fn family(&self) -> Family {
-        Family::Generic
-    }
-
     fn protocol(&self) -> String {
         self.state.protocol.wire().name().to_string()
     }
 
-    fn core(&self) -> &DriveCore {
-        &self.state.core
-    }
-
-    fn core_mut(&mut self) -> &mut DriveCore {
-        &mut self.state.core
-    }
+    crate::drive::drive_core_at!(state.core);
 
     fn control_source(&self) -> String {
         let params = &self.state.core.params;

@@ -325,20 +325,10 @@ impl Device for ToshibaDrive {
         self.inner.advance(now);
     }
 
-    fn as_drive(&self) -> Option<&dyn VirtualDrive> {
-        Some(self)
-    }
-
-    fn as_drive_mut(&mut self) -> Option<&mut dyn VirtualDrive> {
-        Some(self)
-    }
+    crate::drive::device_is_a_drive!();
 }
 
 impl VirtualDrive for ToshibaDrive {
-    fn family(&self) -> Family {
-        Family::Toshiba
-    }
-
     fn power_cycle(&mut self, now: Instant) {
         ToshibaDrive::power_cycle(self, now);
     }
@@ -353,13 +343,7 @@ impl VirtualDrive for ToshibaDrive {
         Fault { code: u32::from(code), text: drivebus_drive::profile::toshiba::trip_text(code) }
     }
 
-    fn core(&self) -> &DriveCore {
-        &self.inner.core
-    }
-
-    fn core_mut(&mut self) -> &mut DriveCore {
-        &mut self.inner.core
-    }
+    crate::drive::drive_core_at!(inner.core);
 
     fn control_source(&self) -> String {
         let inner = &self.inner;

@@ -1,11 +1,13 @@
-//! Shared by the Toshiba tests: VF-AS1 drives on a 19200 8E1 virtual line, the master's side of
-//! an exchange, and the drives' state, all on simulated time.
+//! Shared by the line tests: VF-AS1 drives on a 19200 8E1 virtual line, the master's side of
+//! an exchange (raw bytes, or a master session of any protocol), and the drives' state, all on
+//! simulated time.
 #![allow(dead_code)]
 
 use std::time::Duration;
 
 use drivebus_drive::ParamStore;
 use drivebus_proto::line::CharFormat;
+use drivebus_proto::session::{MasterEvent, MasterSession, Protocol};
 use drivebus_proto::Instant;
 use drivebus_sim::bus::VirtualLine;
 use drivebus_sim::family::toshiba::{ToshibaDrive, ToshibaProtocol};
@@ -36,6 +38,33 @@ pub fn exchange(line: &mut VirtualLine, bytes: &[u8]) -> Vec<u8> {
     let mut got = Vec::new();
     line.master_read(&mut got);
     got
+}
+
+/// Runs `master`, given a request, and the line until the session has an outcome; what `then`
+/// makes of it.
+pub fn master_outcome<P: Protocol, T>(
+    line: &mut VirtualLine,
+    master: &mut MasterSession<P>,
+    then: impl for<'a> FnOnce(MasterEvent<P::Reply<'a>>) -> T,
+) -> T {
+    for _ in 0..10_000 {
+        let now = line.now();
+        if let Some(bytes) = master.poll_transmit(now) {
+            let bytes = bytes.to_vec();
+            line.master_write(now, &bytes);
+        }
+        let mut input = Vec::new();
+        line.master_read(&mut input);
+        master.handle_input(now, &input);
+        master.handle_timeout(now);
+        if let Some(event) = master.poll_event() {
+            return then(event);
+        }
+        let next = [line.next_deadline(), master.poll_timeout()].into_iter().flatten().min();
+        let next = next.expect("something pending").max(now + Duration::from_micros(1));
+        line.advance_to(next);
+    }
+    panic!("the master session never finished");
 }
 
 /// Lets `d` of simulated time pass on the line.

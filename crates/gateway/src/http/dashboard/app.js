@@ -224,7 +224,7 @@
       const d = state.drives.get(id);
       if (d && d.tile && d.tile.parentElement !== $('.tiles', el)) $('.tiles', el).appendChild(d.tile);
     }
-    addBusOption(v.name);
+    addOption('#dense-bus', v.name);
   }
 
   // ---------- drives ----------
@@ -251,8 +251,8 @@
     if (!d) {
       d = { view: v, receivedAt: 0, tile: null, row: null, samples: [], trendOpen: false, history: [] };
       state.drives.set(v.id, d);
-      addDriveOption(v.id);
-      addBusOption(v.bus);
+      addOption('#event-drive', v.id);
+      addOption('#dense-bus', v.bus);
       state.denseStale = true;
     }
     if (d.view && driveState(d.view) !== driveState(v)) state.denseStale = true;
@@ -519,12 +519,13 @@
 
   // ---------- the table of all drives ----------
 
-  function addBusOption(name) {
-    const sel = $('#dense-bus');
-    for (const o of sel.options) if (o.value === name) return;
+  // Adds `value` to the <select> `selector` unless it is there already.
+  function addOption(selector, value) {
+    const sel = $(selector);
+    for (const o of sel.options) if (o.value === value) return;
     const o = document.createElement('option');
-    o.value = name;
-    o.textContent = name;
+    o.value = value;
+    o.textContent = value;
     sel.appendChild(o);
   }
 
@@ -667,15 +668,6 @@
   }
 
   // ---------- events ----------
-
-  function addDriveOption(id) {
-    const sel = $('#event-drive');
-    for (const o of sel.options) if (o.value === id) return;
-    const o = document.createElement('option');
-    o.value = id;
-    o.textContent = id;
-    sel.appendChild(o);
-  }
 
   function eventMatches(e) {
     const drive = $('#event-drive').value;

@@ -256,6 +256,50 @@ impl From<EmitError> for SessionError {
     }
 }
 
+/// A value outside the range its field allows, before it is told as a [`FrameError`] (bytes
+/// received) or an [`EmitError`] (a frame asked for): `?` turns it into either.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct OutOfRange {
+    field: &'static str,
+    value: u32,
+    min: u32,
+    max: u32,
+}
+
+impl From<OutOfRange> for FrameError {
+    #[inline]
+    fn from(e: OutOfRange) -> Self {
+        FrameError::OutOfRange { field: e.field, value: e.value, min: e.min, max: e.max }
+    }
+}
+
+impl From<OutOfRange> for EmitError {
+    #[inline]
+    fn from(e: OutOfRange) -> Self {
+        EmitError::OutOfRange { field: e.field, value: e.value, min: e.min, max: e.max }
+    }
+}
+
+/// Checks that `field`'s `value` is within `min..=max`.
+#[inline]
+pub(crate) const fn in_range(field: &'static str, value: u32, min: u32, max: u32) -> Result<(), OutOfRange> {
+    if value < min {
+        return Err(OutOfRange { field, value, min, max });
+    }
+    at_most(field, value, min, max)
+}
+
+/// Checks that `field`'s `value` is at most `max`; `min` is only told in the error (for a
+/// value that cannot be below it).
+#[inline]
+pub(crate) const fn at_most(field: &'static str, value: u32, min: u32, max: u32) -> Result<(), OutOfRange> {
+    if value > max {
+        Err(OutOfRange { field, value, min, max })
+    } else {
+        Ok(())
+    }
+}
+
 /// Checks that `buf` holds `needed` bytes.
 #[inline]
 pub(crate) fn need(buf: &[u8], needed: usize) -> Result<(), EmitError> {

@@ -264,14 +264,7 @@ impl<'a> Reply<'a> {
 /// Writes `:` + the hex digits of `bin` and of its LRC + CR LF; returns the length.
 pub fn encode(bin: &[u8], out: &mut [u8]) -> Result<usize, EmitError> {
     let len = 1 + 2 * bin.len() + 2 + 2;
-    if len > MAX_FRAME {
-        return Err(EmitError::OutOfRange {
-            field: "frame length",
-            value: len as u32,
-            min: 9,
-            max: MAX_FRAME as u32,
-        });
-    }
+    crate::error::at_most("frame length", len as u32, 9, MAX_FRAME as u32)?;
     crate::error::need(out, len)?;
     out[0] = START;
     hex::encode_into(bin, &mut out[1..1 + 2 * bin.len()]);

@@ -17,7 +17,7 @@
 
 use core::fmt;
 
-use crate::error::{EmitError, FrameError};
+use crate::error::{at_most, in_range, EmitError, FrameError, OutOfRange};
 use crate::hex;
 
 /// The longest PDU: 253 bytes (a 256-byte RTU ADU less address and CRC).
@@ -862,12 +862,22 @@ fn check_len(what: &'static str, len: PduLen, got: usize) -> Result<(), FrameErr
     }
 }
 
-fn quantity_ok(q: u16, max: u16) -> Result<(), FrameError> {
-    if q == 0 || q > max {
-        // "quantity 0 is not allowed (1..125)"
-        return Err(FrameError::OutOfRange { field: "quantity", value: q as u32, min: 1, max: max as u32 });
-    }
-    Ok(())
+/// Checks a register quantity against `1..=max` ("quantity 0 is not allowed (1..125)").
+#[inline]
+fn quantity_ok(q: u16, max: u16) -> Result<(), OutOfRange> {
+    in_range("quantity", q as u32, 1, max as u32)
+}
+
+/// Checks a read device ID code: 01 to 04.
+#[inline]
+fn device_id_code_ok(code: ReadDeviceIdCode) -> Result<(), OutOfRange> {
+    in_range("read device ID code", code.0 as u32, 1, 4)
+}
+
+/// Checks a function code a frame is built with: 01 to 7F (the 0x80 bit marks exceptions).
+#[inline]
+fn function_ok(function: u8) -> Result<(), OutOfRange> {
+    in_range("function code", function as u32, 1, 0x7F)
 }
 
 impl<'a> RequestPdu<'a> {
@@ -958,14 +968,7 @@ impl<'a> RequestPdu<'a> {
             0x2B => {
                 check_len(what, len, got)?;
                 let code = ReadDeviceIdCode(pdu.at(2));
-                if !(1..=4).contains(&code.0) {
-                    return Err(FrameError::OutOfRange {
-                        field: "read device ID code",
-                        value: code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(code)?;
                 Ok(RequestPdu::ReadDeviceIdentification { code, object_id: pdu.at(3) })
             }
             _ => {
@@ -1006,20 +1009,11 @@ impl<'a> RequestPdu<'a> {
     /// Writes the binary PDU into `out`; returns its length.
     pub fn emit(&self, out: &mut [u8]) -> Result<usize, EmitError> {
         let n = self.wire_len();
-        if n > MAX_PDU {
-            return Err(EmitError::OutOfRange {
-                field: "PDU length",
-                value: n as u32,
-                min: 1,
-                max: MAX_PDU as u32,
-            });
-        }
-        crate::error::need(out, n)?;
-        out[0] = self.function();
+        emit_start(n, self.function(), out)?;
         match *self {
             RequestPdu::ReadHoldingRegisters { start, quantity }
             | RequestPdu::ReadInputRegisters { start, quantity } => {
-                emit_quantity(quantity, 125)?;
+                quantity_ok(quantity, 125)?;
                 put_word(out, 1, start.0);
                 put_word(out, 3, quantity);
             }
@@ -1033,16 +1027,16 @@ impl<'a> RequestPdu<'a> {
             }
             RequestPdu::WriteMultipleRegisters { start, values } => {
                 let q = values.len();
-                emit_quantity(q.min(u16::MAX as usize) as u16, 123)?;
+                quantity_ok(q.min(u16::MAX as usize) as u16, 123)?;
                 put_word(out, 1, start.0);
                 put_word(out, 3, q as u16);
                 out[5] = (2 * q) as u8;
                 values.write_be(&mut out[6..n])?;
             }
             RequestPdu::ReadWriteMultipleRegisters { read_start, read_quantity, write_start, values } => {
-                emit_quantity(read_quantity, 125)?;
+                quantity_ok(read_quantity, 125)?;
                 let q = values.len();
-                emit_quantity(q.min(u16::MAX as usize) as u16, 121)?;
+                quantity_ok(q.min(u16::MAX as usize) as u16, 121)?;
                 put_word(out, 1, read_start.0);
                 put_word(out, 3, read_quantity);
                 put_word(out, 5, write_start.0);
@@ -1051,27 +1045,13 @@ impl<'a> RequestPdu<'a> {
                 values.write_be(&mut out[10..n])?;
             }
             RequestPdu::ReadDeviceIdentification { code, object_id } => {
-                if !(1..=4).contains(&code.0) {
-                    return Err(EmitError::OutOfRange {
-                        field: "read device ID code",
-                        value: code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(code)?;
                 out[1] = MEI_READ_DEVICE_ID;
                 out[2] = code.0;
                 out[3] = object_id;
             }
             RequestPdu::Other { function, data } => {
-                if function & function::EXCEPTION_BIT != 0 || function == 0 {
-                    return Err(EmitError::OutOfRange {
-                        field: "function code",
-                        value: function as u32,
-                        min: 1,
-                        max: 0x7F,
-                    });
-                }
+                function_ok(function)?;
                 data.copy_to(&mut out[1..n])?;
             }
         }
@@ -1107,10 +1087,13 @@ fn counted_values<'a>(
     Ok(Registers::from_data(pdu.slice(at + 3, got)))
 }
 
-fn emit_quantity(q: u16, max: u16) -> Result<(), EmitError> {
-    if q == 0 || q > max {
-        return Err(EmitError::OutOfRange { field: "quantity", value: q as u32, min: 1, max: max as u32 });
-    }
+/// The start of every PDU [`emit`](RequestPdu::emit): checks the length `n` against
+/// [`MAX_PDU`] and `out`, and writes the function code.
+#[inline]
+fn emit_start(n: usize, function: u8, out: &mut [u8]) -> Result<(), EmitError> {
+    at_most("PDU length", n as u32, 1, MAX_PDU as u32)?;
+    crate::error::need(out, n)?;
+    out[0] = function;
     Ok(())
 }
 
@@ -1183,14 +1166,7 @@ impl<'a> ReplyPdu<'a> {
                 if count % 2 != 0 {
                     return Err(FrameError::Malformed("odd byte count: a register is 2 bytes"));
                 }
-                if count == 0 || count > 250 {
-                    return Err(FrameError::OutOfRange {
-                        field: "byte count",
-                        value: count as u32,
-                        min: 2,
-                        max: 250,
-                    });
-                }
+                in_range("byte count", count as u32, 2, 250)?;
                 let values = Registers::from_data(pdu.slice(2, got));
                 Ok(match fc {
                     0x03 => ReplyPdu::ReadHoldingRegisters { values },
@@ -1220,14 +1196,7 @@ impl<'a> ReplyPdu<'a> {
             0x2B => {
                 check_len(what, len, got)?;
                 let code = ReadDeviceIdCode(pdu.at(2));
-                if !(1..=4).contains(&code.0) {
-                    return Err(FrameError::OutOfRange {
-                        field: "read device ID code",
-                        value: code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(code)?;
                 let more_follows = match pdu.at(4) {
                     0x00 => false,
                     0xFF => true,
@@ -1299,21 +1268,12 @@ impl<'a> ReplyPdu<'a> {
     /// Writes the binary PDU into `out`; returns its length.
     pub fn emit(&self, out: &mut [u8]) -> Result<usize, EmitError> {
         let n = self.wire_len();
-        if n > MAX_PDU {
-            return Err(EmitError::OutOfRange {
-                field: "PDU length",
-                value: n as u32,
-                min: 1,
-                max: MAX_PDU as u32,
-            });
-        }
-        crate::error::need(out, n)?;
-        out[0] = self.function();
+        emit_start(n, self.function(), out)?;
         match *self {
             ReplyPdu::ReadHoldingRegisters { values }
             | ReplyPdu::ReadInputRegisters { values }
             | ReplyPdu::ReadWriteMultipleRegisters { values } => {
-                emit_quantity(values.len().min(u16::MAX as usize) as u16, 125)?;
+                quantity_ok(values.len().min(u16::MAX as usize) as u16, 125)?;
                 out[1] = (2 * values.len()) as u8;
                 values.write_be(&mut out[2..n])?;
             }
@@ -1326,28 +1286,14 @@ impl<'a> ReplyPdu<'a> {
                 data.copy_to(&mut out[3..n])?;
             }
             ReplyPdu::WriteMultipleRegisters { start, quantity } => {
-                emit_quantity(quantity, 123)?;
+                quantity_ok(quantity, 123)?;
                 put_word(out, 1, start.0);
                 put_word(out, 3, quantity);
             }
             ReplyPdu::ReadDeviceIdentification(r) => {
-                if !(1..=4).contains(&r.code.0) {
-                    return Err(EmitError::OutOfRange {
-                        field: "read device ID code",
-                        value: r.code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(r.code)?;
                 let count = r.objects.len();
-                if count > 255 {
-                    return Err(EmitError::OutOfRange {
-                        field: "number of objects",
-                        value: count as u32,
-                        min: 0,
-                        max: 255,
-                    });
-                }
+                at_most("number of objects", count as u32, 0, 255)?;
                 out[1] = MEI_READ_DEVICE_ID;
                 out[2] = r.code.0;
                 out[3] = r.conformity_level;
@@ -1363,25 +1309,11 @@ impl<'a> ReplyPdu<'a> {
                 }
             }
             ReplyPdu::Exception { function, code } => {
-                if function & function::EXCEPTION_BIT != 0 || function == 0 {
-                    return Err(EmitError::OutOfRange {
-                        field: "function code",
-                        value: function as u32,
-                        min: 1,
-                        max: 0x7F,
-                    });
-                }
+                function_ok(function)?;
                 out[1] = code.0;
             }
             ReplyPdu::Other { function, data } => {
-                if function & function::EXCEPTION_BIT != 0 || function == 0 {
-                    return Err(EmitError::OutOfRange {
-                        field: "function code",
-                        value: function as u32,
-                        min: 1,
-                        max: 0x7F,
-                    });
-                }
+                function_ok(function)?;
                 data.copy_to(&mut out[1..n])?;
             }
         }

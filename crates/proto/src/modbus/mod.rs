@@ -81,6 +81,21 @@ pub use pdu::{
     Registers, ReplyPdu, RequestPdu,
 };
 
+/// A PDU length error told in the bytes of the ADU that carries the PDU: `overhead` (the
+/// address, and the CRC of an RTU frame) added to both counts; other errors unchanged.
+pub(crate) fn adu_error(e: crate::FrameError, overhead: usize) -> crate::FrameError {
+    use crate::FrameError;
+    match e {
+        FrameError::Truncated { what, expected, got } => {
+            FrameError::Truncated { what, expected: expected + overhead, got: got + overhead }
+        }
+        FrameError::TooLong { what, max, got } => {
+            FrameError::TooLong { what, max: max + overhead, got: got + overhead }
+        }
+        e => e,
+    }
+}
+
 /// A Modbus unit (slave) address: 0 is broadcast, 1..=247 single drives (seed 004 allows up to 254).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct UnitId(pub u8);

@@ -799,57 +799,60 @@ fn length_error(what: &'static str, expected: usize, got: usize) -> FrameError {
     }
 }
 
-/// "03 request" and friends, for length messages.
-pub(crate) const fn request_what(fc: u8) -> &'static str {
-    match fc {
-        0x01 => "01 request",
-        0x02 => "02 request",
-        0x03 => "03 request",
-        0x04 => "04 request",
-        0x05 => "05 request",
-        0x06 => "06 request",
-        0x07 => "07 request",
-        0x08 => "08 request",
-        0x0B => "0B request",
-        0x0C => "0C request",
-        0x0F => "0F request",
-        0x10 => "10 request",
-        0x11 => "11 request",
-        0x14 => "14 request",
-        0x15 => "15 request",
-        0x16 => "16 request",
-        0x17 => "17 request",
-        0x18 => "18 request",
-        0x2B => "2B/0E request",
-        _ => "request",
+/// `request_what` ("03 request") and `reply_what` ("03 reply") from one list of the function
+/// codes [`request_len`] and [`reply_len`] know, for length messages.
+macro_rules! what_tables {
+    ($($fc:literal $digits:literal),* $(,)?) => {
+        /// "03 request" and friends, for length messages.
+        pub(crate) const fn request_what(fc: u8) -> &'static str {
+            match fc {
+                $($fc => concat!($digits, " request"),)*
+                0x2B => "2B/0E request",
+                _ => "request",
+            }
+        }
+
+        /// "03 reply" and friends, for length messages.
+        pub(crate) const fn reply_what(fc: u8) -> &'static str {
+            match fc {
+                $($fc => concat!($digits, " reply"),)*
+                0x2B => "2B/0E reply",
+                0x80..=0xFF => "exception reply",
+                _ => "reply",
+            }
+        }
+    };
+}
+
+what_tables! {
+    0x01 "01", 0x02 "02", 0x03 "03", 0x04 "04", 0x05 "05", 0x06 "06", 0x07 "07", 0x08 "08", 0x0B "0B",
+    0x0C "0C", 0x0F "0F", 0x10 "10", 0x11 "11", 0x14 "14", 0x15 "15", 0x16 "16", 0x17 "17", 0x18 "18",
+}
+
+/// The function code of a PDU parsed as a `what` ("request", "reply"): its first byte.
+#[inline]
+fn function_of(pdu: Data<'_>, what: &'static str) -> Result<u8, FrameError> {
+    pdu.get(0).ok_or(FrameError::Truncated { what, expected: 1, got: 0 })
+}
+
+/// `len` when the function code `fc` (and the MEI type of a 2B) has a known layout.
+#[inline]
+fn known_layout(pdu: Data<'_>, fc: u8, len: PduLen) -> Result<PduLen, FrameError> {
+    match (len, fc) {
+        (PduLen::Unknown, 0x2B) => Err(FrameError::Unknown { field: "MEI type", value: pdu.at(1) as u32 }),
+        (PduLen::Unknown, _) => Err(FrameError::Unknown { field: FUNCTION_CODE, value: fc as u32 }),
+        (len, _) => Ok(len),
     }
 }
 
-/// "03 reply" and friends, for length messages.
-pub(crate) const fn reply_what(fc: u8) -> &'static str {
-    match fc {
-        0x01 => "01 reply",
-        0x02 => "02 reply",
-        0x03 => "03 reply",
-        0x04 => "04 reply",
-        0x05 => "05 reply",
-        0x06 => "06 reply",
-        0x07 => "07 reply",
-        0x08 => "08 reply",
-        0x0B => "0B reply",
-        0x0C => "0C reply",
-        0x0F => "0F reply",
-        0x10 => "10 reply",
-        0x11 => "11 reply",
-        0x14 => "14 reply",
-        0x15 => "15 reply",
-        0x16 => "16 reply",
-        0x17 => "17 reply",
-        0x18 => "18 reply",
-        0x2B => "2B/0E reply",
-        0x80..=0xFF => "exception reply",
-        _ => "reply",
+/// The sub-function and data of an 08 diagnostics request or reply: any data length
+/// (sub-function 0000 echoes N bytes, seed 004 echoes anything).
+fn diagnostics<'a>(pdu: Data<'a>, what: &'static str) -> Result<(u16, Data<'a>), FrameError> {
+    let got = pdu.len();
+    if got < 3 {
+        return Err(FrameError::Truncated { what, expected: 3, got });
     }
+    Ok((pdu.word(1), pdu.slice(3, got)))
 }
 
 /// Checks a PDU against the length its shape predicts.
@@ -904,9 +907,7 @@ impl<'a> RequestPdu<'a> {
     /// Parses a request PDU given as [`Data`] (binary or hex digits).
     pub fn parse_data(pdu: Data<'a>) -> Result<Self, FrameError> {
         let got = pdu.len();
-        let Some(fc) = pdu.get(0) else {
-            return Err(FrameError::Truncated { what: "request", expected: 1, got: 0 });
-        };
+        let fc = function_of(pdu, "request")?;
         if fc & function::EXCEPTION_BIT != 0 {
             // Only drives send function codes with the 0x80 bit: they are exception replies.
             return Err(FrameError::Malformed(
@@ -914,13 +915,7 @@ impl<'a> RequestPdu<'a> {
             ));
         }
         let what = request_what(fc);
-        let len = request_len(fc, |i| pdu.get(i));
-        if len == PduLen::Unknown {
-            return Err(match fc {
-                0x2B => FrameError::Unknown { field: "MEI type", value: pdu.at(1) as u32 },
-                _ => FrameError::Unknown { field: FUNCTION_CODE, value: fc as u32 },
-            });
-        }
+        let len = known_layout(pdu, fc, request_len(fc, |i| pdu.get(i)))?;
         match fc {
             0x03 | 0x04 => {
                 check_len(what, len, got)?;
@@ -936,17 +931,12 @@ impl<'a> RequestPdu<'a> {
             }
             0x06 => {
                 check_len(what, len, got)?;
-                Ok(RequestPdu::WriteSingleRegister {
-                    address: RegisterAddress(pdu.word(1)),
-                    value: pdu.word(3),
-                })
+                let (address, value) = (RegisterAddress(pdu.word(1)), pdu.word(3));
+                Ok(RequestPdu::WriteSingleRegister { address, value })
             }
             0x08 => {
-                // Any data length: sub-function 0000 echoes N bytes, seed 004 echoes anything.
-                if got < 3 {
-                    return Err(FrameError::Truncated { what, expected: 3, got });
-                }
-                Ok(RequestPdu::Diagnostics { sub_function: pdu.word(1), data: pdu.slice(3, got) })
+                let (sub_function, data) = diagnostics(pdu, what)?;
+                Ok(RequestPdu::Diagnostics { sub_function, data })
             }
             0x10 => {
                 // "Quantity of Registers 1 to 123 (0x7B)", "Byte Count 2 x N".
@@ -1012,19 +1002,9 @@ impl<'a> RequestPdu<'a> {
         emit_start(n, self.function(), out)?;
         match *self {
             RequestPdu::ReadHoldingRegisters { start, quantity }
-            | RequestPdu::ReadInputRegisters { start, quantity } => {
-                quantity_ok(quantity, 125)?;
-                put_word(out, 1, start.0);
-                put_word(out, 3, quantity);
-            }
-            RequestPdu::WriteSingleRegister { address, value } => {
-                put_word(out, 1, address.0);
-                put_word(out, 3, value);
-            }
-            RequestPdu::Diagnostics { sub_function, data } => {
-                put_word(out, 1, sub_function);
-                data.copy_to(&mut out[3..n])?;
-            }
+            | RequestPdu::ReadInputRegisters { start, quantity } => emit_span(out, start, quantity, 125)?,
+            RequestPdu::WriteSingleRegister { address, value } => put_words(out, address.0, value),
+            RequestPdu::Diagnostics { sub_function, data } => emit_diagnostics(out, n, sub_function, data)?,
             RequestPdu::WriteMultipleRegisters { start, values } => {
                 let q = values.len();
                 quantity_ok(q.min(u16::MAX as usize) as u16, 123)?;
@@ -1097,6 +1077,28 @@ fn emit_start(n: usize, function: u8, out: &mut [u8]) -> Result<(), EmitError> {
     Ok(())
 }
 
+/// Writes the two words at bytes 1..5 that most PDUs start with.
+#[inline]
+fn put_words(out: &mut [u8], a: u16, b: u16) {
+    put_word(out, 1, a);
+    put_word(out, 3, b);
+}
+
+/// Writes a first register and a quantity within `1..=max` (03/04 requests, the 10 reply).
+#[inline]
+fn emit_span(out: &mut [u8], start: RegisterAddress, quantity: u16, max: u16) -> Result<(), EmitError> {
+    quantity_ok(quantity, max)?;
+    put_words(out, start.0, quantity);
+    Ok(())
+}
+
+/// Writes the sub-function and data of an 08 diagnostics request or reply of `n` bytes.
+fn emit_diagnostics(out: &mut [u8], n: usize, sub_function: u16, data: Data<'_>) -> Result<(), EmitError> {
+    put_word(out, 1, sub_function);
+    data.copy_to(&mut out[3..n])?;
+    Ok(())
+}
+
 #[inline]
 fn put_word(out: &mut [u8], at: usize, v: u16) {
     out[at..at + 2].copy_from_slice(&v.to_be_bytes());
@@ -1132,17 +1134,9 @@ impl<'a> ReplyPdu<'a> {
     /// Parses a reply PDU given as [`Data`] (binary or hex digits).
     pub fn parse_data(pdu: Data<'a>) -> Result<Self, FrameError> {
         let got = pdu.len();
-        let Some(fc) = pdu.get(0) else {
-            return Err(FrameError::Truncated { what: "reply", expected: 1, got: 0 });
-        };
+        let fc = function_of(pdu, "reply")?;
         let what = reply_what(fc);
-        let len = reply_len(fc, |i| pdu.get(i));
-        if len == PduLen::Unknown {
-            return Err(match fc {
-                0x2B => FrameError::Unknown { field: "MEI type", value: pdu.at(1) as u32 },
-                _ => FrameError::Unknown { field: FUNCTION_CODE, value: fc as u32 },
-            });
-        }
+        let len = known_layout(pdu, fc, reply_len(fc, |i| pdu.get(i)))?;
         match fc {
             0x03 | 0x04 | 0x17 => {
                 if got < 2 {
@@ -1176,16 +1170,12 @@ impl<'a> ReplyPdu<'a> {
             }
             0x06 => {
                 check_len(what, len, got)?;
-                Ok(ReplyPdu::WriteSingleRegister {
-                    address: RegisterAddress(pdu.word(1)),
-                    value: pdu.word(3),
-                })
+                let (address, value) = (RegisterAddress(pdu.word(1)), pdu.word(3));
+                Ok(ReplyPdu::WriteSingleRegister { address, value })
             }
             0x08 => {
-                if got < 3 {
-                    return Err(FrameError::Truncated { what, expected: 3, got });
-                }
-                Ok(ReplyPdu::Diagnostics { sub_function: pdu.word(1), data: pdu.slice(3, got) })
+                let (sub_function, data) = diagnostics(pdu, what)?;
+                Ok(ReplyPdu::Diagnostics { sub_function, data })
             }
             0x10 => {
                 check_len(what, len, got)?;
@@ -1277,19 +1267,9 @@ impl<'a> ReplyPdu<'a> {
                 out[1] = (2 * values.len()) as u8;
                 values.write_be(&mut out[2..n])?;
             }
-            ReplyPdu::WriteSingleRegister { address, value } => {
-                put_word(out, 1, address.0);
-                put_word(out, 3, value);
-            }
-            ReplyPdu::Diagnostics { sub_function, data } => {
-                put_word(out, 1, sub_function);
-                data.copy_to(&mut out[3..n])?;
-            }
-            ReplyPdu::WriteMultipleRegisters { start, quantity } => {
-                quantity_ok(quantity, 123)?;
-                put_word(out, 1, start.0);
-                put_word(out, 3, quantity);
-            }
+            ReplyPdu::WriteSingleRegister { address, value } => put_words(out, address.0, value),
+            ReplyPdu::Diagnostics { sub_function, data } => emit_diagnostics(out, n, sub_function, data)?,
+            ReplyPdu::WriteMultipleRegisters { start, quantity } => emit_span(out, start, quantity, 123)?,
             ReplyPdu::ReadDeviceIdentification(r) => {
                 device_id_code_ok(r.code)?;
                 let count = r.objects.len();

@@ -1367,3 +1367,23 @@ fn read_write_multiple_registers_round_trips_and_is_checked() {
     assert_eq!(rep.emit(&mut out), Ok(reply.len()));
     assert_eq!(&out[..reply.len()], &reply);
 }
+
+#[test]
+fn length_messages_name_the_function() {
+    use super::pdu::{reply_what, request_what};
+    for (fc, req, rep) in [
+        (0x01, "01 request", "01 reply"),
+        (0x0B, "0B request", "0B reply"),
+        (0x0F, "0F request", "0F reply"),
+        (0x18, "18 request", "18 reply"),
+        (0x2B, "2B/0E request", "2B/0E reply"),
+        (0x09, "request", "reply"),
+        (0x83, "request", "exception reply"),
+    ] {
+        assert_eq!((request_what(fc), reply_what(fc)), (req, rep), "{fc:02X}");
+    }
+    assert_eq!(
+        err(ReplyPdu::parse(&h("10 00 01"))),
+        "truncated frame: 10 reply needs 5 bytes, got 3"
+    );
+}

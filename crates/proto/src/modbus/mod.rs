@@ -396,6 +396,23 @@ fn register_fields(start: Option<RegisterAddress>, values: &Registers<'_>, out: 
     }
 }
 
+/// The fields of an 06 request or reply: the register and its value.
+fn single_register_fields(address: RegisterAddress, value: u16, out: &mut dyn FnMut(Field<'_>)) {
+    out(address_field("register address", address));
+    out(value_field(Some(address), value));
+}
+
+/// The fields of an 08 request or reply: the sub-function and the data.
+fn diagnostics_fields(sub_function: u16, data: Data<'_>, out: &mut dyn FnMut(Field<'_>)) {
+    out(Field::hex("sub-function", sub_function as u32, 4).with_meaning(sub_function_meaning(sub_function)));
+    data_field(data, out);
+}
+
+/// The data of a PDU shown as bytes.
+fn data_field(data: Data<'_>, out: &mut dyn FnMut(Field<'_>)) {
+    with_binary(data, |b| out(Field::bytes("data", b)));
+}
+
 fn mei_fields(code: ReadDeviceIdCode, out: &mut dyn FnMut(Field<'_>)) {
     out(Field::hex("MEI type", pdu::MEI_READ_DEVICE_ID as u32, 2).with_meaning("read device identification"));
     let f = Field::hex("read device ID code", code.0 as u32, 2);
@@ -431,15 +448,8 @@ impl Describe for Request<'_> {
                 out(address_field("starting address", start));
                 out(Field::dec("quantity", quantity as i64));
             }
-            RequestPdu::WriteSingleRegister { address, value } => {
-                out(address_field("register address", address));
-                out(value_field(Some(address), value));
-            }
-            RequestPdu::Diagnostics { sub_function, data } => {
-                out(Field::hex("sub-function", sub_function as u32, 4)
-                    .with_meaning(sub_function_meaning(sub_function)));
-                with_binary(data, |b| out(Field::bytes("data", b)));
-            }
+            RequestPdu::WriteSingleRegister { address, value } => single_register_fields(address, value, out),
+            RequestPdu::Diagnostics { sub_function, data } => diagnostics_fields(sub_function, data, out),
             RequestPdu::WriteMultipleRegisters { start, values } => {
                 out(address_field("starting address", start));
                 out(Field::dec("quantity", values.len() as i64));
@@ -458,7 +468,7 @@ impl Describe for Request<'_> {
                 mei_fields(code, out);
                 out(object_id_field("object ID", object_id));
             }
-            RequestPdu::Other { data, .. } => with_binary(data, |b| out(Field::bytes("data", b))),
+            RequestPdu::Other { data, .. } => data_field(data, out),
         }
     }
 }
@@ -489,15 +499,8 @@ impl Describe for Reply<'_> {
                 out(Field::dec("byte count", 2 * values.len() as i64));
                 register_fields(None, &values, out);
             }
-            ReplyPdu::WriteSingleRegister { address, value } => {
-                out(address_field("register address", address));
-                out(value_field(Some(address), value));
-            }
-            ReplyPdu::Diagnostics { sub_function, data } => {
-                out(Field::hex("sub-function", sub_function as u32, 4)
-                    .with_meaning(sub_function_meaning(sub_function)));
-                with_binary(data, |b| out(Field::bytes("data", b)));
-            }
+            ReplyPdu::WriteSingleRegister { address, value } => single_register_fields(address, value, out),
+            ReplyPdu::Diagnostics { sub_function, data } => diagnostics_fields(sub_function, data, out),
             ReplyPdu::WriteMultipleRegisters { start, quantity } => {
                 out(address_field("starting address", start));
                 out(Field::dec("quantity", quantity as i64));
@@ -521,7 +524,7 @@ impl Describe for Reply<'_> {
                     code.meaning().unwrap_or("not an exception code the specification defines"),
                 ));
             }
-            ReplyPdu::Other { data, .. } => with_binary(data, |b| out(Field::bytes("data", b))),
+            ReplyPdu::Other { data, .. } => data_field(data, out),
         }
     }
 }

@@ -529,36 +529,31 @@ impl Describe for Reply<'_> {
     }
 }
 
+impl Frame<'_> {
+    /// The request or the reply, which describes itself.
+    fn inner(&self) -> &dyn Describe {
+        match self {
+            Frame::Request(r) => r,
+            Frame::Reply(r) => r,
+        }
+    }
+}
+
 impl Describe for Frame<'_> {
     fn direction(&self) -> Direction {
-        match self {
-            Frame::Request(_) => Direction::Master,
-            Frame::Reply(_) => Direction::Drive,
-        }
+        self.inner().direction()
     }
     fn target(&self) -> Target {
-        match self {
-            Frame::Request(r) => r.target(),
-            Frame::Reply(r) => r.target(),
-        }
+        self.inner().target()
     }
     fn command(&self) -> Command {
-        match self {
-            Frame::Request(r) => r.command(),
-            Frame::Reply(r) => r.command(),
-        }
+        self.inner().command()
     }
     fn is_refusal(&self) -> bool {
-        match self {
-            Frame::Request(_) => false,
-            Frame::Reply(r) => r.is_refusal(),
-        }
+        self.inner().is_refusal()
     }
     fn fields(&self, out: &mut dyn FnMut(Field<'_>)) {
-        match self {
-            Frame::Request(r) => r.fields(out),
-            Frame::Reply(r) => r.fields(out),
-        }
+        self.inner().fields(out)
     }
 }
 

@@ -12,6 +12,9 @@ use drivebus_proto::hex::byte_digits;
 use drivebus_proto::{Codec, FrameError};
 use proptest::prelude::*;
 
+mod support;
+use support::{field_count, pieces};
+
 fn address() -> impl Strategy<Value = Address> {
     (1u8..=63).prop_map(|n| Address::new(n).unwrap())
 }
@@ -119,9 +122,7 @@ proptest! {
         let f = <B800 as Codec>::parse(&w, None).unwrap();
         prop_assert_eq!(f.direction(), Direction::Drive);
         prop_assert_eq!(f.is_refusal(), r.reply.is_error());
-        let mut n = 0;
-        f.fields(&mut |_| n += 1);
-        prop_assert!(n >= 2);
+        prop_assert!(field_count(&f) >= 2);
         let (good, _, _) = deframe_chunks(Some(Direction::Drive), &[&w]);
         prop_assert_eq!(good, vec![w.clone()]);
     }
@@ -183,18 +184,15 @@ proptest! {
         stream in prop_oneof![proptest::collection::vec(any::<u8>(), 0..300), b800ish()],
         cuts in proptest::collection::vec(any::<prop::sample::Index>(), 0..6),
     ) {
-        let mut cuts: Vec<usize> = cuts.iter().map(|c| c.index(stream.len() + 1)).collect();
-        cuts.sort_unstable();
+        let cuts: Vec<usize> = cuts.iter().map(|c| c.index(stream.len() + 1)).collect();
         for from in [None, Some(Direction::Master), Some(Direction::Drive)] {
             let mut d = Deframer::new(<B800 as Codec>::scanner(from));
-            let mut last = 0;
-            for &c in cuts.iter().chain(std::iter::once(&stream.len())) {
-                d.push(&stream[last..c], &mut |e| {
+            for piece in pieces(&stream, &cuts) {
+                d.push(piece, &mut |e| {
                     if let Event::Frame { bytes, .. } = e {
                         let _ = <B800 as Codec>::parse(bytes, from);
                     }
                 });
-                last = c;
             }
             d.finish(&mut |_| {});
             prop_assert_eq!(d.buffered(), 0);
@@ -258,16 +256,8 @@ proptest! {
             stream.extend_from_slice(junk);
         }
         let whole = deframe_chunks(None, &[&stream]);
-        let mut cuts: Vec<usize> = cuts.iter().map(|c| c.index(stream.len() + 1)).collect();
-        cuts.sort_unstable();
-        let mut chunks: Vec<&[u8]> = Vec::new();
-        let mut last = 0;
-        for c in cuts {
-            chunks.push(&stream[last..c]);
-            last = c;
-        }
-        chunks.push(&stream[last..]);
-        let split = deframe_chunks(None, &chunks);
+        let cuts: Vec<usize> = cuts.iter().map(|c| c.index(stream.len() + 1)).collect();
+        let split = deframe_chunks(None, &pieces(&stream, &cuts));
         prop_assert_eq!(&split, &whole);
         // Byte at a time too.
         let bytes: Vec<&[u8]> = stream.chunks(1).collect();

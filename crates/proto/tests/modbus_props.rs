@@ -12,6 +12,9 @@ use drivebus_proto::modbus::{
 use drivebus_proto::{Codec, Describe, Direction, EmitError};
 use proptest::prelude::*;
 
+mod support;
+use support::{field_count, pieces};
+
 /// An owned request PDU, for generating.
 #[derive(Clone, Debug)]
 enum Req {
@@ -215,13 +218,6 @@ fn emitted<T>(frame: &T, emit: fn(&T, &mut [u8]) -> Result<usize, EmitError>) ->
     buf[..n].to_vec()
 }
 
-/// True when a frame describes at least one field.
-fn has_fields<D: Describe>(d: &D) -> bool {
-    let mut n = 0;
-    d.fields(&mut |_| n += 1);
-    n >= 1
-}
-
 /// The frames of a mix of requests and replies (`true`: the request), emitted in order by
 /// `request` and `reply` (RTU or ASCII).
 fn mixed(
@@ -292,7 +288,7 @@ proptest! {
         let f = emitted(&q, Request::emit_rtu);
         prop_assert_eq!(Request::parse_rtu(&f).unwrap(), q);
         prop_assert_eq!(ModbusRtu::parse(&f, Some(Direction::Master)).unwrap(), drivebus_proto::modbus::Frame::Request(q));
-        prop_assert!(has_fields(&q));
+        prop_assert!(field_count(&q) >= 1);
     }
 
     #[test]
@@ -306,7 +302,7 @@ proptest! {
             prop_assert_eq!(RtuScanner::replies().scan(&f, 0), Scan::Frame { len: f.len() });
         }
         prop_assert_eq!(RtuScanner::replies().silence(&f), Scan::Frame { len: f.len() });
-        prop_assert!(has_fields(&p));
+        prop_assert!(field_count(&p) >= 1);
     }
 
     #[test]
@@ -328,20 +324,13 @@ proptest! {
         let f = emitted(&p, Reply::emit_ascii);
         prop_assert_eq!(Reply::parse_ascii(&f).unwrap(), p);
         prop_assert_eq!(ModbusAscii::parse(&f, Some(Direction::Drive)).unwrap(), drivebus_proto::modbus::Frame::Reply(p));
-        prop_assert!(has_fields(&p));
+        prop_assert!(field_count(&p) >= 1);
     }
 
     #[test]
     fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..700), cuts in proptest::collection::vec(any::<usize>(), 0..4)) {
-        let mut cuts: Vec<usize> = cuts.into_iter().map(|c| c % (bytes.len() + 1)).collect();
-        cuts.sort_unstable();
-        let mut chunks = Vec::new();
-        let mut at = 0;
-        for c in cuts {
-            chunks.push(&bytes[at..c]);
-            at = c;
-        }
-        chunks.push(&bytes[at..]);
+        let cuts: Vec<usize> = cuts.into_iter().map(|c| c % (bytes.len() + 1)).collect();
+        let chunks = pieces(&bytes, &cuts);
         for s in [RtuScanner::requests(), RtuScanner::replies(), RtuScanner::either()] {
             let _ = frames(s, &chunks, true);
             check_contract(&s, &bytes[..bytes.len().min(300)], 256);
@@ -410,9 +399,8 @@ proptest! {
     ) {
         let stream = mixed(&items, |r, b| r.emit_rtu(b), |r, b| r.emit_rtu(b)).concat();
         let (whole, _) = frames(RtuScanner::either(), &[&stream], true);
-        let mut c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
-        c.sort_unstable();
-        let (split, _) = frames(RtuScanner::either(), &[&stream[..c[0]], &stream[c[0]..c[1]], &stream[c[1]..]], true);
+        let c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
+        let (split, _) = frames(RtuScanner::either(), &pieces(&stream, &c), true);
         prop_assert_eq!(&split, &whole);
         let bytes: Vec<&[u8]> = stream.chunks(1).collect();
         let (one_by_one, _) = frames(RtuScanner::either(), &bytes, true);
@@ -436,9 +424,8 @@ proptest! {
     ) {
         let sent = mixed(&items, |r, b| r.emit_ascii(b), |r, b| r.emit_ascii(b));
         let stream = sent.concat();
-        let mut c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
-        c.sort_unstable();
-        let (split, bad) = frames(AsciiScanner, &[&stream[..c[0]], &stream[c[0]..c[1]], &stream[c[1]..]], true);
+        let c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
+        let (split, bad) = frames(AsciiScanner, &pieces(&stream, &c), true);
         prop_assert_eq!(split, sent);
         prop_assert_eq!(bad, 0);
     }

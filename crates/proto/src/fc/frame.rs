@@ -236,19 +236,7 @@ impl Describe for Frame<'_> {
         let (code, name) = match self.message {
             Message::Request(r) => match r.command() {
                 Some(c) => (c.ak(), c.name()),
-                None => (
-                    0,
-                    match r.ctw.0 {
-                        0x047C => "process block: start",
-                        0x043C => "process block: ramp stop",
-                        0x0474 => "process block: coast",
-                        0x046C => "process block: quick stop",
-                        0x04FC => "process block: reset",
-                        0x847C => "process block: start reverse",
-                        0x057C => "process block: jog",
-                        _ => "process block: control word and reference",
-                    },
-                ),
+                None => (0, r.ctw.process_block_name()),
             },
             Message::Reply(r) => match r.response() {
                 Some(a) => (a.ak(), a.name()),

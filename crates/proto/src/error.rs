@@ -300,6 +300,37 @@ pub(crate) const fn at_most(field: &'static str, value: u32, min: u32, max: u32)
     }
 }
 
+/// The named codes of a drive's refusal (a Modbus exception code, an FC fault code, a B800
+/// error code) from one list: a constant for each named code, and `meaning` from the same
+/// entries plus the codes that have a meaning but no constant (`also { .. }`).
+macro_rules! refusal_codes {
+    (
+        $code_type:ident;
+        $(#[$meaning_doc:meta])*
+        fn meaning $(also { $($other:pat => $other_meaning:literal),* $(,)? })?;
+        $(
+            $(#[$doc:meta])*
+            $name:ident($code:literal) => $meaning:literal,
+        )*
+    ) => {
+        $(
+            $(#[$doc])*
+            pub const $name: $code_type = $code_type($code);
+        )*
+
+        $(#[$meaning_doc])*
+        pub const fn meaning(self) -> Option<&'static str> {
+            Some(match self.0 {
+                $($code => $meaning,)*
+                $($($other => $other_meaning,)*)?
+                _ => return None,
+            })
+        }
+    };
+}
+
+pub(crate) use refusal_codes;
+
 /// Checks that `buf` holds `needed` bytes.
 #[inline]
 pub(crate) fn need(buf: &[u8], needed: usize) -> Result<(), EmitError> {

@@ -345,42 +345,30 @@ impl DriveStatus {
 pub struct ErrorCode(pub u8);
 
 impl ErrorCode {
-    /// 0x02: "Drive in Standby (status information)".
-    pub const STANDBY: ErrorCode = ErrorCode(0x02);
-    /// 0x91: "B800 not in keypad mode".
-    pub const NOT_KEYPAD_MODE: ErrorCode = ErrorCode(0x91);
-    /// 0x92: "B800 speed in RPM not available (F-10 = 0)".
-    pub const RPM_NOT_AVAILABLE: ErrorCode = ErrorCode(0x92);
-    /// 0x93: "B800 running – command cannot be carried out".
-    pub const RUNNING: ErrorCode = ErrorCode(0x93);
-    /// 0x94: "B800 stopped – command cannot be carried out".
-    pub const STOPPED: ErrorCode = ErrorCode(0x94);
-    /// 0x95: "Invalid data – incorrect checksum".
-    pub const BAD_CHECKSUM: ErrorCode = ErrorCode(0x95);
-    /// 0x97: "Invalid command – command not recognized".
-    pub const UNKNOWN_COMMAND: ErrorCode = ErrorCode(0x97);
-    /// 0x98: "B800 parameters locked – command cannot be carried out".
-    pub const PARAMETERS_LOCKED: ErrorCode = ErrorCode(0x98);
-    /// 0x99: "B800 hardware enable not present".
-    pub const NO_HARDWARE_ENABLE: ErrorCode = ErrorCode(0x99);
-    /// 0x9A: "B800 tripped".
-    pub const TRIPPED: ErrorCode = ErrorCode(0x9A);
-
-    /// The seed's text for the code, `None` for a code not in its list.
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            0x02 => "drive in standby (status information)",
-            0x91 => "not in keypad mode",
-            0x92 => "speed in RPM not available (F-10 = 0)",
-            0x93 => "drive running: command cannot be carried out",
-            0x94 => "drive stopped: command cannot be carried out",
-            0x95 => "invalid data: incorrect checksum",
-            0x97 => "invalid command: command not recognized",
-            0x98 => "parameters locked: command cannot be carried out",
-            0x99 => "hardware enable not present",
-            0x9A => "tripped",
-            _ => return None,
-        })
+    crate::error::refusal_codes! {
+        ErrorCode;
+        /// The seed's text for the code, `None` for a code not in its list.
+        fn meaning;
+        /// 0x02: "Drive in Standby (status information)".
+        STANDBY(0x02) => "drive in standby (status information)",
+        /// 0x91: "B800 not in keypad mode".
+        NOT_KEYPAD_MODE(0x91) => "not in keypad mode",
+        /// 0x92: "B800 speed in RPM not available (F-10 = 0)".
+        RPM_NOT_AVAILABLE(0x92) => "speed in RPM not available (F-10 = 0)",
+        /// 0x93: "B800 running – command cannot be carried out".
+        RUNNING(0x93) => "drive running: command cannot be carried out",
+        /// 0x94: "B800 stopped – command cannot be carried out".
+        STOPPED(0x94) => "drive stopped: command cannot be carried out",
+        /// 0x95: "Invalid data – incorrect checksum".
+        BAD_CHECKSUM(0x95) => "invalid data: incorrect checksum",
+        /// 0x97: "Invalid command – command not recognized".
+        UNKNOWN_COMMAND(0x97) => "invalid command: command not recognized",
+        /// 0x98: "B800 parameters locked – command cannot be carried out".
+        PARAMETERS_LOCKED(0x98) => "parameters locked: command cannot be carried out",
+        /// 0x99: "B800 hardware enable not present".
+        NO_HARDWARE_ENABLE(0x99) => "hardware enable not present",
+        /// 0x9A: "B800 tripped".
+        TRIPPED(0x9A) => "tripped",
     }
 }
 

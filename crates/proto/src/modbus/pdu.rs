@@ -352,40 +352,28 @@ view_iter! {
 pub struct ExceptionCode(pub u8);
 
 impl ExceptionCode {
-    /// 01: the function code is not supported (seed 004: "功能码错误", function code error).
-    pub const ILLEGAL_FUNCTION: Self = ExceptionCode(0x01);
-    /// 02: the register address does not exist (Toshiba: no such communication number).
-    pub const ILLEGAL_DATA_ADDRESS: Self = ExceptionCode(0x02);
-    /// 03: a value in the request is not allowed (Toshiba: data error, wrong count).
-    pub const ILLEGAL_DATA_VALUE: Self = ExceptionCode(0x03);
-    /// 04: the server failed while acting (Toshiba: impossible to execute).
-    pub const SERVER_DEVICE_FAILURE: Self = ExceptionCode(0x04);
-    /// 05: accepted, a long action is under way.
-    pub const ACKNOWLEDGE: Self = ExceptionCode(0x05);
-    /// 06: busy with a long action; retry later.
-    pub const SERVER_DEVICE_BUSY: Self = ExceptionCode(0x06);
-    /// 08: memory parity error in a file record.
-    pub const MEMORY_PARITY_ERROR: Self = ExceptionCode(0x08);
-    /// 0A: a gateway has no path to the target.
-    pub const GATEWAY_PATH_UNAVAILABLE: Self = ExceptionCode(0x0A);
-    /// 0B: a gateway's target did not answer.
-    pub const GATEWAY_TARGET_FAILED: Self = ExceptionCode(0x0B);
-
-    /// What the code means, for the codes the Modbus Application Protocol defines.
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            0x01 => "illegal function",
-            0x02 => "illegal data address",
-            0x03 => "illegal data value",
-            0x04 => "server device failure",
-            0x05 => "acknowledge",
-            0x06 => "server device busy",
-            0x07 => "negative acknowledge",
-            0x08 => "memory parity error",
-            0x0A => "gateway path unavailable",
-            0x0B => "gateway target device failed to respond",
-            _ => return None,
-        })
+    crate::error::refusal_codes! {
+        ExceptionCode;
+        /// What the code means, for the codes the Modbus Application Protocol defines.
+        fn meaning also { 0x07 => "negative acknowledge" };
+        /// 01: the function code is not supported (seed 004: "功能码错误", function code error).
+        ILLEGAL_FUNCTION(0x01) => "illegal function",
+        /// 02: the register address does not exist (Toshiba: no such communication number).
+        ILLEGAL_DATA_ADDRESS(0x02) => "illegal data address",
+        /// 03: a value in the request is not allowed (Toshiba: data error, wrong count).
+        ILLEGAL_DATA_VALUE(0x03) => "illegal data value",
+        /// 04: the server failed while acting (Toshiba: impossible to execute).
+        SERVER_DEVICE_FAILURE(0x04) => "server device failure",
+        /// 05: accepted, a long action is under way.
+        ACKNOWLEDGE(0x05) => "acknowledge",
+        /// 06: busy with a long action; retry later.
+        SERVER_DEVICE_BUSY(0x06) => "server device busy",
+        /// 08: memory parity error in a file record.
+        MEMORY_PARITY_ERROR(0x08) => "memory parity error",
+        /// 0A: a gateway has no path to the target.
+        GATEWAY_PATH_UNAVAILABLE(0x0A) => "gateway path unavailable",
+        /// 0B: a gateway's target did not answer.
+        GATEWAY_TARGET_FAILED(0x0B) => "gateway target device failed to respond",
     }
 
     /// The exception a server answers to a request that failed to parse with `error`:

@@ -120,21 +120,26 @@ impl Speed {
     /// The speed nearest `hz` (resolution 1/60 Hz); an error for a negative, non-finite or
     /// too high speed (above 1092.25 Hz the word overflows). `from_hz(40.0)` is 0x0960.
     pub fn from_hz(hz: f64) -> Result<Speed, EmitError> {
-        let x = hz * 60.0 + 0.5;
-        // A range test, so that NaN fails it too.
-        if !(0.5..65536.0).contains(&x) {
-            return Err(EmitError::Invalid(
-                "target speed must be 0 to 1092.25 Hz: the wire carries 60 x Hz in a 16-bit word",
-            ));
-        }
-        // `as` truncates toward zero; with the 0.5 added above that rounds to nearest.
-        Ok(Speed(x as u16))
+        word_of(hz, 60.0, "target speed must be 0 to 1092.25 Hz: the wire carries 60 x Hz in a 16-bit word")
+            .map(Speed)
     }
 
     /// The speed in Hz.
     pub fn hz(self) -> f64 {
         self.0 as f64 / 60.0
     }
+}
+
+/// The 16-bit word nearest `value * steps` (`steps` wire units per unit); `error` for a
+/// negative, non-finite or too high value.
+fn word_of(value: f64, steps: f64, error: &'static str) -> Result<u16, EmitError> {
+    let x = value * steps + 0.5;
+    // A range test, so that NaN fails it too.
+    if !(0.5..65536.0).contains(&x) {
+        return Err(EmitError::Invalid(error));
+    }
+    // `as` truncates toward zero; with the 0.5 added above that rounds to nearest.
+    Ok(x as u16)
 }
 
 /// Motor current in 0.1 A, the `a` reply's word (project decision: "`a` motor current in 0.1 A").
@@ -154,13 +159,8 @@ impl Current {
 
     /// The current nearest `amps` (resolution 0.1 A); an error below 0 or above 6553.5 A.
     pub fn from_amps(amps: f64) -> Result<Current, EmitError> {
-        let x = amps * 10.0 + 0.5;
-        if !(0.5..65536.0).contains(&x) {
-            return Err(EmitError::Invalid(
-                "motor current must be 0 to 6553.5 A: the wire carries 0.1 A in a 16-bit word",
-            ));
-        }
-        Ok(Current(x as u16))
+        word_of(amps, 10.0, "motor current must be 0 to 6553.5 A: the wire carries 0.1 A in a 16-bit word")
+            .map(Current)
     }
 
     /// The current in A.

@@ -300,10 +300,11 @@ pub(crate) const fn at_most(field: &'static str, value: u32, min: u32, max: u32)
     }
 }
 
-/// The named codes of a drive's refusal (a Modbus exception code, an FC fault code, a B800
-/// error code) from one list: a constant for each named code, and `meaning` from the same
-/// entries plus the codes that have a meaning but no constant (`also { .. }`).
-macro_rules! refusal_codes {
+/// The named values of a code type (a drive's refusal codes: a Modbus exception code, an FC
+/// fault code, a B800 error code; the Modbus read device ID code) from one list: a constant for
+/// each named code, and `meaning` from the same entries plus the codes that have a meaning but
+/// no constant (`also { .. }`).
+macro_rules! named_codes {
     (
         $code_type:ident;
         $(#[$meaning_doc:meta])*
@@ -329,7 +330,12 @@ macro_rules! refusal_codes {
     };
 }
 
-pub(crate) use refusal_codes;
+pub(crate) use named_codes;
+
+/// Writes ` (meaning)` after a code, or ` (unknown)` for a code without one.
+pub(crate) fn write_meaning(f: &mut fmt::Formatter<'_>, meaning: Option<&str>, unknown: &str) -> fmt::Result {
+    write!(f, " ({})", meaning.unwrap_or(unknown))
+}
 
 /// Checks that `buf` holds `needed` bytes.
 #[inline]

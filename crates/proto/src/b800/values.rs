@@ -345,7 +345,7 @@ impl DriveStatus {
 pub struct ErrorCode(pub u8);
 
 impl ErrorCode {
-    crate::error::refusal_codes! {
+    crate::error::named_codes! {
         ErrorCode;
         /// The seed's text for the code, `None` for a code not in its list.
         fn meaning;
@@ -376,9 +376,6 @@ impl fmt::Display for ErrorCode {
     /// `95 (invalid data: incorrect checksum)`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{:02X}", self.0)?;
-        match self.meaning() {
-            Some(m) => write!(f, " ({m})"),
-            None => f.write_str(" (not in the seed's list)"),
-        }
+        crate::error::write_meaning(f, self.meaning(), "not in the seed's list")
     }
 }

@@ -260,7 +260,7 @@ impl ParameterResponse {
 pub struct FaultCode(pub u16);
 
 impl FaultCode {
-    crate::error::refusal_codes! {
+    crate::error::named_codes! {
         FaultCode;
         /// What the code means, if the table has it.
         ///
@@ -309,10 +309,7 @@ impl FaultCode {
 impl fmt::Display for FaultCode {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}", self.0)?;
-        match self.meaning() {
-            Some(m) => write!(f, " ({m})"),
-            None => f.write_str(" (not in the fault table)"),
-        }
+        crate::error::write_meaning(f, self.meaning(), "not in the fault table")
     }
 }
 

@@ -352,7 +352,7 @@ view_iter! {
 pub struct ExceptionCode(pub u8);
 
 impl ExceptionCode {
-    crate::error::refusal_codes! {
+    crate::error::named_codes! {
         ExceptionCode;
         /// What the code means, for the codes the Modbus Application Protocol defines.
         fn meaning also { 0x07 => "negative acknowledge" };
@@ -409,24 +409,18 @@ const FUNCTION_CODE: &str = "function code";
 pub struct ReadDeviceIdCode(pub u8);
 
 impl ReadDeviceIdCode {
-    /// 01: the basic objects (vendor name, product code, revision) as a stream.
-    pub const BASIC: Self = ReadDeviceIdCode(1);
-    /// 02: the regular objects as a stream.
-    pub const REGULAR: Self = ReadDeviceIdCode(2);
-    /// 03: the extended objects as a stream.
-    pub const EXTENDED: Self = ReadDeviceIdCode(3);
-    /// 04: one specific object.
-    pub const SPECIFIC: Self = ReadDeviceIdCode(4);
-
-    /// What the code asks for.
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            1 => "basic device identification (stream)",
-            2 => "regular device identification (stream)",
-            3 => "extended device identification (stream)",
-            4 => "one specific identification object",
-            _ => return None,
-        })
+    crate::error::named_codes! {
+        ReadDeviceIdCode;
+        /// What the code asks for.
+        fn meaning;
+        /// 01: the basic objects (vendor name, product code, revision) as a stream.
+        BASIC(1) => "basic device identification (stream)",
+        /// 02: the regular objects as a stream.
+        REGULAR(2) => "regular device identification (stream)",
+        /// 03: the extended objects as a stream.
+        EXTENDED(3) => "extended device identification (stream)",
+        /// 04: one specific object.
+        SPECIFIC(4) => "one specific identification object",
     }
 }
 

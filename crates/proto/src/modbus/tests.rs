@@ -856,32 +856,20 @@ fn rtu_reply_too_long_is_rejected_quickly() {
 // ---------------------------------------------------------------------------------------------
 // ASCII scanner
 
+/// A non-hex byte ends a frame; a new ':' restarts one. The bad part is rejected, the frame
+/// after it found.
 #[test]
-fn ascii_non_hex_byte_ends_the_frame() {
-    let mut s = b":01\x01".to_vec();
-    s.extend_from_slice(&a(":010604051234AA"));
-    let evs = deframe(AsciiScanner, &[&s], true);
-    assert_eq!(
-        evs,
-        [
-            Ev::Rejected(b":01\x01".to_vec(), "non-hex byte 0x01 at offset 3 ends the frame".into()),
-            Ev::Frame(a(":010604051234AA")),
-        ]
-    );
-}
-
-#[test]
-fn ascii_new_colon_restarts() {
-    let mut s = b"xx:0103".to_vec();
-    s.extend_from_slice(&a(":010304010001F6"));
-    let evs = deframe(AsciiScanner, &[&s], true);
-    assert_eq!(
-        evs,
-        [
-            Ev::Rejected(b":0103".to_vec(), "a new ':' started another frame before this one's CR LF".into()),
-            Ev::Frame(a(":010304010001F6")),
-        ]
-    );
+fn ascii_bad_starts_are_rejected_and_the_next_frame_found() {
+    let cases: [(&[u8], &[u8], &str, &str); 2] = [
+        (b":01\x01", b":01\x01", "non-hex byte 0x01 at offset 3 ends the frame", ":010604051234AA"),
+        (b"xx:0103", b":0103", "a new ':' started another frame before this one's CR LF", ":010304010001F6"),
+    ];
+    for (junk, rejected, error, frame) in cases {
+        let mut s = junk.to_vec();
+        s.extend_from_slice(&a(frame));
+        let want = [Ev::Rejected(rejected.to_vec(), error.into()), Ev::Frame(a(frame))];
+        assert_eq!(deframe(AsciiScanner, &[&s], true), want);
+    }
 }
 
 #[test]
@@ -1016,17 +1004,35 @@ fn drive_handler(
     }
 }
 
+/// TM1: read FD00 (output frequency), one register, from drive 1.
+const READ_FD00: Request<'static> = Request {
+    unit: UnitId(1),
+    pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
+};
+
+/// TM5: write 6000 (60.00 Hz) into FA01 of drive 1.
+const WRITE_FA01: Request<'static> = Request {
+    unit: UnitId(1),
+    pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
+};
+
+/// A Modbus RTU master at `baud`, 8E1.
+fn rtu_master(baud: u32) -> MasterSession<ModbusRtu> {
+    MasterSession::new(ModbusRtu, rtu::timing(baud, CharFormat::EVEN_8E1))
+}
+
+/// Drive `unit` on Modbus RTU, answering 2 ms after a request.
+fn rtu_slave(unit: u8) -> SlaveSession<ModbusRtu> {
+    SlaveSession::new(ModbusRtu, unit, Duration::from_millis(2))
+}
+
 #[test]
 fn session_request_and_reply() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
-    let mut slave = SlaveSession::new(ModbusRtu, 1, Duration::from_millis(2));
+    let mut master = rtu_master(19200);
+    let mut slave = rtu_slave(1);
     let mut handler = drive_handler();
     let t0 = Instant::from_millis(10);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
-    };
+    let req = READ_FD00;
     master.send(t0, &req).unwrap();
     let wire = master.poll_transmit(t0).unwrap().to_vec();
     assert_eq!(wire, h("01 03 FD 00 00 01 B5 A6"));
@@ -1049,13 +1055,9 @@ fn session_request_and_reply() {
 
 #[test]
 fn session_min_gap_is_respected() {
-    let timing = rtu::timing(9600, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
+    let mut master = rtu_master(9600);
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
-    };
+    let req = WRITE_FA01;
     master.send(t0, &req).unwrap();
     master.poll_transmit(t0).unwrap();
     let echo = h("01 06 FA 01 17 70 E6 C6");
@@ -1077,10 +1079,7 @@ fn session_reply_sooner_than_the_wire_time_allows_the_next_request_after_the_gap
     timing.min_gap = Duration::ZERO;
     let mut master = MasterSession::new(ModbusRtu, timing);
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
-    };
+    let req = WRITE_FA01;
     master.send(t0, &req).unwrap();
     master.poll_transmit(t0).unwrap();
     // 8 characters at 9600 8E1 take 9.2 ms; the echo is here after 50 us.
@@ -1094,9 +1093,8 @@ fn session_reply_sooner_than_the_wire_time_allows_the_next_request_after_the_gap
 
 #[test]
 fn session_broadcast_gets_no_reply() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
-    let mut slave = SlaveSession::new(ModbusRtu, 1, Duration::from_millis(2));
+    let mut master = rtu_master(19200);
+    let mut slave = rtu_slave(1);
     let mut seen = Vec::new();
     let mut handler = |_: Instant,
                        inc: Incoming<'_, Request<'_>>,
@@ -1129,15 +1127,11 @@ fn session_broadcast_gets_no_reply() {
 
 #[test]
 fn session_timeout_and_other_addresses() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
-    let mut slave = SlaveSession::new(ModbusRtu, 2, Duration::from_millis(2));
+    let mut master = rtu_master(19200);
+    let mut slave = rtu_slave(2);
     let mut handler = drive_handler();
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
-    };
+    let req = READ_FD00;
     master.send(t0, &req).unwrap();
     let wire = master.poll_transmit(t0).unwrap().to_vec();
     slave.handle_input(t0, &wire, &mut handler);
@@ -1152,13 +1146,9 @@ fn session_timeout_and_other_addresses() {
 
 #[test]
 fn session_corrupt_reply() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
+    let mut master = rtu_master(19200);
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
-    };
+    let req = READ_FD00;
     master.send(t0, &req).unwrap();
     master.poll_transmit(t0).unwrap();
     master.handle_input(t0 + Duration::from_millis(10), &h("01 03 02 17 70 B6 51"));
@@ -1316,10 +1306,7 @@ fn monitor_diagnoses_at_silence() {
 /// makes it incomplete; shorter gaps, or the rule off (the default), keep the frame.
 #[test]
 fn session_t15_inside_a_reply_declares_it_incomplete_when_enforced() {
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
-    };
+    let req = WRITE_FA01;
     let reply = h("01 06 FA 01 17 70 E6 C6");
     let (t15, _) = crate::line::modbus_t15_t35(9600);
     let run = |enforce: bool, gap: Duration| {

@@ -21,21 +21,47 @@ use drivebus_proto::{Codec, Deframer, Direction, Event};
 
 const FRAMES: usize = 1024;
 
+/// One codec: its name, a sample frame, and how it is parsed and emitted.
+struct Sample {
+    name: &'static str,
+    frame: Vec<u8>,
+    parse: fn(&[u8]) -> usize,
+    emit: fn(&[u8], &mut [u8]) -> usize,
+}
+
 /// One sample frame per codec, from the manuals (protocols.md section 5).
-fn samples() -> Vec<(&'static str, Vec<u8>)> {
+fn samples() -> Vec<Sample> {
+    use modbus::{ascii::ModbusAscii, rtu::ModbusRtu};
+    use toshiba::{ascii, binary};
+    let sample = |name, frame: &[u8], parse, emit| Sample { name, frame: frame.to_vec(), parse, emit };
     vec![
         // TM1: read FD00, one register.
-        ("modbus-rtu", vec![0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA6]),
+        sample(
+            "modbus-rtu",
+            &[0x01, 0x03, 0xFD, 0x00, 0x00, 0x01, 0xB5, 0xA6],
+            parse_all::<ModbusRtu>,
+            emit_all::<ModbusRtu>,
+        ),
         // M4: read 2 registers from 2102H.
-        ("modbus-ascii", b":010321020002D7\r\n".to_vec()),
+        sample("modbus-ascii", b":010321020002D7\r\n", parse_all::<ModbusAscii>, emit_all::<ModbusAscii>),
         // TA5 request form with checksum: (RFE03&..)CR.
-        ("toshiba-ascii", b"(RFE03)\r".to_vec()),
+        sample("toshiba-ascii", b"(RFE03)\r", parse_all::<ascii::AsciiCodec>, emit_all::<ascii::TipAscii>),
         // TB1: R comm-no 0000.
-        ("toshiba-binary", vec![0x2F, 0x52, 0x00, 0x00, 0x81]),
+        sample(
+            "toshiba-binary",
+            &[0x2F, 0x52, 0x00, 0x00, 0x81],
+            parse_all::<binary::BinaryCodec>,
+            emit_all::<binary::TipBinary>,
+        ),
         // D1: process telegram to address 4, CTW 047C, REF 2000.
-        ("danfoss-fc", vec![0x02, 0x06, 0x04, 0x04, 0x7C, 0x20, 0x00, 0x58]),
+        sample(
+            "danfoss-fc",
+            &[0x02, 0x06, 0x04, 0x04, 0x7C, 0x20, 0x00, 0x58],
+            parse_all::<fc::DanfossFc>,
+            emit_all::<fc::Fc>,
+        ),
         // B2: drive 5, P 40.0 Hz.
-        ("b800", b"\x7E85500960\x35\x45\x7F".to_vec()),
+        sample("b800", b"\x7E85500960\x35\x45\x7F", parse_all::<b800::B800>, emit_all::<b800::B800>),
     ]
 }
 
@@ -58,21 +84,13 @@ fn run_parse(c: &mut Criterion) {
         let mut g = c.benchmark_group(group_name);
         g.measurement_time(std::time::Duration::from_secs(2))
             .warm_up_time(std::time::Duration::from_millis(500));
-        for (name, frame) in samples() {
+        for Sample { name, frame, parse: f, .. } in samples() {
             let buf = frame.repeat(FRAMES);
             g.throughput(if unit {
                 Throughput::Elements(FRAMES as u64)
             } else {
                 Throughput::Bytes(buf.len() as u64)
             });
-            let f: fn(&[u8]) -> usize = match name {
-                "modbus-rtu" => parse_all::<modbus::rtu::ModbusRtu>,
-                "modbus-ascii" => parse_all::<modbus::ascii::ModbusAscii>,
-                "toshiba-ascii" => parse_all::<toshiba::ascii::AsciiCodec>,
-                "toshiba-binary" => parse_all::<toshiba::binary::BinaryCodec>,
-                "danfoss-fc" => parse_all::<fc::DanfossFc>,
-                _ => parse_all::<b800::B800>,
-            };
             assert_eq!(f(&buf), FRAMES, "{name}: the sample must parse");
             g.bench_with_input(BenchmarkId::from_parameter(name), &buf, |b, buf| {
                 b.iter(|| f(black_box(buf)))
@@ -110,9 +128,8 @@ fn emit_all<P: Protocol + Default>(frame: &[u8], out: &mut [u8]) -> usize {
 fn run_encode(c: &mut Criterion) {
     let mut g = c.benchmark_group("encode_frames");
     g.measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
-    for (name, frame) in samples() {
+    for Sample { name, frame, emit: f, .. } in samples() {
         let mut out = vec![0u8; frame.len() * FRAMES];
-        let f: fn(&[u8], &mut [u8]) -> usize = for_protocol!(name, emit_all);
         assert_eq!(f(&frame, &mut out), out.len(), "{name}: the emitted frames have the sample's size");
         assert_eq!(&out[..frame.len()], &frame[..], "{name}: emit gives back the manual's bytes");
         g.throughput(Throughput::Elements(FRAMES as u64));

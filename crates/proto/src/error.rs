@@ -256,6 +256,87 @@ impl From<EmitError> for SessionError {
     }
 }
 
+/// A value outside the range its field allows, before it is told as a [`FrameError`] (bytes
+/// received) or an [`EmitError`] (a frame asked for): `?` turns it into either.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct OutOfRange {
+    field: &'static str,
+    value: u32,
+    min: u32,
+    max: u32,
+}
+
+impl From<OutOfRange> for FrameError {
+    #[inline]
+    fn from(e: OutOfRange) -> Self {
+        FrameError::OutOfRange { field: e.field, value: e.value, min: e.min, max: e.max }
+    }
+}
+
+impl From<OutOfRange> for EmitError {
+    #[inline]
+    fn from(e: OutOfRange) -> Self {
+        EmitError::OutOfRange { field: e.field, value: e.value, min: e.min, max: e.max }
+    }
+}
+
+/// Checks that `field`'s `value` is within `min..=max`.
+#[inline]
+pub(crate) const fn in_range(field: &'static str, value: u32, min: u32, max: u32) -> Result<(), OutOfRange> {
+    if value < min {
+        return Err(OutOfRange { field, value, min, max });
+    }
+    at_most(field, value, min, max)
+}
+
+/// Checks that `field`'s `value` is at most `max`; `min` is only told in the error (for a
+/// value that cannot be below it).
+#[inline]
+pub(crate) const fn at_most(field: &'static str, value: u32, min: u32, max: u32) -> Result<(), OutOfRange> {
+    if value > max {
+        Err(OutOfRange { field, value, min, max })
+    } else {
+        Ok(())
+    }
+}
+
+/// The named values of a code type (a drive's refusal codes: a Modbus exception code, an FC
+/// fault code, a B800 error code; the Modbus read device ID code) from one list: a constant for
+/// each named code, and `meaning` from the same entries plus the codes that have a meaning but
+/// no constant (`also { .. }`).
+macro_rules! named_codes {
+    (
+        $code_type:ident;
+        $(#[$meaning_doc:meta])*
+        fn meaning $(also { $($other:pat => $other_meaning:literal),* $(,)? })?;
+        $(
+            $(#[$doc:meta])*
+            $name:ident($code:literal) => $meaning:literal,
+        )*
+    ) => {
+        $(
+            $(#[$doc])*
+            pub const $name: $code_type = $code_type($code);
+        )*
+
+        $(#[$meaning_doc])*
+        pub const fn meaning(self) -> Option<&'static str> {
+            Some(match self.0 {
+                $($code => $meaning,)*
+                $($($other => $other_meaning,)*)?
+                _ => return None,
+            })
+        }
+    };
+}
+
+pub(crate) use named_codes;
+
+/// Writes ` (meaning)` after a code, or ` (unknown)` for a code without one.
+pub(crate) fn write_meaning(f: &mut fmt::Formatter<'_>, meaning: Option<&str>, unknown: &str) -> fmt::Result {
+    write!(f, " ({})", meaning.unwrap_or(unknown))
+}
+
 /// Checks that `buf` holds `needed` bytes.
 #[inline]
 pub(crate) fn need(buf: &[u8], needed: usize) -> Result<(), EmitError> {

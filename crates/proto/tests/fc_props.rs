@@ -12,8 +12,8 @@ use drivebus_proto::fc::{
 use drivebus_proto::session::Protocol;
 use proptest::prelude::*;
 
-mod common;
-use common::{changed, damage, echo_refused, header_agrees, header_answers};
+mod support;
+use support::{changed, damage, echo_refused, field_count, header_agrees, header_answers, pieces};
 
 const COMMANDS: [u8; 8] = [0x0, 0x1, 0x2, 0x3, 0x4, 0xD, 0xE, 0xF];
 const RESPONSES: [u8; 6] = [0x0, 0x1, 0x2, 0x3, 0x7, 0xF];
@@ -149,9 +149,7 @@ proptest! {
         let f = DanfossFc::parse(&bytes, Some(Direction::Master)).unwrap();
         prop_assert_eq!(f.message, Message::Request(request(&s)));
         prop_assert_eq!(f.target(), s.adr.target());
-        let mut n = 0;
-        f.fields(&mut |_| n += 1);
-        prop_assert!(n >= 4);
+        prop_assert!(field_count(&f) >= 4);
     }
 
     #[test]
@@ -242,16 +240,8 @@ proptest! {
         }
         let (whole, _) = deframe(&[&stream]);
         prop_assert_eq!(&whole, &frames);
-        let mut points: Vec<usize> = cuts.iter().map(|i| i.index(stream.len() + 1)).collect();
-        points.sort_unstable();
-        let mut chunks = Vec::new();
-        let mut from = 0;
-        for p in points {
-            chunks.push(&stream[from..p]);
-            from = p;
-        }
-        chunks.push(&stream[from..]);
-        let (split, _) = deframe(&chunks);
+        let points: Vec<usize> = cuts.iter().map(|i| i.index(stream.len() + 1)).collect();
+        let (split, _) = deframe(&pieces(&stream, &points));
         prop_assert_eq!(split, whole);
         let bytes: Vec<&[u8]> = stream.chunks(1).collect();
         prop_assert_eq!(deframe(&bytes).0, frames);

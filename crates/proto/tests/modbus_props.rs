@@ -9,8 +9,11 @@ use drivebus_proto::modbus::{
     Data, DeviceIdReply, DeviceObjects, RegisterAddress, Registers, Reply, ReplyPdu, Request, RequestPdu,
     UnitId,
 };
-use drivebus_proto::{Codec, Describe, Direction};
+use drivebus_proto::{Codec, Describe, Direction, EmitError};
 use proptest::prelude::*;
+
+mod support;
+use support::{field_count, pieces};
 
 /// An owned request PDU, for generating.
 #[derive(Clone, Debug)]
@@ -208,32 +211,33 @@ fn rep(rtu_framable: bool) -> impl Strategy<Value = Rep> {
     ]
 }
 
+/// The bytes `emit` (RTU or ASCII, request or reply) writes for `frame`.
+fn emitted<T>(frame: &T, emit: fn(&T, &mut [u8]) -> Result<usize, EmitError>) -> Vec<u8> {
+    let mut buf = [0u8; 513];
+    let n = emit(frame, &mut buf).unwrap();
+    buf[..n].to_vec()
+}
+
+/// The frames of a mix of requests and replies (`true`: the request), emitted in order by
+/// `request` and `reply` (RTU or ASCII).
+fn mixed(
+    items: &[(bool, Req, Rep, u8)],
+    request: fn(&Request<'_>, &mut [u8]) -> Result<usize, EmitError>,
+    reply: fn(&Reply<'_>, &mut [u8]) -> Result<usize, EmitError>,
+) -> Vec<Vec<u8>> {
+    let one = |(is_req, q, p, u): &(bool, Req, Rep, u8)| {
+        if *is_req {
+            emitted(&Request { unit: UnitId(*u), pdu: q.pdu() }, request)
+        } else {
+            let objs = p.objects();
+            emitted(&Reply { unit: UnitId(*u), pdu: p.pdu(&objs) }, reply)
+        }
+    };
+    items.iter().map(one).collect()
+}
+
 fn unit() -> impl Strategy<Value = u8> {
     any::<u8>()
-}
-
-fn emit_req_rtu(r: &Request<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 256];
-    let n = r.emit_rtu(&mut buf).unwrap();
-    buf[..n].to_vec()
-}
-
-fn emit_rep_rtu(r: &Reply<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 256];
-    let n = r.emit_rtu(&mut buf).unwrap();
-    buf[..n].to_vec()
-}
-
-fn emit_req_ascii(r: &Request<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 513];
-    let n = r.emit_ascii(&mut buf).unwrap();
-    buf[..n].to_vec()
-}
-
-fn emit_rep_ascii(r: &Reply<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 513];
-    let n = r.emit_ascii(&mut buf).unwrap();
-    buf[..n].to_vec()
 }
 
 fn frames<S: Scanner>(scanner: S, chunks: &[&[u8]], silence_at_end: bool) -> (Vec<Vec<u8>>, usize) {
@@ -281,34 +285,34 @@ proptest! {
     #[test]
     fn rtu_request_round_trip(u in unit(), r in req(false)) {
         let q = Request { unit: UnitId(u), pdu: r.pdu() };
-        let f = emit_req_rtu(&q);
+        let f = emitted(&q, Request::emit_rtu);
         prop_assert_eq!(Request::parse_rtu(&f).unwrap(), q);
         prop_assert_eq!(ModbusRtu::parse(&f, Some(Direction::Master)).unwrap(), drivebus_proto::modbus::Frame::Request(q));
-        let mut n = 0;
-        q.fields(&mut |_| n += 1);
-        prop_assert!(n >= 1);
+        prop_assert!(field_count(&q) >= 1);
     }
 
+    /// A reply in RTU and in ASCII: emitted, read back the same, framed by the scanners.
     #[test]
-    fn rtu_reply_round_trip(u in unit(), r in rep(false)) {
+    fn reply_round_trip(u in unit(), r in rep(false)) {
         let objs = r.objects();
         let p = Reply { unit: UnitId(u), pdu: r.pdu(&objs) };
-        let f = emit_rep_rtu(&p);
+        prop_assert!(field_count(&p) >= 1);
+        let f = emitted(&p, Reply::emit_rtu);
         prop_assert_eq!(Reply::parse_rtu(&f).unwrap(), p);
         if !matches!(&r, Rep::Diag { data, .. } if data.len() != 2) {
             // Diagnostics are framed at 2 data bytes; other lengths only by silence.
             prop_assert_eq!(RtuScanner::replies().scan(&f, 0), Scan::Frame { len: f.len() });
         }
         prop_assert_eq!(RtuScanner::replies().silence(&f), Scan::Frame { len: f.len() });
-        let mut n = 0;
-        p.fields(&mut |_| n += 1);
-        prop_assert!(n >= 1);
+        let f = emitted(&p, Reply::emit_ascii);
+        prop_assert_eq!(Reply::parse_ascii(&f).unwrap(), p);
+        prop_assert_eq!(ModbusAscii::parse(&f, Some(Direction::Drive)).unwrap(), drivebus_proto::modbus::Frame::Reply(p));
     }
 
     #[test]
     fn ascii_request_round_trip(u in unit(), r in req(false), lower in any::<bool>()) {
         let q = Request { unit: UnitId(u), pdu: r.pdu() };
-        let mut f = emit_req_ascii(&q);
+        let mut f = emitted(&q, Request::emit_ascii);
         prop_assert!(!f.iter().any(|c| c.is_ascii_lowercase()));
         if lower {
             f.make_ascii_lowercase();
@@ -318,28 +322,9 @@ proptest! {
     }
 
     #[test]
-    fn ascii_reply_round_trip(u in unit(), r in rep(false)) {
-        let objs = r.objects();
-        let p = Reply { unit: UnitId(u), pdu: r.pdu(&objs) };
-        let f = emit_rep_ascii(&p);
-        prop_assert_eq!(Reply::parse_ascii(&f).unwrap(), p);
-        prop_assert_eq!(ModbusAscii::parse(&f, Some(Direction::Drive)).unwrap(), drivebus_proto::modbus::Frame::Reply(p));
-        let mut n = 0;
-        p.fields(&mut |_| n += 1);
-        prop_assert!(n >= 1);
-    }
-
-    #[test]
     fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..700), cuts in proptest::collection::vec(any::<usize>(), 0..4)) {
-        let mut cuts: Vec<usize> = cuts.into_iter().map(|c| c % (bytes.len() + 1)).collect();
-        cuts.sort_unstable();
-        let mut chunks = Vec::new();
-        let mut at = 0;
-        for c in cuts {
-            chunks.push(&bytes[at..c]);
-            at = c;
-        }
-        chunks.push(&bytes[at..]);
+        let cuts: Vec<usize> = cuts.into_iter().map(|c| c % (bytes.len() + 1)).collect();
+        let chunks = pieces(&bytes, &cuts);
         for s in [RtuScanner::requests(), RtuScanner::replies(), RtuScanner::either()] {
             let _ = frames(s, &chunks, true);
             check_contract(&s, &bytes[..bytes.len().min(300)], 256);
@@ -369,7 +354,7 @@ proptest! {
         // Garbage may make the scanner wait for a long candidate (up to 256 bytes) before it
         // gives up on it, so enough copies of the frame follow for one to be found after that.
         let q = Request { unit: UnitId(u), pdu: r.pdu() };
-        let f = emit_req_rtu(&q);
+        let f = emitted(&q, Request::emit_rtu);
         let copies = 256 / f.len() + 2;
         let mut s = garbage.clone();
         for _ in 0..copies {
@@ -393,7 +378,7 @@ proptest! {
         // Without a ':' the garbage cannot hold a frame; the frame after it is found.
         let objs = r.objects();
         let p = Reply { unit: UnitId(u), pdu: r.pdu(&objs) };
-        let f = emit_rep_ascii(&p);
+        let f = emitted(&p, Reply::emit_ascii);
         let mut s = garbage.clone();
         s.extend_from_slice(&f);
         let (good, bad) = frames(AsciiScanner, &[&s], true);
@@ -406,19 +391,10 @@ proptest! {
         items in proptest::collection::vec((any::<bool>(), req(true), rep(true), 1..=247u8), 1..6),
         cut1 in any::<usize>(), cut2 in any::<usize>(),
     ) {
-        let mut stream = Vec::new();
-        for (is_req, q, p, u) in &items {
-            if *is_req {
-                stream.extend(emit_req_rtu(&Request { unit: UnitId(*u), pdu: q.pdu() }));
-            } else {
-                let objs = p.objects();
-                stream.extend(emit_rep_rtu(&Reply { unit: UnitId(*u), pdu: p.pdu(&objs) }));
-            }
-        }
+        let stream = mixed(&items, |r, b| r.emit_rtu(b), |r, b| r.emit_rtu(b)).concat();
         let (whole, _) = frames(RtuScanner::either(), &[&stream], true);
-        let mut c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
-        c.sort_unstable();
-        let (split, _) = frames(RtuScanner::either(), &[&stream[..c[0]], &stream[c[0]..c[1]], &stream[c[1]..]], true);
+        let c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
+        let (split, _) = frames(RtuScanner::either(), &pieces(&stream, &c), true);
         prop_assert_eq!(&split, &whole);
         let bytes: Vec<&[u8]> = stream.chunks(1).collect();
         let (one_by_one, _) = frames(RtuScanner::either(), &bytes, true);
@@ -427,11 +403,11 @@ proptest! {
 
     #[test]
     fn rtu_requests_stream_is_found_whole(items in proptest::collection::vec((req(true), 1..=247u8), 1..6), cut in any::<usize>()) {
-        let emitted: Vec<Vec<u8>> = items.iter().map(|(q, u)| emit_req_rtu(&Request { unit: UnitId(*u), pdu: q.pdu() })).collect();
-        let stream = emitted.concat();
+        let sent: Vec<Vec<u8>> = items.iter().map(|(q, u)| emitted(&Request { unit: UnitId(*u), pdu: q.pdu() }, Request::emit_rtu)).collect();
+        let stream = sent.concat();
         let c = cut % (stream.len() + 1);
         let (split, bad) = frames(RtuScanner::requests(), &[&stream[..c], &stream[c..]], true);
-        prop_assert_eq!(split, emitted);
+        prop_assert_eq!(split, sent);
         prop_assert_eq!(bad, 0);
     }
 
@@ -440,20 +416,11 @@ proptest! {
         items in proptest::collection::vec((any::<bool>(), req(false), rep(false), any::<u8>()), 1..6),
         cut1 in any::<usize>(), cut2 in any::<usize>(),
     ) {
-        let mut emitted = Vec::new();
-        for (is_req, q, p, u) in &items {
-            if *is_req {
-                emitted.push(emit_req_ascii(&Request { unit: UnitId(*u), pdu: q.pdu() }));
-            } else {
-                let objs = p.objects();
-                emitted.push(emit_rep_ascii(&Reply { unit: UnitId(*u), pdu: p.pdu(&objs) }));
-            }
-        }
-        let stream = emitted.concat();
-        let mut c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
-        c.sort_unstable();
-        let (split, bad) = frames(AsciiScanner, &[&stream[..c[0]], &stream[c[0]..c[1]], &stream[c[1]..]], true);
-        prop_assert_eq!(split, emitted);
+        let sent = mixed(&items, |r, b| r.emit_ascii(b), |r, b| r.emit_ascii(b));
+        let stream = sent.concat();
+        let c = [cut1 % (stream.len() + 1), cut2 % (stream.len() + 1)];
+        let (split, bad) = frames(AsciiScanner, &pieces(&stream, &c), true);
+        prop_assert_eq!(split, sent);
         prop_assert_eq!(bad, 0);
     }
 }

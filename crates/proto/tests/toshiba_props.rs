@@ -15,8 +15,8 @@ use drivebus_proto::toshiba::binary::{
 use drivebus_proto::toshiba::{Cmd, CommNo, ErrorCode, Tip, TipReply, TipRequest, TipScanner};
 use proptest::prelude::*;
 
-mod common;
-use common::{changed, damage, echo_refused, header_agrees, header_answers};
+mod support;
+use support::{changed, damage, echo_refused, header_agrees, header_answers};
 
 // ---------------------------------------------------------------- strategies
 

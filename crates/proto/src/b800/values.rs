@@ -120,21 +120,26 @@ impl Speed {
     /// The speed nearest `hz` (resolution 1/60 Hz); an error for a negative, non-finite or
     /// too high speed (above 1092.25 Hz the word overflows). `from_hz(40.0)` is 0x0960.
     pub fn from_hz(hz: f64) -> Result<Speed, EmitError> {
-        let x = hz * 60.0 + 0.5;
-        // A range test, so that NaN fails it too.
-        if !(0.5..65536.0).contains(&x) {
-            return Err(EmitError::Invalid(
-                "target speed must be 0 to 1092.25 Hz: the wire carries 60 x Hz in a 16-bit word",
-            ));
-        }
-        // `as` truncates toward zero; with the 0.5 added above that rounds to nearest.
-        Ok(Speed(x as u16))
+        word_of(hz, 60.0, "target speed must be 0 to 1092.25 Hz: the wire carries 60 x Hz in a 16-bit word")
+            .map(Speed)
     }
 
     /// The speed in Hz.
     pub fn hz(self) -> f64 {
         self.0 as f64 / 60.0
     }
+}
+
+/// The 16-bit word nearest `value * steps` (`steps` wire units per unit); `error` for a
+/// negative, non-finite or too high value.
+fn word_of(value: f64, steps: f64, error: &'static str) -> Result<u16, EmitError> {
+    let x = value * steps + 0.5;
+    // A range test, so that NaN fails it too.
+    if !(0.5..65536.0).contains(&x) {
+        return Err(EmitError::Invalid(error));
+    }
+    // `as` truncates toward zero; with the 0.5 added above that rounds to nearest.
+    Ok(x as u16)
 }
 
 /// Motor current in 0.1 A, the `a` reply's word (project decision: "`a` motor current in 0.1 A").
@@ -154,13 +159,8 @@ impl Current {
 
     /// The current nearest `amps` (resolution 0.1 A); an error below 0 or above 6553.5 A.
     pub fn from_amps(amps: f64) -> Result<Current, EmitError> {
-        let x = amps * 10.0 + 0.5;
-        if !(0.5..65536.0).contains(&x) {
-            return Err(EmitError::Invalid(
-                "motor current must be 0 to 6553.5 A: the wire carries 0.1 A in a 16-bit word",
-            ));
-        }
-        Ok(Current(x as u16))
+        word_of(amps, 10.0, "motor current must be 0 to 6553.5 A: the wire carries 0.1 A in a 16-bit word")
+            .map(Current)
     }
 
     /// The current in A.
@@ -345,42 +345,30 @@ impl DriveStatus {
 pub struct ErrorCode(pub u8);
 
 impl ErrorCode {
-    /// 0x02: "Drive in Standby (status information)".
-    pub const STANDBY: ErrorCode = ErrorCode(0x02);
-    /// 0x91: "B800 not in keypad mode".
-    pub const NOT_KEYPAD_MODE: ErrorCode = ErrorCode(0x91);
-    /// 0x92: "B800 speed in RPM not available (F-10 = 0)".
-    pub const RPM_NOT_AVAILABLE: ErrorCode = ErrorCode(0x92);
-    /// 0x93: "B800 running – command cannot be carried out".
-    pub const RUNNING: ErrorCode = ErrorCode(0x93);
-    /// 0x94: "B800 stopped – command cannot be carried out".
-    pub const STOPPED: ErrorCode = ErrorCode(0x94);
-    /// 0x95: "Invalid data – incorrect checksum".
-    pub const BAD_CHECKSUM: ErrorCode = ErrorCode(0x95);
-    /// 0x97: "Invalid command – command not recognized".
-    pub const UNKNOWN_COMMAND: ErrorCode = ErrorCode(0x97);
-    /// 0x98: "B800 parameters locked – command cannot be carried out".
-    pub const PARAMETERS_LOCKED: ErrorCode = ErrorCode(0x98);
-    /// 0x99: "B800 hardware enable not present".
-    pub const NO_HARDWARE_ENABLE: ErrorCode = ErrorCode(0x99);
-    /// 0x9A: "B800 tripped".
-    pub const TRIPPED: ErrorCode = ErrorCode(0x9A);
-
-    /// The seed's text for the code, `None` for a code not in its list.
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            0x02 => "drive in standby (status information)",
-            0x91 => "not in keypad mode",
-            0x92 => "speed in RPM not available (F-10 = 0)",
-            0x93 => "drive running: command cannot be carried out",
-            0x94 => "drive stopped: command cannot be carried out",
-            0x95 => "invalid data: incorrect checksum",
-            0x97 => "invalid command: command not recognized",
-            0x98 => "parameters locked: command cannot be carried out",
-            0x99 => "hardware enable not present",
-            0x9A => "tripped",
-            _ => return None,
-        })
+    crate::error::named_codes! {
+        ErrorCode;
+        /// The seed's text for the code, `None` for a code not in its list.
+        fn meaning;
+        /// 0x02: "Drive in Standby (status information)".
+        STANDBY(0x02) => "drive in standby (status information)",
+        /// 0x91: "B800 not in keypad mode".
+        NOT_KEYPAD_MODE(0x91) => "not in keypad mode",
+        /// 0x92: "B800 speed in RPM not available (F-10 = 0)".
+        RPM_NOT_AVAILABLE(0x92) => "speed in RPM not available (F-10 = 0)",
+        /// 0x93: "B800 running – command cannot be carried out".
+        RUNNING(0x93) => "drive running: command cannot be carried out",
+        /// 0x94: "B800 stopped – command cannot be carried out".
+        STOPPED(0x94) => "drive stopped: command cannot be carried out",
+        /// 0x95: "Invalid data – incorrect checksum".
+        BAD_CHECKSUM(0x95) => "invalid data: incorrect checksum",
+        /// 0x97: "Invalid command – command not recognized".
+        UNKNOWN_COMMAND(0x97) => "invalid command: command not recognized",
+        /// 0x98: "B800 parameters locked – command cannot be carried out".
+        PARAMETERS_LOCKED(0x98) => "parameters locked: command cannot be carried out",
+        /// 0x99: "B800 hardware enable not present".
+        NO_HARDWARE_ENABLE(0x99) => "hardware enable not present",
+        /// 0x9A: "B800 tripped".
+        TRIPPED(0x9A) => "tripped",
     }
 }
 
@@ -388,9 +376,6 @@ impl fmt::Display for ErrorCode {
     /// `95 (invalid data: incorrect checksum)`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{:02X}", self.0)?;
-        match self.meaning() {
-            Some(m) => write!(f, " ({m})"),
-            None => f.write_str(" (not in the seed's list)"),
-        }
+        crate::error::write_meaning(f, self.meaning(), "not in the seed's list")
     }
 }

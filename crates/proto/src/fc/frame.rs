@@ -154,9 +154,29 @@ fn header_fields(
 }
 
 /// The LGE and ADR fields of a telegram with `block`.
-fn lge_adr_fields<A: Copy>(block: &Block<'_, A>, adr: Adr, out: &mut dyn FnMut(Field<'_>)) {
+/// The code and name of an AK, and what IND means with it.
+type AkHeader<A> = fn(A, u16) -> (u8, &'static str, Option<&'static str>);
+
+/// LGE, ADR, and the PKE and IND (and the text) of a parameter or text block, the same in a
+/// request and a reply but for what `header` says of their AK.
+fn block_fields<A: Copy>(
+    block: &Block<'_, A>,
+    adr: Adr,
+    header: AkHeader<A>,
+    out: &mut dyn FnMut(Field<'_>),
+) {
     out(Field::hex("LGE", block.lge() as u32, 2).with_meaning(block_meaning(block)));
     out(Field::hex("ADR", u32::from(adr.byte()), 2).with_meaning(adr.meaning()));
+    let (ak, pnu, ind) = match block {
+        Block::Process => return,
+        Block::Parameter(p) => (p.ak, p.pnu, p.ind),
+        Block::Text(t) => (t.ak, t.pnu, t.ind),
+    };
+    let (code, name, ind_meaning) = header(ak, ind);
+    header_fields(code, name, pnu, ind, ind_meaning, out);
+    if let Block::Text(t) = block {
+        out(Field::text("text", t.text));
+    }
 }
 
 /// What IND means in a request with `ak`: a description element, a text index or an array index.
@@ -236,19 +256,7 @@ impl Describe for Frame<'_> {
         let (code, name) = match self.message {
             Message::Request(r) => match r.command() {
                 Some(c) => (c.ak(), c.name()),
-                None => (
-                    0,
-                    match r.ctw.0 {
-                        0x047C => "process block: start",
-                        0x043C => "process block: ramp stop",
-                        0x0474 => "process block: coast",
-                        0x046C => "process block: quick stop",
-                        0x04FC => "process block: reset",
-                        0x847C => "process block: start reverse",
-                        0x057C => "process block: jog",
-                        _ => "process block: control word and reference",
-                    },
-                ),
+                None => (0, r.ctw.process_block_name()),
             },
             Message::Reply(r) => match r.response() {
                 Some(a) => (a.ak(), a.name()),
@@ -266,54 +274,38 @@ impl Describe for Frame<'_> {
         let adr = self.adr();
         match self.message {
             Message::Request(r) => {
-                lge_adr_fields(&r.block, adr, out);
-                match r.block {
-                    Block::Process => {}
-                    Block::Parameter(p) => {
-                        header_fields(p.ak.ak(), p.ak.name(), p.pnu, p.ind, command_ind(p.ak, p.ind), out);
-                        let pwe = Field::hex("PWE", p.pwe, 8);
-                        out(if p.ak.is_write() { pwe.with_meaning("value to write") } else { pwe });
-                    }
-                    Block::Text(t) => {
-                        header_fields(t.ak.ak(), t.ak.name(), t.pnu, t.ind, command_ind(t.ak, t.ind), out);
-                        out(Field::text("text", t.text));
-                    }
+                block_fields(&r.block, adr, |ak, ind| (ak.ak(), ak.name(), command_ind(ak, ind)), out);
+                if let Block::Parameter(p) = r.block {
+                    let pwe = Field::hex("PWE", p.pwe, 8);
+                    out(if p.ak.is_write() { pwe.with_meaning("value to write") } else { pwe });
                 }
                 ctw_fields(r.ctw, out);
                 out(reference_field("MRV", r.reference));
             }
             Message::Reply(r) => {
-                lge_adr_fields(&r.block, adr, out);
-                match r.block {
-                    Block::Process => {}
-                    Block::Parameter(p) => {
-                        header_fields(p.ak.ak(), p.ak.name(), p.pnu, p.ind, response_ind(p.ak, p.ind), out);
-                        out(Field::hex("PWE", p.pwe, 8));
-                        match p.ak {
-                            ParameterResponse::CannotPerform => {
-                                let code = FaultCode(p.pwe_low());
-                                out(Field::dec("fault code", i64::from(code.0))
-                                    .with_meaning(code.meaning().unwrap_or("not in the fault table")));
-                            }
-                            ParameterResponse::Description if p.ind == 1 => {
-                                let t = p.pwe as u8;
-                                let f = Field::dec("data type", i64::from(t));
-                                out(match data_type(t) {
-                                    Some(m) => f.with_meaning(m),
-                                    None => f,
-                                });
-                                out(Field::flag("additional text available", p.pwe & 0x0400 != 0));
-                            }
-                            ParameterResponse::Text => {
-                                let chars = p.pwe_bytes();
-                                out(Field::text("text", &chars));
-                            }
-                            _ => {}
+                block_fields(&r.block, adr, |ak, ind| (ak.ak(), ak.name(), response_ind(ak, ind)), out);
+                if let Block::Parameter(p) = r.block {
+                    out(Field::hex("PWE", p.pwe, 8));
+                    match p.ak {
+                        ParameterResponse::CannotPerform => {
+                            let code = FaultCode(p.pwe_low());
+                            out(Field::dec("fault code", i64::from(code.0))
+                                .with_meaning(code.meaning().unwrap_or("not in the fault table")));
                         }
-                    }
-                    Block::Text(t) => {
-                        header_fields(t.ak.ak(), t.ak.name(), t.pnu, t.ind, response_ind(t.ak, t.ind), out);
-                        out(Field::text("text", t.text));
+                        ParameterResponse::Description if p.ind == 1 => {
+                            let t = p.pwe as u8;
+                            let f = Field::dec("data type", i64::from(t));
+                            out(match data_type(t) {
+                                Some(m) => f.with_meaning(m),
+                                None => f,
+                            });
+                            out(Field::flag("additional text available", p.pwe & 0x0400 != 0));
+                        }
+                        ParameterResponse::Text => {
+                            let chars = p.pwe_bytes();
+                            out(Field::text("text", &chars));
+                        }
+                        _ => {}
                     }
                 }
                 stw_fields(r.stw, out);

@@ -260,80 +260,56 @@ impl ParameterResponse {
 pub struct FaultCode(pub u16);
 
 impl FaultCode {
-    /// 0: illegal parameter number.
-    pub const ILLEGAL_PARAMETER_NUMBER: FaultCode = FaultCode(0);
-    /// 1: parameter cannot be changed.
-    pub const CANNOT_BE_CHANGED: FaultCode = FaultCode(1);
-    /// 2: upper or lower limit exceeded.
-    pub const LIMIT_EXCEEDED: FaultCode = FaultCode(2);
-    /// 3: subindex corrupted.
-    pub const SUBINDEX_CORRUPTED: FaultCode = FaultCode(3);
-    /// 4: no array.
-    pub const NO_ARRAY: FaultCode = FaultCode(4);
-    /// 5: wrong data type.
-    pub const WRONG_DATA_TYPE: FaultCode = FaultCode(5);
-    /// 9: description element not available.
-    pub const NO_DESCRIPTION_ELEMENT: FaultCode = FaultCode(9);
-    /// 11: no parameter write access.
-    pub const NO_WRITE_ACCESS: FaultCode = FaultCode(11);
-    /// 15: no text available.
-    pub const NO_TEXT: FaultCode = FaultCode(15);
-    /// 17: not while running.
-    pub const NOT_WHILE_RUNNING: FaultCode = FaultCode(17);
-    /// 18: other error.
-    pub const OTHER_ERROR: FaultCode = FaultCode(18);
-    /// 130: no bus access for this parameter.
-    pub const NO_BUS_ACCESS: FaultCode = FaultCode(130);
-    /// 131: write to factory set-up not possible.
-    pub const FACTORY_SETUP: FaultCode = FaultCode(131);
-    /// 132: no LCP access.
-    pub const NO_LCP_ACCESS: FaultCode = FaultCode(132);
-    /// 252: unknown viewer.
-    pub const UNKNOWN_VIEWER: FaultCode = FaultCode(252);
-    /// 253: request not supported.
-    pub const NOT_SUPPORTED: FaultCode = FaultCode(253);
-    /// 254: unknown attribute.
-    pub const UNKNOWN_ATTRIBUTE: FaultCode = FaultCode(254);
-    /// 255: no error.
-    pub const NO_ERROR: FaultCode = FaultCode(255);
-
-    /// What the code means, if the table has it.
-    ///
-    /// The older FC 100 / FC 322 guides print the same codes in hex (0x11, 0x82, 0x83):
-    /// they are 17, 130 and 131 here (protocols.md 2.4).
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            0 => "illegal parameter number",
-            1 => "parameter cannot be changed",
-            2 => "upper or lower limit exceeded",
-            3 => "subindex corrupted",
-            4 => "no array",
-            5 => "wrong data type",
-            6 | 7 => "not used",
-            9 => "description element not available",
-            11 => "no parameter write access",
-            15 => "no text available",
-            17 => "not while running",
-            18 => "other error",
-            130 => "no bus access for this parameter",
-            131 => "write to factory set-up not possible",
-            132 => "no LCP access",
-            252 => "unknown viewer",
-            253 => "request not supported",
-            254 => "unknown attribute",
-            255 => "no error",
-            _ => return None,
-        })
+    crate::error::named_codes! {
+        FaultCode;
+        /// What the code means, if the table has it.
+        ///
+        /// The older FC 100 / FC 322 guides print the same codes in hex (0x11, 0x82, 0x83):
+        /// they are 17, 130 and 131 here (protocols.md 2.4).
+        fn meaning also { 6 | 7 => "not used" };
+        /// 0: illegal parameter number.
+        ILLEGAL_PARAMETER_NUMBER(0) => "illegal parameter number",
+        /// 1: parameter cannot be changed.
+        CANNOT_BE_CHANGED(1) => "parameter cannot be changed",
+        /// 2: upper or lower limit exceeded.
+        LIMIT_EXCEEDED(2) => "upper or lower limit exceeded",
+        /// 3: subindex corrupted.
+        SUBINDEX_CORRUPTED(3) => "subindex corrupted",
+        /// 4: no array.
+        NO_ARRAY(4) => "no array",
+        /// 5: wrong data type.
+        WRONG_DATA_TYPE(5) => "wrong data type",
+        /// 9: description element not available.
+        NO_DESCRIPTION_ELEMENT(9) => "description element not available",
+        /// 11: no parameter write access.
+        NO_WRITE_ACCESS(11) => "no parameter write access",
+        /// 15: no text available.
+        NO_TEXT(15) => "no text available",
+        /// 17: not while running.
+        NOT_WHILE_RUNNING(17) => "not while running",
+        /// 18: other error.
+        OTHER_ERROR(18) => "other error",
+        /// 130: no bus access for this parameter.
+        NO_BUS_ACCESS(130) => "no bus access for this parameter",
+        /// 131: write to factory set-up not possible.
+        FACTORY_SETUP(131) => "write to factory set-up not possible",
+        /// 132: no LCP access.
+        NO_LCP_ACCESS(132) => "no LCP access",
+        /// 252: unknown viewer.
+        UNKNOWN_VIEWER(252) => "unknown viewer",
+        /// 253: request not supported.
+        NOT_SUPPORTED(253) => "request not supported",
+        /// 254: unknown attribute.
+        UNKNOWN_ATTRIBUTE(254) => "unknown attribute",
+        /// 255: no error.
+        NO_ERROR(255) => "no error",
     }
 }
 
 impl fmt::Display for FaultCode {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}", self.0)?;
-        match self.meaning() {
-            Some(m) => write!(f, " ({m})"),
-            None => f.write_str(" (not in the fault table)"),
-        }
+        crate::error::write_meaning(f, self.meaning(), "not in the fault table")
     }
 }
 

@@ -14,21 +14,48 @@ use core::fmt;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct ControlWord(pub u16);
 
+/// The common control words from one list: a constant each, [`ControlWord::name`], and the
+/// command name of a process block that carries the word.
+macro_rules! common_words {
+    ($($(#[$doc:meta])* $constant:ident = $word:literal => $name:literal,)*) => {
+        $($(#[$doc])* pub const $constant: ControlWord = ControlWord($word);)*
+
+        /// The name of a common word (`047C` "start", ...), if this is one.
+        pub const fn name(self) -> Option<&'static str> {
+            Some(match self.0 {
+                $($word => $name,)*
+                0x0000 => "data invalid: the control word is ignored",
+                _ => return None,
+            })
+        }
+
+        /// The command name of a process block carrying this word: `process block: start`.
+        pub(crate) const fn process_block_name(self) -> &'static str {
+            match self.0 {
+                $($word => concat!("process block: ", $name),)*
+                _ => "process block: control word and reference",
+            }
+        }
+    };
+}
+
 impl ControlWord {
-    /// `047C`: start (bits 2, 3, 4, 5, 6, 10; the manual's example).
-    pub const START: ControlWord = ControlWord(0x047C);
-    /// `043C`: ramp stop (bit 6 = 0).
-    pub const RAMP_STOP: ControlWord = ControlWord(0x043C);
-    /// `0474`: coast (bit 3 = 0).
-    pub const COAST: ControlWord = ControlWord(0x0474);
-    /// `046C`: quick stop (bit 4 = 0).
-    pub const QUICK_STOP: ControlWord = ControlWord(0x046C);
-    /// `04FC`: reset; the drive resets on the 0->1 edge of bit 7, so send it after `047C`/`043C`.
-    pub const RESET: ControlWord = ControlWord(0x04FC);
-    /// `847C`: start reverse (bit 15; only if 8-54 allows the bus to reverse).
-    pub const START_REVERSE: ControlWord = ControlWord(0x847C);
-    /// `057C`: jog (bit 8; speed 3-19 Jog Speed).
-    pub const JOG: ControlWord = ControlWord(0x057C);
+    common_words! {
+        /// `047C`: start (bits 2, 3, 4, 5, 6, 10; the manual's example).
+        START = 0x047C => "start",
+        /// `043C`: ramp stop (bit 6 = 0).
+        RAMP_STOP = 0x043C => "ramp stop",
+        /// `0474`: coast (bit 3 = 0).
+        COAST = 0x0474 => "coast",
+        /// `046C`: quick stop (bit 4 = 0).
+        QUICK_STOP = 0x046C => "quick stop",
+        /// `04FC`: reset; the drive resets on the 0->1 edge of bit 7, so send it after `047C`/`043C`.
+        RESET = 0x04FC => "reset",
+        /// `847C`: start reverse (bit 15; only if 8-54 allows the bus to reverse).
+        START_REVERSE = 0x847C => "start reverse",
+        /// `057C`: jog (bit 8; speed 3-19 Jog Speed).
+        JOG = 0x057C => "jog",
+    }
 
     /// Bit 02: 1 = ramp, 0 = DC brake (+stop).
     pub const BIT_RAMP: u16 = 1 << 2;
@@ -126,21 +153,6 @@ impl ControlWord {
     /// Bit 15 = 1: reverse.
     pub const fn reverse(self) -> bool {
         self.has(Self::BIT_REVERSE)
-    }
-
-    /// The name of a common word (`047C` "start", ...), if this is one.
-    pub const fn name(self) -> Option<&'static str> {
-        Some(match self.0 {
-            0x047C => "start",
-            0x043C => "ramp stop",
-            0x0474 => "coast",
-            0x046C => "quick stop",
-            0x04FC => "reset",
-            0x847C => "start reverse",
-            0x057C => "jog",
-            0x0000 => "data invalid: the control word is ignored",
-            _ => return None,
-        })
     }
 
     /// The meaning of bit `bit` (0–15) when it is set.
@@ -340,6 +352,21 @@ fn round_sat(x: f64) -> i16 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn common_control_words_are_named() {
+        use ControlWord as W;
+        let words = [W::START, W::RAMP_STOP, W::COAST, W::QUICK_STOP, W::RESET, W::START_REVERSE, W::JOG];
+        let names = ["start", "ramp stop", "coast", "quick stop", "reset", "start reverse", "jog"];
+        for (word, name) in words.into_iter().zip(names) {
+            assert_eq!(word.name(), Some(name));
+            assert_eq!(word.process_block_name().strip_prefix("process block: "), Some(name));
+        }
+        assert_eq!(ControlWord(0x047C), ControlWord::START);
+        assert_eq!(ControlWord(0).name(), Some("data invalid: the control word is ignored"));
+        assert_eq!(ControlWord(0).process_block_name(), "process block: control word and reference");
+        assert_eq!(ControlWord(0x047D).name(), None);
+    }
 
     #[test]
     fn common_control_words_have_the_table_bits() {

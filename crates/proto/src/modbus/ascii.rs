@@ -191,17 +191,6 @@ fn split_with(frame: &[u8], check: bool) -> Result<(UnitId, Data<'_>), FrameErro
     Ok((UnitId(unit), Data::hex_digits(&digits[2..digits.len() - 2])))
 }
 
-/// Adds the address byte to the byte counts of a PDU length error.
-fn adu_error(e: FrameError) -> FrameError {
-    match e {
-        FrameError::Truncated { what, expected, got } => {
-            FrameError::Truncated { what, expected: expected + 1, got: got + 1 }
-        }
-        FrameError::TooLong { what, max, got } => FrameError::TooLong { what, max: max + 1, got: got + 1 },
-        e => e,
-    }
-}
-
 /// The ASCII frame methods of a request and of a reply, around each one's `parse_ascii_with`.
 macro_rules! ascii_frame {
     ($adu:ident, $what:literal) => {
@@ -249,7 +238,7 @@ impl<'a> Request<'a> {
                 };
                 Err(FrameError::Truncated { what, expected: 6, got: 5 })
             }
-            Err(e) => Err(adu_error(e)),
+            Err(e) => Err(super::adu_error(e, 1)),
         }
     }
 }
@@ -257,21 +246,14 @@ impl<'a> Request<'a> {
 impl<'a> Reply<'a> {
     fn parse_ascii_with(frame: &'a [u8], check: bool) -> Result<Self, FrameError> {
         let (unit, pdu) = split_with(frame, check)?;
-        Ok(Reply { unit, pdu: ReplyPdu::parse_data(pdu).map_err(adu_error)? })
+        Ok(Reply { unit, pdu: ReplyPdu::parse_data(pdu).map_err(|e| super::adu_error(e, 1))? })
     }
 }
 
 /// Writes `:` + the hex digits of `bin` and of its LRC + CR LF; returns the length.
 pub fn encode(bin: &[u8], out: &mut [u8]) -> Result<usize, EmitError> {
     let len = 1 + 2 * bin.len() + 2 + 2;
-    if len > MAX_FRAME {
-        return Err(EmitError::OutOfRange {
-            field: "frame length",
-            value: len as u32,
-            min: 9,
-            max: MAX_FRAME as u32,
-        });
-    }
+    crate::error::at_most("frame length", len as u32, 9, MAX_FRAME as u32)?;
     crate::error::need(out, len)?;
     out[0] = START;
     hex::encode_into(bin, &mut out[1..1 + 2 * bin.len()]);

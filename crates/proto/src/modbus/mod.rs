@@ -81,6 +81,21 @@ pub use pdu::{
     Registers, ReplyPdu, RequestPdu,
 };
 
+/// A PDU length error told in the bytes of the ADU that carries the PDU: `overhead` (the
+/// address, and the CRC of an RTU frame) added to both counts; other errors unchanged.
+pub(crate) fn adu_error(e: crate::FrameError, overhead: usize) -> crate::FrameError {
+    use crate::FrameError;
+    match e {
+        FrameError::Truncated { what, expected, got } => {
+            FrameError::Truncated { what, expected: expected + overhead, got: got + overhead }
+        }
+        FrameError::TooLong { what, max, got } => {
+            FrameError::TooLong { what, max: max + overhead, got: got + overhead }
+        }
+        e => e,
+    }
+}
+
 /// A Modbus unit (slave) address: 0 is broadcast, 1..=247 single drives (seed 004 allows up to 254).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct UnitId(pub u8);
@@ -381,6 +396,23 @@ fn register_fields(start: Option<RegisterAddress>, values: &Registers<'_>, out: 
     }
 }
 
+/// The fields of an 06 request or reply: the register and its value.
+fn single_register_fields(address: RegisterAddress, value: u16, out: &mut dyn FnMut(Field<'_>)) {
+    out(address_field("register address", address));
+    out(value_field(Some(address), value));
+}
+
+/// The fields of an 08 request or reply: the sub-function and the data.
+fn diagnostics_fields(sub_function: u16, data: Data<'_>, out: &mut dyn FnMut(Field<'_>)) {
+    out(Field::hex("sub-function", sub_function as u32, 4).with_meaning(sub_function_meaning(sub_function)));
+    data_field(data, out);
+}
+
+/// The data of a PDU shown as bytes.
+fn data_field(data: Data<'_>, out: &mut dyn FnMut(Field<'_>)) {
+    with_binary(data, |b| out(Field::bytes("data", b)));
+}
+
 fn mei_fields(code: ReadDeviceIdCode, out: &mut dyn FnMut(Field<'_>)) {
     out(Field::hex("MEI type", pdu::MEI_READ_DEVICE_ID as u32, 2).with_meaning("read device identification"));
     let f = Field::hex("read device ID code", code.0 as u32, 2);
@@ -416,15 +448,8 @@ impl Describe for Request<'_> {
                 out(address_field("starting address", start));
                 out(Field::dec("quantity", quantity as i64));
             }
-            RequestPdu::WriteSingleRegister { address, value } => {
-                out(address_field("register address", address));
-                out(value_field(Some(address), value));
-            }
-            RequestPdu::Diagnostics { sub_function, data } => {
-                out(Field::hex("sub-function", sub_function as u32, 4)
-                    .with_meaning(sub_function_meaning(sub_function)));
-                with_binary(data, |b| out(Field::bytes("data", b)));
-            }
+            RequestPdu::WriteSingleRegister { address, value } => single_register_fields(address, value, out),
+            RequestPdu::Diagnostics { sub_function, data } => diagnostics_fields(sub_function, data, out),
             RequestPdu::WriteMultipleRegisters { start, values } => {
                 out(address_field("starting address", start));
                 out(Field::dec("quantity", values.len() as i64));
@@ -443,7 +468,7 @@ impl Describe for Request<'_> {
                 mei_fields(code, out);
                 out(object_id_field("object ID", object_id));
             }
-            RequestPdu::Other { data, .. } => with_binary(data, |b| out(Field::bytes("data", b))),
+            RequestPdu::Other { data, .. } => data_field(data, out),
         }
     }
 }
@@ -474,15 +499,8 @@ impl Describe for Reply<'_> {
                 out(Field::dec("byte count", 2 * values.len() as i64));
                 register_fields(None, &values, out);
             }
-            ReplyPdu::WriteSingleRegister { address, value } => {
-                out(address_field("register address", address));
-                out(value_field(Some(address), value));
-            }
-            ReplyPdu::Diagnostics { sub_function, data } => {
-                out(Field::hex("sub-function", sub_function as u32, 4)
-                    .with_meaning(sub_function_meaning(sub_function)));
-                with_binary(data, |b| out(Field::bytes("data", b)));
-            }
+            ReplyPdu::WriteSingleRegister { address, value } => single_register_fields(address, value, out),
+            ReplyPdu::Diagnostics { sub_function, data } => diagnostics_fields(sub_function, data, out),
             ReplyPdu::WriteMultipleRegisters { start, quantity } => {
                 out(address_field("starting address", start));
                 out(Field::dec("quantity", quantity as i64));
@@ -506,41 +524,36 @@ impl Describe for Reply<'_> {
                     code.meaning().unwrap_or("not an exception code the specification defines"),
                 ));
             }
-            ReplyPdu::Other { data, .. } => with_binary(data, |b| out(Field::bytes("data", b))),
+            ReplyPdu::Other { data, .. } => data_field(data, out),
+        }
+    }
+}
+
+impl Frame<'_> {
+    /// The request or the reply, which describes itself.
+    fn inner(&self) -> &dyn Describe {
+        match self {
+            Frame::Request(r) => r,
+            Frame::Reply(r) => r,
         }
     }
 }
 
 impl Describe for Frame<'_> {
     fn direction(&self) -> Direction {
-        match self {
-            Frame::Request(_) => Direction::Master,
-            Frame::Reply(_) => Direction::Drive,
-        }
+        self.inner().direction()
     }
     fn target(&self) -> Target {
-        match self {
-            Frame::Request(r) => r.target(),
-            Frame::Reply(r) => r.target(),
-        }
+        self.inner().target()
     }
     fn command(&self) -> Command {
-        match self {
-            Frame::Request(r) => r.command(),
-            Frame::Reply(r) => r.command(),
-        }
+        self.inner().command()
     }
     fn is_refusal(&self) -> bool {
-        match self {
-            Frame::Request(_) => false,
-            Frame::Reply(r) => r.is_refusal(),
-        }
+        self.inner().is_refusal()
     }
     fn fields(&self, out: &mut dyn FnMut(Field<'_>)) {
-        match self {
-            Frame::Request(r) => r.fields(out),
-            Frame::Reply(r) => r.fields(out),
-        }
+        self.inner().fields(out)
     }
 }
 

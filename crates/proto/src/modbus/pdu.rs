@@ -17,7 +17,7 @@
 
 use core::fmt;
 
-use crate::error::{EmitError, FrameError};
+use crate::error::{at_most, in_range, EmitError, FrameError, OutOfRange};
 use crate::hex;
 
 /// The longest PDU: 253 bytes (a 256-byte RTU ADU less address and CRC).
@@ -352,40 +352,28 @@ view_iter! {
 pub struct ExceptionCode(pub u8);
 
 impl ExceptionCode {
-    /// 01: the function code is not supported (seed 004: "功能码错误", function code error).
-    pub const ILLEGAL_FUNCTION: Self = ExceptionCode(0x01);
-    /// 02: the register address does not exist (Toshiba: no such communication number).
-    pub const ILLEGAL_DATA_ADDRESS: Self = ExceptionCode(0x02);
-    /// 03: a value in the request is not allowed (Toshiba: data error, wrong count).
-    pub const ILLEGAL_DATA_VALUE: Self = ExceptionCode(0x03);
-    /// 04: the server failed while acting (Toshiba: impossible to execute).
-    pub const SERVER_DEVICE_FAILURE: Self = ExceptionCode(0x04);
-    /// 05: accepted, a long action is under way.
-    pub const ACKNOWLEDGE: Self = ExceptionCode(0x05);
-    /// 06: busy with a long action; retry later.
-    pub const SERVER_DEVICE_BUSY: Self = ExceptionCode(0x06);
-    /// 08: memory parity error in a file record.
-    pub const MEMORY_PARITY_ERROR: Self = ExceptionCode(0x08);
-    /// 0A: a gateway has no path to the target.
-    pub const GATEWAY_PATH_UNAVAILABLE: Self = ExceptionCode(0x0A);
-    /// 0B: a gateway's target did not answer.
-    pub const GATEWAY_TARGET_FAILED: Self = ExceptionCode(0x0B);
-
-    /// What the code means, for the codes the Modbus Application Protocol defines.
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            0x01 => "illegal function",
-            0x02 => "illegal data address",
-            0x03 => "illegal data value",
-            0x04 => "server device failure",
-            0x05 => "acknowledge",
-            0x06 => "server device busy",
-            0x07 => "negative acknowledge",
-            0x08 => "memory parity error",
-            0x0A => "gateway path unavailable",
-            0x0B => "gateway target device failed to respond",
-            _ => return None,
-        })
+    crate::error::named_codes! {
+        ExceptionCode;
+        /// What the code means, for the codes the Modbus Application Protocol defines.
+        fn meaning also { 0x07 => "negative acknowledge" };
+        /// 01: the function code is not supported (seed 004: "功能码错误", function code error).
+        ILLEGAL_FUNCTION(0x01) => "illegal function",
+        /// 02: the register address does not exist (Toshiba: no such communication number).
+        ILLEGAL_DATA_ADDRESS(0x02) => "illegal data address",
+        /// 03: a value in the request is not allowed (Toshiba: data error, wrong count).
+        ILLEGAL_DATA_VALUE(0x03) => "illegal data value",
+        /// 04: the server failed while acting (Toshiba: impossible to execute).
+        SERVER_DEVICE_FAILURE(0x04) => "server device failure",
+        /// 05: accepted, a long action is under way.
+        ACKNOWLEDGE(0x05) => "acknowledge",
+        /// 06: busy with a long action; retry later.
+        SERVER_DEVICE_BUSY(0x06) => "server device busy",
+        /// 08: memory parity error in a file record.
+        MEMORY_PARITY_ERROR(0x08) => "memory parity error",
+        /// 0A: a gateway has no path to the target.
+        GATEWAY_PATH_UNAVAILABLE(0x0A) => "gateway path unavailable",
+        /// 0B: a gateway's target did not answer.
+        GATEWAY_TARGET_FAILED(0x0B) => "gateway target device failed to respond",
     }
 
     /// The exception a server answers to a request that failed to parse with `error`:
@@ -421,24 +409,18 @@ const FUNCTION_CODE: &str = "function code";
 pub struct ReadDeviceIdCode(pub u8);
 
 impl ReadDeviceIdCode {
-    /// 01: the basic objects (vendor name, product code, revision) as a stream.
-    pub const BASIC: Self = ReadDeviceIdCode(1);
-    /// 02: the regular objects as a stream.
-    pub const REGULAR: Self = ReadDeviceIdCode(2);
-    /// 03: the extended objects as a stream.
-    pub const EXTENDED: Self = ReadDeviceIdCode(3);
-    /// 04: one specific object.
-    pub const SPECIFIC: Self = ReadDeviceIdCode(4);
-
-    /// What the code asks for.
-    pub const fn meaning(self) -> Option<&'static str> {
-        Some(match self.0 {
-            1 => "basic device identification (stream)",
-            2 => "regular device identification (stream)",
-            3 => "extended device identification (stream)",
-            4 => "one specific identification object",
-            _ => return None,
-        })
+    crate::error::named_codes! {
+        ReadDeviceIdCode;
+        /// What the code asks for.
+        fn meaning;
+        /// 01: the basic objects (vendor name, product code, revision) as a stream.
+        BASIC(1) => "basic device identification (stream)",
+        /// 02: the regular objects as a stream.
+        REGULAR(2) => "regular device identification (stream)",
+        /// 03: the extended objects as a stream.
+        EXTENDED(3) => "extended device identification (stream)",
+        /// 04: one specific object.
+        SPECIFIC(4) => "one specific identification object",
     }
 }
 
@@ -799,57 +781,60 @@ fn length_error(what: &'static str, expected: usize, got: usize) -> FrameError {
     }
 }
 
-/// "03 request" and friends, for length messages.
-pub(crate) const fn request_what(fc: u8) -> &'static str {
-    match fc {
-        0x01 => "01 request",
-        0x02 => "02 request",
-        0x03 => "03 request",
-        0x04 => "04 request",
-        0x05 => "05 request",
-        0x06 => "06 request",
-        0x07 => "07 request",
-        0x08 => "08 request",
-        0x0B => "0B request",
-        0x0C => "0C request",
-        0x0F => "0F request",
-        0x10 => "10 request",
-        0x11 => "11 request",
-        0x14 => "14 request",
-        0x15 => "15 request",
-        0x16 => "16 request",
-        0x17 => "17 request",
-        0x18 => "18 request",
-        0x2B => "2B/0E request",
-        _ => "request",
+/// `request_what` ("03 request") and `reply_what` ("03 reply") from one list of the function
+/// codes [`request_len`] and [`reply_len`] know, for length messages.
+macro_rules! what_tables {
+    ($($fc:literal $digits:literal),* $(,)?) => {
+        /// "03 request" and friends, for length messages.
+        pub(crate) const fn request_what(fc: u8) -> &'static str {
+            match fc {
+                $($fc => concat!($digits, " request"),)*
+                0x2B => "2B/0E request",
+                _ => "request",
+            }
+        }
+
+        /// "03 reply" and friends, for length messages.
+        pub(crate) const fn reply_what(fc: u8) -> &'static str {
+            match fc {
+                $($fc => concat!($digits, " reply"),)*
+                0x2B => "2B/0E reply",
+                0x80..=0xFF => "exception reply",
+                _ => "reply",
+            }
+        }
+    };
+}
+
+what_tables! {
+    0x01 "01", 0x02 "02", 0x03 "03", 0x04 "04", 0x05 "05", 0x06 "06", 0x07 "07", 0x08 "08", 0x0B "0B",
+    0x0C "0C", 0x0F "0F", 0x10 "10", 0x11 "11", 0x14 "14", 0x15 "15", 0x16 "16", 0x17 "17", 0x18 "18",
+}
+
+/// The function code of a PDU parsed as a `what` ("request", "reply"): its first byte.
+#[inline]
+fn function_of(pdu: Data<'_>, what: &'static str) -> Result<u8, FrameError> {
+    pdu.get(0).ok_or(FrameError::Truncated { what, expected: 1, got: 0 })
+}
+
+/// `len` when the function code `fc` (and the MEI type of a 2B) has a known layout.
+#[inline]
+fn known_layout(pdu: Data<'_>, fc: u8, len: PduLen) -> Result<PduLen, FrameError> {
+    match (len, fc) {
+        (PduLen::Unknown, 0x2B) => Err(FrameError::Unknown { field: "MEI type", value: pdu.at(1) as u32 }),
+        (PduLen::Unknown, _) => Err(FrameError::Unknown { field: FUNCTION_CODE, value: fc as u32 }),
+        (len, _) => Ok(len),
     }
 }
 
-/// "03 reply" and friends, for length messages.
-pub(crate) const fn reply_what(fc: u8) -> &'static str {
-    match fc {
-        0x01 => "01 reply",
-        0x02 => "02 reply",
-        0x03 => "03 reply",
-        0x04 => "04 reply",
-        0x05 => "05 reply",
-        0x06 => "06 reply",
-        0x07 => "07 reply",
-        0x08 => "08 reply",
-        0x0B => "0B reply",
-        0x0C => "0C reply",
-        0x0F => "0F reply",
-        0x10 => "10 reply",
-        0x11 => "11 reply",
-        0x14 => "14 reply",
-        0x15 => "15 reply",
-        0x16 => "16 reply",
-        0x17 => "17 reply",
-        0x18 => "18 reply",
-        0x2B => "2B/0E reply",
-        0x80..=0xFF => "exception reply",
-        _ => "reply",
+/// The sub-function and data of an 08 diagnostics request or reply: any data length
+/// (sub-function 0000 echoes N bytes, seed 004 echoes anything).
+fn diagnostics<'a>(pdu: Data<'a>, what: &'static str) -> Result<(u16, Data<'a>), FrameError> {
+    let got = pdu.len();
+    if got < 3 {
+        return Err(FrameError::Truncated { what, expected: 3, got });
     }
+    Ok((pdu.word(1), pdu.slice(3, got)))
 }
 
 /// Checks a PDU against the length its shape predicts.
@@ -862,12 +847,22 @@ fn check_len(what: &'static str, len: PduLen, got: usize) -> Result<(), FrameErr
     }
 }
 
-fn quantity_ok(q: u16, max: u16) -> Result<(), FrameError> {
-    if q == 0 || q > max {
-        // "quantity 0 is not allowed (1..125)"
-        return Err(FrameError::OutOfRange { field: "quantity", value: q as u32, min: 1, max: max as u32 });
-    }
-    Ok(())
+/// Checks a register quantity against `1..=max` ("quantity 0 is not allowed (1..125)").
+#[inline]
+fn quantity_ok(q: u16, max: u16) -> Result<(), OutOfRange> {
+    in_range("quantity", q as u32, 1, max as u32)
+}
+
+/// Checks a read device ID code: 01 to 04.
+#[inline]
+fn device_id_code_ok(code: ReadDeviceIdCode) -> Result<(), OutOfRange> {
+    in_range("read device ID code", code.0 as u32, 1, 4)
+}
+
+/// Checks a function code a frame is built with: 01 to 7F (the 0x80 bit marks exceptions).
+#[inline]
+fn function_ok(function: u8) -> Result<(), OutOfRange> {
+    in_range("function code", function as u32, 1, 0x7F)
 }
 
 impl<'a> RequestPdu<'a> {
@@ -894,9 +889,7 @@ impl<'a> RequestPdu<'a> {
     /// Parses a request PDU given as [`Data`] (binary or hex digits).
     pub fn parse_data(pdu: Data<'a>) -> Result<Self, FrameError> {
         let got = pdu.len();
-        let Some(fc) = pdu.get(0) else {
-            return Err(FrameError::Truncated { what: "request", expected: 1, got: 0 });
-        };
+        let fc = function_of(pdu, "request")?;
         if fc & function::EXCEPTION_BIT != 0 {
             // Only drives send function codes with the 0x80 bit: they are exception replies.
             return Err(FrameError::Malformed(
@@ -904,13 +897,7 @@ impl<'a> RequestPdu<'a> {
             ));
         }
         let what = request_what(fc);
-        let len = request_len(fc, |i| pdu.get(i));
-        if len == PduLen::Unknown {
-            return Err(match fc {
-                0x2B => FrameError::Unknown { field: "MEI type", value: pdu.at(1) as u32 },
-                _ => FrameError::Unknown { field: FUNCTION_CODE, value: fc as u32 },
-            });
-        }
+        let len = known_layout(pdu, fc, request_len(fc, |i| pdu.get(i)))?;
         match fc {
             0x03 | 0x04 => {
                 check_len(what, len, got)?;
@@ -926,17 +913,12 @@ impl<'a> RequestPdu<'a> {
             }
             0x06 => {
                 check_len(what, len, got)?;
-                Ok(RequestPdu::WriteSingleRegister {
-                    address: RegisterAddress(pdu.word(1)),
-                    value: pdu.word(3),
-                })
+                let (address, value) = (RegisterAddress(pdu.word(1)), pdu.word(3));
+                Ok(RequestPdu::WriteSingleRegister { address, value })
             }
             0x08 => {
-                // Any data length: sub-function 0000 echoes N bytes, seed 004 echoes anything.
-                if got < 3 {
-                    return Err(FrameError::Truncated { what, expected: 3, got });
-                }
-                Ok(RequestPdu::Diagnostics { sub_function: pdu.word(1), data: pdu.slice(3, got) })
+                let (sub_function, data) = diagnostics(pdu, what)?;
+                Ok(RequestPdu::Diagnostics { sub_function, data })
             }
             0x10 => {
                 // "Quantity of Registers 1 to 123 (0x7B)", "Byte Count 2 x N".
@@ -958,14 +940,7 @@ impl<'a> RequestPdu<'a> {
             0x2B => {
                 check_len(what, len, got)?;
                 let code = ReadDeviceIdCode(pdu.at(2));
-                if !(1..=4).contains(&code.0) {
-                    return Err(FrameError::OutOfRange {
-                        field: "read device ID code",
-                        value: code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(code)?;
                 Ok(RequestPdu::ReadDeviceIdentification { code, object_id: pdu.at(3) })
             }
             _ => {
@@ -1006,43 +981,24 @@ impl<'a> RequestPdu<'a> {
     /// Writes the binary PDU into `out`; returns its length.
     pub fn emit(&self, out: &mut [u8]) -> Result<usize, EmitError> {
         let n = self.wire_len();
-        if n > MAX_PDU {
-            return Err(EmitError::OutOfRange {
-                field: "PDU length",
-                value: n as u32,
-                min: 1,
-                max: MAX_PDU as u32,
-            });
-        }
-        crate::error::need(out, n)?;
-        out[0] = self.function();
+        emit_start(n, self.function(), out)?;
         match *self {
             RequestPdu::ReadHoldingRegisters { start, quantity }
-            | RequestPdu::ReadInputRegisters { start, quantity } => {
-                emit_quantity(quantity, 125)?;
-                put_word(out, 1, start.0);
-                put_word(out, 3, quantity);
-            }
-            RequestPdu::WriteSingleRegister { address, value } => {
-                put_word(out, 1, address.0);
-                put_word(out, 3, value);
-            }
-            RequestPdu::Diagnostics { sub_function, data } => {
-                put_word(out, 1, sub_function);
-                data.copy_to(&mut out[3..n])?;
-            }
+            | RequestPdu::ReadInputRegisters { start, quantity } => emit_span(out, start, quantity, 125)?,
+            RequestPdu::WriteSingleRegister { address, value } => put_words(out, address.0, value),
+            RequestPdu::Diagnostics { sub_function, data } => emit_diagnostics(out, n, sub_function, data)?,
             RequestPdu::WriteMultipleRegisters { start, values } => {
                 let q = values.len();
-                emit_quantity(q.min(u16::MAX as usize) as u16, 123)?;
+                quantity_ok(q.min(u16::MAX as usize) as u16, 123)?;
                 put_word(out, 1, start.0);
                 put_word(out, 3, q as u16);
                 out[5] = (2 * q) as u8;
                 values.write_be(&mut out[6..n])?;
             }
             RequestPdu::ReadWriteMultipleRegisters { read_start, read_quantity, write_start, values } => {
-                emit_quantity(read_quantity, 125)?;
+                quantity_ok(read_quantity, 125)?;
                 let q = values.len();
-                emit_quantity(q.min(u16::MAX as usize) as u16, 121)?;
+                quantity_ok(q.min(u16::MAX as usize) as u16, 121)?;
                 put_word(out, 1, read_start.0);
                 put_word(out, 3, read_quantity);
                 put_word(out, 5, write_start.0);
@@ -1051,27 +1007,13 @@ impl<'a> RequestPdu<'a> {
                 values.write_be(&mut out[10..n])?;
             }
             RequestPdu::ReadDeviceIdentification { code, object_id } => {
-                if !(1..=4).contains(&code.0) {
-                    return Err(EmitError::OutOfRange {
-                        field: "read device ID code",
-                        value: code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(code)?;
                 out[1] = MEI_READ_DEVICE_ID;
                 out[2] = code.0;
                 out[3] = object_id;
             }
             RequestPdu::Other { function, data } => {
-                if function & function::EXCEPTION_BIT != 0 || function == 0 {
-                    return Err(EmitError::OutOfRange {
-                        field: "function code",
-                        value: function as u32,
-                        min: 1,
-                        max: 0x7F,
-                    });
-                }
+                function_ok(function)?;
                 data.copy_to(&mut out[1..n])?;
             }
         }
@@ -1107,10 +1049,35 @@ fn counted_values<'a>(
     Ok(Registers::from_data(pdu.slice(at + 3, got)))
 }
 
-fn emit_quantity(q: u16, max: u16) -> Result<(), EmitError> {
-    if q == 0 || q > max {
-        return Err(EmitError::OutOfRange { field: "quantity", value: q as u32, min: 1, max: max as u32 });
-    }
+/// The start of every PDU [`emit`](RequestPdu::emit): checks the length `n` against
+/// [`MAX_PDU`] and `out`, and writes the function code.
+#[inline]
+fn emit_start(n: usize, function: u8, out: &mut [u8]) -> Result<(), EmitError> {
+    at_most("PDU length", n as u32, 1, MAX_PDU as u32)?;
+    crate::error::need(out, n)?;
+    out[0] = function;
+    Ok(())
+}
+
+/// Writes the two words at bytes 1..5 that most PDUs start with.
+#[inline]
+fn put_words(out: &mut [u8], a: u16, b: u16) {
+    put_word(out, 1, a);
+    put_word(out, 3, b);
+}
+
+/// Writes a first register and a quantity within `1..=max` (03/04 requests, the 10 reply).
+#[inline]
+fn emit_span(out: &mut [u8], start: RegisterAddress, quantity: u16, max: u16) -> Result<(), EmitError> {
+    quantity_ok(quantity, max)?;
+    put_words(out, start.0, quantity);
+    Ok(())
+}
+
+/// Writes the sub-function and data of an 08 diagnostics request or reply of `n` bytes.
+fn emit_diagnostics(out: &mut [u8], n: usize, sub_function: u16, data: Data<'_>) -> Result<(), EmitError> {
+    put_word(out, 1, sub_function);
+    data.copy_to(&mut out[3..n])?;
     Ok(())
 }
 
@@ -1149,17 +1116,9 @@ impl<'a> ReplyPdu<'a> {
     /// Parses a reply PDU given as [`Data`] (binary or hex digits).
     pub fn parse_data(pdu: Data<'a>) -> Result<Self, FrameError> {
         let got = pdu.len();
-        let Some(fc) = pdu.get(0) else {
-            return Err(FrameError::Truncated { what: "reply", expected: 1, got: 0 });
-        };
+        let fc = function_of(pdu, "reply")?;
         let what = reply_what(fc);
-        let len = reply_len(fc, |i| pdu.get(i));
-        if len == PduLen::Unknown {
-            return Err(match fc {
-                0x2B => FrameError::Unknown { field: "MEI type", value: pdu.at(1) as u32 },
-                _ => FrameError::Unknown { field: FUNCTION_CODE, value: fc as u32 },
-            });
-        }
+        let len = known_layout(pdu, fc, reply_len(fc, |i| pdu.get(i)))?;
         match fc {
             0x03 | 0x04 | 0x17 => {
                 if got < 2 {
@@ -1183,14 +1142,7 @@ impl<'a> ReplyPdu<'a> {
                 if count % 2 != 0 {
                     return Err(FrameError::Malformed("odd byte count: a register is 2 bytes"));
                 }
-                if count == 0 || count > 250 {
-                    return Err(FrameError::OutOfRange {
-                        field: "byte count",
-                        value: count as u32,
-                        min: 2,
-                        max: 250,
-                    });
-                }
+                in_range("byte count", count as u32, 2, 250)?;
                 let values = Registers::from_data(pdu.slice(2, got));
                 Ok(match fc {
                     0x03 => ReplyPdu::ReadHoldingRegisters { values },
@@ -1200,16 +1152,12 @@ impl<'a> ReplyPdu<'a> {
             }
             0x06 => {
                 check_len(what, len, got)?;
-                Ok(ReplyPdu::WriteSingleRegister {
-                    address: RegisterAddress(pdu.word(1)),
-                    value: pdu.word(3),
-                })
+                let (address, value) = (RegisterAddress(pdu.word(1)), pdu.word(3));
+                Ok(ReplyPdu::WriteSingleRegister { address, value })
             }
             0x08 => {
-                if got < 3 {
-                    return Err(FrameError::Truncated { what, expected: 3, got });
-                }
-                Ok(ReplyPdu::Diagnostics { sub_function: pdu.word(1), data: pdu.slice(3, got) })
+                let (sub_function, data) = diagnostics(pdu, what)?;
+                Ok(ReplyPdu::Diagnostics { sub_function, data })
             }
             0x10 => {
                 check_len(what, len, got)?;
@@ -1220,14 +1168,7 @@ impl<'a> ReplyPdu<'a> {
             0x2B => {
                 check_len(what, len, got)?;
                 let code = ReadDeviceIdCode(pdu.at(2));
-                if !(1..=4).contains(&code.0) {
-                    return Err(FrameError::OutOfRange {
-                        field: "read device ID code",
-                        value: code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(code)?;
                 let more_follows = match pdu.at(4) {
                     0x00 => false,
                     0xFF => true,
@@ -1299,55 +1240,22 @@ impl<'a> ReplyPdu<'a> {
     /// Writes the binary PDU into `out`; returns its length.
     pub fn emit(&self, out: &mut [u8]) -> Result<usize, EmitError> {
         let n = self.wire_len();
-        if n > MAX_PDU {
-            return Err(EmitError::OutOfRange {
-                field: "PDU length",
-                value: n as u32,
-                min: 1,
-                max: MAX_PDU as u32,
-            });
-        }
-        crate::error::need(out, n)?;
-        out[0] = self.function();
+        emit_start(n, self.function(), out)?;
         match *self {
             ReplyPdu::ReadHoldingRegisters { values }
             | ReplyPdu::ReadInputRegisters { values }
             | ReplyPdu::ReadWriteMultipleRegisters { values } => {
-                emit_quantity(values.len().min(u16::MAX as usize) as u16, 125)?;
+                quantity_ok(values.len().min(u16::MAX as usize) as u16, 125)?;
                 out[1] = (2 * values.len()) as u8;
                 values.write_be(&mut out[2..n])?;
             }
-            ReplyPdu::WriteSingleRegister { address, value } => {
-                put_word(out, 1, address.0);
-                put_word(out, 3, value);
-            }
-            ReplyPdu::Diagnostics { sub_function, data } => {
-                put_word(out, 1, sub_function);
-                data.copy_to(&mut out[3..n])?;
-            }
-            ReplyPdu::WriteMultipleRegisters { start, quantity } => {
-                emit_quantity(quantity, 123)?;
-                put_word(out, 1, start.0);
-                put_word(out, 3, quantity);
-            }
+            ReplyPdu::WriteSingleRegister { address, value } => put_words(out, address.0, value),
+            ReplyPdu::Diagnostics { sub_function, data } => emit_diagnostics(out, n, sub_function, data)?,
+            ReplyPdu::WriteMultipleRegisters { start, quantity } => emit_span(out, start, quantity, 123)?,
             ReplyPdu::ReadDeviceIdentification(r) => {
-                if !(1..=4).contains(&r.code.0) {
-                    return Err(EmitError::OutOfRange {
-                        field: "read device ID code",
-                        value: r.code.0 as u32,
-                        min: 1,
-                        max: 4,
-                    });
-                }
+                device_id_code_ok(r.code)?;
                 let count = r.objects.len();
-                if count > 255 {
-                    return Err(EmitError::OutOfRange {
-                        field: "number of objects",
-                        value: count as u32,
-                        min: 0,
-                        max: 255,
-                    });
-                }
+                at_most("number of objects", count as u32, 0, 255)?;
                 out[1] = MEI_READ_DEVICE_ID;
                 out[2] = r.code.0;
                 out[3] = r.conformity_level;
@@ -1363,25 +1271,11 @@ impl<'a> ReplyPdu<'a> {
                 }
             }
             ReplyPdu::Exception { function, code } => {
-                if function & function::EXCEPTION_BIT != 0 || function == 0 {
-                    return Err(EmitError::OutOfRange {
-                        field: "function code",
-                        value: function as u32,
-                        min: 1,
-                        max: 0x7F,
-                    });
-                }
+                function_ok(function)?;
                 out[1] = code.0;
             }
             ReplyPdu::Other { function, data } => {
-                if function & function::EXCEPTION_BIT != 0 || function == 0 {
-                    return Err(EmitError::OutOfRange {
-                        field: "function code",
-                        value: function as u32,
-                        min: 1,
-                        max: 0x7F,
-                    });
-                }
+                function_ok(function)?;
                 data.copy_to(&mut out[1..n])?;
             }
         }

@@ -359,17 +359,6 @@ impl RtuScanner {
     }
 }
 
-/// Adds the address and CRC bytes to the byte counts of a PDU length error.
-fn adu_error(e: FrameError) -> FrameError {
-    match e {
-        FrameError::Truncated { what, expected, got } => {
-            FrameError::Truncated { what, expected: expected + 3, got: got + 3 }
-        }
-        FrameError::TooLong { what, max, got } => FrameError::TooLong { what, max: max + 3, got: got + 3 },
-        e => e,
-    }
-}
-
 fn split(frame: &[u8]) -> Result<(UnitId, &[u8]), FrameError> {
     if frame.len() < MIN_ADU {
         return Err(FrameError::Truncated { what: WHAT_FRAME, expected: MIN_ADU, got: frame.len() });
@@ -404,7 +393,7 @@ macro_rules! rtu_frame {
             #[inline]
             pub fn parse_rtu_unchecked(frame: &'a [u8]) -> Result<Self, FrameError> {
                 let (unit, pdu) = split(frame)?;
-                Ok($adu { unit, pdu: $pdu::parse(pdu).map_err(adu_error)? })
+                Ok($adu { unit, pdu: $pdu::parse(pdu).map_err(|e| super::adu_error(e, 3))? })
             }
 
             /// Writes the RTU frame (address, PDU, CRC) into `out`; returns its length.

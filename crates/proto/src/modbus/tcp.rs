@@ -41,14 +41,7 @@ impl Mbap {
                 value: header.protocol as u32,
             });
         }
-        if !(2..=1 + MAX_PDU as u16).contains(&header.length) {
-            return Err(FrameError::OutOfRange {
-                field: "MBAP length",
-                value: header.length as u32,
-                min: 2,
-                max: 1 + MAX_PDU as u32,
-            });
-        }
+        crate::error::in_range("MBAP length", header.length as u32, 2, 1 + MAX_PDU as u32)?;
         Ok(Some(header))
     }
 

@@ -80,27 +80,10 @@ fn rtu_rep(bytes: &[u8]) -> Reply<'_> {
     Reply::parse_rtu(bytes).unwrap()
 }
 
-fn emit_rtu_req(r: &Request<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 256];
-    let n = r.emit_rtu(&mut buf).unwrap();
-    buf[..n].to_vec()
-}
-
-fn emit_rtu_rep(r: &Reply<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 256];
-    let n = r.emit_rtu(&mut buf).unwrap();
-    buf[..n].to_vec()
-}
-
-fn emit_ascii_req(r: &Request<'_>) -> Vec<u8> {
+/// The bytes `emit` (RTU or ASCII, request or reply) writes for `frame`.
+fn emitted<T>(frame: &T, emit: fn(&T, &mut [u8]) -> Result<usize, EmitError>) -> Vec<u8> {
     let mut buf = [0u8; 513];
-    let n = r.emit_ascii(&mut buf).unwrap();
-    buf[..n].to_vec()
-}
-
-fn emit_ascii_rep(r: &Reply<'_>) -> Vec<u8> {
-    let mut buf = [0u8; 513];
-    let n = r.emit_ascii(&mut buf).unwrap();
+    let n = emit(frame, &mut buf).unwrap();
     buf[..n].to_vec()
 }
 
@@ -127,7 +110,7 @@ fn tm1_read_fd00() {
             pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 }
         }
     );
-    assert_eq!(emit_rtu_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_rtu), f);
     assert_eq!(r.command().to_string(), "03 read holding registers");
     assert_eq!(r.target(), Target::Unit(1));
     assert_eq!(fields(&r), ["starting address FD00 (output frequency (Toshiba))", "quantity 1"]);
@@ -145,7 +128,7 @@ fn tm2_reply_60_hz() {
     let r = rtu_rep(&f);
     let ReplyPdu::ReadHoldingRegisters { values } = r.pdu else { panic!("{r:?}") };
     assert_eq!(values.iter().collect::<Vec<_>>(), [0x1770]);
-    assert_eq!(emit_rtu_rep(&r), f);
+    assert_eq!(emitted(&r, Reply::emit_rtu), f);
     assert_eq!(fields(&r), ["byte count 2", "register value 1770"]);
     assert!(Pending { unit: UnitId(1), function: 3 }.matches(&r));
     assert!(!Pending { unit: UnitId(2), function: 3 }.matches(&r));
@@ -158,7 +141,7 @@ fn tm3_read_two_words() {
     let f = h("01 03 FD 00 00 02 F5 A7");
     let r = rtu_req(&f);
     assert_eq!(r.pdu, RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 2 });
-    assert_eq!(emit_rtu_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_rtu), f);
 }
 
 #[test]
@@ -174,7 +157,7 @@ fn tm4_exception_03() {
     assert_eq!(r.command().to_string(), "83 exception to read holding registers");
     assert_eq!(fields(&r), ["exception code 03 (illegal data value)"]);
     assert!(Pending { unit: UnitId(1), function: 3 }.matches(&r));
-    assert_eq!(emit_rtu_rep(&Reply::exception(UnitId(1), 0x03, ExceptionCode(3))), f);
+    assert_eq!(emitted(&Reply::exception(UnitId(1), 0x03, ExceptionCode(3)), Reply::emit_rtu), f);
     // A request scanner does not take it; a reply scanner and a monitor do.
     assert_eq!(
         ModbusRtu::parse(&f, Some(Direction::Master)).unwrap_err(),
@@ -195,8 +178,8 @@ fn tm5_write_fa01_echoed() {
     assert_eq!(q.pdu, RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 0x1770 });
     let r = rtu_rep(&f);
     assert_eq!(r.pdu, ReplyPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 0x1770 });
-    assert_eq!(emit_rtu_req(&q), f);
-    assert_eq!(emit_rtu_rep(&r), f);
+    assert_eq!(emitted(&q, Request::emit_rtu), f);
+    assert_eq!(emitted(&r, Reply::emit_rtu), f);
     assert_eq!(
         fields(&q),
         [
@@ -235,7 +218,7 @@ fn tm7_read_device_identification() {
     let f = h("01 2B 0E 01 00 70 77");
     let r = rtu_req(&f);
     assert_eq!(r.pdu, RequestPdu::ReadDeviceIdentification { code: ReadDeviceIdCode::BASIC, object_id: 0 });
-    assert_eq!(emit_rtu_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_rtu), f);
     assert_eq!(r.command().to_string(), "2B read device identification");
     assert_eq!(
         fields(&r),
@@ -268,7 +251,7 @@ fn tm8_device_identification_reply() {
     assert_eq!(id.next_object_id, 0);
     let objs: Vec<(u8, Vec<u8>)> = id.objects.iter().map(|o| (o.id, o.value.iter().collect())).collect();
     assert_eq!(objs, [(0, b"TOSHIBA".to_vec()), (1, b"VFS15-2037PM".to_vec()), (2, b"0100".to_vec())]);
-    assert_eq!(emit_rtu_rep(&r), f);
+    assert_eq!(emitted(&r, Reply::emit_rtu), f);
     // Built from a list, it is the same frame.
     let list = [
         DeviceObject::new(0, b"TOSHIBA"),
@@ -285,7 +268,7 @@ fn tm8_device_identification_reply() {
             objects: DeviceObjects::from_list(&list),
         }),
     };
-    assert_eq!(emit_rtu_rep(&built), f);
+    assert_eq!(emitted(&built, Reply::emit_rtu), f);
     assert_eq!(built, r);
     let fs = fields(&r);
     assert_eq!(fs[2], "conformity level 01 (basic identification, stream access only)");
@@ -333,7 +316,7 @@ fn m1_spec_example() {
     let r = rtu_req(&f);
     assert_eq!(r.unit, UnitId(17));
     assert_eq!(r.pdu, RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0x006B), quantity: 3 });
-    assert_eq!(emit_rtu_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_rtu), f);
 }
 
 #[test]
@@ -349,7 +332,7 @@ fn m3_ascii_write() {
     let r = Request::parse_ascii(&f).unwrap();
     assert_eq!(r.unit, UnitId(1));
     assert_eq!(r.pdu, RequestPdu::WriteSingleRegister { address: RegisterAddress(0x0405), value: 0x1234 });
-    assert_eq!(emit_ascii_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_ascii), f);
     assert_eq!(AsciiScanner.scan(&f, 0), Scan::Frame { len: f.len() });
 }
 
@@ -359,7 +342,7 @@ fn m4_ascii_read_two_from_2102() {
     let f = a(":010321020002D7");
     let r = Request::parse_ascii(&f).unwrap();
     assert_eq!(r.pdu, RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0x2102), quantity: 2 });
-    assert_eq!(emit_ascii_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_ascii), f);
     assert_eq!(fields(&r), ["starting address 2102 (set frequency (generic VFD))", "quantity 2"]);
 }
 
@@ -369,7 +352,7 @@ fn m5_ascii_read_one_from_0401() {
     let f = a(":010304010001F6");
     let r = Request::parse_ascii(&f).unwrap();
     assert_eq!(r.pdu, RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0x0401), quantity: 1 });
-    assert_eq!(emit_ascii_req(&r), f);
+    assert_eq!(emitted(&r, Request::emit_ascii), f);
 }
 
 #[test]
@@ -449,7 +432,7 @@ fn m12_seed_rtu_write_p0_02() {
     let q = rtu_req(&f);
     assert_eq!(q.pdu, RequestPdu::WriteSingleRegister { address: RegisterAddress(2), value: 5000 });
     assert_eq!(rtu_rep(&f).pdu, ReplyPdu::WriteSingleRegister { address: RegisterAddress(2), value: 5000 });
-    assert_eq!(emit_rtu_req(&q), f);
+    assert_eq!(emitted(&q, Request::emit_rtu), f);
     // The seed prints the request with address 00H: the CRC 25 5C is that of address 01.
     let seed = h("00 06 00 02 13 88 25 5C");
     let want = "CRC mismatch: frame carries 25 5C, computed 24 8D \
@@ -476,8 +459,8 @@ fn m14_seed_ascii_write_p0_02() {
     assert_eq!(q.pdu, RequestPdu::WriteSingleRegister { address: RegisterAddress(2), value: 5000 });
     let r = Reply::parse_ascii(&f).unwrap();
     assert_eq!(r.pdu, ReplyPdu::WriteSingleRegister { address: RegisterAddress(2), value: 5000 });
-    assert_eq!(emit_ascii_req(&q), f);
-    assert_eq!(emit_ascii_rep(&r), f);
+    assert_eq!(emitted(&q, Request::emit_ascii), f);
+    assert_eq!(emitted(&r, Reply::emit_ascii), f);
 }
 
 #[test]
@@ -492,8 +475,8 @@ fn m15_seed_rtu_loop_back() {
     assert_eq!(q.pdu, RequestPdu::Diagnostics { sub_function: 0x0102, data: Data::binary(&[3, 4]) });
     let r = rtu_rep(&f);
     assert_eq!(r.pdu, ReplyPdu::Diagnostics { sub_function: 0x0102, data: Data::binary(&[3, 4]) });
-    assert_eq!(emit_rtu_req(&q), f);
-    assert_eq!(emit_rtu_rep(&r), f);
+    assert_eq!(emitted(&q, Request::emit_rtu), f);
+    assert_eq!(emitted(&r, Reply::emit_rtu), f);
     assert_eq!(
         fields(&q),
         [
@@ -510,10 +493,10 @@ fn m16_seed_ascii_loop_back() {
     let f = a(":010801020304ED");
     let q = Request::parse_ascii(&f).unwrap();
     assert_eq!(q.pdu, RequestPdu::Diagnostics { sub_function: 0x0102, data: Data::binary(&[3, 4]) });
-    assert_eq!(emit_ascii_req(&q), f);
+    assert_eq!(emitted(&q, Request::emit_ascii), f);
     assert_eq!(fields(&q)[1], "data 03 04");
     let r = Reply::parse_ascii(&f).unwrap();
-    assert_eq!(emit_ascii_rep(&r), f);
+    assert_eq!(emitted(&r, Reply::emit_ascii), f);
 }
 
 #[test]
@@ -628,7 +611,7 @@ fn write_multiple_registers() {
             values: Registers::from_values(&values),
         },
     };
-    let f = emit_rtu_req(&q);
+    let f = emitted(&q, Request::emit_rtu);
     assert_eq!(&f[..11], &h("01 10 20 00 00 02 04 00 01 0B B8")[..]);
     assert_eq!(rtu_req(&f), q);
     assert_eq!(RtuScanner::requests().scan(&f, 0), Scan::Frame { len: 13 });
@@ -646,7 +629,7 @@ fn write_multiple_registers() {
         unit: UnitId(1),
         pdu: ReplyPdu::WriteMultipleRegisters { start: RegisterAddress(0x2000), quantity: 2 },
     };
-    let rf = emit_rtu_rep(&rep);
+    let rf = emitted(&rep, Reply::emit_rtu);
     assert_eq!(rf.len(), 8);
     assert_eq!(rtu_rep(&rf), rep);
     assert!(q.pending().unwrap().matches(&rep));
@@ -703,11 +686,17 @@ fn exception_codes_have_meanings() {
     ];
     for (code, meaning) in want {
         assert_eq!(ExceptionCode(code).meaning(), Some(meaning));
-        let f = emit_rtu_rep(&Reply::exception(UnitId(5), 0x06, ExceptionCode(code)));
+        let f = emitted(&Reply::exception(UnitId(5), 0x06, ExceptionCode(code)), Reply::emit_rtu);
         let r = rtu_rep(&f);
         assert_eq!(fields(&r), [format!("exception code {code:02X} ({meaning})")]);
     }
+    // 07 has a meaning but no constant.
+    assert_eq!(ExceptionCode(0x07).meaning(), Some("negative acknowledge"));
     assert_eq!(ExceptionCode(0x42).meaning(), None);
+    assert_eq!(
+        (ExceptionCode::ILLEGAL_FUNCTION, ExceptionCode::GATEWAY_TARGET_FAILED),
+        (ExceptionCode(1), ExceptionCode(0x0B))
+    );
     assert_eq!(
         ExceptionCode::for_error(&FrameError::Unknown { field: "function code", value: 0x41 }),
         ExceptionCode::ILLEGAL_FUNCTION
@@ -721,17 +710,23 @@ fn exception_codes_have_meanings() {
 #[test]
 fn other_function_codes_are_framed() {
     // 01 read coils: 8-byte request, reply with a byte count; parsed as Other.
-    let q = emit_rtu_req(&Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::Other { function: 0x01, data: Data::binary(&[0, 0x13, 0, 0x25]) },
-    });
+    let q = emitted(
+        &Request {
+            unit: UnitId(1),
+            pdu: RequestPdu::Other { function: 0x01, data: Data::binary(&[0, 0x13, 0, 0x25]) },
+        },
+        Request::emit_rtu,
+    );
     assert_eq!(RtuScanner::requests().scan(&q, 0), Scan::Frame { len: 8 });
     assert_eq!(rtu_req(&q).pdu, RequestPdu::Other { function: 1, data: Data::binary(&[0, 0x13, 0, 0x25]) });
     assert_eq!(rtu_req(&q).command().to_string(), "01 read coils");
-    let r = emit_rtu_rep(&Reply {
-        unit: UnitId(1),
-        pdu: ReplyPdu::Other { function: 0x01, data: Data::binary(&[3, 0xCD, 0x6B, 0x05]) },
-    });
+    let r = emitted(
+        &Reply {
+            unit: UnitId(1),
+            pdu: ReplyPdu::Other { function: 0x01, data: Data::binary(&[3, 0xCD, 0x6B, 0x05]) },
+        },
+        Reply::emit_rtu,
+    );
     assert_eq!(RtuScanner::replies().scan(&r, 0), Scan::Frame { len: 8 });
     // Unknown codes are rejected at once, one byte skipped.
     let junk = h("01 41 00 00 00 00 00 00");
@@ -806,7 +801,7 @@ fn rtu_silence_accepts_any_length_with_a_good_crc() {
         unit: UnitId(3),
         pdu: RequestPdu::Diagnostics { sub_function: 0, data: Data::binary(&[1, 2, 3, 4, 5, 6]) },
     };
-    let f = emit_rtu_req(&q);
+    let f = emitted(&q, Request::emit_rtu);
     assert_eq!(RtuScanner::requests().silence(&f), Scan::Frame { len: f.len() });
     assert_eq!(rtu_req(&f), q);
     // Bytes cut short of a reply: say how many are missing.
@@ -861,32 +856,20 @@ fn rtu_reply_too_long_is_rejected_quickly() {
 // ---------------------------------------------------------------------------------------------
 // ASCII scanner
 
+/// A non-hex byte ends a frame; a new ':' restarts one. The bad part is rejected, the frame
+/// after it found.
 #[test]
-fn ascii_non_hex_byte_ends_the_frame() {
-    let mut s = b":01\x01".to_vec();
-    s.extend_from_slice(&a(":010604051234AA"));
-    let evs = deframe(AsciiScanner, &[&s], true);
-    assert_eq!(
-        evs,
-        [
-            Ev::Rejected(b":01\x01".to_vec(), "non-hex byte 0x01 at offset 3 ends the frame".into()),
-            Ev::Frame(a(":010604051234AA")),
-        ]
-    );
-}
-
-#[test]
-fn ascii_new_colon_restarts() {
-    let mut s = b"xx:0103".to_vec();
-    s.extend_from_slice(&a(":010304010001F6"));
-    let evs = deframe(AsciiScanner, &[&s], true);
-    assert_eq!(
-        evs,
-        [
-            Ev::Rejected(b":0103".to_vec(), "a new ':' started another frame before this one's CR LF".into()),
-            Ev::Frame(a(":010304010001F6")),
-        ]
-    );
+fn ascii_bad_starts_are_rejected_and_the_next_frame_found() {
+    let cases: [(&[u8], &[u8], &str, &str); 2] = [
+        (b":01\x01", b":01\x01", "non-hex byte 0x01 at offset 3 ends the frame", ":010604051234AA"),
+        (b"xx:0103", b":0103", "a new ':' started another frame before this one's CR LF", ":010304010001F6"),
+    ];
+    for (junk, rejected, error, frame) in cases {
+        let mut s = junk.to_vec();
+        s.extend_from_slice(&a(frame));
+        let want = [Ev::Rejected(rejected.to_vec(), error.into()), Ev::Frame(a(frame))];
+        assert_eq!(deframe(AsciiScanner, &[&s], true), want);
+    }
 }
 
 #[test]
@@ -896,7 +879,7 @@ fn ascii_lower_case_and_errors() {
     let r = Request::parse_ascii(&f).unwrap();
     assert_eq!(r.pdu, RequestPdu::WriteSingleRegister { address: RegisterAddress(0x0405), value: 0x1234 });
     // Sent in upper case.
-    assert_eq!(emit_ascii_req(&r), a(":010604051234AA"));
+    assert_eq!(emitted(&r, Request::emit_ascii), a(":010604051234AA"));
     // LRC
     let bad = a(":010604051234AB");
     assert_eq!(
@@ -936,7 +919,7 @@ fn ascii_longest_frame() {
             values: Registers::from_values(&values),
         },
     };
-    let f = emit_ascii_req(&q);
+    let f = emitted(&q, Request::emit_ascii);
     assert_eq!(f.len(), 511);
     assert_eq!(deframe(AsciiScanner, &[&f], true), [Ev::Frame(f.clone())]);
     assert_eq!(Request::parse_ascii(&f).unwrap(), q);
@@ -946,7 +929,7 @@ fn ascii_longest_frame() {
         unit: UnitId(1),
         pdu: RequestPdu::Diagnostics { sub_function: 0, data: Data::binary(&data) },
     };
-    let f = emit_ascii_req(&d);
+    let f = emitted(&d, Request::emit_ascii);
     assert_eq!(f.len(), 513);
     assert_eq!(deframe(AsciiScanner, &[&f], true), [Ev::Frame(f.clone())]);
     // One digit pair more does not fit.
@@ -963,9 +946,9 @@ fn ascii_data_views_decode_hex() {
     let r = Reply::parse_ascii(&f).unwrap();
     let ReplyPdu::ReadHoldingRegisters { values } = r.pdu else { panic!() };
     assert_eq!(values.iter().collect::<Vec<_>>(), [0x0102, 0xABCD]);
-    assert_eq!(emit_ascii_rep(&r), f);
+    assert_eq!(emitted(&r, Reply::emit_ascii), f);
     // The same reply over RTU compares equal.
-    let rtu_f = emit_rtu_rep(&r);
+    let rtu_f = emitted(&r, Reply::emit_rtu);
     assert_eq!(rtu_rep(&rtu_f), r);
 }
 
@@ -1021,17 +1004,35 @@ fn drive_handler(
     }
 }
 
+/// TM1: read FD00 (output frequency), one register, from drive 1.
+const READ_FD00: Request<'static> = Request {
+    unit: UnitId(1),
+    pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
+};
+
+/// TM5: write 6000 (60.00 Hz) into FA01 of drive 1.
+const WRITE_FA01: Request<'static> = Request {
+    unit: UnitId(1),
+    pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
+};
+
+/// A Modbus RTU master at `baud`, 8E1.
+fn rtu_master(baud: u32) -> MasterSession<ModbusRtu> {
+    MasterSession::new(ModbusRtu, rtu::timing(baud, CharFormat::EVEN_8E1))
+}
+
+/// Drive `unit` on Modbus RTU, answering 2 ms after a request.
+fn rtu_slave(unit: u8) -> SlaveSession<ModbusRtu> {
+    SlaveSession::new(ModbusRtu, unit, Duration::from_millis(2))
+}
+
 #[test]
 fn session_request_and_reply() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
-    let mut slave = SlaveSession::new(ModbusRtu, 1, Duration::from_millis(2));
+    let mut master = rtu_master(19200);
+    let mut slave = rtu_slave(1);
     let mut handler = drive_handler();
     let t0 = Instant::from_millis(10);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
-    };
+    let req = READ_FD00;
     master.send(t0, &req).unwrap();
     let wire = master.poll_transmit(t0).unwrap().to_vec();
     assert_eq!(wire, h("01 03 FD 00 00 01 B5 A6"));
@@ -1054,13 +1055,9 @@ fn session_request_and_reply() {
 
 #[test]
 fn session_min_gap_is_respected() {
-    let timing = rtu::timing(9600, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
+    let mut master = rtu_master(9600);
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
-    };
+    let req = WRITE_FA01;
     master.send(t0, &req).unwrap();
     master.poll_transmit(t0).unwrap();
     let echo = h("01 06 FA 01 17 70 E6 C6");
@@ -1082,10 +1079,7 @@ fn session_reply_sooner_than_the_wire_time_allows_the_next_request_after_the_gap
     timing.min_gap = Duration::ZERO;
     let mut master = MasterSession::new(ModbusRtu, timing);
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
-    };
+    let req = WRITE_FA01;
     master.send(t0, &req).unwrap();
     master.poll_transmit(t0).unwrap();
     // 8 characters at 9600 8E1 take 9.2 ms; the echo is here after 50 us.
@@ -1099,9 +1093,8 @@ fn session_reply_sooner_than_the_wire_time_allows_the_next_request_after_the_gap
 
 #[test]
 fn session_broadcast_gets_no_reply() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
-    let mut slave = SlaveSession::new(ModbusRtu, 1, Duration::from_millis(2));
+    let mut master = rtu_master(19200);
+    let mut slave = rtu_slave(1);
     let mut seen = Vec::new();
     let mut handler = |_: Instant,
                        inc: Incoming<'_, Request<'_>>,
@@ -1134,15 +1127,11 @@ fn session_broadcast_gets_no_reply() {
 
 #[test]
 fn session_timeout_and_other_addresses() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
-    let mut slave = SlaveSession::new(ModbusRtu, 2, Duration::from_millis(2));
+    let mut master = rtu_master(19200);
+    let mut slave = rtu_slave(2);
     let mut handler = drive_handler();
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
-    };
+    let req = READ_FD00;
     master.send(t0, &req).unwrap();
     let wire = master.poll_transmit(t0).unwrap().to_vec();
     slave.handle_input(t0, &wire, &mut handler);
@@ -1157,13 +1146,9 @@ fn session_timeout_and_other_addresses() {
 
 #[test]
 fn session_corrupt_reply() {
-    let timing = rtu::timing(19200, CharFormat::EVEN_8E1);
-    let mut master = MasterSession::new(ModbusRtu, timing);
+    let mut master = rtu_master(19200);
     let t0 = Instant::from_millis(0);
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::ReadHoldingRegisters { start: RegisterAddress(0xFD00), quantity: 1 },
-    };
+    let req = READ_FD00;
     master.send(t0, &req).unwrap();
     master.poll_transmit(t0).unwrap();
     master.handle_input(t0 + Duration::from_millis(10), &h("01 03 02 17 70 B6 51"));
@@ -1187,10 +1172,13 @@ fn session_exception_for_a_bad_request() {
     // An unsupported but known function: exception 01.
     slave.handle_input(
         t,
-        &emit_rtu_req(&Request {
-            unit: UnitId(1),
-            pdu: RequestPdu::Other { function: 0x05, data: Data::binary(&[0, 1, 0xFF, 0]) },
-        }),
+        &emitted(
+            &Request {
+                unit: UnitId(1),
+                pdu: RequestPdu::Other { function: 0x05, data: Data::binary(&[0, 1, 0xFF, 0]) },
+            },
+            Request::emit_rtu,
+        ),
         &mut handler,
     );
     let rep = slave.poll_transmit(t).unwrap().to_vec();
@@ -1268,19 +1256,28 @@ fn register_units_and_constructors() {
     assert_eq!(register_info(RegisterAddress(0x0002)), None);
     // The constructors build the vectors.
     assert_eq!(
-        emit_rtu_req(&Request::read_holding_registers(UnitId(1), 0xFD00, 1)),
+        emitted(&Request::read_holding_registers(UnitId(1), 0xFD00, 1), Request::emit_rtu),
         h("01 03 FD 00 00 01 B5 A6")
     );
     assert_eq!(
-        emit_rtu_req(&Request::write_single_register(UnitId(1), 0xFA01, 6000)),
+        emitted(&Request::write_single_register(UnitId(1), 0xFA01, 6000), Request::emit_rtu),
         h("01 06 FA 01 17 70 E6 C6")
     );
-    assert_eq!(emit_rtu_req(&Request::diagnostics(UnitId(1), 0x0102, &[3, 4])), h("01 08 01 02 03 04 41 04"));
     assert_eq!(
-        emit_rtu_req(&Request::read_device_identification(UnitId(1), ReadDeviceIdCode::BASIC, 0)),
+        emitted(&Request::diagnostics(UnitId(1), 0x0102, &[3, 4]), Request::emit_rtu),
+        h("01 08 01 02 03 04 41 04")
+    );
+    assert_eq!(
+        emitted(
+            &Request::read_device_identification(UnitId(1), ReadDeviceIdCode::BASIC, 0),
+            Request::emit_rtu
+        ),
         h("01 2B 0E 01 00 70 77")
     );
-    assert_eq!(emit_ascii_req(&Request::read_holding_registers(UnitId(1), 0x2102, 2)), a(":010321020002D7"));
+    assert_eq!(
+        emitted(&Request::read_holding_registers(UnitId(1), 0x2102, 2), Request::emit_ascii),
+        a(":010321020002D7")
+    );
     assert_eq!(
         Request::read_input_registers(UnitId(2), 5, 1).pdu,
         RequestPdu::ReadInputRegisters { start: RegisterAddress(5), quantity: 1 }
@@ -1309,10 +1306,7 @@ fn monitor_diagnoses_at_silence() {
 /// makes it incomplete; shorter gaps, or the rule off (the default), keep the frame.
 #[test]
 fn session_t15_inside_a_reply_declares_it_incomplete_when_enforced() {
-    let req = Request {
-        unit: UnitId(1),
-        pdu: RequestPdu::WriteSingleRegister { address: RegisterAddress(0xFA01), value: 6000 },
-    };
+    let req = WRITE_FA01;
     let reply = h("01 06 FA 01 17 70 E6 C6");
     let (t15, _) = crate::line::modbus_t15_t35(9600);
     let run = |enforce: bool, gap: Duration| {
@@ -1366,4 +1360,21 @@ fn read_write_multiple_registers_round_trips_and_is_checked() {
     assert!(matches!(rep, ReplyPdu::ReadWriteMultipleRegisters { values } if values.len() == 2));
     assert_eq!(rep.emit(&mut out), Ok(reply.len()));
     assert_eq!(&out[..reply.len()], &reply);
+}
+
+#[test]
+fn length_messages_name_the_function() {
+    use super::pdu::{reply_what, request_what};
+    for (fc, req, rep) in [
+        (0x01, "01 request", "01 reply"),
+        (0x0B, "0B request", "0B reply"),
+        (0x0F, "0F request", "0F reply"),
+        (0x18, "18 request", "18 reply"),
+        (0x2B, "2B/0E request", "2B/0E reply"),
+        (0x09, "request", "reply"),
+        (0x83, "request", "exception reply"),
+    ] {
+        assert_eq!((request_what(fc), reply_what(fc)), (req, rep), "{fc:02X}");
+    }
+    assert_eq!(err(ReplyPdu::parse(&h("10 00 01"))), "truncated frame: 10 reply needs 5 bytes, got 3");
 }

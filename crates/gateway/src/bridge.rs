@@ -114,12 +114,11 @@ async fn connection(
     let mut buf = vec![0u8; 2048];
     let mut len = 0;
     let mut rtu = Deframer::new(RtuScanner::requests());
-    let limits = gw.limits().config().clone();
+    let mut deadlines = crate::limits::ReadDeadlines::new(gw.limits().config());
     loop {
         // The rest of an MBAP frame begun within the header timeout; the next request within
         // the idle timeout: otherwise the connection is closed.
-        let wait = if len > 0 { limits.header_timeout } else { limits.idle_timeout };
-        let Some(n) = crate::limits::read_within(&mut sock, &mut buf[len..], wait).await? else {
+        let Some(n) = deadlines.read(&mut sock, &mut buf[len..], len > 0).await? else {
             return Ok(());
         };
         if n == 0 {

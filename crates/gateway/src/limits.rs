@@ -3,7 +3,7 @@
 //! connections refused while the process's open descriptors are within `reserve_fds` of its
 //! limit (so the other listeners, the buses' ports and the store never starve); refusals
 //! logged at a bounded rate. The header and idle timeouts are applied by each front end
-//! ([`Timeouts`], [`Activity`]).
+//! ([`ReadDeadlines`], [`Activity`]).
 
 use std::collections::HashMap;
 use std::net::IpAddr;
@@ -241,20 +241,68 @@ pub fn canonical(ip: IpAddr) -> IpAddr {
     }
 }
 
-/// Reads from `stream` into `buf`, waiting at most `wait` (for ever when zero): `None` when
-/// nothing came in time.
-pub async fn read_within<S: AsyncRead + Unpin>(
-    stream: &mut S,
-    buf: &mut [u8],
-    wait: Duration,
-) -> std::io::Result<Option<usize>> {
-    use tokio::io::AsyncReadExt;
-    if wait.is_zero() {
-        return stream.read(buf).await.map(Some);
+/// `at` plus `wait`; a wait too long to add (a timeout of billions of seconds in the
+/// configuration) is thirty years.
+fn later(at: Instant, wait: Duration) -> Instant {
+    at.checked_add(wait).unwrap_or_else(|| at + Duration::from_secs(30 * 365 * 86_400))
+}
+
+/// The read deadlines of a framed connection (Modbus TCP, a bridge): the rest of a frame begun
+/// within `header_timeout`, the next frame within `idle_timeout`. The idle deadline is one timer,
+/// armed when the connection opens and moved on only when it fires (to the last read plus the
+/// timeout), not on every request: at a hundred thousand requests a second, a timer set and
+/// cleared around each read cost a few per cent of the server's time.
+pub struct ReadDeadlines {
+    header: Duration,
+    idle: Duration,
+    /// When the last bytes came.
+    last: Instant,
+    /// Fires at the idle deadline, or earlier (then it is moved on).
+    idle_timer: Pin<Box<tokio::time::Sleep>>,
+}
+
+impl ReadDeadlines {
+    /// The deadlines of `limits`, counted from now.
+    pub fn new(limits: &LimitsConfig) -> Self {
+        let last = Instant::now();
+        // Zero: no idle timeout (the timer is never polled).
+        let idle_timer = Box::pin(tokio::time::sleep_until(later(last, limits.idle_timeout)));
+        ReadDeadlines { header: limits.header_timeout, idle: limits.idle_timeout, last, idle_timer }
     }
-    match tokio::time::timeout(wait, stream.read(buf)).await {
-        Ok(r) => r.map(Some),
-        Err(_) => Ok(None),
+
+    /// Reads from `stream` into `buf` (`partial`: a frame is begun, so the header timeout
+    /// applies): `None` when nothing came in time.
+    pub async fn read<S: AsyncRead + Unpin>(
+        &mut self,
+        stream: &mut S,
+        buf: &mut [u8],
+        partial: bool,
+    ) -> std::io::Result<Option<usize>> {
+        use tokio::io::AsyncReadExt;
+        let n = if partial && !self.header.is_zero() {
+            match tokio::time::timeout(self.header, stream.read(buf)).await {
+                Ok(r) => r?,
+                Err(_) => return Ok(None),
+            }
+        } else if self.idle.is_zero() {
+            stream.read(buf).await?
+        } else {
+            loop {
+                tokio::select! {
+                    biased;
+                    r = stream.read(&mut *buf) => break r?,
+                    () = &mut self.idle_timer => {
+                        let at = later(self.last, self.idle);
+                        if Instant::now() >= at {
+                            return Ok(None);
+                        }
+                        self.idle_timer.as_mut().reset(at);
+                    }
+                }
+            }
+        };
+        self.last = Instant::now();
+        Ok(Some(n))
     }
 }
 
@@ -283,7 +331,7 @@ impl<S> Activity<S> {
                 return std::future::pending().await;
             }
             loop {
-                let at = start + Duration::from_millis(last.load(Ordering::Relaxed)) + timeout;
+                let at = later(start + Duration::from_millis(last.load(Ordering::Relaxed)), timeout);
                 if Instant::now() >= at {
                     return;
                 }
@@ -353,5 +401,57 @@ mod tests {
         let l = limits.listener("test");
         assert!(l.admit("127.0.0.2".parse().unwrap()).is_none());
         assert_eq!(l.open_from("127.0.0.2".parse().unwrap()), 0, "a refusal holds no place");
+    }
+
+    fn deadlines(header_s: u64, idle_s: u64) -> ReadDeadlines {
+        ReadDeadlines::new(&LimitsConfig {
+            header_timeout: Duration::from_secs(header_s),
+            idle_timeout: Duration::from_secs(idle_s),
+            ..LimitsConfig::default()
+        })
+    }
+
+    /// The idle deadline counts from the last bytes, not from the connection's start: a request
+    /// at 200 s keeps a 300 s connection until 500 s; then it is over.
+    #[tokio::test(start_paused = true)]
+    async fn the_idle_deadline_moves_with_each_request() {
+        use tokio::io::AsyncWriteExt;
+        let (mut client, mut server) = tokio::io::duplex(64);
+        let mut d = deadlines(5, 300);
+        let start = Instant::now();
+        let mut buf = [0u8; 16];
+        let writer = tokio::spawn(async move {
+            tokio::time::sleep(Duration::from_secs(200)).await;
+            client.write_all(b"x").await.unwrap();
+            client
+        });
+        assert_eq!(d.read(&mut server, &mut buf, false).await.unwrap(), Some(1));
+        assert_eq!(start.elapsed(), Duration::from_secs(200));
+        let _client = writer.await.unwrap();
+        assert_eq!(d.read(&mut server, &mut buf, false).await.unwrap(), None, "idle for 300 s");
+        assert_eq!(start.elapsed(), Duration::from_secs(500));
+    }
+
+    /// The rest of a frame must come within the header timeout, however long the idle one.
+    #[tokio::test(start_paused = true)]
+    async fn a_begun_frame_has_the_header_timeout() {
+        let (_client, mut server) = tokio::io::duplex(64);
+        let mut d = deadlines(5, 300);
+        let start = Instant::now();
+        assert_eq!(d.read(&mut server, &mut [0u8; 16], true).await.unwrap(), None);
+        assert_eq!(start.elapsed(), Duration::from_secs(5));
+    }
+
+    /// A timeout too long to add to a time (billions of years) is a wait, not a panic.
+    #[tokio::test(start_paused = true)]
+    async fn a_huge_timeout_is_a_long_wait() {
+        use tokio::io::AsyncWriteExt;
+        let (mut client, mut server) = tokio::io::duplex(64);
+        let mut d = deadlines(5, u64::MAX);
+        let activity = Activity::new(&mut server);
+        let idle = activity.idle(Duration::from_secs(u64::MAX));
+        client.write_all(b"x").await.unwrap();
+        assert_eq!(d.read(&mut server, &mut [0u8; 16], false).await.unwrap(), Some(1));
+        assert!(tokio::time::timeout(Duration::from_secs(86_400), idle).await.is_err());
     }
 }

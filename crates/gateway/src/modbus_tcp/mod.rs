@@ -257,12 +257,11 @@ impl Server {
         let mut buf = vec![0u8; IN_BUF];
         let mut len = 0;
         let mut out: Vec<u8> = Vec::with_capacity(512);
-        let limits = self.gw.limits().config().clone();
+        let mut deadlines = crate::limits::ReadDeadlines::new(self.gw.limits().config());
         loop {
             // The rest of a frame begun within the header timeout; the next one within the idle
             // timeout: otherwise the connection is closed.
-            let wait = if len > 0 { limits.header_timeout } else { limits.idle_timeout };
-            let n = match crate::limits::read_within(&mut sock, &mut buf[len..], wait).await? {
+            let n = match deadlines.read(&mut sock, &mut buf[len..], len > 0).await? {
                 Some(n) => n,
                 None => return Ok(()),
             };

@@ -27,4 +27,15 @@ for name, size in sizes.items():
     target = targets.get(name, 10e6)
     ok = "ok" if fps >= target else "BELOW"
     print(f"{name:16} {size:>5}B {fps/1e6:>13.1f} M {mbs:>9.0f}   {efps/1e6:>13.1f} M  {target/1e6:>4.0f} M {ok}")
+print()
+print("does a reply answer the request (the master's check before the profile parses it once):")
+print(f"{'protocol':16} {'header look':>12} {'parse + match':>14}")
+for name in sizes:
+    def one(kind):
+        p = os.path.join(root, "reply_matches", kind, name, "new", "estimates.json")
+        if not os.path.exists(p):
+            p = os.path.join(root, "reply_matches", f"{kind}_{name}", "new", "estimates.json")
+        with open(p) as f:
+            return json.load(f)["mean"]["point_estimate"]
+    print(f"{name:16} {one('header'):>9.1f} ns {one('parse'):>11.1f} ns")
 PY

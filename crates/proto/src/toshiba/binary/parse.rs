@@ -45,7 +45,8 @@ fn word(bytes: &[u8], at: usize) -> u16 {
 
 /// The head of a whole frame, its length, and whether it goes to a drive (a request): the
 /// start code, CMD and the length CMD gives checked; of what follows CMD only the group count
-/// of X and Y is read.
+/// of X and Y is read. Inlined: it is the parse's hot path.
+#[inline(always)]
 fn layout(bytes: &[u8], from: Option<Direction>) -> Result<(Head, usize, bool), FrameError> {
     let n = bytes.len();
     let Some(&first) = bytes.first() else {
@@ -80,6 +81,7 @@ fn layout(bytes: &[u8], from: Option<Direction>) -> Result<(Head, usize, bool), 
 }
 
 /// What a reply with head `h` is, by its CMD and COMNO: `None` for an error reply.
+#[inline(always)]
 fn reply_kind(bytes: &[u8], h: &Head) -> Result<Option<Expect>, FrameError> {
     Ok(match h.cmd & !0x20 {
         ERROR_LETTER => None,

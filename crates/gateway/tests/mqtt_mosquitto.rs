@@ -6,6 +6,7 @@
 //! so in CI a missing broker is a failure; locally without it the test says it did not run.
 
 mod mqtt_support;
+mod support;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 
@@ -14,6 +15,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use mqtt_support::*;
+use support::wait_for;
 use witness::witness;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -88,11 +90,10 @@ async fn mosquitto_with_a_password() {
     let addr: SocketAddr = format!("127.0.0.1:{port}").parse().unwrap();
     let good = demo_gateway_with("hall-auth", addr, &[], false, Some(("plant", "s3cret-Passw0rd")));
     let bad = demo_gateway_with("hall-bad", addr, &[], false, Some(("plant", "wrong")));
-    let start = std::time::Instant::now();
-    while drivebus_gateway::metrics::front_ends(&good).mqtt_connections() == 0 {
-        assert!(start.elapsed() < std::time::Duration::from_secs(60), "the gateway never logged in");
-        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-    }
+    wait_for("the gateway to log in", PATIENCE, || {
+        drivebus_gateway::metrics::front_ends(&good).mqtt_connections() > 0
+    })
+    .await;
     // Once the broker has refused the wrong password (it logs the client as <unknown>, having
     // refused it before it had a name), it is still not connected.
     let refusals = || {
@@ -102,13 +103,7 @@ async fn mosquitto_with_a_password() {
             .filter(|l| l.contains("disconnected, not authorised"))
             .count()
     };
-    while refusals() < 1 {
-        assert!(
-            start.elapsed() < std::time::Duration::from_secs(60),
-            "the broker never refused the wrong password"
-        );
-        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-    }
+    wait_for("the broker to refuse the wrong password", PATIENCE, || refusals() >= 1).await;
     assert_eq!(
         drivebus_gateway::metrics::front_ends(&bad).mqtt_connections(),
         0,

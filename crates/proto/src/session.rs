@@ -83,6 +83,47 @@ pub trait Protocol {
     }
 }
 
+/// The request and reply types of a [`Protocol`] and its four methods that emit and parse
+/// them, for a protocol whose request type `$req` and reply type `$rep` each have
+/// `emit(&self, out)` and `parse(bytes)` of their own: written inside its `impl Protocol`
+/// block, `frame_methods!(Request, Reply);` (`frame_methods!(Request<'a>, Reply<'a>);` for
+/// frames that borrow the bytes).
+macro_rules! frame_methods {
+    ($req:ident<'a>, $rep:ident<'a>) => {
+        type Request<'a> = $req<'a>;
+        type Reply<'a> = $rep<'a>;
+        $crate::session::frame_methods!(@methods $req, $rep);
+    };
+    ($req:ident, $rep:ident) => {
+        type Request<'a> = $req;
+        type Reply<'a> = $rep;
+        $crate::session::frame_methods!(@methods $req, $rep);
+    };
+    (@methods $req:ident, $rep:ident) => {
+        fn emit_request(
+            &self,
+            req: &Self::Request<'_>,
+            out: &mut [u8],
+        ) -> Result<usize, $crate::error::EmitError> {
+            req.emit(out)
+        }
+        fn emit_reply(
+            &self,
+            rep: &Self::Reply<'_>,
+            out: &mut [u8],
+        ) -> Result<usize, $crate::error::EmitError> {
+            rep.emit(out)
+        }
+        fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Self::Request<'a>, $crate::error::FrameError> {
+            $req::parse(bytes)
+        }
+        fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Self::Reply<'a>, $crate::error::FrameError> {
+            $rep::parse(bytes)
+        }
+    };
+}
+pub(crate) use frame_methods;
+
 /// How a slave treats a frame it received.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Disposition {

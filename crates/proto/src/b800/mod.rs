@@ -24,9 +24,9 @@ use core::time::Duration;
 
 use crate::codec::Codec;
 use crate::describe::Direction;
-use crate::error::{EmitError, FrameError};
+use crate::error::FrameError;
 use crate::line::CharFormat;
-use crate::session::{Disposition, Protocol, Timing};
+use crate::session::{frame_methods, Disposition, Protocol, Timing};
 
 mod frame;
 mod scan;
@@ -160,9 +160,9 @@ fn raw_da(bytes: &[u8]) -> Option<u8> {
 impl Protocol for B800 {
     type ReplyScanner = FrameScanner;
     type RequestScanner = FrameScanner;
-    type Request<'a> = Request;
-    type Reply<'a> = Reply;
     type Pending = Pending;
+
+    frame_methods!(Request, Reply);
 
     fn reply_scanner(&self) -> FrameScanner {
         FrameScanner::new(Some(Direction::Drive))
@@ -170,22 +170,6 @@ impl Protocol for B800 {
 
     fn request_scanner(&self) -> FrameScanner {
         FrameScanner::new(Some(Direction::Master))
-    }
-
-    fn emit_request(&self, req: &Request, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit(out)
-    }
-
-    fn emit_reply(&self, rep: &Reply, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit(out)
-    }
-
-    fn parse_request(&self, bytes: &[u8]) -> Result<Request, FrameError> {
-        Request::parse(bytes)
-    }
-
-    fn parse_reply(&self, bytes: &[u8]) -> Result<Reply, FrameError> {
-        Reply::parse(bytes)
     }
 
     fn pending(&self, req: &Request) -> Option<Pending> {

@@ -13,6 +13,7 @@ use core::time::Duration;
 use super::*;
 use crate::deframe::{Deframer, Event, Scan, Scanner, Stats};
 use crate::describe::{Describe, Direction, Field, Target};
+use crate::error::EmitError;
 use crate::error::{ChecksumKind, MismatchHint};
 use crate::session::{Incoming, MasterEvent, MasterSession, Responder, SlaveSession};
 use crate::time::Instant;

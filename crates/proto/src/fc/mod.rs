@@ -27,7 +27,7 @@ use core::time::Duration;
 
 use crate::error::{EmitError, FrameError};
 use crate::line::{bits_time, CharFormat};
-use crate::session::{Disposition, Protocol, Timing};
+use crate::session::{frame_methods, Disposition, Protocol, Timing};
 
 pub mod frame;
 pub mod parameter;
@@ -152,9 +152,9 @@ impl Fc {
 impl Protocol for Fc {
     type ReplyScanner = FcScanner;
     type RequestScanner = FcScanner;
-    type Request<'a> = Request<'a>;
-    type Reply<'a> = Reply<'a>;
     type Pending = FcPending;
+
+    frame_methods!(Request<'a>, Reply<'a>);
 
     fn reply_scanner(&self) -> FcScanner {
         FcScanner
@@ -162,22 +162,6 @@ impl Protocol for Fc {
 
     fn request_scanner(&self) -> FcScanner {
         FcScanner
-    }
-
-    fn emit_request(&self, req: &Request<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit(out)
-    }
-
-    fn emit_reply(&self, rep: &Reply<'_>, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit(out)
-    }
-
-    fn parse_request<'a>(&self, bytes: &'a [u8]) -> Result<Request<'a>, FrameError> {
-        Request::parse(bytes)
-    }
-
-    fn parse_reply<'a>(&self, bytes: &'a [u8]) -> Result<Reply<'a>, FrameError> {
-        Reply::parse(bytes)
     }
 
     /// No reply to a broadcast: protocols.md 2.3 "A broadcast gets no reply."

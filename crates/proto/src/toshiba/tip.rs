@@ -4,7 +4,7 @@
 use crate::deframe::{Scan, Scanner};
 use crate::describe::{Command, Describe, Direction, Field, Target};
 use crate::error::{EmitError, FrameError};
-use crate::session::{Disposition, Protocol};
+use crate::session::{frame_methods, Disposition, Protocol};
 
 use super::ascii::{self, AsciiFrame, AsciiPending, AsciiReply, AsciiRequest, TipAscii};
 use super::binary::{self, BinaryFrame, BinaryPending, BinaryReply, BinaryRequest, TipBinary};
@@ -189,27 +189,15 @@ impl Tip {
 impl Protocol for Tip {
     type ReplyScanner = TipScanner;
     type RequestScanner = TipScanner;
-    type Request<'a> = TipRequest;
-    type Reply<'a> = TipReply;
     type Pending = TipPending;
+
+    frame_methods!(TipRequest, TipReply);
 
     fn reply_scanner(&self) -> TipScanner {
         TipScanner { from: Some(Direction::Drive) }
     }
     fn request_scanner(&self) -> TipScanner {
         TipScanner { from: Some(Direction::Master) }
-    }
-    fn emit_request(&self, req: &TipRequest, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit(out)
-    }
-    fn emit_reply(&self, rep: &TipReply, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit(out)
-    }
-    fn parse_request(&self, bytes: &[u8]) -> Result<TipRequest, FrameError> {
-        TipRequest::parse(bytes)
-    }
-    fn parse_reply(&self, bytes: &[u8]) -> Result<TipReply, FrameError> {
-        TipReply::parse(bytes)
     }
     fn pending(&self, req: &TipRequest) -> Option<TipPending> {
         match req {

@@ -29,8 +29,8 @@
 
 use crate::codec::Codec;
 use crate::describe::Direction;
-use crate::error::{EmitError, FrameError};
-use crate::session::{Disposition, Protocol};
+use crate::error::FrameError;
+use crate::session::{frame_methods, Disposition, Protocol};
 
 use super::{Cmd, CommNo};
 
@@ -146,27 +146,15 @@ impl TipAscii {
 impl Protocol for TipAscii {
     type ReplyScanner = AsciiScanner;
     type RequestScanner = AsciiScanner;
-    type Request<'a> = AsciiRequest;
-    type Reply<'a> = AsciiReply;
     type Pending = AsciiPending;
+
+    frame_methods!(AsciiRequest, AsciiReply);
 
     fn reply_scanner(&self) -> AsciiScanner {
         AsciiScanner
     }
     fn request_scanner(&self) -> AsciiScanner {
         AsciiScanner
-    }
-    fn emit_request(&self, req: &AsciiRequest, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit(out)
-    }
-    fn emit_reply(&self, rep: &AsciiReply, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit(out)
-    }
-    fn parse_request(&self, bytes: &[u8]) -> Result<AsciiRequest, FrameError> {
-        AsciiRequest::parse(bytes)
-    }
-    fn parse_reply(&self, bytes: &[u8]) -> Result<AsciiReply, FrameError> {
-        AsciiReply::parse(bytes)
     }
     fn pending(&self, req: &AsciiRequest) -> Option<AsciiPending> {
         TipAscii::pending(self, req)

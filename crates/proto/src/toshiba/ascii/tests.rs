@@ -4,6 +4,7 @@ use super::*;
 use crate::checksum::sum8;
 use crate::deframe::{Deframer, Event};
 use crate::describe::{Describe, Target};
+use crate::error::EmitError;
 use crate::toshiba::ErrorCode;
 use std::format;
 use std::string::{String, ToString};

@@ -29,7 +29,7 @@
 use crate::codec::Codec;
 use crate::describe::Direction;
 use crate::error::{EmitError, FrameError};
-use crate::session::{Disposition, Protocol};
+use crate::session::{frame_methods, Disposition, Protocol};
 
 use super::{Cmd, CommNo};
 
@@ -197,27 +197,15 @@ impl TipBinary {
 impl Protocol for TipBinary {
     type ReplyScanner = BinaryScanner;
     type RequestScanner = BinaryScanner;
-    type Request<'a> = BinaryRequest;
-    type Reply<'a> = BinaryReply;
     type Pending = BinaryPending;
+
+    frame_methods!(BinaryRequest, BinaryReply);
 
     fn reply_scanner(&self) -> BinaryScanner {
         BinaryScanner { from: Some(Direction::Drive) }
     }
     fn request_scanner(&self) -> BinaryScanner {
         BinaryScanner { from: Some(Direction::Master) }
-    }
-    fn emit_request(&self, req: &BinaryRequest, out: &mut [u8]) -> Result<usize, EmitError> {
-        req.emit(out)
-    }
-    fn emit_reply(&self, rep: &BinaryReply, out: &mut [u8]) -> Result<usize, EmitError> {
-        rep.emit(out)
-    }
-    fn parse_request(&self, bytes: &[u8]) -> Result<BinaryRequest, FrameError> {
-        BinaryRequest::parse(bytes)
-    }
-    fn parse_reply(&self, bytes: &[u8]) -> Result<BinaryReply, FrameError> {
-        BinaryReply::parse(bytes)
     }
     fn pending(&self, req: &BinaryRequest) -> Option<BinaryPending> {
         TipBinary::pending(self, req)

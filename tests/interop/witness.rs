@@ -1,10 +1,14 @@
 //! The Rust tests' side of the witnesses (programs nobody here wrote): whether one is here, and
-//! what to do when it is not. `.ci/install-witnesses.sh` installs them and CI sets
-//! `DRIVEBUS_REQUIRE_INTEROP=1`, so there a missing witness fails the test; locally the test
-//! says on stderr that it did not run. Included by the tests with `#[path]`.
+//! what to do when it is not. Every test that needs one is marked
+//! `#[ignore = "needs <program> (.ci/install-witnesses.sh)"]`, so a plain `cargo test` lists it
+//! as ignored, never as passed; `cargo test -- --ignored` runs them. `.ci/install-witnesses.sh`
+//! installs them and CI sets `DRIVEBUS_REQUIRE_INTEROP=1`, so there a missing witness fails the
+//! test; run by hand without it, the test says on stderr that it did not run. Included by the
+//! tests with `#[path]`.
 
 #![allow(dead_code)]
 
+use std::io::Write;
 use std::process::Command;
 
 /// Whether missing witnesses fail (CI).
@@ -18,7 +22,11 @@ pub fn witness(name: &str, present: bool, how: &str) -> bool {
         return true;
     }
     assert!(!required(), "{name} is required in CI but missing: {how}");
-    eprintln!("NOT RUN: {name} is not installed ({how}); .ci/install-witnesses.sh installs it");
+    // Straight to stderr, past the test harness's capture, so that the run says it.
+    let _ = writeln!(
+        std::io::stderr(),
+        "NOT RUN: {name} is not installed ({how}); .ci/install-witnesses.sh installs it"
+    );
     false
 }
 

@@ -176,6 +176,7 @@ fn params_backup_restore_diff_between_two_drives() {
 }
 
 #[test]
+#[ignore = "needs pymodbus (.ci/install-witnesses.sh)"]
 fn the_generic_profile_drives_a_pymodbus_server() {
     if !witness("pymodbus", witness::python_has("pymodbus"), "pip install pymodbus") {
         return;

@@ -6,8 +6,9 @@
 //! out of range), a trip event, and a Basic256Sha256 SignAndEncrypt session. This side checks the
 //! audit trail's OPC UA actor.
 //!
+//! A plain `cargo test` lists the test as ignored (`cargo test -- --ignored` runs it).
 //! `.ci/install-witnesses.sh` installs asyncua and CI sets `DRIVEBUS_REQUIRE_INTEROP=1`, so there
-//! a missing witness is a failure; locally the test says on stderr that it did not run.
+//! a missing witness is a failure.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -26,6 +27,7 @@ fn script() -> PathBuf {
 }
 
 #[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
 fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {
     if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
         return;

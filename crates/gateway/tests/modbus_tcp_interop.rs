@@ -1,8 +1,9 @@
 //! Interop with Modbus TCP clients nobody here wrote: pymodbus (PyPI) and mbpoll (Debian) talk
 //! to the gateway's server running the demo on 127.0.0.1.
 //!
+//! A plain `cargo test` lists these tests as ignored (`cargo test -- --ignored` runs them).
 //! `.ci/install-witnesses.sh` installs both and CI sets `DRIVEBUS_REQUIRE_INTEROP=1`, so there a
-//! missing witness is a failure. Locally, without them, each test says on stderr that it did not run.
+//! missing witness is a failure.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -44,6 +45,7 @@ async fn run(mut cmd: Command) -> Result<String, String> {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs pymodbus (.ci/install-witnesses.sh)"]
 async fn pymodbus_reads_the_map_and_runs_a_drive() {
     if !witness("pymodbus", has_pymodbus(), "python3 -m pip install pymodbus") {
         return;
@@ -84,6 +86,7 @@ fn mbpoll_values(out: &str) -> Vec<(u32, i64)> {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs mbpoll (.ci/install-witnesses.sh)"]
 async fn mbpoll_reads_input_registers() {
     if !witness("mbpoll", has_mbpoll(), "apt-get install mbpoll") {
         return;

@@ -2,8 +2,9 @@
 //! with a minimal configuration: retained statuses, a command by topic, a refused one, and a
 //! real broker restart (kill, start again empty) after which the gateway republishes.
 //!
+//! A plain `cargo test` lists these tests as ignored (`cargo test -- --ignored` runs them).
 //! `.ci/install-witnesses.sh` installs Mosquitto and `.ci/run` sets `DRIVEBUS_REQUIRE_INTEROP=1`,
-//! so in CI a missing broker is a failure; locally without it the test says it did not run.
+//! so in CI a missing broker is a failure.
 
 mod mqtt_support;
 mod support;
@@ -19,6 +20,7 @@ use support::wait_for;
 use witness::witness;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs mosquitto (.ci/install-witnesses.sh)"]
 async fn mosquitto_statuses_commands_and_restart() {
     let Some(bin) = mosquitto() else {
         return;
@@ -57,6 +59,7 @@ async fn mosquitto_statuses_commands_and_restart() {
 /// A broker that asks for a user name and password: the gateway logs in with the configured
 /// credentials; with a wrong password it is refused and connects never.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs mosquitto (.ci/install-witnesses.sh)"]
 async fn mosquitto_with_a_password() {
     let (Some(bin), Some(passwd)) = (mosquitto_binary(), which("mosquitto_passwd")) else {
         witness("mosquitto and mosquitto_passwd", false, "apt-get install mosquitto");
@@ -132,6 +135,7 @@ fn which(name: &str) -> Option<PathBuf> {
 /// audit record, the third is dropped by the broker (above the gateway's Maximum Packet Size),
 /// and the gateway never loses its connection: one connection from start to end.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs mosquitto (.ci/install-witnesses.sh)"]
 async fn oversize_and_retained_commands_are_refused_without_a_reconnection() {
     let Some(bin) = mosquitto() else {
         return;

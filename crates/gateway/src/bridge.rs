@@ -1,14 +1,18 @@
 //! A transparent Modbus bridge (what mbusd does) on a bus the gateway also polls: a Modbus TCP
 //! request for unit id N goes to address N on the bus, as RTU or ASCII as the bus speaks, through
 //! the bus owner (after commands, ahead of polls: one transaction at a time with the polling),
-//! and the drive's answer goes back as it came. The `[modbus]` allow list and read-only switch
-//! apply to writes, and every write is in the audit trail.
+//! and the drive's answer goes back as it came. Only the functions of the bridge's `functions`
+//! list reach the bus (by default the reads, the writes and device identification); any other
+//! is answered with exception 01. The `[modbus]` allow list and read-only switch apply to
+//! writes, as configured when each write comes (a reload changes them for open connections
+//! too). Every write is in the audit trail, and every refusal (aggregated, refusals.rs).
 //!
 //! ```toml
 //! [[bridge]]
 //! bus = "line-1"              # a modbus-rtu or modbus-ascii bus
 //! listen = "127.0.0.1:5021"
 //! framing = "mbap"            # mbap (Modbus TCP, the default) | rtu (RTU frames over TCP)
+//! functions = [1, 2, 3, 4, 5, 6, 15, 16, 23, 43]   # the default (43: MEI type 14 only)
 //! ```
 
 use std::net::{IpAddr, SocketAddr};
@@ -103,13 +107,6 @@ async fn connection(
         IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(IpAddr::V6(v6), IpAddr::V4),
         v4 => v4,
     };
-    let modbus = &gw.config().modbus;
-    let may_write = !modbus.read_only && modbus.allow.contains(&ip);
-    let forbidden = if modbus.read_only {
-        "forbidden: Modbus writes are off ([modbus] read_only)".to_string()
-    } else {
-        format!("forbidden: client {ip} may not write ([modbus] allow)")
-    };
     let actor = format!("modbus-bridge:{peer}");
     let mut buf = vec![0u8; 2048];
     let mut len = 0;
@@ -161,7 +158,7 @@ async fn connection(
             }),
         }
         for r in requests {
-            let answer = pass(&gw, &cfg, &r, may_write, &forbidden, &actor).await;
+            let answer = pass(&gw, &cfg, &r, ip, &actor).await;
             let Some(pdu) = answer else { continue };
             let out = match r.header {
                 Some(h) => {
@@ -177,15 +174,21 @@ async fn connection(
     }
 }
 
+/// Why a write from `ip` is refused under the `[modbus]` rules as configured now (`None`: it
+/// may write).
+fn forbidden(gw: &Gateway, ip: IpAddr) -> Option<String> {
+    let modbus = &gw.config().modbus;
+    if modbus.read_only {
+        Some("forbidden: Modbus writes are off ([modbus] read_only)".to_string())
+    } else if !modbus.allow.contains(&ip) {
+        Some(format!("forbidden: client {ip} may not write ([modbus] allow)"))
+    } else {
+        None
+    }
+}
+
 /// Passes one request to the bus; returns the answer's PDU (`None`: none is due, a broadcast).
-async fn pass(
-    gw: &Arc<Gateway>,
-    cfg: &BridgeConfig,
-    r: &Request,
-    may_write: bool,
-    forbidden: &str,
-    actor: &str,
-) -> Option<Vec<u8>> {
+async fn pass(gw: &Arc<Gateway>, cfg: &BridgeConfig, r: &Request, ip: IpAddr, actor: &str) -> Option<Vec<u8>> {
     let fc = *r.pdu.first()?;
     let exception = |code: ExceptionCode| Some(vec![fc | 0x80, code.0]);
     let bus = gw.buses().iter().find(|b| b.config.name == cfg.bus)?.clone();
@@ -198,8 +201,16 @@ async fn pass(
         .find(|d| d.bus == cfg.bus && d.config.address == r.unit)
         .map_or_else(|| format!("{}@{}", cfg.bus, r.unit), |d| d.config.name.clone());
     let action = format!("modbus bridge: function {fc:02X} [{}]", hex(&r.pdu));
-    if write && !may_write {
-        audit(gw, &cfg.bus, &drive, actor, &action, forbidden.to_string()).await;
+    // A function off the bridge's list never reaches the bus; a write only under the rules.
+    let refused = if !cfg.passes(&r.pdu) {
+        Some(format!("forbidden: function {fc:02X} is not passed by this bridge ([[bridge]] functions)"))
+    } else if write {
+        forbidden(gw, ip)
+    } else {
+        None
+    };
+    if let Some(why) = refused {
+        gw.audit_refusal(&drive, actor, &action, &why).await;
         return if r.unit == 0 { None } else { exception(ExceptionCode::ILLEGAL_FUNCTION) };
     }
     let exchange = Exchange { request: bus_frame(ascii, r.unit, &r.pdu), expect_reply: r.unit != 0 };

@@ -25,7 +25,12 @@ use witness::witness;
 /// A virtual bus `line-1` with a generic drive (`pump-1`, address 1) polled every 100 ms, and a
 /// bridge to it; `modbus` is extra `[modbus]` settings.
 fn config(modbus: &str) -> GatewayConfig {
-    let text = format!(
+    GatewayConfig::from_toml("bridge-test.toml", &config_text(modbus)).unwrap()
+}
+
+/// The text of [`config`].
+fn config_text(modbus: &str) -> String {
+    format!(
         r#"
 name = "bridge-test"
 [modbus]
@@ -48,8 +53,7 @@ poll_ms = 100
 bus = "line-1"
 listen = "127.0.0.1:0"
 "#
-    );
-    GatewayConfig::from_toml("bridge-test.toml", &text).unwrap()
+    )
 }
 
 /// The gateway and its bridge's address.
@@ -146,6 +150,53 @@ async fn a_read_only_gateway_refuses_bridged_writes_and_audits_them() {
     // Reads still pass.
     let r = mbap(&mut sock, 2, 1, &[0x03, 0x21, 0x03, 0, 1]).await;
     assert_eq!(&r[..2], &[0x03, 2]);
+}
+
+/// Issue 24 item 9: function 08 sub-function 04 (force listen-only mode), a vendor code and
+/// 2B with MEI type 0D are not on the bridge's default list: exception 01, a refusal in the
+/// audit trail, and nothing on the bus. Device identification (2B/0E) is passed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn functions_off_the_bridges_list_get_exception_01_an_audit_and_no_bus_traffic() {
+    // One poll at start, then none for an hour: the bus's count is the bridge's alone.
+    let text = config_text("").replace("poll_ms = 100", "poll_ms = 3600000");
+    let (gw, addr) = start_config(GatewayConfig::from_toml("b.toml", &text).unwrap()).await;
+    let mut changes = gw.subscribe();
+    until(&gw, "pump-1 online", |v| v.online == Some(true)).await;
+    let sent = || gw.bus_view(&gw.buses()[0]).transactions;
+    let mut sock = TcpStream::connect(addr).await.unwrap();
+    let before = sent();
+    assert_eq!(mbap(&mut sock, 1, 1, &[0x03, 0x21, 0x02, 0, 1]).await[..2], [0x03, 2]);
+    assert!(sent() > before, "a bridged read is on the bus's count");
+    let quiet = sent();
+    assert_eq!(mbap(&mut sock, 2, 1, &[0x08, 0x00, 0x04, 0x00, 0x00]).await, [0x88, 0x01]);
+    audited(&mut changes, "modbus-bridge:127.0.0.1:", "forbidden: function 08 is not passed").await;
+    assert_eq!(mbap(&mut sock, 3, 1, &[0x2B, 0x0D, 0x00, 0x00]).await, [0xAB, 0x01]);
+    // A vendor code from another client: a refusal of its own in the audit trail (repeats from
+    // one client are counted and written once a minute, refusals.rs).
+    let other = tokio::net::TcpSocket::new_v4().unwrap();
+    other.bind("127.0.0.2:0".parse().unwrap()).unwrap();
+    let mut other = other.connect(addr).await.unwrap();
+    assert_eq!(mbap(&mut other, 4, 1, &[0x41, 0x01, 0x02]).await, [0xC1, 0x01]);
+    audited(&mut changes, "modbus-bridge:127.0.0.2:", "forbidden: function 41 is not passed").await;
+    assert_eq!(sent(), quiet, "a refused function reached the bus");
+    // Read device identification is on the default list: it goes to the drive.
+    let _ = mbap(&mut sock, 5, 1, &[0x2B, 0x0E, 0x01, 0x00]).await;
+    assert!(sent() > quiet, "2B/0E was not passed");
+}
+
+/// Issue 24 item 13: the bridge reads `[modbus] read_only` at each write, so a reload that
+/// turns it on refuses the next write on a connection opened before.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_to_read_only_refuses_the_next_bridged_write_on_an_open_connection() {
+    let (gw, addr) = start("").await;
+    let mut changes = gw.subscribe();
+    until(&gw, "pump-1 online", |v| v.online == Some(true)).await;
+    let mut sock = TcpStream::connect(addr).await.unwrap();
+    let w = [0x06, 0x20, 0x01, 0x0F, 0xA0];
+    assert_eq!(mbap(&mut sock, 1, 1, &w).await, w);
+    gw.reload(config("read_only = true"), "test").await.unwrap();
+    assert_eq!(mbap(&mut sock, 2, 1, &w).await, [0x86, 0x01]);
+    audited(&mut changes, "modbus-bridge:", "forbidden: Modbus writes are off").await;
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

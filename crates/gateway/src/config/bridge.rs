@@ -22,7 +22,8 @@ fn unbridgeable(name: &str, buses: &[BusConfig]) -> Option<String> {
     }
 }
 
-/// Checks the `[[bridge]]` sections: each names a Modbus bus of `buses` and a free address.
+/// Checks the `[[bridge]]` sections: each names a Modbus bus of `buses`, a free address and the
+/// function codes it passes.
 pub(super) fn check(
     cx: &Ctx,
     raw: &[FileBridge],
@@ -45,12 +46,36 @@ pub(super) fn check(
                 return cx.err(span, "bridge.framing", format!("{other:?}: use mbap or rtu"))
             }
         };
-        out.push(BridgeConfig { bus: name.clone(), listen, framing });
+        let mut c = BridgeConfig::new(name, listen);
+        c.framing = framing;
+        if let Some(list) = &b.functions {
+            c.functions = Vec::with_capacity(list.len());
+            for f in list {
+                let code = function(*f.get_ref()).or_else(|why| cx.err(f.span(), "bridge.functions", why))?;
+                if c.functions.contains(&code) {
+                    return cx.err(f.span(), "bridge.functions", format!("{code} is listed twice"));
+                }
+                c.functions.push(code);
+            }
+        }
+        out.push(c);
     }
     Ok(out)
 }
 
-/// `--bridge BUS=HOST:PORT`: a bridge with MBAP framing.
+/// A function code of `functions = [...]`: a public Modbus function (01-08, 0B, 0C, 0F-11,
+/// 14-18, 2B) or a user-defined one (41-48, 64-6E), in decimal or hex (`0x2B`, TOML's own).
+fn function(code: i64) -> Result<u8, String> {
+    const PUBLIC: &str = "public 1-8, 11, 12, 15-17, 20-24, 43 (device identification); user-defined 65-72, 100-110";
+    let known = |c: u8| matches!(c, 1..=8 | 11 | 12 | 15..=17 | 20..=24 | 43 | 65..=72 | 100..=110);
+    match u8::try_from(code) {
+        Ok(c) if known(c) => Ok(c),
+        Ok(c @ 1..=127) => Err(format!("{c} is no Modbus function code a drive answers (use {PUBLIC})")),
+        _ => Err(format!("{code} is not a Modbus function code: codes are 1-127 ({PUBLIC})")),
+    }
+}
+
+/// `--bridge BUS=HOST:PORT`: a bridge with MBAP framing and the default functions.
 pub fn parse_arg(arg: &str) -> Result<BridgeConfig, String> {
     let (bus, addr) = arg
         .split_once('=')
@@ -58,7 +83,7 @@ pub fn parse_arg(arg: &str) -> Result<BridgeConfig, String> {
     let listen = addr
         .parse()
         .map_err(|_| format!("--bridge {arg:?}: {addr:?} is not HOST:PORT, e.g. 127.0.0.1:5021"))?;
-    Ok(BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap })
+    Ok(BridgeConfig::new(bus, listen))
 }
 
 /// Checks a bridge given on the command line against the buses, in the words of the file's check.
@@ -79,6 +104,33 @@ mod tests {
         assert_eq!((b.bus.as_str(), b.listen.port(), b.framing), ("line-1", 5021, Framing::Mbap));
         assert!(parse_arg("line-1").unwrap_err().contains("BUS=HOST:PORT"));
         assert!(parse_arg("line-1=nowhere").unwrap_err().contains("HOST:PORT"));
+    }
+
+    #[test]
+    fn functions_are_the_defaults_or_known_codes() {
+        let base = "[[bus]]\nname = \"l\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"modbus-rtu\"\n\
+                    [[bridge]]\nbus = \"l\"\nlisten = \"127.0.0.1:5021\"\n";
+        let read = |extra: &str| super::super::GatewayConfig::from_toml("p.toml", &format!("{base}{extra}"));
+        let b = read("").unwrap().bridges.remove(0);
+        assert_eq!(b.functions, super::super::BRIDGE_FUNCTIONS);
+        assert!(b.passes(&[0x03, 0, 0, 0, 1]) && b.passes(&[0x2B, 0x0E, 1, 0]));
+        assert!(!b.passes(&[0x08, 0, 4, 0, 0]) && !b.passes(&[0x2B, 0x0D]) && !b.passes(&[0x41]));
+        assert!(!b.passes(&[]));
+        assert_eq!(parse_arg("l=127.0.0.1:5021").unwrap().functions, super::super::BRIDGE_FUNCTIONS);
+        let b = read("functions = [3, 0x41]\n").unwrap().bridges.remove(0);
+        assert_eq!(b.functions, [3, 0x41]);
+        assert!(b.passes(&[0x41, 1]) && !b.passes(&[0x06, 0, 1, 0, 1]));
+        let e = |extra: &str| read(extra).unwrap_err().to_string();
+        assert_eq!(
+            e("functions = [3, 99]\n"),
+            "p.toml:8: field `bridge.functions`: 99 is no Modbus function code a drive answers (use \
+             public 1-8, 11, 12, 15-17, 20-24, 43 (device identification); user-defined 65-72, 100-110)"
+        );
+        assert!(e("functions = [0]\n").contains("0 is not a Modbus function code: codes are 1-127"));
+        assert!(e("functions = [131]\n").contains("131 is not a Modbus function code"));
+        assert!(e("functions = [-3]\n").contains("-3 is not a Modbus function code"));
+        assert!(e("functions = [3, 3]\n").contains("3 is listed twice"));
+        assert!(e("functions = [\"read\"]\n").contains("bridge.functions"), "{}", e("functions = [\"read\"]\n"));
     }
 
     #[test]

@@ -212,6 +212,7 @@ pub(super) struct FileBridge {
     pub(super) bus: Spanned<String>,
     pub(super) listen: Spanned<String>,
     pub(super) framing: Option<Spanned<String>>,
+    pub(super) functions: Option<Vec<Spanned<i64>>>,
 }
 
 /// A `[[modbus_rtu]]` as written.

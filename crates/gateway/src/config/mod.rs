@@ -85,6 +85,7 @@
 //! bus = "line-1"
 //! listen = "127.0.0.1:5021"
 //! framing = "mbap"                      # mbap | rtu (RTU over TCP)
+//! functions = [1, 2, 3, 4, 5, 6, 15, 16, 23, 43]  # passed to the bus (the default)
 //!
 //! [[modbus_rtu]]                        # the unified map as a Modbus RTU slave (modbus_rtu.rs)
 //! port = "/dev/ttyS1"

@@ -305,6 +305,38 @@ pub struct BridgeConfig {
     pub listen: SocketAddr,
     /// How requests are framed.
     pub framing: Framing,
+    /// The function codes passed to the bus (`functions = [...]`, by default
+    /// [`BRIDGE_FUNCTIONS`]); any other is answered with exception 01 and audited as refused.
+    pub functions: Vec<u8>,
+}
+
+/// The functions a bridge passes unless its `functions` says otherwise: the reads (01-04), the
+/// writes (05, 06, 0F, 10, 17; under the `[modbus]` write rules) and 2B (read device
+/// identification, MEI type 0E only).
+pub const BRIDGE_FUNCTIONS: [u8; 10] = [0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F, 0x10, 0x17, 0x2B];
+
+/// Function 2B, the encapsulated interface: a bridge passes its MEI type 0E (read device
+/// identification) only.
+pub const FC_ENCAPSULATED: u8 = 0x2B;
+
+/// The MEI type of read device identification (function 2B).
+pub const MEI_DEVICE_ID: u8 = 0x0E;
+
+impl BridgeConfig {
+    /// A bridge of `bus` on `listen` with MBAP framing and the default functions.
+    pub fn new(bus: &str, listen: SocketAddr) -> Self {
+        BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap, functions: BRIDGE_FUNCTIONS.to_vec() }
+    }
+
+    /// Whether the request `pdu` (function code first) is one of the functions this bridge
+    /// passes; of function 2B, MEI type 0E (device identification) only.
+    pub fn passes(&self, pdu: &[u8]) -> bool {
+        match pdu {
+            [FC_ENCAPSULATED, mei, ..] => *mei == MEI_DEVICE_ID && self.functions.contains(&FC_ENCAPSULATED),
+            [fc, ..] => self.functions.contains(fc),
+            [] => false,
+        }
+    }
 }
 
 /// One `[[modbus_rtu]]` slave: the unified map on a serial port (modbus_rtu.rs).

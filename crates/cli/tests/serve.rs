@@ -209,7 +209,7 @@ fn serve_config_stderr(dir: &std::path::Path, tokens: &str) -> String {
     let mut err = String::new();
     child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
     let _ = child.wait();
-    assert!(said.iter().any(|l| l.contains("1 buses, 1 drives")), "{said:?} {err}");
+    assert!(said.iter().any(|l| l.contains("drivebus serve: 1 bus, 1 drive")), "{said:?} {err}");
     err
 }
 

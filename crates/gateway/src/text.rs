@@ -1,4 +1,11 @@
-//! How a user's text is shown back in messages, logs and the audit trail.
+//! How a user's text is shown back in messages, logs and the audit trail, and how counts are
+//! written.
+
+/// A count with its noun in the right number: `count(1, "bus", "buses")` is `1 bus`,
+/// `count(2, "bus", "buses")` is `2 buses` (and `0 buses`). Every count printed goes through it.
+pub fn count(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
 
 /// The first `max` characters of `text` to show in a message, and `"..."` when it was cut.
 pub fn cut(text: &str, max: usize) -> (&str, &'static str) {
@@ -54,5 +61,12 @@ mod tests {
         assert_eq!(number(-1.5e-300), "-1.5e-300");
         assert_eq!(cut("abcdef", 3), ("abc", "..."));
         assert_eq!(cut("abc", 3), ("abc", ""));
+    }
+
+    #[test]
+    fn counts_say_one_in_the_singular() {
+        assert_eq!(count(1, "bus", "buses"), "1 bus");
+        assert_eq!(count(2, "bus", "buses"), "2 buses");
+        assert_eq!(count(0, "drive", "drives"), "0 drives");
     }
 }

@@ -1,6 +1,7 @@
 //! `drivebus config check FILE`: reads a gateway configuration as `serve` would, opens nothing
 //! (no port, no listener, no store), and says what it would run.
 
+use drivebus_gateway::text::count;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -35,7 +36,12 @@ pub fn run(cmd: &ConfigCmd) -> Result<u8> {
 pub fn describe(c: &GatewayConfig) -> String {
     let mut out = String::new();
     let drives: usize = c.buses.iter().map(|b| b.drives.len()).sum();
-    out += &format!("gateway {:?}: {} buses, {drives} drives\n", c.name, c.buses.len());
+    out += &format!(
+        "gateway {:?}: {}, {}\n",
+        c.name,
+        count(c.buses.len(), "bus", "buses"),
+        count(drives, "drive", "drives")
+    );
     for b in &c.buses {
         let port = match &b.port {
             Port::Virtual => "virtual (simulated drives)".to_string(),

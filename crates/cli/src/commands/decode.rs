@@ -1,5 +1,6 @@
 //! `drivebus decode`: frames out of captured bytes, with an exact diagnosis of bad bytes.
 
+use drivebus_gateway::text::count;
 use std::fmt::Write as _;
 use std::io::Write as _;
 
@@ -526,9 +527,8 @@ pub fn run(args: &DecodeArgs, target: &crate::commands::target::Target) -> Resul
             }
             Item::Noise { offset, bytes } => {
                 eprintln!(
-                    "drivebus: skipped {} byte{} at byte {offset} that are not part of any {protocol} frame",
-                    bytes.len(),
-                    if bytes.len() == 1 { "" } else { "s" }
+                    "drivebus: skipped {} at byte {offset} that are not part of any {protocol} frame",
+                    count(bytes.len(), "byte", "bytes")
                 );
             }
             _ => {}

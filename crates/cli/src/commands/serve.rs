@@ -1,5 +1,6 @@
 //! `drivebus serve`: the gateway service over every configured bus (or the embedded demo).
 
+use drivebus_gateway::text::count;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -228,7 +229,11 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
                 as drivebus_gateway::server::Loader
         });
         drivebus_gateway::server::run(gw.clone(), loader, |bound| {
-            println!("drivebus serve: {} buses, {} drives", gw.buses().len(), gw.drives().len());
+            println!(
+                "drivebus serve: {}, {}",
+                count(gw.buses().len(), "bus", "buses"),
+                count(gw.drives().len(), "drive", "drives")
+            );
             println!("  dashboard   http://{}/", bound.http);
             println!("  HTTP API    http://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);

@@ -1,5 +1,6 @@
 //! `drivebus simulate`: virtual drives on a virtual RS-485 line, behind a pty or a TCP port.
 
+use drivebus_gateway::text::count;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -97,9 +98,8 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Res
     rt.block_on(async move {
         let sim = Simulator::new(&bus)?;
         println!(
-            "drivebus simulate: {} drive{} at {} baud {}{}: {}",
-            bus.drives.len(),
-            if bus.drives.len() == 1 { "" } else { "s" },
+            "drivebus simulate: {} at {} baud {}{}: {}",
+            count(bus.drives.len(), "drive", "drives"),
             bus.baud,
             bus.format,
             if bus.pacing { "" } else { " (no pacing)" },

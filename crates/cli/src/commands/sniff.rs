@@ -2,6 +2,7 @@
 //! requests paired with replies, per-address statistics, a pcapng capture (see docs/sniff.md).
 //! The analysis is in `crate::sniff`; this is the I/O around it.
 
+use drivebus_gateway::text::count;
 use std::io::{BufWriter, Write};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -155,8 +156,8 @@ fn summary(a: &Analyzer, baud: u32, format: CharFormat, heard: bool) -> String {
         ));
     }
     s.push_str(&format!(
-        "{} frames, {} garbled, bus load {:.1} % at {baud} {format}{}\n",
-        a.frames(),
+        "{}, {} garbled, bus load {:.1} % at {baud} {format}{}\n",
+        count(a.frames() as usize, "frame", "frames"),
         a.garbled(),
         a.bus_load() * 100.0,
         if heard && a.protocols().is_empty() { " (no protocol found)" } else { "" }

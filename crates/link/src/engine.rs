@@ -14,6 +14,7 @@ use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::session::{Disposition, MasterEvent, MasterSession, Protocol, Timing};
 use drivebus_proto::Instant;
 
+use crate::backoff::Backoff;
 use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 
 /// How one attempt ended.
@@ -54,11 +55,6 @@ pub(crate) enum Next {
     Done(Result<Option<Vec<u8>>, BusError>),
 }
 
-/// The first wait before a lost link is opened again; it doubles after each failed reopen.
-const REOPEN_FIRST: Duration = Duration::from_millis(250);
-/// The longest wait between two reopens of a lost link.
-const REOPEN_MAX: Duration = Duration::from_secs(5);
-
 /// A link that is lost: why, and when it is opened again.
 #[derive(Debug)]
 struct Lost {
@@ -66,8 +62,8 @@ struct Lost {
     error: String,
     /// When the next reopen is due.
     reopen_at: Instant,
-    /// The wait after the next failed reopen.
-    backoff: Duration,
+    /// The waits between failed reopens.
+    backoff: Backoff,
 }
 
 /// The job in progress.
@@ -196,7 +192,7 @@ impl<P: Protocol> Engine<P> {
     /// The link is lost (or was never opened) at session time `now` for `error`: the next job
     /// reopens it first.
     pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
-        let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
+        let backoff = self.lost.as_ref().map_or_else(Backoff::new, |l| l.backoff);
         self.lost = Some(Lost { error, reopen_at: now, backoff });
     }
 
@@ -281,12 +277,9 @@ impl<P: Protocol> Engine<P> {
                 other => format!("{}: {other}", job.link),
             },
         };
-        let backoff = self.lost.as_ref().map_or(REOPEN_FIRST, |l| l.backoff);
-        self.lost = Some(Lost {
-            error: error.clone(),
-            reopen_at: now + backoff,
-            backoff: (backoff * 2).min(REOPEN_MAX),
-        });
+        let mut backoff = self.lost.as_ref().map_or_else(Backoff::new, |l| l.backoff);
+        let wait = backoff.failed();
+        self.lost = Some(Lost { error: error.clone(), reopen_at: now + wait, backoff });
         // The attempt's own link error says what went wrong first, where there was one.
         let last = match last {
             Some(a @ Attempt::Link(_)) => a,

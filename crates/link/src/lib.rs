@@ -4,7 +4,7 @@
 //! baud rate, format and RS-485 direction control, a serial device server over TCP, or a
 //! virtual line of simulated drives behind the `virtual` feature) and opens it, the one place
 //! that does, for both drivers below. The engine (`MasterSession` plus retries, reopening a
-//! lost link with a backoff, echo removal, statistics and drive health) never waits: after each
+//! lost link with a backoff ([`Backoff`], which the gateway's RTU slave shares), echo removal, statistics and drive health) never waits: after each
 //! attempt it says what to do next (retry, reopen the link and retry, or give up with which
 //! error), and two thin drivers carry it out with their own I/O: the bus owner ([`owner`]), one
 //! task per half-duplex bus over a [`PortLink`], commands ahead of polling, on-demand reads
@@ -21,6 +21,7 @@
 //! A plan's frames are sent as the profile encoded them (`MasterSession::send_frame`); the loop
 //! that drives a plan is `drivebus_drive::profile::run`.
 
+pub mod backoff;
 pub mod blocking;
 pub mod bus;
 pub mod drive;
@@ -35,6 +36,7 @@ pub mod port_link;
 pub mod sim_link;
 pub mod timer;
 
+pub use backoff::Backoff;
 pub use bus::{BusConfig, BusError, BusStats, FairConfig, Health, Priority};
 pub use link::{Clock, Link, SerialLink, TcpLink};
 pub use owner::Bus;

@@ -1,6 +1,7 @@
 //! A gateway in service: `drivebus serve --config` reloaded with SIGHUP (a bus and a drive added,
 //! a token removed; then a broken file that changes nothing), `/healthz` and `/readyz` (503 while
-//! the store's folder cannot be written), JSON logs, `config check` and `--version`.
+//! the store's folder cannot be written or its filesystem has less than `[store] min_free_mb`
+//! free), JSON logs, `config check` and `--version`.
 
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
@@ -205,6 +206,19 @@ fn sighup_reloads_what_changed_and_a_broken_file_changes_nothing() {
     std::fs::rename(&moved, &store).unwrap();
     g.wait_for("/readyz", "ready again", |s, _| s == 200);
     assert_eq!(g.get("/healthz", None).0, 200);
+
+    // Ready needs [store] min_free_mb free on the store's filesystem (read at each check, so a
+    // reload applies it): no disk here has an exabyte free.
+    let full = head.replace("[store]\n", "[store]\nmin_free_mb = 1000000000000\n");
+    std::fs::write(&file, format!("{full}{}{}{}", tokens(false), bus("line-1", "d1"), bus("line-2", "d2")))
+        .unwrap();
+    g.hangup();
+    let v = g.wait_for("/readyz", "not ready below min_free_mb", |s, _| s == 503);
+    let why = v["reasons"][0].as_str().unwrap();
+    assert!(
+        why.contains("MiB free on the filesystem of") && why.contains("min_free_mb = 1000000000000"),
+        "{v}"
+    );
 }
 
 #[test]

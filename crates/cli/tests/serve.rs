@@ -265,7 +265,6 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
         (vec!["--bridge", "nope=127.0.0.1:1"], 3, "no bus \"nope\""),
         (vec!["--bridge", "line-toshiba=127.0.0.1:1"], 3, "needs a modbus-rtu or modbus-ascii bus"),
         (vec!["--bridge", "line-generic"], 3, "BUS=HOST:PORT"),
-        (vec!["--modbus-rtu", "/nonexistent/ttyS9"], 2, "/nonexistent/ttyS9"),
     ] {
         let out = serve_demo_without_store().args(&args).output().unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
@@ -273,4 +272,50 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
         let last = err.lines().last().unwrap_or_default();
         assert!(last.starts_with("drivebus: ") && last.contains(needle), "{args:?}: {err}");
     }
+}
+
+/// A Modbus RTU slave whose port is missing does not stop `serve` (a bus's port does not
+/// either): the gateway serves, `/readyz` names the slave's port, and the log line says so in
+/// the log's format (JSON here).
+#[test]
+fn serve_starts_with_a_missing_rtu_slave_port_and_readyz_names_it() {
+    let http: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--demo", "--no-store", "--no-opcua", "--log-format", "json"])
+        .args(["--http", &http.to_string(), "--modbus", &format!("127.0.0.1:{}", free_port())])
+        .args(["--modbus-rtu", "/nonexistent/ttyS9"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start drivebus serve");
+    let out = BufReader::new(child.stdout.take().unwrap());
+    let said: Vec<String> =
+        out.lines().map_while(Result::ok).take_while(|l| !l.contains("demo write token")).collect();
+    assert!(said.iter().any(|l| l.contains("Modbus RTU  slave on /nonexistent/ttyS9")), "{said:?}");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let answer = loop {
+        let (status, body) = http::http_json(http, "GET", "/readyz", None).unwrap();
+        if status == 503 {
+            break body;
+        }
+        assert!(Instant::now() < deadline, "/readyz: {status} {body}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let reasons = answer["reasons"].as_array().unwrap();
+    assert!(
+        reasons
+            .iter()
+            .any(|r| r.as_str().unwrap().starts_with("Modbus RTU slave on /nonexistent/ttyS9 is down")),
+        "{answer}"
+    );
+    let (_, metrics) = raw(http, "GET", "/metrics", None, None);
+    assert!(metrics.contains("drivebus_modbus_rtu_up{port=\"/nonexistent/ttyS9\"} 0"), "{metrics}");
+    let _ = child.kill();
+    let _ = child.wait();
+    let mut err = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+    let line = err.lines().find(|l| l.contains("/nonexistent/ttyS9")).unwrap_or_else(|| panic!("{err}"));
+    let v: Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"));
+    assert_eq!(v["level"], "warn", "{v}");
+    assert!(v["message"].as_str().unwrap().contains("Modbus RTU slave"), "{v}");
 }

@@ -24,8 +24,8 @@ mod mqtt_support;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 
-use witness::witness;
 use mqtt_support::{demo_drives, free_port, mosquitto_binary, Mosquitto, PATIENCE};
+use witness::witness;
 
 fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/sparkplug_host.py")
@@ -37,7 +37,11 @@ fn witnesses() -> Option<PathBuf> {
     let python = witness::python_has("paho.mqtt.client, pysparkplug._protobuf.sparkplug_b_pb2");
     let bin = mosquitto_binary();
     let here = bin.is_some() && python;
-    if !witness("mosquitto, paho-mqtt and pysparkplug", here, "apt-get install mosquitto; pip install paho-mqtt pysparkplug") {
+    if !witness(
+        "mosquitto, paho-mqtt and pysparkplug",
+        here,
+        "apt-get install mosquitto; pip install paho-mqtt pysparkplug",
+    ) {
         return None;
     }
     bin

@@ -188,7 +188,13 @@ fn forbidden(gw: &Gateway, ip: IpAddr) -> Option<String> {
 }
 
 /// Passes one request to the bus; returns the answer's PDU (`None`: none is due, a broadcast).
-async fn pass(gw: &Arc<Gateway>, cfg: &BridgeConfig, r: &Request, ip: IpAddr, actor: &str) -> Option<Vec<u8>> {
+async fn pass(
+    gw: &Arc<Gateway>,
+    cfg: &BridgeConfig,
+    r: &Request,
+    ip: IpAddr,
+    actor: &str,
+) -> Option<Vec<u8>> {
     let fc = *r.pdu.first()?;
     let exception = |code: ExceptionCode| Some(vec![fc | 0x80, code.0]);
     let bus = gw.buses().iter().find(|b| b.config.name == cfg.bus)?.clone();

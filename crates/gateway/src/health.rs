@@ -20,10 +20,20 @@ pub struct Listener {
     pub up: bool,
 }
 
+/// A Modbus RTU slave's port (`[[modbus_rtu]]`): the device and, while it is down, why.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SlavePort {
+    /// The serial device.
+    pub port: String,
+    /// Why it is not served now (`None`: open and served).
+    pub down: Option<String>,
+}
+
 /// What the health checks report, kept by the gateway.
 #[derive(Debug, Default)]
 pub struct Health {
     listeners: Mutex<Vec<Listener>>,
+    slaves: Mutex<Vec<SlavePort>>,
     reloads_ok: AtomicU64,
     reloads_failed: AtomicU64,
     last_reload_failed: AtomicBool,
@@ -48,6 +58,20 @@ impl Health {
         self.listeners.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
 
+    /// Says that the Modbus RTU slave on `port` is served (`down` is `None`) or why it is not.
+    pub fn slave_port(&self, port: &str, down: Option<String>) {
+        let mut l = self.slaves.lock().unwrap_or_else(|p| p.into_inner());
+        match l.iter_mut().find(|x| x.port == port) {
+            Some(x) => x.down = down,
+            None => l.push(SlavePort { port: port.to_string(), down }),
+        }
+    }
+
+    /// Every Modbus RTU slave's port.
+    pub fn slave_ports(&self) -> Vec<SlavePort> {
+        self.slaves.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
     /// Counts a reload: `Ok` applied, `Err` refused with its reason.
     pub fn reloaded(&self, result: Result<(), &str>) {
         match result {
@@ -69,17 +93,23 @@ impl Health {
         (self.reloads_ok.load(Ordering::Relaxed), self.reloads_failed.load(Ordering::Relaxed))
     }
 
-    /// Why the gateway is not ready (empty when it is): a configured listener is not up, the
-    /// store at `store` (when there is one) does not take writes.
-    pub fn not_ready(&self, store: Option<&Path>) -> Vec<String> {
+    /// Why the gateway is not ready (empty when it is): a configured listener is not up, a
+    /// Modbus RTU slave's port is down, the store at `store` (when there is one) does not take writes or its filesystem has less
+    /// than `min_free_mb` MiB free.
+    pub fn not_ready(&self, store: Option<&Path>, min_free_mb: u64) -> Vec<String> {
         let mut why: Vec<String> = self
             .listeners()
             .into_iter()
             .filter(|l| !l.up)
             .map(|l| format!("{} listener on {} is not up", l.name, l.addr))
             .collect();
+        for p in self.slave_ports() {
+            if let Some(e) = p.down {
+                why.push(format!("Modbus RTU slave on {} is down: {e}", p.port));
+            }
+        }
         if let Some(path) = store {
-            if let Err(e) = store_writable(path) {
+            if let Err(e) = store_writable(path, min_free_mb) {
                 why.push(e);
             }
         }
@@ -92,24 +122,98 @@ impl Health {
     }
 }
 
-/// Whether the store at `path` can take writes now: a file can be made (and removed) in its
-/// folder and the store itself opens for writing. `Err` says why not.
-pub fn store_writable(path: &Path) -> Result<(), String> {
+/// The space left on a filesystem, as `statvfs` tells it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Space {
+    /// Bytes an unprivileged process may still write (`f_bavail` blocks).
+    pub free_bytes: u64,
+    /// Mounted read-only.
+    pub read_only: bool,
+}
+
+/// The space of the filesystem that holds `dir` (`statvfs`: nothing is written).
+pub fn space_of(dir: &Path) -> Result<Space, String> {
+    use nix::sys::statvfs::{statvfs, FsFlags};
+    let s =
+        statvfs(dir).map_err(|e| format!("store: cannot see the filesystem of {}: {e}", dir.display()))?;
+    // 32 bits wide on 32-bit targets (armhf), 64 on the others.
+    #[allow(clippy::useless_conversion)]
+    let free_bytes = u64::from(s.blocks_available()).saturating_mul(u64::from(s.fragment_size()));
+    Ok(Space { free_bytes, read_only: s.flags().contains(FsFlags::ST_RDONLY) })
+}
+
+/// Whether `space`, that of the filesystem holding the store's folder `dir`, is enough: not
+/// read-only, at least `min_free_mb` MiB free (0: any). `Err` says what is short.
+pub fn enough_space(dir: &Path, space: Space, min_free_mb: u64) -> Result<(), String> {
+    const MIB: u64 = 1 << 20;
+    if space.read_only {
+        return Err(format!("store: the filesystem of {} is read-only", dir.display()));
+    }
+    if space.free_bytes < min_free_mb.saturating_mul(MIB) {
+        return Err(format!(
+            "store: {} MiB free on the filesystem of {}, below [store] min_free_mb = {min_free_mb}",
+            space.free_bytes / MIB,
+            dir.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Whether the store at `path` can take writes now: its filesystem has `min_free_mb` MiB free
+/// and is not read-only, its folder may be written and the store itself opens for writing.
+/// Nothing is created: `statvfs`, `access` and an open for appending. `Err` says why not.
+pub fn store_writable(path: &Path, min_free_mb: u64) -> Result<(), String> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => std::path::PathBuf::from("."),
     };
-    let probe = dir.join(format!(".drivebus-ready-{}", std::process::id()));
-    std::fs::OpenOptions::new()
-        .write(true)
-        .create(true)
-        .truncate(true)
-        .open(&probe)
-        .and_then(|_| std::fs::remove_file(&probe))
+    nix::unistd::access(&dir, nix::unistd::AccessFlags::W_OK)
         .map_err(|e| format!("store: cannot write in {}: {e}", dir.display()))?;
+    enough_space(&dir, space_of(&dir)?, min_free_mb)?;
     std::fs::OpenOptions::new()
         .append(true)
         .open(path)
         .map(drop)
         .map_err(|e| format!("store: cannot write {}: {e}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn free_space_below_the_threshold_or_a_read_only_filesystem_is_not_ready() {
+        let dir = Path::new("/var/lib/drivebus");
+        let mib = |n: u64| n << 20;
+        let space = |free_bytes, read_only| Space { free_bytes, read_only };
+        assert_eq!(enough_space(dir, space(mib(64), false), 64), Ok(()));
+        assert_eq!(
+            enough_space(dir, space(mib(64) - 1, false), 64),
+            Err("store: 63 MiB free on the filesystem of /var/lib/drivebus, below [store] min_free_mb = 64"
+                .to_string())
+        );
+        assert_eq!(enough_space(dir, space(0, false), 0), Ok(()));
+        assert_eq!(
+            enough_space(dir, space(mib(1000), true), 64),
+            Err("store: the filesystem of /var/lib/drivebus is read-only".to_string())
+        );
+    }
+
+    #[test]
+    fn the_store_check_reads_the_filesystem_and_creates_nothing() {
+        let dir = std::env::temp_dir().join(format!("drivebus-health-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let db = dir.join("events.db");
+        std::fs::write(&db, b"").unwrap();
+        assert!(space_of(&dir).unwrap().free_bytes > 0);
+        assert_eq!(store_writable(&db, 0), Ok(()));
+        // No filesystem has this much free: the check says so, with the figure it saw.
+        let e = store_writable(&db, u64::MAX >> 20).unwrap_err();
+        assert!(e.contains("MiB free on the filesystem of") && e.contains("min_free_mb"), "{e}");
+        assert!(store_writable(&dir.join("none.db"), 0).unwrap_err().starts_with("store: cannot write"));
+        let files: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(files, ["events.db"], "the check left files behind");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -273,6 +273,12 @@ struct ListenerLabels {
     listener: String,
 }
 
+/// Labels of a Modbus RTU slave's series.
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+struct SlaveLabels {
+    port: String,
+}
+
 type F64Gauge = Gauge<f64, std::sync::atomic::AtomicU64>;
 
 /// The exposition now, as `GET /metrics` serves it.
@@ -427,16 +433,33 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let why = gw.not_ready();
     let ready = Gauge::<i64>::default();
     ready.set(i64::from(why.is_empty()));
-    reg.register("ready", "1 when every configured listener is up and the store is writable", ready);
+    reg.register(
+        "ready",
+        "1 when every configured listener and Modbus RTU slave is up and the store is writable",
+        ready,
+    );
     let listener_up = Family::<ListenerLabels, Gauge>::default();
     for l in h.listeners() {
         listener_up.get_or_create(&ListenerLabels { listener: l.name }).set(i64::from(l.up));
     }
     reg.register("listener_up", "1 when the listener accepts connections", listener_up);
-    if let Some(path) = &gw.config().store {
+    let slaves = h.slave_ports();
+    if !slaves.is_empty() {
+        let slave_up = Family::<SlaveLabels, Gauge>::default();
+        for p in slaves {
+            slave_up.get_or_create(&SlaveLabels { port: p.port }).set(i64::from(p.down.is_none()));
+        }
+        reg.register("modbus_rtu_up", "1 when the Modbus RTU slave's port is open and served", slave_up);
+    }
+    let config = gw.config();
+    if let Some(path) = &config.store {
         let writable = Gauge::<i64>::default();
-        writable.set(i64::from(crate::health::store_writable(path).is_ok()));
-        reg.register("store_writable", "1 when the store's folder and file take writes", writable);
+        writable.set(i64::from(crate::health::store_writable(path, config.store_min_free_mb).is_ok()));
+        reg.register(
+            "store_writable",
+            "1 when the store's folder and file take writes and its filesystem has [store] min_free_mb free",
+            writable,
+        );
     }
     let (ok, failed) = h.reloads();
     let reloads = Family::<ResultLabels, Counter>::default();

@@ -32,7 +32,8 @@ pub struct Plan {
     pub http_rules_changed: bool,
     /// The linkage rules changed.
     pub linkage_changed: bool,
-    /// Settings that changed and need a restart (listeners, store, MQTT, Sparkplug, the gateway's name).
+    /// Settings that changed and need a restart (listeners, store, MQTT, Sparkplug, the
+    /// bridges, the Modbus RTU slaves, the gateway's name).
     pub needs_restart: Vec<String>,
 }
 
@@ -117,6 +118,8 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         ("sparkplug", old.sparkplug != new.sparkplug),
         ("name", old.name != new.name),
         ("limits", old.limits != new.limits),
+        ("bridge", old.bridges != new.bridges),
+        ("modbus_rtu", old.modbus_rtu != new.modbus_rtu),
     ];
     p.needs_restart = restart.iter().filter(|(_, c)| *c).map(|(n, _)| n.to_string()).collect();
     p
@@ -263,6 +266,22 @@ address = 1
         let with = format!("{BASE}[sparkplug]\nurls = [\"mqtt://127.0.0.1:1883\"]\n");
         let p = plan(&cfg(BASE), &cfg(&with));
         assert_eq!(p.needs_restart, vec!["sparkplug"]);
+    }
+
+    #[test]
+    fn bridge_and_rtu_slave_changes_are_named_as_needing_a_restart() {
+        let with = |functions: &str, baud: u32| {
+            format!(
+                "{BASE}[[bridge]]\nbus = \"line-2\"\nlisten = \"127.0.0.1:5021\"\n{functions}\n\
+                 [[modbus_rtu]]\nport = \"/dev/ttyS1\"\nbaud = {baud}\n"
+            )
+        };
+        assert!(plan(&cfg(&with("", 19200)), &cfg(&with("", 19200))).is_empty());
+        let p = plan(&cfg(&with("", 19200)), &cfg(&with("functions = [3]", 9600)));
+        assert_eq!(p.needs_restart, vec!["bridge", "modbus_rtu"]);
+        assert!(p.summary().contains("needs a restart to apply: bridge, modbus_rtu"), "{}", p.summary());
+        let p = plan(&cfg(BASE), &cfg(&with("", 19200)));
+        assert_eq!(p.needs_restart, vec!["bridge", "modbus_rtu"]);
     }
 
     #[test]

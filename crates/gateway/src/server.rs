@@ -107,7 +107,7 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
         tokio::spawn(crate::bridge::serve(gw.clone(), b.clone(), l));
     }
     for m in &cfg.modbus_rtu {
-        tokio::spawn(crate::modbus_rtu::Slave::open(gw.clone(), m)?.run());
+        tokio::spawn(crate::modbus_rtu::run(gw.clone(), m.clone()));
     }
     ready(&bound);
     let stop = async {

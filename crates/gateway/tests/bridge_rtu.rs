@@ -315,7 +315,7 @@ async fn pymodbus_reads_the_unified_map_from_the_rtu_slave() {
     cfg.modbus_rtu = rtu;
     let slave_cfg = cfg.modbus_rtu[0].clone();
     let gw = Gateway::start(cfg, None).unwrap();
-    tokio::spawn(drivebus_gateway::modbus_rtu::Slave::open(gw.clone(), &slave_cfg).unwrap().run());
+    tokio::spawn(drivebus_gateway::modbus_rtu::run(gw.clone(), slave_cfg));
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/pymodbus_rtu_slave.py");
     let b = pair.b.clone();
     let out = tokio::task::spawn_blocking(move || {

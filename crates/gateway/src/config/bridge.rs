@@ -66,7 +66,8 @@ pub(super) fn check(
 /// A function code of `functions = [...]`: a public Modbus function (01-08, 0B, 0C, 0F-11,
 /// 14-18, 2B) or a user-defined one (41-48, 64-6E), in decimal or hex (`0x2B`, TOML's own).
 fn function(code: i64) -> Result<u8, String> {
-    const PUBLIC: &str = "public 1-8, 11, 12, 15-17, 20-24, 43 (device identification); user-defined 65-72, 100-110";
+    const PUBLIC: &str =
+        "public 1-8, 11, 12, 15-17, 20-24, 43 (device identification); user-defined 65-72, 100-110";
     let known = |c: u8| matches!(c, 1..=8 | 11 | 12 | 15..=17 | 20..=24 | 43 | 65..=72 | 100..=110);
     match u8::try_from(code) {
         Ok(c) if known(c) => Ok(c),
@@ -130,7 +131,11 @@ mod tests {
         assert!(e("functions = [131]\n").contains("131 is not a Modbus function code"));
         assert!(e("functions = [-3]\n").contains("-3 is not a Modbus function code"));
         assert!(e("functions = [3, 3]\n").contains("3 is listed twice"));
-        assert!(e("functions = [\"read\"]\n").contains("bridge.functions"), "{}", e("functions = [\"read\"]\n"));
+        assert!(
+            e("functions = [\"read\"]\n").contains("bridge.functions"),
+            "{}",
+            e("functions = [\"read\"]\n")
+        );
     }
 
     #[test]

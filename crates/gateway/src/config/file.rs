@@ -90,6 +90,8 @@ pub(super) struct FileStore {
     pub(super) retention_days: u64,
     #[serde(default = "default_max_size_mb")]
     pub(super) max_size_mb: u64,
+    #[serde(default = "default_min_free_mb")]
+    pub(super) min_free_mb: u64,
 }
 
 impl Default for FileStore {
@@ -99,6 +101,7 @@ impl Default for FileStore {
             disabled: false,
             retention_days: default_retention_days(),
             max_size_mb: default_max_size_mb(),
+            min_free_mb: default_min_free_mb(),
         }
     }
 }
@@ -106,6 +109,11 @@ impl Default for FileStore {
 /// The default `retention_days`.
 fn default_retention_days() -> u64 {
     365
+}
+
+/// The default `min_free_mb`.
+fn default_min_free_mb() -> u64 {
+    super::STORE_MIN_FREE_MB
 }
 
 /// The default `max_size_mb`.

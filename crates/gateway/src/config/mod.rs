@@ -35,6 +35,7 @@
 //! path = "drivebus.db"
 //! retention_days = 365                  # events older are deleted (0: kept for ever)
 //! max_size_mb = 1024                    # beyond it the oldest events and trends go (0: no cap)
+//! min_free_mb = 64                      # /readyz: the free space its filesystem needs (0: any)
 //!
 //! [mqtt]                                # optional (docs/mqtt.md)
 //! url = "mqtt://127.0.0.1:1883"
@@ -142,6 +143,7 @@ impl GatewayConfig {
         let linkage = linkage::check(&cx, &raw.linkage, &buses)?;
         let mqtt = raw.mqtt.map(|m| mqtt::check(&cx, m)).transpose()?;
         let sparkplug = raw.sparkplug.map(|sp| sparkplug::check(&cx, sp)).transpose()?;
+        let store_min_free_mb = raw.store.min_free_mb;
         let (store, store_limits) = store::check(raw.store);
         let opcua = opcua::check(&cx, &raw.opcua, &http)?;
         let limits = limits::check(&cx, &raw.limits)?;
@@ -153,6 +155,7 @@ impl GatewayConfig {
             modbus,
             store,
             store_limits,
+            store_min_free_mb,
             tokens,
             buses,
             linkage,

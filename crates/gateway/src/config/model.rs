@@ -23,6 +23,9 @@ pub struct GatewayConfig {
     pub store: Option<PathBuf>,
     /// The store's retention and size cap (`[store] retention_days`, `max_size_mb`).
     pub store_limits: drivebus_store::Limits,
+    /// The free space, MiB, the store's filesystem needs for the gateway to be ready (`[store]
+    /// min_free_mb`, default [`STORE_MIN_FREE_MB`]; 0: not checked).
+    pub store_min_free_mb: u64,
     /// Bearer tokens.
     pub tokens: Vec<Token>,
     /// The buses.
@@ -287,6 +290,9 @@ impl GatewayConfig {
     }
 }
 
+/// The default `[store] min_free_mb`.
+pub const STORE_MIN_FREE_MB: u64 = 64;
+
 /// How a bridge's requests come over TCP.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Framing {
@@ -325,7 +331,12 @@ pub const MEI_DEVICE_ID: u8 = 0x0E;
 impl BridgeConfig {
     /// A bridge of `bus` on `listen` with MBAP framing and the default functions.
     pub fn new(bus: &str, listen: SocketAddr) -> Self {
-        BridgeConfig { bus: bus.to_string(), listen, framing: Framing::Mbap, functions: BRIDGE_FUNCTIONS.to_vec() }
+        BridgeConfig {
+            bus: bus.to_string(),
+            listen,
+            framing: Framing::Mbap,
+            functions: BRIDGE_FUNCTIONS.to_vec(),
+        }
     }
 
     /// Whether the request `pdu` (function code first) is one of the functions this bridge

@@ -177,7 +177,8 @@ impl Gateway {
     /// Why the gateway is not ready (empty when it is): listeners down, store not writable
     /// (`/readyz`, the `drivebus_ready` metric).
     pub fn not_ready(&self) -> Vec<String> {
-        self.health.not_ready(self.config().store.as_deref())
+        let config = self.config();
+        self.health.not_ready(config.store.as_deref(), config.store_min_free_mb)
     }
 
     /// Family name of a drive (for front ends that show it).

@@ -507,6 +507,10 @@ impl Server {
                 };
                 (!rules.modbus.read_only && rules.modbus.allow.contains(&ip), why)
             }
+            // The RTU slave: its section's `write`, and `[modbus] read_only` as configured now.
+            None if self.gw.config().modbus.read_only => {
+                (false, "forbidden: Modbus writes are off ([modbus] read_only)".to_string())
+            }
             None => (conn.may_write, conn.forbidden.clone()),
         };
         if !may_write || d.locked() {
@@ -657,12 +661,12 @@ pub fn exception_of(e: &CommandError) -> ExceptionCode {
 /// A client's standing.
 pub(crate) struct Conn {
     /// A Modbus TCP client's address (IPv4-mapped IPv6 as IPv4): its writes are checked against
-    /// the `[modbus]` rules as configured at the time. `None` for a client whose rule is fixed
-    /// in `may_write` (the RTU slave).
+    /// the `[modbus]` rules as configured at the time. `None` for the RTU slave, whose writes
+    /// need `may_write` and `[modbus] read_only` off at the time.
     pub(crate) ip: Option<IpAddr>,
-    /// May it write (when `ip` is `None`)?
+    /// May it write (when `ip` is `None`, with `[modbus] read_only` off)?
     pub(crate) may_write: bool,
-    /// Why its writes are refused, when they are (when `ip` is `None`).
+    /// Why its writes are refused when `may_write` is false (when `ip` is `None`).
     pub(crate) forbidden: String,
     /// Who it is in the audit trail (`modbus:127.0.0.1:5555`, `modbus-rtu:/dev/ttyS1`).
     pub(crate) actor: String,

@@ -124,3 +124,21 @@ async fn a_lock_set_in_the_file_applies_at_once_and_the_drive_keeps_its_cache() 
     let e = gw.command("d1", drivebus_gateway::Command::Run, "test").await.unwrap_err();
     assert_eq!(e.kind(), "locked");
 }
+
+/// A `[[bridge]]` or `[[modbus_rtu]]` added (or changed) by a reload is named as needing a
+/// restart, in the result, the log line's summary and the audit event, like the other
+/// restart-only settings; the rest of the file applies.
+#[tokio::test(start_paused = true)]
+async fn bridge_and_rtu_slave_changes_are_named_as_needing_a_restart() {
+    let before = format!("{TOKEN_A}{}", bus("line-1", "d1", 100));
+    let gw = Gateway::start(config(&before), None).unwrap();
+    let after = format!(
+        "{TOKEN_A}{TOKEN_B}{}[[bridge]]\nbus = \"line-1\"\nlisten = \"127.0.0.1:5021\"\n\
+         [[modbus_rtu]]\nport = \"/dev/ttyS1\"\n",
+        bus("line-1", "d1", 100)
+    );
+    let r = gw.reload(config(&after), "signal").await.unwrap();
+    assert_eq!(r.needs_restart, ["bridge", "modbus_rtu"]);
+    assert!(r.summary.contains("tokens changed"), "{}", r.summary);
+    assert!(r.summary.contains("needs a restart to apply: bridge, modbus_rtu"), "{}", r.summary);
+}

@@ -3,11 +3,19 @@
 //! (`http::health`; 503 with the reasons when not ready). The same facts are metrics
 //! (`drivebus_ready`, `drivebus_listener_up`, `drivebus_store_writable`,
 //! `drivebus_config_reloads_total`, `drivebus_config_reload_failed`; docs/metrics.md).
+//!
+//! Reading these facts touches no file: the store's check ([`store_writable`]) runs on its own
+//! schedule, every [`STORE_CHECK_EVERY`] and after each reload (`Gateway::check_store_every`),
+//! and its verdict is kept here ([`Health::store_checked`]) for `/readyz` and `/metrics`.
 
 use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
+use std::time::Duration;
+
+/// How often the store's writability and free space are checked (and after each reload).
+pub const STORE_CHECK_EVERY: Duration = Duration::from_secs(5);
 
 /// A listener the configuration asks for (HTTP, Modbus TCP, ...).
 #[derive(Clone, Debug)]
@@ -38,6 +46,8 @@ pub struct Health {
     reloads_failed: AtomicU64,
     last_reload_failed: AtomicBool,
     last_reload_error: Mutex<Option<String>>,
+    /// The last verdict of the store's check; `None` without a store.
+    store: Mutex<Option<Result<(), String>>>,
 }
 
 impl Health {
@@ -93,10 +103,21 @@ impl Health {
         (self.reloads_ok.load(Ordering::Relaxed), self.reloads_failed.load(Ordering::Relaxed))
     }
 
+    /// Keeps the verdict of the store's check ([`store_writable`]; `None`: there is no store).
+    pub fn store_checked(&self, verdict: Option<Result<(), String>>) {
+        *self.store.lock().unwrap_or_else(|p| p.into_inner()) = verdict;
+    }
+
+    /// The verdict of the last check of the store (`None`: there is no store).
+    pub fn store_verdict(&self) -> Option<Result<(), String>> {
+        self.store.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+
     /// Why the gateway is not ready (empty when it is): a configured listener is not up, a
-    /// Modbus RTU slave's port is down, the store at `store` (when there is one) does not take writes or its filesystem has less
-    /// than `min_free_mb` MiB free.
-    pub fn not_ready(&self, store: Option<&Path>, min_free_mb: u64) -> Vec<String> {
+    /// Modbus RTU slave's port is down, the store did not take writes or its filesystem had
+    /// less than `[store] min_free_mb` free at its last check ([`Health::store_checked`]).
+    /// Touches no file.
+    pub fn not_ready(&self) -> Vec<String> {
         let mut why: Vec<String> = self
             .listeners()
             .into_iter()
@@ -108,10 +129,8 @@ impl Health {
                 why.push(format!("Modbus RTU slave on {} is down: {e}", p.port));
             }
         }
-        if let Some(path) = store {
-            if let Err(e) = store_writable(path, min_free_mb) {
-                why.push(e);
-            }
+        if let Some(Err(e)) = self.store_verdict() {
+            why.push(e);
         }
         why
     }

@@ -10,17 +10,20 @@
 //! docs/metrics.md lists the series. `GET /metrics` and the HTTP request count are served by
 //! the HTTP front end (`http::metrics`).
 
-use std::sync::atomic::Ordering;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, OnceLock, Weak};
 
+use prometheus_client::collector::Collector;
 use prometheus_client::encoding::text::encode;
-use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::encoding::{DescriptorEncoder, EncodeLabelSet, MetricEncoder, NoLabelSet};
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
+use prometheus_client::metrics::MetricType;
 use prometheus_client::registry::{Registry, Unit};
 
+use crate::gateway::DriveEntry;
 use crate::gateway::Gateway;
 
 /// The content type of the exposition.
@@ -247,234 +250,371 @@ pub fn front_ends(gw: &Gateway) -> Arc<FrontEndMetrics> {
     gw.attached()
 }
 
-/// Labels of a drive's series.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct DriveLabels {
-    bus: String,
-    drive: String,
-    family: String,
+/// The exposition of one gateway: its registry, built on the first scrape and kept (attached
+/// to the gateway), and the length of the last text, to size the next one's buffer at once.
+#[derive(Default)]
+struct Exposition {
+    registry: OnceLock<Registry>,
+    last_len: AtomicUsize,
 }
-
-/// Labels of a bus's series.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct BusLabels {
-    bus: String,
-}
-
-/// Labels of the command count.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct ResultLabels {
-    result: &'static str,
-}
-
-/// Labels of a listener's series.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct ListenerLabels {
-    listener: String,
-}
-
-/// Labels of a Modbus RTU slave's series.
-#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
-struct SlaveLabels {
-    port: String,
-}
-
-type F64Gauge = Gauge<f64, std::sync::atomic::AtomicU64>;
 
 /// The exposition now, as `GET /metrics` serves it.
-pub fn render(gw: &Gateway) -> Result<String, String> {
+///
+/// The registry is built once per gateway: the front ends' families are registered as they are
+/// (shared with the front ends that count), and the drive, bus, gateway and health series are
+/// written by collectors ([`CoreSeries`], [`HealthSeries`]) straight from the cache, the bus
+/// owners' counts and the kept health facts at each scrape. Nothing is polled, no file is
+/// touched (the store's check runs on its own schedule, `health::STORE_CHECK_EVERY`).
+pub fn render(gw: &Arc<Gateway>) -> Result<String, String> {
+    let exposition = gw.attached::<Exposition>();
+    let reg = exposition.registry.get_or_init(|| registry(gw));
+    let mut out = String::with_capacity(exposition.last_len.load(Ordering::Relaxed) + 4096);
+    encode(&mut out, reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
+    exposition.last_len.store(out.len(), Ordering::Relaxed);
+    Ok(out)
+}
+
+/// The registry of `gw`'s exposition; the series come out in this order: drives, buses, the
+/// gateway's counts, the front ends', Sparkplug's, health.
+fn registry(gw: &Arc<Gateway>) -> Registry {
     let mut reg = Registry::with_prefix("drivebus");
-
-    // Per drive.
-    let output_hz = Family::<DriveLabels, F64Gauge>::default();
-    let setpoint_hz = Family::<DriveLabels, F64Gauge>::default();
-    let current_a = Family::<DriveLabels, F64Gauge>::default();
-    let running = Family::<DriveLabels, Gauge>::default();
-    let fault_code = Family::<DriveLabels, Gauge>::default();
-    let online = Family::<DriveLabels, Gauge>::default();
-    let age = Family::<DriveLabels, F64Gauge>::default();
-    let polls = Family::<DriveLabels, Counter>::default();
-    let poll_errors = Family::<DriveLabels, Counter>::default();
-    for d in gw.drives().iter() {
-        let l = DriveLabels {
-            bus: d.bus.clone(),
-            drive: d.config.name.clone(),
-            family: d.config.family.as_str().to_string(),
-        };
-        let v = gw.drive_view(d);
-        let (n, errors, updated) = d.with_state(|s| (s.polls, s.poll_errors, s.updated));
-        polls.get_or_create(&l).inc_by(n);
-        poll_errors.get_or_create(&l).inc_by(errors);
-        // A value the drive has not given yet is absent, not zero.
-        if let Some(x) = v.output_hz {
-            output_hz.get_or_create(&l).set(x);
-        }
-        if let Some(x) = v.setpoint_hz {
-            setpoint_hz.get_or_create(&l).set(x);
-        }
-        if let Some(x) = v.current_a {
-            current_a.get_or_create(&l).set(x);
-        }
-        if let Some(x) = v.running {
-            running.get_or_create(&l).set(i64::from(x));
-        }
-        if v.online.is_some() || v.running.is_some() {
-            fault_code.get_or_create(&l).set(v.fault.as_ref().map_or(0, |f| i64::from(f.code)));
-        }
-        if let Some(x) = v.online {
-            online.get_or_create(&l).set(i64::from(x));
-        }
-        if let Some(t) = updated {
-            age.get_or_create(&l).set(t.elapsed().as_secs_f64());
-        }
-    }
-    reg.register("drive_output_hz", "Output frequency, Hz", output_hz);
-    reg.register(
-        "drive_setpoint_hz",
-        "Speed setpoint, Hz (the last commanded where the drive does not tell)",
-        setpoint_hz,
-    );
-    reg.register("drive_current_a", "Motor current, A", current_a);
-    reg.register("drive_running", "1 when the output is on", running);
-    reg.register("drive_fault_code", "The drive's code of the fault in force, 0 when none", fault_code);
-    reg.register("drive_online", "1 when the drive answers its polls", online);
-    reg.register_with_unit("drive_data_age", "Age of the cached values", Unit::Seconds, age);
-    reg.register("drive_polls", "Status polls made", polls);
-    reg.register("drive_poll_errors", "Status polls that failed", poll_errors);
-
-    // Per bus.
-    let transactions = Family::<BusLabels, Counter>::default();
-    let replies = Family::<BusLabels, Counter>::default();
-    let timeouts = Family::<BusLabels, Counter>::default();
-    let checksum = Family::<BusLabels, Counter>::default();
-    let retries = Family::<BusLabels, Counter>::default();
-    let utilization = Family::<BusLabels, F64Gauge>::default();
-    let wire_bytes = Family::<BusLabels, Counter>::default();
-    let bus_online = Family::<BusLabels, Gauge>::default();
-    let foreign = Family::<BusLabels, Counter>::default();
-    let drive_master = Family::<BusLabels, Gauge>::default();
-    for b in gw.buses().iter() {
-        let l = BusLabels { bus: b.config.name.clone() };
-        let s = b.stats();
-        transactions.get_or_create(&l).inc_by(s.transactions);
-        replies.get_or_create(&l).inc_by(s.replies);
-        timeouts.get_or_create(&l).inc_by(s.timeouts);
-        checksum.get_or_create(&l).inc_by(s.checksum_errors);
-        retries.get_or_create(&l).inc_by(s.retries);
-        wire_bytes.get_or_create(&l).inc_by(s.wire_bytes);
-        let u = s.utilization();
-        utilization.get_or_create(&l).set(if u.is_finite() { u } else { 0.0 });
-        bus_online.get_or_create(&l).set(i64::from(b.online()));
-        foreign.get_or_create(&l).inc_by(s.foreign_broadcasts);
-        drive_master.get_or_create(&l).set(i64::from(crate::gateway::drive_master(&s)));
-    }
-    reg.register("bus_transactions", "Requests sent, retries included", transactions);
-    reg.register("bus_replies", "Replies received", replies);
-    reg.register("bus_timeouts", "Requests not answered in time", timeouts);
-    reg.register("bus_checksum_errors", "Damaged replies", checksum);
-    reg.register("bus_retries", "Retries after a timeout or a damaged reply", retries);
-    reg.register("bus_utilization", "Time on the wire over time elapsed (0..1)", utilization);
-    reg.register("bus_wire_bytes", "Bytes of the requests and their replies on the line", wire_bytes);
-    reg.register("bus_online", "1 unless the bus's port failed", bus_online);
-    reg.register(
-        "bus_foreign_broadcasts",
-        "Broadcasts heard on the line that the gateway did not send (a drive acting as bus master)",
-        foreign,
-    );
-    reg.register("bus_drive_master", "1 while a drive acts as bus master on the line", drive_master);
-
-    // The gateway's own work.
-    let c = &gw.counters;
-    let commands = Family::<ResultLabels, Counter>::default();
-    commands.get_or_create(&ResultLabels { result: "ok" }).inc_by(c.commands_ok.load(Ordering::Relaxed));
-    commands
-        .get_or_create(&ResultLabels { result: "failed" })
-        .inc_by(c.commands_failed.load(Ordering::Relaxed));
-    reg.register("commands", "Commands confirmed by a drive (ok) or refused or failed", commands);
-    let store_errors = Counter::<u64>::default();
-    store_errors.inc_by(c.store_errors.load(Ordering::Relaxed));
-    reg.register("store_errors", "Events that could not be written to the store", store_errors);
-    let not_recorded = Counter::<u64>::default();
-    not_recorded.inc_by(c.commands_not_recorded.load(Ordering::Relaxed));
-    reg.register(
-        "commands_not_recorded",
-        "Commands refused, not sent, because their audit record could not be committed",
-        not_recorded,
-    );
+    reg.register_collector(Box::new(CoreSeries { gw: Arc::downgrade(gw) }));
     let f = front_ends(gw);
-    reg.register(
+    // A sub-registry of the same prefix: encoded after the collector above.
+    let fronts = reg.sub_registry_with_labels(std::iter::empty());
+    fronts.register(
         "http_requests",
         "HTTP requests answered, by route, method and status",
         f.http_requests.clone(),
     );
-    reg.register_with_unit(
+    fronts.register_with_unit(
         "http_request_duration",
         "Time to the response's head, by route",
         Unit::Seconds,
         f.http_latency.clone(),
     );
-    reg.register(
+    fronts.register(
         "modbus_requests",
         "Modbus TCP requests, by function code and result",
         f.modbus_requests.clone(),
     );
-    reg.register_with_unit(
+    fronts.register_with_unit(
         "modbus_request_duration",
         "Time to answer a Modbus TCP request, from the cache or through the bus",
         Unit::Seconds,
         f.modbus_latency.clone(),
     );
-    reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
-    reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
+    fronts.register(
+        "mqtt_publishes",
+        "MQTT messages handed to the client, by kind",
+        f.mqtt_publishes.clone(),
+    );
+    fronts.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
     gw.attached::<SparkplugMetrics>().register(&mut reg);
+    reg.sub_registry_with_labels(std::iter::empty())
+        .register_collector(Box::new(HealthSeries { gw: Arc::downgrade(gw) }));
+    reg
+}
 
-    // Health (the facts of /readyz) and reloads.
-    let h = gw.health();
-    let why = gw.not_ready();
-    let ready = Gauge::<i64>::default();
-    ready.set(i64::from(why.is_empty()));
-    reg.register(
-        "ready",
-        "1 when every configured listener and Modbus RTU slave is up and the store is writable",
-        ready,
-    );
-    let listener_up = Family::<ListenerLabels, Gauge>::default();
-    for l in h.listeners() {
-        listener_up.get_or_create(&ListenerLabels { listener: l.name }).set(i64::from(l.up));
-    }
-    reg.register("listener_up", "1 when the listener accepts connections", listener_up);
-    let slaves = h.slave_ports();
-    if !slaves.is_empty() {
-        let slave_up = Family::<SlaveLabels, Gauge>::default();
-        for p in slaves {
-            slave_up.get_or_create(&SlaveLabels { port: p.port }).set(i64::from(p.down.is_none()));
+/// One value of a series.
+#[derive(Clone, Copy)]
+enum Value {
+    Gauge(f64),
+    Flag(i64),
+    Count(u64),
+}
+
+impl Value {
+    fn kind(self) -> MetricType {
+        match self {
+            Value::Gauge(_) | Value::Flag(_) => MetricType::Gauge,
+            Value::Count(_) => MetricType::Counter,
         }
-        reg.register("modbus_rtu_up", "1 when the Modbus RTU slave's port is open and served", slave_up);
     }
-    let config = gw.config();
-    if let Some(path) = &config.store {
-        let writable = Gauge::<i64>::default();
-        writable.set(i64::from(crate::health::store_writable(path, config.store_min_free_mb).is_ok()));
-        reg.register(
-            "store_writable",
-            "1 when the store's folder and file take writes and its filesystem has [store] min_free_mb free",
-            writable,
-        );
-    }
-    let (ok, failed) = h.reloads();
-    let reloads = Family::<ResultLabels, Counter>::default();
-    reloads.get_or_create(&ResultLabels { result: "ok" }).inc_by(ok);
-    reloads.get_or_create(&ResultLabels { result: "failed" }).inc_by(failed);
-    reg.register("config_reloads", "Configuration reloads applied (ok) or refused (failed)", reloads);
-    let reload_failed = Gauge::<i64>::default();
-    reload_failed.set(i64::from(h.last_reload_error().is_some()));
-    reg.register(
-        "config_reload_failed",
-        "1 while the last reload was refused (the previous configuration runs)",
-        reload_failed,
-    );
 
-    let mut out = String::new();
-    encode(&mut out, &reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
-    Ok(out)
+    /// Writes the value as a gauge (`Gauge`, `Flag`) or a counter (`Count`), as the
+    /// registered metrics of those types do.
+    fn encode(self, mut series: MetricEncoder) -> Result<(), std::fmt::Error> {
+        match self {
+            Value::Gauge(x) => series.encode_gauge(&x),
+            Value::Flag(x) => series.encode_gauge(&x),
+            Value::Count(x) => series.encode_counter::<NoLabelSet, _, u64>(&x, None),
+        }
+    }
+}
+
+/// Writes family `name` with one series per row that has a value; nothing (not even its
+/// description) when none has one, as a registered family without series.
+fn family<'r, R, L: EncodeLabelSet>(
+    enc: &mut DescriptorEncoder,
+    (name, help, unit): (&str, &str, Option<&Unit>),
+    rows: &'r [R],
+    labels: impl Fn(&'r R) -> L,
+    value: impl Fn(&R) -> Option<Value>,
+) -> Result<(), std::fmt::Error> {
+    let Some(first) = rows.iter().find_map(&value) else { return Ok(()) };
+    let mut m = enc.encode_descriptor(name, help, unit, first.kind())?;
+    for r in rows {
+        let Some(v) = value(r) else { continue };
+        let l = labels(r);
+        v.encode(m.encode_family(&l)?)?;
+    }
+    Ok(())
+}
+
+/// Writes family `name` of one series without labels.
+fn single(enc: &mut DescriptorEncoder, (name, help): (&str, &str), v: Value) -> Result<(), std::fmt::Error> {
+    v.encode(enc.encode_descriptor(name, help, None, v.kind())?)
+}
+
+/// What a scrape reads of one drive, under one lock of its state.
+struct DriveRow<'a> {
+    labels: [(&'static str, &'a str); 3],
+    output_hz: Option<f64>,
+    setpoint_hz: Option<f64>,
+    current_a: Option<f64>,
+    running: Option<bool>,
+    fault_code: Option<u32>,
+    online: Option<bool>,
+    age: Option<f64>,
+    polls: u64,
+    poll_errors: u64,
+}
+
+impl<'a> DriveRow<'a> {
+    fn labels(&self) -> [(&'static str, &'a str); 3] {
+        self.labels
+    }
+
+    fn of(d: &'a DriveEntry) -> DriveRow<'a> {
+        d.with_state(|s| {
+            let st = s.status.as_ref();
+            let running = st.map(|x| x.running);
+            DriveRow {
+                labels: [("bus", &d.bus), ("drive", &d.config.name), ("family", d.config.family.as_str())],
+                output_hz: st.and_then(|x| x.output_hz),
+                setpoint_hz: s.setpoint_hz(),
+                current_a: st.and_then(|x| x.current_a),
+                running,
+                // Known once the drive was polled: 0 without a fault.
+                fault_code: (s.online.is_some() || running.is_some())
+                    .then(|| st.and_then(|x| x.fault.as_ref()).map_or(0, |f| f.code)),
+                online: s.online,
+                age: s.updated.map(|t| t.elapsed().as_secs_f64()),
+                polls: s.polls,
+                poll_errors: s.poll_errors,
+            }
+        })
+    }
+}
+
+/// What a scrape reads of one bus.
+struct BusRow<'a> {
+    labels: [(&'static str, &'a str); 1],
+    stats: drivebus_link::owner::BusStats,
+    online: bool,
+}
+
+impl<'a> BusRow<'a> {
+    fn labels(&self) -> [(&'static str, &'a str); 1] {
+        self.labels
+    }
+}
+
+/// The drive, bus and gateway series, read from the cache, the bus owners and the counters at
+/// each scrape.
+#[derive(Debug)]
+struct CoreSeries {
+    gw: Weak<Gateway>,
+}
+
+impl Collector for CoreSeries {
+    fn encode(&self, mut enc: DescriptorEncoder) -> Result<(), std::fmt::Error> {
+        let Some(gw) = self.gw.upgrade() else { return Ok(()) };
+        let topo = gw.topology();
+
+        // Per drive. A value the drive has not given yet is absent, not zero.
+        let drives: Vec<DriveRow> = topo.drives.iter().map(|d| DriveRow::of(d)).collect();
+        let e = &mut enc;
+        let dl = DriveRow::labels;
+        let gauge = |x: Option<f64>| x.map(Value::Gauge);
+        let flag = |x: Option<bool>| x.map(|b| Value::Flag(i64::from(b)));
+        family(e, ("drive_output_hz", "Output frequency, Hz.", None), &drives, dl, |r| gauge(r.output_hz))?;
+        family(
+            e,
+            (
+                "drive_setpoint_hz",
+                "Speed setpoint, Hz (the last commanded where the drive does not tell).",
+                None,
+            ),
+            &drives,
+            dl,
+            |r| gauge(r.setpoint_hz),
+        )?;
+        family(e, ("drive_current_a", "Motor current, A.", None), &drives, dl, |r| gauge(r.current_a))?;
+        family(e, ("drive_running", "1 when the output is on.", None), &drives, dl, |r| flag(r.running))?;
+        family(
+            e,
+            ("drive_fault_code", "The drive's code of the fault in force, 0 when none.", None),
+            &drives,
+            dl,
+            |r| r.fault_code.map(|c| Value::Flag(i64::from(c))),
+        )?;
+        family(e, ("drive_online", "1 when the drive answers its polls.", None), &drives, dl, |r| {
+            flag(r.online)
+        })?;
+        family(e, ("drive_data_age", "Age of the cached values.", Some(&Unit::Seconds)), &drives, dl, |r| {
+            gauge(r.age)
+        })?;
+        family(e, ("drive_polls", "Status polls made.", None), &drives, dl, |r| Some(Value::Count(r.polls)))?;
+        family(e, ("drive_poll_errors", "Status polls that failed.", None), &drives, dl, |r| {
+            Some(Value::Count(r.poll_errors))
+        })?;
+
+        // Per bus.
+        let buses: Vec<BusRow> = topo
+            .buses
+            .iter()
+            .map(|b| BusRow {
+                labels: [("bus", b.config.name.as_str())],
+                stats: b.stats(),
+                online: b.online(),
+            })
+            .collect();
+        let bl = BusRow::labels;
+        let count = |name, help, f: fn(&drivebus_link::owner::BusStats) -> u64| {
+            (name, help, move |r: &BusRow<'_>| Some(Value::Count(f(&r.stats))))
+        };
+        for (name, help, v) in [
+            count("bus_transactions", "Requests sent, retries included.", |s| s.transactions),
+            count("bus_replies", "Replies received.", |s| s.replies),
+            count("bus_timeouts", "Requests not answered in time.", |s| s.timeouts),
+            count("bus_checksum_errors", "Damaged replies.", |s| s.checksum_errors),
+            count("bus_retries", "Retries after a timeout or a damaged reply.", |s| s.retries),
+        ] {
+            family(e, (name, help, None), &buses, bl, v)?;
+        }
+        family(
+            e,
+            ("bus_utilization", "Time on the wire over time elapsed (0..1).", None),
+            &buses,
+            bl,
+            |r| {
+                let u = r.stats.utilization();
+                Some(Value::Gauge(if u.is_finite() { u } else { 0.0 }))
+            },
+        )?;
+        let (name, help, v) =
+            count("bus_wire_bytes", "Bytes of the requests and their replies on the line.", |s| s.wire_bytes);
+        family(e, (name, help, None), &buses, bl, v)?;
+        family(e, ("bus_online", "1 unless the bus's port failed.", None), &buses, bl, |r| {
+            Some(Value::Flag(i64::from(r.online)))
+        })?;
+        let (name, help, v) = count(
+            "bus_foreign_broadcasts",
+            "Broadcasts heard on the line that the gateway did not send (a drive acting as bus master).",
+            |s| s.foreign_broadcasts,
+        );
+        family(e, (name, help, None), &buses, bl, v)?;
+        family(
+            e,
+            ("bus_drive_master", "1 while a drive acts as bus master on the line.", None),
+            &buses,
+            bl,
+            |r| Some(Value::Flag(i64::from(crate::gateway::drive_master(&r.stats)))),
+        )?;
+
+        // The gateway's own work.
+        let c = &gw.counters;
+        let results = [
+            ([("result", "ok")], c.commands_ok.load(Ordering::Relaxed)),
+            ([("result", "failed")], c.commands_failed.load(Ordering::Relaxed)),
+        ];
+        family(
+            e,
+            ("commands", "Commands confirmed by a drive (ok) or refused or failed.", None),
+            &results,
+            |r| r.0,
+            |r| Some(Value::Count(r.1)),
+        )?;
+        single(
+            e,
+            ("store_errors", "Events that could not be written to the store."),
+            Value::Count(c.store_errors.load(Ordering::Relaxed)),
+        )?;
+        single(
+            e,
+            (
+                "commands_not_recorded",
+                "Commands refused, not sent, because their audit record could not be committed.",
+            ),
+            Value::Count(c.commands_not_recorded.load(Ordering::Relaxed)),
+        )
+    }
+}
+
+/// The health series (the facts of /readyz) and the reloads: the kept facts, the store's as of
+/// its last scheduled check.
+#[derive(Debug)]
+struct HealthSeries {
+    gw: Weak<Gateway>,
+}
+
+impl Collector for HealthSeries {
+    fn encode(&self, mut enc: DescriptorEncoder) -> Result<(), std::fmt::Error> {
+        let Some(gw) = self.gw.upgrade() else { return Ok(()) };
+        let e = &mut enc;
+        let h = gw.health();
+        let flag = |b: bool| Value::Flag(i64::from(b));
+        single(
+            e,
+            (
+                "ready",
+                "1 when every configured listener and Modbus RTU slave is up and the store is writable.",
+            ),
+            flag(gw.not_ready().is_empty()),
+        )?;
+        let listeners = h.listeners();
+        family(
+            e,
+            ("listener_up", "1 when the listener accepts connections.", None),
+            &listeners,
+            |l| [("listener", l.name.as_str())],
+            |l| Some(flag(l.up)),
+        )?;
+        let slaves = h.slave_ports();
+        family(
+            e,
+            ("modbus_rtu_up", "1 when the Modbus RTU slave's port is open and served.", None),
+            &slaves,
+            |p| [("port", p.port.as_str())],
+            |p| Some(flag(p.down.is_none())),
+        )?;
+        if let Some(verdict) = h.store_verdict() {
+            single(
+                e,
+                (
+                    "store_writable",
+                    "1 when the store's folder and file take writes and its filesystem has [store] min_free_mb free.",
+                ),
+                flag(verdict.is_ok()),
+            )?;
+        }
+        let (ok, failed) = h.reloads();
+        family(
+            e,
+            ("config_reloads", "Configuration reloads applied (ok) or refused (failed).", None),
+            &[([("result", "ok")], ok), ([("result", "failed")], failed)],
+            |r| r.0,
+            |r| Some(Value::Count(r.1)),
+        )?;
+        single(
+            e,
+            (
+                "config_reload_failed",
+                "1 while the last reload was refused (the previous configuration runs).",
+            ),
+            flag(h.last_reload_error().is_some()),
+        )
+    }
 }

@@ -191,6 +191,6 @@ mod tests {
         let p = &health.slave_ports()[0];
         assert_eq!(p.port, "/dev/ttyRTU");
         assert_eq!(p.down.as_deref(), Some("cannot open /dev/ttyRTU: try 10"));
-        assert!(health.not_ready(None, 0)[0].starts_with("Modbus RTU slave on /dev/ttyRTU is down: "));
+        assert!(health.not_ready()[0].starts_with("Modbus RTU slave on /dev/ttyRTU is down: "));
     }
 }

@@ -291,3 +291,155 @@ async fn front_end_counts_belong_to_their_gateway() {
     // The Sparkplug edge node's counts are there (zero) without an edge node.
     assert!(b.contains("drivebus_sparkplug_connections_total 0"), "{b}");
 }
+
+/// Every series docs/metrics.md lists, from its tables: name, type and label names.
+fn documented_series() -> std::collections::BTreeMap<String, (String, Vec<String>)> {
+    let doc = include_str!("../../../docs/metrics.md");
+    let mut out = std::collections::BTreeMap::new();
+    let mut section_labels: Vec<String> = Vec::new();
+    for line in doc.lines() {
+        if line.starts_with("### ") {
+            // `### Per drive (labels `bus`, `drive`, `family`)`: the labels of the table below.
+            section_labels = line.split('`').skip(1).step_by(2).map(str::to_string).collect();
+            continue;
+        }
+        let Some(row) = line.strip_prefix("| `drivebus_") else { continue };
+        let cells: Vec<&str> = row.split(" | ").collect();
+        let name = format!("drivebus_{}", cells[0].trim_end_matches('`'));
+        let kind = cells[1].trim().to_string();
+        // The gateway's table has a labels column: `route`, `method`, `status` or
+        // `result` = `ok` / `failed` (the first quoted word of each comma-separated part).
+        let mut labels: Vec<String> = if cells.len() == 4 {
+            cells[2]
+                .split(", ")
+                .filter_map(|part| part.split('`').nth(1))
+                .filter(|l| !l.is_empty())
+                .map(str::to_string)
+                .collect()
+        } else {
+            section_labels.clone()
+        };
+        labels.sort();
+        out.insert(name, (kind, labels));
+    }
+    out
+}
+
+/// The series of an exposition by the name docs/metrics.md gives them (counters with `_total`,
+/// a histogram by its family name): type and label names (a histogram's `le` left out).
+fn exposed_series(text: &str) -> std::collections::BTreeMap<String, (String, Vec<String>)> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut family = (String::new(), String::new());
+    for line in text.lines() {
+        if let Some(t) = line.strip_prefix("# TYPE ") {
+            let (name, kind) = t.split_once(' ').unwrap();
+            family = (name.to_string(), kind.to_string());
+            continue;
+        }
+        let Some(s) = parse_line(line).unwrap() else { continue };
+        let (fam, kind) = (&family.0, family.1.as_str());
+        let name = match kind {
+            "counter" => {
+                assert_eq!(s.name, format!("{fam}_total"), "{line}");
+                s.name.clone()
+            }
+            "histogram" => {
+                let ok = ["_bucket", "_sum", "_count"].iter().any(|x| s.name == format!("{fam}{x}"));
+                assert!(ok, "{line} is not of histogram {fam}");
+                fam.clone()
+            }
+            _ => {
+                assert_eq!(&s.name, fam, "{line}");
+                s.name.clone()
+            }
+        };
+        let mut labels: Vec<String> = s.labels.keys().filter(|k| *k != "le").cloned().collect();
+        labels.sort();
+        let prev = out.insert(name.clone(), (kind.to_string(), labels.clone()));
+        if let Some(p) = prev {
+            assert_eq!(p, (kind.to_string(), labels), "{name}: series with other labels");
+        }
+    }
+    out
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_exposition_has_exactly_the_series_docs_metrics_md_lists() {
+    let dir = std::env::temp_dir().join(format!("drivebus-metrics-golden-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("events.db");
+    std::fs::write(&db, b"").unwrap();
+    let mut config = GatewayConfig::demo();
+    config.store = Some(db);
+    config.store_min_free_mb = 0;
+    let gw = Gateway::start(config, None).unwrap();
+    gw.command("pump-1", Command::Speed(40.0), "test").await.unwrap();
+    gw.command("pump-1", Command::Run, "test").await.unwrap();
+    // Every conditional series made present: a request of each front end, an RTU slave's port.
+    let f = drivebus_gateway::metrics::front_ends(&gw);
+    f.modbus_request(3, false);
+    f.mqtt_published("status");
+    let sp = drivebus_gateway::sparkplug::metrics(&gw);
+    sp.messages("nbirth");
+    sp.refused("disabled");
+    gw.health().slave_port("/dev/ttyRTU0", None);
+    gw.health().listener("http", "127.0.0.1:8080".parse().unwrap(), true);
+    tokio::time::sleep(Duration::from_secs(20)).await;
+    let app = app(&gw);
+    assert_eq!(get_text(&app, "/api/ping").await.0, StatusCode::OK);
+
+    let text = drivebus_gateway::metrics::render(&gw).unwrap();
+    let documented = documented_series();
+    assert!(documented.len() > 40, "the tables of docs/metrics.md were not read: {documented:?}");
+    let exposed = exposed_series(&text);
+    for (name, want) in &documented {
+        assert_eq!(exposed.get(name), Some(want), "{name} as docs/metrics.md lists it\n{text}");
+    }
+    for name in exposed.keys() {
+        assert!(documented.contains_key(name), "{name} is not in docs/metrics.md");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_scrape_touches_no_file_the_store_is_checked_on_its_own_schedule() {
+    use drivebus_gateway::health::STORE_CHECK_EVERY;
+    let dir = std::env::temp_dir().join(format!("drivebus-metrics-noio-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("events.db");
+    std::fs::write(&db, b"").unwrap();
+    let mut config = GatewayConfig::demo();
+    config.store = Some(db);
+    config.store_min_free_mb = 0;
+    let gw = Gateway::start(config, None).unwrap();
+    let app = app(&gw).merge(drivebus_gateway::http::health::routes().with_state(gw.clone()));
+    let writable = |text: &str| {
+        text.lines().find_map(|l| l.strip_prefix("drivebus_store_writable ")).map(str::to_string)
+    };
+    assert_eq!(writable(&drivebus_gateway::metrics::render(&gw).unwrap()).as_deref(), Some("1"));
+
+    // The store's folder goes. Scrapes and /readyz read the verdict kept from the last check,
+    // so they say the same as before until the next scheduled check.
+    std::fs::remove_dir_all(&dir).unwrap();
+    for _ in 0..3 {
+        let text = drivebus_gateway::metrics::render(&gw).unwrap();
+        assert_eq!(writable(&text).as_deref(), Some("1"), "{text}");
+        assert!(text.contains("\ndrivebus_ready 1\n"), "{text}");
+        assert_eq!(get_text(&app, "/readyz").await.0, StatusCode::OK);
+    }
+    tokio::time::sleep(STORE_CHECK_EVERY - Duration::from_secs(1)).await;
+    assert_eq!(writable(&drivebus_gateway::metrics::render(&gw).unwrap()).as_deref(), Some("1"));
+
+    // The scheduled check (off the async workers) sees it; the next scrape says so.
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let start = std::time::Instant::now();
+    while writable(&drivebus_gateway::metrics::render(&gw).unwrap()).as_deref() != Some("0") {
+        assert!(start.elapsed() < Duration::from_secs(30), "the scheduled check did not run");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let text = drivebus_gateway::metrics::render(&gw).unwrap();
+    assert!(text.contains("\ndrivebus_ready 0\n"), "{text}");
+    let (status, _, body) = get_text(&app, "/readyz").await;
+    assert_eq!(status, StatusCode::SERVICE_UNAVAILABLE, "{body}");
+    assert!(body.contains("store: cannot write"), "{body}");
+}

@@ -38,6 +38,13 @@ pub struct DriveState {
     pub commanded_hz: Option<f64>,
 }
 
+impl DriveState {
+    /// The speed setpoint, Hz: the drive's own, else the last commanded through the gateway.
+    pub fn setpoint_hz(&self) -> Option<f64> {
+        self.status.as_ref().and_then(|x| x.setpoint_hz).or(self.commanded_hz)
+    }
+}
+
 /// One drive in the gateway.
 pub struct DriveEntry {
     /// Its configuration.

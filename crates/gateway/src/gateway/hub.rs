@@ -73,6 +73,8 @@ pub struct Gateway {
     pub(super) refusals: Mutex<Refusals>,
     /// The front ends' own state, one of each type ([`Gateway::attached`]).
     pub(super) attached: RwLock<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>,
+    /// Wakes the store's check before its time (a reload may change `[store] min_free_mb`).
+    pub(super) store_recheck: tokio::sync::Notify,
 }
 
 impl Gateway {
@@ -90,6 +92,7 @@ impl Gateway {
             limits,
             refusals: Mutex::new(Refusals::default()),
             attached: RwLock::new(HashMap::new()),
+            store_recheck: tokio::sync::Notify::new(),
         }
     }
 
@@ -174,11 +177,36 @@ impl Gateway {
         any.downcast::<T>().unwrap_or_else(|_| unreachable!("the state attached under T's TypeId is a T"))
     }
 
-    /// Why the gateway is not ready (empty when it is): listeners down, store not writable
-    /// (`/readyz`, the `drivebus_ready` metric).
+    /// Why the gateway is not ready (empty when it is): listeners down, store not writable at
+    /// its last check (`/readyz`, the `drivebus_ready` metric). Touches no file.
     pub fn not_ready(&self) -> Vec<String> {
+        self.health.not_ready()
+    }
+
+    /// Checks the store now ([`crate::health::store_writable`]: `statvfs`, `access`, an open
+    /// for appending) and keeps the verdict in [`Gateway::health`]. Blocking: a store on a slow
+    /// disk may take a while.
+    pub fn check_store(&self) {
         let config = self.config();
-        self.health.not_ready(config.store.as_deref(), config.store_min_free_mb)
+        let verdict =
+            config.store.as_deref().map(|p| crate::health::store_writable(p, config.store_min_free_mb));
+        self.health.store_checked(verdict);
+    }
+
+    /// Checks the store every [`crate::health::STORE_CHECK_EVERY`] and after each reload, off
+    /// the async workers, so that `/readyz` and `/metrics` read a kept verdict and touch no
+    /// file.
+    pub(super) async fn check_store_every(self: Arc<Self>) {
+        loop {
+            tokio::select! {
+                _ = tokio::time::sleep(crate::health::STORE_CHECK_EVERY) => {}
+                _ = self.store_recheck.notified() => {}
+            }
+            let gw = self.clone();
+            if tokio::task::spawn_blocking(move || gw.check_store()).await.is_err() {
+                self.health.store_checked(Some(Err("store: the check of the store failed".into())));
+            }
+        }
     }
 
     /// Family name of a drive (for front ends that show it).

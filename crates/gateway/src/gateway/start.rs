@@ -44,6 +44,9 @@ impl Gateway {
         }
         tokio::spawn(gw.clone().publish_buses());
         tokio::spawn(gw.clone().close_refusal_windows());
+        // The first verdict before any front end asks; the next ones on their schedule.
+        gw.check_store();
+        tokio::spawn(gw.clone().check_store_every());
         Ok(gw)
     }
 
@@ -114,6 +117,7 @@ impl Gateway {
         }
         let topo = Arc::new(Topology::new(new, buses));
         *self.topology.write().unwrap_or_else(|p| p.into_inner()) = topo;
+        self.store_recheck.notify_one();
         for b in fresh {
             tokio::spawn(self.clone().poll_bus(b));
         }

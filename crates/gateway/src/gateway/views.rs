@@ -139,7 +139,7 @@ impl DriveView {
                 running: st.map(|x| x.running),
                 direction: st.and_then(|x| x.direction.clone()),
                 output_hz: st.and_then(|x| x.output_hz),
-                setpoint_hz: st.and_then(|x| x.setpoint_hz).or(s.commanded_hz),
+                setpoint_hz: s.setpoint_hz(),
                 current_a: st.and_then(|x| x.current_a),
                 fault: st
                     .and_then(|x| x.fault.as_ref())

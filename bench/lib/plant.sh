@@ -43,3 +43,25 @@ write_family_plant() {
     done
   } >"$file"
 }
+
+# Writes the configuration of a plant of DRIVES simulated generic drives spread evenly over BUSES
+# virtual buses (115200 baud, every drive polled every POLL_MS), named vfd-1..vfd-DRIVES on
+# line-1..line-BUSES (bench/scale.sh: 1000 on 32, 10 000 on 320).
+#
+#   write_scale_plant FILE DRIVES BUSES POLL_MS [EXTRA]   EXTRA: TOML put before the buses
+write_scale_plant() {
+  local file="$1" drives="$2" buses="$3" poll="$4" extra="${5:-}"
+  python3 - "$drives" "$buses" "$poll" "$extra" >"$file" <<'PY'
+import sys
+drives, buses, poll, extra = int(sys.argv[1]), int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+out = ['name = "scale"', '[http]', 'anonymous_read = true', extra]
+n = 0
+for b in range(buses):
+    per = drives // buses + (1 if b < drives % buses else 0)
+    out.append(f'[[bus]]\nname = "line-{b + 1}"\nport = "virtual"\nprotocol = "modbus-rtu"\nbaud = 115200')
+    for a in range(1, per + 1):
+        n += 1
+        out.append(f'[[bus.drive]]\nname = "vfd-{n}"\nfamily = "generic"\naddress = {a}\npoll_ms = {poll}')
+print("\n".join(out))
+PY
+}

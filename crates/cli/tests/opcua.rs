@@ -53,10 +53,7 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
     let demo =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../gateway/src/demo.toml"))
             .unwrap()
-            .replace(
-                "path = \"drivebus-demo.db\"",
-                &format!("path = \"{}\"", dir.join("store.db").display()),
-            );
+            + &format!("[store]\npath = \"{}\"\n", dir.join("store.db").display());
     let config = format!(
         "{demo}\n[[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
          [opcua]\ntrusted_clients = [\"{}\"]\n\

@@ -12,7 +12,10 @@ use serde_json::Value;
 
 #[path = "support/http.rs"]
 mod http;
+#[path = "support/lines.rs"]
+mod lines;
 use http::{free_port, request as raw};
+use lines::{wait_for_lines, Killed};
 
 /// A `drivebus serve --demo` process, killed on drop.
 struct Serve {
@@ -273,4 +276,31 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
         let last = err.lines().last().unwrap_or_default();
         assert!(last.starts_with("drivebus: ") && last.contains(needle), "{args:?}: {err}");
     }
+}
+
+/// `serve --demo` run in a folder writes nothing there: its store and the OPC UA server's key
+/// go to the state folder (~/.local/state/drivebus here, `HOME` a temporary folder), and the
+/// banner says where the key is.
+#[test]
+fn the_demo_writes_nothing_in_the_working_directory_and_says_where_the_key_is() {
+    let cwd = tempfile::tempdir().unwrap();
+    let home = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", "127.0.0.1:0"])
+        .current_dir(cwd.path())
+        .env("HOME", home.path())
+        .env_remove("XDG_STATE_HOME")
+        .env_remove("STATE_DIRECTORY")
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start drivebus serve");
+    let said = wait_for_lines(&mut child, "drivebus serve --demo", &["OPC UA key", "event store"]);
+    let _child = Killed(child);
+    let state = home.path().join(".local/state/drivebus");
+    let key = state.join("pki/private/private.pem");
+    assert_eq!(said[0], key.display().to_string());
+    assert!(key.exists(), "no key at {}", key.display());
+    assert_eq!(said[1], state.join("drivebus-demo.db").display().to_string());
+    let left: Vec<_> = std::fs::read_dir(cwd.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(left.is_empty(), "serve --demo wrote {left:?} in its working directory");
 }

@@ -206,6 +206,13 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     }
     let store = match &config.store {
         Some(path) => {
+            if args.demo && args.db.is_none() {
+                // The demo's store is in the state folder, made here on first run.
+                if let Some(dir) = path.parent() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("cannot make the state folder {}", dir.display()))?;
+                }
+            }
             let store = drivebus_store::Store::open_with_limits(path, config.store_limits);
             Some(store.map_err(|e| Failure { code: 2, message: e.to_string() })?)
         }
@@ -232,8 +239,11 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  dashboard   http://{}/", bound.http);
             println!("  HTTP API    http://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
-            if let Some(a) = bound.opcua {
+            if let (Some(a), Some(o)) = (bound.opcua, &gw.config().opcua) {
                 println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");
+                if let Ok(pki) = drivebus_gateway::opcua::pki_dir(&gw.config(), o) {
+                    println!("  OPC UA key  {}", pki.join("private/private.pem").display());
+                }
             }
             for (bus, at) in &bound.bridges {
                 println!("  bridge      {at} -> bus {bus} (Modbus TCP straight through, docs/gateway.md)");

@@ -122,11 +122,19 @@ use file::FileConfig;
 /// The embedded demo: a virtual bus per family with simulated drives on each.
 pub const DEMO: &str = include_str!("../demo.toml");
 
+/// The file name of the demo's store, in the state folder.
+pub const DEMO_STORE: &str = "drivebus-demo.db";
+
 impl GatewayConfig {
     /// The embedded demo configuration.
+    /// Its store is `drivebus-demo.db` in the state folder ([`crate::state_dir`]), never in the
+    /// working directory; without a state folder it keeps none.
     pub fn demo() -> Self {
         // The embedded file is checked by a test; a failure here is a build defect.
-        GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"))
+        let mut config =
+            GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"));
+        config.store = crate::state_dir::state_dir().ok().map(|d| d.join(DEMO_STORE));
+        config
     }
 
     /// Reads a configuration; errors name `file`, the line and the field.

@@ -35,14 +35,26 @@ use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
 const TOKEN_USERS: &str = "tokens";
 
 /// Where the server's certificate, key and trusted client certificates live: `[opcua] pki_dir`,
-/// else `pki` beside the store, else `pki` in the working directory.
-pub fn pki_dir(gw: &Gateway, cfg: &OpcUaConfig) -> PathBuf {
+/// else `pki` beside the store when the store's path names a folder, else `pki` in the state
+/// folder ([`crate::state_dir`]). Never the working directory unless the user named it.
+pub fn pki_dir(config: &crate::GatewayConfig, cfg: &OpcUaConfig) -> Result<PathBuf, String> {
+    pki_dir_in(config, cfg, crate::state_dir::state_dir)
+}
+
+/// [`pki_dir`] with the state folder from `state`.
+pub fn pki_dir_in(
+    config: &crate::GatewayConfig,
+    cfg: &OpcUaConfig,
+    state: impl FnOnce() -> Result<PathBuf, String>,
+) -> Result<PathBuf, String> {
     if let Some(p) = &cfg.pki_dir {
-        return p.clone();
+        return Ok(p.clone());
     }
-    match gw.config().store.as_ref().and_then(|s| s.parent().map(|p| p.to_path_buf())) {
-        Some(dir) if !dir.as_os_str().is_empty() => dir.join("pki"),
-        _ => PathBuf::from("pki"),
+    match config.store.as_ref().and_then(|s| s.parent()) {
+        Some(dir) if !dir.as_os_str().is_empty() => Ok(dir.join("pki")),
+        _ => state()
+            .map(|d| d.join("pki"))
+            .map_err(|e| format!("OPC UA: no folder for the server's key ({e}): set [opcua] pki_dir")),
     }
 }
 
@@ -79,7 +91,7 @@ pub fn start(
     listener: TcpListener,
 ) -> Result<impl std::future::Future<Output = Result<(), String>>, String> {
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
-    let pki = pki_dir(&gw, cfg);
+    let pki = pki_dir(&gw.config(), cfg)?;
     trust_clients(&pki, &cfg.trusted_clients)?;
     let (server, handle) = build(&gw, addr, &pki)?;
     let ns = handle
@@ -387,5 +399,29 @@ async fn publish(
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_key_is_beside_a_named_store_else_in_the_state_folder_never_in_the_working_directory() {
+        let state = || Ok(PathBuf::from("/state/drivebus"));
+        let mut config = crate::GatewayConfig::from_toml("t.toml", "[opcua]\n").unwrap();
+        let o = config.opcua.clone().unwrap();
+        config.store = Some(PathBuf::from("/var/lib/drivebus/drivebus.db"));
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/var/lib/drivebus/pki"));
+        // A store path with no folder is in the working directory: the key does not follow it.
+        config.store = Some(PathBuf::from("drivebus-demo.db"));
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/state/drivebus/pki"));
+        config.store = None;
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/state/drivebus/pki"));
+        let err = pki_dir_in(&config, &o, || Err("no state folder".into())).unwrap_err();
+        assert!(err.contains("[opcua] pki_dir"), "{err}");
+        // Named by the user: as named.
+        let named = OpcUaConfig { pki_dir: Some(PathBuf::from("keys")), ..o };
+        assert_eq!(pki_dir_in(&config, &named, state).unwrap(), PathBuf::from("keys"));
     }
 }

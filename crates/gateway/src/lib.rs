@@ -45,7 +45,6 @@ pub mod refusals;
 pub mod reload;
 pub mod server;
 pub mod sparkplug;
-pub mod state_dir;
 pub mod text;
 pub mod trip;
 #[cfg(feature = "virtual")]

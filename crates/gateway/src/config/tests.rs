@@ -55,6 +55,11 @@ fn errors_name_the_file_line_and_field() {
         "plant.toml:3: field `token.token`: a token needs at least 16 characters"
     );
     assert_eq!(
+        err("[[token]]\nname = \"ops\"\ntoken = \"aaaaaaaaaaaaaaaa\"\nrole = \"write\"\n\
+             [[token]]\nname = \"ops\"\ntoken = \"bbbbbbbbbbbbbbbb\"\nrole = \"read\"\n"),
+        "plant.toml:6: field `token.name`: \"ops\": two tokens have the same name; give each its own"
+    );
+    assert_eq!(
         err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n"),
         "plant.toml:2: field `linkage.leader`: no drive is named \"a\""
     );

@@ -3,8 +3,13 @@
 //! no token (`[opcua] anonymous_read`, by default `[http] anonymous_read`); writes and method
 //! calls need a user with the write role. Checked against the configuration at each login, so a
 //! reload that removes a token locks its holder out of new sessions at once.
+//!
+//! A session's user is the token that matched at login, name and secret: its role is that
+//! token's, looked up by both (a fingerprint of the secret rides in the session's user token,
+//! never the secret), never by the name alone.
 
-use std::sync::Arc;
+use std::hash::BuildHasher;
+use std::sync::{Arc, OnceLock};
 
 use async_trait::async_trait;
 use opcua::server::authenticator::{
@@ -13,7 +18,7 @@ use opcua::server::authenticator::{
 use opcua::server::ServerEndpoint;
 use opcua::types::{Error, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 
-use crate::config::Role;
+use crate::config::{Role, Token};
 use crate::gateway::Gateway;
 
 /// The user token of anonymous sessions (async-opcua's own).
@@ -31,12 +36,40 @@ impl TokenAuth {
     }
 }
 
-/// The role of the session's user, `None` for an anonymous session or a user whose token is gone.
-pub fn role(gw: &Gateway, user: &UserToken) -> Option<Role> {
+/// A fingerprint of a token's secret: a keyed hash whose key is made at random once per process.
+fn fingerprint(secret: &str) -> u64 {
+    static KEY: OnceLock<std::collections::hash_map::RandomState> = OnceLock::new();
+    KEY.get_or_init(Default::default).hash_one(secret)
+}
+
+/// The session's user token for a login with `token`: its name and its secret's fingerprint.
+pub fn user_token(token: &Token) -> UserToken {
+    UserToken(format!("{}\u{0}{:016x}", token.name, fingerprint(&token.secret)))
+}
+
+/// The user's name (the token's name; `anonymous`), for the audit trail and the logs.
+pub fn user_name(user: &UserToken) -> &str {
     if user.0 == ANONYMOUS {
-        return None;
+        return "anonymous";
     }
-    gw.config().tokens.iter().find(|t| t.name == user.0).map(|t| t.role)
+    user.0.split('\u{0}').next().unwrap_or_default()
+}
+
+/// The token of `tokens` that `username` and `password` match.
+pub fn matching<'a>(tokens: &'a [Token], username: &str, password: &str) -> Option<&'a Token> {
+    tokens.iter().find(|t| {
+        t.name == username && crate::http::auth::constant_time_eq(t.secret.as_bytes(), password.as_bytes())
+    })
+}
+
+/// The role of the session's user: that of the token it logged in with, found by name and
+/// secret in `tokens`. `None` for an anonymous session or a user whose token is gone.
+pub fn role(tokens: &[Token], user: &UserToken) -> Option<Role> {
+    let (name, print) = user.0.split_once('\u{0}')?;
+    tokens
+        .iter()
+        .find(|t| t.name == name && format!("{:016x}", fingerprint(&t.secret)) == print)
+        .map(|t| t.role)
 }
 
 /// Whether anonymous sessions may read.
@@ -65,12 +98,8 @@ impl AuthManager for TokenAuth {
         password: &Password,
     ) -> Result<UserToken, Error> {
         let config = self.gw.config();
-        let found = config.tokens.iter().find(|t| {
-            t.name == username
-                && crate::http::auth::constant_time_eq(t.secret.as_bytes(), password.get().as_bytes())
-        });
-        match found {
-            Some(t) => Ok(UserToken(t.name.clone())),
+        match matching(&config.tokens, username, password.get()) {
+            Some(t) => Ok(user_token(t)),
             None => {
                 crate::log::warn(&format!(
                     "OPC UA: login refused for user {:?}: unknown user or wrong password",
@@ -102,5 +131,32 @@ impl AuthManager for TokenAuth {
             );
         }
         policies
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn token(name: &str, secret: &str, role: Role) -> Token {
+        Token { name: name.into(), secret: secret.into(), role }
+    }
+
+    #[test]
+    fn the_role_is_that_of_the_token_that_matched_not_of_its_name() {
+        // Two tokens of one name (the configuration refuses it; this is the defence behind).
+        let tokens = [token("ops", "write-secret-0123456789", Role::Write), token("ops", "read-secret-0123456789", Role::Read)];
+        let reader = user_token(matching(&tokens, "ops", "read-secret-0123456789").unwrap());
+        assert_eq!(role(&tokens, &reader), Some(Role::Read));
+        let writer = user_token(matching(&tokens, "ops", "write-secret-0123456789").unwrap());
+        assert_eq!(role(&tokens, &writer), Some(Role::Write));
+        assert_eq!(user_name(&reader), "ops");
+        assert!(!reader.0.contains("read-secret"), "the secret is in the session's user: {:?}", reader.0);
+        assert!(matching(&tokens, "ops", "read-secret-012345678").is_none());
+        // A reload that changes the secret or removes the token: no role any more.
+        let reloaded = [token("ops", "write-secret-0123456789", Role::Write)];
+        assert_eq!(role(&reloaded, &reader), None);
+        assert_eq!(role(&tokens, &UserToken(ANONYMOUS.into())), None);
+        assert_eq!(user_name(&UserToken(ANONYMOUS.into())), "anonymous");
     }
 }

@@ -75,14 +75,12 @@ fn actor(context: &RequestContext) -> String {
     let session = context.session().read();
     let app = session.application_description().application_uri.as_ref().to_string();
     let client = if app.is_empty() { format!("session-{}", context.session_id()) } else { app };
-    let user = &context.user_token().0;
-    let user = if user == super::auth::ANONYMOUS { "anonymous" } else { user.as_str() };
-    format!("opcua:{user}@{client}")
+    format!("opcua:{}@{client}", super::auth::user_name(context.user_token()))
 }
 
 /// `Ok` when the session's user may write; the status code and a sentence otherwise.
 fn may_write(gw: &Gateway, context: &RequestContext) -> Result<(), (StatusCode, String)> {
-    match super::auth::role(gw, context.user_token()) {
+    match super::auth::role(&gw.config().tokens, context.user_token()) {
         Some(Role::Write) => Ok(()),
         Some(Role::Read) => Err((StatusCode::BadUserAccessDenied, "this user's token has role read".into())),
         None => Err((

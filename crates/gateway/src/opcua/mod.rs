@@ -36,9 +36,9 @@ const TOKEN_USERS: &str = "tokens";
 
 /// Where the server's certificate, key and trusted client certificates live: `[opcua] pki_dir`,
 /// else `pki` beside the store when the store's path names a folder, else `pki` in the state
-/// folder ([`crate::state_dir`]). Never the working directory unless the user named it.
+/// folder ([`crate::config::state_dir`]). Never the working directory unless the user named it.
 pub fn pki_dir(config: &crate::GatewayConfig, cfg: &OpcUaConfig) -> Result<PathBuf, String> {
-    pki_dir_in(config, cfg, crate::state_dir::state_dir)
+    pki_dir_in(config, cfg, crate::config::state_dir::state_dir)
 }
 
 /// [`pki_dir`] with the state folder from `state`.

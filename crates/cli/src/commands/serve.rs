@@ -112,15 +112,13 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         config.opcua = None;
     } else if let Some(a) = args.opcua {
         let http = config.http.anonymous_read;
-        config
-            .opcua
-            .get_or_insert(drivebus_gateway::config::OpcUaConfig {
-                listen: a,
-                anonymous_read: http,
-                pki_dir: None,
-                trusted_clients: Vec::new(),
-            })
-            .listen = a;
+        config.opcua.get_or_insert(drivebus_gateway::config::OpcUaConfig::new(a, http)).listen = a;
+    }
+    if args.demo {
+        // The demo's writes over the None endpoint, where nobody else is on the path.
+        if let Some(o) = config.opcua.as_mut() {
+            o.insecure_writes = o.listen.ip().is_loopback();
+        }
     }
     if let Some(url) = &args.mqtt {
         if !url.starts_with("mqtt://") {
@@ -241,6 +239,10 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
             if let (Some(a), Some(o)) = (bound.opcua, &gw.config().opcua) {
                 println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");
+                if o.insecure_writes {
+                    let why = if args.demo { "the demo, on loopback" } else { "[opcua] insecure_writes" };
+                    println!("  OPC UA      writes and calls also over the unsigned None endpoint ({why})");
+                }
                 if let Ok(pki) = drivebus_gateway::opcua::pki_dir(&gw.config(), o) {
                     println!("  OPC UA key  {}", pki.join("private/private.pem").display());
                 }

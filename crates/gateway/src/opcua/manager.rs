@@ -12,7 +12,8 @@ use opcua::server::node_manager::memory::InMemoryNodeManagerImpl;
 use opcua::server::node_manager::{MethodCall, ParsedReadValueId, RequestContext, ServerContext, WriteNode};
 use opcua::sync::RwLock;
 use opcua::types::{
-    AttributeId, DataValue, DateTime, DiagnosticInfo, StatusCode, TimestampsToReturn, UAString, Variant,
+    AttributeId, DataValue, DateTime, DiagnosticInfo, MessageSecurityMode, StatusCode, TimestampsToReturn,
+    UAString, Variant,
 };
 
 use super::nodes::{Ids, Target};
@@ -90,6 +91,22 @@ fn may_write(gw: &Gateway, context: &RequestContext) -> Result<(), (StatusCode, 
     }
 }
 
+/// `Ok` when a session on a channel of `mode` may write and call methods: Sign or
+/// SignAndEncrypt, or any with `[opcua] insecure_writes`. On `None` anyone on the path could
+/// change the command in flight: `Bad_SecurityModeInsufficient`.
+pub fn channel_secure_enough(mode: MessageSecurityMode, insecure_writes: bool) -> Result<(), (StatusCode, String)> {
+    match mode {
+        MessageSecurityMode::Sign | MessageSecurityMode::SignAndEncrypt => Ok(()),
+        _ if insecure_writes => Ok(()),
+        _ => Err((
+            StatusCode::BadSecurityModeInsufficient,
+            "insecure: writes and method calls need a Sign or SignAndEncrypt session \
+             (Basic256Sha256), or [opcua] insecure_writes = true"
+                .into(),
+        )),
+    }
+}
+
 /// A Double from a written or passed value; `BadTypeMismatch` for any other type.
 fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
     match v {
@@ -161,19 +178,34 @@ impl DriveNodes {
         }
     }
 
-    /// Runs `command` for the session; the status code says how it ended.
+    /// Whether the session may write to or call on `drive` (`action` says what, for the audit
+    /// trail), asked before the value or the arguments are looked at: a refusal is audited
+    /// (aggregated) whatever the value was.
+    async fn authorize(
+        &self,
+        context: &RequestContext,
+        drive: &str,
+        action: &str,
+    ) -> Result<(), (StatusCode, String)> {
+        let refused = may_write(&self.gw, context).map_err(|(code, why)| (code, format!("forbidden: {why}")));
+        let insecure_writes = self.gw.config().opcua.as_ref().is_some_and(|o| o.insecure_writes);
+        let mode = context.session().read().message_security_mode();
+        let refused = refused.and_then(|()| channel_secure_enough(mode, insecure_writes));
+        if let Err((code, why)) = refused {
+            self.gw.audit_refusal(drive, &actor(context), action, &why).await;
+            return Err((code, why));
+        }
+        Ok(())
+    }
+
+    /// Runs `command` for the session (authorized); the status code says how it ended.
     async fn run(
         &self,
         context: &RequestContext,
         drive: &str,
         command: Command,
     ) -> Result<(), (StatusCode, String)> {
-        let who = actor(context);
-        if let Err((code, why)) = may_write(&self.gw, context) {
-            self.gw.audit_refusal(drive, &who, &command.action(), &format!("forbidden: {why}")).await;
-            return Err((code, why));
-        }
-        self.gw.command(drive, command, &who).await.map_err(|e| (status_of(&e), e.to_string()))
+        self.gw.command(drive, command, &actor(context)).await.map_err(|e| (status_of(&e), e.to_string()))
     }
 }
 
@@ -233,33 +265,47 @@ impl InMemoryNodeManagerImpl for DriveNodes {
                 w.set_status(StatusCode::BadNodeIdUnknown);
                 continue;
             }
-            let command = match self.ids.target(&value.node_id) {
-                Target::DriveVariable { drive, variable } if variable == "Setpoint" => {
-                    double(value.value.value.as_ref()).map(|hz| (drive, Command::Speed(hz)))
-                }
+            // What the node takes (a speed, a writable parameter), before its value is looked at.
+            let (drive, param) = match self.ids.target(&value.node_id) {
+                Target::DriveVariable { drive, variable } if variable == "Setpoint" => (drive, None),
                 Target::Parameter { drive, name } => {
                     let read_only =
                         self.gw.drive(&drive).ok().and_then(|d| d.param(&name).ok().map(|p| p.read_only));
-                    match read_only {
-                        Some(false) => double(value.value.value.as_ref()).map(|x| {
-                            (drive, Command::SetParam { name, value: format!("{x}"), eeprom: false })
-                        }),
-                        _ => Err(StatusCode::BadNotWritable),
+                    if read_only != Some(false) {
+                        w.set_status(StatusCode::BadNotWritable);
+                        continue;
                     }
+                    (drive, Some(name))
                 }
-                _ => Err(StatusCode::BadNotWritable),
+                _ => {
+                    w.set_status(StatusCode::BadNotWritable);
+                    continue;
+                }
             };
-            let status = match command {
-                Err(code) => code,
-                Ok((drive, command)) => match self.run(context, &drive, command).await {
-                    Ok(()) => StatusCode::Good,
-                    Err((code, why)) => {
-                        w.set_diagnostic_info(diagnostics(&why));
-                        code
-                    }
+            let x = double(value.value.value.as_ref());
+            let command = |x: f64| match &param {
+                None => Command::Speed(x),
+                Some(name) => Command::SetParam { name: name.clone(), value: format!("{x}"), eeprom: false },
+            };
+            let action = match (&x, &param) {
+                (Ok(x), _) => command(*x).action(),
+                (Err(_), None) => "speed (not a Double)".to_string(),
+                (Err(_), Some(name)) => format!("param {} (not a Double)", crate::text::shown(name)),
+            };
+            let done = match self.authorize(context, &drive, &action).await {
+                Err(e) => Err(e),
+                Ok(()) => match x {
+                    Err(code) => Err((code, "write a Double (or a Float)".to_string())),
+                    Ok(x) => self.run(context, &drive, command(x)).await,
                 },
             };
-            w.set_status(status);
+            match done {
+                Ok(()) => w.set_status(StatusCode::Good),
+                Err((code, why)) => {
+                    w.set_diagnostic_info(diagnostics(&why));
+                    w.set_status(code);
+                }
+            }
         }
         Ok(())
     }
@@ -277,6 +323,23 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             };
             if self.ids.drive(&drive) != *m.object_id() {
                 m.set_status(StatusCode::BadMethodInvalid);
+                continue;
+            }
+            if !["Run", "Stop", "Reverse", "Reset", "SetSpeed"].contains(&method.as_str()) {
+                m.set_status(StatusCode::BadMethodInvalid);
+                continue;
+            }
+            // Authorized before the arguments are looked at.
+            let action = match method.as_str() {
+                "SetSpeed" => match m.arguments() {
+                    [hz] => double(Some(hz)).map_or("speed (not a Double)".into(), |hz| Command::Speed(hz).action()),
+                    _ => "speed".into(),
+                },
+                other => other.to_ascii_lowercase(),
+            };
+            if let Err((code, why)) = self.authorize(context, &drive, &action).await {
+                m.set_diagnostic_info(diagnostics(&why));
+                m.set_status(code);
                 continue;
             }
             let command = match method.as_str() {

@@ -12,12 +12,12 @@ use std::hash::BuildHasher;
 use std::sync::{Arc, OnceLock};
 
 use async_trait::async_trait;
-use opcua::server::authenticator::{
-    user_pass_security_policy_id, user_pass_security_policy_uri, AuthManager, Password, UserToken,
-};
+use opcua::crypto::SecurityPolicy;
+use opcua::server::authenticator::{user_pass_security_policy_id, AuthManager, Password, UserToken};
 use opcua::server::ServerEndpoint;
 use opcua::types::{Error, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 
+use super::sessions::Sessions;
 use crate::config::{Role, Token};
 use crate::gateway::Gateway;
 
@@ -27,13 +27,31 @@ pub const ANONYMOUS: &str = "ANONYMOUS";
 /// The gateway's tokens as OPC UA users.
 pub struct TokenAuth {
     gw: Arc<Gateway>,
+    sessions: Arc<Sessions>,
 }
 
 impl TokenAuth {
-    /// Users from `gw`'s tokens, as configured at each login.
-    pub fn new(gw: Arc<Gateway>) -> Self {
-        TokenAuth { gw }
+    /// Users from `gw`'s tokens, as configured at each login; their sessions counted in
+    /// `sessions`.
+    pub fn new(gw: Arc<Gateway>, sessions: Arc<Sessions>) -> Self {
+        TokenAuth { gw, sessions }
     }
+
+    /// Admits a session of `user` within `[opcua] max_sessions_per_user`; a refusal is audited.
+    async fn admit(&self, user: &str) -> Result<(), Error> {
+        let max = max_sessions_per_user(&self.gw);
+        if self.sessions.admit(user, max, std::time::Instant::now()) {
+            return Ok(());
+        }
+        let why = format!("too_many_sessions: user {user} holds {max} sessions ([opcua] max_sessions_per_user)");
+        self.gw.audit_login_refusal(&format!("opcua:{user}"), &why).await;
+        Err(Error::new(StatusCode::BadTooManySessions, why))
+    }
+}
+
+/// `[opcua] max_sessions_per_user`, as configured now.
+pub fn max_sessions_per_user(gw: &Gateway) -> usize {
+    gw.config().opcua.as_ref().map_or(crate::config::DEFAULT_MAX_SESSIONS_PER_USER, |o| o.max_sessions_per_user)
 }
 
 /// A fingerprint of a token's secret: a keyed hash whose key is made at random once per process.
@@ -82,7 +100,7 @@ pub fn anonymous_read(gw: &Gateway) -> bool {
 impl AuthManager for TokenAuth {
     async fn authenticate_anonymous_token(&self, _endpoint: &ServerEndpoint) -> Result<(), Error> {
         if anonymous_read(&self.gw) {
-            Ok(())
+            self.admit("anonymous").await
         } else {
             Err(Error::new(
                 StatusCode::BadIdentityTokenRejected,
@@ -99,39 +117,51 @@ impl AuthManager for TokenAuth {
     ) -> Result<UserToken, Error> {
         let config = self.gw.config();
         match matching(&config.tokens, username, password.get()) {
-            Some(t) => Ok(user_token(t)),
+            Some(t) => {
+                self.admit(&t.name).await?;
+                Ok(user_token(t))
+            }
             None => {
-                crate::log::warn(&format!(
-                    "OPC UA: login refused for user {:?}: unknown user or wrong password",
-                    crate::text::cut(username, 64).0
-                ));
+                let who = format!("opcua:{}", crate::text::shown(crate::text::cut(username, 64).0));
+                self.gw.audit_login_refusal(&who, "unauthorized: unknown user or wrong password").await;
                 Err(Error::new(StatusCode::BadUserAccessDenied, "unknown user or wrong password"))
             }
         }
     }
 
     fn user_token_policies(&self, endpoint: &ServerEndpoint) -> Vec<UserTokenPolicy> {
-        let mut policies = vec![UserTokenPolicy {
-            policy_id: user_pass_security_policy_id(endpoint),
-            token_type: UserTokenType::UserName,
-            issued_token_type: UAString::null(),
-            issuer_endpoint_url: UAString::null(),
-            security_policy_uri: user_pass_security_policy_uri(endpoint),
-        }];
-        if anonymous_read(&self.gw) {
-            policies.insert(
-                0,
-                UserTokenPolicy {
-                    policy_id: UAString::from("anonymous"),
-                    token_type: UserTokenType::Anonymous,
-                    issued_token_type: UAString::null(),
-                    issuer_endpoint_url: UAString::null(),
-                    security_policy_uri: UAString::null(),
-                },
-            );
-        }
-        policies
+        policies(endpoint, anonymous_read(&self.gw))
     }
+}
+
+/// The security policy of passwords on every endpoint, `None` included: clients encrypt the
+/// password with the server's certificate, so it never crosses the wire in clear.
+pub const PASSWORD_POLICY: SecurityPolicy = SecurityPolicy::Basic256Sha256;
+
+/// The user token policies of `endpoint`: user name and password, encrypted with
+/// [`PASSWORD_POLICY`] (the endpoint's `password_security_policy`, set by the server's
+/// builder), and anonymous when `anonymous` reads are on.
+pub fn policies(endpoint: &ServerEndpoint, anonymous: bool) -> Vec<UserTokenPolicy> {
+    let mut policies = vec![UserTokenPolicy {
+        policy_id: user_pass_security_policy_id(endpoint),
+        token_type: UserTokenType::UserName,
+        issued_token_type: UAString::null(),
+        issuer_endpoint_url: UAString::null(),
+        security_policy_uri: UAString::from(endpoint.password_security_policy().to_uri()),
+    }];
+    if anonymous {
+        policies.insert(
+            0,
+            UserTokenPolicy {
+                policy_id: UAString::from("anonymous"),
+                token_type: UserTokenType::Anonymous,
+                issued_token_type: UAString::null(),
+                issuer_endpoint_url: UAString::null(),
+                security_policy_uri: UAString::null(),
+            },
+        );
+    }
+    policies
 }
 
 #[cfg(test)]

@@ -17,6 +17,7 @@ use opcua::types::{
 };
 
 use super::nodes::{Ids, Target};
+use super::sessions::{Seen, Sessions};
 use crate::config::Role;
 use crate::gateway::{Command, CommandError, Gateway};
 
@@ -29,18 +30,35 @@ pub struct DriveNodes {
     built: Arc<tokio::sync::Notify>,
     /// The nodes made for each drive and bus, kept for a reload that removes them.
     made: std::sync::Mutex<(super::nodes::Made, super::nodes::Made)>,
+    /// The sessions of each user (`[opcua] max_sessions_per_user`).
+    sessions: Arc<Sessions>,
 }
 
 impl DriveNodes {
-    /// A node manager for `gw` in `namespace` (its index already assigned).
-    pub fn new(gw: Arc<Gateway>, namespace: NamespaceMetadata) -> Self {
+    /// A node manager for `gw` in `namespace` (its index already assigned), counting the
+    /// sessions of each user in `sessions`.
+    pub fn new(gw: Arc<Gateway>, namespace: NamespaceMetadata, sessions: Arc<Sessions>) -> Self {
         DriveNodes {
             gw,
             ids: Ids { ns: namespace.namespace_index },
             namespace,
             built: Arc::new(tokio::sync::Notify::new()),
             made: Default::default(),
+            sessions,
         }
+    }
+
+    /// Whether the request's session is within its user's `[opcua] max_sessions_per_user`.
+    fn within_cap(&self, context: &RequestContext) -> bool {
+        let session = &context.session;
+        let weak = Arc::downgrade(session);
+        let seen = Seen {
+            id: Arc::as_ptr(session) as usize,
+            open: Box::new(move || weak.upgrade().is_some_and(|s| s.read().is_activated())),
+        };
+        let user = super::auth::user_name(context.user_token());
+        let max = super::auth::max_sessions_per_user(&self.gw);
+        self.sessions.seen(user, seen, max, std::time::Instant::now())
     }
 
     /// Wakes (once) when the address space is built.
@@ -67,6 +85,12 @@ pub fn status_of(e: &CommandError) -> StatusCode {
 
 fn diagnostics(why: &str) -> DiagnosticInfo {
     DiagnosticInfo { additional_info: Some(UAString::from(why)), ..Default::default() }
+}
+
+/// Whose parameter reads wait in one queue on a bus (docs/gateway.md, "Fair use of a bus"):
+/// the session and its authenticated user, never anything the client chose.
+fn reader(context: &RequestContext) -> String {
+    format!("opcua:{}@session-{}", super::auth::user_name(context.user_token()), context.session_id())
 }
 
 /// The audit trail's actor of a request: `opcua:<user>@<client>`, where the client is the
@@ -233,6 +257,9 @@ impl InMemoryNodeManagerImpl for DriveNodes {
         max_age: f64,
         timestamps_to_return: TimestampsToReturn,
     ) -> Vec<DataValue> {
+        if !self.within_cap(context) {
+            return nodes.iter().map(|_| DataValue::from(StatusCode::BadTooManySessions)).collect();
+        }
         let mut out = Vec::with_capacity(nodes.len());
         for n in nodes {
             let param = match (&n.attribute_id, self.ids.target(&n.node_id)) {
@@ -242,7 +269,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             match param {
                 // A parameter is read from the drive when it is read: never a stale value.
                 // The reads of a session's client wait in one queue on the bus.
-                Some((drive, name)) => out.push(self.read_parameter(&drive, &name, &actor(context)).await),
+                Some((drive, name)) => out.push(self.read_parameter(&drive, &name, &reader(context)).await),
                 None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
             }
         }
@@ -255,6 +282,10 @@ impl InMemoryNodeManagerImpl for DriveNodes {
         address_space: &RwLock<AddressSpace>,
         nodes_to_write: &mut [&mut WriteNode],
     ) -> Result<(), StatusCode> {
+        if !self.within_cap(context) {
+            nodes_to_write.iter_mut().for_each(|w| w.set_status(StatusCode::BadTooManySessions));
+            return Ok(());
+        }
         for w in nodes_to_write.iter_mut() {
             let value = w.value();
             if value.attribute_id != AttributeId::Value {
@@ -316,6 +347,10 @@ impl InMemoryNodeManagerImpl for DriveNodes {
         _address_space: &RwLock<AddressSpace>,
         methods_to_call: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
+        if !self.within_cap(context) {
+            methods_to_call.iter_mut().for_each(|m| m.set_status(StatusCode::BadTooManySessions));
+            return Ok(());
+        }
         for m in methods_to_call.iter_mut() {
             let Target::Method { drive, method } = self.ids.target(m.method_id()) else {
                 m.set_status(StatusCode::BadMethodInvalid);

@@ -39,7 +39,10 @@ fn der(header: &[u8]) -> Vec<u8> {
 #[test]
 fn the_check_finds_committed_private_keys_and_passes_certificates() {
     // Built at run time, so this file holds no key line itself.
-    let pem = format!("-----BEGIN {}PRIVATE KEY-----\nMIIEvQIBADANBgkqhkiG9w0BAQEFAASC\n-----END PRIVATE KEY-----\n", "");
+    let pem = format!(
+        "-----BEGIN {}PRIVATE KEY-----\nMIIEvQIBADANBgkqhkiG9w0BAQEFAASC\n-----END PRIVATE KEY-----\n",
+        ""
+    );
     let rsa = pem.replace("BEGIN PRIVATE", "BEGIN RSA PRIVATE");
     // A certificate: a SEQUENCE whose first member is a SEQUENCE (tbsCertificate).
     let cert = der(&[0x30, 0x82, 0x03, 0x10, 0x30, 0x82, 0x02, 0xf8, 0xa0, 0x03]);

@@ -137,7 +137,8 @@ fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let out = Command::new("python3").arg(script()).arg("mkcert").arg(dir.path().join("client")).output().unwrap();
+    let out =
+        Command::new("python3").arg(script()).arg("mkcert").arg(dir.path().join("client")).output().unwrap();
     assert!(out.status.success(), "mkcert: {}", String::from_utf8_lossy(&out.stderr));
     let (write, read) = ("opcua-trust-write-0123456789", "opcua-trust-read-0123456789");
     let config = format!(
@@ -153,14 +154,24 @@ fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
     let file = dir.path().join("plant.toml");
     std::fs::write(&file, config).unwrap();
     let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", "0.0.0.0:0", "--config"])
+        .args([
+            "serve",
+            "--http",
+            "127.0.0.1:0",
+            "--modbus",
+            "127.0.0.1:0",
+            "--opcua",
+            "0.0.0.0:0",
+            "--config",
+        ])
         .arg(&file)
         .stdout(Stdio::piped())
         .spawn()
         .unwrap();
     let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
     let _serve = Killed(serve);
-    let http: std::net::SocketAddr = at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
+    let http: std::net::SocketAddr =
+        at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
     // Listening on every address, it advertises the machine's name, never 0.0.0.0.
     let url = at[1].split_whitespace().next().unwrap().to_string();
     let (host, port) = url.trim_start_matches("opc.tcp://").rsplit_once(':').unwrap();
@@ -190,7 +201,9 @@ fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
         .as_array()
         .unwrap()
         .iter()
-        .map(|e| (e["actor"].as_str().unwrap_or("").to_string(), e["result"].as_str().unwrap_or("").to_string()))
+        .map(|e| {
+            (e["actor"].as_str().unwrap_or("").to_string(), e["result"].as_str().unwrap_or("").to_string())
+        })
         .collect();
     for (actor, result) in [
         ("opcua:ops-w@", "insecure: writes and method calls need a Sign or SignAndEncrypt session"),

@@ -280,13 +280,22 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
 
 /// `serve --demo` run in a folder writes nothing there: its store and the OPC UA server's key
 /// go to the state folder (~/.local/state/drivebus here, `HOME` a temporary folder), and the
-/// banner says where the key is.
+/// banner says where the key is, and that the demo (on loopback) takes OPC UA writes over None.
 #[test]
 fn the_demo_writes_nothing_in_the_working_directory_and_says_where_the_key_is() {
     let cwd = tempfile::tempdir().unwrap();
     let home = tempfile::tempdir().unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--demo", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", "127.0.0.1:0"])
+        .args([
+            "serve",
+            "--demo",
+            "--http",
+            "127.0.0.1:0",
+            "--modbus",
+            "127.0.0.1:0",
+            "--opcua",
+            "127.0.0.1:0",
+        ])
         .current_dir(cwd.path())
         .env("HOME", home.path())
         .env_remove("XDG_STATE_HOME")
@@ -294,13 +303,18 @@ fn the_demo_writes_nothing_in_the_working_directory_and_says_where_the_key_is() 
         .stdout(Stdio::piped())
         .spawn()
         .expect("start drivebus serve");
-    let said = wait_for_lines(&mut child, "drivebus serve --demo", &["OPC UA key", "event store"]);
+    let said = wait_for_lines(
+        &mut child,
+        "drivebus serve --demo",
+        &["OPC UA key", "event store", "OPC UA      writes and calls"],
+    );
     let _child = Killed(child);
     let state = home.path().join(".local/state/drivebus");
     let key = state.join("pki/private/private.pem");
     assert_eq!(said[0], key.display().to_string());
     assert!(key.exists(), "no key at {}", key.display());
     assert_eq!(said[1], state.join("drivebus-demo.db").display().to_string());
+    assert_eq!(said[2], "also over the unsigned None endpoint (the demo, on loopback)");
     let left: Vec<_> = std::fs::read_dir(cwd.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert!(left.is_empty(), "serve --demo wrote {left:?} in its working directory");
 }

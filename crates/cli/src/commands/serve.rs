@@ -238,7 +238,8 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  HTTP API    http://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
             if let (Some(a), Some(o)) = (bound.opcua, &gw.config().opcua) {
-                let url = drivebus_gateway::opcua::endpoint_url(o, a).unwrap_or_else(|_| format!("opc.tcp://{a}"));
+                let url =
+                    drivebus_gateway::opcua::endpoint_url(o, a).unwrap_or_else(|_| format!("opc.tcp://{a}"));
                 println!("  OPC UA      {url} (namespace urn:drivebus, docs/opcua.md)");
                 if o.insecure_writes {
                     let why = if args.demo { "the demo, on loopback" } else { "[opcua] insecure_writes" };

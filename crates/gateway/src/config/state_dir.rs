@@ -17,8 +17,8 @@ pub fn state_dir_from(env: impl Fn(&str) -> Option<OsString>) -> Result<PathBuf,
     // Only absolute paths count: a relative one would land in the working directory.
     let absolute = |v: Option<OsString>| v.map(PathBuf::from).filter(|p| p.is_absolute());
     // systemd gives the unit's state folders separated by ':'; drivebus's is the first.
-    let systemd = env("STATE_DIRECTORY")
-        .and_then(|v| v.to_str().and_then(|s| s.split(':').next()).map(OsString::from));
+    let systemd =
+        env("STATE_DIRECTORY").and_then(|v| v.to_str().and_then(|s| s.split(':').next()).map(OsString::from));
     if let Some(dir) = absolute(systemd) {
         return Ok(dir);
     }
@@ -41,7 +41,11 @@ mod tests {
 
     #[test]
     fn systemd_then_xdg_then_home_and_never_a_relative_path() {
-        let all = [("STATE_DIRECTORY", "/var/lib/drivebus:/var/lib/other"), ("XDG_STATE_HOME", "/x"), ("HOME", "/h")];
+        let all = [
+            ("STATE_DIRECTORY", "/var/lib/drivebus:/var/lib/other"),
+            ("XDG_STATE_HOME", "/x"),
+            ("HOME", "/h"),
+        ];
         assert_eq!(state_dir_from(env(&all)).unwrap(), PathBuf::from("/var/lib/drivebus"));
         assert_eq!(
             state_dir_from(env(&[("XDG_STATE_HOME", "/x"), ("HOME", "/h")])).unwrap(),

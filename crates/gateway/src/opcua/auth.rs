@@ -43,7 +43,8 @@ impl TokenAuth {
         if self.sessions.admit(user, max, std::time::Instant::now()) {
             return Ok(());
         }
-        let why = format!("too_many_sessions: user {user} holds {max} sessions ([opcua] max_sessions_per_user)");
+        let why =
+            format!("too_many_sessions: user {user} holds {max} sessions ([opcua] max_sessions_per_user)");
         self.gw.audit_login_refusal(&format!("opcua:{user}"), &why).await;
         Err(Error::new(StatusCode::BadTooManySessions, why))
     }
@@ -51,7 +52,10 @@ impl TokenAuth {
 
 /// `[opcua] max_sessions_per_user`, as configured now.
 pub fn max_sessions_per_user(gw: &Gateway) -> usize {
-    gw.config().opcua.as_ref().map_or(crate::config::DEFAULT_MAX_SESSIONS_PER_USER, |o| o.max_sessions_per_user)
+    gw.config()
+        .opcua
+        .as_ref()
+        .map_or(crate::config::DEFAULT_MAX_SESSIONS_PER_USER, |o| o.max_sessions_per_user)
 }
 
 /// A fingerprint of a token's secret: a keyed hash whose key is made at random once per process.
@@ -175,7 +179,10 @@ mod tests {
     #[test]
     fn the_role_is_that_of_the_token_that_matched_not_of_its_name() {
         // Two tokens of one name (the configuration refuses it; this is the defence behind).
-        let tokens = [token("ops", "write-secret-0123456789", Role::Write), token("ops", "read-secret-0123456789", Role::Read)];
+        let tokens = [
+            token("ops", "write-secret-0123456789", Role::Write),
+            token("ops", "read-secret-0123456789", Role::Read),
+        ];
         let reader = user_token(matching(&tokens, "ops", "read-secret-0123456789").unwrap());
         assert_eq!(role(&tokens, &reader), Some(Role::Read));
         let writer = user_token(matching(&tokens, "ops", "write-secret-0123456789").unwrap());

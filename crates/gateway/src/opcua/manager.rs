@@ -88,9 +88,10 @@ fn diagnostics(why: &str) -> DiagnosticInfo {
 }
 
 /// Whose parameter reads wait in one queue on a bus (docs/gateway.md, "Fair use of a bus"):
-/// the session and its authenticated user, never anything the client chose.
-fn reader(context: &RequestContext) -> String {
-    format!("opcua:{}@session-{}", super::auth::user_name(context.user_token()), context.session_id())
+/// the session and its authenticated user, never anything the client chose (its application
+/// URI, its session name); [`super::sessions`] caps the sessions of a user.
+pub fn reader(user: &opcua::server::authenticator::UserToken, session_id: u32) -> String {
+    format!("opcua:{}@session-{session_id}", super::auth::user_name(user))
 }
 
 /// The audit trail's actor of a request: `opcua:<user>@<client>`, where the client is the
@@ -118,7 +119,10 @@ fn may_write(gw: &Gateway, context: &RequestContext) -> Result<(), (StatusCode, 
 /// `Ok` when a session on a channel of `mode` may write and call methods: Sign or
 /// SignAndEncrypt, or any with `[opcua] insecure_writes`. On `None` anyone on the path could
 /// change the command in flight: `Bad_SecurityModeInsufficient`.
-pub fn channel_secure_enough(mode: MessageSecurityMode, insecure_writes: bool) -> Result<(), (StatusCode, String)> {
+pub fn channel_secure_enough(
+    mode: MessageSecurityMode,
+    insecure_writes: bool,
+) -> Result<(), (StatusCode, String)> {
     match mode {
         MessageSecurityMode::Sign | MessageSecurityMode::SignAndEncrypt => Ok(()),
         _ if insecure_writes => Ok(()),
@@ -269,7 +273,10 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             match param {
                 // A parameter is read from the drive when it is read: never a stale value.
                 // The reads of a session's client wait in one queue on the bus.
-                Some((drive, name)) => out.push(self.read_parameter(&drive, &name, &reader(context)).await),
+                Some((drive, name)) => out.push(
+                    self.read_parameter(&drive, &name, &reader(context.user_token(), context.session_id()))
+                        .await,
+                ),
                 None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
             }
         }
@@ -367,7 +374,8 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             // Authorized before the arguments are looked at.
             let action = match method.as_str() {
                 "SetSpeed" => match m.arguments() {
-                    [hz] => double(Some(hz)).map_or("speed (not a Double)".into(), |hz| Command::Speed(hz).action()),
+                    [hz] => double(Some(hz))
+                        .map_or("speed (not a Double)".into(), |hz| Command::Speed(hz).action()),
                     _ => "speed".into(),
                 },
                 other => other.to_ascii_lowercase(),
@@ -410,5 +418,33 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use opcua::server::authenticator::UserToken;
+
+    #[test]
+    fn reads_queue_by_session_and_authenticated_user() {
+        let token = crate::config::Token {
+            name: "ops".into(),
+            secret: "0123456789abcdef".into(),
+            role: crate::config::Role::Read,
+        };
+        let user = super::super::auth::user_token(&token);
+        assert_eq!(reader(&user, 7), "opcua:ops@session-7");
+        assert_eq!(reader(&UserToken(super::super::auth::ANONYMOUS.into()), 8), "opcua:anonymous@session-8");
+    }
+
+    #[test]
+    fn writes_need_a_signed_channel_unless_insecure_writes() {
+        assert!(channel_secure_enough(MessageSecurityMode::Sign, false).is_ok());
+        assert!(channel_secure_enough(MessageSecurityMode::SignAndEncrypt, false).is_ok());
+        let (code, why) = channel_secure_enough(MessageSecurityMode::None, false).unwrap_err();
+        assert_eq!(code, StatusCode::BadSecurityModeInsufficient);
+        assert!(why.starts_with("insecure: ") && why.contains("insecure_writes"), "{why}");
+        assert!(channel_secure_enough(MessageSecurityMode::None, true).is_ok());
     }
 }

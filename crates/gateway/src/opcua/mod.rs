@@ -113,7 +113,11 @@ pub fn machine_host_name() -> Option<String> {
 
 /// The URL clients connect to: `opc.tcp://HOST:PORT` with the [`advertised_host`].
 pub fn endpoint_url(cfg: &OpcUaConfig, listen: std::net::SocketAddr) -> Result<String, String> {
-    Ok(format!("opc.tcp://{}:{}", advertised_host(cfg.host.as_deref(), listen, machine_host_name)?, listen.port()))
+    Ok(format!(
+        "opc.tcp://{}:{}",
+        advertised_host(cfg.host.as_deref(), listen, machine_host_name)?,
+        listen.port()
+    ))
 }
 
 /// Builds the OPC UA server for `listener` (creating its certificate on first start; errors
@@ -154,7 +158,10 @@ pub fn endpoints() -> Vec<(&'static str, ServerEndpoint)> {
     let mut endpoints = vec![
         ("none", ServerEndpoint::new_none("/", &users)),
         ("basic256sha256_sign", ServerEndpoint::new("/", b, MessageSecurityMode::Sign, &users)),
-        ("basic256sha256_sign_encrypt", ServerEndpoint::new("/", b, MessageSecurityMode::SignAndEncrypt, &users)),
+        (
+            "basic256sha256_sign_encrypt",
+            ServerEndpoint::new("/", b, MessageSecurityMode::SignAndEncrypt, &users),
+        ),
     ];
     for (_, e) in &mut endpoints {
         e.password_security_policy = Some(auth::PASSWORD_POLICY.to_string());
@@ -478,7 +485,10 @@ mod host_tests {
         let any6 = "[::]:4840".parse().unwrap();
         assert_eq!(advertised_host(None, any4, name).unwrap(), "gw-7");
         assert_eq!(advertised_host(None, any6, name).unwrap(), "gw-7");
-        assert_eq!(advertised_host(Some("scada-gw.plant.local"), any4, name).unwrap(), "scada-gw.plant.local");
+        assert_eq!(
+            advertised_host(Some("scada-gw.plant.local"), any4, name).unwrap(),
+            "scada-gw.plant.local"
+        );
         assert_eq!(advertised_host(None, "10.0.0.5:4840".parse().unwrap(), name).unwrap(), "10.0.0.5");
         assert_eq!(advertised_host(None, "[fd00::5]:4840".parse().unwrap(), name).unwrap(), "[fd00::5]");
         let err = advertised_host(None, any4, || None).unwrap_err();

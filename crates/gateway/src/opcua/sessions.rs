@@ -74,7 +74,8 @@ impl Sessions {
             return true;
         }
         entries.retain(|e| e.live(now, self.pending_for));
-        let pending = entries.iter_mut().filter(|e| e.user == user && e.session.is_none()).min_by_key(|e| e.since);
+        let pending =
+            entries.iter_mut().filter(|e| e.user == user && e.session.is_none()).min_by_key(|e| e.since);
         if let Some(e) = pending {
             e.session = Some(session);
             return true;

@@ -48,8 +48,9 @@ impl DriveNodes {
         }
     }
 
-    /// Whether the request's session is within its user's `[opcua] max_sessions_per_user`.
-    fn within_cap(&self, context: &RequestContext) -> bool {
+    /// Whether the request's session is within its user's `[opcua] max_sessions_per_user`; a
+    /// session beyond is refused, and audited (aggregated).
+    async fn within_cap(&self, context: &RequestContext) -> bool {
         let session = &context.session;
         let weak = Arc::downgrade(session);
         let seen = Seen {
@@ -58,7 +59,13 @@ impl DriveNodes {
         };
         let user = super::auth::user_name(context.user_token());
         let max = super::auth::max_sessions_per_user(&self.gw);
-        self.sessions.seen(user, seen, max, std::time::Instant::now())
+        if self.sessions.seen(user, seen, max, std::time::Instant::now()) {
+            return true;
+        }
+        let why =
+            format!("too_many_sessions: user {user} holds {max} sessions ([opcua] max_sessions_per_user)");
+        self.gw.audit_login_refusal(&actor(context), &why).await;
+        false
     }
 
     /// Wakes (once) when the address space is built.
@@ -261,7 +268,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
         max_age: f64,
         timestamps_to_return: TimestampsToReturn,
     ) -> Vec<DataValue> {
-        if !self.within_cap(context) {
+        if !self.within_cap(context).await {
             return nodes.iter().map(|_| DataValue::from(StatusCode::BadTooManySessions)).collect();
         }
         let mut out = Vec::with_capacity(nodes.len());
@@ -289,7 +296,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
         address_space: &RwLock<AddressSpace>,
         nodes_to_write: &mut [&mut WriteNode],
     ) -> Result<(), StatusCode> {
-        if !self.within_cap(context) {
+        if !self.within_cap(context).await {
             nodes_to_write.iter_mut().for_each(|w| w.set_status(StatusCode::BadTooManySessions));
             return Ok(());
         }
@@ -354,7 +361,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
         _address_space: &RwLock<AddressSpace>,
         methods_to_call: &mut [&mut &mut MethodCall],
     ) -> Result<(), StatusCode> {
-        if !self.within_cap(context) {
+        if !self.within_cap(context).await {
             methods_to_call.iter_mut().for_each(|m| m.set_status(StatusCode::BadTooManySessions));
             return Ok(());
         }

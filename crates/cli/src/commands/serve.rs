@@ -113,15 +113,13 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         config.opcua = None;
     } else if let Some(a) = args.opcua {
         let http = config.http.anonymous_read;
-        config
-            .opcua
-            .get_or_insert(drivebus_gateway::config::OpcUaConfig {
-                listen: a,
-                anonymous_read: http,
-                pki_dir: None,
-                trusted_clients: Vec::new(),
-            })
-            .listen = a;
+        config.opcua.get_or_insert(drivebus_gateway::config::OpcUaConfig::new(a, http)).listen = a;
+    }
+    if args.demo {
+        // The demo's writes over the None endpoint, where nobody else is on the path.
+        if let Some(o) = config.opcua.as_mut() {
+            o.insecure_writes = o.listen.ip().is_loopback();
+        }
     }
     if let Some(url) = &args.mqtt {
         if !url.starts_with("mqtt://") {
@@ -207,6 +205,13 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     }
     let store = match &config.store {
         Some(path) => {
+            if args.demo && args.db.is_none() {
+                // The demo's store is in the state folder, made here on first run.
+                if let Some(dir) = path.parent() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("cannot make the state folder {}", dir.display()))?;
+                }
+            }
             let store = drivebus_store::Store::open_with_limits(path, config.store_limits);
             Some(store.map_err(|e| Failure { code: 2, message: e.to_string() })?)
         }
@@ -237,8 +242,17 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
             println!("  dashboard   http://{}/", bound.http);
             println!("  HTTP API    http://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
-            if let Some(a) = bound.opcua {
-                println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");
+            if let (Some(a), Some(o)) = (bound.opcua, &gw.config().opcua) {
+                let url =
+                    drivebus_gateway::opcua::endpoint_url(o, a).unwrap_or_else(|_| format!("opc.tcp://{a}"));
+                println!("  OPC UA      {url} (namespace urn:drivebus, docs/opcua.md)");
+                if o.insecure_writes {
+                    let why = if args.demo { "the demo, on loopback" } else { "[opcua] insecure_writes" };
+                    println!("  OPC UA      writes and calls also over the unsigned None endpoint ({why})");
+                }
+                if let Ok(pki) = drivebus_gateway::opcua::pki_dir(&gw.config(), o) {
+                    println!("  OPC UA key  {}", pki.join("private/private.pem").display());
+                }
             }
             for (bus, at) in &bound.bridges {
                 println!("  bridge      {at} -> bus {bus} (Modbus TCP straight through, docs/gateway.md)");

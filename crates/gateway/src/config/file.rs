@@ -55,6 +55,10 @@ pub(super) struct FileOpcUa {
     pub(super) pki_dir: Option<String>,
     #[serde(default)]
     pub(super) trusted_clients: Vec<String>,
+    #[serde(default)]
+    pub(super) insecure_writes: bool,
+    pub(super) max_sessions_per_user: Option<Spanned<usize>>,
+    pub(super) host: Option<Spanned<String>>,
 }
 
 /// `[http]` as written.

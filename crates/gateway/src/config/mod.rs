@@ -113,6 +113,7 @@ pub mod bridge;
 pub mod modbus_rtu;
 pub mod mqtt;
 pub mod sparkplug;
+pub mod state_dir;
 
 pub use drivebus_drive::ConfigError;
 pub use model::*;
@@ -124,11 +125,19 @@ use file::FileConfig;
 /// The embedded demo: a virtual bus per family with simulated drives on each.
 pub const DEMO: &str = include_str!("../demo.toml");
 
+/// The file name of the demo's store, in the state folder.
+pub const DEMO_STORE: &str = "drivebus-demo.db";
+
 impl GatewayConfig {
     /// The embedded demo configuration.
+    /// Its store is `drivebus-demo.db` in the state folder ([`state_dir`]), never in the
+    /// working directory; without a state folder it keeps none.
     pub fn demo() -> Self {
         // The embedded file is checked by a test; a failure here is a build defect.
-        GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"))
+        let mut config =
+            GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"));
+        config.store = state_dir::state_dir().ok().map(|d| d.join(DEMO_STORE));
+        config
     }
 
     /// Reads a configuration; errors name `file`, the line and the field.

@@ -58,7 +58,33 @@ pub struct OpcUaConfig {
     pub pki_dir: Option<PathBuf>,
     /// Client certificates (DER files) trusted for signed and encrypted sessions.
     pub trusted_clients: Vec<PathBuf>,
+    /// Whether writes and method calls are taken over the unsigned `None` endpoint (default:
+    /// refused with `Bad_SecurityModeInsufficient`; `--demo` on loopback sets it).
+    pub insecure_writes: bool,
+    /// Most sessions open at once per user (a token's name, or anonymous).
+    pub max_sessions_per_user: usize,
+    /// The host name clients should use, in the endpoint URLs the server advertises (default:
+    /// the listener's address, or the machine's host name when it listens on every address).
+    pub host: Option<String>,
 }
+
+impl OpcUaConfig {
+    /// `[opcua]` with every default, listening on `listen`.
+    pub fn new(listen: SocketAddr, anonymous_read: bool) -> Self {
+        OpcUaConfig {
+            listen,
+            anonymous_read,
+            pki_dir: None,
+            trusted_clients: Vec::new(),
+            insecure_writes: false,
+            max_sessions_per_user: DEFAULT_MAX_SESSIONS_PER_USER,
+            host: None,
+        }
+    }
+}
+
+/// The default of `[opcua] max_sessions_per_user`.
+pub const DEFAULT_MAX_SESSIONS_PER_USER: usize = 10;
 
 /// The HTTP listener.
 #[derive(Clone, Debug, PartialEq)]

@@ -55,6 +55,25 @@ fn errors_name_the_file_line_and_field() {
         "plant.toml:3: field `token.token`: a token needs at least 16 characters"
     );
     assert_eq!(
+        err("[[token]]\nname = \"ops\"\ntoken = \"aaaaaaaaaaaaaaaa\"\nrole = \"write\"\n\
+             [[token]]\nname = \"ops\"\ntoken = \"bbbbbbbbbbbbbbbb\"\nrole = \"read\"\n"),
+        "plant.toml:6: field `token.name`: \"ops\": two tokens have the same name; give each its own"
+    );
+    refused(
+        "[opcua]\nhost = \"opc.tcp://gw:4840\"\n",
+        "plant.toml:2: field `opcua.host`: \"opc.tcp://gw:4840\": give the host name",
+    );
+    refused(
+        "[opcua]\nmax_sessions_per_user = 0\n",
+        "plant.toml:2: field `opcua.max_sessions_per_user`: use 1 or more",
+    );
+    let o =
+        GatewayConfig::from_toml("p.toml", "[opcua]\nhost = \"gw-1.plant.local\"\n").unwrap().opcua.unwrap();
+    assert_eq!(
+        (o.host.as_deref(), o.max_sessions_per_user, o.insecure_writes),
+        (Some("gw-1.plant.local"), 10, false)
+    );
+    assert_eq!(
         err("[[linkage]]\nleader = \"a\"\nfollower = \"b\"\n"),
         "plant.toml:2: field `linkage.leader`: no drive is named \"a\""
     );

@@ -10,6 +10,7 @@
 pub mod auth;
 pub mod manager;
 pub mod nodes;
+pub mod sessions;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -35,14 +36,26 @@ use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
 const TOKEN_USERS: &str = "tokens";
 
 /// Where the server's certificate, key and trusted client certificates live: `[opcua] pki_dir`,
-/// else `pki` beside the store, else `pki` in the working directory.
-pub fn pki_dir(gw: &Gateway, cfg: &OpcUaConfig) -> PathBuf {
+/// else `pki` beside the store when the store's path names a folder, else `pki` in the state
+/// folder ([`crate::config::state_dir`]). Never the working directory unless the user named it.
+pub fn pki_dir(config: &crate::GatewayConfig, cfg: &OpcUaConfig) -> Result<PathBuf, String> {
+    pki_dir_in(config, cfg, crate::config::state_dir::state_dir)
+}
+
+/// [`pki_dir`] with the state folder from `state`.
+pub fn pki_dir_in(
+    config: &crate::GatewayConfig,
+    cfg: &OpcUaConfig,
+    state: impl FnOnce() -> Result<PathBuf, String>,
+) -> Result<PathBuf, String> {
     if let Some(p) = &cfg.pki_dir {
-        return p.clone();
+        return Ok(p.clone());
     }
-    match gw.config().store.as_ref().and_then(|s| s.parent().map(|p| p.to_path_buf())) {
-        Some(dir) if !dir.as_os_str().is_empty() => dir.join("pki"),
-        _ => PathBuf::from("pki"),
+    match config.store.as_ref().and_then(|s| s.parent()) {
+        Some(dir) if !dir.as_os_str().is_empty() => Ok(dir.join("pki")),
+        _ => state()
+            .map(|d| d.join("pki"))
+            .map_err(|e| format!("OPC UA: no folder for the server's key ({e}): set [opcua] pki_dir")),
     }
 }
 
@@ -70,6 +83,43 @@ pub fn trust_clients(pki: &std::path::Path, certs: &[PathBuf]) -> Result<usize, 
     Ok(certs.len())
 }
 
+/// The host clients should use, in the endpoint URLs the server advertises: `[opcua] host`,
+/// else the listener's address, else, when it listens on every address (0.0.0.0, ::), the
+/// machine's host name (`host_name`): never `opc.tcp://0.0.0.0:4840/`.
+pub fn advertised_host(
+    host: Option<&str>,
+    listen: std::net::SocketAddr,
+    host_name: impl FnOnce() -> Option<String>,
+) -> Result<String, String> {
+    if let Some(h) = host {
+        return Ok(h.to_string());
+    }
+    match listen.ip() {
+        ip if ip.is_unspecified() => host_name().filter(|h| !h.is_empty()).ok_or_else(|| {
+            format!(
+                "OPC UA: listening on {listen}, but this machine's host name is unknown: \
+                 set [opcua] host to the name clients use"
+            )
+        }),
+        std::net::IpAddr::V6(ip) => Ok(format!("[{ip}]")),
+        ip => Ok(ip.to_string()),
+    }
+}
+
+/// The machine's host name.
+pub fn machine_host_name() -> Option<String> {
+    nix::unistd::gethostname().ok().and_then(|h| h.into_string().ok())
+}
+
+/// The URL clients connect to: `opc.tcp://HOST:PORT` with the [`advertised_host`].
+pub fn endpoint_url(cfg: &OpcUaConfig, listen: std::net::SocketAddr) -> Result<String, String> {
+    Ok(format!(
+        "opc.tcp://{}:{}",
+        advertised_host(cfg.host.as_deref(), listen, machine_host_name)?,
+        listen.port()
+    ))
+}
+
 /// Builds the OPC UA server for `listener` (creating its certificate on first start; errors
 /// here stop `serve` at start, with the reason) and returns what serves it until the process
 /// ends, keeping the address space current from the cache.
@@ -79,9 +129,10 @@ pub fn start(
     listener: TcpListener,
 ) -> Result<impl std::future::Future<Output = Result<(), String>>, String> {
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
-    let pki = pki_dir(&gw, cfg);
+    let pki = pki_dir(&gw.config(), cfg)?;
     trust_clients(&pki, &cfg.trusted_clients)?;
-    let (server, handle) = build(&gw, addr, &pki)?;
+    let host = advertised_host(cfg.host.as_deref(), addr, machine_host_name)?;
+    let (server, handle) = build(&gw, &host, addr.port(), &pki)?;
     let ns = handle
         .get_namespace_index(nodes::NAMESPACE)
         .ok_or_else(|| "OPC UA: the namespace urn:drivebus is missing".to_string())?;
@@ -99,31 +150,38 @@ pub fn start(
     })
 }
 
+/// The endpoints: None; Basic256Sha256 Sign and SignAndEncrypt. On each, passwords are
+/// encrypted with [`auth::PASSWORD_POLICY`] (None included).
+pub fn endpoints() -> Vec<(&'static str, ServerEndpoint)> {
+    let users = [TOKEN_USERS.to_string(), auth::ANONYMOUS.to_string()];
+    let b = SecurityPolicy::Basic256Sha256;
+    let mut endpoints = vec![
+        ("none", ServerEndpoint::new_none("/", &users)),
+        ("basic256sha256_sign", ServerEndpoint::new("/", b, MessageSecurityMode::Sign, &users)),
+        (
+            "basic256sha256_sign_encrypt",
+            ServerEndpoint::new("/", b, MessageSecurityMode::SignAndEncrypt, &users),
+        ),
+    ];
+    for (_, e) in &mut endpoints {
+        e.password_security_policy = Some(auth::PASSWORD_POLICY.to_string());
+    }
+    endpoints
+}
+
 /// The server and its handle: endpoints (None; Basic256Sha256 Sign and SignAndEncrypt), the
 /// certificate in `pki` (made on first start), the tokens as users, the drive node manager.
 fn build(
     gw: &Arc<Gateway>,
-    addr: std::net::SocketAddr,
+    host: &str,
+    port: u16,
     pki: &std::path::Path,
 ) -> Result<(opcua::server::Server, ServerHandle), String> {
     let gw_nodes = gw.clone();
-    let users = [TOKEN_USERS.to_string(), auth::ANONYMOUS.to_string()];
-    let endpoints = [
-        ("none", ServerEndpoint::new_none("/", &users)),
-        (
-            "basic256sha256_sign",
-            ServerEndpoint::new("/", SecurityPolicy::Basic256Sha256, MessageSecurityMode::Sign, &users),
-        ),
-        (
-            "basic256sha256_sign_encrypt",
-            ServerEndpoint::new(
-                "/",
-                SecurityPolicy::Basic256Sha256,
-                MessageSecurityMode::SignAndEncrypt,
-                &users,
-            ),
-        ),
-    ];
+    // A login not yet seen by a request counts as long as the longest session timeout.
+    let pending_for = Duration::from_millis(opcua::server::constants::MAX_SESSION_TIMEOUT);
+    let sessions = Arc::new(sessions::Sessions::new(pending_for));
+    let sessions_nodes = sessions.clone();
     let mut builder = ServerBuilder::new()
         .application_name("drivebus gateway")
         .application_uri(format!("urn:drivebus:gateway:{}", gw.config().name))
@@ -136,14 +194,15 @@ fn build(
             build_number: "0".into(),
             build_date: DateTime::now(),
         })
-        .host(addr.ip().to_string())
-        .discovery_urls(vec![format!("opc.tcp://{addr}/")])
-        .port(addr.port())
+        .host(host)
+        .discovery_urls(vec![format!("opc.tcp://{host}:{port}/")])
+        .port(port)
         .pki_dir(pki)
         .create_sample_keypair(true)
         .trust_client_certs(false)
         .add_user_token(TOKEN_USERS, ServerUserToken::user_pass(TOKEN_USERS, ""))
-        .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone())))
+        .max_session_timeout_ms(opcua::server::constants::MAX_SESSION_TIMEOUT)
+        .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone(), sessions)))
         .with_node_manager(InMemoryNodeManagerBuilder::new(
             move |context: opcua::server::node_manager::ServerContext,
                   space: &mut opcua::server::address_space::AddressSpace| {
@@ -156,10 +215,11 @@ fn build(
                         namespace_index: index,
                         ..Default::default()
                     },
+                    sessions_nodes,
                 )
             },
         ));
-    for (id, e) in endpoints {
+    for (id, e) in endpoints() {
         builder = builder.add_endpoint(id, e);
     }
     // A hall of 1000 drives has 10 000 cache variables; SCADA clients subscribe to them in one
@@ -387,5 +447,51 @@ async fn publish(
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_key_is_beside_a_named_store_else_in_the_state_folder_never_in_the_working_directory() {
+        let state = || Ok(PathBuf::from("/state/drivebus"));
+        let mut config = crate::GatewayConfig::from_toml("t.toml", "[opcua]\n").unwrap();
+        let o = config.opcua.clone().unwrap();
+        config.store = Some(PathBuf::from("/var/lib/drivebus/drivebus.db"));
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/var/lib/drivebus/pki"));
+        // A store path with no folder is in the working directory: the key does not follow it.
+        config.store = Some(PathBuf::from("drivebus-demo.db"));
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/state/drivebus/pki"));
+        config.store = None;
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/state/drivebus/pki"));
+        let err = pki_dir_in(&config, &o, || Err("no state folder".into())).unwrap_err();
+        assert!(err.contains("[opcua] pki_dir"), "{err}");
+        // Named by the user: as named.
+        let named = OpcUaConfig { pki_dir: Some(PathBuf::from("keys")), ..o };
+        assert_eq!(pki_dir_in(&config, &named, state).unwrap(), PathBuf::from("keys"));
+    }
+}
+
+#[cfg(test)]
+mod host_tests {
+    use super::*;
+
+    #[test]
+    fn every_address_is_advertised_by_the_machines_name_never_as_0_0_0_0() {
+        let name = || Some("gw-7".to_string());
+        let any4 = "0.0.0.0:4840".parse().unwrap();
+        let any6 = "[::]:4840".parse().unwrap();
+        assert_eq!(advertised_host(None, any4, name).unwrap(), "gw-7");
+        assert_eq!(advertised_host(None, any6, name).unwrap(), "gw-7");
+        assert_eq!(
+            advertised_host(Some("scada-gw.plant.local"), any4, name).unwrap(),
+            "scada-gw.plant.local"
+        );
+        assert_eq!(advertised_host(None, "10.0.0.5:4840".parse().unwrap(), name).unwrap(), "10.0.0.5");
+        assert_eq!(advertised_host(None, "[fd00::5]:4840".parse().unwrap(), name).unwrap(), "[fd00::5]");
+        let err = advertised_host(None, any4, || None).unwrap_err();
+        assert!(err.contains("[opcua] host"), "{err}");
     }
 }

@@ -354,10 +354,11 @@ impl Publisher {
             }
         };
         let (gw, client) = (self.gw.clone(), self.client.clone());
-        let actor = self.actor();
+        // Handed to the drive's lane now, in the order the messages came.
+        let done = self.gw.command(&drive, command, &self.actor());
         tokio::spawn(async move {
             let _permit = permit;
-            let result = gw.command(&drive, command, &actor).await;
+            let result = done.await;
             let error = result
                 .as_ref()
                 .err()

@@ -532,24 +532,32 @@ impl EdgeNode {
             Ok(c) => c,
             Err(r) => return self.refused(Some(&device), r),
         };
-        let (gw, actor, written) = (self.gw.clone(), self.actor.clone(), self.written.clone());
-        tokio::spawn(async move {
-            for c in cmds {
+        // Handed to the drive's lane here, in the order the DCMDs came, before any task runs:
+        // the commands are carried out in that order whatever the tasks' order.
+        let handed: Vec<_> = cmds
+            .into_iter()
+            .map(|c| {
                 let param = match &c {
                     Command::SetParam { name, value, .. } => {
                         value.parse::<f64>().ok().map(|v| (name.clone(), v))
                     }
                     _ => None,
                 };
-                match gw.command(&device, c.clone(), &actor).await {
+                let action = c.action();
+                (param, action, self.gw.command(&device, c, &self.actor))
+            })
+            .collect();
+        let written = self.written.clone();
+        tokio::spawn(async move {
+            for (param, action, done) in handed {
+                match done.await {
                     Ok(()) => {
                         if let Some((name, v)) = param {
                             let _ = written.send((device.clone(), name, v)).await;
                         }
                     }
                     Err(e) => crate::log::warn(&format!(
-                        "Sparkplug: DCMD {} for {device:?} failed: {}: {e}",
-                        c.action(),
+                        "Sparkplug: DCMD {action} for {device:?} failed: {}: {e}",
                         e.kind()
                     )),
                 }

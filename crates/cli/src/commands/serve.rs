@@ -31,11 +31,12 @@ pub struct ServeArgs {
     /// No OPC UA server.
     #[arg(long)]
     pub no_opcua: bool,
-    /// Publish to an MQTT broker, mqtt://HOST:PORT.
+    /// Publish to an MQTT broker, mqtt://HOST:PORT, or mqtts://HOST[:PORT] over TLS (the
+    /// configuration's [mqtt] ca_file and client certificate apply).
     #[arg(long, value_name = "URL")]
     pub mqtt: Option<String>,
-    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT (docs/sparkplug.md); the
-    /// configuration's other [sparkplug] settings stay.
+    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT or mqtts://HOST[:PORT]
+    /// (TLS) (docs/sparkplug.md); the configuration's other [sparkplug] settings stay.
     #[arg(long, value_name = "URL")]
     pub sparkplug: Option<String>,
     /// The Sparkplug primary host id: publish only while its STATE says online.
@@ -123,9 +124,7 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
             .listen = a;
     }
     if let Some(url) = &args.mqtt {
-        if !url.starts_with("mqtt://") {
-            return Err(anyhow!("--mqtt {url:?}: use mqtt://HOST:PORT"));
-        }
+        drivebus_gateway::mqtt::parse_url(url).map_err(|e| anyhow!("--mqtt {e}"))?;
         let mut m = config.mqtt.clone().unwrap_or(MqttConfig {
             url: url.clone(),
             topic_prefix: None,
@@ -133,6 +132,7 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
             allow_commands: Vec::new(),
             client_id: None,
             credentials: None,
+            tls: Default::default(),
         });
         m.url = url.clone();
         config.mqtt = Some(m);
@@ -171,7 +171,7 @@ fn sparkplug_overrides(args: &ServeArgs, config: &mut GatewayConfig) -> Result<(
         drivebus_gateway::sparkplug::check_id(host).map_err(|e| anyhow!("--sparkplug-primary {e}"))?;
         let sp = config.sparkplug.as_mut().ok_or_else(|| {
             anyhow!(
-                "--sparkplug-primary needs a broker: give --sparkplug mqtt://HOST:PORT or [sparkplug] urls"
+                "--sparkplug-primary needs a broker: give --sparkplug mqtt[s]://HOST:PORT or [sparkplug] urls"
             )
         })?;
         sp.primary_host = Some(host.clone());

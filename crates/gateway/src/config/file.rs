@@ -185,6 +185,12 @@ pub(super) struct FileMqtt {
     pub(super) username: Option<Spanned<String>>,
     pub(super) password: Option<Spanned<String>>,
     pub(super) password_env: Option<Spanned<String>>,
+    /// TLS (`mqtts://`): the CA file, the client's certificate and key; the plain-text opt-out.
+    pub(super) ca_file: Option<Spanned<String>>,
+    pub(super) client_cert: Option<Spanned<String>>,
+    pub(super) client_key: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) allow_plaintext: bool,
 }
 
 /// `[sparkplug]` as written.
@@ -200,6 +206,12 @@ pub(super) struct FileSparkplug {
     pub(super) username: Option<Spanned<String>>,
     pub(super) password: Option<Spanned<String>>,
     pub(super) password_env: Option<Spanned<String>>,
+    /// TLS (`mqtts://`): the CA file, the client's certificate and key; the plain-text opt-out.
+    pub(super) ca_file: Option<Spanned<String>>,
+    pub(super) client_cert: Option<Spanned<String>>,
+    pub(super) client_key: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) allow_plaintext: bool,
     pub(super) store_forward_max: Option<Spanned<u64>>,
     pub(super) store_forward_max_age_s: Option<Spanned<u64>>,
     pub(super) store_forward_rate: Option<Spanned<u64>>,

@@ -93,6 +93,7 @@
 //! write = false                         # accept writes (read-only unless true)
 //! ```
 
+mod broker;
 mod bus;
 mod ctx;
 mod drive;
@@ -111,6 +112,7 @@ pub mod bridge;
 pub mod modbus_rtu;
 pub mod mqtt;
 pub mod sparkplug;
+pub mod tls;
 
 pub use drivebus_drive::ConfigError;
 pub use model::*;

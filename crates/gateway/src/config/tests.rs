@@ -64,7 +64,7 @@ fn errors_name_the_file_line_and_field() {
 fn mqtt_settings_are_checked() {
     let ok = GatewayConfig::from_toml(
         "p.toml",
-        "[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"line-1/*/stop\", \"*/*/*\"]\n",
+        "[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"line-1/*/stop\", \"*/*/*\"]\nallow_plaintext = true\n",
     )
     .unwrap();
     assert_eq!(ok.mqtt.unwrap().allow_commands.len(), 2);
@@ -246,7 +246,7 @@ fn sparkplug_settings_have_defaults_and_are_checked() {
         (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S)
     );
     let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
-                primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
+                primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\nallow_plaintext = true\n\
                 store_forward_max = 10\nstore_forward_max_age_s = 60\nstore_forward_rate = 500\n";
     let sp = GatewayConfig::from_toml("p.toml", full).unwrap().sparkplug.unwrap();
     assert_eq!(sp.edge_node_id.as_deref(), Some("hall-9"));
@@ -362,4 +362,72 @@ fn the_configuration_imports_no_front_end() {
         files += 1;
     }
     assert!(files > 10, "{files} files in {}", dir.display());
+}
+
+#[path = "../../tests/tls_support/mod.rs"]
+mod tls_support;
+
+#[test]
+fn broker_tls_keys_are_checked_with_their_files() {
+    let pki = tls_support::TestPki::new("config", &["broker.plant"]);
+    let p = tls_support::TestPki::toml;
+    for section in ["[mqtt]\nurl", "[sparkplug]\nurls"] {
+        let name = if section.starts_with("[mqtt]") { "mqtt" } else { "sparkplug" };
+        let url = |u: &str| if name == "mqtt" { format!("\"{u}\"") } else { format!("[\"{u}\"]") };
+        let tls = url("mqtts://broker.plant");
+        let good = format!(
+            "{section} = {tls}\nca_file = \"{}\"\nclient_cert = \"{}\"\nclient_key = \"{}\"\n",
+            p(&pki.ca),
+            p(&pki.client_cert),
+            p(&pki.client_key)
+        );
+        let c = GatewayConfig::from_toml("plant.toml", &good).unwrap();
+        let t = if name == "mqtt" { c.mqtt.unwrap().tls } else { c.sparkplug.unwrap().tls };
+        assert_eq!(t.ca_file.as_deref(), Some(pki.ca.as_path()));
+        assert_eq!(t.client_key.as_deref(), Some(pki.client_key.as_path()));
+
+        let cases = [
+            (
+                format!("{section} = {tls}\nca_file = \"/nonexistent/ca.pem\"\n"),
+                format!("plant.toml:3: field `{name}.ca_file`: ca_file /nonexistent/ca.pem: cannot read it"),
+            ),
+            (
+                format!("{section} = {tls}\nca_file = \"{}\"\n", p(&pki.client_key)),
+                format!("plant.toml:3: field `{name}.ca_file`: ca_file {}: no certificate in it", p(&pki.client_key)),
+            ),
+            (
+                format!("{section} = {tls}\nclient_key = \"{}\"\n", p(&pki.client_key)),
+                format!("plant.toml:3: field `{name}.client_key`: client_key needs client_cert"),
+            ),
+            (
+                format!("{section} = {tls}\nclient_cert = \"{}\"\nclient_key = \"{}\"\n", p(&pki.client_cert), p(&pki.server_key)),
+                format!("plant.toml:3: field `{name}.client_cert`: client_cert {} and client_key {}: the key is not the certificate's", p(&pki.client_cert), p(&pki.server_key)),
+            ),
+            (
+                format!("{section} = {}\nca_file = \"{}\"\n", url("mqtt://broker.plant"), p(&pki.ca)),
+                format!("plant.toml:3: field `{name}.ca_file`: is for TLS: use an mqtts:// broker URL"),
+            ),
+            (
+                format!("{section} = {}\nusername = \"u\"\npassword = \"p\"\n", url("mqtt://10.0.0.9")),
+                format!("plant.toml:2: field `{name}.{}`: the broker password would cross the network to 10.0.0.9 in clear: use mqtts://10.0.0.9, or set [{name}] allow_plaintext = true", if name == "mqtt" { "url" } else { "urls" }),
+            ),
+        ];
+        for (text, want) in cases {
+            let e = err(&text);
+            assert!(e.starts_with(&want), "{e}\nwanted: {want}");
+            assert!(!e.contains('\n'), "one line: {e}");
+        }
+        // The opt-out, and a broker on this machine.
+        let plain = format!(
+            "{section} = {}\nusername = \"u\"\npassword = \"p\"\nallow_plaintext = true\n",
+            url("mqtt://10.0.0.9")
+        );
+        assert!(GatewayConfig::from_toml("plant.toml", &plain).is_ok());
+        let local = format!("{section} = {}\nusername = \"u\"\npassword = \"p\"\n", url("mqtt://127.0.0.1"));
+        assert!(GatewayConfig::from_toml("plant.toml", &local).is_ok());
+    }
+    let e = err("[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"*/*/stop\"]\n");
+    assert!(e.contains("motor commands would cross the network to 10.0.0.9 in clear"), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ncommands = true\n");
+    assert!(e.contains("motor commands would cross the network to a in clear"), "{e}");
 }

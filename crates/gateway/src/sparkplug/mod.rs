@@ -52,7 +52,8 @@ pub fn drain_pause(n: usize, rate: u64) -> Duration {
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(250);
 
 struct Settings {
-    brokers: Vec<(String, u16)>,
+    /// Host, port, and plain TCP or TLS (`mqtts://`).
+    brokers: Vec<(String, u16, rumqttc::Transport)>,
     group: String,
     edge: String,
     primary: Option<String>,
@@ -66,11 +67,18 @@ struct Settings {
 
 impl Settings {
     fn new(gw: &Gateway, cfg: &SparkplugConfig) -> Result<Settings, String> {
+        let (secret, commands) = (cfg.credentials.is_some(), cfg.commands);
         let brokers = cfg
             .urls
             .iter()
-            .map(|u| crate::config::mqtt::parse_url(u).map_err(|e| format!("Sparkplug: {e}")))
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|u| {
+                let url = crate::config::mqtt::parse_url(u)?;
+                let transport =
+                    crate::config::tls::broker_transport("sparkplug", &url, &cfg.tls, secret, commands)?;
+                Ok((url.host, url.port, transport))
+            })
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(|e| format!("Sparkplug: {e}"))?;
         if brokers.is_empty() {
             return Err("Sparkplug: give at least one broker URL".into());
         }
@@ -135,10 +143,11 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
     let mut backoff = Duration::from_millis(250);
     let mut reported = false;
     loop {
-        let (host, port) = s.brokers[broker % s.brokers.len()].clone();
+        let (host, port, transport) = s.brokers[broker % s.brokers.len()].clone();
         let bd_seq = next_bd_seq(&gw, &key, &mut fallback).await;
         let mut opts = MqttOptions::new(s.client_id.clone(), host.clone(), port);
         opts.set_keep_alive(Duration::from_secs(15));
+        opts.set_transport(transport);
         opts.set_clean_session(true);
         let will = Node::ndeath(bd_seq, unix_ms()).encode_to_vec();
         opts.set_last_will(LastWill::new(death_topic.clone(), will, QoS::AtLeastOnce, false));
@@ -176,6 +185,7 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
                 Ok(_) => continue,
                 Err(e) => {
                     if !reported {
+                        let e = crate::config::tls::explain(&host, &e.to_string());
                         crate::log::warn(&format!("Sparkplug: broker {host}:{port}: {e}; retrying"));
                         reported = true;
                     }

@@ -125,3 +125,56 @@ async fn serve_says_why_a_broker_certificate_is_refused() {
         "{line}"
     );
 }
+
+const WRITE_TOKEN: &str = "[[token]]\nname = \"scada\"\ntoken = \"0123456789abcdef-w\"\nrole = \"write\"\n";
+
+/// `--http` on the command line opens the listener to the network: with a write token and no
+/// TLS, `serve` refuses to start and says what to do.
+#[test]
+fn serve_refuses_write_tokens_over_plain_http_off_loopback() {
+    let pki = TestPki::new("cli-plain", &["localhost"]);
+    let file = pki.dir.join("plant.toml");
+    std::fs::write(&file, format!("{WRITE_TOKEN}{BUS}")).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--no-opcua", "--no-store", "--config"])
+        .arg(&file)
+        .args(["--http", &format!("0.0.0.0:{}", free_port())])
+        .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("write tokens would cross the network in clear on http://0.0.0.0:"), "{err}");
+    assert!(err.contains("give [http] tls_cert and tls_key (HTTPS)"), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
+
+/// With `tls_cert` and `tls_key`, `serve` listens with HTTPS (and says so), a write token on
+/// every address allowed.
+#[test]
+fn serve_with_a_certificate_serves_https() {
+    let pki = TestPki::new("cli-https", &["localhost"]);
+    let file = pki.dir.join("plant.toml");
+    let port = free_port();
+    std::fs::write(
+        &file,
+        format!(
+            "[http]\nlisten = \"0.0.0.0:{port}\"\ntls_cert = \"{}\"\ntls_key = \"{}\"\n{WRITE_TOKEN}{BUS}",
+            TestPki::toml(&pki.server_cert),
+            TestPki::toml(&pki.server_key)
+        ),
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--no-opcua", "--no-store", "--config"])
+        .arg(&file)
+        .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let found = lines::wait_for_lines(&mut child, "drivebus serve", &["dashboard", "HTTP API"]);
+    let _child = Killed(child);
+    assert_eq!(found[0], format!("https://0.0.0.0:{port}/"));
+    assert_eq!(found[1], format!("https://0.0.0.0:{port}/api/drives"));
+}

@@ -229,8 +229,9 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
         });
         drivebus_gateway::server::run(gw.clone(), loader, |bound| {
             println!("drivebus serve: {} buses, {} drives", gw.buses().len(), gw.drives().len());
-            println!("  dashboard   http://{}/", bound.http);
-            println!("  HTTP API    http://{}/api/drives", bound.http);
+            let scheme = if gw.config().http.tls.is_some() { "https" } else { "http" };
+            println!("  dashboard   {scheme}://{}/", bound.http);
+            println!("  HTTP API    {scheme}://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
             if let Some(a) = bound.opcua {
                 println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");

@@ -66,6 +66,10 @@ pub(super) struct FileHttp {
     pub(super) max_body: Option<Spanned<usize>>,
     #[serde(default)]
     pub(super) hosts: Vec<Spanned<String>>,
+    pub(super) tls_cert: Option<Spanned<String>>,
+    pub(super) tls_key: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) allow_plaintext: bool,
 }
 
 /// `[modbus]` as written.

@@ -138,6 +138,7 @@ impl GatewayConfig {
         let http = http::check(&cx, &raw.http)?;
         let modbus = modbus::check(&cx, &raw.modbus)?;
         let tokens = token::check(&cx, &raw.token)?;
+        http::check_plaintext(&cx, &raw.http, &http, &tokens)?;
         let name = name::check(&cx, &raw.name)?;
         let buses = bus::check(&cx, &raw.bus)?;
         let linkage = linkage::check(&cx, &raw.linkage, &buses)?;

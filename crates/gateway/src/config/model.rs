@@ -69,6 +69,19 @@ pub struct HttpConfig {
     /// Names the gateway is reached by (`Host` header) besides its addresses and `localhost`;
     /// checked when `anonymous_read` is on (http/host.rs).
     pub hosts: Vec<String>,
+    /// HTTPS: the listener's certificate (chain) and private key, PEM (`tls_cert`, `tls_key`).
+    pub tls: Option<HttpTls>,
+    /// Serve write tokens over plain HTTP on an address other than loopback.
+    pub allow_plaintext: bool,
+}
+
+/// The certificate and key that make the HTTP listener HTTPS.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HttpTls {
+    /// PEM file of the certificate, or its chain (the server's first).
+    pub cert: PathBuf,
+    /// PEM file of its private key.
+    pub key: PathBuf,
 }
 
 /// The Modbus TCP listener.

@@ -431,3 +431,65 @@ fn broker_tls_keys_are_checked_with_their_files() {
     let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ncommands = true\n");
     assert!(e.contains("motor commands would cross the network to a in clear"), "{e}");
 }
+
+#[test]
+fn https_keys_are_checked_with_their_files() {
+    let pki = tls_support::TestPki::new("config-http", &["localhost"]);
+    let p = tls_support::TestPki::toml;
+    let good =
+        format!("[http]\ntls_cert = \"{}\"\ntls_key = \"{}\"\n", p(&pki.server_cert), p(&pki.server_key));
+    let c = GatewayConfig::from_toml("plant.toml", &good).unwrap();
+    let tls = c.http.tls.unwrap();
+    assert_eq!(
+        (tls.cert.as_path(), tls.key.as_path()),
+        (pki.server_cert.as_path(), pki.server_key.as_path())
+    );
+    for (text, want) in [
+        (
+            format!("[http]\ntls_cert = \"{}\"\ntls_key = \"{}\"\n", p(&pki.server_cert), p(&pki.client_key)),
+            format!(
+                "plant.toml:2: field `http.tls_cert`: tls_cert {} and tls_key {}: the key is not the certificate's",
+                p(&pki.server_cert),
+                p(&pki.client_key)
+            ),
+        ),
+        (
+            format!("[http]\ntls_cert = \"{}\"\ntls_key = \"/nonexistent/key.pem\"\n", p(&pki.server_cert)),
+            "plant.toml:3: field `http.tls_key`: tls_key /nonexistent/key.pem: cannot read it".to_string(),
+        ),
+        (
+            format!("[http]\ntls_cert = \"{}\"\ntls_key = \"{}\"\n", p(&pki.server_key), p(&pki.server_key)),
+            format!("plant.toml:2: field `http.tls_cert`: tls_cert {}: no certificate in it", p(&pki.server_key)),
+        ),
+        (
+            format!("[http]\ntls_cert = \"{}\"\n", p(&pki.server_cert)),
+            "plant.toml:2: field `http.tls_cert`: give tls_key too".to_string(),
+        ),
+    ] {
+        let e = err(&text);
+        assert!(e.starts_with(&want), "{e}\nwanted: {want}");
+        assert!(!e.contains('\n'), "one line: {e}");
+    }
+}
+
+#[test]
+fn write_tokens_over_plain_http_off_loopback_are_refused_unless_opted_out() {
+    let write = "[[token]]\nname = \"scada\"\ntoken = \"0123456789abcdef-w\"\nrole = \"write\"\n";
+    let read = "[[token]]\nname = \"view\"\ntoken = \"0123456789abcdef-r\"\nrole = \"read\"\n";
+    let e = err(&format!("[http]\nlisten = \"0.0.0.0:8080\"\n{write}"));
+    assert_eq!(
+        e,
+        "plant.toml:2: field `http.listen`: write tokens would cross the network in clear on \
+         http://0.0.0.0:8080: give [http] tls_cert and tls_key (HTTPS), listen on 127.0.0.1, or set \
+         [http] allow_plaintext = true to accept that"
+    );
+    for ok in [
+        format!("[http]\nlisten = \"0.0.0.0:8080\"\nallow_plaintext = true\n{write}"),
+        format!("[http]\nlisten = \"0.0.0.0:8080\"\n{read}"),
+        format!("[http]\nlisten = \"127.0.0.1:8080\"\n{write}"),
+        format!("[http]\nlisten = \"[::1]:8080\"\n{write}"),
+        write.to_string(),
+    ] {
+        assert!(GatewayConfig::from_toml("plant.toml", &ok).is_ok(), "{ok}");
+    }
+}

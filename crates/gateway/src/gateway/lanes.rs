@@ -92,7 +92,10 @@ impl Gateway {
         async move {
             handed?;
             rx.await.map_err(|_| {
-                CommandError::NoAnswer("the command stopped before its end (the gateway is stopping)".into())
+                CommandError::NoAnswer(
+                    "the command ended without a result (the gateway stopped, or failed on it: see its log)"
+                        .into(),
+                )
             })
         }
     }

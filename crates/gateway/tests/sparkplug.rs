@@ -142,3 +142,91 @@ async fn the_store_and_forward_queue_keeps_the_newest_within_its_limit() {
     assert!(times.iter().all(|t| *t >= newest[0].time_ms), "{times:?} {newest:?}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// 200 DCMDs (Run, Stop and a Setpoint in turn) published in one burst are carried out in the
+/// order published: the audit trail lists them so, and the drive ends stopped at the last
+/// setpoint. (Each DCMD used to start a task of its own, which could reach the drive in any order.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_dcmds_is_carried_out_in_the_order_published() {
+    use prost::Message;
+
+    let broker = rumqttd().await;
+    let dir = std::env::temp_dir().join(format!("drivebus-sparkplug-order-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("order.db");
+    let _ = std::fs::remove_file(&db);
+    let store = drivebus_store::Store::open(&db).unwrap();
+    let gw = Gateway::start(config("hall-o", &bus("line-1", &[("d1", 1)])), Some(store.clone())).unwrap();
+    let sub = Subscriber::start(broker, "host", "spBv1.0/#").await;
+    let mut sp = sparkplug(broker);
+    sp.commands = true;
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sp).unwrap();
+    sub.wait("d1 born", |log| {
+        log.iter().any(|m| kind(m, "hall-o") == Some(("DBIRTH", Some("d1")))).then_some(())
+    })
+    .await;
+
+    let metric = |name: &str, datatype: payload::DataType, value: payload::Value| payload::Metric {
+        name: Some(name.to_string()),
+        datatype: Some(datatype as u32),
+        value: Some(value),
+        ..Default::default()
+    };
+    let mut want = Vec::new();
+    for i in 0..200u32 {
+        let (m, action) = match i % 3 {
+            0 => (
+                metric("Command/Run", payload::DataType::Boolean, payload::Value::Boolean(true)),
+                "run".into(),
+            ),
+            1 => (
+                metric("Command/Stop", payload::DataType::Boolean, payload::Value::Boolean(true)),
+                "stop".into(),
+            ),
+            _ => {
+                let hz = f64::from(i) / 4.0;
+                let m = metric("Setpoint", payload::DataType::Double, payload::Value::Double(hz));
+                (m, Command::Speed(hz).action())
+            }
+        };
+        want.push(action);
+        let p = Payload { timestamp: Some(1), metrics: vec![m], seq: Some(0), ..Default::default() };
+        sub.client
+            .publish("spBv1.0/drivebus/DCMD/hall-o/d1", rumqttc::QoS::AtLeastOnce, false, p.encode_to_vec())
+            .await
+            .unwrap();
+    }
+    assert_eq!(want.last().map(String::as_str), Some("stop"));
+
+    let filter = drivebus_store::EventFilter {
+        drive: Some("d1".into()),
+        kind: Some(drivebus_store::EventKind::Command),
+        ..Default::default()
+    };
+    let start = std::time::Instant::now();
+    let done = loop {
+        let events = store.events(&filter).unwrap();
+        let done: Vec<_> =
+            events.iter().filter(|e| e.result.as_deref() != Some(drivebus_store::PENDING)).collect();
+        if done.len() >= want.len() {
+            break events;
+        }
+        assert!(start.elapsed() < PATIENCE * 2, "{} of {} carried out", done.len(), want.len());
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    };
+    let audited: Vec<&str> = done.iter().map(|e| e.action.as_deref().unwrap()).collect();
+    assert_eq!(audited, want);
+    for e in &done {
+        assert_eq!(e.actor.as_deref(), Some("sparkplug:drivebus/hall-o"), "{e:?}");
+        assert_eq!(e.result.as_deref(), Some("ok"), "{e:?}");
+    }
+    // The drive ends stopped, at the last setpoint commanded.
+    let d = gw.drive("d1").unwrap();
+    let start = std::time::Instant::now();
+    while gw.drive_view(&d).running != Some(false) {
+        assert!(start.elapsed() < PATIENCE, "{:?}", gw.drive_view(&d));
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert_eq!(gw.drive_view(&d).setpoint_hz, Some(f64::from(197u32) / 4.0));
+    let _ = std::fs::remove_dir_all(&dir);
+}

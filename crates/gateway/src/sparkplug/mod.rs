@@ -52,7 +52,8 @@ pub fn drain_pause(n: usize, rate: u64) -> Duration {
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(250);
 
 struct Settings {
-    brokers: Vec<(String, u16)>,
+    /// Host, port, and plain TCP or TLS (`mqtts://`).
+    brokers: Vec<(String, u16, rumqttc::Transport)>,
     group: String,
     edge: String,
     primary: Option<String>,
@@ -66,11 +67,18 @@ struct Settings {
 
 impl Settings {
     fn new(gw: &Gateway, cfg: &SparkplugConfig) -> Result<Settings, String> {
+        let (secret, commands) = (cfg.credentials.is_some(), cfg.commands);
         let brokers = cfg
             .urls
             .iter()
-            .map(|u| crate::config::mqtt::parse_url(u).map_err(|e| format!("Sparkplug: {e}")))
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|u| {
+                let url = crate::config::mqtt::parse_url(u)?;
+                let transport =
+                    crate::config::tls::broker_transport("sparkplug", &url, &cfg.tls, secret, commands)?;
+                Ok((url.host, url.port, transport))
+            })
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(|e| format!("Sparkplug: {e}"))?;
         if brokers.is_empty() {
             return Err("Sparkplug: give at least one broker URL".into());
         }
@@ -135,10 +143,11 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
     let mut backoff = Duration::from_millis(250);
     let mut reported = false;
     loop {
-        let (host, port) = s.brokers[broker % s.brokers.len()].clone();
+        let (host, port, transport) = s.brokers[broker % s.brokers.len()].clone();
         let bd_seq = next_bd_seq(&gw, &key, &mut fallback).await;
         let mut opts = MqttOptions::new(s.client_id.clone(), host.clone(), port);
         opts.set_keep_alive(Duration::from_secs(15));
+        opts.set_transport(transport);
         opts.set_clean_session(true);
         let will = Node::ndeath(bd_seq, unix_ms()).encode_to_vec();
         opts.set_last_will(LastWill::new(death_topic.clone(), will, QoS::AtLeastOnce, false));
@@ -176,6 +185,7 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
                 Ok(_) => continue,
                 Err(e) => {
                     if !reported {
+                        let e = crate::config::tls::explain(&host, &e.to_string());
                         crate::log::warn(&format!("Sparkplug: broker {host}:{port}: {e}; retrying"));
                         reported = true;
                     }
@@ -532,24 +542,32 @@ impl EdgeNode {
             Ok(c) => c,
             Err(r) => return self.refused(Some(&device), r),
         };
-        let (gw, actor, written) = (self.gw.clone(), self.actor.clone(), self.written.clone());
-        tokio::spawn(async move {
-            for c in cmds {
+        // Handed to the drive's lane here, in the order the DCMDs came, before any task runs:
+        // the commands are carried out in that order whatever the tasks' order.
+        let handed: Vec<_> = cmds
+            .into_iter()
+            .map(|c| {
                 let param = match &c {
                     Command::SetParam { name, value, .. } => {
                         value.parse::<f64>().ok().map(|v| (name.clone(), v))
                     }
                     _ => None,
                 };
-                match gw.command(&device, c.clone(), &actor).await {
+                let action = c.action();
+                (param, action, self.gw.command(&device, c, &self.actor))
+            })
+            .collect();
+        let written = self.written.clone();
+        tokio::spawn(async move {
+            for (param, action, done) in handed {
+                match done.await {
                     Ok(()) => {
                         if let Some((name, v)) = param {
                             let _ = written.send((device.clone(), name, v)).await;
                         }
                     }
                     Err(e) => crate::log::warn(&format!(
-                        "Sparkplug: DCMD {} for {device:?} failed: {}: {e}",
-                        c.action(),
+                        "Sparkplug: DCMD {action} for {device:?} failed: {}: {e}",
                         e.kind()
                     )),
                 }

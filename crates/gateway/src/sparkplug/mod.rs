@@ -197,10 +197,8 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
                 return;
             }
         }
-        if connected {
-            if tx.send(FromBroker::Lost).await.is_err() {
-                return;
-            }
+        if connected && tx.send(FromBroker::Lost).await.is_err() {
+            return;
         }
         if left || !connected {
             broker += 1;

@@ -3,13 +3,12 @@
 //! ([`super::run`]) feeds it what happens and does the [`Step`] it returns.
 //!
 //! ```text
-//!                connected (no primary host): Birth
-//!  Disconnected ───────────────────────────────────► Connected ──STATE online──► Birth
-//!       ▲  ▲            connected (primary host)        │                          │
-//!       │  └─────────────── lost ───────────────────────┘                 born(kept data?)
-//!       │                                                                          ▼
-//!       │           lost                       STATE offline (Leave)   Publishing ◄──► Draining
-//!       └──────────── Leaving ◄──────────────────────────────────────── (rebirth: Birth)
+//! Disconnected         --connected-->       Connected (Birth at once without a primary host)
+//! Connected            --STATE online-->    Birth, then born(kept data?): Publishing or Draining
+//! Draining             --queue empty-->     Publishing
+//! Publishing, Draining --rebirth-->         Birth
+//! Publishing, Draining --STATE offline-->   Leaving (Leave: NDEATH, DISCONNECT)
+//! any                  --lost-->            Disconnected (the next session: the next bdSeq)
 //! ```
 //!
 //! With a primary host, the node births only after a STATE of that host saying online in this

@@ -857,6 +857,8 @@ fn evaluate(run: &Run) -> Verdicts {
     let mut last_value: HashMap<(usize, u64), Option<Value>> = HashMap::new();
     // After each NBIRTH: whether a data message came yet.
     let mut data_since_nbirth: HashMap<usize, bool> = HashMap::new();
+    // Devices that had a DDEATH in the connection: born again later, as a drive back online is.
+    let mut died: HashMap<usize, BTreeSet<String>> = HashMap::new();
     let mut first_pub: BTreeSet<usize> = BTreeSet::new();
     for p in &pubs {
         let k = p.kind.as_str();
@@ -974,6 +976,10 @@ fn evaluate(run: &Run) -> Verdicts {
                     levels == 5 && p.topic.starts_with(&format!("spBv1.0/{GROUP}/DDEATH/{EDGE}/")),
                     || p.topic.clone(),
                 );
+                if let Some(d) = &p.device {
+                    born_devices.entry(p.conn).or_default().remove(d);
+                    died.entry(p.conn).or_default().insert(d.clone());
+                }
             }
             "NDEATH" => {
                 v.check(&["topics-ndeath-topic"], p.topic == node_topic("NDEATH"), || p.topic.clone());
@@ -1128,9 +1134,10 @@ fn evaluate(run: &Run) -> Verdicts {
                     if let Some(d) = &dev {
                         born_devices.entry(p.conn).or_default().insert(d.clone());
                     }
+                    let back = dev.as_ref().is_some_and(|d| died.get(&p.conn).is_some_and(|x| x.contains(d)));
                     v.check(
                         &["payloads-dbirth-order"],
-                        data_since_nbirth.get(&p.conn) == Some(&false),
+                        data_since_nbirth.get(&p.conn) == Some(&false) || back,
                         || format!("{} after data", p.topic),
                     );
                 }

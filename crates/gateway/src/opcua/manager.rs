@@ -1,5 +1,6 @@
-//! The node manager of `urn:drivebus`: reads of cache variables come from the address space
-//! (kept current by [`super::publish`]), reads of parameters go to the drive, writes and method
+//! The node manager of `urn:drivebus`: reads of a drive's variables come from the cache (values
+//! and status as [`super::publish`] puts them in the address space, the source timestamp of the
+//! poll that last confirmed them), reads of parameters go to the drive, writes and method
 //! calls become gateway commands, answered when the drive confirmed, with a status code that
 //! says why not.
 
@@ -12,10 +13,11 @@ use opcua::server::node_manager::memory::InMemoryNodeManagerImpl;
 use opcua::server::node_manager::{MethodCall, ParsedReadValueId, RequestContext, ServerContext, WriteNode};
 use opcua::sync::RwLock;
 use opcua::types::{
-    AttributeId, DataValue, DateTime, DiagnosticInfo, StatusCode, TimestampsToReturn, UAString, Variant,
+    AttributeId, DataValue, DateTime, DiagnosticInfo, NumericRange, StatusCode, TimestampsToReturn, UAString,
+    Variant,
 };
 
-use super::nodes::{Ids, Target};
+use super::nodes::{Ids, Target, DRIVE_VARIABLES};
 use crate::config::Role;
 use crate::gateway::{Command, CommandError, Gateway};
 
@@ -92,6 +94,17 @@ fn may_write(gw: &Gateway, context: &RequestContext) -> Result<(), (StatusCode, 
     }
 }
 
+/// `dv` with the timestamps a read asked for.
+fn only(mut dv: DataValue, timestamps: TimestampsToReturn) -> DataValue {
+    if matches!(timestamps, TimestampsToReturn::Server | TimestampsToReturn::Neither) {
+        (dv.source_timestamp, dv.source_picoseconds) = (None, None);
+    }
+    if matches!(timestamps, TimestampsToReturn::Source | TimestampsToReturn::Neither) {
+        (dv.server_timestamp, dv.server_picoseconds) = (None, None);
+    }
+    dv
+}
+
 /// A Double from a written or passed value; `BadTypeMismatch` for any other type.
 fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
     match v {
@@ -141,6 +154,15 @@ impl DriveNodes {
             }
         }
         true
+    }
+
+    /// Variable `variable` of `drive` from the cache, now.
+    fn cached(&self, drive: &str, variable: &str) -> Option<DataValue> {
+        let d = self.gw.drive(drive).ok()?;
+        let i = DRIVE_VARIABLES.iter().position(|def| def.name == variable)?;
+        let v = self.gw.drive_view(&d);
+        let bus_online = super::bus_online(&self.gw, &v.bus);
+        super::drive_values(&v, bus_online, DateTime::now()).into_iter().nth(i)
     }
 
     async fn read_parameter(&self, drive: &str, name: &str, client: &str) -> DataValue {
@@ -205,15 +227,28 @@ impl InMemoryNodeManagerImpl for DriveNodes {
     ) -> Vec<DataValue> {
         let mut out = Vec::with_capacity(nodes.len());
         for n in nodes {
-            let param = match (&n.attribute_id, self.ids.target(&n.node_id)) {
-                (AttributeId::Value, Target::Parameter { drive, name }) => Some((drive, name)),
-                _ => None,
-            };
-            match param {
+            let value = n.attribute_id == AttributeId::Value;
+            match self.ids.target(&n.node_id) {
                 // A parameter is read from the drive when it is read: never a stale value.
                 // The reads of a session's client wait in one queue on the bus.
-                Some((drive, name)) => out.push(self.read_parameter(&drive, &name, &actor(context)).await),
-                None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
+                Target::Parameter { drive, name } if value => {
+                    out.push(self.read_parameter(&drive, &name, &actor(context)).await)
+                }
+                // A drive's variable as the cache has it now: the source timestamp of the poll
+                // that last confirmed it (the address space keeps the one that last changed it).
+                Target::DriveVariable { drive, variable }
+                    if value
+                        && matches!(n.index_range, NumericRange::None)
+                        && address_space.read().find(&n.node_id).is_some() =>
+                {
+                    match self.cached(&drive, &variable) {
+                        Some(dv) => out.push(only(dv, timestamps_to_return)),
+                        None => {
+                            out.push(address_space.read().read(context, n, max_age, timestamps_to_return))
+                        }
+                    }
+                }
+                _ => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
             }
         }
         out

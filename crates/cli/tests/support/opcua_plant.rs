@@ -51,13 +51,16 @@ impl Plant {
         let sim = Killed(sim);
         let control = format!("http://{}", at[1].trim_end_matches("/drives"));
 
+        // The demo's buses and drives, with the store (and so the server's pki) in `dir`.
         let demo =
             std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../gateway/src/demo.toml"))
-                .unwrap()
-                .replace(
-                    "path = \"drivebus-demo.db\"",
-                    &format!("path = \"{}\"", dir.join("store.db").display()),
-                );
+                .unwrap();
+        let store = format!("path = \"{}\"", dir.join("store.db").display());
+        let demo = if demo.contains("path = \"drivebus-demo.db\"") {
+            demo.replace("path = \"drivebus-demo.db\"", &store)
+        } else {
+            format!("{demo}\n[store]\n{store}\n")
+        };
         let config = format!(
             "{demo}\n[[token]]\nname = \"demo\"\ntoken = \"{TOKEN}\"\nrole = \"write\"\n\
              [opcua]\ntrusted_clients = [\"{}\"]\n\

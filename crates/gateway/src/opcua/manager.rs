@@ -13,11 +13,10 @@ use opcua::server::node_manager::memory::InMemoryNodeManagerImpl;
 use opcua::server::node_manager::{MethodCall, ParsedReadValueId, RequestContext, ServerContext, WriteNode};
 use opcua::sync::RwLock;
 use opcua::types::{
-    AttributeId, DataValue, DateTime, DiagnosticInfo, NumericRange, StatusCode, TimestampsToReturn, UAString,
-    Variant,
+    AttributeId, DataValue, DateTime, DiagnosticInfo, StatusCode, TimestampsToReturn, UAString, Variant,
 };
 
-use super::nodes::{Ids, Target, DRIVE_VARIABLES};
+use super::nodes::{Ids, Target};
 use crate::config::Role;
 use crate::gateway::{Command, CommandError, Gateway};
 
@@ -94,6 +93,15 @@ fn may_write(gw: &Gateway, context: &RequestContext) -> Result<(), (StatusCode, 
     }
 }
 
+/// A Double from a written or passed value; `BadTypeMismatch` for any other type.
+fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
+    match v {
+        Some(Variant::Double(x)) => Ok(*x),
+        Some(Variant::Float(x)) => Ok(f64::from(*x)),
+        _ => Err(StatusCode::BadTypeMismatch),
+    }
+}
+
 /// `dv` with the timestamps a read asked for.
 fn only(mut dv: DataValue, timestamps: TimestampsToReturn) -> DataValue {
     if matches!(timestamps, TimestampsToReturn::Server | TimestampsToReturn::Neither) {
@@ -103,15 +111,6 @@ fn only(mut dv: DataValue, timestamps: TimestampsToReturn) -> DataValue {
         (dv.server_timestamp, dv.server_picoseconds) = (None, None);
     }
     dv
-}
-
-/// A Double from a written or passed value; `BadTypeMismatch` for any other type.
-fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
-    match v {
-        Some(Variant::Double(x)) => Ok(*x),
-        Some(Variant::Float(x)) => Ok(f64::from(*x)),
-        _ => Err(StatusCode::BadTypeMismatch),
-    }
 }
 
 impl DriveNodes {
@@ -159,10 +158,34 @@ impl DriveNodes {
     /// Variable `variable` of `drive` from the cache, now.
     fn cached(&self, drive: &str, variable: &str) -> Option<DataValue> {
         let d = self.gw.drive(drive).ok()?;
-        let i = DRIVE_VARIABLES.iter().position(|def| def.name == variable)?;
+        let i = super::nodes::DRIVE_VARIABLES.iter().position(|def| def.name == variable)?;
         let v = self.gw.drive_view(&d);
         let bus_online = super::bus_online(&self.gw, &v.bus);
         super::drive_values(&v, bus_online, DateTime::now()).into_iter().nth(i)
+    }
+
+    /// Replaces the values read from the address space of the drives' variables in `nodes` with
+    /// the cache's, now: the same value and status, with the source timestamp of the poll that
+    /// last confirmed them (the address space keeps the one that last changed them).
+    fn fill_from_cache(
+        &self,
+        address_space: &RwLock<AddressSpace>,
+        nodes: &[&ParsedReadValueId],
+        out: &mut [DataValue],
+        timestamps: TimestampsToReturn,
+    ) {
+        for (n, dv) in nodes.iter().zip(out.iter_mut()) {
+            let Target::DriveVariable { drive, variable } = self.ids.target(&n.node_id) else {
+                continue;
+            };
+            let whole_value = n.attribute_id == AttributeId::Value
+                && matches!(n.index_range, opcua::types::NumericRange::None);
+            if whole_value && address_space.read().find(&n.node_id).is_some() {
+                if let Some(cached) = self.cached(&drive, &variable) {
+                    *dv = only(cached, timestamps);
+                }
+            }
+        }
     }
 
     async fn read_parameter(&self, drive: &str, name: &str, client: &str) -> DataValue {
@@ -227,30 +250,18 @@ impl InMemoryNodeManagerImpl for DriveNodes {
     ) -> Vec<DataValue> {
         let mut out = Vec::with_capacity(nodes.len());
         for n in nodes {
-            let value = n.attribute_id == AttributeId::Value;
-            match self.ids.target(&n.node_id) {
+            let param = match (&n.attribute_id, self.ids.target(&n.node_id)) {
+                (AttributeId::Value, Target::Parameter { drive, name }) => Some((drive, name)),
+                _ => None,
+            };
+            match param {
                 // A parameter is read from the drive when it is read: never a stale value.
                 // The reads of a session's client wait in one queue on the bus.
-                Target::Parameter { drive, name } if value => {
-                    out.push(self.read_parameter(&drive, &name, &actor(context)).await)
-                }
-                // A drive's variable as the cache has it now: the source timestamp of the poll
-                // that last confirmed it (the address space keeps the one that last changed it).
-                Target::DriveVariable { drive, variable }
-                    if value
-                        && matches!(n.index_range, NumericRange::None)
-                        && address_space.read().find(&n.node_id).is_some() =>
-                {
-                    match self.cached(&drive, &variable) {
-                        Some(dv) => out.push(only(dv, timestamps_to_return)),
-                        None => {
-                            out.push(address_space.read().read(context, n, max_age, timestamps_to_return))
-                        }
-                    }
-                }
-                _ => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
+                Some((drive, name)) => out.push(self.read_parameter(&drive, &name, &actor(context)).await),
+                None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
             }
         }
+        self.fill_from_cache(address_space, nodes, &mut out, timestamps_to_return);
         out
     }
 

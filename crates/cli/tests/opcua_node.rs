@@ -40,7 +40,7 @@ fn run_script(args: &[&std::ffi::OsStr]) -> std::process::Output {
 #[test]
 #[ignore = "needs node-opcua (.ci/install-witnesses.sh)"]
 fn node_opcua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {
-    if !witness("node-opcua", node_opcua_here(), "Node.js and npm ci in tests/interop/node") {
+    if !witness("node-opcua", node_opcua_here(), "Node.js, then npm ci in tests/interop/node") {
         return;
     }
     let dir = std::env::temp_dir().join(format!("drivebus-opcua-node-{}", std::process::id()));

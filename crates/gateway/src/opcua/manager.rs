@@ -155,18 +155,19 @@ impl DriveNodes {
         true
     }
 
-    /// Variable `variable` of `drive` from the cache, now.
-    fn cached(&self, drive: &str, variable: &str) -> Option<DataValue> {
+    /// Drive `drive`'s variables from the cache, now, in [`super::nodes::DRIVE_VARIABLES`] order.
+    fn cached(&self, drive: &str) -> Option<Vec<DataValue>> {
         let d = self.gw.drive(drive).ok()?;
-        let i = super::nodes::DRIVE_VARIABLES.iter().position(|def| def.name == variable)?;
         let v = self.gw.drive_view(&d);
         let bus_online = super::bus_online(&self.gw, &v.bus);
-        super::drive_values(&v, bus_online, DateTime::now()).into_iter().nth(i)
+        Some(super::drive_values(&v, bus_online, DateTime::now()))
     }
 
     /// Replaces the values read from the address space of the drives' variables in `nodes` with
     /// the cache's, now: the same value and status, with the source timestamp of the poll that
-    /// last confirmed them (the address space keeps the one that last changed them).
+    /// last confirmed them (the address space keeps the one that last changed them). The
+    /// variables of one drive in one Read come from one look at the cache, so they agree
+    /// (`AgeMs` with the others' source timestamp).
     fn fill_from_cache(
         &self,
         address_space: &RwLock<AddressSpace>,
@@ -174,16 +175,22 @@ impl DriveNodes {
         out: &mut [DataValue],
         timestamps: TimestampsToReturn,
     ) {
+        let mut drives: std::collections::HashMap<String, Option<Vec<DataValue>>> = Default::default();
         for (n, dv) in nodes.iter().zip(out.iter_mut()) {
             let Target::DriveVariable { drive, variable } = self.ids.target(&n.node_id) else {
                 continue;
             };
             let whole_value = n.attribute_id == AttributeId::Value
                 && matches!(n.index_range, opcua::types::NumericRange::None);
-            if whole_value && address_space.read().find(&n.node_id).is_some() {
-                if let Some(cached) = self.cached(&drive, &variable) {
-                    *dv = only(cached, timestamps);
-                }
+            if !whole_value || address_space.read().find(&n.node_id).is_none() {
+                continue;
+            }
+            let Some(i) = super::nodes::DRIVE_VARIABLES.iter().position(|def| def.name == variable) else {
+                continue;
+            };
+            let values = drives.entry(drive).or_insert_with_key(|drive| self.cached(drive));
+            if let Some(cached) = values.as_ref().and_then(|values| values.get(i)) {
+                *dv = only(cached.clone(), timestamps);
             }
         }
     }

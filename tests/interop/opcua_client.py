@@ -12,15 +12,26 @@
         TRIPPED  a drive on a `drivebus simulate` process, tripped here through CONTROL
         CONTROL  http://HOST:PORT of that simulator's control interface
 
+    opcua_client.py trust URL WRITE_TOKEN READ_TOKEN CERTDIR MAX_SESSIONS HOST
+        URL          opc.tcp://127.0.0.1:PORT of a gateway with drive pump-1, users ops-w (write,
+                     WRITE_TOKEN) and ops-r (read, READ_TOKEN), anonymous reads on, the client
+                     certificate of CERTDIR trusted, [opcua] max_sessions_per_user = MAX_SESSIONS
+        HOST         the host its endpoint URLs must name
+        Checks: passwords never sent in clear (every endpoint's user name policy names
+        Basic256Sha256), writes and calls refused over None, authorization before the type
+        check, writes over Sign and SignAndEncrypt, sessions per user capped.
+
 Prints one line per check and exits 0 when every check passed, 1 otherwise.
 """
 
 import asyncio
 import json
+import logging
 import sys
 import time
 import urllib.request
 from pathlib import Path
+from urllib.parse import urlparse
 
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
@@ -204,9 +215,131 @@ async def check(url, token, drives, offline, tripped, control, certdir):
     say("ALL OK")
 
 
+class PlainText(logging.Handler):
+    """Catches asyncua's warning that it sends a password in clear."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.seen = []
+
+    def emit(self, record):
+        if "plain-text" in record.getMessage():
+            self.seen.append(record.getMessage())
+
+
+async def trust(url, write_token, read_token, certdir, max_sessions, host):
+    max_sessions = int(max_sessions)
+    plain = PlainText()
+    logging.getLogger("asyncua.client.client").addHandler(plain)
+    b256 = SecurityPolicyBasic256Sha256.URI
+
+    c = Client(url)
+    endpoints = await c.connect_and_get_server_endpoints()
+    assert len(endpoints) == 3, f"{len(endpoints)} endpoints"
+    for ep in endpoints:
+        assert urlparse(ep.EndpointUrl).hostname == host, f"endpoint URL {ep.EndpointUrl}, expected host {host}"
+        users = [p for p in ep.UserIdentityTokens if p.TokenType == ua.UserTokenType.UserName]
+        assert users and all(p.SecurityPolicyUri == b256 for p in users), \
+            f"{ep.SecurityPolicyUri} {ep.SecurityMode}: user name policies {users}"
+    say(f"endpoints: all 3 at host {host}, passwords encrypted with Basic256Sha256 on each, None included")
+
+    async def secure(mode, user, token):
+        c = Client(url)
+        await c.set_security(SecurityPolicyBasic256Sha256, str(Path(certdir) / "client.der"),
+                             str(Path(certdir) / "client.pem"), mode=mode)
+        c.application_uri = "urn:drivebus:test:client"
+        c.set_user(user)
+        c.set_password(token)
+        return c
+
+    double = ua.DataValue(ua.Variant(30.0, ua.VariantType.Double))
+    int32 = ua.DataValue(ua.Variant(30, ua.VariantType.Int32))
+
+    # The writer over None: logs in (its password encrypted), but may not write nor call.
+    c = Client(url)
+    c.set_user("ops-w")
+    c.set_password(write_token)
+    async with c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        pump = node(c, ns, "Drives/pump-1")
+        setpoint = node(c, ns, "Drives/pump-1/Setpoint")
+        for what, call in [("Setpoint 30.0", setpoint.write_value(double)),
+                           ("SetSpeed 30.0", pump.call_method(f"{ns}:SetSpeed", ua.Variant(30.0, ua.VariantType.Double))),
+                           ("Run", pump.call_method(f"{ns}:Run"))]:
+            code = await status_of(call)
+            assert code == "BadSecurityModeInsufficient", f"{what} over None: {code}"
+    assert not plain.seen, f"asyncua sent a password in clear: {plain.seen}"
+    say("None: login as ops-w without a plain-text password; Setpoint, SetSpeed, Run refused BadSecurityModeInsufficient")
+
+    # Anonymous and read role: refused before the value's type is looked at.
+    async with Client(url) as c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        code = await status_of(node(c, ns, "Drives/pump-1/Setpoint").write_value(int32))
+        assert code == "BadUserAccessDenied", f"anonymous Int32 to Setpoint: {code}"
+        code = await status_of(node(c, ns, "Drives/pump-1").call_method(
+            f"{ns}:SetSpeed", ua.Variant("fast", ua.VariantType.String)))
+        assert code == "BadUserAccessDenied", f"anonymous SetSpeed(String): {code}"
+    async with await secure(ua.MessageSecurityMode.SignAndEncrypt, "ops-r", read_token) as c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        code = await status_of(node(c, ns, "Drives/pump-1/Setpoint").write_value(int32))
+        assert code == "BadUserAccessDenied", f"ops-r Int32 to Setpoint: {code}"
+    say("authorization first: anonymous and ops-r writes of the wrong type BadUserAccessDenied")
+
+    # The writer over Sign and over SignAndEncrypt.
+    for mode in (ua.MessageSecurityMode.Sign, ua.MessageSecurityMode.SignAndEncrypt):
+        async with await secure(mode, "ops-w", write_token) as c:
+            ns = await c.get_namespace_index("urn:drivebus")
+            setpoint = node(c, ns, "Drives/pump-1/Setpoint")
+            code = await status_of(setpoint.write_value(int32))
+            assert code == "BadTypeMismatch", f"ops-w Int32 to Setpoint over {mode.name}: {code}"
+            code = await status_of(setpoint.write_value(double))
+            assert code == "Good", f"ops-w Setpoint 30.0 over {mode.name}: {code}"
+    say("Sign and SignAndEncrypt: ops-w writes Setpoint (Good), Int32 BadTypeMismatch")
+
+    # Sessions per user (each reads a drive's value, as a client does).
+    opened = []
+    for _ in range(max_sessions):
+        c = Client(url)
+        c.set_user("ops-r")
+        c.set_password(read_token)
+        await c.connect()
+        ns = await c.get_namespace_index("urn:drivebus")
+        await node(c, ns, "Drives/pump-1/Online").read_value()
+        opened.append(c)
+    extra = Client(url)
+    extra.set_user("ops-r")
+    extra.set_password(read_token)
+    try:
+        await extra.connect()
+        await extra.disconnect()
+        raise AssertionError(f"session {max_sessions + 1} of ops-r was accepted")
+    except ua.UaStatusCodeError as e:
+        code = ua.StatusCode(e.code).name
+        assert code == "BadTooManySessions", f"session {max_sessions + 1} of ops-r: {code}"
+    async with Client(url) as c:
+        await c.get_namespace_index("urn:drivebus")
+    await opened.pop().disconnect()
+    again = Client(url)
+    again.set_user("ops-r")
+    again.set_password(read_token)
+    async with again:
+        await again.get_namespace_index("urn:drivebus")
+    for c in opened:
+        await c.disconnect()
+    say(f"sessions: ops-r holds {max_sessions}, the next is BadTooManySessions, another user is not "
+        "counted, a closed one frees its place")
+    say("ALL OK")
+
+
 def main():
     if len(sys.argv) >= 3 and sys.argv[1] == "mkcert":
         asyncio.run(mkcert(sys.argv[2]))
+    elif len(sys.argv) == 8 and sys.argv[1] == "trust":
+        try:
+            asyncio.run(trust(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
     elif len(sys.argv) == 9 and sys.argv[1] == "check":
         try:
             asyncio.run(check(*sys.argv[2:]))

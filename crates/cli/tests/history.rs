@@ -313,22 +313,33 @@ fn events_to_a_reader_that_stops_early_end_without_a_panic() {
     assert!(first.contains("TIME"), "{first}");
 }
 
-/// In the folder where `drivebus serve --demo` ran (its store is drivebus-demo.db), the
-/// README's `events` and `trend` lines find the demo's store without --db.
+/// `drivebus serve --demo` keeps its store, drivebus-demo.db, in the state folder
+/// ($XDG_STATE_HOME/drivebus here): the README's `events` and `trend` lines find it without --db.
 #[test]
 fn events_and_trend_find_the_demos_store() {
     let dir = tempfile::tempdir().unwrap();
-    fixture_named(dir.path(), "drivebus-demo.db");
-    let r = run_in(dir.path(), &["events", "--since", "0", "--kind", "trip"]);
+    let state = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(state.path().join("drivebus")).unwrap();
+    fixture_named(&state.path().join("drivebus"), "drivebus-demo.db");
+    let run = |args: &[&str]| {
+        output(
+            Command::new(env!("CARGO_BIN_EXE_drivebus"))
+                .current_dir(dir.path())
+                .env("XDG_STATE_HOME", state.path())
+                .env_remove("STATE_DIRECTORY")
+                .args(args),
+        )
+    };
+    let r = run(&["events", "--since", "0", "--kind", "trip"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert!(r.stdout.contains("fan-2") && r.stdout.contains("trip"), "{}", r.stdout);
     let since = t0().to_string();
-    let r = run_in(dir.path(), &["trend", "--drive", "pump-1", "--since", &since]);
+    let r = run(&["trend", "--drive", "pump-1", "--since", &since]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert!(r.stdout.lines().count() > 100, "{}", r.stdout);
     // A drivebus.db of its own (empty here) is read first.
     drop(Store::open(&dir.path().join("drivebus.db")).unwrap());
-    let r = run_in(dir.path(), &["events"]);
+    let r = run(&["events"]);
     assert_eq!(r.code, 0, "{}", r.stderr);
     assert!(r.stderr.contains("no events match in drivebus.db"), "{}", r.stderr);
 }

@@ -55,13 +55,10 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
     let demo =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../gateway/src/demo.toml"))
             .unwrap()
-            .replace(
-                "path = \"drivebus-demo.db\"",
-                &format!("path = \"{}\"", dir.join("store.db").display()),
-            );
+            + &format!("[store]\npath = \"{}\"\n", dir.join("store.db").display());
     let config = format!(
         "{demo}\n[[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
-         [opcua]\ntrusted_clients = [\"{}\"]\n\
+         [opcua]\ntrusted_clients = [\"{}\"]\ninsecure_writes = true\n\
          [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
          [[bus.drive]]\nname = \"press-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n\
          [[bus]]\nname = \"line-b\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
@@ -127,4 +124,98 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
         "the refused anonymous call: {actors:?}"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// What a plant's integrator checks before trusting the server, with asyncua: the endpoints
+/// advertise the machine's name (the gateway listens on every address) and encrypt passwords on
+/// every endpoint (None included: asyncua sends none in clear); writes and calls are refused
+/// over None and taken over Sign and SignAndEncrypt; anonymous and read-role writes are refused
+/// before their value's type is looked at; a user's sessions are capped. Every refusal is in the
+/// audit trail.
+#[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
+fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out =
+        Command::new("python3").arg(script()).arg("mkcert").arg(dir.path().join("client")).output().unwrap();
+    assert!(out.status.success(), "mkcert: {}", String::from_utf8_lossy(&out.stderr));
+    let (write, read) = ("opcua-trust-write-0123456789", "opcua-trust-read-0123456789");
+    let config = format!(
+        "[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
+         [[token]]\nname = \"ops-w\"\ntoken = \"{write}\"\nrole = \"write\"\n\
+         [[token]]\nname = \"ops-r\"\ntoken = \"{read}\"\nrole = \"read\"\n\
+         [opcua]\ntrusted_clients = [\"{}\"]\nmax_sessions_per_user = 3\n\
+         [[bus]]\nname = \"line-1\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n\
+         [[bus.drive]]\nname = \"pump-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
+        dir.path().join("store.db").display(),
+        dir.path().join("client/client.der").display(),
+    );
+    let file = dir.path().join("plant.toml");
+    std::fs::write(&file, config).unwrap();
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args([
+            "serve",
+            "--http",
+            "127.0.0.1:0",
+            "--modbus",
+            "127.0.0.1:0",
+            "--opcua",
+            "0.0.0.0:0",
+            "--config",
+        ])
+        .arg(&file)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
+    let _serve = Killed(serve);
+    let http: std::net::SocketAddr =
+        at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
+    // Listening on every address, it advertises the machine's name, never 0.0.0.0.
+    let url = at[1].split_whitespace().next().unwrap().to_string();
+    let (host, port) = url.trim_start_matches("opc.tcp://").rsplit_once(':').unwrap();
+    let machine = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap();
+    assert_eq!(host, machine.trim(), "{url}");
+
+    let out = Command::new("python3")
+        .arg(script())
+        .args(["trust", &format!("opc.tcp://127.0.0.1:{port}"), write, read])
+        .arg(dir.path().join("client"))
+        .args(["3", host])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && said.contains("ALL OK"),
+        "the asyncua client: {said}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    eprintln!("{said}");
+
+    // Each kind of refusal is in the audit trail, with who and why.
+    let (status, body) = http::request(http, "GET", "/api/events?kind=command", None, None);
+    assert_eq!(status, 200, "{body}");
+    let events: serde_json::Value = serde_json::from_str(&body).unwrap();
+    let seen: Vec<(String, String)> = events
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            (e["actor"].as_str().unwrap_or("").to_string(), e["result"].as_str().unwrap_or("").to_string())
+        })
+        .collect();
+    for (actor, result) in [
+        ("opcua:ops-w@", "insecure: writes and method calls need a Sign or SignAndEncrypt session"),
+        ("opcua:anonymous@", "forbidden: log in with a write token"),
+        ("opcua:ops-r@", "forbidden: this user's token has role read"),
+        ("opcua:ops-r", "too_many_sessions: user ops-r holds 3 sessions"),
+    ] {
+        assert!(
+            seen.iter().any(|(a, r)| a.starts_with(actor) && r.starts_with(result)),
+            "no refusal of {actor} with {result:?} in {seen:?}"
+        );
+    }
 }

@@ -250,6 +250,19 @@ fn config_check_says_what_it_would_run_and_names_the_line_of_an_error() {
     assert_eq!(out.status.code(), Some(3), "{err}");
     assert!(err.contains("bad.toml:13: field `bus.drive.address`"), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
+
+    // Two tokens of one name: the second's name line.
+    let twice = dir.join("twice.toml");
+    std::fs::write(&twice, format!("{}{}", tokens(true).replace("ops-b", "ops-a"), bus("line-1", "d1")))
+        .unwrap();
+    let out =
+        Command::new(env!("CARGO_BIN_EXE_drivebus")).args(["config", "check"]).arg(&twice).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{err}");
+    assert!(
+        err.contains("twice.toml:6: field `token.name`: \"ops-a\": two tokens have the same name"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

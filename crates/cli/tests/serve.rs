@@ -12,7 +12,10 @@ use serde_json::Value;
 
 #[path = "support/http.rs"]
 mod http;
+#[path = "support/lines.rs"]
+mod lines;
 use http::{free_port, request as raw};
+use lines::{wait_for_lines, Killed};
 
 /// A `drivebus serve --demo` process, killed on drop.
 struct Serve {
@@ -318,4 +321,45 @@ fn serve_starts_with_a_missing_rtu_slave_port_and_readyz_names_it() {
     let v: Value = serde_json::from_str(line).unwrap_or_else(|e| panic!("not JSON ({e}): {line}"));
     assert_eq!(v["level"], "warn", "{v}");
     assert!(v["message"].as_str().unwrap().contains("Modbus RTU slave"), "{v}");
+}
+
+/// `serve --demo` run in a folder writes nothing there: its store and the OPC UA server's key
+/// go to the state folder (~/.local/state/drivebus here, `HOME` a temporary folder), and the
+/// banner says where the key is, and that the demo (on loopback) takes OPC UA writes over None.
+#[test]
+fn the_demo_writes_nothing_in_the_working_directory_and_says_where_the_key_is() {
+    let cwd = tempfile::tempdir().unwrap();
+    let home = tempfile::tempdir().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args([
+            "serve",
+            "--demo",
+            "--http",
+            "127.0.0.1:0",
+            "--modbus",
+            "127.0.0.1:0",
+            "--opcua",
+            "127.0.0.1:0",
+        ])
+        .current_dir(cwd.path())
+        .env("HOME", home.path())
+        .env_remove("XDG_STATE_HOME")
+        .env_remove("STATE_DIRECTORY")
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start drivebus serve");
+    let said = wait_for_lines(
+        &mut child,
+        "drivebus serve --demo",
+        &["OPC UA key", "event store", "OPC UA      writes and calls"],
+    );
+    let _child = Killed(child);
+    let state = home.path().join(".local/state/drivebus");
+    let key = state.join("pki/private/private.pem");
+    assert_eq!(said[0], key.display().to_string());
+    assert!(key.exists(), "no key at {}", key.display());
+    assert_eq!(said[1], state.join("drivebus-demo.db").display().to_string());
+    assert_eq!(said[2], "also over the unsigned None endpoint (the demo, on loopback)");
+    let left: Vec<_> = std::fs::read_dir(cwd.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(left.is_empty(), "serve --demo wrote {left:?} in its working directory");
 }

@@ -4,7 +4,7 @@
 
 use serde_json::{json, Value};
 
-use crate::config::{BusConfig, DriveConfig, GatewayConfig};
+use crate::config::{BusConfig, DriveConfig, GatewayConfig, OpcUaConfig};
 
 /// The difference between two configurations, as the gateway applies it.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -30,11 +30,27 @@ pub struct Plan {
     pub modbus_rules_changed: bool,
     /// `[http] anonymous_read` changed.
     pub http_rules_changed: bool,
+    /// `[opcua] anonymous_read`, `insecure_writes` or `max_sessions_per_user` changed: read at
+    /// each login and request, so they apply at once.
+    pub opcua_rules_changed: bool,
     /// The linkage rules changed.
     pub linkage_changed: bool,
     /// Settings that changed and need a restart (listeners, store, MQTT, Sparkplug, the
     /// bridges, the Modbus RTU slaves, the gateway's name).
     pub needs_restart: Vec<String>,
+}
+
+/// `[opcua]`'s rules (read at each login and request: they apply at once) and the rest (the
+/// server is built with it: a restart).
+fn opcua_parts(o: &Option<OpcUaConfig>) -> (Option<(bool, bool, usize)>, Option<OpcUaConfig>) {
+    let rules = o.as_ref().map(|o| (o.anonymous_read, o.insecure_writes, o.max_sessions_per_user));
+    let rest = o.clone().map(|o| OpcUaConfig {
+        anonymous_read: false,
+        insecure_writes: false,
+        max_sessions_per_user: 0,
+        ..o
+    });
+    (rules, rest)
 }
 
 /// Whether a bus can keep running as it is (its drives aside, unless it is virtual: a virtual
@@ -106,15 +122,19 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
         (&old.modbus.allow, old.modbus.read_only) != (&new.modbus.allow, new.modbus.read_only);
     p.http_rules_changed = old.http.anonymous_read != new.http.anonymous_read;
     p.linkage_changed = old.linkage != new.linkage;
+    let (old_opcua, new_opcua) = (opcua_parts(&old.opcua), opcua_parts(&new.opcua));
+    // Switched on or off: a restart, not a rule change.
+    p.opcua_rules_changed = old_opcua.1 == new_opcua.1 && old_opcua.0 != new_opcua.0;
     let restart = [
         ("http.listen", old.http.listen != new.http.listen),
         ("http.max_body", old.http.max_body != new.http.max_body),
+        ("http.tls", old.http.tls != new.http.tls),
         ("modbus.listen", old.modbus.listen != new.modbus.listen),
         ("modbus.max_connections", old.modbus.max_connections != new.modbus.max_connections),
         ("store", old.store != new.store),
         ("store limits", old.store_limits != new.store_limits),
         ("mqtt", old.mqtt != new.mqtt),
-        ("opcua", old.opcua != new.opcua),
+        ("opcua", old_opcua.1 != new_opcua.1),
         ("sparkplug", old.sparkplug != new.sparkplug),
         ("name", old.name != new.name),
         ("limits", old.limits != new.limits),
@@ -152,6 +172,7 @@ impl Plan {
             (self.tokens_changed, "tokens changed"),
             (self.modbus_rules_changed, "Modbus TCP write rules changed"),
             (self.http_rules_changed, "HTTP rules changed"),
+            (self.opcua_rules_changed, "OPC UA rules changed"),
             (self.linkage_changed, "linkage rules changed"),
         ] {
             if changed {
@@ -181,6 +202,7 @@ impl Plan {
             "tokens_changed": self.tokens_changed,
             "modbus_rules_changed": self.modbus_rules_changed,
             "http_rules_changed": self.http_rules_changed,
+            "opcua_rules_changed": self.opcua_rules_changed,
             "linkage_changed": self.linkage_changed,
             "needs_restart": self.needs_restart,
         })
@@ -259,6 +281,24 @@ address = 1
         assert!(p.tokens_changed);
         assert_eq!(p.needs_restart, vec!["http.listen"]);
         assert!(p.summary().contains("needs a restart to apply: http.listen"), "{}", p.summary());
+    }
+
+    #[test]
+    fn opcua_rules_apply_at_once_and_its_listener_needs_a_restart() {
+        let open = format!("{BASE}[opcua]\nanonymous_read = true\n");
+        let rules = format!(
+            "{BASE}[opcua]\nanonymous_read = false\ninsecure_writes = true\nmax_sessions_per_user = 3\n"
+        );
+        let p = plan(&cfg(&open), &cfg(&rules));
+        assert!(p.opcua_rules_changed);
+        assert!(p.needs_restart.is_empty(), "{:?}", p.needs_restart);
+        assert!(p.summary().contains("OPC UA rules changed"), "{}", p.summary());
+        let moved = format!("{BASE}[opcua]\nanonymous_read = true\nlisten = \"127.0.0.1:4841\"\n");
+        let p = plan(&cfg(&open), &cfg(&moved));
+        assert!(!p.opcua_rules_changed);
+        assert_eq!(p.needs_restart, vec!["opcua"]);
+        let host = format!("{BASE}[opcua]\nanonymous_read = true\nhost = \"gw-1.plant.local\"\n");
+        assert_eq!(plan(&cfg(&open), &cfg(&host)).needs_restart, vec!["opcua"]);
     }
 
     #[test]

@@ -14,7 +14,7 @@ use crate::commands::target::{link_failure, usage, Target};
 pub const DEFAULT_DB: &str = "drivebus.db";
 
 /// The store to read: `--db`, else drivebus.db, else the store `drivebus serve --demo` writes
-/// (drivebus-demo.db) when only that one is in the working directory.
+/// (drivebus-demo.db in the state folder) when there is no drivebus.db here.
 fn store_path(db: Option<&Path>) -> PathBuf {
     if let Some(db) = db {
         return db.to_path_buf();
@@ -33,7 +33,7 @@ fn store_path(db: Option<&Path>) -> PathBuf {
 #[derive(Args, Debug)]
 pub struct EventsArgs {
     /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
-    /// drivebus-demo.db when only that one is here).
+    /// drivebus-demo.db in the state folder when there is no drivebus.db here).
     #[arg(long, value_name = "FILE")]
     pub db: Option<PathBuf>,
     /// Events at or after TIME: RFC 3339 (2026-11-21T10:00:00Z), unix ms, or -10m, -2h, -1d.
@@ -55,7 +55,7 @@ pub struct EventsArgs {
 #[derive(Args, Debug)]
 pub struct TrendArgs {
     /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
-    /// drivebus-demo.db when only that one is here).
+    /// drivebus-demo.db in the state folder when there is no drivebus.db here).
     #[arg(long, value_name = "FILE")]
     pub db: Option<PathBuf>,
     /// Buckets from TIME (default: an hour ago at 1s, a day ago at 1m): RFC 3339, unix ms, or

@@ -32,11 +32,12 @@ pub struct ServeArgs {
     /// No OPC UA server.
     #[arg(long)]
     pub no_opcua: bool,
-    /// Publish to an MQTT broker, mqtt://HOST:PORT.
+    /// Publish to an MQTT broker, mqtt://HOST:PORT, or mqtts://HOST[:PORT] over TLS (the
+    /// configuration's [mqtt] ca_file and client certificate apply).
     #[arg(long, value_name = "URL")]
     pub mqtt: Option<String>,
-    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT (docs/sparkplug.md); the
-    /// configuration's other [sparkplug] settings stay.
+    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT or mqtts://HOST[:PORT]
+    /// (TLS) (docs/sparkplug.md); the configuration's other [sparkplug] settings stay.
     #[arg(long, value_name = "URL")]
     pub sparkplug: Option<String>,
     /// The Sparkplug primary host id: publish only while its STATE says online.
@@ -113,20 +114,16 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         config.opcua = None;
     } else if let Some(a) = args.opcua {
         let http = config.http.anonymous_read;
-        config
-            .opcua
-            .get_or_insert(drivebus_gateway::config::OpcUaConfig {
-                listen: a,
-                anonymous_read: http,
-                pki_dir: None,
-                trusted_clients: Vec::new(),
-            })
-            .listen = a;
+        config.opcua.get_or_insert(drivebus_gateway::config::OpcUaConfig::new(a, http)).listen = a;
+    }
+    if args.demo {
+        // The demo's writes over the None endpoint, where nobody else is on the path.
+        if let Some(o) = config.opcua.as_mut() {
+            o.insecure_writes = o.listen.ip().is_loopback();
+        }
     }
     if let Some(url) = &args.mqtt {
-        if !url.starts_with("mqtt://") {
-            return Err(anyhow!("--mqtt {url:?}: use mqtt://HOST:PORT"));
-        }
+        drivebus_gateway::mqtt::parse_url(url).map_err(|e| anyhow!("--mqtt {e}"))?;
         let mut m = config.mqtt.clone().unwrap_or(MqttConfig {
             url: url.clone(),
             topic_prefix: None,
@@ -134,6 +131,7 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
             allow_commands: Vec::new(),
             client_id: None,
             credentials: None,
+            tls: Default::default(),
         });
         m.url = url.clone();
         config.mqtt = Some(m);
@@ -172,7 +170,7 @@ fn sparkplug_overrides(args: &ServeArgs, config: &mut GatewayConfig) -> Result<(
         drivebus_gateway::sparkplug::check_id(host).map_err(|e| anyhow!("--sparkplug-primary {e}"))?;
         let sp = config.sparkplug.as_mut().ok_or_else(|| {
             anyhow!(
-                "--sparkplug-primary needs a broker: give --sparkplug mqtt://HOST:PORT or [sparkplug] urls"
+                "--sparkplug-primary needs a broker: give --sparkplug mqtt[s]://HOST:PORT or [sparkplug] urls"
             )
         })?;
         sp.primary_host = Some(host.clone());
@@ -207,6 +205,13 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     }
     let store = match &config.store {
         Some(path) => {
+            if args.demo && args.db.is_none() {
+                // The demo's store is in the state folder, made here on first run.
+                if let Some(dir) = path.parent() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("cannot make the state folder {}", dir.display()))?;
+                }
+            }
             let store = drivebus_store::Store::open_with_limits(path, config.store_limits);
             Some(store.map_err(|e| Failure { code: 2, message: e.to_string() })?)
         }
@@ -234,11 +239,21 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
                 count(gw.buses().len(), "bus", "buses"),
                 count(gw.drives().len(), "drive", "drives")
             );
-            println!("  dashboard   http://{}/", bound.http);
-            println!("  HTTP API    http://{}/api/drives", bound.http);
+            let scheme = if gw.config().http.tls.is_some() { "https" } else { "http" };
+            println!("  dashboard   {scheme}://{}/", bound.http);
+            println!("  HTTP API    {scheme}://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
-            if let Some(a) = bound.opcua {
-                println!("  OPC UA      opc.tcp://{a} (namespace urn:drivebus, docs/opcua.md)");
+            if let (Some(a), Some(o)) = (bound.opcua, &gw.config().opcua) {
+                let url =
+                    drivebus_gateway::opcua::endpoint_url(o, a).unwrap_or_else(|_| format!("opc.tcp://{a}"));
+                println!("  OPC UA      {url} (namespace urn:drivebus, docs/opcua.md)");
+                if o.insecure_writes {
+                    let why = if args.demo { "the demo, on loopback" } else { "[opcua] insecure_writes" };
+                    println!("  OPC UA      writes and calls also over the unsigned None endpoint ({why})");
+                }
+                if let Ok(pki) = drivebus_gateway::opcua::pki_dir(&gw.config(), o) {
+                    println!("  OPC UA key  {}", pki.join("private/private.pem").display());
+                }
             }
             for (bus, at) in &bound.bridges {
                 println!("  bridge      {at} -> bus {bus} (Modbus TCP straight through, docs/gateway.md)");

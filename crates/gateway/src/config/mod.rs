@@ -95,6 +95,7 @@
 //! write = false                         # accept writes (read-only unless true)
 //! ```
 
+mod broker;
 mod bus;
 mod ctx;
 mod drive;
@@ -113,6 +114,8 @@ pub mod bridge;
 pub mod modbus_rtu;
 pub mod mqtt;
 pub mod sparkplug;
+pub mod state_dir;
+pub mod tls;
 
 pub use drivebus_drive::ConfigError;
 pub use model::*;
@@ -124,11 +127,19 @@ use file::FileConfig;
 /// The embedded demo: a virtual bus per family with simulated drives on each.
 pub const DEMO: &str = include_str!("../demo.toml");
 
+/// The file name of the demo's store, in the state folder.
+pub const DEMO_STORE: &str = "drivebus-demo.db";
+
 impl GatewayConfig {
     /// The embedded demo configuration.
+    /// Its store is `drivebus-demo.db` in the state folder ([`state_dir`]), never in the
+    /// working directory; without a state folder it keeps none.
     pub fn demo() -> Self {
         // The embedded file is checked by a test; a failure here is a build defect.
-        GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"))
+        let mut config =
+            GatewayConfig::from_toml("(embedded demo)", DEMO).unwrap_or_else(|e| panic!("demo config: {e}"));
+        config.store = state_dir::state_dir().ok().map(|d| d.join(DEMO_STORE));
+        config
     }
 
     /// Reads a configuration; errors name `file`, the line and the field.
@@ -138,6 +149,7 @@ impl GatewayConfig {
         let http = http::check(&cx, &raw.http)?;
         let modbus = modbus::check(&cx, &raw.modbus)?;
         let tokens = token::check(&cx, &raw.token)?;
+        http::check_plaintext(&cx, &raw.http, &http, &tokens)?;
         let name = name::check(&cx, &raw.name)?;
         let buses = bus::check(&cx, &raw.bus)?;
         let linkage = linkage::check(&cx, &raw.linkage, &buses)?;

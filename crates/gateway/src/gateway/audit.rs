@@ -114,6 +114,12 @@ impl Gateway {
         self.refusal(Some(id), actor, action, why).await;
     }
 
+    /// Records a refused login that names no drive (an OPC UA session beyond its user's cap, a
+    /// wrong password) like a refusal: audited and logged, aggregated per actor and reason.
+    pub async fn audit_login_refusal(self: &Arc<Self>, actor: &str, why: &str) {
+        self.refusal(None, actor, "login", why).await;
+    }
+
     /// Records a failed login (an unknown or malformed token) from `ip` like a refusal:
     /// audited and logged, aggregated per address ([`Gateway::login_blocked`] counts them).
     pub async fn login_failed(self: &Arc<Self>, ip: &str, why: &str) {

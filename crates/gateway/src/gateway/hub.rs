@@ -75,6 +75,8 @@ pub struct Gateway {
     pub(super) attached: RwLock<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>,
     /// Wakes the store's check before its time (a reload may change `[store] min_free_mb`).
     pub(super) store_recheck: tokio::sync::Notify,
+    /// One lane per drive: commands in the order handed over ([`Gateway::in_lane`]).
+    pub(super) lanes: super::lanes::Lanes,
 }
 
 impl Gateway {
@@ -93,6 +95,7 @@ impl Gateway {
             refusals: Mutex::new(Refusals::default()),
             attached: RwLock::new(HashMap::new()),
             store_recheck: tokio::sync::Notify::new(),
+            lanes: super::lanes::Lanes::default(),
         }
     }
 

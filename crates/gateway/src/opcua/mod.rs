@@ -10,6 +10,7 @@
 pub mod auth;
 pub mod manager;
 pub mod nodes;
+pub mod sessions;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -35,14 +36,26 @@ use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
 const TOKEN_USERS: &str = "tokens";
 
 /// Where the server's certificate, key and trusted client certificates live: `[opcua] pki_dir`,
-/// else `pki` beside the store, else `pki` in the working directory.
-pub fn pki_dir(gw: &Gateway, cfg: &OpcUaConfig) -> PathBuf {
+/// else `pki` beside the store when the store's path names a folder, else `pki` in the state
+/// folder ([`crate::config::state_dir`]). Never the working directory unless the user named it.
+pub fn pki_dir(config: &crate::GatewayConfig, cfg: &OpcUaConfig) -> Result<PathBuf, String> {
+    pki_dir_in(config, cfg, crate::config::state_dir::state_dir)
+}
+
+/// [`pki_dir`] with the state folder from `state`.
+pub fn pki_dir_in(
+    config: &crate::GatewayConfig,
+    cfg: &OpcUaConfig,
+    state: impl FnOnce() -> Result<PathBuf, String>,
+) -> Result<PathBuf, String> {
     if let Some(p) = &cfg.pki_dir {
-        return p.clone();
+        return Ok(p.clone());
     }
-    match gw.config().store.as_ref().and_then(|s| s.parent().map(|p| p.to_path_buf())) {
-        Some(dir) if !dir.as_os_str().is_empty() => dir.join("pki"),
-        _ => PathBuf::from("pki"),
+    match config.store.as_ref().and_then(|s| s.parent()) {
+        Some(dir) if !dir.as_os_str().is_empty() => Ok(dir.join("pki")),
+        _ => state()
+            .map(|d| d.join("pki"))
+            .map_err(|e| format!("OPC UA: no folder for the server's key ({e}): set [opcua] pki_dir")),
     }
 }
 
@@ -70,6 +83,43 @@ pub fn trust_clients(pki: &std::path::Path, certs: &[PathBuf]) -> Result<usize, 
     Ok(certs.len())
 }
 
+/// The host clients should use, in the endpoint URLs the server advertises: `[opcua] host`,
+/// else the listener's address, else, when it listens on every address (0.0.0.0, ::), the
+/// machine's host name (`host_name`): never `opc.tcp://0.0.0.0:4840/`.
+pub fn advertised_host(
+    host: Option<&str>,
+    listen: std::net::SocketAddr,
+    host_name: impl FnOnce() -> Option<String>,
+) -> Result<String, String> {
+    if let Some(h) = host {
+        return Ok(h.to_string());
+    }
+    match listen.ip() {
+        ip if ip.is_unspecified() => host_name().filter(|h| !h.is_empty()).ok_or_else(|| {
+            format!(
+                "OPC UA: listening on {listen}, but this machine's host name is unknown: \
+                 set [opcua] host to the name clients use"
+            )
+        }),
+        std::net::IpAddr::V6(ip) => Ok(format!("[{ip}]")),
+        ip => Ok(ip.to_string()),
+    }
+}
+
+/// The machine's host name.
+pub fn machine_host_name() -> Option<String> {
+    nix::unistd::gethostname().ok().and_then(|h| h.into_string().ok())
+}
+
+/// The URL clients connect to: `opc.tcp://HOST:PORT` with the [`advertised_host`].
+pub fn endpoint_url(cfg: &OpcUaConfig, listen: std::net::SocketAddr) -> Result<String, String> {
+    Ok(format!(
+        "opc.tcp://{}:{}",
+        advertised_host(cfg.host.as_deref(), listen, machine_host_name)?,
+        listen.port()
+    ))
+}
+
 /// Builds the OPC UA server for `listener` (creating its certificate on first start; errors
 /// here stop `serve` at start, with the reason) and returns what serves it until the process
 /// ends, keeping the address space current from the cache.
@@ -79,9 +129,10 @@ pub fn start(
     listener: TcpListener,
 ) -> Result<impl std::future::Future<Output = Result<(), String>>, String> {
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
-    let pki = pki_dir(&gw, cfg);
+    let pki = pki_dir(&gw.config(), cfg)?;
     trust_clients(&pki, &cfg.trusted_clients)?;
-    let (server, handle) = build(&gw, addr, &pki)?;
+    let host = advertised_host(cfg.host.as_deref(), addr, machine_host_name)?;
+    let (server, handle) = build(&gw, &host, addr.port(), &pki)?;
     let ns = handle
         .get_namespace_index(nodes::NAMESPACE)
         .ok_or_else(|| "OPC UA: the namespace urn:drivebus is missing".to_string())?;
@@ -99,31 +150,38 @@ pub fn start(
     })
 }
 
+/// The endpoints: None; Basic256Sha256 Sign and SignAndEncrypt. On each, passwords are
+/// encrypted with [`auth::PASSWORD_POLICY`] (None included).
+pub fn endpoints() -> Vec<(&'static str, ServerEndpoint)> {
+    let users = [TOKEN_USERS.to_string(), auth::ANONYMOUS.to_string()];
+    let b = SecurityPolicy::Basic256Sha256;
+    let mut endpoints = vec![
+        ("none", ServerEndpoint::new_none("/", &users)),
+        ("basic256sha256_sign", ServerEndpoint::new("/", b, MessageSecurityMode::Sign, &users)),
+        (
+            "basic256sha256_sign_encrypt",
+            ServerEndpoint::new("/", b, MessageSecurityMode::SignAndEncrypt, &users),
+        ),
+    ];
+    for (_, e) in &mut endpoints {
+        e.password_security_policy = Some(auth::PASSWORD_POLICY.to_string());
+    }
+    endpoints
+}
+
 /// The server and its handle: endpoints (None; Basic256Sha256 Sign and SignAndEncrypt), the
 /// certificate in `pki` (made on first start), the tokens as users, the drive node manager.
 fn build(
     gw: &Arc<Gateway>,
-    addr: std::net::SocketAddr,
+    host: &str,
+    port: u16,
     pki: &std::path::Path,
 ) -> Result<(opcua::server::Server, ServerHandle), String> {
     let gw_nodes = gw.clone();
-    let users = [TOKEN_USERS.to_string(), auth::ANONYMOUS.to_string()];
-    let endpoints = [
-        ("none", ServerEndpoint::new_none("/", &users)),
-        (
-            "basic256sha256_sign",
-            ServerEndpoint::new("/", SecurityPolicy::Basic256Sha256, MessageSecurityMode::Sign, &users),
-        ),
-        (
-            "basic256sha256_sign_encrypt",
-            ServerEndpoint::new(
-                "/",
-                SecurityPolicy::Basic256Sha256,
-                MessageSecurityMode::SignAndEncrypt,
-                &users,
-            ),
-        ),
-    ];
+    // A login not yet seen by a request counts as long as the longest session timeout.
+    let pending_for = Duration::from_millis(opcua::server::constants::MAX_SESSION_TIMEOUT);
+    let sessions = Arc::new(sessions::Sessions::new(pending_for));
+    let sessions_nodes = sessions.clone();
     let mut builder = ServerBuilder::new()
         .application_name("drivebus gateway")
         .application_uri(format!("urn:drivebus:gateway:{}", gw.config().name))
@@ -136,14 +194,15 @@ fn build(
             build_number: "0".into(),
             build_date: DateTime::now(),
         })
-        .host(addr.ip().to_string())
-        .discovery_urls(vec![format!("opc.tcp://{addr}/")])
-        .port(addr.port())
+        .host(host)
+        .discovery_urls(vec![format!("opc.tcp://{host}:{port}/")])
+        .port(port)
         .pki_dir(pki)
         .create_sample_keypair(true)
         .trust_client_certs(false)
         .add_user_token(TOKEN_USERS, ServerUserToken::user_pass(TOKEN_USERS, ""))
-        .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone())))
+        .max_session_timeout_ms(opcua::server::constants::MAX_SESSION_TIMEOUT)
+        .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone(), sessions)))
         .with_node_manager(InMemoryNodeManagerBuilder::new(
             move |context: opcua::server::node_manager::ServerContext,
                   space: &mut opcua::server::address_space::AddressSpace| {
@@ -156,10 +215,11 @@ fn build(
                         namespace_index: index,
                         ..Default::default()
                     },
+                    sessions_nodes,
                 )
             },
         ));
-    for (id, e) in endpoints {
+    for (id, e) in endpoints() {
         builder = builder.add_endpoint(id, e);
     }
     // A hall of 1000 drives has 10 000 cache variables; SCADA clients subscribe to them in one
@@ -203,29 +263,51 @@ pub fn quality(v: &DriveView, bus_online: bool) -> StatusCode {
     }
 }
 
-/// A drive's variables as values, in [`DRIVE_VARIABLES`] order. `Online`, `AgeMs` and
-/// `ErrorRate` are the gateway's own knowledge and always Good.
-pub fn drive_values(v: &DriveView, bus_online: bool) -> Vec<(Variant, StatusCode)> {
+/// The variables of a drive that are the gateway's own knowledge, not the drive's values.
+const GATEWAY_KNOWLEDGE: [&str; 3] = ["Online", "AgeMs", "ErrorRate"];
+
+/// A drive's variables as data values, in [`DRIVE_VARIABLES`] order, from the view `v` taken at
+/// `now` (docs/opcua.md, "Values, timestamps and status"). The drive's values carry as source
+/// timestamp the time the drive last answered: the last poll that confirmed them, whether it
+/// changed them or not (`now` before the first answer), so a client sees how fresh they are.
+/// `Online`, `AgeMs` and `ErrorRate` are the gateway's own knowledge, always Good, their source
+/// timestamp `now`: `AgeMs` is its server timestamp minus the drive values' source timestamp.
+pub fn drive_values(v: &DriveView, bus_online: bool, now: DateTime) -> Vec<DataValue> {
     let q = quality(v, bus_online);
+    let answered = v.last_seen_ms.map(datetime_ms).unwrap_or(now);
     let opt = |x: Option<f64>| x.map_or(Variant::Empty, Variant::Double);
     DRIVE_VARIABLES
         .iter()
-        .map(|def| match def.name {
-            "OutputFrequency" => (opt(v.output_hz), q),
-            "Setpoint" => (opt(v.setpoint_hz), q),
-            "Current" => (opt(v.current_a), q),
-            "Running" => (v.running.map_or(Variant::Empty, Variant::Boolean), q),
-            "Direction" => (Variant::String(UAString::from(v.direction.clone().unwrap_or_default())), q),
-            "FaultCode" => (Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)), q),
-            "FaultText" => (
-                Variant::String(UAString::from(v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default())),
-                q,
-            ),
-            "Online" => (Variant::Boolean(v.online == Some(true) && bus_online), StatusCode::Good),
-            "AgeMs" => (v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)), StatusCode::Good),
-            _ => (Variant::Double(v.error_rate), StatusCode::Good),
+        .map(|def| {
+            let value = match def.name {
+                "OutputFrequency" => opt(v.output_hz),
+                "Setpoint" => opt(v.setpoint_hz),
+                "Current" => opt(v.current_a),
+                "Running" => v.running.map_or(Variant::Empty, Variant::Boolean),
+                "Direction" => Variant::String(UAString::from(v.direction.clone().unwrap_or_default())),
+                "FaultCode" => Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)),
+                "FaultText" => Variant::String(UAString::from(
+                    v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default(),
+                )),
+                "Online" => Variant::Boolean(v.online == Some(true) && bus_online),
+                "AgeMs" => v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)),
+                _ => Variant::Double(v.error_rate),
+            };
+            let own = GATEWAY_KNOWLEDGE.contains(&def.name);
+            DataValue {
+                value: Some(value),
+                status: Some(if own { StatusCode::Good } else { q }),
+                source_timestamp: Some(if own { now } else { answered }),
+                server_timestamp: Some(now),
+                ..Default::default()
+            }
         })
         .collect()
+}
+
+/// Whether `bus` is online (a bus the gateway does not know counts as online).
+pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
+    gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
 }
 
 /// A bus's variables as values, in [`BUS_VARIABLES`] order.
@@ -243,10 +325,15 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
         .collect()
 }
 
-/// What was last put in the address space per node: a poll that changes nothing publishes
-/// nothing.
-type Last = std::collections::HashMap<NodeId, (Variant, StatusCode)>;
+/// What was last put in the address space per node, and the source timestamp last notified: a
+/// poll that changes nothing puts nothing there.
+type Last = std::collections::HashMap<NodeId, (Variant, StatusCode, Option<DateTime>)>;
 
+/// Puts a drive's changed values in the address space (notifying their monitored items). A value
+/// the poll only confirmed (same value and status, a later source timestamp) stays as it is there
+/// (reads take the source timestamp from the cache, [`manager`]) and goes to the monitored items
+/// alone: under the default trigger (StatusValue) they notify nothing, under
+/// StatusValueTimestamp each confirming poll, as the client asked.
 fn publish_drive(
     manager: &InMemoryNodeManager<DriveNodes>,
     subs: &SubscriptionCache,
@@ -255,23 +342,23 @@ fn publish_drive(
     v: &DriveView,
     bus_online: bool,
 ) {
-    let source = v.last_seen_ms.map(datetime_ms);
-    let now = DateTime::now();
     let mut changed = Vec::new();
-    for (def, (value, status)) in DRIVE_VARIABLES.iter().zip(drive_values(v, bus_online)) {
+    let mut confirmed = Vec::new();
+    for (def, dv) in DRIVE_VARIABLES.iter().zip(drive_values(v, bus_online, DateTime::now())) {
         let id = ids.drive_member(&v.id, def.name);
-        if last.get(&id).is_some_and(|(lv, ls)| *lv == value && *ls == status) {
-            continue;
+        let (value, status) = (dv.value.clone().unwrap_or_default(), dv.status());
+        match last.get_mut(&id) {
+            Some((lv, ls, lt)) if *lv == value && *ls == status => {
+                if *lt != dv.source_timestamp {
+                    *lt = dv.source_timestamp;
+                    confirmed.push((id, dv));
+                }
+            }
+            _ => {
+                last.insert(id.clone(), (value, status, dv.source_timestamp));
+                changed.push((id, dv));
+            }
         }
-        last.insert(id.clone(), (value.clone(), status));
-        let dv = DataValue {
-            value: Some(value),
-            status: Some(status),
-            source_timestamp: source.or(Some(now)),
-            server_timestamp: Some(now),
-            ..Default::default()
-        };
-        changed.push((id, dv));
     }
     if !changed.is_empty()
         && manager.set_values(subs, changed.iter().map(|(id, dv)| (id, None, dv.clone()))).is_err()
@@ -280,6 +367,12 @@ fn publish_drive(
         for (id, _) in &changed {
             last.remove(id);
         }
+    }
+    if !confirmed.is_empty() {
+        subs.maybe_notify(
+            confirmed.iter().map(|(id, _)| (id, opcua::types::AttributeId::Value)),
+            |id, _, _, _| confirmed.iter().find(|(c, _)| c == id).map(|(_, dv)| dv.clone()),
+        );
     }
 }
 
@@ -294,10 +387,10 @@ fn publish_bus(
     let mut changed = Vec::new();
     for (def, value) in BUS_VARIABLES.iter().zip(bus_values(b)) {
         let id = ids.bus_member(&b.name, def.name);
-        if last.get(&id).is_some_and(|(lv, _)| *lv == value) {
+        if last.get(&id).is_some_and(|(lv, _, _)| *lv == value) {
             continue;
         }
-        last.insert(id.clone(), (value.clone(), StatusCode::Good));
+        last.insert(id.clone(), (value.clone(), StatusCode::Good, None));
         changed.push((id, DataValue::new_at(value, now)));
     }
     if !changed.is_empty() {
@@ -354,9 +447,6 @@ async fn publish(
     let subs = handle.subscriptions().clone();
     let mut changes = gw.subscribe();
     let mut last = Last::new();
-    let bus_online = |gw: &Gateway, bus: &str| {
-        gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
-    };
     for d in gw.drives().iter() {
         let v = gw.drive_view(d);
         publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
@@ -387,5 +477,51 @@ async fn publish(
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_key_is_beside_a_named_store_else_in_the_state_folder_never_in_the_working_directory() {
+        let state = || Ok(PathBuf::from("/state/drivebus"));
+        let mut config = crate::GatewayConfig::from_toml("t.toml", "[opcua]\n").unwrap();
+        let o = config.opcua.clone().unwrap();
+        config.store = Some(PathBuf::from("/var/lib/drivebus/drivebus.db"));
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/var/lib/drivebus/pki"));
+        // A store path with no folder is in the working directory: the key does not follow it.
+        config.store = Some(PathBuf::from("drivebus-demo.db"));
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/state/drivebus/pki"));
+        config.store = None;
+        assert_eq!(pki_dir_in(&config, &o, state).unwrap(), PathBuf::from("/state/drivebus/pki"));
+        let err = pki_dir_in(&config, &o, || Err("no state folder".into())).unwrap_err();
+        assert!(err.contains("[opcua] pki_dir"), "{err}");
+        // Named by the user: as named.
+        let named = OpcUaConfig { pki_dir: Some(PathBuf::from("keys")), ..o };
+        assert_eq!(pki_dir_in(&config, &named, state).unwrap(), PathBuf::from("keys"));
+    }
+}
+
+#[cfg(test)]
+mod host_tests {
+    use super::*;
+
+    #[test]
+    fn every_address_is_advertised_by_the_machines_name_never_as_0_0_0_0() {
+        let name = || Some("gw-7".to_string());
+        let any4 = "0.0.0.0:4840".parse().unwrap();
+        let any6 = "[::]:4840".parse().unwrap();
+        assert_eq!(advertised_host(None, any4, name).unwrap(), "gw-7");
+        assert_eq!(advertised_host(None, any6, name).unwrap(), "gw-7");
+        assert_eq!(
+            advertised_host(Some("scada-gw.plant.local"), any4, name).unwrap(),
+            "scada-gw.plant.local"
+        );
+        assert_eq!(advertised_host(None, "10.0.0.5:4840".parse().unwrap(), name).unwrap(), "10.0.0.5");
+        assert_eq!(advertised_host(None, "[fd00::5]:4840".parse().unwrap(), name).unwrap(), "[fd00::5]");
+        let err = advertised_host(None, any4, || None).unwrap_err();
+        assert!(err.contains("[opcua] host"), "{err}");
     }
 }

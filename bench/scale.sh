@@ -17,7 +17,9 @@
 #   - RSS with $SUB_CLIENTS OPC UA clients (default 20, one process each,
 #     bench/opcua_subscriber.py) subscribed to 6 variables of drives vfd-1..vfd-1000 (6000
 #     monitored items each), once all are subscribed or after $SUB_TIMEOUT s (default 600).
-# A phase that does not finish in its time says so in the table; the script always ends.
+# A phase that does not finish in its time ($LISTEN_TIMEOUT, $ONLINE_TIMEOUT, $OPCUA_TIMEOUT,
+# $SUB_TIMEOUT) says so in the table; the script always ends. BIN=path measures that build of
+# drivebus instead of building the release one here.
 #
 # A short run: PLANTS=1000 SETTLE_SECS=15 CPU_SECS=5 SCRAPES=50 SUB_CLIENTS=2 bench/scale.sh
 set -euo pipefail
@@ -163,7 +165,7 @@ for n in $PLANTS; do
 done
 
 echo
-echo "== drivebus $(git describe --always --dirty 2>/dev/null || echo '?'), $(nproc) cores"
+echo "== $("$BIN" --version 2>/dev/null | head -n 1), $(nproc) cores"
 python3 - "$ROWS" <<'PY'
 import sys
 rows = [l.rstrip("\n").split("\t") for l in open(sys.argv[1]) if l.strip()]

@@ -1,0 +1,320 @@
+//! The address space of `urn:drivebus`, made on demand from the gateway's state: what exists
+//! once (the types, the `Drives` and `Buses` folders) is kept; a drive's or bus's nodes are made
+//! when a request names them, with their values from the cache, and dropped when it is answered.
+//! A drive's parameter nodes are made only for a request about its `Parameters` folder or a
+//! parameter. 1000 drives cost the gateway's cache and nothing more here.
+
+use std::collections::HashMap;
+
+use opcua::server::address_space::{AddressSpace, NodeType, ReferenceDirection, TypeTree};
+use opcua::server::node_manager::{NodeMetadata, RequestContext};
+use opcua::types::{
+    BrowseDescriptionResultMask, BrowseDirection, DataValue, DateTime, ExpandedNodeId, Identifier,
+    LocalizedText, NodeClass, NodeId, ReferenceTypeId, StatusCode, Variant,
+};
+
+use super::nodes::{self, Ids, BUS_VARIABLES, DRIVE_VARIABLES};
+use crate::gateway::{DriveView, Gateway};
+
+/// Where a node of the namespace lives.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub enum Home {
+    /// Among what exists once (types, folders), or a node of another namespace.
+    Kept,
+    /// Made for the drive named; with its parameters when `parameters`.
+    Drive {
+        /// The drive's id.
+        name: String,
+        /// Whether the request is about its parameters.
+        parameters: bool,
+    },
+    /// Made for the bus named.
+    Bus(String),
+    /// Names a drive or bus the gateway does not have.
+    Missing,
+}
+
+/// One reference of a node: its type, whether forward, its target.
+pub type Ref = (NodeId, bool, NodeId);
+
+/// The namespace's nodes: the part that exists once, and the gateway to make the rest from.
+pub struct Space {
+    gw: std::sync::Arc<Gateway>,
+    ids: Ids,
+    kept: AddressSpace,
+}
+
+/// The values of a drive's variables ([`super::drive_values`]) as a read or a notification
+/// gives them: the source timestamp is the poll that confirmed the value.
+pub fn data_values(v: &DriveView, values: &[(Variant, StatusCode)], now: DateTime) -> Vec<DataValue> {
+    let source = v.last_seen_ms.map(super::datetime_ms).unwrap_or(now);
+    values
+        .iter()
+        .map(|(value, status)| DataValue {
+            value: Some(value.clone()),
+            status: Some(*status),
+            source_timestamp: Some(source),
+            server_timestamp: Some(now),
+            ..Default::default()
+        })
+        .collect()
+}
+
+/// Whether the bus `bus` of `gw` is online (unknown buses count as online).
+pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
+    gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
+}
+
+impl Space {
+    /// The space of `gw` in the namespace `ids`, its types and folders made.
+    pub fn new(gw: std::sync::Arc<Gateway>, ids: Ids) -> Space {
+        let mut kept = AddressSpace::new();
+        kept.add_namespace(nodes::NAMESPACE, ids.ns);
+        nodes::build_types(&mut kept, &ids);
+        Space { gw, ids, kept }
+    }
+
+    /// What exists once (for the type tree).
+    pub fn kept(&self) -> &AddressSpace {
+        &self.kept
+    }
+
+    /// The namespace's ids.
+    pub fn ids(&self) -> &Ids {
+        &self.ids
+    }
+
+    /// Where `id` lives.
+    pub fn home(&self, id: &NodeId) -> Home {
+        if id.namespace != self.ids.ns {
+            return Home::Kept;
+        }
+        let Identifier::String(s) = &id.identifier else { return Home::Kept };
+        let s = s.as_ref();
+        if let Some(rest) = s.strip_prefix("Drives/") {
+            let (name, tail) = rest.split_once('/').unwrap_or((rest, ""));
+            if self.gw.drive(name).is_err() {
+                return Home::Missing;
+            }
+            let parameters = tail == "Parameters" || tail.starts_with("Parameters/");
+            return Home::Drive { name: name.to_string(), parameters };
+        }
+        if let Some(rest) = s.strip_prefix("Buses/") {
+            let name = rest.split_once('/').map_or(rest, |(n, _)| n);
+            if !self.gw.buses().iter().any(|b| b.config.name == name) {
+                return Home::Missing;
+            }
+            return Home::Bus(name.to_string());
+        }
+        Home::Kept
+    }
+
+    /// Makes the nodes of `home` with their current values.
+    fn make(&self, home: &Home) -> Option<AddressSpace> {
+        let mut space = AddressSpace::new();
+        space.add_namespace(nodes::NAMESPACE, self.ids.ns);
+        let now = DateTime::now();
+        match home {
+            Home::Drive { name, parameters } => {
+                let d = self.gw.drive(name).ok()?;
+                nodes::add_drive(&mut space, &self.ids, &d, *parameters, self.gw.store().is_some());
+                let v = self.gw.drive_view(&d);
+                let values = data_values(&v, &super::drive_values(&v, bus_online(&self.gw, &v.bus)), now);
+                for (def, dv) in DRIVE_VARIABLES.iter().zip(values) {
+                    if let Some(NodeType::Variable(var)) =
+                        space.find_mut(&self.ids.drive_member(name, def.name))
+                    {
+                        var.set_data_value(dv);
+                    }
+                }
+            }
+            Home::Bus(name) => {
+                let b = self.gw.buses().iter().find(|b| &b.config.name == name)?.clone();
+                nodes::add_bus(&mut space, &self.ids, &b);
+                let values = super::bus_values(&self.gw.bus_view(&b));
+                for (def, value) in BUS_VARIABLES.iter().zip(values) {
+                    if let Some(NodeType::Variable(var)) =
+                        space.find_mut(&self.ids.bus_member(name, def.name))
+                    {
+                        var.set_data_value(DataValue::new_at(value, now));
+                    }
+                }
+            }
+            Home::Kept | Home::Missing => return None,
+        }
+        Some(space)
+    }
+
+    /// A request's view: the nodes it named, made once per request.
+    pub fn view(&self) -> View<'_> {
+        View { space: self, made: HashMap::new() }
+    }
+}
+
+/// The nodes one request needs, made as it names them.
+pub struct View<'a> {
+    space: &'a Space,
+    made: HashMap<Home, Option<AddressSpace>>,
+}
+
+impl View<'_> {
+    /// The address space holding `id` (or, for a node of another namespace, what exists once),
+    /// `None` when `id` names a drive or bus the gateway does not have.
+    pub fn space_of(&mut self, id: &NodeId) -> Option<&AddressSpace> {
+        match self.space.home(id) {
+            Home::Kept => Some(&self.space.kept),
+            Home::Missing => None,
+            home => {
+                let space = self.space;
+                self.made.entry(home).or_insert_with_key(|h| space.make(h)).as_ref()
+            }
+        }
+    }
+
+    /// The node `id`, if it exists in the namespace.
+    pub fn node(&mut self, id: &NodeId) -> Option<&NodeType> {
+        self.space_of(id)?.find(id)
+    }
+
+    /// Whether `id` is a node of the namespace that exists.
+    pub fn exists(&mut self, id: &NodeId) -> bool {
+        id.namespace == self.space.ids.ns && self.node(id).is_some()
+    }
+
+    /// The references of `id` this namespace knows (also for nodes of other namespaces, such
+    /// as the Objects folder that organizes `Drives`), of type `filter` (with its subtypes when
+    /// asked), in `direction`.
+    pub fn references(
+        &mut self,
+        id: &NodeId,
+        filter: Option<(NodeId, bool)>,
+        type_tree: &dyn TypeTree,
+        direction: BrowseDirection,
+    ) -> Vec<Ref> {
+        let ids = self.space.ids;
+        let mut out: Vec<Ref> = match self.space_of(id) {
+            None => return Vec::new(),
+            Some(space) => space
+                .find_references(id, filter.clone(), type_tree, direction)
+                .map(|r| {
+                    (
+                        r.reference_type.clone(),
+                        matches!(r.direction, ReferenceDirection::Forward),
+                        r.target_node.clone(),
+                    )
+                })
+                .collect(),
+        };
+        // The folders organize every drive and bus, which are made on demand.
+        let forward = matches!(direction, BrowseDirection::Forward | BrowseDirection::Both);
+        let organizes = match &filter {
+            None => true,
+            Some((ty, subtypes)) => {
+                let o: NodeId = ReferenceTypeId::Organizes.into();
+                *ty == o || (*subtypes && type_tree.is_subtype_of(&o, ty))
+            }
+        };
+        if forward && organizes {
+            let gw = &self.space.gw;
+            if *id == ids.drives() {
+                out.extend(
+                    gw.drives()
+                        .iter()
+                        .map(|d| (ReferenceTypeId::Organizes.into(), true, ids.drive(&d.config.name))),
+                );
+            } else if *id == ids.buses() {
+                out.extend(
+                    gw.buses()
+                        .iter()
+                        .map(|b| (ReferenceTypeId::Organizes.into(), true, ids.bus(&b.config.name))),
+                );
+            }
+        }
+        out
+    }
+
+    /// What a reference to `id` shows (browse name, display name, class, type definition), if
+    /// `id` is a node of the namespace that exists.
+    pub fn metadata(
+        &mut self,
+        id: &NodeId,
+        mask: BrowseDescriptionResultMask,
+        type_tree: &dyn TypeTree,
+    ) -> Option<NodeMetadata> {
+        if id.namespace != self.space.ids.ns {
+            return None;
+        }
+        let ids = self.space.ids;
+        // A drive or bus in a folder's listing: no need to make its nodes.
+        if let Some(target) = self.object(id) {
+            let (name, ty) = target;
+            return Some(NodeMetadata {
+                node_id: ExpandedNodeId::new(id.clone()),
+                type_definition: ExpandedNodeId::new(ty),
+                browse_name: ids.name(&name),
+                display_name: LocalizedText::from(name.as_str()),
+                node_class: NodeClass::Object,
+            });
+        }
+        let space = self.space_of(id)?;
+        let node = space.find(id)?.as_node();
+        let type_definition = if mask.contains(BrowseDescriptionResultMask::RESULT_MASK_TYPE_DEFINITION)
+            && matches!(node.node_class(), NodeClass::Object | NodeClass::Variable)
+        {
+            space
+                .find_references(
+                    id,
+                    Some((ReferenceTypeId::HasTypeDefinition, false)),
+                    type_tree,
+                    BrowseDirection::Forward,
+                )
+                .next()
+                .map_or_else(ExpandedNodeId::null, |r| ExpandedNodeId::new(r.target_node.clone()))
+        } else {
+            ExpandedNodeId::null()
+        };
+        Some(NodeMetadata {
+            node_id: ExpandedNodeId::new(id.clone()),
+            type_definition,
+            browse_name: node.browse_name().clone(),
+            display_name: node.display_name().clone(),
+            node_class: node.node_class(),
+        })
+    }
+
+    /// The name and type of the drive or bus object `id` names, if it names one that exists.
+    fn object(&self, id: &NodeId) -> Option<(String, NodeId)> {
+        let Identifier::String(s) = &id.identifier else { return None };
+        let s = s.as_ref();
+        let ids = self.space.ids;
+        if let Some(name) = s.strip_prefix("Drives/").filter(|n| !n.contains('/')) {
+            return self.space.gw.drive(name).ok().map(|_| (name.to_string(), ids.drive_type()));
+        }
+        if let Some(name) = s.strip_prefix("Buses/").filter(|n| !n.contains('/')) {
+            return self
+                .space
+                .gw
+                .buses()
+                .iter()
+                .any(|b| b.config.name == name)
+                .then(|| (name.to_string(), ids.bus_type()));
+        }
+        None
+    }
+
+    /// Reads an attribute of `id` as the library does for nodes it keeps.
+    pub fn read(
+        &mut self,
+        context: &RequestContext,
+        node: &opcua::server::node_manager::ParsedReadValueId,
+        max_age: f64,
+        timestamps: opcua::types::TimestampsToReturn,
+    ) -> DataValue {
+        match self.space_of(&node.node_id) {
+            Some(space) => space.read(context, node, max_age, timestamps),
+            None => {
+                DataValue { status: Some(opcua::types::StatusCode::BadNodeIdUnknown), ..Default::default() }
+            }
+        }
+    }
+}

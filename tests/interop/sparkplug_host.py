@@ -17,8 +17,8 @@ through the aliases of the births. It checks what a host relies on and prints
   previous seq + 1, wrapping at 256;
 - aliases: unique across an edge node's NBIRTH and DBIRTHs, every DDATA alias was born for
   its device, and no DDATA or DDEATH comes for a device that is not born;
-- NBIRTH carries bdSeq and Node Control/Rebirth = false; NDEATH's bdSeq is the one of the
-  last NBIRTH.
+- NBIRTH carries bdSeq and Node Control/Rebirth = false, the latter without an alias (a host
+  asks for a rebirth by name); NDEATH's bdSeq is the one of the last NBIRTH.
 
 With --host-id it is a primary host: its STATE (retained, JSON) says online at start, with
 the will saying offline. Commands on stdin, one per line:
@@ -134,6 +134,9 @@ def on_message(client, userdata, msg):
             violation(f"{msg.topic}: NBIRTH without bdSeq")
         if by_name.get("Node Control/Rebirth") is not False:
             violation(f"{msg.topic}: NBIRTH without Node Control/Rebirth = false")
+        rebirth = next((m for m in metrics if m["name"] == "Node Control/Rebirth"), None)
+        if rebirth is not None and rebirth["alias"] is not None:
+            violation(f"{msg.topic}: Node Control/Rebirth has alias {rebirth['alias']}")
         node.bd_seq = by_name.get("bdSeq")
     elif kind == "NDEATH":
         if by_name.get("bdSeq") != node.bd_seq:

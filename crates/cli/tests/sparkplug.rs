@@ -378,13 +378,22 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     let mut broker = Mosquitto::start(&bin, port).await;
     let mut host = Host::start(broker.addr, Some("scada")).await;
     let gw = Serve::start("hall-s", &dir.path().join("s.db"), broker.addr, &["--sparkplug-primary", "scada"]);
-    wait_births(&host, "hall-s", 0).await;
+    let first = wait_births(&host, "hall-s", 0).await;
+    let first_bd_seq = host.log()[first]["bdSeq"].as_u64().unwrap();
 
     // The primary host goes offline while pump-1 ramps to 40 Hz.
     host.send("dcmd hall-s pump-1 Setpoint double 40");
     host.send("dcmd hall-s pump-1 Command/Run boolean true");
     host.wait("pump-1 running", |log| (latest(log, "pump-1", "Running", 0)? == true).then_some(())).await;
+    let mark = host.len();
     host.send("state offline");
+    // The node publishes its NDEATH and starts a new session that waits for the host.
+    let death = host
+        .wait("the NDEATH", |log| {
+            of(log, "NDEATH", "hall-s").find(|(i, _)| *i >= mark).map(|(_, m)| m.clone())
+        })
+        .await;
+    assert_eq!(death["bdSeq"].as_u64(), Some(first_bd_seq), "{death}");
     // Once the gateway keeps data, nothing more is published while the host is away.
     wait_metric(&gw, "drivebus_sparkplug_stored_total", 1.0).await;
     let offline = host.len();
@@ -396,6 +405,7 @@ async fn store_and_forward_while_the_primary_host_is_offline_and_while_the_broke
     );
     host.send("state online");
     let back = wait_births(&host, "hall-s", offline).await;
+    assert_eq!(host.log()[back]["bdSeq"].as_u64(), Some((first_bd_seq + 1) % 256), "the new session's bdSeq");
     wait_kept(&host, back, 40.0).await;
     // Something new, to see live data after the kept.
     host.send("dcmd hall-s pump-1 Setpoint double 35");

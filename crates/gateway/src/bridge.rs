@@ -220,8 +220,35 @@ async fn pass(
         return if r.unit == 0 { None } else { exception(ExceptionCode::ILLEGAL_FUNCTION) };
     }
     let exchange = Exchange { request: bus_frame(ascii, r.unit, &r.pdu), expect_reply: r.unit != 0 };
-    let result = bus.owner().transact(r.unit, exchange, Priority::Bridge, None).await;
-    let (answer, outcome) = match result {
+    let unit = r.unit;
+    let transact = async move { bus.owner().transact(unit, exchange, Priority::Bridge, None).await };
+    if !write {
+        return answer_of(ascii, fc, transact.await).0;
+    }
+    // A write takes its turn in the drive's lane, with the gateway's own commands to it; its
+    // audit record too, so the trail lists them in the order they were carried out.
+    let (gw2, bus_name, drive2, actor2, action2) =
+        (gw.clone(), cfg.bus.clone(), drive.clone(), actor.to_string(), action.clone());
+    let done = gw.in_lane(&drive, async move {
+        let (answer, outcome) = answer_of(ascii, fc, transact.await);
+        audit(&gw2, &bus_name, &drive2, &actor2, &action2, outcome).await;
+        answer
+    });
+    match done.await {
+        Ok(answer) => answer,
+        Err(e) => {
+            // Too many writes wait for this drive: nothing was sent.
+            audit(gw, &cfg.bus, &drive, actor, &action, format!("{}: {e}", e.kind())).await;
+            exception(ExceptionCode::SERVER_DEVICE_BUSY)
+        }
+    }
+}
+
+/// The answer to a request (its PDU; `None` for a broadcast) and the audit trail's outcome, from
+/// the bus's result.
+fn answer_of(ascii: bool, fc: u8, result: Result<Option<Vec<u8>>, BusError>) -> (Option<Vec<u8>>, String) {
+    let exception = |code: ExceptionCode| Some(vec![fc | 0x80, code.0]);
+    match result {
         Ok(None) => (None, "ok (broadcast)".to_string()),
         Ok(Some(frame)) => match reply_pdu(ascii, &frame) {
             Some(p) if p.first().is_some_and(|f| f & 0x80 != 0) => {
@@ -239,11 +266,7 @@ async fn pass(
             (exception(PATH_UNAVAILABLE), format!("failed: {e}"))
         }
         Err(e) => (exception(ExceptionCode::GATEWAY_TARGET_FAILED), format!("timeout: {e}")),
-    };
-    if write {
-        audit(gw, &cfg.bus, &drive, actor, &action, outcome).await;
     }
-    answer
 }
 
 async fn audit(gw: &Arc<Gateway>, bus: &str, drive: &str, actor: &str, action: &str, result: String) {

@@ -105,6 +105,8 @@ fn refuse(kind: &'static str, message: impl Into<String>) -> Refusal {
 struct Settings {
     host: String,
     port: u16,
+    /// Plain TCP or TLS (`mqtts://`).
+    transport: rumqttc::Transport,
     prefix: String,
     client_id: String,
     allow: Vec<Pattern>,
@@ -115,7 +117,11 @@ struct Settings {
 
 impl Settings {
     fn new(gw: &Gateway, cfg: &MqttConfig) -> Result<Settings, String> {
-        let (host, port) = parse_url(&cfg.url).map_err(|e| format!("MQTT: {e}"))?;
+        let url = parse_url(&cfg.url).map_err(|e| format!("MQTT: {e}"))?;
+        let commands = !cfg.allow_commands.is_empty();
+        let transport =
+            crate::config::tls::broker_transport("mqtt", &url, &cfg.tls, cfg.credentials.is_some(), commands)
+                .map_err(|e| format!("MQTT: {e}"))?;
         let prefix = match &cfg.topic_prefix {
             Some(p) => {
                 check_prefix(p).map_err(|e| format!("MQTT topic prefix {e}"))?;
@@ -129,8 +135,9 @@ impl Settings {
             .map(|a| Pattern::parse(a).map_err(|e| format!("MQTT allow_commands {e}")))
             .collect::<Result<_, _>>()?;
         Ok(Settings {
-            host,
-            port,
+            host: url.host,
+            port: url.port,
+            transport,
             prefix,
             client_id: cfg
                 .client_id
@@ -354,10 +361,11 @@ impl Publisher {
             }
         };
         let (gw, client) = (self.gw.clone(), self.client.clone());
-        let actor = self.actor();
+        // Handed to the drive's lane now, in the order the messages came.
+        let done = self.gw.command(&drive, command, &self.actor());
         tokio::spawn(async move {
             let _permit = permit;
-            let result = gw.command(&drive, command, &actor).await;
+            let result = done.await;
             let error = result
                 .as_ref()
                 .err()
@@ -440,6 +448,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
     let s = Arc::new(s);
     let mut opts = MqttOptions::new(s.client_id.clone(), s.host.clone(), s.port);
     opts.set_keep_alive(Duration::from_secs(15));
+    opts.set_transport(s.transport.clone());
     opts.set_clean_start(true);
     opts.set_last_will(LastWill::new(s.availability(), "offline", QoS::AtLeastOnce, true, None));
     opts.set_max_packet_size(Some(MAX_INCOMING_PACKET));
@@ -452,6 +461,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
     // The event loop runs on its own so that publishing never waits for the network.
     let (tx, mut from_broker) = mpsc::channel(256);
     let endpoint = format!("{}:{}", s.host, s.port);
+    let host = s.host.clone();
     tokio::spawn(async move {
         let mut backoff = Duration::from_millis(250);
         let mut reported = false;
@@ -469,6 +479,7 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                 Ok(_) => None,
                 Err(e) => {
                     if !reported {
+                        let e = crate::config::tls::explain(&host, &e.to_string());
                         crate::log::warn(&format!("MQTT: broker {endpoint}: {e}; retrying"));
                         reported = true;
                     }

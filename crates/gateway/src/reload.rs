@@ -128,6 +128,7 @@ pub fn plan(old: &GatewayConfig, new: &GatewayConfig) -> Plan {
     let restart = [
         ("http.listen", old.http.listen != new.http.listen),
         ("http.max_body", old.http.max_body != new.http.max_body),
+        ("http.tls", old.http.tls != new.http.tls),
         ("modbus.listen", old.modbus.listen != new.modbus.listen),
         ("modbus.max_connections", old.modbus.max_connections != new.modbus.max_connections),
         ("store", old.store != new.store),

@@ -55,7 +55,15 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     if let Some(o) = &cfg.opcua {
         gw.health().listener("opcua", o.listen, false);
     }
-    let http = bind(cfg.http.listen, "HTTP", "--http")?;
+    // HTTPS with [http] tls_cert and tls_key; write tokens in clear off this machine refused.
+    if let Some(why) = cfg.http.plaintext_refusal(&cfg.tokens) {
+        return Err(why);
+    }
+    let https = match &cfg.http.tls {
+        Some(t) => Some(crate::config::tls::server_config(&t.cert, &t.key)?),
+        None => None,
+    };
+    let http = bind(cfg.http.listen, if https.is_some() { "HTTPS" } else { "HTTP" }, "--http")?;
     let modbus = bind(cfg.modbus.listen, "Modbus TCP", "--modbus")?;
     // OPC UA is on by default: a box where 4840 is taken (another OPC UA server) still gets its
     // gateway, with the listener reported down (log, /readyz, metrics) instead of no gateway.
@@ -77,7 +85,7 @@ pub async fn run(gw: Arc<Gateway>, loader: Option<Loader>, ready: impl FnOnce(&B
     };
     gw.health().listener("http", bound.http, true);
     gw.health().listener("modbus", bound.modbus, true);
-    let http_task = tokio::spawn(crate::http::serve(gw.clone(), http));
+    let http_task = tokio::spawn(crate::http::serve(gw.clone(), http, https));
     let modbus_task = tokio::spawn(crate::modbus_tcp::serve(gw.clone(), modbus));
     if let Some(m) = &cfg.mqtt {
         crate::mqtt::spawn(gw.clone(), m)?;

@@ -38,7 +38,7 @@ async fn start(limits: &str) -> (Arc<Gateway>, Listeners) {
         modbus: m.local_addr().unwrap(),
         bridge: b.local_addr().unwrap(),
     };
-    tokio::spawn(drivebus_gateway::http::serve(gw.clone(), h));
+    tokio::spawn(drivebus_gateway::http::serve(gw.clone(), h, None));
     tokio::spawn(drivebus_gateway::modbus_tcp::serve(gw.clone(), m));
     tokio::spawn(drivebus_gateway::bridge::serve(gw.clone(), bridge_cfg, b));
     (gw, at)

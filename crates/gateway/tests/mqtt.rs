@@ -213,3 +213,52 @@ async fn home_assistant_discovery() {
     })
     .await;
 }
+
+/// 30 commands to one drive published in one burst (run, stop and a speed in turn) are carried
+/// out in the order published: the audit trail lists them so, and the drive ends as the last
+/// ones left it, stopped at the last speed. (Each message used to start a task of its own that then took its turn.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_commands_is_carried_out_in_the_order_published() {
+    let (broker, broker5) = rumqttd_both().await;
+    let p = "drivebus/hall-o";
+    let watcher = Subscriber::start(broker, "watcher", &format!("{p}/#")).await;
+    let gw = demo_gateway("hall-o", broker5, &["line-toshiba/pump-1/*"], false);
+    let events = collect_events(&gw);
+    watcher.wait_json(&format!("{p}/line-toshiba/pump-1/status"), |v| v["online"] == true).await;
+    let mut want = Vec::new();
+    for i in 0..30u32 {
+        let (cmd, payload, action) = match i % 3 {
+            0 => ("run", "1".to_string(), "run".to_string()),
+            1 => ("stop", "1".to_string(), "stop".to_string()),
+            _ => {
+                let hz = f64::from(i) / 2.0;
+                ("speed", format!("{hz}"), drivebus_gateway::Command::Speed(hz).action())
+            }
+        };
+        want.push(action);
+        watcher.publish(&format!("{p}/line-toshiba/pump-1/set/{cmd}"), &payload, false).await;
+    }
+    let done = |events: &[drivebus_store::Event]| -> Vec<String> {
+        events
+            .iter()
+            .filter(|e| e.kind == drivebus_store::EventKind::Command && e.drive.as_deref() == Some("pump-1"))
+            .map(|e| e.action.clone().unwrap_or_default())
+            .collect()
+    };
+    support_wait(|| done(&events.lock().unwrap()).len() >= want.len(), || done(&events.lock().unwrap()))
+        .await;
+    assert_eq!(done(&events.lock().unwrap()), want);
+    // The last two: a stop, then a speed of 14.5 Hz.
+    let d = gw.drive("pump-1").unwrap();
+    support_wait(|| gw.drive_view(&d).running == Some(false), || gw.drive_view(&d)).await;
+    assert_eq!(gw.drive_view(&d).setpoint_hz, Some(14.5), "{:?}", gw.drive_view(&d));
+}
+
+/// Waits (at most [`PATIENCE`]) for `ready`, showing `what` if it never is.
+async fn support_wait<T: std::fmt::Debug>(ready: impl Fn() -> bool, what: impl Fn() -> T) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while !ready() {
+        assert!(tokio::time::Instant::now() < deadline, "waited {PATIENCE:?}: {:?}", what());
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+}

@@ -1,6 +1,9 @@
 //! The Sparkplug edge node in process, on an embedded broker (rumqttd): a reload that adds and
-//! removes drives brings their DBIRTH and DDEATH (a new bus, a rebirth), and the
-//! store-and-forward queue stays within its limit, dropping the oldest and counting them.
+//! removes drives brings their DBIRTH and DDEATH (a new bus, a rebirth), the store-and-forward
+//! queue stays within its limit, dropping the oldest and counting them, and the primary host
+//! going offline brings the NDEATH and a new session whose births wait for the host, then the
+//! data kept meanwhile, historical and in order. The specification's assertions one by one are
+//! in sparkplug_conformance.rs.
 //! The interop with a Sparkplug host nobody here wrote is in crates/cli/tests/sparkplug.rs.
 
 mod mqtt_support;
@@ -140,5 +143,215 @@ async fn the_store_and_forward_queue_keeps_the_newest_within_its_limit() {
     let times: Vec<i64> = kept.iter().map(|p| p.timestamp.unwrap() as i64).collect();
     assert!(times.windows(2).all(|w| w[0] <= w[1]), "{times:?}");
     assert!(times.iter().all(|t| *t >= newest[0].time_ms), "{times:?} {newest:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// 200 DCMDs (Run, Stop and a Setpoint in turn) published in one burst are carried out in the
+/// order published: the audit trail lists them so, and the drive ends stopped at the last
+/// setpoint. (Each DCMD used to start a task of its own, which could reach the drive in any order.)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_dcmds_is_carried_out_in_the_order_published() {
+    use prost::Message;
+
+    let broker = rumqttd().await;
+    let dir = std::env::temp_dir().join(format!("drivebus-sparkplug-order-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("order.db");
+    let _ = std::fs::remove_file(&db);
+    let store = drivebus_store::Store::open(&db).unwrap();
+    let gw = Gateway::start(config("hall-o", &bus("line-1", &[("d1", 1)])), Some(store.clone())).unwrap();
+    let sub = Subscriber::start(broker, "host", "spBv1.0/#").await;
+    let mut sp = sparkplug(broker);
+    sp.commands = true;
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sp).unwrap();
+    sub.wait("d1 born", |log| {
+        log.iter().any(|m| kind(m, "hall-o") == Some(("DBIRTH", Some("d1")))).then_some(())
+    })
+    .await;
+
+    let metric = |name: &str, datatype: payload::DataType, value: payload::Value| payload::Metric {
+        name: Some(name.to_string()),
+        datatype: Some(datatype as u32),
+        value: Some(value),
+        ..Default::default()
+    };
+    let mut want = Vec::new();
+    for i in 0..200u32 {
+        let (m, action) = match i % 3 {
+            0 => (
+                metric("Command/Run", payload::DataType::Boolean, payload::Value::Boolean(true)),
+                "run".into(),
+            ),
+            1 => (
+                metric("Command/Stop", payload::DataType::Boolean, payload::Value::Boolean(true)),
+                "stop".into(),
+            ),
+            _ => {
+                let hz = f64::from(i) / 4.0;
+                let m = metric("Setpoint", payload::DataType::Double, payload::Value::Double(hz));
+                (m, Command::Speed(hz).action())
+            }
+        };
+        want.push(action);
+        let p = Payload { timestamp: Some(1), metrics: vec![m], seq: Some(0), ..Default::default() };
+        sub.client
+            .publish("spBv1.0/drivebus/DCMD/hall-o/d1", rumqttc::QoS::AtLeastOnce, false, p.encode_to_vec())
+            .await
+            .unwrap();
+    }
+    assert_eq!(want.last().map(String::as_str), Some("stop"));
+
+    let filter = drivebus_store::EventFilter {
+        drive: Some("d1".into()),
+        kind: Some(drivebus_store::EventKind::Command),
+        ..Default::default()
+    };
+    let start = std::time::Instant::now();
+    let done = loop {
+        let events = store.events(&filter).unwrap();
+        let done: Vec<_> =
+            events.iter().filter(|e| e.result.as_deref() != Some(drivebus_store::PENDING)).collect();
+        if done.len() >= want.len() {
+            break events;
+        }
+        assert!(start.elapsed() < PATIENCE * 2, "{} of {} carried out", done.len(), want.len());
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    };
+    let audited: Vec<&str> = done.iter().map(|e| e.action.as_deref().unwrap()).collect();
+    assert_eq!(audited, want);
+    for e in &done {
+        assert_eq!(e.actor.as_deref(), Some("sparkplug:drivebus/hall-o"), "{e:?}");
+        assert_eq!(e.result.as_deref(), Some("ok"), "{e:?}");
+    }
+    // The drive ends stopped, at the last setpoint commanded.
+    let d = gw.drive("d1").unwrap();
+    let start = std::time::Instant::now();
+    while gw.drive_view(&d).running != Some(false) {
+        assert!(start.elapsed() < PATIENCE, "{:?}", gw.drive_view(&d));
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    assert_eq!(gw.drive_view(&d).setpoint_hz, Some(f64::from(197u32) / 4.0));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+fn bd_seq(p: &Payload) -> Option<u64> {
+    p.metrics.iter().find(|m| m.name.as_deref() == Some("bdSeq")).and_then(|m| match m.value {
+        Some(payload::Value::Long(b)) => Some(b),
+        _ => None,
+    })
+}
+
+/// `OutputFrequency` of d1 in a DDATA (by the alias of the last DBIRTH before it), and whether
+/// the DDATA is historical.
+fn output_hz(log: &[Msg], at: usize) -> Option<(f64, bool)> {
+    if kind(&log[at], "hall-h") != Some(("DDATA", Some("d1"))) {
+        return None;
+    }
+    let birth = log[..at].iter().rposition(|m| kind(m, "hall-h") == Some(("DBIRTH", Some("d1"))))?;
+    let alias =
+        decoded(&log[birth]).metrics.iter().find(|m| m.name.as_deref() == Some("OutputFrequency"))?.alias;
+    decoded(&log[at]).metrics.iter().find(|m| m.alias == alias).and_then(|m| match m.value {
+        Some(payload::Value::Double(hz)) => Some((hz, m.is_historical == Some(true))),
+        _ => None,
+    })
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_primary_host_offline_brings_the_ndeath_a_new_session_and_the_kept_data_when_it_is_back() {
+    let broker = rumqttd().await;
+    let dir = std::env::temp_dir().join(format!("drivebus-sparkplug-host-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let db = dir.join("host.db");
+    let _ = std::fs::remove_file(&db);
+    let store = drivebus_store::Store::open(&db).unwrap();
+    let gw = Gateway::start(config("hall-h", &bus("line-1", &[("d1", 1)])), Some(store)).unwrap();
+    let host = Subscriber::start(broker, "scada", "spBv1.0/#").await;
+    host.publish("spBv1.0/STATE/scada", r#"{"online": true, "timestamp": 1}"#, true).await;
+    let mut sp = sparkplug(broker);
+    sp.primary_host = Some("scada".into());
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sp).unwrap();
+    let first = host
+        .wait("the births", |log| {
+            let at = log.iter().position(|m| kind(m, "hall-h") == Some(("NBIRTH", None)))?;
+            log[at..]
+                .iter()
+                .any(|m| kind(m, "hall-h") == Some(("DBIRTH", Some("d1"))))
+                .then(|| decoded(&log[at]))
+        })
+        .await;
+    let bd = bd_seq(&first).unwrap();
+
+    // The host goes offline: the node's NDEATH, with the session's bdSeq.
+    let mark = host.log.lock().unwrap().len();
+    host.publish("spBv1.0/STATE/scada", r#"{"online": false, "timestamp": 2}"#, true).await;
+    let death = host
+        .wait("the NDEATH", |log| {
+            log[mark..].iter().find(|m| kind(m, "hall-h") == Some(("NDEATH", None))).cloned()
+        })
+        .await;
+    assert_eq!(bd_seq(&decoded(&death)), Some(bd));
+    let metrics = drivebus_gateway::sparkplug::metrics(&gw);
+    assert_eq!(metrics.messages("ndeath"), 1);
+
+    // d1 ramps to 40 Hz while nobody listens: kept.
+    gw.command("d1", Command::Speed(40.0), "test").await.unwrap();
+    gw.command("d1", Command::Run, "test").await.unwrap();
+    let d1 = gw.drive("d1").unwrap();
+    let start = std::time::Instant::now();
+    // And a new MQTT session, which waits for the host: nothing is published.
+    while (gw.drive_view(&d1).output_hz.unwrap_or(0.0) - 40.0).abs() > 0.05
+        || metrics.stored() < 3
+        || metrics.connections() < 2
+    {
+        assert!(
+            start.elapsed() < PATIENCE,
+            "d1 at {:?} Hz, {} kept, {} sessions",
+            gw.drive_view(&d1).output_hz,
+            metrics.stored(),
+            metrics.connections()
+        );
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    let away = host.log.lock().unwrap().len();
+    assert!(
+        host.log.lock().unwrap()[mark..away]
+            .iter()
+            .all(|m| kind(m, "hall-h").map_or(true, |(k, _)| k == "NDEATH" || k.ends_with("CMD"))),
+        "published while the host was offline"
+    );
+
+    // Back: births with the next bdSeq, then the ramp, historical and in order, then live data.
+    host.publish("spBv1.0/STATE/scada", r#"{"online": true, "timestamp": 3}"#, true).await;
+    let back = host
+        .wait("births with the next bdSeq", |log| {
+            let at = away + log[away..].iter().position(|m| kind(m, "hall-h") == Some(("NBIRTH", None)))?;
+            Some((at, bd_seq(&decoded(&log[at]))?))
+        })
+        .await;
+    assert_eq!(back.1, (bd + 1) % 256);
+    let back = back.0;
+    host.wait("the kept ramp up to 40 Hz", |log| {
+        (back..log.len())
+            .any(|i| output_hz(log, i).is_some_and(|(hz, h)| h && (hz - 40.0).abs() < 0.05))
+            .then_some(())
+    })
+    .await;
+    gw.command("d1", Command::Speed(35.0), "test").await.unwrap();
+    host.wait("live data after the kept", |log| {
+        (back..log.len()).any(|i| output_hz(log, i).is_some_and(|(_, h)| !h)).then_some(())
+    })
+    .await;
+    let log = host.log.lock().unwrap().clone();
+    let ddata: Vec<usize> =
+        (back..log.len()).filter(|i| kind(&log[*i], "hall-h") == Some(("DDATA", Some("d1")))).collect();
+    let historical = |i: &usize| decoded(&log[*i]).metrics.iter().all(|m| m.is_historical == Some(true));
+    let split = ddata.iter().position(|i| !historical(i)).unwrap();
+    assert!(ddata[split..].iter().all(|i| !historical(i)), "historical data after live data");
+    let times: Vec<u64> = ddata[..split].iter().map(|i| decoded(&log[*i]).timestamp.unwrap()).collect();
+    assert!(times.windows(2).all(|w| w[0] <= w[1]), "kept data out of order: {times:?}");
+    let ramp: Vec<f64> =
+        ddata[..split].iter().filter_map(|i| output_hz(&log, *i)).map(|(hz, _)| hz).collect();
+    assert!(ramp.len() >= 3 && ramp.windows(2).all(|w| w[0] <= w[1]), "the ramp, in order: {ramp:?}");
+    assert_seq_continues(&log, "hall-h");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -69,7 +69,8 @@ pub fn describe(c: &GatewayConfig) -> String {
             &format!("  linkage: {} follows {} x {} + {} Hz\n", l.follower, l.leader, l.ratio, l.offset_hz);
     }
     out += &format!(
-        "  HTTP        http://{}/ (anonymous reads {})\n",
+        "  HTTP        {}://{}/ (anonymous reads {})\n",
+        if c.http.tls.is_some() { "https" } else { "http" },
         c.http.listen,
         if c.http.anonymous_read { "on" } else { "off" }
     );

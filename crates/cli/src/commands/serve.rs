@@ -32,11 +32,12 @@ pub struct ServeArgs {
     /// No OPC UA server.
     #[arg(long)]
     pub no_opcua: bool,
-    /// Publish to an MQTT broker, mqtt://HOST:PORT.
+    /// Publish to an MQTT broker, mqtt://HOST:PORT, or mqtts://HOST[:PORT] over TLS (the
+    /// configuration's [mqtt] ca_file and client certificate apply).
     #[arg(long, value_name = "URL")]
     pub mqtt: Option<String>,
-    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT (docs/sparkplug.md); the
-    /// configuration's other [sparkplug] settings stay.
+    /// Run a Sparkplug B edge node on this broker, mqtt://HOST:PORT or mqtts://HOST[:PORT]
+    /// (TLS) (docs/sparkplug.md); the configuration's other [sparkplug] settings stay.
     #[arg(long, value_name = "URL")]
     pub sparkplug: Option<String>,
     /// The Sparkplug primary host id: publish only while its STATE says online.
@@ -122,9 +123,7 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         }
     }
     if let Some(url) = &args.mqtt {
-        if !url.starts_with("mqtt://") {
-            return Err(anyhow!("--mqtt {url:?}: use mqtt://HOST:PORT"));
-        }
+        drivebus_gateway::mqtt::parse_url(url).map_err(|e| anyhow!("--mqtt {e}"))?;
         let mut m = config.mqtt.clone().unwrap_or(MqttConfig {
             url: url.clone(),
             topic_prefix: None,
@@ -132,6 +131,7 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
             allow_commands: Vec::new(),
             client_id: None,
             credentials: None,
+            tls: Default::default(),
         });
         m.url = url.clone();
         config.mqtt = Some(m);
@@ -170,7 +170,7 @@ fn sparkplug_overrides(args: &ServeArgs, config: &mut GatewayConfig) -> Result<(
         drivebus_gateway::sparkplug::check_id(host).map_err(|e| anyhow!("--sparkplug-primary {e}"))?;
         let sp = config.sparkplug.as_mut().ok_or_else(|| {
             anyhow!(
-                "--sparkplug-primary needs a broker: give --sparkplug mqtt://HOST:PORT or [sparkplug] urls"
+                "--sparkplug-primary needs a broker: give --sparkplug mqtt[s]://HOST:PORT or [sparkplug] urls"
             )
         })?;
         sp.primary_host = Some(host.clone());
@@ -239,8 +239,9 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
                 count(gw.buses().len(), "bus", "buses"),
                 count(gw.drives().len(), "drive", "drives")
             );
-            println!("  dashboard   http://{}/", bound.http);
-            println!("  HTTP API    http://{}/api/drives", bound.http);
+            let scheme = if gw.config().http.tls.is_some() { "https" } else { "http" };
+            println!("  dashboard   {scheme}://{}/", bound.http);
+            println!("  HTTP API    {scheme}://{}/api/drives", bound.http);
             println!("  Modbus TCP  {} (unit id = drive, docs/register-map.md)", bound.modbus);
             if let (Some(a), Some(o)) = (bound.opcua, &gw.config().opcua) {
                 let url =

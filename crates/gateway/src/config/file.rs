@@ -70,6 +70,10 @@ pub(super) struct FileHttp {
     pub(super) max_body: Option<Spanned<usize>>,
     #[serde(default)]
     pub(super) hosts: Vec<Spanned<String>>,
+    pub(super) tls_cert: Option<Spanned<String>>,
+    pub(super) tls_key: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) allow_plaintext: bool,
 }
 
 /// `[modbus]` as written.
@@ -197,6 +201,12 @@ pub(super) struct FileMqtt {
     pub(super) username: Option<Spanned<String>>,
     pub(super) password: Option<Spanned<String>>,
     pub(super) password_env: Option<Spanned<String>>,
+    /// TLS (`mqtts://`): the CA file, the client's certificate and key; the plain-text opt-out.
+    pub(super) ca_file: Option<Spanned<String>>,
+    pub(super) client_cert: Option<Spanned<String>>,
+    pub(super) client_key: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) allow_plaintext: bool,
 }
 
 /// `[sparkplug]` as written.
@@ -212,6 +222,12 @@ pub(super) struct FileSparkplug {
     pub(super) username: Option<Spanned<String>>,
     pub(super) password: Option<Spanned<String>>,
     pub(super) password_env: Option<Spanned<String>>,
+    /// TLS (`mqtts://`): the CA file, the client's certificate and key; the plain-text opt-out.
+    pub(super) ca_file: Option<Spanned<String>>,
+    pub(super) client_cert: Option<Spanned<String>>,
+    pub(super) client_key: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) allow_plaintext: bool,
     pub(super) store_forward_max: Option<Spanned<u64>>,
     pub(super) store_forward_max_age_s: Option<Spanned<u64>>,
     pub(super) store_forward_rate: Option<Spanned<u64>>,

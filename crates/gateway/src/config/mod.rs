@@ -95,6 +95,7 @@
 //! write = false                         # accept writes (read-only unless true)
 //! ```
 
+mod broker;
 mod bus;
 mod ctx;
 mod drive;
@@ -114,6 +115,7 @@ pub mod modbus_rtu;
 pub mod mqtt;
 pub mod sparkplug;
 pub mod state_dir;
+pub mod tls;
 
 pub use drivebus_drive::ConfigError;
 pub use model::*;
@@ -147,6 +149,7 @@ impl GatewayConfig {
         let http = http::check(&cx, &raw.http)?;
         let modbus = modbus::check(&cx, &raw.modbus)?;
         let tokens = token::check(&cx, &raw.token)?;
+        http::check_plaintext(&cx, &raw.http, &http, &tokens)?;
         let name = name::check(&cx, &raw.name)?;
         let buses = bus::check(&cx, &raw.bus)?;
         let linkage = linkage::check(&cx, &raw.linkage, &buses)?;

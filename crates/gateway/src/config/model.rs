@@ -98,6 +98,19 @@ pub struct HttpConfig {
     /// Names the gateway is reached by (`Host` header) besides its addresses and `localhost`;
     /// checked when `anonymous_read` is on (http/host.rs).
     pub hosts: Vec<String>,
+    /// HTTPS: the listener's certificate (chain) and private key, PEM (`tls_cert`, `tls_key`).
+    pub tls: Option<HttpTls>,
+    /// Serve write tokens over plain HTTP on an address other than loopback.
+    pub allow_plaintext: bool,
+}
+
+/// The certificate and key that make the HTTP listener HTTPS.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HttpTls {
+    /// PEM file of the certificate, or its chain (the server's first).
+    pub cert: PathBuf,
+    /// PEM file of its private key.
+    pub key: PathBuf,
 }
 
 /// The Modbus TCP listener.
@@ -237,7 +250,7 @@ pub struct Linkage {
 /// MQTT publishing (docs/mqtt.md).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MqttConfig {
-    /// `mqtt://HOST[:PORT]` (port 1883 when not given).
+    /// `mqtt://HOST[:PORT]` (port 1883 when not given) or `mqtts://HOST[:PORT]` (TLS, 8883).
     pub url: String,
     /// Topic root (default `drivebus/<gateway>`).
     pub topic_prefix: Option<String>,
@@ -251,12 +264,33 @@ pub struct MqttConfig {
     pub client_id: Option<String>,
     /// User name and password for brokers that ask for them.
     pub credentials: Option<(String, String)>,
+    /// TLS to the broker (`mqtts://`) and the plain-text opt-out.
+    pub tls: BrokerTls,
+}
+
+/// How the gateway talks to an MQTT broker beside its URL, the same keys in `[mqtt]` and
+/// `[sparkplug]` (docs/mqtt.md): whom to trust for an `mqtts://` broker, the certificate the
+/// gateway shows, and the opt-out of the rule that credentials and commands do not cross a
+/// network in clear.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BrokerTls {
+    /// PEM file of the CA certificates the broker's certificate must chain to (default: the
+    /// system's trusted roots).
+    pub ca_file: Option<PathBuf>,
+    /// PEM file of the gateway's client certificate (chain), for brokers that ask for one.
+    pub client_cert: Option<PathBuf>,
+    /// PEM file of its private key.
+    pub client_key: Option<PathBuf>,
+    /// Allow a plain `mqtt://` broker off this machine though a password or commands would
+    /// cross the network in clear.
+    pub allow_plaintext: bool,
 }
 
 /// The Sparkplug B edge node (docs/sparkplug.md).
 #[derive(Clone, Debug, PartialEq)]
 pub struct SparkplugConfig {
-    /// Brokers, `mqtt://HOST[:PORT]`, tried in turn when one cannot be reached.
+    /// Brokers, `mqtt://HOST[:PORT]` or `mqtts://HOST[:PORT]`, tried in turn when one cannot be
+    /// reached.
     pub urls: Vec<String>,
     /// The Sparkplug group id.
     pub group_id: String,
@@ -268,6 +302,8 @@ pub struct SparkplugConfig {
     pub commands: bool,
     /// User name and password for brokers that ask for them.
     pub credentials: Option<(String, String)>,
+    /// TLS to the brokers (`mqtts://`) and the plain-text opt-out.
+    pub tls: BrokerTls,
     /// Most data messages kept while nobody can receive them (oldest dropped first).
     pub store_forward_max: u64,
     /// Data messages older than this are dropped from the queue, seconds.
@@ -300,6 +336,7 @@ impl SparkplugConfig {
             primary_host: None,
             commands: false,
             credentials: None,
+            tls: BrokerTls::default(),
             store_forward_max: SPARKPLUG_STORE_MAX,
             store_forward_max_age_s: SPARKPLUG_STORE_MAX_AGE_S,
             store_forward_rate: SPARKPLUG_STORE_RATE,

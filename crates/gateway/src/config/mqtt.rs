@@ -1,41 +1,14 @@
 //! `[mqtt]`: MQTT publishing (docs/mqtt.md). The broker URL, topic prefix and command pattern
 //! rules live here; the MQTT front end (mqtt.rs) uses them at run time.
 
+use super::broker::FileTls;
+pub use super::broker::{is_loopback, parse_url, plaintext_refusal, BrokerUrl};
 use super::ctx::Ctx;
 use super::file::FileMqtt;
 use super::{ConfigError, MqttConfig};
 
 /// The commands accepted on `set/<command>` topics.
 pub const COMMANDS: [&str; 6] = ["run", "stop", "reverse", "jog", "reset", "speed"];
-
-/// `(host, port)` of an `mqtt://HOST[:PORT]` URL; an error names what is wrong.
-pub fn parse_url(url: &str) -> Result<(String, u16), String> {
-    let rest = url.strip_prefix("mqtt://").ok_or_else(|| format!("{url:?}: use mqtt://HOST:PORT"))?;
-    let rest = rest.strip_suffix('/').unwrap_or(rest);
-    if rest.is_empty() || rest.contains(['/', '@', '?', '#']) {
-        return Err(format!("{url:?}: use mqtt://HOST:PORT"));
-    }
-    // [v6]:port, host:port, or a host alone.
-    let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
-        let (h, p) = v6.split_once(']').ok_or_else(|| format!("{url:?}: unclosed [ in the host"))?;
-        (h, p.strip_prefix(':'))
-    } else {
-        match rest.rsplit_once(':') {
-            Some((h, p)) => (h, Some(p)),
-            None => (rest, None),
-        }
-    };
-    if host.is_empty() {
-        return Err(format!("{url:?}: no host"));
-    }
-    let port = match port {
-        None => 1883,
-        Some(p) => {
-            p.parse::<u16>().ok().filter(|&p| p > 0).ok_or_else(|| format!("{url:?}: bad port {p:?}"))?
-        }
-    };
-    Ok((host.to_string(), port))
-}
 
 /// Checks a configured topic prefix: levels without wildcards, no leading or trailing `/`.
 pub fn check_prefix(prefix: &str) -> Result<(), String> {
@@ -76,9 +49,6 @@ impl Pattern {
 
 /// Checks `[mqtt]`.
 pub(super) fn check(cx: &Ctx, m: FileMqtt) -> Result<MqttConfig, ConfigError> {
-    if let Err(e) = parse_url(m.url.get_ref()) {
-        return cx.err(m.url.span(), "mqtt.url", e);
-    }
     if let Some(p) = &m.topic_prefix {
         if let Err(e) = check_prefix(p.get_ref()) {
             return cx.err(p.span(), "mqtt.topic_prefix", e);
@@ -96,6 +66,15 @@ pub(super) fn check(cx: &Ctx, m: FileMqtt) -> Result<MqttConfig, ConfigError> {
         }
     }
     let credentials = cx.credentials("mqtt", m.url.span(), &m.username, &m.password, &m.password_env)?;
+    let keys = FileTls {
+        ca_file: &m.ca_file,
+        client_cert: &m.client_cert,
+        client_key: &m.client_key,
+        allow_plaintext: m.allow_plaintext,
+    };
+    let urls = [(m.url.get_ref().as_str(), m.url.span())];
+    let commands = !m.allow_commands.is_empty();
+    let tls = super::broker::check(cx, "mqtt", "url", &urls, keys, credentials.is_some(), commands)?;
     Ok(MqttConfig {
         url: m.url.into_inner(),
         topic_prefix: m.topic_prefix.map(|p| p.into_inner()),
@@ -103,22 +82,13 @@ pub(super) fn check(cx: &Ctx, m: FileMqtt) -> Result<MqttConfig, ConfigError> {
         allow_commands: m.allow_commands.into_iter().map(|a| a.into_inner()).collect(),
         client_id: m.client_id.map(|c| c.into_inner()),
         credentials,
+        tls,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn urls() {
-        assert_eq!(parse_url("mqtt://10.0.0.9:1884").unwrap(), ("10.0.0.9".into(), 1884));
-        assert_eq!(parse_url("mqtt://broker").unwrap(), ("broker".into(), 1883));
-        assert_eq!(parse_url("mqtt://[::1]:1883").unwrap(), ("::1".into(), 1883));
-        for bad in ["tcp://x:1", "mqtt://", "mqtt://x:0", "mqtt://x:99999", "mqtt://x:1/a", "mqtt://:1883"] {
-            assert!(parse_url(bad).is_err(), "{bad}");
-        }
-    }
 
     #[test]
     fn patterns() {

@@ -3,9 +3,9 @@
 
 use toml::Spanned;
 
+use super::broker::FileTls;
 use super::ctx::Ctx;
 use super::file::FileSparkplug;
-use super::mqtt::parse_url;
 use super::{
     ConfigError, SparkplugConfig, SPARKPLUG_GROUP, SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S,
     SPARKPLUG_STORE_RATE,
@@ -24,11 +24,6 @@ pub(super) fn check(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, Conf
     if sp.urls.get_ref().is_empty() {
         return cx.err(sp.urls.span(), "sparkplug.urls", "give at least one broker: [\"mqtt://HOST:PORT\"]");
     }
-    for u in sp.urls.get_ref() {
-        if let Err(e) = parse_url(u.get_ref()) {
-            return cx.err(u.span(), "sparkplug.urls", e);
-        }
-    }
     for (field, id) in
         [("group_id", &sp.group_id), ("edge_node_id", &sp.edge_node_id), ("primary_host", &sp.primary_host)]
     {
@@ -40,6 +35,14 @@ pub(super) fn check(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, Conf
     }
     let credentials =
         cx.credentials("sparkplug", sp.urls.span(), &sp.username, &sp.password, &sp.password_env)?;
+    let keys = FileTls {
+        ca_file: &sp.ca_file,
+        client_cert: &sp.client_cert,
+        client_key: &sp.client_key,
+        allow_plaintext: sp.allow_plaintext,
+    };
+    let urls: Vec<(&str, _)> = sp.urls.get_ref().iter().map(|u| (u.get_ref().as_str(), u.span())).collect();
+    let tls = super::broker::check(cx, "sparkplug", "urls", &urls, keys, credentials.is_some(), sp.commands)?;
     let positive = |v: &Option<Spanned<u64>>, field: &str, default: u64| match v {
         Some(n) if *n.get_ref() == 0 => cx.err(n.span(), field, "give a number above 0"),
         Some(n) => Ok(*n.get_ref()),
@@ -67,6 +70,7 @@ pub(super) fn check(cx: &Ctx, sp: FileSparkplug) -> Result<SparkplugConfig, Conf
         primary_host: sp.primary_host.map(Spanned::into_inner),
         commands: sp.commands,
         credentials,
+        tls,
     })
 }
 

@@ -83,7 +83,7 @@ fn errors_name_the_file_line_and_field() {
 fn mqtt_settings_are_checked() {
     let ok = GatewayConfig::from_toml(
         "p.toml",
-        "[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"line-1/*/stop\", \"*/*/*\"]\n",
+        "[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"line-1/*/stop\", \"*/*/*\"]\nallow_plaintext = true\n",
     )
     .unwrap();
     assert_eq!(ok.mqtt.unwrap().allow_commands.len(), 2);
@@ -265,7 +265,7 @@ fn sparkplug_settings_have_defaults_and_are_checked() {
         (SPARKPLUG_STORE_MAX, SPARKPLUG_STORE_MAX_AGE_S)
     );
     let full = "[sparkplug]\nurls = [\"mqtt://a\"]\ngroup_id = \"plant\"\nedge_node_id = \"hall-9\"\n\
-                primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\n\
+                primary_host = \"scada\"\ncommands = true\nusername = \"u\"\npassword = \"p\"\nallow_plaintext = true\n\
                 store_forward_max = 10\nstore_forward_max_age_s = 60\nstore_forward_rate = 500\n";
     let sp = GatewayConfig::from_toml("p.toml", full).unwrap().sparkplug.unwrap();
     assert_eq!(sp.edge_node_id.as_deref(), Some("hall-9"));
@@ -381,4 +381,134 @@ fn the_configuration_imports_no_front_end() {
         files += 1;
     }
     assert!(files > 10, "{files} files in {}", dir.display());
+}
+
+#[path = "../../tests/tls_support/mod.rs"]
+mod tls_support;
+
+#[test]
+fn broker_tls_keys_are_checked_with_their_files() {
+    let pki = tls_support::TestPki::new("config", &["broker.plant"]);
+    let p = tls_support::TestPki::toml;
+    for section in ["[mqtt]\nurl", "[sparkplug]\nurls"] {
+        let name = if section.starts_with("[mqtt]") { "mqtt" } else { "sparkplug" };
+        let url = |u: &str| if name == "mqtt" { format!("\"{u}\"") } else { format!("[\"{u}\"]") };
+        let tls = url("mqtts://broker.plant");
+        let good = format!(
+            "{section} = {tls}\nca_file = \"{}\"\nclient_cert = \"{}\"\nclient_key = \"{}\"\n",
+            p(&pki.ca),
+            p(&pki.client_cert),
+            p(&pki.client_key)
+        );
+        let c = GatewayConfig::from_toml("plant.toml", &good).unwrap();
+        let t = if name == "mqtt" { c.mqtt.unwrap().tls } else { c.sparkplug.unwrap().tls };
+        assert_eq!(t.ca_file.as_deref(), Some(pki.ca.as_path()));
+        assert_eq!(t.client_key.as_deref(), Some(pki.client_key.as_path()));
+
+        let cases = [
+            (
+                format!("{section} = {tls}\nca_file = \"/nonexistent/ca.pem\"\n"),
+                format!("plant.toml:3: field `{name}.ca_file`: ca_file /nonexistent/ca.pem: cannot read it"),
+            ),
+            (
+                format!("{section} = {tls}\nca_file = \"{}\"\n", p(&pki.client_key)),
+                format!("plant.toml:3: field `{name}.ca_file`: ca_file {}: no certificate in it", p(&pki.client_key)),
+            ),
+            (
+                format!("{section} = {tls}\nclient_key = \"{}\"\n", p(&pki.client_key)),
+                format!("plant.toml:3: field `{name}.client_key`: client_key needs client_cert"),
+            ),
+            (
+                format!("{section} = {tls}\nclient_cert = \"{}\"\nclient_key = \"{}\"\n", p(&pki.client_cert), p(&pki.server_key)),
+                format!("plant.toml:3: field `{name}.client_cert`: client_cert {} and client_key {}: the key is not the certificate's", p(&pki.client_cert), p(&pki.server_key)),
+            ),
+            (
+                format!("{section} = {}\nca_file = \"{}\"\n", url("mqtt://broker.plant"), p(&pki.ca)),
+                format!("plant.toml:3: field `{name}.ca_file`: is for TLS: use an mqtts:// broker URL"),
+            ),
+            (
+                format!("{section} = {}\nusername = \"u\"\npassword = \"p\"\n", url("mqtt://10.0.0.9")),
+                format!("plant.toml:2: field `{name}.{}`: the broker password would cross the network to 10.0.0.9 in clear: use mqtts://10.0.0.9, or set [{name}] allow_plaintext = true", if name == "mqtt" { "url" } else { "urls" }),
+            ),
+        ];
+        for (text, want) in cases {
+            let e = err(&text);
+            assert!(e.starts_with(&want), "{e}\nwanted: {want}");
+            assert!(!e.contains('\n'), "one line: {e}");
+        }
+        // The opt-out, and a broker on this machine.
+        let plain = format!(
+            "{section} = {}\nusername = \"u\"\npassword = \"p\"\nallow_plaintext = true\n",
+            url("mqtt://10.0.0.9")
+        );
+        assert!(GatewayConfig::from_toml("plant.toml", &plain).is_ok());
+        let local = format!("{section} = {}\nusername = \"u\"\npassword = \"p\"\n", url("mqtt://127.0.0.1"));
+        assert!(GatewayConfig::from_toml("plant.toml", &local).is_ok());
+    }
+    let e = err("[mqtt]\nurl = \"mqtt://10.0.0.9\"\nallow_commands = [\"*/*/stop\"]\n");
+    assert!(e.contains("motor commands would cross the network to 10.0.0.9 in clear"), "{e}");
+    let e = err("[sparkplug]\nurls = [\"mqtt://a\"]\ncommands = true\n");
+    assert!(e.contains("motor commands would cross the network to a in clear"), "{e}");
+}
+
+#[test]
+fn https_keys_are_checked_with_their_files() {
+    let pki = tls_support::TestPki::new("config-http", &["localhost"]);
+    let p = tls_support::TestPki::toml;
+    let good =
+        format!("[http]\ntls_cert = \"{}\"\ntls_key = \"{}\"\n", p(&pki.server_cert), p(&pki.server_key));
+    let c = GatewayConfig::from_toml("plant.toml", &good).unwrap();
+    let tls = c.http.tls.unwrap();
+    assert_eq!(
+        (tls.cert.as_path(), tls.key.as_path()),
+        (pki.server_cert.as_path(), pki.server_key.as_path())
+    );
+    for (text, want) in [
+        (
+            format!("[http]\ntls_cert = \"{}\"\ntls_key = \"{}\"\n", p(&pki.server_cert), p(&pki.client_key)),
+            format!(
+                "plant.toml:2: field `http.tls_cert`: tls_cert {} and tls_key {}: the key is not the certificate's",
+                p(&pki.server_cert),
+                p(&pki.client_key)
+            ),
+        ),
+        (
+            format!("[http]\ntls_cert = \"{}\"\ntls_key = \"/nonexistent/key.pem\"\n", p(&pki.server_cert)),
+            "plant.toml:3: field `http.tls_key`: tls_key /nonexistent/key.pem: cannot read it".to_string(),
+        ),
+        (
+            format!("[http]\ntls_cert = \"{}\"\ntls_key = \"{}\"\n", p(&pki.server_key), p(&pki.server_key)),
+            format!("plant.toml:2: field `http.tls_cert`: tls_cert {}: no certificate in it", p(&pki.server_key)),
+        ),
+        (
+            format!("[http]\ntls_cert = \"{}\"\n", p(&pki.server_cert)),
+            "plant.toml:2: field `http.tls_cert`: give tls_key too".to_string(),
+        ),
+    ] {
+        let e = err(&text);
+        assert!(e.starts_with(&want), "{e}\nwanted: {want}");
+        assert!(!e.contains('\n'), "one line: {e}");
+    }
+}
+
+#[test]
+fn write_tokens_over_plain_http_off_loopback_are_refused_unless_opted_out() {
+    let write = "[[token]]\nname = \"scada\"\ntoken = \"0123456789abcdef-w\"\nrole = \"write\"\n";
+    let read = "[[token]]\nname = \"view\"\ntoken = \"0123456789abcdef-r\"\nrole = \"read\"\n";
+    let e = err(&format!("[http]\nlisten = \"0.0.0.0:8080\"\n{write}"));
+    assert_eq!(
+        e,
+        "plant.toml:2: field `http.listen`: write tokens would cross the network in clear on \
+         http://0.0.0.0:8080: give [http] tls_cert and tls_key (HTTPS), listen on 127.0.0.1, or set \
+         [http] allow_plaintext = true to accept that"
+    );
+    for ok in [
+        format!("[http]\nlisten = \"0.0.0.0:8080\"\nallow_plaintext = true\n{write}"),
+        format!("[http]\nlisten = \"0.0.0.0:8080\"\n{read}"),
+        format!("[http]\nlisten = \"127.0.0.1:8080\"\n{write}"),
+        format!("[http]\nlisten = \"[::1]:8080\"\n{write}"),
+        write.to_string(),
+    ] {
+        assert!(GatewayConfig::from_toml("plant.toml", &ok).is_ok(), "{ok}");
+    }
 }

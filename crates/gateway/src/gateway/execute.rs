@@ -1,6 +1,7 @@
 //! Carrying out what a front end asks of a drive: [`Gateway::command`] (the lock, the audit
 //! record around the command, the drive's state read after it) and [`Gateway::read_param`].
 
+use std::future::Future;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
@@ -11,11 +12,29 @@ use super::command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX
 use super::hub::Gateway;
 
 impl Gateway {
-    /// Sends `command` to drive `id` on behalf of `actor` (for the audit trail) and waits for the
-    /// drive's confirmation. The command is in the store (result `pending`) before it is sent,
-    /// and its result before this returns. A command whose audit record cannot be committed is
-    /// not sent: [`CommandError::NotRecorded`].
-    pub async fn command(
+    /// Sends `command` to drive `id` on behalf of `actor` (for the audit trail); the future
+    /// returned ends with the drive's confirmation. The command takes its place in the drive's
+    /// lane ([`Gateway::in_lane`]) when this is called, not when the future is first awaited:
+    /// commands for one drive are carried out one at a time, in the order of the calls. The
+    /// command is in the store (result `pending`) before it is sent, and its result before the
+    /// future ends. A command whose audit record cannot be committed is not sent:
+    /// [`CommandError::NotRecorded`].
+    pub fn command(
+        self: &Arc<Self>,
+        id: &str,
+        command: Command,
+        actor: &str,
+    ) -> impl Future<Output = Result<(), CommandError>> + Send + 'static {
+        let handed = self.drive(id).map(|_| {
+            let (gw, key, actor) = (self.clone(), id.to_string(), actor.to_string());
+            self.in_lane(id, async move { gw.carry_out(&key, command, &actor).await })
+        });
+        async move { handed?.await? }
+    }
+
+    /// [`Gateway::command`], its turn come.
+    /// (The drive is looked up again: a reload may have replaced it while the command waited.)
+    async fn carry_out(
         self: &Arc<Self>,
         id: &str,
         command: Command,

@@ -73,6 +73,8 @@ pub struct Gateway {
     pub(super) refusals: Mutex<Refusals>,
     /// The front ends' own state, one of each type ([`Gateway::attached`]).
     pub(super) attached: RwLock<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>,
+    /// One lane per drive: commands in the order handed over ([`Gateway::in_lane`]).
+    pub(super) lanes: super::lanes::Lanes,
 }
 
 impl Gateway {
@@ -90,6 +92,7 @@ impl Gateway {
             limits,
             refusals: Mutex::new(Refusals::default()),
             attached: RwLock::new(HashMap::new()),
+            lanes: super::lanes::Lanes::default(),
         }
     }
 

@@ -19,7 +19,8 @@
 //!  events     impl: update ◄── a poll's result: DriveState, trip/offline events, trend samples
 //!                   record/announce: an event ──► store, log, live subscribers (Change)
 //!  audit      impl: command records (pending, then the result), refused writes, failed logins
-//!  execute    impl: command(): lock ──► audit ──► drive ──► audit ──► refresh; read_param()
+//!  lanes      impl: in_lane(): one lane per drive, work carried out in the order handed over
+//!  execute    impl: command(): lane ──► lock ──► audit ──► drive ──► audit ──► refresh; read_param()
 //!  scheduler  impl: per bus, poll each drive when due ──► update; refresh after a command
 //!  start      impl: config ──► buses (owner + drives) ──► Topology ──► Gateway; reload swaps it
 //! ```
@@ -34,6 +35,7 @@ mod command;
 mod events;
 mod execute;
 mod hub;
+mod lanes;
 mod linkage;
 mod scheduler;
 mod start;
@@ -43,6 +45,7 @@ pub use audit::MAX_LOGIN_FAILURES;
 pub use cache::{BusEntry, DriveEntry, DriveState};
 pub use command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX_SPEED_HZ};
 pub use hub::{Counters, Gateway, Topology};
+pub use lanes::MAX_LANE_QUEUE;
 pub use start::Reload;
 pub use views::{drive_master, log_line, BusView, Change, DriveView, FaultView, DRIVE_MASTER_WINDOW_S};
 

@@ -15,7 +15,7 @@ use tokio::sync::Notify;
 use super::cache::{BusEntry, DriveEntry, DriveState};
 use super::hub::{Gateway, Topology};
 use super::linkage::LINKAGE_NONE;
-use crate::config::{BusConfig, DriveConfig, GatewayConfig};
+use crate::config::{BusConfig, DriveConfig, GatewayConfig, HttpConfig};
 #[cfg(feature = "virtual")]
 use drivebus_link::port::VirtualPort;
 use drivebus_link::port::{Port as LinkPort, SerialSettings};
@@ -56,6 +56,15 @@ impl Gateway {
     pub async fn reload(self: &Arc<Self>, new: GatewayConfig, actor: &str) -> Result<Reload, String> {
         let _one = self.reloading.lock().await;
         let old = self.topology();
+        // The listener stays as it runs (address, TLS): its tokens are checked against it.
+        let running = HttpConfig {
+            listen: old.config.http.listen,
+            tls: old.config.http.tls.clone(),
+            ..new.http.clone()
+        };
+        if let Some(why) = running.plaintext_refusal(&new.tokens) {
+            return Err(why);
+        }
         let plan = crate::reload::plan(&old.config, &new);
         // Build first: a bus that cannot be built leaves everything as it was.
         let mut built = HashMap::new();

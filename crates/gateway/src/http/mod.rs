@@ -82,33 +82,62 @@ pub fn router(gw: Arc<Gateway>) -> Router {
 }
 
 /// Serves the HTTP API, the dashboard and the metrics on `listener` until the process ends,
-/// within the gateway's `[limits]`: at most `per_address` connections from one address, a
-/// request header within `header_timeout_ms`, a connection idle for `idle_timeout_s` closed.
-pub async fn serve(gw: Arc<Gateway>, listener: tokio::net::TcpListener) -> std::io::Result<()> {
-    let limits = gw.limits().listener("HTTP");
+/// over TLS when `tls` is given (HTTPS; [`crate::config::tls::server_config`]), within the
+/// gateway's `[limits]`: at most `per_address` connections from one address, the TLS handshake
+/// and then a request header each within `header_timeout_ms`, a connection idle for
+/// `idle_timeout_s` closed.
+pub async fn serve(
+    gw: Arc<Gateway>,
+    listener: tokio::net::TcpListener,
+    tls: Option<Arc<tokio_rustls::rustls::ServerConfig>>,
+) -> std::io::Result<()> {
+    let limits = gw.limits().listener(if tls.is_some() { "HTTPS" } else { "HTTP" });
     let cfg = gw.limits().config().clone();
     let app = router(gw);
+    let acceptor = tls.map(tokio_rustls::TlsAcceptor::from);
     loop {
         let (sock, peer, permit) = limits.accept(&listener).await;
-        let (app, cfg) = (app.clone(), cfg.clone());
+        let (app, cfg, acceptor) = (app.clone(), cfg.clone(), acceptor.clone());
         tokio::spawn(async move {
             let _permit = permit;
             let _ = sock.set_nodelay(true);
-            let io = crate::limits::Activity::new(sock);
-            let idle = io.idle(cfg.idle_timeout);
-            let service = hyper::service::service_fn(move |mut req: Request<hyper::body::Incoming>| {
-                req.extensions_mut().insert(axum::extract::ConnectInfo(peer));
-                tower::ServiceExt::oneshot(app.clone(), req.map(axum::body::Body::new))
-            });
-            let conn = hyper::server::conn::http1::Builder::new()
-                .timer(hyper_util::rt::TokioTimer::new())
-                .header_read_timeout(cfg.header_timeout)
-                .serve_connection(hyper_util::rt::TokioIo::new(io), service);
-            tokio::select! {
-                _ = conn => {}
-                _ = idle => {}
+            let Some(acceptor) = acceptor else {
+                return connection(app, &cfg, peer, sock).await;
+            };
+            // A handshake that does not end in time (or fails) closes the connection, as a
+            // request header that does not come would.
+            let handshake = acceptor.accept(sock);
+            let tls = if cfg.header_timeout.is_zero() {
+                handshake.await.ok()
+            } else {
+                tokio::time::timeout(cfg.header_timeout, handshake).await.ok().and_then(Result::ok)
+            };
+            if let Some(stream) = tls {
+                connection(app, &cfg, peer, stream).await;
             }
         });
+    }
+}
+
+/// Serves one connection from `peer` (plain or TLS) until it ends, its request header times
+/// out, or it is idle too long.
+async fn connection<S>(app: Router, cfg: &crate::limits::LimitsConfig, peer: std::net::SocketAddr, sock: S)
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+{
+    let io = crate::limits::Activity::new(sock);
+    let idle = io.idle(cfg.idle_timeout);
+    let service = hyper::service::service_fn(move |mut req: Request<hyper::body::Incoming>| {
+        req.extensions_mut().insert(axum::extract::ConnectInfo(peer));
+        tower::ServiceExt::oneshot(app.clone(), req.map(axum::body::Body::new))
+    });
+    let conn = hyper::server::conn::http1::Builder::new()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(cfg.header_timeout)
+        .serve_connection(hyper_util::rt::TokioIo::new(io), service);
+    tokio::select! {
+        _ = conn => {}
+        _ = idle => {}
     }
 }
 

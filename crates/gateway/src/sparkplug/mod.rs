@@ -15,25 +15,29 @@
 //!
 //! Each MQTT session takes the next `bdSeq` from the store ([`drivebus_store::Store::next_bd_seq`])
 //! before it connects, and registers the NDEATH with it as its will. With a primary host, the
-//! node publishes only while the host's STATE says online; while it is offline, or no broker can
-//! be reached, DDATA go to the store's queue and are sent when publishing resumes, after the
-//! births, in order, flagged `is_historical`, before live data. [`node`] is the session state
-//! without I/O; this module runs it. docs/sparkplug.md is the user's description.
+//! node births only once the host's STATE says online; when the host goes offline the node
+//! publishes its NDEATH, disconnects and starts a new session (the next bdSeq) that births when
+//! the host is back. While nobody listens, DDATA go to the store's queue and are sent when
+//! publishing resumes, after the births, in order, flagged `is_historical`, before live data.
+//! [`node`] (messages) and [`session`] (states) are the edge node without I/O; this module runs
+//! them. docs/sparkplug.md is the user's description.
 
 pub mod node;
 pub mod payload;
+pub mod session;
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use prost::Message;
-use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, Publish, QoS};
+use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Outgoing, Packet, Publish, QoS};
 use tokio::sync::{broadcast, mpsc};
 
 // The id rule is the configuration's (config/sparkplug.rs).
 pub use crate::config::sparkplug::check_id;
 use node::{DeviceMessage, Node, NodeCommand, Refusal};
 use payload::Payload;
+use session::{Session, Step};
 
 use crate::config::SparkplugConfig;
 use crate::gateway::{unix_ms, Change, Command, DriveEntry, Gateway};
@@ -52,7 +56,8 @@ pub fn drain_pause(n: usize, rate: u64) -> Duration {
 pub const FLUSH_INTERVAL: Duration = Duration::from_millis(250);
 
 struct Settings {
-    brokers: Vec<(String, u16)>,
+    /// Host, port, and plain TCP or TLS (`mqtts://`).
+    brokers: Vec<(String, u16, rumqttc::Transport)>,
     group: String,
     edge: String,
     primary: Option<String>,
@@ -66,11 +71,18 @@ struct Settings {
 
 impl Settings {
     fn new(gw: &Gateway, cfg: &SparkplugConfig) -> Result<Settings, String> {
+        let (secret, commands) = (cfg.credentials.is_some(), cfg.commands);
         let brokers = cfg
             .urls
             .iter()
-            .map(|u| crate::config::mqtt::parse_url(u).map_err(|e| format!("Sparkplug: {e}")))
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|u| {
+                let url = crate::config::mqtt::parse_url(u)?;
+                let transport =
+                    crate::config::tls::broker_transport("sparkplug", &url, &cfg.tls, secret, commands)?;
+                Ok((url.host, url.port, transport))
+            })
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(|e| format!("Sparkplug: {e}"))?;
         if brokers.is_empty() {
             return Err("Sparkplug: give at least one broker URL".into());
         }
@@ -135,10 +147,11 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
     let mut backoff = Duration::from_millis(250);
     let mut reported = false;
     loop {
-        let (host, port) = s.brokers[broker % s.brokers.len()].clone();
+        let (host, port, transport) = s.brokers[broker % s.brokers.len()].clone();
         let bd_seq = next_bd_seq(&gw, &key, &mut fallback).await;
         let mut opts = MqttOptions::new(s.client_id.clone(), host.clone(), port);
         opts.set_keep_alive(Duration::from_secs(15));
+        opts.set_transport(transport);
         opts.set_clean_session(true);
         let will = Node::ndeath(bd_seq, unix_ms()).encode_to_vec();
         opts.set_last_will(LastWill::new(death_topic.clone(), will, QoS::AtLeastOnce, false));
@@ -149,6 +162,9 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
         let cap = 256 + 4 * gw.drives().len();
         let (client, mut eventloop) = AsyncClient::new(opts, cap);
         let mut connected = false;
+        // The edge node left on purpose (its primary host went offline): the next session goes
+        // to the next broker in the list.
+        let mut left = false;
         loop {
             let msg = match eventloop.poll().await {
                 Ok(Event::Incoming(Packet::ConnAck(_))) => {
@@ -173,9 +189,14 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
                     }
                     continue;
                 }
+                Ok(Event::Outgoing(Outgoing::Disconnect)) => {
+                    left = true;
+                    break;
+                }
                 Ok(_) => continue,
                 Err(e) => {
                     if !reported {
+                        let e = crate::config::tls::explain(&host, &e.to_string());
                         crate::log::warn(&format!("Sparkplug: broker {host}:{port}: {e}; retrying"));
                         reported = true;
                     }
@@ -186,11 +207,10 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
                 return;
             }
         }
-        if connected {
-            if tx.send(FromBroker::Lost).await.is_err() {
-                return;
-            }
-        } else {
+        if connected && tx.send(FromBroker::Lost).await.is_err() {
+            return;
+        }
+        if left || !connected {
             broker += 1;
         }
         tokio::time::sleep(backoff).await;
@@ -206,13 +226,8 @@ struct EdgeNode {
     actor: String,
     client: Option<AsyncClient>,
     bd_seq: u64,
-    /// True without a primary host.
-    host_online: bool,
-    host_timestamp: u64,
-    /// Births sent in this session and the host listening: data goes out live.
-    publishing: bool,
-    /// Kept data messages wait (in `pending` or the store): new data joins the queue.
-    draining: bool,
+    /// Connected, waiting for the host, publishing, draining the queue, leaving.
+    session: Session,
     pending: Vec<(String, i64, Vec<u8>)>,
     /// When the next batch of kept messages may go ([`Settings::rate`]).
     drain_next: tokio::time::Instant,
@@ -251,7 +266,7 @@ impl EdgeNode {
             Err(_) => {
                 // The session ended under us: its end comes through the event loop.
                 self.client = None;
-                self.publishing = false;
+                self.session.lost();
                 false
             }
         }
@@ -262,14 +277,14 @@ impl EdgeNode {
             DeviceMessage::Birth(p) => ("dbirth", "DBIRTH", p),
             DeviceMessage::Death(p) => ("ddeath", "DDEATH", p),
             DeviceMessage::Data(p) => {
-                if !self.publishing || self.draining {
+                if self.session.keeps_data() {
                     self.keep(id, p);
                     return;
                 }
                 ("ddata", "DDATA", Node::live(p))
             }
         };
-        if !self.publishing {
+        if !self.session.publishing() {
             return;
         }
         self.node.stamp(&mut p);
@@ -284,7 +299,6 @@ impl EdgeNode {
         }
         let time = p.timestamp.map_or_else(unix_ms, |t| t as i64);
         self.pending.push((id.to_string(), time, Node::to_keep(p).encode_to_vec()));
-        self.draining = true;
     }
 
     /// Writes kept messages to the store.
@@ -319,7 +333,7 @@ impl EdgeNode {
     async fn drain(&mut self) {
         self.flush().await;
         let Some(store) = self.gw.store().cloned() else {
-            self.draining = false;
+            self.session.drained();
             return;
         };
         let key = self.key();
@@ -330,13 +344,13 @@ impl EdgeNode {
             Ok(Ok(b)) => b,
             Ok(Err(e)) => {
                 crate::log::warn(&format!("Sparkplug: cannot read the kept data messages: {e}"));
-                self.draining = false;
+                self.session.drained();
                 return;
             }
             Err(_) => return,
         };
         let Some(last) = batch.last().map(|m| m.id) else {
-            self.draining = false;
+            self.session.drained();
             metrics(&self.gw).queued.set(0);
             return;
         };
@@ -359,9 +373,18 @@ impl EdgeNode {
         }
     }
 
+    /// Does what the session's state machine asks.
+    async fn step(&mut self, step: Step) {
+        match step {
+            Step::Stay => {}
+            Step::Birth => self.birth().await,
+            Step::Leave => self.leave().await,
+        }
+    }
+
     /// NBIRTH and every DBIRTH: a new session, a host back online, a rebirth request.
     async fn birth(&mut self) {
-        if self.client.is_none() || !self.host_online {
+        if self.client.is_none() {
             return;
         }
         self.sync_topology();
@@ -369,7 +392,8 @@ impl EdgeNode {
         // seq 0, stamped by `nbirth`.
         let p = self.node.nbirth(self.bd_seq, &buses, unix_ms());
         let topic = self.node.node_topic("NBIRTH");
-        self.publishing = true;
+        // Publishing from the NBIRTH on; data keeps going to the queue until the births are out.
+        self.session.born(true);
         if !self.publish("nbirth", topic, &p).await {
             return;
         }
@@ -386,7 +410,22 @@ impl EdgeNode {
             }
             None => 0,
         };
-        self.draining = stored > 0 || !self.pending.is_empty();
+        self.session.born(stored > 0 || !self.pending.is_empty());
+    }
+
+    /// The primary host went offline: the NDEATH of this session's bdSeq, then a disconnect; the
+    /// session loop starts the next session (the next bdSeq), which births when the host is back.
+    async fn leave(&mut self) {
+        crate::log::info("Sparkplug: the primary host is offline: NDEATH, new session, keeping data");
+        let Some(client) = self.client.take() else { return };
+        let topic = self.node.node_topic("NDEATH");
+        let p = Node::ndeath(self.bd_seq, unix_ms());
+        // Queued before the DISCONNECT, so the broker has it first (MQTT 3.1.1 drops the will
+        // on a DISCONNECT).
+        if client.publish(topic, QoS::AtLeastOnce, false, p.encode_to_vec()).await.is_ok() {
+            metrics(&self.gw).messages.get_or_create(&MessageLabels { kind: "ndeath" }).inc();
+        }
+        let _ = client.disconnect().await;
     }
 
     fn sync_topology(&mut self) -> (Vec<String>, bool) {
@@ -402,11 +441,12 @@ impl EdgeNode {
     /// change the node's metrics, which takes a rebirth.
     async fn reloaded(&mut self) {
         let (dead, buses_changed) = self.sync_topology();
-        if !self.publishing {
+        if !self.session.publishing() {
             return;
         }
         if buses_changed {
-            self.birth().await;
+            let step = self.session.rebirth();
+            self.step(step).await;
             return;
         }
         for id in dead {
@@ -429,9 +469,8 @@ impl EdgeNode {
         self.bd_seq = bd_seq;
         let mut topics = vec![self.node.node_topic("NCMD"), format!("{}/+", self.node.node_topic("DCMD"))];
         if let Some(h) = &self.s.primary {
+            // Births wait for the host's (retained) STATE saying online.
             topics.insert(0, format!("{}/STATE/{h}", node::NAMESPACE));
-            // Until the host's (retained) STATE says online.
-            self.host_online = false;
         }
         for t in topics {
             if let Err(e) = client.subscribe(t.clone(), QoS::AtLeastOnce).await {
@@ -439,12 +478,13 @@ impl EdgeNode {
             }
         }
         self.client = Some(client);
-        self.birth().await;
+        let step = self.session.connected();
+        self.step(step).await;
     }
 
     fn lost(&mut self) {
         self.client = None;
-        self.publishing = false;
+        self.session.lost();
     }
 
     async fn on_message(&mut self, p: Publish) {
@@ -462,7 +502,8 @@ impl EdgeNode {
             match cmds {
                 Ok(cmds) if cmds.contains(&NodeCommand::Rebirth) => {
                     crate::log::info("Sparkplug: rebirth asked by NCMD");
-                    self.birth().await;
+                    let step = self.session.rebirth();
+                    self.step(step).await;
                 }
                 Ok(_) => {}
                 Err(r) => self.refused(None, r),
@@ -476,31 +517,15 @@ impl EdgeNode {
     }
 
     async fn on_state(&mut self, payload: &[u8]) {
-        let Ok(v) = serde_json::from_slice::<serde_json::Value>(payload) else {
-            crate::log::warn(
-                "Sparkplug: the primary host's STATE is not JSON {\"online\": ..., \"timestamp\": ...}",
-            );
-            return;
+        let (online, timestamp) = match session::parse_state(payload) {
+            Ok(state) => state,
+            Err(e) => return crate::log::warn(&format!("Sparkplug: {e}")),
         };
-        let Some(online) = v.get("online").and_then(serde_json::Value::as_bool) else {
-            crate::log::warn("Sparkplug: the primary host's STATE has no \"online\": true|false");
-            return;
-        };
-        let ts = v.get("timestamp").and_then(serde_json::Value::as_u64).unwrap_or(0);
-        if ts < self.host_timestamp {
-            // An older STATE than one already seen (the specification says to ignore it).
-            return;
-        }
-        self.host_timestamp = ts;
-        if online && !self.host_online {
+        let step = self.session.host_state(online, timestamp);
+        if step == Step::Birth {
             crate::log::info("Sparkplug: the primary host is online: publishing");
-            self.host_online = true;
-            self.birth().await;
-        } else if !online && self.host_online {
-            crate::log::info("Sparkplug: the primary host is offline: keeping data until it is back");
-            self.host_online = false;
-            self.publishing = false;
         }
+        self.step(step).await;
     }
 
     fn refused(&self, device: Option<&str>, r: Refusal) {
@@ -532,24 +557,32 @@ impl EdgeNode {
             Ok(c) => c,
             Err(r) => return self.refused(Some(&device), r),
         };
-        let (gw, actor, written) = (self.gw.clone(), self.actor.clone(), self.written.clone());
-        tokio::spawn(async move {
-            for c in cmds {
+        // Handed to the drive's lane here, in the order the DCMDs came, before any task runs:
+        // the commands are carried out in that order whatever the tasks' order.
+        let handed: Vec<_> = cmds
+            .into_iter()
+            .map(|c| {
                 let param = match &c {
                     Command::SetParam { name, value, .. } => {
                         value.parse::<f64>().ok().map(|v| (name.clone(), v))
                     }
                     _ => None,
                 };
-                match gw.command(&device, c.clone(), &actor).await {
+                let action = c.action();
+                (param, action, self.gw.command(&device, c, &self.actor))
+            })
+            .collect();
+        let written = self.written.clone();
+        tokio::spawn(async move {
+            for (param, action, done) in handed {
+                match done.await {
                     Ok(()) => {
                         if let Some((name, v)) = param {
                             let _ = written.send((device.clone(), name, v)).await;
                         }
                     }
                     Err(e) => crate::log::warn(&format!(
-                        "Sparkplug: DCMD {} for {device:?} failed: {}: {e}",
-                        c.action(),
+                        "Sparkplug: DCMD {action} for {device:?} failed: {}: {e}",
                         e.kind()
                     )),
                 }
@@ -570,10 +603,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
         s: s.clone(),
         client: None,
         bd_seq: 0,
-        host_online: s.primary.is_none(),
-        host_timestamp: 0,
-        publishing: false,
-        draining: false,
+        session: Session::new(s.primary.is_some()),
         pending: Vec::new(),
         drain_next: tokio::time::Instant::now(),
         drives: gw.drives(),
@@ -581,10 +611,6 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
         written,
     };
     e.sync_topology();
-    e.draining = match gw.store() {
-        Some(store) => store.spool_len(&e.key()).unwrap_or(0) > 0,
-        None => false,
-    };
     let mut changes = gw.subscribe();
     let mut tick = tokio::time::interval(FLUSH_INTERVAL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -598,12 +624,12 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
             },
             c = changes.recv() => match c {
                 Ok(Change::Drive(v)) => {
-                    if let Some(m) = e.node.on_drive(&v, e.publishing, unix_ms()) {
+                    if let Some(m) = e.node.on_drive(&v, e.session.publishing(), unix_ms()) {
                         e.device(&v.id, m).await;
                     }
                 }
                 Ok(Change::Bus(b)) => {
-                    if e.publishing {
+                    if e.session.publishing() {
                         if let Some(mut p) = e.node.on_bus(&b, unix_ms()) {
                             e.node.stamp(&mut p);
                             let topic = e.node.node_topic("NDATA");
@@ -616,7 +642,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
                     // Changes were missed: compare every drive with what was last sent.
                     for d in gw.drives().iter() {
                         let v = gw.drive_view(d);
-                        if let Some(m) = e.node.on_drive(&v, e.publishing, unix_ms()) {
+                        if let Some(m) = e.node.on_drive(&v, e.session.publishing(), unix_ms()) {
                             e.device(&v.id, m).await;
                         }
                     }
@@ -624,7 +650,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
                 Err(broadcast::error::RecvError::Closed) => return,
             },
             Some((device, name, v)) = written_rx.recv() => {
-                if e.publishing && !e.draining {
+                if !e.session.keeps_data() {
                     if let Some(mut p) = e.node.param_written(&device, &name, v, unix_ms()) {
                         e.node.stamp(&mut p);
                         let topic = e.node.device_topic("DDATA", &device);
@@ -638,7 +664,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
                 }
                 e.flush().await;
             }
-            _ = tokio::time::sleep_until(e.drain_next), if e.publishing && e.draining => e.drain().await,
+            _ = tokio::time::sleep_until(e.drain_next), if e.session.phase() == session::Phase::Draining => e.drain().await,
         }
     }
 }

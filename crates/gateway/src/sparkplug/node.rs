@@ -36,8 +36,13 @@ pub const COMMAND_METRICS: [&str; 4] = ["Command/Run", "Command/Stop", "Command/
 /// The prefix of a device's parameter metrics (`Parameters/<name>`, Double, in the unit).
 pub const PARAMETER_PREFIX: &str = "Parameters/";
 
-/// The node's rebirth request metric.
+/// The node's rebirth request metric. It has no alias (operational-behavior-data-commands-
+/// rebirth-name-aliases): a host asks for a rebirth by name, knowing nothing of this node.
 pub const REBIRTH: &str = "Node Control/Rebirth";
+
+/// The birth/death sequence metric, of type Int64 as the specification says
+/// (message-flow-edge-node-birth-publish-nbirth-payload-bdSeq).
+pub const BD_SEQ: &str = "bdSeq";
 
 const SETPOINT: usize = 1;
 const FIXED: usize = STATUS_METRICS.len() + COMMAND_METRICS.len();
@@ -175,8 +180,9 @@ impl Node {
             group: group.to_string(),
             edge: edge.to_string(),
             seq: 0,
-            // Alias 1 is the rebirth metric; the buses and devices take theirs as they come.
-            next_alias: 2,
+            // The buses and devices take their aliases as they come; bdSeq and the rebirth
+            // metric have none.
+            next_alias: 1,
             devices: BTreeMap::new(),
             buses: HashMap::new(),
         }
@@ -237,14 +243,8 @@ impl Node {
     pub fn nbirth(&mut self, bd_seq: u64, buses: &[BusView], now_ms: i64) -> Payload {
         let t = now_ms as u64;
         let mut metrics = vec![
-            Metric {
-                name: Some("bdSeq".into()),
-                timestamp: Some(t),
-                datatype: Some(DataType::UInt64 as u32),
-                value: Some(Value::Long(bd_seq)),
-                ..Metric::default()
-            },
-            Metric::birth(REBIRTH, 1, DataType::Boolean, Some(Value::Boolean(false)), t),
+            Metric::birth_by_name(BD_SEQ, DataType::Int64, Some(Value::Long(bd_seq)), t),
+            Metric::birth_by_name(REBIRTH, DataType::Boolean, Some(Value::Boolean(false)), t),
         ];
         self.buses.retain(|name, _| buses.iter().any(|b| &b.name == name));
         for b in buses {
@@ -275,13 +275,12 @@ impl Node {
     pub fn ndeath(bd_seq: u64, now_ms: i64) -> Payload {
         Payload {
             timestamp: Some(now_ms as u64),
-            metrics: vec![Metric {
-                name: Some("bdSeq".into()),
-                timestamp: Some(now_ms as u64),
-                datatype: Some(DataType::UInt64 as u32),
-                value: Some(Value::Long(bd_seq)),
-                ..Metric::default()
-            }],
+            metrics: vec![Metric::birth_by_name(
+                BD_SEQ,
+                DataType::Int64,
+                Some(Value::Long(bd_seq)),
+                now_ms as u64,
+            )],
             ..Payload::default()
         }
     }
@@ -436,9 +435,16 @@ impl Node {
         p.metrics
             .iter()
             .map(|m| {
-                let is_rebirth =
-                    m.alias == Some(1) || (m.alias.is_none() && m.name.as_deref() == Some(REBIRTH));
-                if !is_rebirth {
+                if m.alias.is_some() && m.name.as_deref() != Some(REBIRTH) {
+                    return Err(refuse(
+                        "unknown_metric",
+                        format!(
+                            "NCMD metric {}: the node's metrics take no commands by alias: name {REBIRTH:?}",
+                            describe(m)
+                        ),
+                    ));
+                }
+                if m.name.as_deref() != Some(REBIRTH) {
                     return Err(refuse(
                         "unknown_metric",
                         format!("NCMD metric {}: the node takes {REBIRTH:?} only", describe(m)),
@@ -606,6 +612,31 @@ mod tests {
         assert_eq!(
             birth(&mut n, "pump-1").metrics,
             a.metrics.iter().map(|m| Metric { timestamp: Some(1_000), ..m.clone() }).collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
+    fn the_rebirth_metric_has_no_alias_and_bd_seq_is_an_int64() {
+        let mut n = node();
+        let nb = n.nbirth(3, &[], 1);
+        let rebirth = nb.metrics.iter().find(|m| m.name.as_deref() == Some(REBIRTH)).unwrap();
+        assert_eq!(rebirth.alias, None, "operational-behavior-data-commands-rebirth-name-aliases");
+        assert_eq!(rebirth.datatype, Some(DataType::Boolean as u32));
+        assert_eq!(rebirth.value, Some(Value::Boolean(false)));
+        for p in [&nb, &Node::ndeath(3, 1)] {
+            let bd = p.metrics.iter().find(|m| m.name.as_deref() == Some(BD_SEQ)).unwrap();
+            assert_eq!((bd.datatype, &bd.value), (Some(DataType::Int64 as u32), &Some(Value::Long(3))));
+        }
+        // A rebirth is asked by name; no alias stands for it (alias 1 is a device's or a bus's).
+        let mut by_alias = cmd("x", Value::Boolean(true), DataType::Boolean);
+        by_alias.metrics[0].name = None;
+        by_alias.metrics[0].alias = Some(1);
+        let r = n.node_command(&by_alias).unwrap_err();
+        assert_eq!(r.kind, "unknown_metric");
+        assert!(r.message.contains("by alias"), "{}", r.message);
+        assert_eq!(
+            n.node_command(&cmd(REBIRTH, Value::Boolean(true), DataType::Boolean)),
+            Ok(vec![NodeCommand::Rebirth])
         );
     }
 

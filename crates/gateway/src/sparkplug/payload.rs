@@ -136,6 +136,8 @@ pub enum PropertyValueKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u32)]
 pub enum DataType {
+    /// 64-bit signed integer (`bdSeq`, as the specification types it).
+    Int64 = 4,
     /// 32-bit unsigned integer.
     UInt32 = 7,
     /// 64-bit unsigned integer.
@@ -177,6 +179,12 @@ impl Metric {
             value,
             ..Metric::default()
         }
+    }
+
+    /// [`Metric::birth`] without an alias: for a metric a host must find by name
+    /// (`Node Control/Rebirth`).
+    pub fn birth_by_name(name: &str, datatype: DataType, value: Option<Value>, time_ms: u64) -> Metric {
+        Metric { alias: None, ..Metric::birth(name, 0, datatype, value, time_ms) }
     }
 
     /// Adds the engineering unit as the `engUnit` property.

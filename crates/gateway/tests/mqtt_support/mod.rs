@@ -242,6 +242,7 @@ pub fn demo_gateway_with(
         allow_commands: allow.iter().map(|s| s.to_string()).collect(),
         client_id: None,
         credentials: credentials.map(|(u, p)| (u.to_string(), p.to_string())),
+        tls: Default::default(),
     };
     let gw = Gateway::start(config, None).unwrap();
     drivebus_gateway::mqtt::spawn(gw.clone(), &mqtt).unwrap();

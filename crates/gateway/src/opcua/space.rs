@@ -318,3 +318,86 @@ impl View<'_> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use opcua::server::address_space::DefaultTypeTree;
+
+    fn demo() -> crate::GatewayConfig {
+        let mut cfg = crate::GatewayConfig::demo();
+        cfg.store = None;
+        cfg
+    }
+
+    fn listed(view: &mut View<'_>, folder: &NodeId) -> Vec<NodeId> {
+        let tree = DefaultTypeTree::new();
+        let organizes = Some((ReferenceTypeId::Organizes.into(), false));
+        view.references(folder, organizes, &tree, BrowseDirection::Forward)
+            .into_iter()
+            .map(|(_, _, t)| t)
+            .collect()
+    }
+
+    #[tokio::test]
+    async fn drives_are_made_when_named_and_their_parameters_only_when_asked_for() {
+        let gw = Gateway::start(demo(), None).unwrap();
+        let space = Space::new(gw.clone(), Ids { ns: 2 });
+        let ids = *space.ids();
+        // What is kept: the types and the folders, no drive.
+        assert!(space.kept().find(&ids.drive_type()).is_some());
+        assert!(space.kept().find(&ids.drives()).is_some());
+        assert!(space.kept().find(&ids.drive("pump-1")).is_none());
+        assert!(space.kept().find(&ids.drive_member("pump-1", "OutputFrequency")).is_none());
+
+        // A drive variable's request makes the drive, not its parameters.
+        let d = gw.drive("ahu-1").unwrap();
+        let param = d.catalog().iter().next().unwrap().name.clone();
+        let plain = space.make(&space.home(&ids.drive_member("ahu-1", "Setpoint"))).unwrap();
+        assert!(plain.find(&ids.drive_member("ahu-1", "Setpoint")).is_some());
+        assert!(plain.find(&ids.drive_member("ahu-1", "Parameters")).is_some());
+        assert!(plain.find(&ids.parameter("ahu-1", &param)).is_none());
+        let with = space.make(&space.home(&ids.drive_member("ahu-1", "Parameters"))).unwrap();
+        assert!(with.find(&ids.parameter("ahu-1", &param)).is_some());
+
+        let mut view = space.view();
+        assert!(view.exists(&ids.parameter("ahu-1", &param)));
+        assert!(!view.exists(&ids.parameter("ahu-1", "no-such-parameter")));
+        assert!(!view.exists(&ids.drive("no-such-drive")));
+        assert!(view.exists(&ids.bus_member("line-toshiba", "Transactions")));
+        let drives = listed(&mut view, &ids.drives());
+        assert_eq!(drives.len(), gw.drives().len());
+        assert!(drives.contains(&ids.drive("pump-1")));
+        // A drive in the folder's listing shows its name and type without being made.
+        let tree = DefaultTypeTree::new();
+        let meta = view.metadata(&ids.drive("pump-1"), BrowseDescriptionResultMask::all(), &tree).unwrap();
+        assert_eq!(meta.browse_name, ids.name("pump-1"));
+        assert_eq!(meta.type_definition, ExpandedNodeId::new(ids.drive_type()));
+    }
+
+    #[tokio::test]
+    async fn a_reload_adds_and_removes_drives_at_once() {
+        let gw = Gateway::start(demo(), None).unwrap();
+        let space = Space::new(gw.clone(), Ids { ns: 2 });
+        let ids = *space.ids();
+        assert!(space.view().exists(&ids.drive("pump-1")));
+        let mut next = demo();
+        for bus in &mut next.buses {
+            bus.drives.retain(|d| d.name != "pump-1");
+        }
+        let mut added = next.buses[0].drives[0].clone();
+        added.name = "pump-9".into();
+        added.address = 99;
+        next.buses[0].drives.push(added);
+        gw.reload(next, "test").await.unwrap();
+        let mut view = space.view();
+        assert!(!view.exists(&ids.drive("pump-1")));
+        assert!(!view.exists(&ids.drive_member("pump-1", "OutputFrequency")));
+        assert!(view.exists(&ids.drive_member("pump-9", "OutputFrequency")));
+        let drives = listed(&mut view, &ids.drives());
+        assert!(
+            drives.contains(&ids.drive("pump-9")) && !drives.contains(&ids.drive("pump-1")),
+            "{drives:?}"
+        );
+    }
+}

@@ -355,8 +355,10 @@ impl NodeManager for DriveNodes {
             return Ok(());
         }
         let client = reader(context.user_token(), context.session_id());
+        let mut view = self.space.view();
         for n in nodes_to_read.iter_mut() {
-            let value = self.read_one(context, n.node(), max_age, timestamps_to_return, &client).await;
+            let value =
+                self.read_one(&mut view, context, n.node(), max_age, timestamps_to_return, &client).await;
             n.set_result(value);
         }
         Ok(())
@@ -384,10 +386,10 @@ impl NodeManager for DriveNodes {
         items: &mut [&mut CreateMonitoredItem],
     ) -> Result<(), StatusCode> {
         let client = reader(context.user_token(), context.session_id());
+        let mut view = self.space.view();
         for item in items.iter_mut() {
             let what = item.item_to_monitor().clone();
             let read = {
-                let mut view = self.space.view();
                 let Some(space) = view.space_of(&what.node_id) else {
                     item.set_status(StatusCode::BadNodeIdUnknown);
                     continue;
@@ -580,13 +582,14 @@ impl DriveNodes {
     /// made from the cache.
     async fn read_one(
         &self,
+        view: &mut super::space::View<'_>,
         context: &RequestContext,
         node: &opcua::server::node_manager::ParsedReadValueId,
         max_age: f64,
         timestamps: TimestampsToReturn,
         client: &str,
     ) -> DataValue {
-        let checked = self.space.view().read(context, node, max_age, timestamps);
+        let checked = view.read(context, node, max_age, timestamps);
         match (&node.attribute_id, self.ids.target(&node.node_id)) {
             (AttributeId::Value, Target::Parameter { drive, name }) if !checked.status().is_bad() => {
                 self.read_parameter(&drive, &name, client).await

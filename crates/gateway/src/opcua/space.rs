@@ -4,7 +4,7 @@
 //! A drive's parameter nodes are made only for a request about its `Parameters` folder or a
 //! parameter. 1000 drives cost the gateway's cache and nothing more here.
 
-use std::collections::HashMap;
+use std::collections::VecDeque;
 
 use opcua::server::address_space::{AddressSpace, NodeType, ReferenceDirection, TypeTree};
 use opcua::server::node_manager::{NodeMetadata, RequestContext};
@@ -145,16 +145,20 @@ impl Space {
         Some(space)
     }
 
-    /// A request's view: the nodes it named, made once per request.
+    /// A request's view: the nodes it names, made as it names them.
     pub fn view(&self) -> View<'_> {
-        View { space: self, made: HashMap::new() }
+        View { space: self, made: VecDeque::new() }
     }
 }
 
-/// The nodes one request needs, made as it names them.
+/// How many drives' or buses' nodes a request keeps made at once: requests name their nodes
+/// drive by drive, and a request about 1000 drives must not hold 1000 drives' nodes.
+const KEPT_MADE: usize = 4;
+
+/// The nodes one request needs, made as it names them; the last few kept ([`KEPT_MADE`]).
 pub struct View<'a> {
     space: &'a Space,
-    made: HashMap<Home, Option<AddressSpace>>,
+    made: VecDeque<(Home, Option<AddressSpace>)>,
 }
 
 impl View<'_> {
@@ -165,8 +169,18 @@ impl View<'_> {
             Home::Kept => Some(&self.space.kept),
             Home::Missing => None,
             home => {
-                let space = self.space;
-                self.made.entry(home).or_insert_with_key(|h| space.make(h)).as_ref()
+                let at = match self.made.iter().position(|(h, _)| *h == home) {
+                    Some(at) => at,
+                    None => {
+                        if self.made.len() == KEPT_MADE {
+                            self.made.pop_back();
+                        }
+                        let made = self.space.make(&home);
+                        self.made.push_front((home, made));
+                        0
+                    }
+                };
+                self.made[at].1.as_ref()
             }
         }
     }

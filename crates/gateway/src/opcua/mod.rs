@@ -125,7 +125,7 @@ pub fn endpoint_url(cfg: &OpcUaConfig, listen: std::net::SocketAddr) -> Result<S
 
 /// Builds the OPC UA server for `listener` (creating its certificate on first start; errors
 /// here stop `serve` at start, with the reason) and returns what serves it until the process
-/// ends, keeping the address space current from the cache.
+/// ends, handing the cache's changes to subscriptions.
 pub fn start(
     gw: Arc<Gateway>,
     cfg: &OpcUaConfig,
@@ -254,29 +254,51 @@ pub fn quality(v: &DriveView, bus_online: bool) -> StatusCode {
     }
 }
 
-/// A drive's variables as values, in [`DRIVE_VARIABLES`] order. `Online`, `AgeMs` and
-/// `ErrorRate` are the gateway's own knowledge and always Good.
-pub fn drive_values(v: &DriveView, bus_online: bool) -> Vec<(Variant, StatusCode)> {
+/// The variables of a drive that are the gateway's own knowledge, not the drive's values.
+const GATEWAY_KNOWLEDGE: [&str; 3] = ["Online", "AgeMs", "ErrorRate"];
+
+/// A drive's variables as data values, in [`DRIVE_VARIABLES`] order, from the view `v` taken at
+/// `now` (docs/opcua.md, "Values, timestamps and status"). The drive's values carry as source
+/// timestamp the time the drive last answered: the last poll that confirmed them, whether it
+/// changed them or not (`now` before the first answer), so a client sees how fresh they are.
+/// `Online`, `AgeMs` and `ErrorRate` are the gateway's own knowledge, always Good, their source
+/// timestamp `now`: `AgeMs` is its server timestamp minus the drive values' source timestamp.
+pub fn drive_values(v: &DriveView, bus_online: bool, now: DateTime) -> Vec<DataValue> {
     let q = quality(v, bus_online);
+    let answered = v.last_seen_ms.map(datetime_ms).unwrap_or(now);
     let opt = |x: Option<f64>| x.map_or(Variant::Empty, Variant::Double);
     DRIVE_VARIABLES
         .iter()
-        .map(|def| match def.name {
-            "OutputFrequency" => (opt(v.output_hz), q),
-            "Setpoint" => (opt(v.setpoint_hz), q),
-            "Current" => (opt(v.current_a), q),
-            "Running" => (v.running.map_or(Variant::Empty, Variant::Boolean), q),
-            "Direction" => (Variant::String(UAString::from(v.direction.clone().unwrap_or_default())), q),
-            "FaultCode" => (Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)), q),
-            "FaultText" => (
-                Variant::String(UAString::from(v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default())),
-                q,
-            ),
-            "Online" => (Variant::Boolean(v.online == Some(true) && bus_online), StatusCode::Good),
-            "AgeMs" => (v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)), StatusCode::Good),
-            _ => (Variant::Double(v.error_rate), StatusCode::Good),
+        .map(|def| {
+            let value = match def.name {
+                "OutputFrequency" => opt(v.output_hz),
+                "Setpoint" => opt(v.setpoint_hz),
+                "Current" => opt(v.current_a),
+                "Running" => v.running.map_or(Variant::Empty, Variant::Boolean),
+                "Direction" => Variant::String(UAString::from(v.direction.clone().unwrap_or_default())),
+                "FaultCode" => Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)),
+                "FaultText" => Variant::String(UAString::from(
+                    v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default(),
+                )),
+                "Online" => Variant::Boolean(v.online == Some(true) && bus_online),
+                "AgeMs" => v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)),
+                _ => Variant::Double(v.error_rate),
+            };
+            let own = GATEWAY_KNOWLEDGE.contains(&def.name);
+            DataValue {
+                value: Some(value),
+                status: Some(if own { StatusCode::Good } else { q }),
+                source_timestamp: Some(if own { now } else { answered }),
+                server_timestamp: Some(now),
+                ..Default::default()
+            }
         })
         .collect()
+}
+
+/// Whether `bus` is online (a bus the gateway does not know counts as online).
+pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
+    gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
 }
 
 /// A bus's variables as values, in [`BUS_VARIABLES`] order.
@@ -294,31 +316,35 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
         .collect()
 }
 
-/// What was last handed to the subscriptions per drive and bus, in [`DRIVE_VARIABLES`] and
-/// [`BUS_VARIABLES`] order: a poll that changes nothing notifies nothing.
+/// What was last handed to the subscriptions per drive (value, status and source timestamp)
+/// and bus (value), in [`DRIVE_VARIABLES`] and [`BUS_VARIABLES`] order: a poll that neither
+/// changes nor confirms anything hands over nothing.
 #[derive(Default)]
 struct Last {
-    drives: std::collections::HashMap<String, Vec<(Variant, StatusCode)>>,
+    drives: std::collections::HashMap<String, Vec<(Variant, StatusCode, Option<DateTime>)>>,
     buses: std::collections::HashMap<String, Vec<Variant>>,
 }
 
-/// Hands the changed values of a drive to the monitored items that watch them (only those that
-/// exist: [`SubscriptionCache::maybe_notify`] asks for a value only for an item it has).
+/// Hands a drive's changed and confirmed values to the monitored items that watch them (only
+/// those that exist: [`SubscriptionCache::maybe_notify`] asks for a value only for an item it
+/// has). A value the poll only confirmed (same value and status, a later source timestamp)
+/// notifies nothing under the default trigger (StatusValue), and each confirming poll under
+/// StatusValueTimestamp, as the client asked.
 fn publish_drive(subs: &SubscriptionCache, ids: &Ids, last: &mut Last, v: &DriveView, bus_online: bool) {
-    let values = drive_values(v, bus_online);
+    let values = drive_values(v, bus_online, DateTime::now());
+    let now: Vec<_> = values
+        .iter()
+        .map(|dv| (dv.value.clone().unwrap_or_default(), dv.status(), dv.source_timestamp))
+        .collect();
     let before = last.drives.entry(v.id.clone()).or_default();
-    if *before == values {
-        return;
-    }
-    let data = space::data_values(v, &values, DateTime::now());
     let changed: Vec<_> = DRIVE_VARIABLES
         .iter()
-        .zip(data)
+        .zip(values)
         .enumerate()
-        .filter(|(i, _)| before.get(*i) != values.get(*i))
+        .filter(|(i, _)| before.get(*i) != now.get(*i))
         .map(|(_, (def, dv))| (ids.drive_member(&v.id, def.name), dv))
         .collect();
-    *before = values;
+    *before = now;
     notify(subs, &changed);
 }
 
@@ -405,7 +431,7 @@ async fn publish(gw: Arc<Gateway>, ids: Ids, handle: ServerHandle) {
             c = changes.recv() => match c {
                 Ok(Change::Drive(v)) => {
                     if gw.drive(&v.id).is_ok() {
-                        publish_drive(&subs, &ids, &mut last, &v, space::bus_online(&gw, &v.bus));
+                        publish_drive(&subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
                     }
                 }
                 Ok(Change::Bus(b)) => publish_bus(&subs, &ids, &mut last, &b),
@@ -419,7 +445,7 @@ async fn publish(gw: Arc<Gateway>, ids: Ids, handle: ServerHandle) {
                 last.drives.retain(|name, _| drives.iter().any(|d| &d.config.name == name));
                 for d in drives.iter() {
                     let v = gw.drive_view(d);
-                    publish_drive(&subs, &ids, &mut last, &v, space::bus_online(&gw, &v.bus));
+                    publish_drive(&subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
                 }
             }
         }

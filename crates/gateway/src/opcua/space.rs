@@ -10,11 +10,11 @@ use opcua::server::address_space::{AddressSpace, NodeType, ReferenceDirection, T
 use opcua::server::node_manager::{NodeMetadata, RequestContext};
 use opcua::types::{
     BrowseDescriptionResultMask, BrowseDirection, DataValue, DateTime, ExpandedNodeId, Identifier,
-    LocalizedText, NodeClass, NodeId, ReferenceTypeId, StatusCode, Variant,
+    LocalizedText, NodeClass, NodeId, ReferenceTypeId,
 };
 
 use super::nodes::{self, Ids, BUS_VARIABLES, DRIVE_VARIABLES};
-use crate::gateway::{DriveView, Gateway};
+use crate::gateway::Gateway;
 
 /// Where a node of the namespace lives.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -42,27 +42,6 @@ pub struct Space {
     gw: std::sync::Arc<Gateway>,
     ids: Ids,
     kept: AddressSpace,
-}
-
-/// The values of a drive's variables ([`super::drive_values`]) as a read or a notification
-/// gives them: the source timestamp is the poll that confirmed the value.
-pub fn data_values(v: &DriveView, values: &[(Variant, StatusCode)], now: DateTime) -> Vec<DataValue> {
-    let source = v.last_seen_ms.map(super::datetime_ms).unwrap_or(now);
-    values
-        .iter()
-        .map(|(value, status)| DataValue {
-            value: Some(value.clone()),
-            status: Some(*status),
-            source_timestamp: Some(source),
-            server_timestamp: Some(now),
-            ..Default::default()
-        })
-        .collect()
-}
-
-/// Whether the bus `bus` of `gw` is online (unknown buses count as online).
-pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
-    gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
 }
 
 impl Space {
@@ -119,7 +98,7 @@ impl Space {
                 let d = self.gw.drive(name).ok()?;
                 nodes::add_drive(&mut space, &self.ids, &d, *parameters, self.gw.store().is_some());
                 let v = self.gw.drive_view(&d);
-                let values = data_values(&v, &super::drive_values(&v, bus_online(&self.gw, &v.bus)), now);
+                let values = super::drive_values(&v, super::bus_online(&self.gw, &v.bus), now);
                 for (def, dv) in DRIVE_VARIABLES.iter().zip(values) {
                     if let Some(NodeType::Variable(var)) =
                         space.find_mut(&self.ids.drive_member(name, def.name))

@@ -137,11 +137,9 @@ pub async fn read_raw(
             },
             None => {
                 let (start, end) = (unix_ms(&details.start_time), unix_ms(&details.end_time));
-                // Only one bound: the number of values must say where to stop (Part 11, 6.4.3).
-                let one_bound = start.is_none() || end.is_none();
                 match span(start, end, drivebus_store::time::now_ms()) {
-                    Some(p) if !(one_bound && details.num_values_per_node == 0) => p,
-                    _ => {
+                    Some(p) => p,
+                    None => {
                         node.set_status(StatusCode::BadHistoryOperationInvalid);
                         continue;
                     }

@@ -263,7 +263,7 @@ impl NodeManager for DriveNodes {
             } else {
                 Some((node.reference_type_id().clone(), node.include_subtypes()))
             };
-            let refs = view.references(&id, filter, &*type_tree, node.browse_direction());
+            let refs = view.references(&id, filter, &*type_tree, node.browse_direction(), None);
             let mut rest = VecDeque::new();
             for (ty, forward, target) in refs {
                 let Some(meta) = view.metadata(&target, node.result_mask(), &*type_tree) else {
@@ -315,7 +315,9 @@ impl NodeManager for DriveNodes {
                         .then(|| (element.reference_type_id.clone(), element.include_subtypes));
                     let direction =
                         if element.is_inverse { BrowseDirection::Inverse } else { BrowseDirection::Forward };
-                    for (_, _, target) in view.references(id, filter, &*type_tree, direction) {
+                    for (_, _, target) in
+                        view.references(id, filter, &*type_tree, direction, Some(&element.target_name))
+                    {
                         if next.contains(&target) {
                             continue;
                         }

@@ -176,13 +176,15 @@ impl View<'_> {
 
     /// The references of `id` this namespace knows (also for nodes of other namespaces, such
     /// as the Objects folder that organizes `Drives`), of type `filter` (with its subtypes when
-    /// asked), in `direction`.
+    /// asked), in `direction`. With `named`, the folders' drives and buses are only those of
+    /// that browse name (a browse path through a folder of 10 000 drives looks at one).
     pub fn references(
         &mut self,
         id: &NodeId,
         filter: Option<(NodeId, bool)>,
         type_tree: &dyn TypeTree,
         direction: BrowseDirection,
+        named: Option<&opcua::types::QualifiedName>,
     ) -> Vec<Ref> {
         let ids = self.space.ids;
         let mut out: Vec<Ref> = match self.space_of(id) {
@@ -209,7 +211,16 @@ impl View<'_> {
         };
         if forward && organizes {
             let gw = &self.space.gw;
-            if *id == ids.drives() {
+            let organized = |target: NodeId| (ReferenceTypeId::Organizes.into(), true, target);
+            if let Some(name) = named.filter(|n| !n.is_null()) {
+                let name_of = name.name.as_ref();
+                let ours = name.namespace_index == ids.ns;
+                if *id == ids.drives() && ours && gw.drive(name_of).is_ok() {
+                    out.push(organized(ids.drive(name_of)));
+                } else if *id == ids.buses() && ours && gw.buses().iter().any(|b| b.config.name == name_of) {
+                    out.push(organized(ids.bus(name_of)));
+                }
+            } else if *id == ids.drives() {
                 out.extend(
                     gw.drives()
                         .iter()
@@ -326,7 +337,7 @@ mod tests {
     fn listed(view: &mut View<'_>, folder: &NodeId) -> Vec<NodeId> {
         let tree = DefaultTypeTree::new();
         let organizes = Some((ReferenceTypeId::Organizes.into(), false));
-        view.references(folder, organizes, &tree, BrowseDirection::Forward)
+        view.references(folder, organizes, &tree, BrowseDirection::Forward, None)
             .into_iter()
             .map(|(_, _, t)| t)
             .collect()
@@ -361,8 +372,19 @@ mod tests {
         let drives = listed(&mut view, &ids.drives());
         assert_eq!(drives.len(), gw.drives().len());
         assert!(drives.contains(&ids.drive("pump-1")));
-        // A drive in the folder's listing shows its name and type without being made.
+        // A browse path through the folder looks at the drive it names only.
         let tree = DefaultTypeTree::new();
+        let named = |view: &mut View<'_>, name: &str| {
+            let name = opcua::types::QualifiedName::new(ids.ns, name);
+            let organizes = Some((ReferenceTypeId::Organizes.into(), false));
+            view.references(&ids.drives(), organizes, &tree, BrowseDirection::Forward, Some(&name))
+        };
+        assert_eq!(
+            named(&mut view, "pump-1").into_iter().map(|(_, _, t)| t).collect::<Vec<_>>(),
+            [ids.drive("pump-1")]
+        );
+        assert!(named(&mut view, "no-such-drive").is_empty());
+        // A drive in the folder's listing shows its name and type without being made.
         let meta = view.metadata(&ids.drive("pump-1"), BrowseDescriptionResultMask::all(), &tree).unwrap();
         assert_eq!(meta.browse_name, ids.name("pump-1"));
         assert_eq!(meta.type_definition, ExpandedNodeId::new(ids.drive_type()));

@@ -387,6 +387,10 @@ impl NodeManager for DriveNodes {
         context: &RequestContext,
         items: &mut [&mut CreateMonitoredItem],
     ) -> Result<(), StatusCode> {
+        if !self.within_cap(context).await {
+            items.iter_mut().for_each(|i| i.set_status(StatusCode::BadTooManySessions));
+            return Ok(());
+        }
         let client = reader(context.user_token(), context.session_id());
         let mut view = self.space.view();
         for item in items.iter_mut() {

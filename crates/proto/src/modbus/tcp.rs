@@ -45,6 +45,19 @@ impl Mbap {
         Ok(Some(header))
     }
 
+    /// The header of a request of `pdu_len` bytes to `unit`, numbered `transaction`.
+    pub fn request(transaction: u16, unit: u8, pdu_len: usize) -> Mbap {
+        Mbap { transaction, protocol: 0, length: 1 + pdu_len.min(MAX_PDU) as u16, unit }
+    }
+
+    /// The first whole frame of a stream: its header and length once all of it is in `bytes`
+    /// (`Ok(None)` until then), an error where the header is damaged (see [`Mbap::parse`]).
+    /// The one MBAP stream splitter: the gateway's server and bridge and the drive client read
+    /// their streams with it.
+    pub fn next_frame(bytes: &[u8]) -> Result<Option<(Mbap, usize)>, FrameError> {
+        Ok(Mbap::parse(bytes)?.map(|h| (h, h.frame_len())).filter(|&(_, len)| bytes.len() >= len))
+    }
+
     /// Bytes of the whole frame: header and PDU.
     pub fn frame_len(&self) -> usize {
         6 + self.length as usize
@@ -81,6 +94,11 @@ mod tests {
         assert_eq!(h.answer(5).length, 6);
         assert_eq!(Mbap::parse(&b[..6]), Ok(None));
         assert!(Mbap::parse(&[0, 1, 0, 1, 0, 6, 1]).is_err(), "protocol 1 is not Modbus");
+        assert_eq!(Mbap::request(0x1234, 3, 5), h);
+        let frame = [0x12, 0x34, 0, 0, 0, 6, 3, 3, 0, 0, 0, 1, 9];
+        assert_eq!(Mbap::next_frame(&frame[..11]), Ok(None), "the PDU is not all there");
+        assert_eq!(Mbap::next_frame(&frame), Ok(Some((h, 12))), "one frame and a byte of the next");
+        assert!(Mbap::next_frame(&[0, 1, 0, 1, 0, 6, 1, 3]).is_err());
         assert!(Mbap::parse(&[0, 1, 0, 0, 0, 1, 1]).is_err(), "a PDU has a function code");
         assert!(Mbap::parse(&[0, 1, 0, 0, 0, 255, 1]).is_err(), "254 bytes at most");
     }

@@ -94,7 +94,8 @@ fn tuning() -> Vec<Arg> {
 const FAMILY: &str = "The drive family: generic, toshiba, danfoss, b800";
 const DRIVE_PROTOCOL: &str =
     "The protocol, where the family speaks several (generic: modbus-ascii, modbus-rtu; \
-     toshiba: toshiba-binary, toshiba-ascii, modbus-rtu)";
+     toshiba: toshiba-binary, toshiba-ascii, modbus-rtu), or modbus-tcp with --port tcp://HOST[:502] for any \
+     Modbus drive behind a Modbus TCP server";
 const BAUD: &str = "Baud rate (default: the family's)";
 const SERIAL: &str = "Character format such as 8E1 (default: the family's)";
 

@@ -2,8 +2,8 @@
 //!
 //! How drivebus reaches a bus. [`port`] says where a bus is ([`Port`]: a serial device with its
 //! baud rate, format and RS-485 direction control, a serial device server over TCP, or a
-//! virtual line of simulated drives behind the `virtual` feature) and opens it, the one place
-//! that does, for both drivers below. The engine (`MasterSession` plus retries, reopening a
+//! virtual line of simulated drives behind the `virtual` feature, or a Modbus TCP server whose
+//! framing [`mbap`] is) and opens it, the one place that does, for both drivers below. The engine (`MasterSession` plus retries, reopening a
 //! lost link with a backoff, echo removal, statistics and drive health) never waits: after each
 //! attempt it says what to do next (retry, reopen the link and retry, or give up with which
 //! error), and two thin drivers carry it out with their own I/O: the bus owner ([`owner`]), one
@@ -28,6 +28,7 @@ mod engine;
 pub mod fair;
 pub mod link;
 pub mod listen;
+pub mod mbap;
 pub mod owner;
 pub mod port;
 pub mod port_link;

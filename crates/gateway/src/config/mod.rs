@@ -52,7 +52,7 @@
 //! [[bus]]
 //! name = "line-1"
 //! port = "/dev/ttyUSB0"                 # a device, tcp://HOST:PORT, or "virtual" (simulated)
-//! protocol = "modbus-rtu"
+//! protocol = "modbus-rtu"               # or modbus-tcp, with port = "tcp://HOST[:502]"
 //! baud = 19200
 //! serial = "8E1"
 //! timeout_ms = 200

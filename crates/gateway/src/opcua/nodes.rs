@@ -394,7 +394,7 @@ pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) -> Vec<NodeId>
     let name = b.config.name.as_str();
     let obj = ids.bus(name);
     let c = &b.config;
-    let description = format!("{} on {} at {} {}", c.protocol, c.port, c.baud, c.format);
+    let description = format!("{} on {} at {} {}", c.protocol_name(), c.port, c.baud, c.format);
     add_object(space, ids, &obj, name, (ids.bus_type(), ids.buses()), description);
     let mut made = vec![obj.clone()];
     for def in BUS_VARIABLES {

@@ -105,9 +105,8 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
         [] => return Err(fail(EXIT_USAGE, "say which drive family: --drive generic|toshiba|danfoss|b800")),
         _ => return Err(fail(EXIT_USAGE, "give one --drive: this command talks to one drive")),
     };
-    let family: Family = family_s.parse().map_err(|_| {
-        fail(EXIT_USAGE, format!("unknown drive family {family_s:?}: use generic, toshiba, danfoss or b800"))
-    })?;
+    let family: Family =
+        family_s.parse().map_err(|e: drivebus_drive::UnknownFamily| fail(EXIT_USAGE, e.to_string()))?;
     let modbus_tcp =
         t.protocol.as_deref().is_some_and(|p| p.eq_ignore_ascii_case(drivebus_link::mbap::MODBUS_TCP));
     let protocol = match &t.protocol {

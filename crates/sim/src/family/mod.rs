@@ -35,5 +35,6 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
             Box::new(toshiba::ToshibaDrive::new(spec.address, protocol, now).map_err(err)?)
         }
         Family::Danfoss => Box::new(danfoss::DanfossDrive::new(spec.address, now).map_err(err)?),
+        Family::Template(_) => return Err(err("the simulator does not run template kinds yet".to_string())),
     })
 }

@@ -111,3 +111,21 @@ fn a_template_given_with_template_is_a_drive_kind() {
     assert!(o.stderr.contains("unknown drive family \"my-vfd\""), "{}", o.stderr);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn simulate_runs_a_templated_drive() {
+    let dir = std::env::temp_dir().join(format!("drivebus-template-sim-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("sim-vfd.toml");
+    let text = std::fs::read_to_string(repo().join("templates/generic-2000h.toml")).unwrap();
+    std::fs::write(&file, text.replace("kind = \"generic-2000h\"", "kind = \"sim-vfd\"")).unwrap();
+    let file = file.to_str().unwrap();
+    let sim = simulate("sim-vfd@3", &["--template", file, "--modbus-tcp", "127.0.0.1:0"]);
+    assert!(sim.before.iter().any(|l| l.contains("sim-vfd@3:modbus-rtu")), "{:?}", sim.before);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    // The template's map is the generic drive's: the built-in profile reads the simulated drive.
+    ok(&drivebus(&port, "generic", Some("modbus-tcp"), 3, &["speed", "20"]), "speed");
+    let s = sim::status(&port, "generic", Some("modbus-tcp"), 3);
+    assert_eq!(s["setpoint_hz"], 20.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -210,6 +210,14 @@ fn each_kind_of_bad_field_is_named_with_its_line() {
         e.iter().any(|(l, m)| *l == 18 && m.contains("command.reset: bit 0 overlaps command.run's")),
         "{e:?}"
     );
+    // Two numbers in one register, line 12.
+    let e = errors("register = 101, scale = 0.1", "register = 102, scale = 0.1");
+    assert!(
+        e.iter().any(
+            |(l, m)| *l == 13 && m.contains("status.current_a: register 102 overlaps status.output_hz's")
+        ),
+        "{e:?}"
+    );
     // A scale of zero, line 12.
     let e = errors("scale = 0.1 }", "scale = 0.0 }");
     assert_eq!(e[0].0, 12);
@@ -263,4 +271,105 @@ fn serde_json_like(f: Family) -> String {
     }
     let text = toml::to_string(&W { f }).unwrap();
     text.trim().trim_start_matches("f = ").trim_matches('"').to_string()
+}
+
+/// A line with the simulated drive of template kind `family` at `address`.
+fn template_line(family: Family, address: u8) -> VirtualLine {
+    let protocol = family.default_protocol();
+    let format = family.serial_default(protocol).1;
+    support::line_with(9600, format, &[address], |a, now| {
+        drivebus_sim::family::template::TemplateDrive::new(family, a, protocol, now)
+    })
+}
+
+/// The operations through `p` on `line`, in the protocol `p` speaks.
+fn on(line: &mut VirtualLine, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
+    match p.protocol() {
+        drivebus_proto::protocol::WireProtocol::ModbusAscii => run::<ModbusAscii>(line, p, &op).0,
+        _ => run::<ModbusRtu>(line, p, &op).0,
+    }
+}
+
+fn status_on(line: &mut VirtualLine, p: &dyn Profile) -> drivebus_drive::profile::DriveStatus {
+    support::status_of("Status", on(line, p, Operation::Status))
+}
+
+/// Runs the drive to half its top speed and back, reverses it, trips and resets it: the
+/// template's profile against the template's simulated drive.
+fn round_trip(family: Family) {
+    let t = family.template().unwrap();
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    let s = status_on(&mut line, &*p);
+    assert!(!s.running, "{family}: {s:?}");
+    let top = t.setpoint.as_ref().and_then(|s| s.max_hz).unwrap_or(50.0);
+    let half = (top / 2.0).round();
+    support::done("speed", on(&mut line, &*p, Operation::SetSpeed(half)));
+    support::done("run", on(&mut line, &*p, Operation::Run));
+    wait(&mut line, Duration::from_secs(30));
+    let s = status_on(&mut line, &*p);
+    assert!(s.running, "{family}: {s:?}");
+    let out = s.output_hz.expect("output_hz");
+    assert!((out - half).abs() <= 0.05, "{family}: at {half} Hz: {s:?}");
+    if t.command.as_ref().is_some_and(|c| c.reverse.is_some()) && t.status.reverse.is_some() {
+        support::done("reverse", on(&mut line, &*p, Operation::Reverse));
+        wait(&mut line, Duration::from_secs(60));
+        let s = status_on(&mut line, &*p);
+        assert_eq!(s.direction.as_deref(), Some("reverse"), "{family}: {s:?}");
+    }
+    if t.status.fault.is_some() {
+        drive_mut(&mut line, 1).core_mut().model.trip_now(Trip::External);
+        let s = status_on(&mut line, &*p);
+        let fault = s.fault.expect("a fault");
+        assert_eq!(fault.text, t.fault_text(fault.code), "{family}");
+        if t.command.as_ref().is_some_and(|c| c.reset.is_some()) {
+            support::done("reset", on(&mut line, &*p, Operation::Reset));
+            assert_eq!(status_on(&mut line, &*p).fault, None, "{family}");
+        }
+    }
+    support::done("stop", on(&mut line, &*p, Operation::Stop));
+    wait(&mut line, Duration::from_secs(60));
+    assert!(!status_on(&mut line, &*p).running, "{family}");
+    if let Some(def) = t.params.iter().find(|d| !d.read_only) {
+        let raw = support::param_of("read", on(&mut line, &*p, Operation::ReadParam(def.name.clone())));
+        assert_eq!(raw, def.default, "{family} {}", def.name);
+        let new = if def.max > def.default { def.default + 1 } else { def.default - 1 };
+        let write = Operation::WriteParam { name: def.name.clone(), raw: new, storage: def.storage };
+        support::done("write", on(&mut line, &*p, write));
+        let back = support::param_of("read back", on(&mut line, &*p, Operation::ReadParam(def.name.clone())));
+        assert_eq!(back, new, "{family} {}", def.name);
+    }
+}
+
+#[test]
+fn every_shipped_template_round_trips_on_its_simulated_drive() {
+    for family in template::shipped().unwrap() {
+        round_trip(family);
+    }
+}
+
+#[test]
+fn a_bit_command_word_and_a_full_scale_setpoint_round_trip() {
+    // GOOD with a fault code register in the same block and a fault list.
+    let text = GOOD
+        .replace("test-drive", "bits-test")
+        .replace("current_a = {", "fault = { register = 104 }\ncurrent_a = {")
+        + "[faults]\n7 = \"external fault\"\n";
+    let family =
+        template::register(Template::from_toml_str("bits.toml", &text).unwrap_or_else(|e| panic!("{e}")))
+            .unwrap();
+    round_trip(family);
+    // What went on the wire for the setpoint: 25 Hz of 50 Hz = 0x2000 (0x4000 = 100 %).
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 201, 0x20, 0x00], "{sent:02X?}");
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Run);
+    support::done("run", r);
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 200, 0, 1], "run sets bit 0");
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Status);
+    support::status_of("status", r);
+    assert_eq!(sent.len(), 1, "registers 100..104 in one read: {sent:02X?}");
+    assert_eq!(&sent[0][..6], [3, 0x03, 0, 100, 0, 5]);
 }

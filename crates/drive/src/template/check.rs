@@ -358,8 +358,27 @@ fn value(e: &mut Errors<'_>, name: &str, v: &Spanned<FileValue>, flag: bool) -> 
     })
 }
 
-/// Two flags on the same bit of the same register.
+/// Two flags on the same bit of the same register, or two numbers in the same register.
 fn check_flag_bits(e: &mut Errors<'_>, status: &BTreeMap<String, Spanned<FileValue>>) {
+    let mut numbers: HashMap<(i64, String), &str> = HashMap::new();
+    let mut by_place: Vec<_> = status.iter().collect();
+    by_place.sort_by_key(|(_, v)| v.span().start);
+    for (name, v) in by_place {
+        let f = v.get_ref();
+        if f.bit.is_some() || matches!(name.as_str(), "running" | "reverse") {
+            continue;
+        }
+        let words = match f.kind.as_ref().map(|k| k.get_ref().as_str()) {
+            Some("u32" | "i32" | "f32") => 2,
+            _ => 1,
+        };
+        let table = f.table.as_ref().map_or("holding".to_string(), |t| t.get_ref().clone());
+        for r in *f.register.get_ref()..*f.register.get_ref() + words {
+            if let Some(other) = numbers.insert((r, table.clone()), name) {
+                e.at(f.register.span(), format!("status.{name}: register {r} overlaps status.{other}'s"));
+            }
+        }
+    }
     let mut seen: HashMap<(i64, String, i64), &str> = HashMap::new();
     // In file order: the later of two is the one reported.
     let mut in_order: Vec<_> = status.iter().collect();

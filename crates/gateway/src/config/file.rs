@@ -11,6 +11,8 @@ use toml::Spanned;
 pub(super) struct FileConfig {
     pub(super) name: Option<Spanned<String>>,
     #[serde(default)]
+    pub(super) templates: Vec<Spanned<String>>,
+    #[serde(default)]
     pub(super) http: FileHttp,
     #[serde(default)]
     pub(super) modbus: FileModbus,

@@ -15,6 +15,8 @@ use drivebus_proto::protocol::WireProtocol;
 pub struct GatewayConfig {
     /// The gateway's name.
     pub name: String,
+    /// The drive templates read (`templates = [...]`), whose kinds the drives may name.
+    pub templates: Vec<PathBuf>,
     /// The HTTP listener.
     pub http: HttpConfig,
     /// The Modbus TCP listener.

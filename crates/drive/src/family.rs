@@ -269,11 +269,11 @@ pub struct UnknownFamily {
 
 impl fmt::Display for UnknownFamily {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "unknown drive family {:?}: expected generic, toshiba, danfoss, b800", self.text)?;
+        write!(f, "unknown drive family {:?}: expected generic, toshiba, danfoss, b800 or a template kind (", self.text)?;
         for kind in crate::template::registered() {
-            write!(f, ", {kind}")?;
+            write!(f, "{kind}, ")?;
         }
-        f.write_str(" or a kind a --template file adds")
+        f.write_str("or one a template file adds: docs/templates.md)")
     }
 }
 
@@ -307,7 +307,7 @@ mod tests {
         let err = "siemens".parse::<Family>().unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown drive family \"siemens\": expected generic, toshiba, danfoss, b800, generic-2000h or a kind a --template file adds"
+            "unknown drive family \"siemens\": expected generic, toshiba, danfoss, b800 or a template kind (generic-2000h, or one a template file adds: docs/templates.md)"
         );
     }
 

@@ -81,3 +81,77 @@ fn mbpoll_reads_a_drive_from_simulate_modbus_tcp() {
         .unwrap_or_else(|| panic!("no 2103H in {text}"));
     assert_eq!(value, "2500", "25.00 Hz as mbpoll read it: {text}");
 }
+
+#[test]
+#[ignore = "needs pymodbus (.ci/install-witnesses.sh)"]
+fn serve_reads_and_commands_a_pymodbus_drive_through_a_templated_modbus_tcp_bus() {
+    #[path = "support/http.rs"]
+    mod http;
+    if !witness::witness("pymodbus", witness::python_has("pymodbus"), "pip install pymodbus") {
+        return;
+    }
+    let interop = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop");
+    let port = http::free_port();
+    let mut server = Command::new("python3");
+    server.arg(interop.join("pymodbus_tcp_drive.py")).arg(port.to_string());
+    let _server = Proc::start(server, "listening on");
+
+    let dir = std::env::temp_dir().join(format!("drivebus-pymodbus-tcp-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let token = "pymodbus-write-token-0123456789";
+    let config = format!(
+        "templates = [\"{}\"]\n[store]\ndisabled = true\n[http]\nanonymous_read = true\n\
+         [[token]]\nname = \"t\"\ntoken = \"{token}\"\nrole = \"write\"\n\
+         [[bus]]\nname = \"eth\"\nport = \"tcp://127.0.0.1:{port}\"\nprotocol = \"modbus-tcp\"\n\
+         [[bus.drive]]\nname = \"py\"\nfamily = \"pymodbus-drive\"\naddress = 7\npoll_ms = 100\n",
+        interop.join("pymodbus-drive.toml").display()
+    );
+    std::fs::write(dir.join("plant.toml"), config).unwrap();
+    let http_at: std::net::SocketAddr = format!("127.0.0.1:{}", http::free_port()).parse().unwrap();
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    serve
+        .args(["serve", "--no-opcua", "--http", &http_at.to_string(), "--modbus", "127.0.0.1:0", "--config"])
+        .arg(dir.join("plant.toml"));
+    // Ready once every listener is bound (it says so); killed on drop, also when a check fails.
+    let _serve = Proc::start(serve, "  HTTP API");
+    let drive = || {
+        let (status, text) = http::request(http_at, "GET", "/api/drives", None, None);
+        assert_eq!(status, 200, "{text}");
+        let all: serde_json::Value = serde_json::from_str(&text).unwrap();
+        all.as_array()
+            .and_then(|a| a.iter().find(|d| d["id"] == "py").cloned())
+            .unwrap_or_else(|| panic!("{text}"))
+    };
+    let wait = |what: &str, done: &dyn Fn(&serde_json::Value) -> bool| {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+        loop {
+            let d = drive();
+            if done(&d) {
+                return d;
+            }
+            assert!(std::time::Instant::now() < deadline, "{what}: {d}");
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+    };
+    let d = wait("online", &|d| d["online"] == true);
+    assert_eq!(
+        (d["family"].as_str(), d["protocol"].as_str()),
+        (Some("pymodbus-drive"), Some("modbus-tcp")),
+        "{d}"
+    );
+    assert_eq!(d["running"], false, "{d}");
+    let post = |path: &str, body: Option<&str>| {
+        let (status, text) = http::request(http_at, "POST", path, Some(token), body);
+        assert!(status == 200 || status == 204, "{path}: {status} {text}");
+    };
+    post("/api/drives/py/speed", Some("{\"hz\": 25.5}"));
+    post("/api/drives/py/run", None);
+    let d = wait("running at 25.5 Hz", &|d| d["running"] == true && d["output_hz"] == 25.5);
+    assert_eq!(d["current_a"], 4.2, "{d}");
+    let (status, text) = http::request(http_at, "GET", "/api/drives/py/params/acc", None, None);
+    assert_eq!(status, 200, "{text}");
+    assert!(text.contains("10.0"), "{text}");
+    post("/api/drives/py/stop", None);
+    wait("stopped", &|d| d["running"] == false && d["output_hz"] == 0.0);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -269,7 +269,11 @@ pub struct UnknownFamily {
 
 impl fmt::Display for UnknownFamily {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "unknown drive family {:?}: expected generic, toshiba, danfoss, b800 or a template kind (", self.text)?;
+        write!(
+            f,
+            "unknown drive family {:?}: expected generic, toshiba, danfoss, b800 or a template kind (",
+            self.text
+        )?;
         for kind in crate::template::registered() {
             write!(f, "{kind}, ")?;
         }

@@ -35,8 +35,22 @@ fn run<C: Codec>(
     p: &dyn Profile,
     op: &Operation,
 ) -> (Result<Outcome, DriveError>, Vec<Vec<u8>>) {
+    run_counting::<C>(line, p, op, &mut 0)
+}
+
+/// [`run`], adding the bytes of the replies to `replied`.
+fn run_counting<C: Codec>(
+    line: &mut VirtualLine,
+    p: &dyn Profile,
+    op: &Operation,
+    replied: &mut usize,
+) -> (Result<Outcome, DriveError>, Vec<Vec<u8>>) {
     match p.plan(op) {
-        Ok(plan) => support::execute(plan, |x| support::transact::<C>(line, x, GAP)),
+        Ok(plan) => support::execute(plan, |x| {
+            let reply = support::transact::<C>(line, x, GAP);
+            *replied += reply.as_ref().map_or(0, Vec::len);
+            reply
+        }),
         Err(e) => (Err(e), Vec::new()),
     }
 }
@@ -78,9 +92,11 @@ fn same_traffic<C: Codec>(built_in: sim::GenericProtocol, protocol: GenericProto
                 "{sa:?}"
             );
         }
-        let (ra, xa) = run::<C>(&mut a, &generic, op);
-        let (rb, xb) = run::<C>(&mut b, &*templated, op);
+        let (mut replied_a, mut replied_b) = (0, 0);
+        let (ra, xa) = run_counting::<C>(&mut a, &generic, op, &mut replied_a);
+        let (rb, xb) = run_counting::<C>(&mut b, &*templated, op, &mut replied_b);
         assert_eq!(xa, xb, "the requests of {op:?}");
+        assert_eq!(replied_a, replied_b, "the replies' bytes of {op:?}");
         match (&ra, &rb) {
             // Refusals say the same thing, each in its profile's words.
             (Err(ea), Err(eb)) => {
@@ -90,6 +106,11 @@ fn same_traffic<C: Codec>(built_in: sim::GenericProtocol, protocol: GenericProto
         }
         if *op == Operation::Status {
             bytes = xa.iter().map(Vec::len).sum();
+            eprintln!(
+                "status refresh in {}: {} requests, {bytes} bytes out, {replied_a} bytes back (built-in and template alike)",
+                C::NAME,
+                xa.len()
+            );
         }
         wait(&mut a, Duration::from_secs(2));
         wait(&mut b, Duration::from_secs(2));
@@ -372,4 +393,25 @@ fn a_bit_command_word_and_a_full_scale_setpoint_round_trip() {
     support::status_of("status", r);
     assert_eq!(sent.len(), 1, "registers 100..104 in one read: {sent:02X?}");
     assert_eq!(&sent[0][..6], [3, 0x03, 0, 100, 0, 5]);
+}
+
+#[test]
+fn the_worked_example_of_the_docs_checks_and_does_what_they_say() {
+    let doc =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/templates.md")).unwrap();
+    let start = doc.find("```toml\nkind = \"fan-b1\"").expect("the example") + "```toml\n".len();
+    let text = &doc[start..start + doc[start..].find("```").unwrap()];
+    let t = Template::from_toml_str("docs/templates.md", text).unwrap_or_else(|e| panic!("{e}"));
+    let family = template::register(t).unwrap();
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 3)
+            .unwrap();
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(100, 5)], "one read of registers 100..104");
+    round_trip(family);
+    let mut line = template_line(family, 3);
+    let (_, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 201, 0x20, 0x00]);
+    let (_, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Run);
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 200, 0, 1]);
 }

@@ -91,6 +91,14 @@ fn a_modbus_tcp_bus_is_checked() {
         "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus\"\n",
         "unknown protocol: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800 or modbus-tcp",
     );
+    bad(
+        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-tcp\"\nmax_in_flight = 4\n",
+        "t.toml:5: field `bus.max_in_flight`: 4: this version sends one request at a time on a Modbus TCP bus: use 1",
+    );
+    bad(
+        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-rtu\"\nmax_in_flight = 1\n",
+        "field `bus.max_in_flight`: only a modbus-tcp bus",
+    );
     let c = GatewayConfig::from_toml(
         "t.toml",
         "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-tcp\"\n[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n",

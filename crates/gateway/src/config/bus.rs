@@ -57,6 +57,22 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
             }
         };
         let protocol_at = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
+        if let Some(m) = &b.max_in_flight {
+            if !matches!(port, Port::ModbusTcp(_)) {
+                return cx.err(
+                    m.span(),
+                    "bus.max_in_flight",
+                    "only a modbus-tcp bus can have requests in flight together",
+                );
+            }
+            if *m.get_ref() != 1 {
+                return cx.err(
+                    m.span(),
+                    "bus.max_in_flight",
+                    format!("{}: this version sends one request at a time on a Modbus TCP bus: use 1 (the default)", m.get_ref()),
+                );
+            }
+        }
         for (d, raw_drive) in drives.iter().zip(&b.drive) {
             if matches!(port, Port::ModbusTcp(_)) && d.family.check_protocol(protocol).is_err() {
                 return cx.err(

@@ -256,7 +256,6 @@ fn scaling(
     scale: &Option<Spanned<f64>>,
     full_scale: &Option<Spanned<f64>>,
     max: &Option<Spanned<f64>>,
-    at: Range<usize>,
 ) -> f64 {
     match (scale, full_scale, max) {
         (Some(s), None, _) => {
@@ -296,7 +295,6 @@ fn scaling(
         }
         (None, None, Some(m)) => {
             e.at(m.span(), format!("{what}: max goes with full_scale"));
-            let _ = at;
             1.0
         }
         (None, None, None) => 1.0,
@@ -322,7 +320,7 @@ fn value(e: &mut Errors<'_>, name: &str, v: &Spanned<FileValue>, flag: bool) -> 
         }
     };
     let low_first = word_order(e, &what, &f.word_order);
-    let scale = scaling(e, &what, &f.scale, &f.full_scale, &f.max, v.span());
+    let scale = scaling(e, &what, &f.scale, &f.full_scale, &f.max);
     let offset = f.offset.as_ref().map_or(0.0, |o| *o.get_ref());
     let bit = match &f.bit {
         None => None,
@@ -461,7 +459,7 @@ fn setpoint(e: &mut Errors<'_>, s: &Spanned<super::file::FileSetpoint>, params: 
     let kind = value_type(e, "setpoint", &f.kind);
     let reg = register(e, "setpoint", &f.register, kind.words());
     let low_first = word_order(e, "setpoint", &f.word_order);
-    let scale = scaling(e, "setpoint", &f.scale, &f.full_scale, &f.max_hz, s.span());
+    let scale = scaling(e, "setpoint", &f.scale, &f.full_scale, &f.max_hz);
     if f.scale.is_none() && f.full_scale.is_none() {
         e.at(s.span(), "[setpoint] needs scale (Hz per count) or full_scale with max_hz");
     }

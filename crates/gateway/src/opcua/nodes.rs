@@ -388,7 +388,7 @@ pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) {
     let name = b.config.name.as_str();
     let obj = ids.bus(name);
     let c = &b.config;
-    let description = format!("{} on {} at {} {}", c.protocol, c.port, c.baud, c.format);
+    let description = format!("{} on {} at {} {}", c.protocol_name(), c.port, c.baud, c.format);
     add_object(space, ids, &obj, name, (ids.bus_type(), ids.buses()), description);
     for def in BUS_VARIABLES {
         add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def, false);

@@ -64,6 +64,7 @@ pub mod interdrive;
 pub mod panel;
 pub mod profile;
 pub mod registers;
+pub mod template;
 
 pub use catalog::{Catalog, CatalogError, ParamKey};
 pub use config_error::ConfigError;

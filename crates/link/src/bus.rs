@@ -46,9 +46,23 @@ pub struct BusConfig {
     pub family: Option<drivebus_drive::Family>,
     /// How on-demand reads share the bus with polling.
     pub on_demand: FairConfig,
+    /// Modbus TCP: the bus's Modbus RTU frames go in MBAP to a Modbus TCP server
+    /// (`protocol = "modbus-tcp"`, [`crate::mbap`]); no silence is kept between requests and
+    /// the response timeout is 1 s unless given.
+    pub modbus_tcp: bool,
 }
 
 impl BusConfig {
+    /// The protocol's name as users give it: `modbus-tcp` for Modbus over MBAP, else the wire
+    /// protocol's.
+    pub fn protocol_name(&self) -> &'static str {
+        if self.modbus_tcp {
+            crate::mbap::MODBUS_TCP
+        } else {
+            self.protocol.name()
+        }
+    }
+
     /// A configuration with the protocol's defaults: 2 retries, no echo, offline after 3
     /// failures, probes at most every 30 s.
     pub fn new(protocol: WireProtocol, baud: u32, format: CharFormat) -> Self {
@@ -66,6 +80,7 @@ impl BusConfig {
             strict_t15: false,
             family: None,
             on_demand: FairConfig::default(),
+            modbus_tcp: false,
         }
     }
 }

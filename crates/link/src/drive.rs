@@ -79,7 +79,11 @@ pub async fn open(port: &str, protocol: WireProtocol, baud: u32, format: CharFor
 
 /// Opens `port` and starts a bus owner with `config`.
 pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
-    let port = Port::parse(port, config.baud, config.format, config.rs485);
+    let port = if config.modbus_tcp {
+        Port::modbus_tcp(port).map_err(BusError::Link)?
+    } else {
+        Port::parse(port, config.baud, config.format, config.rs485)
+    };
     let link = PortLink::open(port).await.map_err(|e| BusError::Link(e.to_string()))?;
     Ok(Bus::spawn(link, config)?)
 }

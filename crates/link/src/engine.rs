@@ -143,6 +143,10 @@ macro_rules! with_engine {
 }
 pub(crate) use with_engine;
 
+/// The response timeout of a Modbus TCP bus unless one is given: a Modbus TCP/RTU gateway
+/// answers after its own serial exchange.
+const MODBUS_TCP_TIMEOUT: Duration = Duration::from_secs(1);
+
 /// The protocol's timing with the configuration's overrides.
 pub(crate) fn timing_of(config: &BusConfig) -> Timing {
     let mut timing = config.protocol.timing(config.baud, config.format);
@@ -160,6 +164,12 @@ pub(crate) fn timing_of(config: &BusConfig) -> Timing {
     }
     if config.strict_t15 && config.protocol == WireProtocol::ModbusRtu {
         timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
+    }
+    if config.modbus_tcp {
+        // No line: nothing to keep silent, and a frame comes whole whatever its pauses.
+        timing.min_gap = config.gap.unwrap_or(Duration::ZERO);
+        timing.max_char_gap = None;
+        timing.response_timeout = config.response_timeout.unwrap_or(MODBUS_TCP_TIMEOUT);
     }
     timing
 }

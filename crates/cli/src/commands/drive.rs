@@ -105,10 +105,15 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
         [] => return Err(fail(EXIT_USAGE, "say which drive family: --drive generic|toshiba|danfoss|b800")),
         _ => return Err(fail(EXIT_USAGE, "give one --drive: this command talks to one drive")),
     };
-    let family: Family = family_s.parse().map_err(|_| {
-        fail(EXIT_USAGE, format!("unknown drive family {family_s:?}: use generic, toshiba, danfoss or b800"))
-    })?;
+    let family: Family =
+        family_s.parse().map_err(|e: drivebus_drive::UnknownFamily| fail(EXIT_USAGE, e.to_string()))?;
+    let modbus_tcp =
+        t.protocol.as_deref().is_some_and(|p| p.eq_ignore_ascii_case(drivebus_link::mbap::MODBUS_TCP));
     let protocol = match &t.protocol {
+        // Modbus TCP: the drive's Modbus frames in MBAP (the link's framing).
+        Some(_) if modbus_tcp => family.check_protocol(WireProtocol::ModbusRtu).map_err(|_| {
+            fail(EXIT_USAGE, format!("a {family} drive does not speak Modbus, so not modbus-tcp"))
+        })?,
         Some(p) => {
             let p: WireProtocol =
                 p.parse().map_err(|e| fail(EXIT_USAGE, format!("--protocol {p:?}: {e}")))?;
@@ -129,13 +134,18 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     config.echo = t.echo;
     config.strict_t15 = t.strict_t15;
     config.family = Some(family);
+    config.modbus_tcp = modbus_tcp;
     if let Some(gap) = t.gap {
         if !(0.0..=1000.0).contains(&gap) {
             return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));
         }
         config.gap = Some(Duration::from_secs_f64(gap / 1000.0));
     }
-    let label = format!("{family} drive {address} on {port}");
+    let label = if modbus_tcp {
+        format!("{family} drive {address} on {port} (modbus-tcp)")
+    } else {
+        format!("{family} drive {address} on {port}")
+    };
     Ok(Resolved { family, protocol, address, port, config, label })
 }
 

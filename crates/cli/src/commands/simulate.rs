@@ -18,11 +18,16 @@ pub struct SimulateArgs {
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Create a pseudo-terminal and a symlink at PATH to it: open PATH as a serial port.
-    #[arg(long, value_name = "PATH", conflicts_with = "tcp")]
+    #[arg(long, value_name = "PATH", conflicts_with_all = ["tcp", "modbus_tcp"])]
     pub pty: Option<PathBuf>,
     /// Serve raw bytes on HOST:PORT, as a serial device server does.
-    #[arg(long, value_name = "HOST:PORT")]
+    #[arg(long, value_name = "HOST:PORT", conflicts_with = "modbus_tcp")]
     pub tcp: Option<SocketAddr>,
+    /// Serve Modbus TCP (MBAP) on HOST:PORT, as a drive with an Ethernet card or a Modbus
+    /// TCP/RTU gateway does: the unit id is the drive's address, and each drive speaks Modbus
+    /// RTU on the virtual line behind it.
+    #[arg(long, value_name = "HOST:PORT")]
+    pub modbus_tcp: Option<SocketAddr>,
     /// Create a second pseudo-terminal (symlink at PATH) that carries a copy of every byte on
     /// the virtual line, both directions, paced as on the line: open it with `drivebus sniff`.
     #[arg(long, value_name = "PATH")]
@@ -86,14 +91,42 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::target::Target) -
     Ok(bus)
 }
 
+/// Behind a Modbus TCP endpoint every drive speaks Modbus RTU: those that were given no
+/// protocol are set to it, and a drive that cannot speak it is refused.
+fn speak_modbus_rtu(bus: &mut BusSpec) -> Result<()> {
+    use drivebus_proto::protocol::WireProtocol;
+    for d in &mut bus.drives {
+        match d.protocol {
+            Some(WireProtocol::ModbusRtu) => {}
+            None if d.family.protocols().contains(&WireProtocol::ModbusRtu) => {
+                d.protocol = Some(WireProtocol::ModbusRtu)
+            }
+            Some(p) => bail!(
+                "--modbus-tcp serves Modbus drives: {}@{} is set to speak {p} (drop :{p} or use --tcp)",
+                d.family,
+                d.address
+            ),
+            None => bail!(
+                "--modbus-tcp serves Modbus drives: a {} drive does not speak Modbus (use --tcp or --pty)",
+                d.family
+            ),
+        }
+    }
+    Ok(())
+}
+
 /// Runs `drivebus simulate` until interrupted.
 pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Result<u8> {
-    let endpoint = match (&args.pty, &args.tcp) {
-        (Some(p), None) => Endpoint::Pty(p.clone()),
-        (None, Some(a)) => Endpoint::Tcp(*a),
-        _ => bail!("say where the master connects: --pty PATH or --tcp HOST:PORT"),
+    let endpoint = match (&args.pty, &args.tcp, &args.modbus_tcp) {
+        (Some(p), None, None) => Endpoint::Pty(p.clone()),
+        (None, Some(a), None) => Endpoint::Tcp(*a),
+        (None, None, Some(a)) => Endpoint::ModbusTcp(*a),
+        _ => bail!("say where the master connects: --pty PATH, --tcp HOST:PORT or --modbus-tcp HOST:PORT"),
     };
-    let bus = bus_spec(args, target)?;
+    let mut bus = bus_spec(args, target)?;
+    if args.modbus_tcp.is_some() {
+        speak_modbus_rtu(&mut bus)?;
+    }
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     rt.block_on(async move {
         let sim = Simulator::new(&bus)?;
@@ -141,6 +174,7 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Res
             r = serve => r.with_context(|| match &endpoint {
                 Endpoint::Pty(p) => format!("pty {}", p.display()),
                 Endpoint::Tcp(a) => format!("tcp {a}"),
+                Endpoint::ModbusTcp(a) => format!("modbus-tcp {a}"),
             })?,
             _ = stop.wait() => {}
         }

@@ -54,6 +54,7 @@ pub fn source(family: Family) -> &'static str {
         Family::B800 => {
             "the t status (trip in force) only: the protocol has no parameter access, F-13 (last four trips) is on the keypad"
         }
+        Family::Template(_) => "the fault in force only: a template gives no fault history yet",
     }
 }
 
@@ -64,7 +65,7 @@ pub fn history_reads(family: Family) -> Vec<String> {
         Family::Generic => ["P4.00", "P4.01", "P4.02", "P4.03"].map(String::from).to_vec(),
         Family::Toshiba => ["FE10", "FE11", "FE12", "FE13", "FE00"].map(String::from).to_vec(),
         Family::Danfoss => (0..10).map(|i| format!("15-30[{i}]")).collect(),
-        Family::B800 => Vec::new(),
+        Family::B800 | Family::Template(_) => Vec::new(),
     }
 }
 
@@ -103,7 +104,7 @@ pub fn history_of(family: Family, status: &DriveStatus, raws: &[i64]) -> TripHis
             None,
             None,
         ),
-        Family::B800 => (0, |code| code.to_string(), None, None),
+        Family::B800 | Family::Template(_) => (0, |code| code.to_string(), None, None),
     };
     let at_trip = |at: At| at.and_then(|(name, i)| scaled(name, raw(i)));
     let mut entries = Vec::new();

@@ -19,6 +19,7 @@
 //!
 //! ```toml
 //! name = "hall-1"                       # the gateway's name (MQTT topic tree, dashboards)
+//! templates = ["vfd-a.toml"]            # drive templates whose kinds `family` may name (docs/templates.md)
 //!
 //! [http]
 //! listen = "127.0.0.1:8080"
@@ -53,7 +54,7 @@
 //! [[bus]]
 //! name = "line-1"
 //! port = "/dev/ttyUSB0"                 # a device, tcp://HOST:PORT, or "virtual" (simulated)
-//! protocol = "modbus-rtu"
+//! protocol = "modbus-rtu"               # or modbus-tcp, with port = "tcp://HOST[:502]"
 //! baud = 19200
 //! serial = "8E1"
 //! timeout_ms = 200
@@ -108,6 +109,7 @@ mod model;
 mod name;
 mod opcua;
 mod store;
+mod templates;
 mod token;
 
 pub mod bridge;
@@ -146,6 +148,8 @@ impl GatewayConfig {
     pub fn from_toml(file: &str, text: &str) -> Result<Self, ConfigError> {
         let cx = Ctx { file, text };
         let raw: FileConfig = toml::from_str(text).map_err(|e| cx.toml_error(&e))?;
+        // First: the drives' families may be the templates' kinds.
+        let templates = templates::check(&cx, &raw.templates)?;
         let http = http::check(&cx, &raw.http)?;
         let modbus = modbus::check(&cx, &raw.modbus)?;
         let tokens = token::check(&cx, &raw.token)?;
@@ -163,6 +167,7 @@ impl GatewayConfig {
         let modbus_rtu = modbus_rtu::check(&cx, &raw.modbus_rtu)?;
         Ok(GatewayConfig {
             name,
+            templates,
             http,
             modbus,
             store,

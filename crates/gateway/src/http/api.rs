@@ -271,8 +271,7 @@ pub async fn trend(
     }
     let span = until_ms.checked_sub(since_ms).unwrap_or(i64::MAX);
     let resolution = match q.get("resolution").map(|s| s.trim()) {
-        None | Some("") if span <= DEFAULT_TREND_SPAN_MS => Resolution::Second,
-        None | Some("") => Resolution::Minute,
+        None | Some("") => Resolution::for_span(span),
         Some("1s") => Resolution::Second,
         Some("1m") => Resolution::Minute,
         Some(r) => return Err(ApiError::bad_request(format!("resolution={r:?}: use 1s or 1m"))),

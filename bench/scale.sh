@@ -70,7 +70,9 @@ run_plant() {
   local drives=$1 buses=$2 poll=$3
   local dir="$TMP/plant-$drives"
   mkdir -p "$dir"
-  write_scale_plant "$dir/plant.toml" "$drives" "$buses" "$poll" "$(printf '[store]\npath = "%s/drivebus.db"\n' "$dir")"
+  # Every subscriber is anonymous: one user, allowed as many sessions as there are clients.
+  write_scale_plant "$dir/plant.toml" "$drives" "$buses" "$poll" \
+    "$(printf '[store]\npath = "%s/drivebus.db"\n[opcua]\nmax_sessions_per_user = %d\n' "$dir" "$((SUB_CLIENTS + 1))")"
   local hp mp op t0 gw
   hp=$(free_port); mp=$(free_port); op=$(free_port)
   echo "== $drives drives on $buses virtual buses (poll ${poll} ms), every front end on"

@@ -120,6 +120,12 @@ impl Drive {
         Drive { priority: Priority::OnDemand, client: Arc::from(client), ..self.clone() }
     }
 
+    /// The same drive, whose requests are a scan's probes ([`Priority::Scan`]): sent only when
+    /// nothing else waits on the bus, once, leaving the address's health alone.
+    pub fn scanning(&self) -> Self {
+        Drive { priority: Priority::Scan, ..self.clone() }
+    }
+
     /// Sets this drive's response timeout (the bus default otherwise).
     pub fn with_timeout(mut self, timeout: Duration) -> Self {
         self.timeout = Some(timeout);

@@ -41,7 +41,7 @@ fn shown(s: &str) -> String {
 }
 
 /// One parameter of a backup: its raw value and the value as the keypad shows it.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Entry {
     /// The raw value.
     pub raw: i64,

@@ -215,6 +215,59 @@ impl Drive {
     }
 }
 
+/// What a scan's probe of an address found ([`probe`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Probe {
+    /// A drive of the profile's family: its state.
+    Status(DriveStatus),
+    /// Something at the address refused the status read: it speaks the protocol, but on a
+    /// protocol several families speak it may be another family's drive.
+    Refused {
+        /// The code it answered with.
+        code: u32,
+        /// What the code means.
+        meaning: String,
+    },
+    /// Something answered with a reply that made no sense for this family.
+    Odd(String),
+}
+
+impl Probe {
+    /// How the find is told: `stopped`, `running at 40.00 Hz`, `answers (refused status: ...)`.
+    pub fn note(&self) -> String {
+        match self {
+            Probe::Status(s) => format!(
+                "{}{}",
+                if s.running { "running" } else { "stopped" },
+                s.output_hz.map(|h| format!(" at {h:.2} Hz")).unwrap_or_default()
+            ),
+            Probe::Refused { code, meaning } => format!("answers (refused status: {code}, {meaning})"),
+            Probe::Odd(e) => format!("answers oddly: {e}"),
+        }
+    }
+
+    /// A refusal on `protocol` when more than one family speaks it: the drive may be another
+    /// family's, refusing this family's map (a find only where no family read its status).
+    pub fn tentative(&self, protocol: WireProtocol) -> bool {
+        matches!(self, Probe::Refused { .. })
+            && Family::ALL.iter().filter(|&&f| f.protocols().contains(&protocol)).count() > 1
+    }
+}
+
+/// Probes `drive`'s address with a status read: what answered there, or `None` when nothing
+/// did (no answer, a damaged one, the link down).
+pub async fn probe(drive: &Drive) -> Option<Probe> {
+    match drive.status().await {
+        Ok(s) => Some(Probe::Status(s)),
+        // A refusal is an answer: something with this address speaks the protocol.
+        Err(Error::Drive(DriveError::Refused { code, meaning, .. })) => {
+            Some(Probe::Refused { code, meaning })
+        }
+        Err(Error::Drive(DriveError::Protocol(e))) => Some(Probe::Odd(e)),
+        Err(_) => None,
+    }
+}
+
 /// The same API without async, for scripts and single-threaded programs: runs on a
 /// [`BlockingBus`] in the calling thread (no runtime).
 pub struct BlockingDrive {

@@ -158,7 +158,7 @@ impl Gateway {
             }
         }
         let mut rows = Vec::new();
-        for def in catalog.iter().filter(|p| group.is_none_or(|g| p.group == g)) {
+        for def in catalog.iter().filter(|p| group.map_or(true, |g| p.group == g)) {
             let mut row = ParamRow::of(def);
             if read {
                 match self.read_param(id, &def.name, client).await {
@@ -237,7 +237,7 @@ impl Gateway {
             .into_iter()
             .map(|diff| {
                 let apply = (options.include_comm || !diff.comm)
-                    && only.as_ref().is_none_or(|o| o.contains(&diff.name));
+                    && only.as_ref().map_or(true, |o| o.contains(&diff.name));
                 RestoreRow {
                     title: catalog.get(&diff.name).map(|p| p.title.clone()).unwrap_or_default(),
                     name: diff.name,

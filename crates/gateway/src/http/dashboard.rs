@@ -68,8 +68,9 @@ async fn asset_handler(Path(name): Path<String>) -> Response {
     match asset(&name) {
         Some((ct, body)) => respond(ct, body),
         None => {
-            let message =
-                format!("no dashboard asset {name:?}: the page uses app.js, workbench.js, style.css and favicon.svg");
+            let message = format!(
+                "no dashboard asset {name:?}: the page uses app.js, workbench.js, style.css and favicon.svg"
+            );
             let body = serde_json::json!({ "error": { "kind": "not_found", "message": message } });
             (StatusCode::NOT_FOUND, axum::Json(body)).into_response()
         }

@@ -767,7 +767,7 @@ fn the_commissioning_pages_back_up_edit_restore_and_scan_in_a_real_browser() {
 
     // Change P0.02: the confirmation shows old → new; the row shows the new value, marked.
     browser.click("[data-tab=params]");
-    browser.type_into(&format!("#wb-param-rows tr[data-param=\"P0.02\"] [data-field=new]"), "42.5");
+    browser.type_into("#wb-param-rows tr[data-param=\"P0.02\"] [data-field=new]", "42.5");
     browser.click("#wb-param-rows tr[data-param=\"P0.02\"] [data-action=edit]");
     browser.wait_for(
         "the confirmation",

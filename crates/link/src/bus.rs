@@ -153,6 +153,10 @@ pub enum Priority {
     OnDemand,
     /// Cyclic polling.
     Poll,
+    /// A probe of an address that may hold no drive (a bus scan): sent only when nothing else
+    /// waits, with one attempt, and the address's link health left alone (an empty address is
+    /// not an offline drive).
+    Scan,
 }
 
 /// Counts of one bus.

@@ -474,7 +474,9 @@ impl Server {
 /// (docs/register-map.md). A drive's own Modbus exception is passed through as it came.
 pub fn exception_of(e: &CommandError) -> ExceptionCode {
     match e {
-        CommandError::UnknownDrive(_) | CommandError::NoAnswer(_) => ExceptionCode::GATEWAY_TARGET_FAILED,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) | CommandError::NoAnswer(_) => {
+            ExceptionCode::GATEWAY_TARGET_FAILED
+        }
         CommandError::Locked(_) | CommandError::Unsupported(_) => ExceptionCode::ILLEGAL_FUNCTION,
         CommandError::Invalid(_) => ExceptionCode::ILLEGAL_DATA_VALUE,
         CommandError::Refused { code: code @ 1..=0xFF, space: CodeSpace::ModbusException, .. } => {

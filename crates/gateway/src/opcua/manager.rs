@@ -71,7 +71,7 @@ impl DriveNodes {
 /// A command's failure in OPC UA's words (docs/opcua.md, "Status codes").
 pub fn status_of(e: &CommandError) -> StatusCode {
     match e {
-        CommandError::UnknownDrive(_) => StatusCode::BadNodeIdUnknown,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) => StatusCode::BadNodeIdUnknown,
         CommandError::Locked(_) => StatusCode::BadNotWritable,
         CommandError::Invalid(_) => StatusCode::BadOutOfRange,
         CommandError::Refused { .. } => StatusCode::BadInvalidState,

@@ -2,8 +2,8 @@
 //!
 //! Metrics observe the core: drive and bus series are read from the cache and the bus owners
 //! at each scrape (nothing is polled for a scrape), the gateway's own work from the counters
-//! and health it exposes ([`Counters`](crate::gateway::Counters),
-//! [`Gateway::health`](crate::gateway::Gateway::health)). The front ends' own counts (HTTP
+//! and health it exposes ([`Counters`](crate::core::Counters),
+//! [`Gateway::health`](crate::core::Gateway::health)). The front ends' own counts (HTTP
 //! requests and latencies, Modbus TCP requests, MQTT publishes) accumulate in
 //! [`FrontEndMetrics`] and the Sparkplug edge node's in [`SparkplugMetrics`], one of each per
 //! gateway ([`front_ends`], `sparkplug::metrics`); the core holds them without knowing them.
@@ -21,7 +21,7 @@ use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
 use prometheus_client::registry::{Registry, Unit};
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// The content type of the exposition.
 pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
@@ -242,9 +242,24 @@ impl SparkplugMetrics {
     }
 }
 
+/// Everything the front ends attach to a gateway, in one place: their counts, which `/metrics`
+/// reads. A front end that keeps state of its own on the gateway adds a field here.
+#[derive(Debug, Default)]
+pub struct FrontEnds {
+    /// HTTP requests, Modbus TCP requests, MQTT publishes ([`front_ends`]).
+    pub counts: Arc<FrontEndMetrics>,
+    /// The Sparkplug B edge node's messages, refusals and queue (`sparkplug::metrics`).
+    pub sparkplug: Arc<SparkplugMetrics>,
+}
+
+/// What the front ends attach to `gw`, made empty on first use.
+pub fn attached(gw: &Gateway) -> Arc<FrontEnds> {
+    gw.attached()
+}
+
 /// The front ends' counts of `gw`, made empty on first use.
 pub fn front_ends(gw: &Gateway) -> Arc<FrontEndMetrics> {
-    gw.attached()
+    attached(gw).counts.clone()
 }
 
 /// Labels of a drive's series.
@@ -366,7 +381,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         utilization.get_or_create(&l).set(if u.is_finite() { u } else { 0.0 });
         bus_online.get_or_create(&l).set(i64::from(b.online()));
         foreign.get_or_create(&l).inc_by(s.foreign_broadcasts);
-        drive_master.get_or_create(&l).set(i64::from(crate::gateway::drive_master(&s)));
+        drive_master.get_or_create(&l).set(i64::from(crate::core::drive_master(&s)));
     }
     reg.register("bus_transactions", "Requests sent, retries included", transactions);
     reg.register("bus_replies", "Replies received", replies);
@@ -426,7 +441,7 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     );
     reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
     reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
-    gw.attached::<SparkplugMetrics>().register(&mut reg);
+    attached(gw).sparkplug.register(&mut reg);
 
     // Health (the facts of /readyz) and reloads.
     let h = gw.health();

@@ -1,5 +1,5 @@
 //! What a configuration reload changes: the running configuration compared with the new one,
-//! section by section, before anything is touched. [`Gateway::reload`](crate::gateway::Gateway::reload)
+//! section by section, before anything is touched. [`Gateway::reload`](crate::core::Gateway::reload)
 //! carries the plan out; the plan is also what the log and the audit trail say.
 
 use serde_json::{json, Value};

@@ -13,7 +13,7 @@ use axum::extract::connect_info::MockConnectInfo;
 use axum::http::{header, Method, Request, StatusCode};
 use axum::Router;
 use drivebus_gateway::config::{Role, Token};
-use drivebus_gateway::gateway::{Change, Gateway};
+use drivebus_gateway::core::{Change, Gateway};
 use drivebus_gateway::http::{api::OPENAPI, router, API_ROUTES};
 use drivebus_gateway::GatewayConfig;
 use http_body_util::BodyExt;

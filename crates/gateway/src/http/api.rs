@@ -13,7 +13,7 @@ use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-use crate::gateway::{unix_ms, BusView, Command, DriveView, Gateway, ParamReading};
+use crate::core::{unix_ms, BusView, Command, DriveView, Gateway, ParamReading};
 use crate::http::auth::{ReadAccess, WriteAccess};
 use crate::http::error::ApiError;
 

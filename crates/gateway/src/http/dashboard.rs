@@ -11,7 +11,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// The page.
 pub const INDEX_HTML: &str = include_str!("dashboard/index.html");

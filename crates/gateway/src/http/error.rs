@@ -6,7 +6,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde_json::json;
 
-use crate::gateway::CommandError;
+use crate::core::CommandError;
 use crate::text::cut;
 
 /// An error answer: status, kind and a one-line message naming the problem.
@@ -22,7 +22,7 @@ pub struct ApiError {
 
 impl ApiError {
     /// An error with `status`, `kind` and `message` (newlines are folded into one line, and a
-    /// message over [`crate::gateway::MAX_MESSAGE_CHARS`] characters is cut: it quotes a user's
+    /// message over [`crate::core::MAX_MESSAGE_CHARS`] characters is cut: it quotes a user's
     /// value).
     pub fn new(status: StatusCode, kind: &'static str, message: impl Into<String>) -> Self {
         let message: String = message.into();
@@ -31,7 +31,7 @@ impl ApiError {
         } else {
             message
         };
-        let message = crate::text::shown_max(&message, crate::gateway::MAX_MESSAGE_CHARS);
+        let message = crate::text::shown_max(&message, crate::core::MAX_MESSAGE_CHARS);
         ApiError { status, kind, message }
     }
 

@@ -1,6 +1,6 @@
 //! The HTTP/JSON API (axum): drives, buses, commands, parameters, events, the live stream and
 //! the OpenAPI description. Reads come from the cache; writes go through
-//! [`Gateway::command`](crate::gateway::Gateway::command). docs/http-api.md describes every
+//! [`Gateway::command`](crate::core::Gateway::command). docs/http-api.md describes every
 //! route.
 //!
 //! Every answer that is not a success is JSON (`{"error": {"kind", "message"}}`, [`error`]),
@@ -27,7 +27,7 @@ use axum::routing::{get, post};
 use axum::Router;
 use futures_util::FutureExt;
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 use error::ApiError;
 
 /// The API's routes as axum writes them (`:id` for `{id}`) with their methods; the OpenAPI

@@ -15,7 +15,7 @@ use drivebus_drive::backup::Backup;
 use drivebus_store::{EventFilter, EventKind};
 use serde_json::{json, Value};
 
-use crate::gateway::{Gateway, ParamRow, RestoreOptions};
+use crate::core::{Gateway, ParamRow, RestoreOptions};
 use crate::http::api::{body, query, ApiResult};
 use crate::http::auth::{ReadAccess, WriteAccess};
 use crate::http::error::ApiError;

@@ -17,7 +17,7 @@ use drivebus_proto::modbus::{ExceptionCode, RegisterAddress, Registers, ReplyPdu
 use super::map::*;
 use super::service::{exception, reply};
 use crate::config::ModbusConfig;
-use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
+use crate::core::{Command, CommandError, DriveEntry, Gateway};
 use crate::metrics::FrontEndMetrics;
 
 /// Exception 01: illegal function (also: writes refused by configuration or a lock).

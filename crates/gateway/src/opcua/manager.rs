@@ -23,7 +23,7 @@ use super::nodes::{Ids, Target};
 use super::sessions::{Seen, Sessions};
 use super::space::Space;
 use crate::config::Role;
-use crate::gateway::{Command, CommandError, Gateway};
+use crate::core::{Command, CommandError, Gateway};
 
 /// The node manager of `urn:drivebus`: the types and folders kept, every drive and bus made
 /// on demand from the gateway ([`super::space`]).

@@ -13,7 +13,7 @@ use serde_json::json;
 use tokio::sync::Notify;
 
 use super::cache::{BusEntry, DriveEntry, DriveState};
-use super::hub::{Gateway, Topology};
+use super::gateway::{Gateway, Topology};
 use super::linkage::LINKAGE_NONE;
 use crate::config::{BusConfig, DriveConfig, GatewayConfig, HttpConfig};
 #[cfg(feature = "virtual")]

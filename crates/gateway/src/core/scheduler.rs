@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use super::cache::{BusEntry, DriveEntry};
-use super::hub::Gateway;
+use super::gateway::Gateway;
 use super::views::Change;
 
 impl Gateway {

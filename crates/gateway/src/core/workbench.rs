@@ -13,7 +13,7 @@ use serde::Serialize;
 use serde_json::Value;
 
 use super::command::{Command, CommandError};
-use super::hub::Gateway;
+use super::gateway::Gateway;
 
 /// A failure of one row, in the words the core gives it.
 #[derive(Clone, Debug, Serialize, PartialEq, Eq)]

@@ -32,6 +32,7 @@ pub mod listen;
 pub mod owner;
 pub mod port;
 pub mod port_link;
+pub mod role;
 #[cfg(feature = "virtual")]
 pub mod sim_link;
 pub mod timer;

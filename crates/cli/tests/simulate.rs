@@ -123,9 +123,12 @@ fn b800_drive_over_tcp_with_control_interface() {
     assert!(e["error"].as_str().unwrap().contains("probability"));
 }
 
-/// `drivebus simulate <args>` with a control interface: the process (killed on drop), every
-/// `listening on` line in order (one per master) and the control address.
-fn start_masters(args: &[&str], masters: usize) -> (sim::Killed, Vec<String>, std::net::SocketAddr) {
+/// A simulator's process (killed on drop), its `listening on` lines in order (one per master),
+/// its control address and the lines it prints after them.
+type Masters = (sim::Killed, Vec<String>, std::net::SocketAddr, std::sync::mpsc::Receiver<String>);
+
+/// `drivebus simulate <args>` with a control interface.
+fn start_masters(args: &[&str], masters: usize) -> Masters {
     let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
         .arg("simulate")
         .args(args)
@@ -144,8 +147,26 @@ fn start_masters(args: &[&str], masters: usize) -> (sim::Killed, Vec<String>, st
             ready.push(at.to_string());
         }
     }
-    std::thread::spawn(move || for _ in lines {});
-    (sim::Killed(child), ready, control.expect("a control line"))
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in lines.map_while(Result::ok) {
+            let _ = tx.send(l);
+        }
+    });
+    (sim::Killed(child), ready, control.expect("a control line"), rx)
+}
+
+/// Waits (generously) for a printed line containing `what`.
+fn wait_line(rx: &std::sync::mpsc::Receiver<String>, what: &str) -> String {
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(l) if l.contains(what) => return l,
+            Ok(_) => {}
+            Err(_) => panic!("no line with {what:?}"),
+        }
+    }
 }
 
 /// Reads from `bus` until `want` bytes came, with a generous deadline.
@@ -165,8 +186,8 @@ fn read_n(bus: &mut TcpStream, want: usize) -> Vec<u8> {
 
 #[test]
 fn several_masters_share_one_line_hear_each_other_and_garble_when_they_talk_at_once() {
-    let (_sim, ready, control) = start_masters(
-        &["--drive", "b800@5", "--tcp", "127.0.0.1:0", "--tcp", "127.0.0.1:0", "--tcp", "127.0.0.1:0"],
+    let (_sim, ready, control, printed) = start_masters(
+        &["-v", "--drive", "b800@5", "--tcp", "127.0.0.1:0", "--tcp", "127.0.0.1:0", "--tcp", "127.0.0.1:0"],
         3,
     );
     assert!(ready[0].ends_with("(master 0)") && ready[2].ends_with("(master 2)"), "{ready:?}");
@@ -191,6 +212,11 @@ fn several_masters_share_one_line_hear_each_other_and_garble_when_they_talk_at_o
     assert_eq!(exchange(&mut b, &run, 8), b800("0572"));
     assert_eq!(read_n(&mut a, run.len() + 8), [run.clone(), b800("0572")].concat());
     assert_eq!(read_n(&mut c, run.len() + 8), [run.clone(), b800("0572")].concat());
+    // -v prints every frame once, each request with the master that sent it.
+    wait_line(&printed, "[master 0] b800 master to drive 5");
+    let b_request = wait_line(&printed, "[master 1] b800 master to drive 5");
+    let answer = wait_line(&printed, "b800 drive 5 to master");
+    assert!(!answer.contains("[master"), "{b_request} / {answer}");
     let s = stats();
     assert_eq!((s["collisions"].as_u64(), s["garbled_frames"].as_u64()), (Some(0), Some(0)), "{s}");
     // A and B at once: 60 characters each (69 ms on the wire at 9600 baud) overlap, and the line

@@ -27,9 +27,12 @@ use crate::rng::Rng;
 /// The first external master (every line has it).
 pub const MASTER: usize = 0;
 
+/// The most bursts a log keeps unread.
+const LOG_KEEP: usize = 4096;
+
 /// Who puts a character on the line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Talker {
+pub enum Talker {
     /// An external master, by its number (0 = [`MASTER`]).
     Master(usize),
     /// A device, by its port (1, 2, ...).
@@ -120,6 +123,8 @@ pub struct VirtualLine {
     stats: LineStats,
     /// What a listener on the line hears (both directions), when a tap is attached.
     tap: Option<VecDeque<u8>>,
+    /// Every burst delivered with who sent it, when a log is attached.
+    log: Option<VecDeque<(Talker, Vec<u8>)>>,
 }
 
 impl VirtualLine {
@@ -143,6 +148,7 @@ impl VirtualLine {
             rng: Rng::new(1),
             stats: LineStats::default(),
             tap: None,
+            log: None,
         }
     }
 
@@ -283,6 +289,20 @@ impl VirtualLine {
     /// True when the tap holds bytes not yet read.
     pub fn tap_pending(&self) -> bool {
         self.tap.as_ref().is_some_and(|t| !t.is_empty())
+    }
+
+    /// Attaches a log: from now on every burst delivered is also kept with who sent it, for
+    /// [`VirtualLine::log_read`] (a monitor that tells the masters' requests from the drives'
+    /// answers on a line with several masters).
+    pub fn attach_log(&mut self) {
+        self.log.get_or_insert_with(VecDeque::new);
+    }
+
+    /// The bursts logged since the last call, with who sent each (at most the last 4096).
+    pub fn log_read(&mut self, out: &mut Vec<(Talker, Vec<u8>)>) {
+        if let Some(l) = self.log.as_mut() {
+            out.extend(l.drain(..));
+        }
     }
 
     /// Bytes that have reached the master by now.
@@ -481,6 +501,13 @@ impl VirtualLine {
         }
         if let Some(tap) = self.tap.as_mut() {
             tap.extend(bytes.iter().copied());
+        }
+        if let Some(log) = self.log.as_mut() {
+            // Nobody reading (the first master's client not connected): the oldest go.
+            if log.len() >= LOG_KEEP {
+                log.pop_front();
+            }
+            log.push_back((talker, bytes.to_vec()));
         }
         for (i, p) in self.ports.iter_mut().enumerate() {
             if talker == Talker::Device(i) {
@@ -799,6 +826,29 @@ mod tests {
         line.master_write_from(b, t + Duration::from_micros(200), &[2]);
         line.advance_to(t + Duration::from_millis(8));
         assert_eq!(line.stats().garbled_frames, before + 2);
+    }
+
+    #[test]
+    fn the_log_tells_who_sent_each_burst() {
+        let (mut line, _, _) = echo_line(9600, 5);
+        let b = line.add_master();
+        line.attach_log();
+        line.master_write(Instant::ZERO, &[1, 2]);
+        run_until_idle(&mut line);
+        let t = line.now() + Duration::from_millis(20);
+        line.master_write_from(b, t, &[3]);
+        run_until_idle(&mut line);
+        let mut log = Vec::new();
+        line.log_read(&mut log);
+        assert_eq!(
+            log,
+            [
+                (Talker::Master(0), vec![1, 2]),
+                (Talker::Device(1), vec![1, 2]),
+                (Talker::Master(b), vec![3]),
+                (Talker::Device(1), vec![3]),
+            ]
+        );
     }
 
     #[test]

@@ -117,8 +117,9 @@ impl Simulator {
     }
 
     /// Serves master `master` (from [`Simulator::add_master`]) at `endpoint` until the process
-    /// ends, as [`Simulator::serve`] does the first. With `verbose` and several masters, each
-    /// prints the requests it sends, marked with its number, and only the first prints answers.
+    /// ends, as [`Simulator::serve`] does the first. With `verbose` and several masters (add
+    /// them all before serving), the first prints every frame on the line, each request marked
+    /// with the master that sent it.
     pub async fn serve_master(
         self: Arc<Self>,
         master: usize,
@@ -164,12 +165,17 @@ impl Simulator {
     {
         let single = self.protocols.len() == 1;
         let several = self.line.lock().unwrap_or_else(|p| p.into_inner()).masters() > 1;
-        let who = if several { format!("[master {master}] ") } else { String::new() };
         // With several masters, what one receives mixes the others' requests with the drives'
-        // answers: only the first decodes it (as answers), so each frame is printed once.
-        let show_received = master == crate::bus::MASTER;
+        // answers: the first prints every frame from the line's log, which says who sent each.
+        let from_log = several && verbose;
+        if from_log && master == crate::bus::MASTER {
+            self.line.lock().unwrap_or_else(|p| p.into_inner()).attach_log();
+        }
+        let mut logged = Vec::new();
         let mut changed = self.changed.subscribe();
-        let mut monitors: Vec<(Monitor, Monitor)> = if verbose {
+        // With the log, only the first master prints.
+        let mut monitors: Vec<(Monitor, Monitor)> = if verbose && !(from_log && master != crate::bus::MASTER)
+        {
             self.protocols
                 .iter()
                 .map(|&p| {
@@ -196,9 +202,9 @@ impl Simulator {
                     let now = self.now();
                     self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write_from(master, now, &buf[..n]);
                     self.changed.send_modify(|g| *g = g.wrapping_add(1));
-                    for (m, _) in &mut monitors {
+                    for (m, _) in monitors.iter_mut().filter(|_| !from_log) {
                         for l in m.push(&buf[..n]) {
-                            println!("{:>10.3} {who}{l}", now.as_nanos() as f64 / 1e9);
+                            println!("{:>10.3} {l}", now.as_nanos() as f64 / 1e9);
                         }
                     }
                 }
@@ -210,12 +216,29 @@ impl Simulator {
                 let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
                 line.advance_to(now);
                 line.master_read_to(master, &mut out);
+                if from_log && master == crate::bus::MASTER {
+                    line.log_read(&mut logged);
+                }
                 if line.tap_pending() {
                     self.tap_wake.notify_one();
                 }
             }
+            for (talker, bytes) in logged.drain(..) {
+                let t = now.as_nanos() as f64 / 1e9;
+                for (to_drives, from_drives) in &mut monitors {
+                    let lines = match talker {
+                        crate::bus::Talker::Master(m) => {
+                            to_drives.push(&bytes).into_iter().map(|l| format!("[master {m}] {l}")).collect()
+                        }
+                        crate::bus::Talker::Device(_) => from_drives.push(&bytes),
+                    };
+                    for l in lines {
+                        println!("{t:>10.3} {l}");
+                    }
+                }
+            }
             if !out.is_empty() {
-                for (_, m) in monitors.iter_mut().filter(|_| show_received) {
+                for (_, m) in monitors.iter_mut().filter(|_| !from_log) {
                     for l in m.push(&out) {
                         println!("{:>10.3} {l}", now.as_nanos() as f64 / 1e9);
                     }

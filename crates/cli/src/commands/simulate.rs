@@ -156,8 +156,11 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Res
         let several = endpoints.len() > 1;
         let mut masters = tokio::task::JoinSet::new();
         let mut made: Vec<PathBuf> = Vec::new();
-        for (i, endpoint) in endpoints.iter().enumerate() {
-            let master = if i == 0 { drivebus_sim::bus::MASTER } else { sim.add_master() };
+        // Every master is on the line before any is served: each knows there are several.
+        let ids: Vec<usize> = (0..endpoints.len())
+            .map(|i| if i == 0 { drivebus_sim::bus::MASTER } else { sim.add_master() })
+            .collect();
+        for (endpoint, &master) in endpoints.iter().zip(&ids) {
             // Each port is open (and its ready line printed) before the next is made: the
             // masters' numbers follow the order of the ready lines.
             let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();

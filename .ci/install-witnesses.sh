@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs the programs nobody here wrote that the tests use as witnesses: pymodbus, asyncua and
-# the Sparkplug host's pysparkplug + paho-mqtt (PyPI); from Debian mbpoll, curl, mosquitto,
+# the Sparkplug host's pysparkplug + paho-mqtt (PyPI); node-opcua (npm, into tests/interop/node); from Debian mbpoll, curl, mosquitto,
 # tshark, chromium + chromium-driver (the dashboard's browser test) and systemd (systemd-analyze,
 # for the package check); and cargo-deb (crates.io) to build the Debian package. Idempotent:
 # each is installed only when missing.
@@ -42,9 +42,25 @@ pip_install() {
     || python3 -m pip install --quiet --break-system-packages "$@"
 }
 
+# npm_ci FOLDER: installs the npm packages pinned in FOLDER/package-lock.json into
+# FOLDER/node_modules (never globally), with Node.js and npm from Debian where npm is missing;
+# nothing when what is installed there already matches the lock.
+npm_ci() {
+  local dir="$1"
+  apt_install npm nodejs npm
+  if (cd "$dir" && npm ls --all >/dev/null 2>&1); then
+    return 0
+  fi
+  (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+}
+
 pip_install "pymodbus, serial" "pymodbus==3.16.1" pyserial
 # The OPC UA client of crates/cli/tests/opcua.rs (tests/interop/opcua_client.py).
 pip_install asyncua "asyncua==1.1.5"
+# The second OPC UA client stack, node-opcua, of crates/cli/tests/opcua_node.rs
+# (tests/interop/node/opcua_client.js; the version is pinned in its package.json and lock).
+NODE_WITNESSES="$(cd "$(dirname "$0")/../tests/interop/node" && pwd)"
+npm_ci "$NODE_WITNESSES"
 # The Python Sparkplug B host of crates/cli/tests/sparkplug.rs: paho-mqtt and the Sparkplug B schema
 # as pysparkplug ships it (tests/interop/sparkplug_host.py).
 pip_install "pysparkplug._protobuf.sparkplug_b_pb2, paho.mqtt.client" \
@@ -77,6 +93,7 @@ rustup toolchain list | grep -q '^nightly' || rustup toolchain install nightly -
 python3 -c "import pymodbus; print('pymodbus', pymodbus.__version__)"
 python3 -c "import asyncua; print('asyncua', asyncua.__version__)"
 python3 -c "import importlib.metadata as m; print(*(f'{p} {m.version(p)}' for p in ('pysparkplug', 'paho-mqtt', 'protobuf')))"
+(cd "$NODE_WITNESSES" && node -p "'node-opcua ' + require('node-opcua/package.json').version + ' on Node.js ' + process.version")
 mbpoll -V 2>&1 | head -n 1
 curl --version | head -n 1
 (chromium --version 2>/dev/null || chromium-browser --version) | head -n 1

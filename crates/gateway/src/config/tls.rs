@@ -28,7 +28,7 @@ fn certificates(path: &Path, what: &str) -> Result<Vec<CertificateDer<'static>>,
         iter.collect::<Result<Vec<_>, _>>().map_err(|e| format!("{what} {shown}: {}", pem_error(e)))?;
     if certs.is_empty() {
         return Err(format!(
-            "{what} {shown}: no certificate in it: give a PEM file with -----BEGIN CERTIFICATE-----"
+            "{what} {shown}: no certificate in it: give a PEM file with a BEGIN CERTIFICATE block"
         ));
     }
     Ok(certs)
@@ -38,7 +38,7 @@ fn certificates(path: &Path, what: &str) -> Result<Vec<CertificateDer<'static>>,
 fn private_key(path: &Path, what: &str) -> Result<PrivateKeyDer<'static>, String> {
     PrivateKeyDer::from_pem_file(path).map_err(|e| match e {
         rustls_pki_types::pem::Error::NoItemsFound => format!(
-            "{what} {}: no private key in it: give a PEM file with -----BEGIN PRIVATE KEY----- \
+            "{what} {}: no private key in it: give a PEM file with a BEGIN PRIVATE KEY block \
              (or RSA / EC PRIVATE KEY)",
             path.display()
         ),

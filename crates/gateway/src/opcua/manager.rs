@@ -1,5 +1,6 @@
-//! The node manager of `urn:drivebus`: reads of cache variables come from the address space
-//! (kept current by [`super::publish`]), reads of parameters go to the drive, writes and method
+//! The node manager of `urn:drivebus`: reads of a drive's variables come from the cache (values
+//! and status as [`super::publish`] puts them in the address space, the source timestamp of the
+//! poll that last confirmed them), reads of parameters go to the drive, writes and method
 //! calls become gateway commands, answered when the drive confirmed, with a status code that
 //! says why not.
 
@@ -151,6 +152,17 @@ fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
     }
 }
 
+/// `dv` with the timestamps a read asked for.
+fn only(mut dv: DataValue, timestamps: TimestampsToReturn) -> DataValue {
+    if matches!(timestamps, TimestampsToReturn::Server | TimestampsToReturn::Neither) {
+        (dv.source_timestamp, dv.source_picoseconds) = (None, None);
+    }
+    if matches!(timestamps, TimestampsToReturn::Source | TimestampsToReturn::Neither) {
+        (dv.server_timestamp, dv.server_picoseconds) = (None, None);
+    }
+    dv
+}
+
 impl DriveNodes {
     /// Brings the address space in line with the gateway's drives and buses after a reload:
     /// adds those it lacks, removes those that are gone. Returns whether anything changed.
@@ -191,6 +203,46 @@ impl DriveNodes {
             }
         }
         true
+    }
+
+    /// Drive `drive`'s variables from the cache, now, in [`super::nodes::DRIVE_VARIABLES`] order.
+    fn cached(&self, drive: &str) -> Option<Vec<DataValue>> {
+        let d = self.gw.drive(drive).ok()?;
+        let v = self.gw.drive_view(&d);
+        let bus_online = super::bus_online(&self.gw, &v.bus);
+        Some(super::drive_values(&v, bus_online, DateTime::now()))
+    }
+
+    /// Replaces the values read from the address space of the drives' variables in `nodes` with
+    /// the cache's, now: the same value and status, with the source timestamp of the poll that
+    /// last confirmed them (the address space keeps the one that last changed them). The
+    /// variables of one drive in one Read come from one look at the cache, so they agree
+    /// (`AgeMs` with the others' source timestamp).
+    fn fill_from_cache(
+        &self,
+        address_space: &RwLock<AddressSpace>,
+        nodes: &[&ParsedReadValueId],
+        out: &mut [DataValue],
+        timestamps: TimestampsToReturn,
+    ) {
+        let mut drives: std::collections::HashMap<String, Option<Vec<DataValue>>> = Default::default();
+        for (n, dv) in nodes.iter().zip(out.iter_mut()) {
+            let Target::DriveVariable { drive, variable } = self.ids.target(&n.node_id) else {
+                continue;
+            };
+            let whole_value = n.attribute_id == AttributeId::Value
+                && matches!(n.index_range, opcua::types::NumericRange::None);
+            if !whole_value || address_space.read().find(&n.node_id).is_none() {
+                continue;
+            }
+            let Some(i) = super::nodes::DRIVE_VARIABLES.iter().position(|def| def.name == variable) else {
+                continue;
+            };
+            let values = drives.entry(drive).or_insert_with_key(|drive| self.cached(drive));
+            if let Some(cached) = values.as_ref().and_then(|values| values.get(i)) {
+                *dv = only(cached.clone(), timestamps);
+            }
+        }
     }
 
     async fn read_parameter(&self, drive: &str, name: &str, client: &str) -> DataValue {
@@ -287,6 +339,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
                 None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
             }
         }
+        self.fill_from_cache(address_space, nodes, &mut out, timestamps_to_return);
         out
     }
 

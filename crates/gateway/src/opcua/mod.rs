@@ -263,29 +263,51 @@ pub fn quality(v: &DriveView, bus_online: bool) -> StatusCode {
     }
 }
 
-/// A drive's variables as values, in [`DRIVE_VARIABLES`] order. `Online`, `AgeMs` and
-/// `ErrorRate` are the gateway's own knowledge and always Good.
-pub fn drive_values(v: &DriveView, bus_online: bool) -> Vec<(Variant, StatusCode)> {
+/// The variables of a drive that are the gateway's own knowledge, not the drive's values.
+const GATEWAY_KNOWLEDGE: [&str; 3] = ["Online", "AgeMs", "ErrorRate"];
+
+/// A drive's variables as data values, in [`DRIVE_VARIABLES`] order, from the view `v` taken at
+/// `now` (docs/opcua.md, "Values, timestamps and status"). The drive's values carry as source
+/// timestamp the time the drive last answered: the last poll that confirmed them, whether it
+/// changed them or not (`now` before the first answer), so a client sees how fresh they are.
+/// `Online`, `AgeMs` and `ErrorRate` are the gateway's own knowledge, always Good, their source
+/// timestamp `now`: `AgeMs` is its server timestamp minus the drive values' source timestamp.
+pub fn drive_values(v: &DriveView, bus_online: bool, now: DateTime) -> Vec<DataValue> {
     let q = quality(v, bus_online);
+    let answered = v.last_seen_ms.map(datetime_ms).unwrap_or(now);
     let opt = |x: Option<f64>| x.map_or(Variant::Empty, Variant::Double);
     DRIVE_VARIABLES
         .iter()
-        .map(|def| match def.name {
-            "OutputFrequency" => (opt(v.output_hz), q),
-            "Setpoint" => (opt(v.setpoint_hz), q),
-            "Current" => (opt(v.current_a), q),
-            "Running" => (v.running.map_or(Variant::Empty, Variant::Boolean), q),
-            "Direction" => (Variant::String(UAString::from(v.direction.clone().unwrap_or_default())), q),
-            "FaultCode" => (Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)), q),
-            "FaultText" => (
-                Variant::String(UAString::from(v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default())),
-                q,
-            ),
-            "Online" => (Variant::Boolean(v.online == Some(true) && bus_online), StatusCode::Good),
-            "AgeMs" => (v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)), StatusCode::Good),
-            _ => (Variant::Double(v.error_rate), StatusCode::Good),
+        .map(|def| {
+            let value = match def.name {
+                "OutputFrequency" => opt(v.output_hz),
+                "Setpoint" => opt(v.setpoint_hz),
+                "Current" => opt(v.current_a),
+                "Running" => v.running.map_or(Variant::Empty, Variant::Boolean),
+                "Direction" => Variant::String(UAString::from(v.direction.clone().unwrap_or_default())),
+                "FaultCode" => Variant::UInt32(v.fault.as_ref().map_or(0, |f| f.code)),
+                "FaultText" => Variant::String(UAString::from(
+                    v.fault.as_ref().map(|f| f.text.clone()).unwrap_or_default(),
+                )),
+                "Online" => Variant::Boolean(v.online == Some(true) && bus_online),
+                "AgeMs" => v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)),
+                _ => Variant::Double(v.error_rate),
+            };
+            let own = GATEWAY_KNOWLEDGE.contains(&def.name);
+            DataValue {
+                value: Some(value),
+                status: Some(if own { StatusCode::Good } else { q }),
+                source_timestamp: Some(if own { now } else { answered }),
+                server_timestamp: Some(now),
+                ..Default::default()
+            }
         })
         .collect()
+}
+
+/// Whether `bus` is online (a bus the gateway does not know counts as online).
+pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
+    gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
 }
 
 /// A bus's variables as values, in [`BUS_VARIABLES`] order.
@@ -303,10 +325,15 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
         .collect()
 }
 
-/// What was last put in the address space per node: a poll that changes nothing publishes
-/// nothing.
-type Last = std::collections::HashMap<NodeId, (Variant, StatusCode)>;
+/// What was last put in the address space per node, and the source timestamp last notified: a
+/// poll that changes nothing puts nothing there.
+type Last = std::collections::HashMap<NodeId, (Variant, StatusCode, Option<DateTime>)>;
 
+/// Puts a drive's changed values in the address space (notifying their monitored items). A value
+/// the poll only confirmed (same value and status, a later source timestamp) stays as it is there
+/// (reads take the source timestamp from the cache, [`manager`]) and goes to the monitored items
+/// alone: under the default trigger (StatusValue) they notify nothing, under
+/// StatusValueTimestamp each confirming poll, as the client asked.
 fn publish_drive(
     manager: &InMemoryNodeManager<DriveNodes>,
     subs: &SubscriptionCache,
@@ -315,23 +342,23 @@ fn publish_drive(
     v: &DriveView,
     bus_online: bool,
 ) {
-    let source = v.last_seen_ms.map(datetime_ms);
-    let now = DateTime::now();
     let mut changed = Vec::new();
-    for (def, (value, status)) in DRIVE_VARIABLES.iter().zip(drive_values(v, bus_online)) {
+    let mut confirmed = Vec::new();
+    for (def, dv) in DRIVE_VARIABLES.iter().zip(drive_values(v, bus_online, DateTime::now())) {
         let id = ids.drive_member(&v.id, def.name);
-        if last.get(&id).is_some_and(|(lv, ls)| *lv == value && *ls == status) {
-            continue;
+        let (value, status) = (dv.value.clone().unwrap_or_default(), dv.status());
+        match last.get_mut(&id) {
+            Some((lv, ls, lt)) if *lv == value && *ls == status => {
+                if *lt != dv.source_timestamp {
+                    *lt = dv.source_timestamp;
+                    confirmed.push((id, dv));
+                }
+            }
+            _ => {
+                last.insert(id.clone(), (value, status, dv.source_timestamp));
+                changed.push((id, dv));
+            }
         }
-        last.insert(id.clone(), (value.clone(), status));
-        let dv = DataValue {
-            value: Some(value),
-            status: Some(status),
-            source_timestamp: source.or(Some(now)),
-            server_timestamp: Some(now),
-            ..Default::default()
-        };
-        changed.push((id, dv));
     }
     if !changed.is_empty()
         && manager.set_values(subs, changed.iter().map(|(id, dv)| (id, None, dv.clone()))).is_err()
@@ -340,6 +367,12 @@ fn publish_drive(
         for (id, _) in &changed {
             last.remove(id);
         }
+    }
+    if !confirmed.is_empty() {
+        subs.maybe_notify(
+            confirmed.iter().map(|(id, _)| (id, opcua::types::AttributeId::Value)),
+            |id, _, _, _| confirmed.iter().find(|(c, _)| c == id).map(|(_, dv)| dv.clone()),
+        );
     }
 }
 
@@ -354,10 +387,10 @@ fn publish_bus(
     let mut changed = Vec::new();
     for (def, value) in BUS_VARIABLES.iter().zip(bus_values(b)) {
         let id = ids.bus_member(&b.name, def.name);
-        if last.get(&id).is_some_and(|(lv, _)| *lv == value) {
+        if last.get(&id).is_some_and(|(lv, _, _)| *lv == value) {
             continue;
         }
-        last.insert(id.clone(), (value.clone(), StatusCode::Good));
+        last.insert(id.clone(), (value.clone(), StatusCode::Good, None));
         changed.push((id, DataValue::new_at(value, now)));
     }
     if !changed.is_empty() {
@@ -414,9 +447,6 @@ async fn publish(
     let subs = handle.subscriptions().clone();
     let mut changes = gw.subscribe();
     let mut last = Last::new();
-    let bus_online = |gw: &Gateway, bus: &str| {
-        gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
-    };
     for d in gw.drives().iter() {
         let v = gw.drive_view(d);
         publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));

@@ -29,6 +29,7 @@ mod engine;
 pub mod fair;
 pub mod link;
 pub mod listen;
+mod overheard;
 pub mod owner;
 pub mod port;
 pub mod port_link;

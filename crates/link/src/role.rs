@@ -108,6 +108,19 @@ pub enum Transition {
     },
 }
 
+/// What a bus's role is, for the API, metrics and events.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RoleStatus {
+    /// Master or standby now.
+    pub role: Role,
+    /// Takeovers so far.
+    pub takeovers: u64,
+    /// Yields so far.
+    pub yields: u64,
+    /// The last move, if any.
+    pub last: Option<Transition>,
+}
+
 /// One bus's role and its counters.
 #[derive(Clone, Debug)]
 pub struct BusRole {
@@ -158,6 +171,11 @@ impl BusRole {
     /// True while the bus may send requests (master, and not pausing after garbled traffic).
     pub fn may_send(&self) -> bool {
         matches!(self.state, State::Master { paused_until: None, .. })
+    }
+
+    /// The role and counters, with the last move `last`.
+    pub fn status(&self, last: Option<Transition>) -> RoleStatus {
+        RoleStatus { role: self.role(), takeovers: self.takeovers, yields: self.yields, last }
     }
 
     /// How many times this bus took the line over from another master.

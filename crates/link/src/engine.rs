@@ -201,6 +201,11 @@ impl<P: Protocol> Engine<P> {
         self.timing.response_timeout
     }
 
+    /// The link was opened again outside a job (a standby opens its port to listen).
+    pub(crate) fn link_restored(&mut self) {
+        self.lost = None;
+    }
+
     pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
         let backoff = self.lost.as_ref().map_or_else(Backoff::new, |l| l.backoff);
         self.lost = Some(Lost { error, reopen_at: now, backoff });

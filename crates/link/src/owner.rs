@@ -284,6 +284,16 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         if self.listening.is_none() {
             return self.job(job, priority).await;
         }
+        if !self.link.is_open() {
+            // Listening needs the port open too (a master's first job would open it).
+            match self.link.reopen().await {
+                Ok(()) => self.engine.link_restored(),
+                Err(e) if !self.listening.as_ref().is_some_and(|l| l.role.may_send()) => {
+                    return Err(BusError::Link(format!("{}: {e}", self.link.name())));
+                }
+                Err(_) => {}
+            }
+        }
         let now = self.link.now();
         self.hear_until(now, None).await;
         while let Some(l) = self.listening.as_mut() {
@@ -337,7 +347,11 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 biased;
                 r = self.link.read(&mut buf) => match r {
                     Ok(n) => n,
-                    Err(_) => break,
+                    Err(_) => {
+                        // The port failed: nothing more is heard before the deadline.
+                        (&mut sleep).await;
+                        break;
+                    }
                 },
                 _ = &mut sleep => break,
             };

@@ -107,6 +107,7 @@ mod modbus;
 mod model;
 mod name;
 mod opcua;
+mod standby;
 mod store;
 mod token;
 
@@ -151,7 +152,11 @@ impl GatewayConfig {
         let tokens = token::check(&cx, &raw.token)?;
         http::check_plaintext(&cx, &raw.http, &http, &tokens)?;
         let name = name::check(&cx, &raw.name)?;
-        let buses = bus::check(&cx, &raw.bus)?;
+        let mut buses = bus::check(&cx, &raw.bus)?;
+        let role = raw.standby.as_ref().map(|s| standby::check(&cx, s)).transpose()?;
+        for b in &mut buses {
+            b.role = role;
+        }
         let linkage = linkage::check(&cx, &raw.linkage, &buses)?;
         let mqtt = raw.mqtt.map(|m| mqtt::check(&cx, m)).transpose()?;
         let sparkplug = raw.sparkplug.map(|sp| sparkplug::check(&cx, sp)).transpose()?;

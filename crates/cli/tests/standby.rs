@@ -180,6 +180,10 @@ fn the_standby_takes_over_a_killed_master_and_the_old_one_stays_standby() {
             std::thread::sleep(Duration::from_millis(10));
         }
         took.push(killed.elapsed());
+        wait("the takeover is an event", || {
+            let v = gw[standby].get("/api/events?kind=takeover");
+            v.as_array().is_some_and(|a| a.iter().any(|e| e["bus"] == "line"))
+        });
         assert!(worst <= 2500, "kill {kill}: a drive's data was {worst} ms old");
         // The old master restarted (as configured: active) hears the new one and stays standby.
         gw[master] = Gateway::start(&configs[master], false);

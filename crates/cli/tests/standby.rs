@@ -237,3 +237,23 @@ fn two_gateways_started_at_once_end_with_one_master_and_a_quiet_line() {
     assert_eq!(garbled(control), before, "no garbled frame once one gateway masters the line");
     println!("garbled frames at the common start: {before}");
 }
+
+#[test]
+fn a_standby_whose_line_idles_longer_than_the_silence_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("slow.toml");
+    std::fs::write(
+        &file,
+        "[[bus]]\nname = \"l\"\nport = \"/dev/ttyUSB9\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"d\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 1000\n",
+    )
+    .unwrap();
+    let o = sim::output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["serve", "--standby", "--no-store", "--no-opcua", "--config"])
+            .arg(&file),
+    );
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert!(o.stderr.contains("poll_ms 1000") && o.stderr.contains("silence_ms"), "{}", o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+}

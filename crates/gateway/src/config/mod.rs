@@ -154,6 +154,9 @@ impl GatewayConfig {
         let name = name::check(&cx, &raw.name)?;
         let mut buses = bus::check(&cx, &raw.bus)?;
         let role = raw.standby.as_ref().map(|s| standby::check(&cx, s)).transpose()?;
+        if let (Some(s), Some(r)) = (&raw.standby, &role) {
+            standby::check_polls(&cx, s, r, &buses)?;
+        }
         for b in &mut buses {
             b.role = role;
         }

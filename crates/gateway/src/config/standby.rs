@@ -8,7 +8,35 @@ use drivebus_link::role::RoleConfig;
 
 use super::ctx::Ctx;
 use super::file::FileStandby;
-use super::ConfigError;
+use super::{BusConfig, ConfigError};
+
+/// Refuses a silence no longer than a bus's shortest poll interval: between two rounds of polls
+/// that line would fall silent for longer, and a standby would take it over from a master
+/// that is alive.
+pub(super) fn check_polls(
+    cx: &Ctx,
+    raw: &FileStandby,
+    role: &RoleConfig,
+    buses: &[BusConfig],
+) -> Result<(), ConfigError> {
+    for b in buses {
+        let Some(poll) = b.drives.iter().map(|d| d.poll).min() else { continue };
+        if poll >= role.silence {
+            let span = raw.silence_ms.as_ref().map_or(0..0, |s| s.span());
+            return cx.err(
+                span,
+                "standby.silence_ms",
+                format!(
+                    "{} ms is not longer than bus {}'s shortest poll_ms {}: the line falls silent between polls and a standby would take it over; make silence_ms longer",
+                    role.silence.as_millis(),
+                    b.name,
+                    poll.as_millis()
+                ),
+            );
+        }
+    }
+    Ok(())
+}
 
 /// Checks `[standby]`: the role every bus of the gateway starts in.
 pub(super) fn check(cx: &Ctx, raw: &FileStandby) -> Result<RoleConfig, ConfigError> {

@@ -530,4 +530,10 @@ fn standby_sets_every_buses_role_and_bad_values_are_refused() {
     assert!(e.contains("standby.silence_ms") && e.contains("50..60000"), "{e}");
     let e = err("[standby]\nrole = \"standby\"\nsilence = 3\n");
     assert!(e.contains("silence"), "{e}");
+    // A line polled every second falls silent longer than 500 ms between polls.
+    let slow =
+        format!("{bus}[[bus.drive]]\nname = \"d\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 1000\n");
+    let e = err(&format!("[standby]\nsilence_ms = 500\n{slow}"));
+    assert!(e.contains("plant.toml:2") && e.contains("shortest poll_ms 1000"), "{e}");
+    assert!(GatewayConfig::from_toml("plant.toml", &format!("[standby]\nsilence_ms = 1500\n{slow}")).is_ok());
 }

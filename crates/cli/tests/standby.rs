@@ -58,7 +58,7 @@ fn config(dir: &Path, name: &str, pty: &Path, role: &str) -> PathBuf {
     );
     for a in 1..=DRIVES {
         text.push_str(&format!(
-            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 200\n"
+            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 500\n"
         ));
     }
     let file = dir.join(format!("{name}.toml"));

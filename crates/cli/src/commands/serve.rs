@@ -153,9 +153,9 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         for b in &mut config.buses {
             let silence = b.role.map_or(drivebus_link::role::RoleConfig::DEFAULT_SILENCE, |r| r.silence);
             b.role = Some(drivebus_link::role::RoleConfig { standby: true, silence });
-            if let Some(poll) = b.drives.iter().map(|d| d.poll).min().filter(|p| *p >= silence) {
+            if let Some(poll) = b.drives.iter().map(|d| d.poll).min().filter(|p| *p > silence) {
                 return Err(anyhow!(
-                    "--standby: bus {}'s poll_ms {} is not shorter than the silence of {} ms that hands a line over: the line falls silent between polls; set [standby] silence_ms longer",
+                    "--standby: bus {}'s poll_ms {} is longer than the silence of {} ms that hands a line over: the line falls silent between polls; set [standby] silence_ms at least that",
                     b.name,
                     poll.as_millis(),
                     silence.as_millis()

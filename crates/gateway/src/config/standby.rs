@@ -10,9 +10,9 @@ use super::ctx::Ctx;
 use super::file::FileStandby;
 use super::{BusConfig, ConfigError};
 
-/// Refuses a silence no longer than a bus's shortest poll interval: between two rounds of polls
+/// Refuses a silence shorter than a bus's shortest poll interval: between two rounds of polls
 /// that line would fall silent for longer, and a standby would take it over from a master
-/// that is alive.
+/// that is alive. (Equal is fine: a round's own exchanges shorten the pause after it.)
 pub(super) fn check_polls(
     cx: &Ctx,
     raw: &FileStandby,
@@ -21,13 +21,13 @@ pub(super) fn check_polls(
 ) -> Result<(), ConfigError> {
     for b in buses {
         let Some(poll) = b.drives.iter().map(|d| d.poll).min() else { continue };
-        if poll >= role.silence {
+        if poll > role.silence {
             let span = raw.silence_ms.as_ref().map_or(0..0, |s| s.span());
             return cx.err(
                 span,
                 "standby.silence_ms",
                 format!(
-                    "{} ms is not longer than bus {}'s shortest poll_ms {}: the line falls silent between polls and a standby would take it over; make silence_ms longer",
+                    "{} ms is shorter than bus {}'s shortest poll_ms {}: the line falls silent between polls and a standby would take it over; make silence_ms at least that",
                     role.silence.as_millis(),
                     b.name,
                     poll.as_millis()

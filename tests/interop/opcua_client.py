@@ -21,6 +21,19 @@
         Basic256Sha256), writes and calls refused over None, authorization before the type
         check, writes over Sign and SignAndEncrypt, sessions per user capped.
 
+    opcua_client.py history URL HTTP DRIVE
+        URL      opc.tcp://HOST:PORT of a gateway with a store, DRIVE running
+        HTTP     http://HOST:PORT of its HTTP API (anonymous reads on)
+        Checks: DRIVE's OutputFrequency is Historizing with AccessLevel HistoryRead (Running is
+        not), and read_raw_history over the last minute gives the points of
+        GET /api/drives/DRIVE/trend for the same span; in pages of 2 values through continuation
+        points the same; with the end before the start, newest first.
+
+    opcua_client.py big URL COUNT
+        URL      opc.tcp://HOST:PORT of a gateway with COUNT drives vfd-1..vfd-COUNT
+        Checks: Objects/Drives lists all COUNT drives; a drive's Parameters browse and one of them
+        reads Good from the drive; a drive variable of the last drive reads.
+
 Prints one line per check and exits 0 when every check passed, 1 otherwise.
 """
 
@@ -30,6 +43,7 @@ import logging
 import sys
 import time
 import urllib.request
+from datetime import datetime, timezone
 from pathlib import Path
 from urllib.parse import urlparse
 
@@ -215,6 +229,114 @@ async def check(url, token, drives, offline, tripped, control, certdir):
     say("ALL OK")
 
 
+def unix_ms(t):
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=timezone.utc)
+    return round(t.timestamp() * 1000)
+
+
+def at_ms(ms):
+    return datetime.fromtimestamp(ms / 1000, tz=timezone.utc)
+
+
+async def paged(n, since, until, per_page):
+    """A raw history read through continuation points, `per_page` values at a time."""
+    details = ua.ReadRawModifiedDetails()
+    details.IsReadModified = False
+    details.StartTime = at_ms(since)
+    details.EndTime = at_ms(until)
+    details.NumValuesPerNode = per_page
+    details.ReturnBounds = False
+    values, cp, pages = [], None, 0
+    while True:
+        r = await n.history_read(details, cp)
+        r.StatusCode.check()
+        page = r.HistoryData.DataValues or []
+        assert len(page) <= per_page, f"a page of {len(page)} values, asked for {per_page}"
+        values += page
+        pages += 1
+        cp = r.ContinuationPoint
+        if not cp:
+            return values, pages
+
+
+async def history(url, http, drive):
+    def trend(since, until):
+        with urllib.request.urlopen(f"{http}/api/drives/{drive}/trend?since={since}&until={until}", timeout=10) as r:
+            return [(p["time_ms"], p["output_hz"]) for p in json.load(r) if p["output_hz"] is not None]
+
+    async with Client(url) as c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        hz = node(c, ns, f"Drives/{drive}/OutputFrequency")
+        hist = (await hz.read_attribute(ua.AttributeIds.Historizing)).Value.Value
+        assert hist is True, f"OutputFrequency Historizing {hist}"
+        level = (await hz.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value
+        assert level & ua.AccessLevel.HistoryRead.mask, f"OutputFrequency AccessLevel {level}"
+        running = node(c, ns, f"Drives/{drive}/Running")
+        assert (await running.read_attribute(ua.AttributeIds.Historizing)).Value.Value is False, "Running Historizing"
+        say("history: OutputFrequency Historizing with HistoryRead access, Running not")
+
+        async def enough():
+            now = round(time.time() * 1000)
+            return len(trend(now - 60_000, now)) >= 5
+        await until(f"5 trend points of {drive}", enough)
+
+        async def same():
+            until_ms = round(time.time() * 1000)
+            since = until_ms - 60_000
+            before = trend(since, until_ms)
+            got = [(unix_ms(v.SourceTimestamp), v.Value.Value) for v in
+                   await hz.read_raw_history(at_ms(since), at_ms(until_ms))]
+            pages, n = await paged(hz, since, until_ms, 2)
+            pages = [(unix_ms(v.SourceTimestamp), v.Value.Value) for v in pages]
+            back, _ = await paged(hz, until_ms, since, 1000)
+            back = [(unix_ms(v.SourceTimestamp), v.Value.Value) for v in back]
+            after = trend(since, until_ms)
+            # The store was still writing the span's last second: ask again.
+            if before != after:
+                return None
+            assert got == before, f"read_raw_history {got}\n  HTTP trend {before}"
+            assert pages == before, f"in pages of 2: {pages}\n  HTTP trend {before}"
+            assert n >= len(before) // 2, f"{len(before)} values in {n} pages of 2"
+            assert back == before[::-1], f"end before start: {back}"
+            return (len(got), n)
+        count, n = await until("a span the store had finished writing", same)
+        say(f"history: read_raw_history of {drive}/OutputFrequency over the last minute = the HTTP trend "
+            f"({count} values; in {n} pages of 2 through continuation points; newest first when asked)")
+    say("ALL OK")
+
+
+async def big(url, count):
+    count = int(count)
+    async with Client(url, timeout=60) as c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        folder = await c.nodes.objects.get_child([f"{ns}:Drives"])
+        found = {(await k.read_browse_name()).Name for k in await folder.get_children()}
+        expected = {f"vfd-{i}" for i in range(1, count + 1)}
+        assert found == expected, f"Objects/Drives: {len(found)} drives, {len(expected - found)} missing"
+        say(f"browse: Objects/Drives lists all {count} drives")
+
+        d = f"vfd-{count // 2}"
+        params = await node(c, ns, f"Drives/{d}/Parameters").get_children()
+        assert params, f"{d}/Parameters is empty"
+        p = params[0]
+        name = (await p.read_browse_name()).Name
+
+        async def good():
+            v = await p.read_data_value(raise_on_bad_status=False)
+            return v.StatusCode_.is_good() and v
+        v = await until(f"{d}/Parameters/{name} read Good", good)
+        assert isinstance(v.Value.Value, float), f"{d}/Parameters/{name} = {v.Value!r}"
+        say(f"parameters: {d} has {len(params)}; {name} reads {v.Value.Value} from the drive")
+
+        last = await c.nodes.objects.get_child([f"{ns}:Drives", f"{ns}:vfd-{count}", f"{ns}:Online"])
+        async def online():
+            return await last.read_value() is True
+        await until(f"vfd-{count} online", online)
+        say(f"read: vfd-{count}/Online true, found by its browse path")
+    say("ALL OK")
+
+
 class PlainText(logging.Handler):
     """Catches asyncua's warning that it sends a password in clear."""
 
@@ -337,6 +459,18 @@ def main():
     elif len(sys.argv) == 8 and sys.argv[1] == "trust":
         try:
             asyncio.run(trust(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
+    elif len(sys.argv) == 5 and sys.argv[1] == "history":
+        try:
+            asyncio.run(history(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
+    elif len(sys.argv) == 4 and sys.argv[1] == "big":
+        try:
+            asyncio.run(big(*sys.argv[2:]))
         except AssertionError as e:
             print(f"FAILED: {e}", flush=True)
             sys.exit(1)

@@ -83,6 +83,9 @@ enum Command {
     /// Check a gateway configuration without running it.
     #[command(subcommand)]
     Config(commands::config::ConfigCmd),
+    /// Check drive template files (every error with its line) or list the template kinds.
+    #[command(subcommand)]
+    Template(commands::template::TemplateCmd),
     /// Show one drive's trend (--drive ID) from the gateway's store: output Hz (average, min,
     /// max), current and setpoint per second or per minute.
     Trend(commands::history::TrendArgs),
@@ -180,6 +183,7 @@ fn main() -> ExitCode {
         Command::Scan(args) => commands::scan::run(&args, &target),
         Command::Serve(args) => commands::serve::run(&args),
         Command::Config(cmd) => commands::config::run(&cmd),
+        Command::Template(cmd) => commands::template::run(&cmd),
         Command::Events(args) => commands::history::events(&args, &target),
         Command::Trend(args) => commands::history::trend(&args, &target),
         Command::Monitor(args) => commands::monitor::run(&args, &target),

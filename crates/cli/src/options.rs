@@ -28,6 +28,15 @@ fn drive(value_name: &'static str, help: &'static str) -> Arg {
     Arg::new("drive").long("drive").value_name(value_name).action(ArgAction::Append).help(help)
 }
 
+/// `--template`: a template file whose kind `--drive` may name.
+fn template() -> Arg {
+    Arg::new("template")
+        .long("template")
+        .value_name("FILE")
+        .action(ArgAction::Append)
+        .help("A drive template (docs/templates.md) whose kind --drive may name; repeat it for more")
+}
+
 /// `--address`.
 fn address(help: &'static str) -> Arg {
     Arg::new("address")
@@ -91,10 +100,12 @@ fn tuning() -> Vec<Arg> {
     ]
 }
 
-const FAMILY: &str = "The drive family: generic, toshiba, danfoss, b800";
+const FAMILY: &str =
+    "The drive family: generic, toshiba, danfoss, b800, or a template kind (shipped, or --template FILE)";
 const DRIVE_PROTOCOL: &str =
     "The protocol, where the family speaks several (generic: modbus-ascii, modbus-rtu; \
-     toshiba: toshiba-binary, toshiba-ascii, modbus-rtu)";
+     toshiba: toshiba-binary, toshiba-ascii, modbus-rtu), or modbus-tcp with --port tcp://HOST[:502] for any \
+     Modbus drive behind a Modbus TCP server";
 const BAUD: &str = "Baud rate (default: the family's)";
 const SERIAL: &str = "Character format such as 8E1 (default: the family's)";
 
@@ -108,6 +119,7 @@ fn drives(address: Arg) -> Vec<Arg> {
     let mut args = vec![
         port(),
         drive("FAMILY", FAMILY),
+        template(),
         address,
         protocol(DRIVE_PROTOCOL),
         baud(BAUD),
@@ -128,6 +140,7 @@ pub fn before_the_command() -> Vec<Arg> {
             "The drive family (generic, toshiba, danfoss, b800, or auto for scan); for simulate a drive \
              as KIND@ADDR[:PROTOCOL]; for events and trend the drive's name in the gateway",
         ),
+        template(),
         address("The drive's address (monitor takes several: --address 1 --address 2)"),
         protocol("The protocol: for decode the wire format; for a drive, where its family speaks several"),
         baud(BAUD),
@@ -175,6 +188,7 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
                 "FAMILY|auto",
                 "The drive family to try (generic, toshiba, danfoss, b800), or auto for all",
             ),
+            template(),
             protocol("Only this protocol (default: every protocol of the family)"),
             baud("The baud rate to try (--bauds for several; default: the family's)"),
             serial("The character format to try (--formats for several; default: the family's)"),
@@ -189,6 +203,7 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
                 "The wire format: modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc, b800",
             ),
             drive("FAMILY", "Name Modbus registers by this family's catalog (generic or toshiba)"),
+            template(),
             json(),
         ],
     ));
@@ -200,6 +215,7 @@ fn per_command() -> Vec<(&'static [&'static str], Vec<Arg>)> {
                 "A drive on the virtual bus, repeated for more drives: generic@1:modbus-rtu, toshiba@2, \
                  danfoss@3, b800@5",
             ),
+            template(),
             baud("The line's baud rate (default: the first drive's)"),
             serial("The line's character format such as 8E1 (default: the first drive's)"),
         ],
@@ -288,6 +304,8 @@ pub fn target(matches: &ArgMatches) -> anyhow::Result<Target> {
             }
         }
     }
+    let templates: Vec<String> = all(&levels, "template");
+    crate::commands::template::load(&templates)?;
     Ok(Target {
         port: all(&levels, "port"),
         drive: all(&levels, "drive"),

@@ -26,6 +26,19 @@ fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/interop/opcua_client.py")
 }
 
+/// Runs the asyncua client with `args`; asserts it said ALL OK.
+fn client(args: &[&str]) {
+    let out = Command::new("python3").arg(script()).args(args).output().unwrap();
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && said.contains("ALL OK"),
+        "the asyncua client ({}): {said}\n{}",
+        args[0],
+        String::from_utf8_lossy(&out.stderr)
+    );
+    eprintln!("{said}");
+}
+
 #[test]
 #[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
 fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {
@@ -108,6 +121,9 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
         String::from_utf8_lossy(&out.stderr)
     );
     eprintln!("{said}");
+
+    // pump-1 has been running for a while: its history is the HTTP trend's.
+    client(&["history", &url, &format!("http://{http}"), "pump-1"]);
 
     // Every command is in the audit trail with its OPC UA actor.
     let (status, body) =
@@ -218,4 +234,52 @@ fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
             "no refusal of {actor} with {result:?} in {seen:?}"
         );
     }
+}
+
+/// A hall of 1000 drives (32 virtual buses): every drive is listed, and a drive's parameter
+/// nodes, made only when asked for, browse and read from the drive.
+#[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
+fn asyncua_browses_and_reads_a_parameter_on_a_1000_drive_plant() {
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = format!(
+        "[http]\nanonymous_read = true\n[opcua]\npki_dir = \"{}\"\n",
+        dir.path().join("pki").display()
+    );
+    let mut n = 0;
+    for b in 1..=32 {
+        config += &format!(
+            "[[bus]]\nname = \"line-{b}\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n"
+        );
+        for a in 1..=(if b <= 8 { 32 } else { 31 }) {
+            n += 1;
+            config += &format!("[[bus.drive]]\nname = \"vfd-{n}\"\nfamily = \"generic\"\naddress = {a}\n");
+        }
+    }
+    assert_eq!(n, 1000);
+    let file = dir.path().join("plant.toml");
+    std::fs::write(&file, config).unwrap();
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args([
+            "serve",
+            "--no-store",
+            "--http",
+            "127.0.0.1:0",
+            "--modbus",
+            "127.0.0.1:0",
+            "--opcua",
+            "127.0.0.1:0",
+        ])
+        .arg("--config")
+        .arg(&file)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let at = lines(&mut serve, "drivebus serve", &["OPC UA"]);
+    let _serve = Killed(serve);
+    let url = at[0].split_whitespace().next().unwrap().to_string();
+    client(&["big", &url, "1000"]);
 }

@@ -9,9 +9,11 @@ use toml::{Table, Value};
 use crate::family::Family;
 use crate::param::{Choice, ParamDef, Size, Storage};
 
-/// The catalog files compiled into the crate, by family.
+/// The catalog files compiled into the crate, by family ("" for a template kind, whose
+/// parameters its template file gives).
 fn embedded_text(family: Family) -> &'static str {
     match family {
+        Family::Template(_) => "",
         Family::Generic => include_str!("../catalogs/generic.toml"),
         Family::Toshiba => include_str!("../catalogs/toshiba.toml"),
         Family::Danfoss => include_str!("../catalogs/danfoss.toml"),
@@ -76,6 +78,7 @@ impl Catalog {
         static CATALOGS: [OnceLock<Result<Arc<Catalog>, CatalogError>>; 4] =
             [OnceLock::new(), OnceLock::new(), OnceLock::new(), OnceLock::new()];
         let slot = match family {
+            Family::Template(id) => return Ok(crate::template::kinds::kind(id).catalog.clone()),
             Family::Generic => &CATALOGS[0],
             Family::Toshiba => &CATALOGS[1],
             Family::Danfoss => &CATALOGS[2],
@@ -135,6 +138,27 @@ impl Catalog {
                 return Err(CatalogError::new(file, Some(&position), None, "must be a table"));
             };
             let def = parse_param(file, family, &position, entry)?;
+            catalog.insert(def)?;
+        }
+        Ok(catalog)
+    }
+
+    /// The catalog of `params` (a template's), checked for names and numbers used twice.
+    pub fn from_params(
+        family: Family,
+        file: &str,
+        source: &str,
+        params: Vec<ParamDef>,
+    ) -> Result<Catalog, CatalogError> {
+        let mut catalog = Catalog {
+            family,
+            file: file.to_string(),
+            source: source.to_string(),
+            params: Vec::with_capacity(params.len()),
+            by_name: HashMap::new(),
+            by_number: HashMap::new(),
+        };
+        for def in params {
             catalog.insert(def)?;
         }
         Ok(catalog)
@@ -300,6 +324,7 @@ const PARAM_FIELDS: &[&str] = &[
     "while_running",
     "comm",
     "note",
+    "group",
 ];
 
 /// Typed access to one TOML table's fields, with errors that say where.
@@ -436,8 +461,10 @@ fn parse_param(file: &str, family: Family, position: &str, table: &Table) -> Res
     };
     let choices = parse_choices(&f, min, max)?;
     let note = f.optional_string("note")?;
+    let group = f.optional_string("group")?.unwrap_or_default();
 
     Ok(ParamDef {
+        group,
         name,
         alias,
         title,

@@ -5,11 +5,13 @@ use std::str::FromStr;
 
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize, Serializer};
 
-/// A drive family: one wire protocol, one parameter catalog, one seed manual.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+use crate::template::KindId;
+
+/// A drive kind: a built-in family (one wire protocol, one parameter catalog, one seed manual)
+/// or a drive a template file describes ([`Family::Template`], [`crate::template`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Family {
     /// Generic Chinese VFD with Modbus RTU/ASCII and the 2000H/2100H map (`seeds/004_e8ea1998fe1a671e.txt`).
     Generic,
@@ -19,6 +21,21 @@ pub enum Family {
     Danfoss,
     /// B800 series: hex-ASCII protocol without parameter access (`seeds/000_04b515f0e0c1734e.txt`).
     B800,
+    /// A Modbus drive a template describes (its kind's name, its map and its catalog).
+    Template(KindId),
+}
+
+impl Serialize for Family {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.as_str())
+    }
+}
+
+impl<'de> Deserialize<'de> for Family {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        name.parse().map_err(serde::de::Error::custom)
+    }
 }
 
 impl Family {
@@ -32,6 +49,7 @@ impl Family {
             Family::Toshiba => "toshiba",
             Family::Danfoss => "danfoss",
             Family::B800 => "b800",
+            Family::Template(id) => crate::template::kinds::kind(id).name,
         }
     }
 
@@ -42,6 +60,7 @@ impl Family {
             Family::Toshiba => "Toshiba VF-AS1",
             Family::Danfoss => "Danfoss VLT FC series",
             Family::B800 => "B800 series",
+            Family::Template(id) => crate::template::kinds::kind(id).model,
         }
     }
 
@@ -52,6 +71,7 @@ impl Family {
             Family::Toshiba => "seeds/002_43d8a4399c8be05f.txt",
             Family::Danfoss => "seeds/003_26a4c04ca1af5f26.txt",
             Family::B800 => "seeds/000_04b515f0e0c1734e.txt",
+            Family::Template(id) => crate::template::kinds::kind(id).source,
         }
     }
 
@@ -124,6 +144,11 @@ impl Family {
                 let rest = t.strip_prefix(['F', 'f']).map(|r| r.strip_prefix('-').unwrap_or(r));
                 parse_decimal(rest.unwrap_or(t))
             }
+            // A template's parameter by its register: `0x2103` (above), `2103H` or decimal.
+            Family::Template(_) => match t.strip_suffix(['H', 'h']) {
+                Some(hex) => parse_hex(hex),
+                None => parse_decimal(t),
+            },
         }
     }
 
@@ -131,7 +156,7 @@ impl Family {
     /// Toshiba, plain decimal for the FC PNU and the B800 local index.
     pub fn format_number(self, number: u32) -> String {
         match self {
-            Family::Generic | Family::Toshiba => format!("0x{number:04X}"),
+            Family::Generic | Family::Toshiba | Family::Template(_) => format!("0x{number:04X}"),
             Family::Danfoss | Family::B800 => number.to_string(),
         }
     }
@@ -152,6 +177,7 @@ impl Family {
             }
             Family::Danfoss => &[WireProtocol::DanfossFc],
             Family::B800 => &[WireProtocol::B800],
+            Family::Template(id) => crate::template::kinds::kind(id).protocols,
         }
     }
 
@@ -181,6 +207,7 @@ impl Family {
             (Family::Toshiba, _) => (0, 99),
             (Family::Danfoss, _) => (1, 126),
             (Family::B800, _) => (1, 63),
+            (Family::Template(id), _) => crate::template::kinds::kind(id).template.addresses,
         }
     }
 
@@ -204,6 +231,7 @@ impl Family {
             (Family::Toshiba, _) => (19200, CharFormat::EVEN_8E1),
             (Family::Danfoss, _) => (9600, CharFormat::EVEN_8E1),
             (Family::B800, _) => (9600, CharFormat::NONE_8N1),
+            (Family::Template(id), p) => crate::template::kinds::kind(id).template.serial_default(p),
         }
     }
 }
@@ -241,7 +269,15 @@ pub struct UnknownFamily {
 
 impl fmt::Display for UnknownFamily {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "unknown drive family {:?}: expected generic, toshiba, danfoss or b800", self.text)
+        write!(
+            f,
+            "unknown drive family {:?}: expected generic, toshiba, danfoss, b800 or a template kind (",
+            self.text
+        )?;
+        for kind in crate::template::registered() {
+            write!(f, "{kind}, ")?;
+        }
+        f.write_str("or one a template file adds: docs/templates.md)")
     }
 }
 
@@ -250,12 +286,14 @@ impl std::error::Error for UnknownFamily {}
 impl FromStr for Family {
     type Err = UnknownFamily;
 
-    /// Parses "generic", "toshiba", "danfoss" or "b800", in any letter case.
+    /// Parses "generic", "toshiba", "danfoss", "b800" or a template kind's name, in any letter
+    /// case.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let t = s.trim();
         Family::ALL
             .into_iter()
             .find(|f| f.as_str().eq_ignore_ascii_case(t))
+            .or_else(|| crate::template::kinds::by_name(t))
             .ok_or_else(|| UnknownFamily { text: s.to_string() })
     }
 }
@@ -273,7 +311,7 @@ mod tests {
         let err = "siemens".parse::<Family>().unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown drive family \"siemens\": expected generic, toshiba, danfoss or b800"
+            "unknown drive family \"siemens\": expected generic, toshiba, danfoss, b800 or a template kind (generic-2000h, or one a template file adds: docs/templates.md)"
         );
     }
 

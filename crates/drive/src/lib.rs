@@ -59,11 +59,13 @@ mod family;
 mod param;
 mod store;
 
+pub mod backup;
 pub mod docgen;
 pub mod interdrive;
 pub mod panel;
 pub mod profile;
 pub mod registers;
+pub mod template;
 
 pub use catalog::{Catalog, CatalogError, ParamKey};
 pub use config_error::ConfigError;

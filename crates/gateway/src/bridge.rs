@@ -127,16 +127,12 @@ async fn connection(
                 len += n;
                 let mut pos = 0;
                 loop {
-                    let header = match Mbap::parse(&buf[pos..len]) {
-                        Ok(Some(h)) => h,
+                    let (header, total) = match Mbap::next_frame(&buf[pos..len]) {
+                        Ok(Some(frame)) => frame,
                         Ok(None) => break,
                         // Nothing after a damaged header can be trusted to be framed right.
                         Err(_) => return Ok(()),
                     };
-                    let total = header.frame_len();
-                    if len - pos < total {
-                        break;
-                    }
                     requests.push(Request {
                         unit: header.unit,
                         pdu: buf[pos + MBAP_LEN..pos + total].to_vec(),

@@ -43,6 +43,7 @@ pub mod opcua;
 mod params;
 pub mod refusals;
 pub mod reload;
+pub mod scan;
 pub mod server;
 pub mod sparkplug;
 pub mod text;

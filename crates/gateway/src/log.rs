@@ -42,11 +42,20 @@ fn now() -> String {
     drivebus_store::time::format_rfc3339(drivebus_store::time::now_ms())
 }
 
+/// Writes `line` and its newline to stderr in one write: `eprintln!` writes a line in pieces,
+/// and a line must never be split by another writer of the same stderr (a JSON line would not
+/// parse).
+fn write_line(mut line: String) {
+    use std::io::Write;
+    line.push('\n');
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
+}
+
 fn message(level: &str, msg: &str) {
     if JSON.load(Ordering::Relaxed) {
-        eprintln!("{}", json!({ "time": now(), "level": level, "message": msg }));
+        write_line(json!({ "time": now(), "level": level, "message": msg }).to_string());
     } else {
-        eprintln!("drivebus serve: {msg}");
+        write_line(format!("drivebus serve: {msg}"));
     }
 }
 
@@ -85,9 +94,9 @@ pub fn event(e: &Event) {
         if !e.detail.is_null() {
             o.insert("detail".into(), e.detail.clone());
         }
-        eprintln!("{v}");
+        write_line(v.to_string());
     } else {
-        eprintln!("{}", log_line(e));
+        write_line(log_line(e));
     }
 }
 

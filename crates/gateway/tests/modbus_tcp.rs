@@ -180,6 +180,7 @@ async fn every_unit_shows_its_drive_from_the_cache() {
             Family::Toshiba => 2,
             Family::Danfoss => 3,
             Family::B800 => 4,
+            Family::Template(_) => 5,
         };
         assert_eq!(r[8], family, "{} family", d.config.name);
         assert_eq!(r[9], u16::from(d.config.address), "{} address", d.config.name);

@@ -38,6 +38,7 @@ use drivebus_proto::Instant;
 
 use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 use crate::engine::{with_engine, Action, Attempt, Engine, Next};
+use crate::mbap::MbapFraming;
 use crate::port::{set_rts, Direction, Opened, OpenedSerial, Port};
 
 /// A bus run from the calling thread: one transaction per call, no runtime.
@@ -61,7 +62,12 @@ impl BlockingBus {
     /// Opens `port` (a serial device, or `tcp://HOST:PORT` for a serial device server) and
     /// runs `config`'s protocol on it.
     pub fn open(port: &str, config: BusConfig) -> Result<Self, BusError> {
-        Self::open_port(Port::parse(port, config.baud, config.format, config.rs485), config)
+        let port = if config.modbus_tcp {
+            Port::modbus_tcp(port).map_err(BusError::Link)?
+        } else {
+            Port::parse(port, config.baud, config.format, config.rs485)
+        };
+        Self::open_port(port, config)
     }
 
     /// Opens `port` (a serial device, a serial device server or a virtual line) and runs
@@ -200,6 +206,8 @@ fn run_attempt<P: Protocol>(engine: &mut Engine<P>, io: &mut Io, now: &mut Insta
 enum Blocking {
     Serial(SerialPort),
     Tcp(TcpPort),
+    /// A Modbus TCP server: the engine's RTU frames in MBAP.
+    Mbap(TcpPort, MbapFraming),
     #[cfg(feature = "virtual")]
     Virtual(VirtualIo),
 }
@@ -211,7 +219,10 @@ impl Io {
         self.open = None;
         self.open = Some(match self.port.open()? {
             Opened::Serial(o) => Blocking::Serial(SerialPort::new(o)),
-            Opened::Tcp { addr, stream } => Blocking::Tcp(TcpPort { addr, stream }),
+            Opened::Tcp { addr, stream } => match self.port {
+                Port::ModbusTcp(_) => Blocking::Mbap(TcpPort { addr, stream }, MbapFraming::new()),
+                _ => Blocking::Tcp(TcpPort { addr, stream }),
+            },
             #[cfg(feature = "virtual")]
             Opened::Virtual(v) => Blocking::Virtual(VirtualIo { line: v.line, held: Vec::new() }),
         });
@@ -222,6 +233,10 @@ impl Io {
         match &mut self.open {
             Some(Blocking::Serial(s)) => s.write(bytes),
             Some(Blocking::Tcp(t)) => t.write(bytes),
+            Some(Blocking::Mbap(t, framing)) => {
+                let frame = framing.outgoing(bytes)?;
+                t.write(&frame)
+            }
             #[cfg(feature = "virtual")]
             Some(Blocking::Virtual(v)) => {
                 v.write(self.clock.now(), bytes);
@@ -237,6 +252,17 @@ impl Io {
         match &mut self.open {
             Some(Blocking::Serial(s)) => s.read(&mut self.buf, self.clock.at(deadline)),
             Some(Blocking::Tcp(t)) => t.read(&mut self.buf, self.clock.at(deadline)),
+            Some(Blocking::Mbap(t, framing)) => loop {
+                let n = framing.take(&mut self.buf);
+                if n > 0 {
+                    return Ok(n);
+                }
+                let got = t.read(&mut self.buf, self.clock.at(deadline))?;
+                if got == 0 {
+                    return Ok(0);
+                }
+                framing.incoming(&self.buf[..got])?;
+            },
             #[cfg(feature = "virtual")]
             Some(Blocking::Virtual(v)) => Ok(v.read(&mut self.buf, &self.clock, deadline)),
             None => Err(not_open(&self.port.name())),

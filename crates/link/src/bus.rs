@@ -49,9 +49,23 @@ pub struct BusConfig {
     /// With another gateway on the same line: listen first and master the bus only when the
     /// line falls silent (see `crate::role`). `None`: the only master, sending at once.
     pub role: Option<crate::role::RoleConfig>,
+    /// Modbus TCP: the bus's Modbus RTU frames go in MBAP to a Modbus TCP server
+    /// (`protocol = "modbus-tcp"`, [`crate::mbap`]); no silence is kept between requests and
+    /// the response timeout is 1 s unless given.
+    pub modbus_tcp: bool,
 }
 
 impl BusConfig {
+    /// The protocol's name as users give it: `modbus-tcp` for Modbus over MBAP, else the wire
+    /// protocol's.
+    pub fn protocol_name(&self) -> &'static str {
+        if self.modbus_tcp {
+            crate::mbap::MODBUS_TCP
+        } else {
+            self.protocol.name()
+        }
+    }
+
     /// A configuration with the protocol's defaults: 2 retries, no echo, offline after 3
     /// failures, probes at most every 30 s.
     pub fn new(protocol: WireProtocol, baud: u32, format: CharFormat) -> Self {
@@ -70,6 +84,7 @@ impl BusConfig {
             family: None,
             on_demand: FairConfig::default(),
             role: None,
+            modbus_tcp: false,
         }
     }
 }
@@ -148,6 +163,10 @@ pub enum Priority {
     OnDemand,
     /// Cyclic polling.
     Poll,
+    /// A probe of an address that may hold no drive (a bus scan): sent only when nothing else
+    /// waits, with one attempt, and the address's link health left alone (an empty address is
+    /// not an offline drive).
+    Scan,
 }
 
 /// Counts of one bus.

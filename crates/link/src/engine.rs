@@ -81,6 +81,8 @@ struct Job {
     reopened: bool,
     /// How the last attempt ended (a failed reopen before any attempt: that).
     last: Option<Attempt>,
+    /// A scan's probe: the address's health is left alone.
+    probe: bool,
 }
 
 /// How a session's exchange ended, owned (the session's event borrows it).
@@ -143,6 +145,10 @@ macro_rules! with_engine {
 }
 pub(crate) use with_engine;
 
+/// The response timeout of a Modbus TCP bus unless one is given: a Modbus TCP/RTU gateway
+/// answers after its own serial exchange.
+const MODBUS_TCP_TIMEOUT: Duration = Duration::from_secs(1);
+
 /// The protocol's timing with the configuration's overrides.
 pub(crate) fn timing_of(config: &BusConfig) -> Timing {
     let mut timing = config.protocol.timing(config.baud, config.format);
@@ -160,6 +166,12 @@ pub(crate) fn timing_of(config: &BusConfig) -> Timing {
     }
     if config.strict_t15 && config.protocol == WireProtocol::ModbusRtu {
         timing.max_char_gap = Some(drivebus_proto::line::modbus_t15_t35(config.baud).0);
+    }
+    if config.modbus_tcp {
+        // No line: nothing to keep silent, and a frame comes whole whatever its pauses.
+        timing.min_gap = config.gap.unwrap_or(Duration::ZERO);
+        timing.max_char_gap = None;
+        timing.response_timeout = config.response_timeout.unwrap_or(MODBUS_TCP_TIMEOUT);
     }
     timing
 }
@@ -233,7 +245,9 @@ impl<P: Protocol> Engine<P> {
         };
         self.frame.clear();
         self.frame.extend_from_slice(frame);
-        self.job = Some(Job { link, address, broadcast, attempts, made: 0, reopened: false, last: None });
+        let probe = priority == Priority::Scan;
+        self.job =
+            Some(Job { link, address, broadcast, attempts, made: 0, reopened: false, last: None, probe });
         match &self.lost {
             Some(lost) if now >= lost.reopen_at => Next::Reopen,
             Some(lost) => {
@@ -324,7 +338,8 @@ impl<P: Protocol> Engine<P> {
     /// Ends the job with its last attempt.
     fn end(&mut self, now: Instant, last: Attempt) -> Next {
         let Some(job) = self.job.take() else { return Next::Done(Err(BusError::Closed)) };
-        Next::Done(self.finish(now, job.link, job.address, job.broadcast, job.attempts, last))
+        // A probe's answer or silence says nothing of a drive's health: not recorded.
+        Next::Done(self.finish(now, job.link, job.address, job.broadcast || job.probe, job.attempts, last))
     }
 
     /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or
@@ -339,7 +354,10 @@ impl<P: Protocol> Engine<P> {
         timeout: Option<Duration>,
     ) -> Result<u8, BusError> {
         let mut offline = false;
-        if !broadcast {
+        if priority == Priority::Scan {
+            // One attempt, whatever the address's health: a probe is not a drive's poll.
+            offline = true;
+        } else if !broadcast {
             let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
             let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
             if !h.online

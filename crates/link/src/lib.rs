@@ -2,9 +2,10 @@
 //!
 //! How drivebus reaches a bus. [`port`] says where a bus is ([`Port`]: a serial device with its
 //! baud rate, format and RS-485 direction control, a serial device server over TCP, or a
-//! virtual line of simulated drives behind the `virtual` feature) and opens it, the one place
-//! that does, for both drivers below. The engine (`MasterSession` plus retries, reopening a
-//! lost link with a backoff ([`Backoff`], which the gateway's RTU slave shares), echo removal, statistics and drive health) never waits: after each
+//! virtual line of simulated drives behind the `virtual` feature, or a Modbus TCP server whose
+//! framing [`mbap`] is) and opens it, the one place that does, for both drivers below. The
+//! engine (`MasterSession` plus retries, reopening a lost link with a backoff ([`Backoff`],
+//! which the gateway's RTU slave shares), echo removal, statistics and drive health) never waits: after each
 //! attempt it says what to do next (retry, reopen the link and retry, or give up with which
 //! error), and two thin drivers carry it out with their own I/O: the bus owner ([`owner`]), one
 //! task per half-duplex bus over a [`PortLink`], commands ahead of polling, on-demand reads
@@ -29,6 +30,7 @@ mod engine;
 pub mod fair;
 pub mod link;
 pub mod listen;
+pub mod mbap;
 mod overheard;
 pub mod owner;
 pub mod port;

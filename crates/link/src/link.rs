@@ -176,7 +176,9 @@ pub(crate) async fn dial_async(addr: &str) -> io::Result<std::net::TcpStream> {
 /// Opens `port` (see [`Port::open`]) without blocking the runtime.
 pub(crate) async fn open_async(port: &Port) -> io::Result<Opened> {
     match port {
-        Port::Tcp(addr) => Ok(Opened::Tcp { addr: addr.clone(), stream: dial_async(addr).await? }),
+        Port::Tcp(addr) | Port::ModbusTcp(addr) => {
+            Ok(Opened::Tcp { addr: addr.clone(), stream: dial_async(addr).await? })
+        }
         port => port.open(),
     }
 }

@@ -4,7 +4,8 @@
 //!
 //! Commands go ahead of polling (commands served first, then bridged requests). On-demand reads
 //! share the rest with polling ([`crate::fair`]): one bounded queue per client, served in
-//! turn, and at most a configured share of the bus time while polls wait. Each drive's link health
+//! turn, and at most a configured share of the bus time while polls wait. A scan's probes
+//! ([`Priority::Scan`]) go only when nothing else waits. Each drive's link health
 //! is tracked: after `offline_after` failed transactions in a row it is offline, and polls to it
 //! are answered at once with [`BusError::Offline`] until its backoff has passed, when one probe
 //! goes out (the backoff doubles up to `max_backoff` while it stays silent). So a dead drive
@@ -43,6 +44,7 @@ pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
     bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
+    scans: mpsc::UnboundedSender<Job>,
     on_demand: Arc<OnDemand<Job>>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
@@ -61,6 +63,7 @@ impl Bus {
         let (ctx, crx) = mpsc::unbounded_channel();
         let (btx, brx) = mpsc::unbounded_channel();
         let (ptx, prx) = mpsc::unbounded_channel();
+        let (stx, srx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
         let on_demand = Arc::new(OnDemand::new(config.on_demand));
@@ -86,12 +89,13 @@ impl Bus {
                 Listening { role, heard, status }
             });
             let owner = Owner { link, engine, rx_buf: Vec::new(), listening, _ended: ended_tx };
-            tokio::spawn(owner.run(crx, brx, prx, od, share));
+            tokio::spawn(owner.run(crx, brx, prx, srx, od, share));
         });
         Ok(Bus {
             commands: ctx,
             bridged: btx,
             polls: ptx,
+            scans: stx,
             on_demand,
             stats,
             health,
@@ -105,10 +109,11 @@ impl Bus {
     /// serial port free for another open). The owner ends once every clone of the handle is
     /// dropped, so drop the others (and the `Drive`s holding them) first.
     pub async fn close(self) {
-        let Bus { commands, bridged, polls, mut ended, .. } = self;
+        let Bus { commands, bridged, polls, scans, mut ended, .. } = self;
         drop(commands);
         drop(bridged);
         drop(polls);
+        drop(scans);
         // Err once the owner has dropped its sender, that is ended.
         while ended.changed().await.is_ok() {}
     }
@@ -148,6 +153,7 @@ impl Bus {
             Priority::Command => &self.commands,
             Priority::Bridge => &self.bridged,
             Priority::Poll => &self.polls,
+            Priority::Scan => &self.scans,
             Priority::OnDemand => {
                 if self.commands.is_closed() {
                     return Err(BusError::Closed);
@@ -209,6 +215,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         mut commands: mpsc::UnboundedReceiver<Job>,
         mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
+        mut scans: mpsc::UnboundedReceiver<Job>,
         on_demand: Arc<OnDemand<Job>>,
         mut share: Share,
     ) {
@@ -238,6 +245,12 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 (true, false) => Turn::Poll,
                 (false, true) => Turn::OnDemand,
                 (false, false) => {
+                    // Nothing else waits: a scan's probe may go now.
+                    if let Ok(job) = scans.try_recv() {
+                        let result = self.run_job(&job, Priority::Scan).await;
+                        let _ = job.done.send(result);
+                        continue;
+                    }
                     // Nothing waits: sleep until something comes.
                     let woken = tokio::select! {
                         biased;
@@ -251,6 +264,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                             None
                         }
                         _ = on_demand.ready() => None,
+                        Some(j) = scans.recv() => Some((j, Priority::Scan)),
                     };
                     if let Some((job, priority)) = woken {
                         let result = self.run_job(&job, priority).await;

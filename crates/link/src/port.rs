@@ -30,6 +30,10 @@ pub enum Port {
     Serial(SerialSettings),
     /// A serial device server (`host:port`), raw bytes over TCP.
     Tcp(String),
+    /// A Modbus TCP server (`host:port`: a drive's Ethernet card, a Modbus TCP/RTU gateway):
+    /// the bus's Modbus frames go in MBAP, the drive's address as the unit id
+    /// ([`crate::mbap`]).
+    ModbusTcp(String),
     /// A virtual line of simulated drives in this process.
     #[cfg(feature = "virtual")]
     Virtual(VirtualPort),
@@ -254,11 +258,22 @@ impl Port {
         }
     }
 
+    /// The Modbus TCP server a user spelled `tcp://HOST[:PORT]` (port 502 where none is
+    /// given), or a sentence saying what to give.
+    pub fn modbus_tcp(spelling: &str) -> Result<Port, String> {
+        match spelling.strip_prefix("tcp://") {
+            Some(addr) if !addr.is_empty() => Ok(Port::ModbusTcp(crate::mbap::with_default_port(addr))),
+            _ => Err(format!(
+                "{spelling:?} is not a Modbus TCP server: give tcp://HOST[:PORT] (port 502 by default)"
+            )),
+        }
+    }
+
     /// Its name in messages (`/dev/ttyUSB0`, `tcp://10.0.0.5:4001`, `virtual:line-1`).
     pub fn name(&self) -> String {
         match self {
             Port::Serial(s) => s.path.clone(),
-            Port::Tcp(addr) => format!("tcp://{addr}"),
+            Port::Tcp(addr) | Port::ModbusTcp(addr) => format!("tcp://{addr}"),
             #[cfg(feature = "virtual")]
             Port::Virtual(v) => v.name.clone(),
         }
@@ -270,7 +285,9 @@ impl Port {
     pub(crate) fn open(&self) -> io::Result<Opened> {
         match self {
             Port::Serial(s) => s.open().map(Opened::Serial),
-            Port::Tcp(addr) => Ok(Opened::Tcp { addr: addr.clone(), stream: dial(addr)? }),
+            Port::Tcp(addr) | Port::ModbusTcp(addr) => {
+                Ok(Opened::Tcp { addr: addr.clone(), stream: dial(addr)? })
+            }
             #[cfg(feature = "virtual")]
             Port::Virtual(v) => Ok(Opened::Virtual(v.clone())),
         }

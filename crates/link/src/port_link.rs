@@ -5,6 +5,7 @@
 use std::io;
 
 use crate::link::{open_async, Clock, Direction, Link, SerialLink, TcpLink};
+use crate::mbap::MbapFraming;
 use crate::port::{Opened, Port};
 
 /// The async link of a [`Port`], for the bus owner ([`crate::Bus::spawn`]). It is opened at
@@ -21,6 +22,8 @@ pub struct PortLink {
 enum Inner {
     Serial(SerialLink),
     Tcp(TcpLink),
+    /// A Modbus TCP server: the RTU frames of the engine in MBAP.
+    Mbap(TcpLink, MbapFraming),
     #[cfg(feature = "virtual")]
     Virtual(crate::sim_link::SimLink),
 }
@@ -73,6 +76,10 @@ impl Link for PortLink {
         match self.inner()? {
             Inner::Serial(l) => l.write(bytes).await,
             Inner::Tcp(l) => l.write(bytes).await,
+            Inner::Mbap(l, framing) => {
+                let frame = framing.outgoing(bytes)?;
+                l.write(&frame).await
+            }
             #[cfg(feature = "virtual")]
             Inner::Virtual(l) => l.write(bytes).await,
         }
@@ -81,6 +88,16 @@ impl Link for PortLink {
         match self.inner()? {
             Inner::Serial(l) => l.read(buf).await,
             Inner::Tcp(l) => l.read(buf).await,
+            Inner::Mbap(l, framing) => loop {
+                let n = framing.take(buf);
+                if n > 0 {
+                    return Ok(n);
+                }
+                let mut frame = [0u8; 512];
+                // Cancel-safe: what a read brought is in the framing before the next await.
+                let got = l.read(&mut frame).await?;
+                framing.incoming(&frame[..got])?;
+            },
             #[cfg(feature = "virtual")]
             Inner::Virtual(l) => l.read(buf).await,
         }
@@ -91,7 +108,12 @@ impl Link for PortLink {
         let clock = self.clock;
         self.inner = Some(match open_async(&self.port).await? {
             Opened::Serial(o) => Inner::Serial(SerialLink::from_opened(o, clock)?),
-            Opened::Tcp { addr, stream } => Inner::Tcp(TcpLink::from_std(&addr, stream, clock)?),
+            Opened::Tcp { addr, stream } => match self.port {
+                Port::ModbusTcp(_) => {
+                    Inner::Mbap(TcpLink::from_std(&addr, stream, clock)?, MbapFraming::new())
+                }
+                _ => Inner::Tcp(TcpLink::from_std(&addr, stream, clock)?),
+            },
             #[cfg(feature = "virtual")]
             Opened::Virtual(v) => {
                 Inner::Virtual(crate::sim_link::SimLink::with_clock(v.line, &v.name, clock))

@@ -22,7 +22,7 @@ fn simulator(drives: &[&str], baud: u32, endpoint: Endpoint) -> String {
     let (tx, rx) = std::sync::mpsc::channel();
     let pty = match &endpoint {
         Endpoint::Pty(p) => Some(p.to_string_lossy().into_owned()),
-        Endpoint::Tcp(_) => None,
+        Endpoint::Tcp(_) | Endpoint::ModbusTcp(_) => None,
     };
     std::thread::spawn(move || {
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();

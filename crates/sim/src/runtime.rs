@@ -54,7 +54,14 @@ pub enum Endpoint {
     Pty(PathBuf),
     /// Raw bytes over TCP, as a serial device server gives them.
     Tcp(SocketAddr),
+    /// Modbus TCP (MBAP), as a drive with an Ethernet card or a Modbus TCP/RTU gateway: each
+    /// request goes on the line as Modbus RTU to the drive its unit id names.
+    ModbusTcp(SocketAddr),
 }
+
+/// How long the Modbus TCP endpoint waits for a drive's answer before it answers exception 0B
+/// (gateway target device failed to respond).
+const MODBUS_TCP_WAIT: Duration = Duration::from_secs(1);
 
 impl Simulator {
     /// Builds every drive of `bus` on a fresh line.
@@ -136,6 +143,31 @@ impl Simulator {
                 let _slave = pty.slave;
                 self.pump(master, r, w, verbose).await
             }
+            Endpoint::ModbusTcp(addr) => {
+                let listener = tokio::net::TcpListener::bind(addr).await?;
+                ready(format!("modbus-tcp {}", listener.local_addr()?));
+                let turn = Arc::new(tokio::sync::Mutex::new(()));
+                // The connections end with the endpoint (dropping the set aborts them).
+                let mut connections = tokio::task::JoinSet::new();
+                loop {
+                    let (stream, peer) = listener.accept().await?;
+                    while connections.try_join_next().is_some() {}
+                    if verbose {
+                        println!("Modbus TCP client {peer} connected");
+                    }
+                    let _ = stream.set_nodelay(true);
+                    let (sim, turn) = (self.clone(), turn.clone());
+                    connections.spawn(async move {
+                        let result = sim.serve_mbap(master, stream, turn).await;
+                        if verbose {
+                            println!(
+                                "Modbus TCP client {peer} left ({})",
+                                result.err().map_or("closed".into(), |e| e.to_string())
+                            );
+                        }
+                    });
+                }
+            }
             Endpoint::Tcp(addr) => {
                 let listener = tokio::net::TcpListener::bind(addr).await?;
                 ready(format!("tcp {}", listener.local_addr()?));
@@ -154,6 +186,107 @@ impl Simulator {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// Serves one Modbus TCP client on `stream` as master `master`; `turn` keeps one exchange on
+    /// the line at a time across clients.
+    async fn serve_mbap(
+        self: Arc<Self>,
+        master: usize,
+        mut stream: tokio::net::TcpStream,
+        turn: Arc<tokio::sync::Mutex<()>>,
+    ) -> io::Result<()> {
+        use drivebus_proto::modbus::tcp::{mbap_from_rtu, rtu_from_mbap, Mbap, MAX_ADU};
+        let mut buf = vec![0u8; 2048];
+        let mut len = 0;
+        loop {
+            let n = stream.read(&mut buf[len..]).await?;
+            if n == 0 {
+                return Ok(());
+            }
+            len += n;
+            let mut pos = 0;
+            loop {
+                let (header, total) = match Mbap::next_frame(&buf[pos..len]) {
+                    Ok(Some(frame)) => frame,
+                    Ok(None) => break,
+                    // Nothing after a damaged header can be trusted to be framed right.
+                    Err(_) => return Ok(()),
+                };
+                let mut rtu = [0u8; MAX_ADU];
+                let Ok(rn) = rtu_from_mbap(&buf[pos..pos + total], &mut rtu) else { return Ok(()) };
+                pos += total;
+                let answer = {
+                    let _turn = turn.lock().await;
+                    self.exchange_rtu(master, &rtu[..rn], header.unit != 0).await
+                };
+                let mut out = [0u8; MAX_ADU];
+                let sent = match answer {
+                    Some(reply) => mbap_from_rtu(header.transaction, &reply, &mut out),
+                    None if header.unit == 0 => continue,
+                    // No drive answered: what a Modbus TCP/RTU gateway says (exception 0B).
+                    None => {
+                        let fc = rtu[1] & 0x7F;
+                        let mut ex = [header.unit, fc | 0x80, 0x0B, 0, 0];
+                        let crc = drivebus_proto::checksum::crc16_modbus(&ex[..3]).to_le_bytes();
+                        ex[3..].copy_from_slice(&crc);
+                        mbap_from_rtu(header.transaction, &ex, &mut out)
+                    }
+                };
+                if let Ok(m) = sent {
+                    stream.write_all(&out[..m]).await?;
+                }
+            }
+            buf.copy_within(pos..len, 0);
+            len -= pos;
+        }
+    }
+
+    /// Puts the Modbus RTU request `rtu` on the line and waits for the drive's reply frame
+    /// (`None`: none came within [`MODBUS_TCP_WAIT`], or none is due).
+    async fn exchange_rtu(&self, master: usize, rtu: &[u8], reply_due: bool) -> Option<Vec<u8>> {
+        use drivebus_proto::deframe::{Deframer, Event};
+        use drivebus_proto::modbus::rtu::RtuScanner;
+        self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write_from(master, self.now(), rtu);
+        self.changed.send_modify(|g| *g = g.wrapping_add(1));
+        let mut changed = self.changed.subscribe();
+        if !reply_due {
+            return None;
+        }
+        let give_up = tokio::time::Instant::now() + MODBUS_TCP_WAIT;
+        let mut replies = Deframer::new(RtuScanner::replies());
+        let mut out = Vec::new();
+        loop {
+            let deadline = self.line.lock().unwrap_or_else(|p| p.into_inner()).next_deadline();
+            let until = deadline.map_or(give_up, |d| self.wall(d).min(give_up));
+            tokio::select! {
+                _ = tokio::time::sleep_until(until) => {}
+                _ = changed.changed() => {}
+            }
+            {
+                let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
+                line.advance_to(self.now());
+                line.master_read_to(master, &mut out);
+                if line.tap_pending() {
+                    self.tap_wake.notify_one();
+                }
+            }
+            let mut reply = None;
+            replies.push(&out, &mut |e| {
+                if let Event::Frame { bytes, .. } = e {
+                    if bytes.first() == rtu.first() && reply.is_none() {
+                        reply = Some(bytes.to_vec());
+                    }
+                }
+            });
+            out.clear();
+            if reply.is_some() {
+                return reply;
+            }
+            if tokio::time::Instant::now() >= give_up {
+                return None;
             }
         }
     }

@@ -51,6 +51,16 @@ impl Resolution {
         }
     }
 
+    /// The resolution a query of `span_ms` gets when it names none: 1 s up to an hour, 1 min
+    /// beyond (the HTTP trend and OPC UA HistoryRead alike).
+    pub fn for_span(span_ms: i64) -> Resolution {
+        if span_ms <= 3_600_000 {
+            Resolution::Second
+        } else {
+            Resolution::Minute
+        }
+    }
+
     /// `"1s"` or `"1m"`.
     pub fn as_str(self) -> &'static str {
         match self {

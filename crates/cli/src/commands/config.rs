@@ -42,12 +42,15 @@ pub fn describe(c: &GatewayConfig) -> String {
         count(c.buses.len(), "bus", "buses"),
         count(drives, "drive", "drives")
     );
+    for t in &c.templates {
+        out += &format!("  template {}\n", t.display());
+    }
     for b in &c.buses {
         let port = match &b.port {
             Port::Virtual => "virtual (simulated drives)".to_string(),
             p => p.to_string(),
         };
-        out += &format!("  bus {}: {port}, {} at {} {}\n", b.name, b.protocol, b.baud, b.format);
+        out += &format!("  bus {}: {port}, {} at {} {}\n", b.name, b.protocol_name(), b.baud, b.format);
         for d in &b.drives {
             let unit = if d.unit_id == 0 {
                 "no Modbus TCP unit".to_string()

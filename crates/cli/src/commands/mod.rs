@@ -11,4 +11,5 @@ pub mod serve;
 pub mod simulate;
 pub mod sniff;
 pub mod target;
+pub mod template;
 pub mod trips;

@@ -152,6 +152,9 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
     if args.standby {
         for b in &mut config.buses {
             let silence = b.role.map_or(drivebus_link::role::RoleConfig::DEFAULT_SILENCE, |r| r.silence);
+            if let Some(why) = drivebus_gateway::config::no_standby(b) {
+                return Err(anyhow!("--standby: {why}"));
+            }
             b.role = Some(drivebus_link::role::RoleConfig { standby: true, silence });
             if let Some(poll) = b.drives.iter().map(|d| d.poll).min().filter(|p| *p > silence) {
                 return Err(anyhow!(

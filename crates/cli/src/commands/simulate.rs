@@ -18,14 +18,19 @@ pub struct SimulateArgs {
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Create a pseudo-terminal and a symlink at PATH to it: open PATH as a serial port. Give
-    /// it more than once (and with --tcp) for several masters on one line: each hears the
-    /// drives and the other masters, and two talking at once garble each other.
+    /// it more than once (and with --tcp, --modbus-tcp) for several masters on one line: each
+    /// hears the drives and the other masters, and two talking at once garble each other.
     #[arg(long, value_name = "PATH")]
     pub pty: Vec<PathBuf>,
     /// Serve raw bytes on HOST:PORT, as a serial device server does (more than once: several
     /// masters, as with --pty).
     #[arg(long, value_name = "HOST:PORT")]
     pub tcp: Vec<SocketAddr>,
+    /// Serve Modbus TCP (MBAP) on HOST:PORT, as a drive with an Ethernet card or a Modbus
+    /// TCP/RTU gateway does: the unit id is the drive's address, and each drive speaks Modbus
+    /// RTU on the virtual line behind it (more than once: several masters, as with --pty).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub modbus_tcp: Vec<SocketAddr>,
     /// Create a second pseudo-terminal (symlink at PATH) that carries a copy of every byte on
     /// the virtual line, both directions, paced as on the line: open it with `drivebus sniff`.
     #[arg(long, value_name = "PATH")]
@@ -89,6 +94,30 @@ pub fn bus_spec(args: &SimulateArgs, target: &crate::commands::target::Target) -
     Ok(bus)
 }
 
+/// Behind a Modbus TCP endpoint every drive speaks Modbus RTU: those that were given no
+/// protocol are set to it, and a drive that cannot speak it is refused.
+fn speak_modbus_rtu(bus: &mut BusSpec) -> Result<()> {
+    use drivebus_proto::protocol::WireProtocol;
+    for d in &mut bus.drives {
+        match d.protocol {
+            Some(WireProtocol::ModbusRtu) => {}
+            None if d.family.protocols().contains(&WireProtocol::ModbusRtu) => {
+                d.protocol = Some(WireProtocol::ModbusRtu)
+            }
+            Some(p) => bail!(
+                "--modbus-tcp serves Modbus drives: {}@{} is set to speak {p} (drop :{p} or use --tcp)",
+                d.family,
+                d.address
+            ),
+            None => bail!(
+                "--modbus-tcp serves Modbus drives: a {} drive does not speak Modbus (use --tcp or --pty)",
+                d.family
+            ),
+        }
+    }
+    Ok(())
+}
+
 /// Runs `drivebus simulate` until interrupted.
 pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Result<u8> {
     let endpoints: Vec<Endpoint> = args
@@ -96,21 +125,28 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Res
         .iter()
         .map(|p| Endpoint::Pty(p.clone()))
         .chain(args.tcp.iter().map(|a| Endpoint::Tcp(*a)))
+        .chain(args.modbus_tcp.iter().map(|a| Endpoint::ModbusTcp(*a)))
         .collect();
     if endpoints.is_empty() {
-        bail!("say where the master connects: --pty PATH or --tcp HOST:PORT (one per master)");
+        bail!(
+            "say where the master connects: --pty PATH, --tcp HOST:PORT or --modbus-tcp HOST:PORT (one per master)"
+        );
     }
     for (i, p) in args.pty.iter().enumerate() {
         if args.pty[..i].contains(p) || args.tap.as_ref() == Some(p) {
             bail!("{} is given twice: each --pty and the --tap needs its own path", p.display());
         }
     }
-    for (i, a) in args.tcp.iter().enumerate() {
-        if a.port() != 0 && args.tcp[..i].contains(a) {
-            bail!("--tcp {a} is given twice: each master needs its own port");
+    let tcp: Vec<&SocketAddr> = args.tcp.iter().chain(&args.modbus_tcp).collect();
+    for (i, a) in tcp.iter().enumerate() {
+        if a.port() != 0 && tcp[..i].contains(a) {
+            bail!("{a} is given twice: each master needs its own port");
         }
     }
-    let bus = bus_spec(args, target)?;
+    let mut bus = bus_spec(args, target)?;
+    if !args.modbus_tcp.is_empty() {
+        speak_modbus_rtu(&mut bus)?;
+    }
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     rt.block_on(async move {
         let sim = Simulator::new(&bus)?;
@@ -167,6 +203,7 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Res
             let what = match endpoint {
                 Endpoint::Pty(p) => format!("pty {}", p.display()),
                 Endpoint::Tcp(a) => format!("tcp {a}"),
+                Endpoint::ModbusTcp(a) => format!("modbus-tcp {a}"),
             };
             let serve = sim.clone().serve_master(master, endpoint.clone(), verbose, move |at| {
                 let who = if several { format!(" (master {master})") } else { String::new() };

@@ -507,13 +507,18 @@ pub(crate) enum ModbusFraming {
     Ascii,
 }
 
-/// A Modbus request the profiles send: one 03 read or one 06 write.
+/// A Modbus request the profiles send: one 03 or 04 read, one 06 write, or one 10 write of two
+/// registers (a template's 32-bit values).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum ModbusAsk {
     /// 03: `quantity` registers from `start`.
     Read { start: u16, quantity: u16 },
+    /// 04: `quantity` input registers from `start`.
+    ReadInput { start: u16, quantity: u16 },
     /// 06: `value` into `register`.
     Write { register: u16, value: u16 },
+    /// 10: `values` into `start` and the register after it.
+    WriteTwo { start: u16, values: [u16; 2] },
 }
 
 impl fmt::Display for ModbusAsk {
@@ -523,7 +528,14 @@ impl fmt::Display for ModbusAsk {
             ModbusAsk::Read { start, quantity } => {
                 write!(f, "03 read of {start:04X}H..{:04X}H", u32::from(start) + u32::from(quantity) - 1)
             }
+            ModbusAsk::ReadInput { start, quantity: 1 } => write!(f, "04 read of {start:04X}H"),
+            ModbusAsk::ReadInput { start, quantity } => {
+                write!(f, "04 read of {start:04X}H..{:04X}H", u32::from(start) + u32::from(quantity) - 1)
+            }
             ModbusAsk::Write { register, value } => write!(f, "06 write of {value:04X}H to {register:04X}H"),
+            ModbusAsk::WriteTwo { start, values: [a, b] } => {
+                write!(f, "10 write of {a:04X}H {b:04X}H to {start:04X}H..{:04X}H", u32::from(start) + 1)
+            }
         }
     }
 }
@@ -560,10 +572,20 @@ impl ModbusFraming {
             ModbusAsk::Read { start, quantity } => {
                 Request::read_holding_registers(UnitId(unit), start, quantity)
             }
+            ModbusAsk::ReadInput { start, quantity } => {
+                Request::read_input_registers(UnitId(unit), start, quantity)
+            }
             ModbusAsk::Write { register, value } => {
                 Request::write_single_register(UnitId(unit), register, value)
             }
+            ModbusAsk::WriteTwo { start, ref values } => {
+                return self.emit(ask, &Request::write_multiple_registers(UnitId(unit), start, values))
+            }
         };
+        self.emit(ask, &request)
+    }
+
+    fn emit(self, ask: ModbusAsk, request: &Request<'_>) -> Result<Vec<u8>, DriveError> {
         let mut out = [0u8; 520];
         let n = match self {
             ModbusFraming::Rtu => request.emit_rtu(&mut out),
@@ -586,13 +608,16 @@ impl ModbusFraming {
         }
         let function = match ask {
             ModbusAsk::Read { .. } => 0x03,
+            ModbusAsk::ReadInput { .. } => 0x04,
             ModbusAsk::Write { .. } => 0x06,
+            ModbusAsk::WriteTwo { .. } => 0x10,
         };
         match (reply.pdu, ask) {
             (ReplyPdu::Exception { function: f, code }, _) if f == function => {
                 Ok(ModbusAnswer::Exception(code.0))
             }
-            (ReplyPdu::ReadHoldingRegisters { values }, ModbusAsk::Read { quantity, .. }) => {
+            (ReplyPdu::ReadHoldingRegisters { values }, ModbusAsk::Read { quantity, .. })
+            | (ReplyPdu::ReadInputRegisters { values }, ModbusAsk::ReadInput { quantity, .. }) => {
                 if values.len() != usize::from(quantity) {
                     return Err(bad(format!("carries {} registers, not {quantity}", values.len())));
                 }
@@ -607,6 +632,15 @@ impl ModbusFraming {
                         "echoes {value:04X}H to {:04X}H instead of the value written",
                         address.0
                     )));
+                }
+                Ok(ModbusAnswer::Written)
+            }
+            (
+                ReplyPdu::WriteMultipleRegisters { start, quantity },
+                ModbusAsk::WriteTwo { start: sent, .. },
+            ) => {
+                if start.0 != sent || quantity != 2 {
+                    return Err(bad(format!("confirms {quantity} registers at {:04X}H instead", start.0)));
                 }
                 Ok(ModbusAnswer::Written)
             }

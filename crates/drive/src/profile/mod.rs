@@ -304,6 +304,9 @@ pub fn for_drive(
         Family::Toshiba => Box::new(toshiba::ToshibaProfile::new(address, protocol)?),
         Family::Danfoss => Box::new(danfoss::DanfossProfile::new(address)?),
         Family::B800 => Box::new(b800::B800Profile::new(address)?),
+        Family::Template(_) => {
+            Box::new(crate::template::profile::TemplateProfile::new(family, protocol, address)?)
+        }
     })
 }
 

@@ -19,6 +19,25 @@
 use super::{danfoss, generic, toshiba, DriveStatus, Fault};
 use crate::{Catalog, Family};
 
+/// The history as JSON, as `drivebus trips --json` prints it and the gateway's
+/// `GET /api/drives/{id}/trips` answers it: `{"address", "family", "current": {"code", "text"} |
+/// null, "history": [{"index", "code", "text", "output_hz", "current_a"}], "source"}`.
+pub fn history_json(address: u8, family: Family, h: &TripHistory) -> serde_json::Value {
+    serde_json::json!({
+        "address": address,
+        "family": family.to_string(),
+        "current": h.current.as_ref().map(|f| serde_json::json!({"code": f.code, "text": f.text})),
+        "history": h.entries.iter().map(|e| serde_json::json!({
+            "index": e.index,
+            "code": e.code,
+            "text": e.text,
+            "output_hz": e.output_hz,
+            "current_a": e.current_a,
+        })).collect::<Vec<_>>(),
+        "source": h.source,
+    })
+}
+
 /// One trip of the history.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TripEntry {
@@ -54,6 +73,7 @@ pub fn source(family: Family) -> &'static str {
         Family::B800 => {
             "the t status (trip in force) only: the protocol has no parameter access, F-13 (last four trips) is on the keypad"
         }
+        Family::Template(_) => "the fault in force only: a template gives no fault history yet",
     }
 }
 
@@ -64,7 +84,7 @@ pub fn history_reads(family: Family) -> Vec<String> {
         Family::Generic => ["P4.00", "P4.01", "P4.02", "P4.03"].map(String::from).to_vec(),
         Family::Toshiba => ["FE10", "FE11", "FE12", "FE13", "FE00"].map(String::from).to_vec(),
         Family::Danfoss => (0..10).map(|i| format!("15-30[{i}]")).collect(),
-        Family::B800 => Vec::new(),
+        Family::B800 | Family::Template(_) => Vec::new(),
     }
 }
 
@@ -103,7 +123,7 @@ pub fn history_of(family: Family, status: &DriveStatus, raws: &[i64]) -> TripHis
             None,
             None,
         ),
-        Family::B800 => (0, |code| code.to_string(), None, None),
+        Family::B800 | Family::Template(_) => (0, |code| code.to_string(), None, None),
     };
     let at_trip = |at: At| at.and_then(|(name, i)| scaled(name, raw(i)));
     let mut entries = Vec::new();

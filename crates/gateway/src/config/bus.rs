@@ -24,7 +24,7 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
         if buses.iter().any(|x| x.name == name) {
             return cx.err(b.name.span(), "bus.name", format!("two buses are named {name:?}"));
         }
-        let port = port(cx, b)?;
+        let mut port = port(cx, b)?;
         let rs485 = match &b.rs485 {
             Some(m) => m.get_ref().parse().or_else(|e: String| cx.err(m.span(), "bus.rs485", e))?,
             None => drivebus_link::Rs485::Off,
@@ -36,16 +36,54 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
         }
         let first = drives.first().map(|d| d.family);
         let protocol = match (&b.protocol, first) {
-            (Some(p), _) => {
-                p.get_ref().parse::<WireProtocol>().or_else(|e| cx.err(p.span(), "bus.protocol", e))?
+            // Modbus TCP: the drives' Modbus frames in MBAP to a Modbus TCP server.
+            (Some(p), _) if p.get_ref().trim().eq_ignore_ascii_case(drivebus_link::mbap::MODBUS_TCP) => {
+                port = match port {
+                    Port::Tcp(addr) => Port::ModbusTcp(drivebus_link::mbap::with_default_port(&addr)),
+                    _ => return cx.err(
+                        b.port.span(),
+                        "bus.port",
+                        "a modbus-tcp bus is reached over TCP: give tcp://HOST[:PORT] (port 502 by default)",
+                    ),
+                };
+                WireProtocol::ModbusRtu
             }
+            (Some(p), _) => p.get_ref().parse::<WireProtocol>().or_else(|e| {
+                cx.err(p.span(), "bus.protocol", format!("{e} or {}", drivebus_link::mbap::MODBUS_TCP))
+            })?,
             (None, Some(f)) => f.default_protocol(),
             (None, None) => {
                 return cx.err(b.name.span(), "bus.protocol", "give the bus's protocol or a drive")
             }
         };
         let protocol_at = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
+        if let Some(m) = &b.max_in_flight {
+            if !matches!(port, Port::ModbusTcp(_)) {
+                return cx.err(
+                    m.span(),
+                    "bus.max_in_flight",
+                    "only a modbus-tcp bus can have requests in flight together",
+                );
+            }
+            if *m.get_ref() != 1 {
+                return cx.err(
+                    m.span(),
+                    "bus.max_in_flight",
+                    format!("{}: this version sends one request at a time on a Modbus TCP bus: use 1 (the default)", m.get_ref()),
+                );
+            }
+        }
         for (d, raw_drive) in drives.iter().zip(&b.drive) {
+            if matches!(port, Port::ModbusTcp(_)) && d.family.check_protocol(protocol).is_err() {
+                return cx.err(
+                    protocol_at,
+                    "bus.protocol",
+                    format!(
+                        "drive {:?}: a {} drive does not speak Modbus, so not modbus-tcp",
+                        d.name, d.family
+                    ),
+                );
+            }
             drive::check_protocol(cx, d, raw_drive, protocol, protocol_at.clone())?;
         }
         let (baud, format) = first.map_or((9600, CharFormat::NONE_8N1), |f| f.serial_default(protocol));
@@ -89,7 +127,8 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
     Ok(buses)
 }
 
-/// A bus's `port`: a device path, `tcp://HOST:PORT` or `virtual` (with the `virtual` feature).
+/// A bus's `port`: a device path, `tcp://HOST:PORT` or `virtual` (with the `virtual` feature);
+/// a `modbus-tcp` bus turns its `tcp://` port into [`Port::ModbusTcp`].
 fn port(cx: &Ctx, b: &FileBus) -> Result<Port, ConfigError> {
     Ok(match b.port.get_ref().as_str() {
         "virtual" if cfg!(not(feature = "virtual")) => {

@@ -39,9 +39,11 @@ impl Drives {
         d: &FileDrive,
         on_bus: &[DriveConfig],
     ) -> Result<DriveConfig, ConfigError> {
-        let family: Family = d.family.get_ref().parse().or_else(|_| {
-            cx.err(d.family.span(), "bus.drive.family", "use generic, toshiba, danfoss or b800")
-        })?;
+        let family: Family = d
+            .family
+            .get_ref()
+            .parse()
+            .or_else(|e: drivebus_drive::UnknownFamily| cx.err(d.family.span(), "bus.drive.family", e))?;
         let name = d.name.get_ref().trim().to_string();
         if !valid_name(&name) {
             return cx.err(d.name.span(), "bus.drive.name", "use letters, digits, - and _ only");

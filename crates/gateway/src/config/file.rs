@@ -11,6 +11,8 @@ use toml::Spanned;
 pub(super) struct FileConfig {
     pub(super) name: Option<Spanned<String>>,
     #[serde(default)]
+    pub(super) templates: Vec<Spanned<String>>,
+    #[serde(default)]
     pub(super) http: FileHttp,
     #[serde(default)]
     pub(super) modbus: FileModbus,
@@ -167,6 +169,7 @@ pub(super) struct FileBus {
     pub(super) on_demand_queue: Option<Spanned<usize>>,
     pub(super) on_demand_per_client: Option<Spanned<usize>>,
     pub(super) param_cache_ms: Option<u64>,
+    pub(super) max_in_flight: Option<Spanned<i64>>,
     #[serde(default)]
     pub(super) drive: Vec<FileDrive>,
 }

@@ -19,6 +19,7 @@
 //!
 //! ```toml
 //! name = "hall-1"                       # the gateway's name (MQTT topic tree, dashboards)
+//! templates = ["vfd-a.toml"]            # drive templates whose kinds `family` may name (docs/templates.md)
 //!
 //! [http]
 //! listen = "127.0.0.1:8080"
@@ -53,7 +54,7 @@
 //! [[bus]]
 //! name = "line-1"
 //! port = "/dev/ttyUSB0"                 # a device, tcp://HOST:PORT, or "virtual" (simulated)
-//! protocol = "modbus-rtu"
+//! protocol = "modbus-rtu"               # or modbus-tcp, with port = "tcp://HOST[:502]"
 //! baud = 19200
 //! serial = "8E1"
 //! timeout_ms = 200
@@ -109,6 +110,7 @@ mod name;
 mod opcua;
 mod standby;
 mod store;
+mod templates;
 mod token;
 
 pub mod bridge;
@@ -131,6 +133,17 @@ pub const DEMO: &str = include_str!("../demo.toml");
 /// The file name of the demo's store, in the state folder.
 pub const DEMO_STORE: &str = "drivebus-demo.db";
 
+/// Why bus `b` cannot share its line with a standby, if it cannot: a Modbus TCP bus has no
+/// line to listen to.
+pub fn no_standby(b: &BusConfig) -> Option<String> {
+    matches!(b.port, Port::ModbusTcp(_)).then(|| {
+        format!(
+            "bus {} speaks Modbus TCP: there is no shared line to listen to; a standby needs serial or tcp:// (raw) buses",
+            b.name
+        )
+    })
+}
+
 impl GatewayConfig {
     /// The embedded demo configuration.
     /// Its store is `drivebus-demo.db` in the state folder ([`state_dir`]), never in the
@@ -147,6 +160,8 @@ impl GatewayConfig {
     pub fn from_toml(file: &str, text: &str) -> Result<Self, ConfigError> {
         let cx = Ctx { file, text };
         let raw: FileConfig = toml::from_str(text).map_err(|e| cx.toml_error(&e))?;
+        // First: the drives' families may be the templates' kinds.
+        let templates = templates::check(&cx, &raw.templates)?;
         let http = http::check(&cx, &raw.http)?;
         let modbus = modbus::check(&cx, &raw.modbus)?;
         let tokens = token::check(&cx, &raw.token)?;
@@ -171,6 +186,7 @@ impl GatewayConfig {
         let modbus_rtu = modbus_rtu::check(&cx, &raw.modbus_rtu)?;
         Ok(GatewayConfig {
             name,
+            templates,
             http,
             modbus,
             store,

@@ -15,6 +15,8 @@ use drivebus_proto::protocol::WireProtocol;
 pub struct GatewayConfig {
     /// The gateway's name.
     pub name: String,
+    /// The drive templates read (`templates = [...]`), whose kinds the drives may name.
+    pub templates: Vec<PathBuf>,
     /// The HTTP listener.
     pub http: HttpConfig,
     /// The Modbus TCP listener.
@@ -154,6 +156,9 @@ pub enum Port {
     Serial(String),
     /// A serial device server, raw bytes over TCP.
     Tcp(String),
+    /// A Modbus TCP server (`protocol = "modbus-tcp"`): the drives' Modbus frames in MBAP,
+    /// each drive's address its unit id (`host:port`, port 502 unless given).
+    ModbusTcp(String),
     /// Simulated drives in this process, one per configured drive.
     Virtual,
 }
@@ -162,7 +167,7 @@ impl fmt::Display for Port {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Port::Serial(p) => f.write_str(p),
-            Port::Tcp(a) => write!(f, "tcp://{a}"),
+            Port::Tcp(a) | Port::ModbusTcp(a) => write!(f, "tcp://{a}"),
             Port::Virtual => f.write_str("virtual"),
         }
     }
@@ -202,6 +207,17 @@ pub struct BusConfig {
     pub role: Option<drivebus_link::role::RoleConfig>,
     /// The drives.
     pub drives: Vec<DriveConfig>,
+}
+
+impl BusConfig {
+    /// The bus's protocol as users name it: `modbus-tcp` on a Modbus TCP server, else the wire
+    /// protocol's name.
+    pub fn protocol_name(&self) -> &'static str {
+        match self.port {
+            Port::ModbusTcp(_) => drivebus_link::mbap::MODBUS_TCP,
+            _ => self.protocol.name(),
+        }
+    }
 }
 
 /// Which drive is polled first when several are due.

@@ -20,6 +20,10 @@ pub(super) fn check_polls(
     buses: &[BusConfig],
 ) -> Result<(), ConfigError> {
     for b in buses {
+        if let Some(why) = super::no_standby(b) {
+            let span = raw.role.as_ref().map_or(0..0, |s| s.span());
+            return cx.err(span, "standby", why);
+        }
         let Some(poll) = b.drives.iter().map(|d| d.poll).min() else { continue };
         if poll > role.silence {
             let span = raw.silence_ms.as_ref().map_or(0..0, |s| s.span());

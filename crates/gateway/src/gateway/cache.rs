@@ -44,8 +44,10 @@ pub struct DriveEntry {
     pub config: DriveConfig,
     /// The bus's name.
     pub bus: String,
-    /// The bus's protocol.
+    /// The bus's protocol (Modbus RTU's frames on a Modbus TCP bus).
     pub protocol: WireProtocol,
+    /// The bus's protocol as users name it (`modbus-tcp` on a Modbus TCP bus).
+    pub protocol_name: &'static str,
     /// Commands (ahead of polls); shares its profile with `poll`, so what a command teaches the
     /// profile (a Danfoss setpoint or 3-03 scaling) shows in the next poll.
     pub(super) command: Drive,

@@ -89,6 +89,8 @@ impl Command {
 pub enum CommandError {
     /// No drive has that id.
     UnknownDrive(String),
+    /// No bus has that name.
+    UnknownBus(String),
     /// The drive is locked against writes.
     Locked(String),
     /// The request was not valid (bad value, unknown parameter) and nothing was sent.
@@ -129,6 +131,10 @@ impl std::fmt::Display for CommandError {
                 let (shown, more) = crate::text::cut(id, 64);
                 write!(f, "no drive {shown:?}{more}")
             }
+            CommandError::UnknownBus(name) => {
+                let (shown, more) = crate::text::cut(name, 64);
+                write!(f, "no bus {shown:?}{more}")
+            }
             CommandError::Locked(id) => {
                 write!(f, "drive {id:?} is locked against writes: unlock it in the configuration")
             }
@@ -157,6 +163,7 @@ impl CommandError {
     pub fn kind(&self) -> &'static str {
         match self {
             CommandError::UnknownDrive(_) => "unknown_drive",
+            CommandError::UnknownBus(_) => "unknown_bus",
             CommandError::Locked(_) => "locked",
             CommandError::Invalid(_) => "invalid",
             CommandError::Refused { .. } => "refused",

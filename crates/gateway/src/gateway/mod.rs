@@ -22,6 +22,7 @@
 //!  lanes      impl: in_lane(): one lane per drive, work carried out in the order handed over
 //!  execute    impl: command(): lane ──► lock ──► audit ──► drive ──► audit ──► refresh; read_param()
 //!  scheduler  impl: per bus, poll each drive when due ──► update; refresh after a command
+//!  workbench  impl: read_params(), backup(), restore() (rows through command()), trip_history()
 //!  start      impl: config ──► buses (owner + drives) ──► Topology ──► Gateway; reload swaps it
 //! ```
 //!
@@ -40,6 +41,7 @@ mod linkage;
 mod scheduler;
 mod start;
 mod views;
+mod workbench;
 
 pub use audit::MAX_LOGIN_FAILURES;
 pub use cache::{BusEntry, DriveEntry, DriveState};
@@ -48,5 +50,6 @@ pub use hub::{Counters, Gateway, Topology};
 pub use lanes::MAX_LANE_QUEUE;
 pub use start::Reload;
 pub use views::{drive_master, log_line, BusView, Change, DriveView, FaultView, DRIVE_MASTER_WINDOW_S};
+pub use workbench::{ParamRow, RestoreOptions, RestoreRow, RowError};
 
 pub use drivebus_store::time::now_ms as unix_ms;

@@ -178,6 +178,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         .find(|&f| drivebus_drive::registers::generic::line_silence(f, b.protocol).is_some());
     owner.on_demand = b.on_demand;
     owner.role = b.role;
+    owner.modbus_tcp = matches!(b.port, crate::config::Port::ModbusTcp(_));
     // Opened by the bus owner before its first transaction, and again after a loss.
     let port = match &b.port {
         crate::config::Port::Serial(path) => LinkPort::Serial(SerialSettings {
@@ -187,6 +188,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
             rs485: b.rs485,
         }),
         crate::config::Port::Tcp(addr) => LinkPort::Tcp(addr.clone()),
+        crate::config::Port::ModbusTcp(addr) => LinkPort::ModbusTcp(addr.clone()),
         #[cfg(feature = "virtual")]
         crate::config::Port::Virtual => {
             let line = crate::virtual_bus::virtual_line(b)?;
@@ -231,6 +233,7 @@ fn drive_entry(b: &BusConfig, d: &DriveConfig, bus: &Bus) -> Result<DriveEntry, 
         config: d.clone(),
         bus: b.name.clone(),
         protocol: b.protocol,
+        protocol_name: b.protocol_name(),
         command,
         poll,
         params: crate::params::ParamCache::new(b.param_cache),

@@ -134,7 +134,7 @@ impl DriveView {
                 id: d.config.name.clone(),
                 bus: d.bus.clone(),
                 family: d.config.family.as_str().to_string(),
-                protocol: d.protocol.to_string(),
+                protocol: d.protocol_name.to_string(),
                 address: d.config.address,
                 unit_id: d.config.unit_id,
                 locked: d.locked(),
@@ -166,7 +166,7 @@ impl BusView {
         BusView {
             name: b.config.name.clone(),
             port: b.config.port.to_string(),
-            protocol: b.config.protocol.to_string(),
+            protocol: b.config.protocol_name().to_string(),
             baud: b.config.baud,
             serial: b.config.format.to_string(),
             online: b.online(),

@@ -107,7 +107,7 @@ impl std::fmt::Display for ApiError {
 /// The HTTP status that says what happened to a command or parameter read.
 pub fn status_of(e: &CommandError) -> StatusCode {
     match e {
-        CommandError::UnknownDrive(_) => StatusCode::NOT_FOUND,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) => StatusCode::NOT_FOUND,
         CommandError::Locked(_) => StatusCode::LOCKED,
         CommandError::Invalid(_) | CommandError::Unsupported(_) => StatusCode::UNPROCESSABLE_ENTITY,
         CommandError::Refused { .. } => StatusCode::CONFLICT,
@@ -124,6 +124,7 @@ impl From<CommandError> for ApiError {
         let message = match e {
             // Where an HTTP client finds the names.
             CommandError::UnknownDrive(_) => format!("{e}: GET /api/drives lists them"),
+            CommandError::UnknownBus(_) => format!("{e}: GET /api/buses lists them"),
             _ => e.to_string(),
         };
         ApiError::new(status_of(&e), e.kind(), message)

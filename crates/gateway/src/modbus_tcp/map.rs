@@ -25,7 +25,7 @@ pub const IN_LINK: u16 = 5;
 pub const IN_AGE: u16 = 6;
 /// Input register 7: poll error rate, per mille.
 pub const IN_ERROR_RATE: u16 = 7;
-/// Input register 8: family (1 generic, 2 toshiba, 3 danfoss, 4 b800).
+/// Input register 8: family (1 generic, 2 toshiba, 3 danfoss, 4 b800, 5 a template kind).
 pub const IN_FAMILY: u16 = 8;
 /// Input register 9: the drive's address on its bus.
 pub const IN_ADDRESS: u16 = 9;
@@ -69,6 +69,7 @@ pub fn family_code(f: Family) -> u16 {
         Family::Toshiba => 2,
         Family::Danfoss => 3,
         Family::B800 => 4,
+        Family::Template(_) => 5,
     }
 }
 

@@ -1,52 +1,50 @@
-//! The node manager of `urn:drivebus`: reads of a drive's variables come from the cache (values
-//! and status as [`super::publish`] puts them in the address space, the source timestamp of the
-//! poll that last confirmed them), reads of parameters go to the drive, writes and method
+//! The node manager of `urn:drivebus`: reads of cache variables come from the cache
+//! ([`super::space`]), reads of parameters go to the drive, writes and method
 //! calls become gateway commands, answered when the drive confirmed, with a status code that
 //! says why not.
 
+use std::collections::VecDeque;
 use std::sync::Arc;
 
 use async_trait::async_trait;
-use opcua::server::address_space::AddressSpace;
+use opcua::server::address_space::{read_node_value, DefaultTypeTree, EventNotifier};
 use opcua::server::diagnostics::NamespaceMetadata;
-use opcua::server::node_manager::memory::InMemoryNodeManagerImpl;
-use opcua::server::node_manager::{MethodCall, ParsedReadValueId, RequestContext, ServerContext, WriteNode};
-use opcua::sync::RwLock;
+use opcua::server::node_manager::{
+    AddReferenceResult, BrowseNode, BrowsePathItem, ExternalReference, ExternalReferenceRequest, HistoryNode,
+    MethodCall, MonitoredItemRef, NodeManager, ReadNode, RequestContext, ServerContext, WriteNode,
+};
+use opcua::server::CreateMonitoredItem;
 use opcua::types::{
-    AttributeId, DataValue, DateTime, DiagnosticInfo, MessageSecurityMode, StatusCode, TimestampsToReturn,
-    UAString, Variant,
+    AttributeId, BrowseDirection, DataValue, DateTime, DiagnosticInfo, MessageSecurityMode, NodeId,
+    ReadRawModifiedDetails, ReferenceDescription, StatusCode, TimestampsToReturn, UAString, Variant,
 };
 
 use super::nodes::{Ids, Target};
 use super::sessions::{Seen, Sessions};
+use super::space::Space;
 use crate::config::Role;
 use crate::gateway::{Command, CommandError, Gateway};
 
-/// The node manager's own part: the gateway and the namespace's index.
+/// The node manager of `urn:drivebus`: the types and folders kept, every drive and bus made
+/// on demand from the gateway ([`super::space`]).
 pub struct DriveNodes {
     gw: Arc<Gateway>,
     ids: Ids,
     namespace: NamespaceMetadata,
-    /// Told once the address space is built, so the publisher starts filling it.
-    built: Arc<tokio::sync::Notify>,
-    /// The nodes made for each drive and bus, kept for a reload that removes them.
-    made: std::sync::Mutex<(super::nodes::Made, super::nodes::Made)>,
     /// The sessions of each user (`[opcua] max_sessions_per_user`).
     sessions: Arc<Sessions>,
+    space: Space,
 }
+
+/// The references of a browse left for BrowseNext.
+struct Rest(VecDeque<ReferenceDescription>);
 
 impl DriveNodes {
     /// A node manager for `gw` in `namespace` (its index already assigned), counting the
     /// sessions of each user in `sessions`.
     pub fn new(gw: Arc<Gateway>, namespace: NamespaceMetadata, sessions: Arc<Sessions>) -> Self {
-        DriveNodes {
-            gw,
-            ids: Ids { ns: namespace.namespace_index },
-            namespace,
-            built: Arc::new(tokio::sync::Notify::new()),
-            made: Default::default(),
-            sessions,
-        }
+        let ids = Ids { ns: namespace.namespace_index };
+        DriveNodes { space: Space::new(gw.clone(), ids), gw, ids, namespace, sessions }
     }
 
     /// Whether the request's session is within its user's `[opcua] max_sessions_per_user`; a
@@ -68,17 +66,12 @@ impl DriveNodes {
         self.gw.audit_login_refusal(&actor(context), &why).await;
         false
     }
-
-    /// Wakes (once) when the address space is built.
-    pub fn built(&self) -> Arc<tokio::sync::Notify> {
-        self.built.clone()
-    }
 }
 
 /// A command's failure in OPC UA's words (docs/opcua.md, "Status codes").
 pub fn status_of(e: &CommandError) -> StatusCode {
     match e {
-        CommandError::UnknownDrive(_) => StatusCode::BadNodeIdUnknown,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) => StatusCode::BadNodeIdUnknown,
         CommandError::Locked(_) => StatusCode::BadNotWritable,
         CommandError::Invalid(_) => StatusCode::BadOutOfRange,
         CommandError::Refused { .. } => StatusCode::BadInvalidState,
@@ -153,99 +146,7 @@ fn double(v: Option<&Variant>) -> Result<f64, StatusCode> {
     }
 }
 
-/// `dv` with the timestamps a read asked for.
-fn only(mut dv: DataValue, timestamps: TimestampsToReturn) -> DataValue {
-    if matches!(timestamps, TimestampsToReturn::Server | TimestampsToReturn::Neither) {
-        (dv.source_timestamp, dv.source_picoseconds) = (None, None);
-    }
-    if matches!(timestamps, TimestampsToReturn::Source | TimestampsToReturn::Neither) {
-        (dv.server_timestamp, dv.server_picoseconds) = (None, None);
-    }
-    dv
-}
-
 impl DriveNodes {
-    /// Brings the address space in line with the gateway's drives and buses after a reload:
-    /// adds those it lacks, removes those that are gone. Returns whether anything changed.
-    pub fn sync(&self, space: &RwLock<AddressSpace>) -> bool {
-        let mut made = self.made.lock().unwrap_or_else(|p| p.into_inner());
-        let (drives, buses) = (self.gw.drives(), self.gw.buses());
-        let same = drives.len() == made.0.len()
-            && buses.len() == made.1.len()
-            && drives.iter().all(|d| made.0.contains_key(&d.config.name))
-            && buses.iter().all(|b| made.1.contains_key(&b.config.name));
-        if same {
-            return false;
-        }
-        let mut space = space.write();
-        let (made_drives, made_buses) = &mut *made;
-        made_drives.retain(|name, nodes| {
-            let keep = drives.iter().any(|d| &d.config.name == name);
-            if !keep {
-                super::nodes::remove(&mut space, nodes);
-            }
-            keep
-        });
-        made_buses.retain(|name, nodes| {
-            let keep = buses.iter().any(|b| &b.config.name == name);
-            if !keep {
-                super::nodes::remove(&mut space, nodes);
-            }
-            keep
-        });
-        for b in buses.iter() {
-            if !made_buses.contains_key(&b.config.name) {
-                made_buses.insert(b.config.name.clone(), super::nodes::add_bus(&mut space, &self.ids, b));
-            }
-        }
-        for d in drives.iter() {
-            if !made_drives.contains_key(&d.config.name) {
-                made_drives.insert(d.config.name.clone(), super::nodes::add_drive(&mut space, &self.ids, d));
-            }
-        }
-        true
-    }
-
-    /// Drive `drive`'s variables from the cache, now, in [`super::nodes::DRIVE_VARIABLES`] order.
-    fn cached(&self, drive: &str) -> Option<Vec<DataValue>> {
-        let d = self.gw.drive(drive).ok()?;
-        let v = self.gw.drive_view(&d);
-        let bus_online = super::bus_online(&self.gw, &v.bus);
-        Some(super::drive_values(&v, bus_online, DateTime::now()))
-    }
-
-    /// Replaces the values read from the address space of the drives' variables in `nodes` with
-    /// the cache's, now: the same value and status, with the source timestamp of the poll that
-    /// last confirmed them (the address space keeps the one that last changed them). The
-    /// variables of one drive in one Read come from one look at the cache, so they agree
-    /// (`AgeMs` with the others' source timestamp).
-    fn fill_from_cache(
-        &self,
-        address_space: &RwLock<AddressSpace>,
-        nodes: &[&ParsedReadValueId],
-        out: &mut [DataValue],
-        timestamps: TimestampsToReturn,
-    ) {
-        let mut drives: std::collections::HashMap<String, Option<Vec<DataValue>>> = Default::default();
-        for (n, dv) in nodes.iter().zip(out.iter_mut()) {
-            let Target::DriveVariable { drive, variable } = self.ids.target(&n.node_id) else {
-                continue;
-            };
-            let whole_value = n.attribute_id == AttributeId::Value
-                && matches!(n.index_range, opcua::types::NumericRange::None);
-            if !whole_value || address_space.read().find(&n.node_id).is_none() {
-                continue;
-            }
-            let Some(i) = super::nodes::DRIVE_VARIABLES.iter().position(|def| def.name == variable) else {
-                continue;
-            };
-            let values = drives.entry(drive).or_insert_with_key(|drive| self.cached(drive));
-            if let Some(cached) = values.as_ref().and_then(|values| values.get(i)) {
-                *dv = only(cached.clone(), timestamps);
-            }
-        }
-    }
-
     async fn read_parameter(&self, drive: &str, name: &str, client: &str) -> DataValue {
         match self.gw.read_param(drive, name, client).await {
             Ok(r) => {
@@ -298,56 +199,252 @@ impl DriveNodes {
 }
 
 #[async_trait]
-impl InMemoryNodeManagerImpl for DriveNodes {
-    async fn init(&self, space: &mut AddressSpace, _context: ServerContext) {
-        let made = super::nodes::build(space, &self.ids, &self.gw.drives(), &self.gw.buses());
-        *self.made.lock().unwrap_or_else(|p| p.into_inner()) = made;
-        self.built.notify_one();
+impl NodeManager for DriveNodes {
+    fn owns_node(&self, id: &NodeId) -> bool {
+        id.namespace == self.ids.ns
     }
 
     fn name(&self) -> &str {
         "drivebus"
     }
 
-    fn namespaces(&self) -> Vec<NamespaceMetadata> {
+    fn namespaces_for_user(&self, _context: &RequestContext) -> Vec<NamespaceMetadata> {
         vec![self.namespace.clone()]
     }
 
-    async fn read_values(
+    async fn init(&self, type_tree: &mut DefaultTypeTree, _context: ServerContext) {
+        self.space.kept().load_into_type_tree(type_tree);
+    }
+
+    async fn resolve_external_references(
         &self,
         context: &RequestContext,
-        address_space: &RwLock<AddressSpace>,
-        nodes: &[&ParsedReadValueId],
-        max_age: f64,
-        timestamps_to_return: TimestampsToReturn,
-    ) -> Vec<DataValue> {
-        if !self.within_cap(context).await {
-            return nodes.iter().map(|_| DataValue::from(StatusCode::BadTooManySessions)).collect();
-        }
-        let mut out = Vec::with_capacity(nodes.len());
-        for n in nodes {
-            let param = match (&n.attribute_id, self.ids.target(&n.node_id)) {
-                (AttributeId::Value, Target::Parameter { drive, name }) => Some((drive, name)),
-                _ => None,
-            };
-            match param {
-                // A parameter is read from the drive when it is read: never a stale value.
-                // The reads of a session's client wait in one queue on the bus.
-                Some((drive, name)) => out.push(
-                    self.read_parameter(&drive, &name, &reader(context.user_token(), context.session_id()))
-                        .await,
-                ),
-                None => out.push(address_space.read().read(context, n, max_age, timestamps_to_return)),
+        items: &mut [&mut ExternalReferenceRequest],
+    ) {
+        let type_tree = context.type_tree.read();
+        let mut view = self.space.view();
+        for item in items.iter_mut() {
+            if let Some(meta) = view.metadata(item.node_id(), item.result_mask(), &*type_tree) {
+                item.set(meta);
             }
         }
-        self.fill_from_cache(address_space, nodes, &mut out, timestamps_to_return);
-        out
+    }
+
+    async fn browse(
+        &self,
+        context: &RequestContext,
+        nodes_to_browse: &mut [BrowseNode],
+    ) -> Result<(), StatusCode> {
+        let type_tree = context.type_tree.read();
+        let mut view = self.space.view();
+        for node in nodes_to_browse.iter_mut() {
+            if node.node_id().is_null() {
+                continue;
+            }
+            if let Some(mut rest) = node.take_continuation_point::<Rest>() {
+                node.set_status(StatusCode::Good);
+                while node.remaining() > 0 {
+                    let Some(r) = rest.0.pop_front() else { break };
+                    node.add_unchecked(r);
+                }
+                if !rest.0.is_empty() {
+                    node.set_next_continuation_point(rest);
+                }
+                continue;
+            }
+            let id = node.node_id().clone();
+            if self.owns_node(&id) {
+                if !view.exists(&id) {
+                    continue;
+                }
+                node.set_status(StatusCode::Good);
+            }
+            let filter = if node.reference_type_id().is_null() {
+                None
+            } else {
+                Some((node.reference_type_id().clone(), node.include_subtypes()))
+            };
+            let refs = view.references(&id, filter, &*type_tree, node.browse_direction(), None);
+            let mut rest = VecDeque::new();
+            for (ty, forward, target) in refs {
+                let Some(meta) = view.metadata(&target, node.result_mask(), &*type_tree) else {
+                    if !self.owns_node(&target) {
+                        let direction = if forward {
+                            opcua::server::address_space::ReferenceDirection::Forward
+                        } else {
+                            opcua::server::address_space::ReferenceDirection::Inverse
+                        };
+                        node.push_external_reference(ExternalReference::new(target.into(), ty, direction));
+                    }
+                    continue;
+                };
+                if let AddReferenceResult::Full(r) = node.add(&*type_tree, meta.into_ref_desc(forward, ty)) {
+                    rest.push_back(r);
+                }
+            }
+            if !rest.is_empty() {
+                node.set_next_continuation_point(Box::new(Rest(rest)));
+            }
+        }
+        Ok(())
+    }
+
+    async fn translate_browse_paths_to_node_ids(
+        &self,
+        context: &RequestContext,
+        nodes: &mut [&mut BrowsePathItem],
+    ) -> Result<(), StatusCode> {
+        let type_tree = context.type_tree.read();
+        let mut view = self.space.view();
+        let name_mask = opcua::types::BrowseDescriptionResultMask::RESULT_MASK_BROWSE_NAME;
+        for item in nodes.iter_mut() {
+            if let Some(name) = item.unmatched_browse_name() {
+                let matched = view
+                    .metadata(item.node_id(), name_mask, &*type_tree)
+                    .is_some_and(|m| name.is_null() || m.browse_name == *name);
+                if !matched {
+                    continue;
+                }
+                item.set_browse_name_matched(context.current_node_manager_index);
+            }
+            let mut matching = vec![item.node_id().clone()];
+            let mut found = Vec::new();
+            for (depth, element) in item.path().iter().enumerate() {
+                let mut next = Vec::new();
+                for id in &matching {
+                    let filter = (!element.reference_type_id.is_null())
+                        .then(|| (element.reference_type_id.clone(), element.include_subtypes));
+                    let direction =
+                        if element.is_inverse { BrowseDirection::Inverse } else { BrowseDirection::Forward };
+                    for (_, _, target) in
+                        view.references(id, filter, &*type_tree, direction, Some(&element.target_name))
+                    {
+                        if next.contains(&target) {
+                            continue;
+                        }
+                        match view.metadata(&target, name_mask, &*type_tree) {
+                            Some(m)
+                                if element.target_name.is_null() || m.browse_name == element.target_name =>
+                            {
+                                found.push((target.clone(), depth + 1, None));
+                                next.push(target);
+                            }
+                            Some(_) => {}
+                            None if !self.owns_node(&target) => {
+                                found.push((target, depth + 1, Some(element.target_name.clone())));
+                            }
+                            None => {}
+                        }
+                    }
+                }
+                matching = next;
+            }
+            for (id, depth, unmatched) in found {
+                item.add_element(id, depth, unmatched);
+            }
+        }
+        Ok(())
+    }
+
+    async fn read(
+        &self,
+        context: &RequestContext,
+        max_age: f64,
+        timestamps_to_return: TimestampsToReturn,
+        nodes_to_read: &mut [&mut ReadNode],
+    ) -> Result<(), StatusCode> {
+        if !self.within_cap(context).await {
+            nodes_to_read.iter_mut().for_each(|n| n.set_error(StatusCode::BadTooManySessions));
+            return Ok(());
+        }
+        let client = reader(context.user_token(), context.session_id());
+        let mut view = self.space.view();
+        for n in nodes_to_read.iter_mut() {
+            let value =
+                self.read_one(&mut view, context, n.node(), max_age, timestamps_to_return, &client).await;
+            n.set_result(value);
+        }
+        Ok(())
+    }
+
+    async fn history_read_raw_modified(
+        &self,
+        context: &RequestContext,
+        details: &ReadRawModifiedDetails,
+        nodes: &mut [&mut HistoryNode],
+        timestamps_to_return: TimestampsToReturn,
+    ) -> Result<(), StatusCode> {
+        if !self.within_cap(context).await {
+            nodes.iter_mut().for_each(|n| n.set_status(StatusCode::BadTooManySessions));
+            return Ok(());
+        }
+        super::history::read_raw(&self.gw, &self.ids, &self.space, details, nodes, timestamps_to_return)
+            .await;
+        Ok(())
+    }
+
+    async fn create_monitored_items(
+        &self,
+        context: &RequestContext,
+        items: &mut [&mut CreateMonitoredItem],
+    ) -> Result<(), StatusCode> {
+        if !self.within_cap(context).await {
+            items.iter_mut().for_each(|i| i.set_status(StatusCode::BadTooManySessions));
+            return Ok(());
+        }
+        let client = reader(context.user_token(), context.session_id());
+        let mut view = self.space.view();
+        for item in items.iter_mut() {
+            let what = item.item_to_monitor().clone();
+            let read = {
+                let Some(space) = view.space_of(&what.node_id) else {
+                    item.set_status(StatusCode::BadNodeIdUnknown);
+                    continue;
+                };
+                match space.validate_node_read(context, &what) {
+                    Err(e) => Err(e),
+                    Ok(n) => Ok(read_node_value(n, context, &what, 0.0, item.timestamps_to_return())),
+                }
+            };
+            let read = match read {
+                Err(e) => {
+                    item.set_status(e);
+                    continue;
+                }
+                Ok(r) => r,
+            };
+            // An event item only ever receives events: no initial value.
+            if what.attribute_id == AttributeId::EventNotifier {
+                let subscribable = matches!(&read.value, Some(Variant::Byte(b))
+                    if EventNotifier::from_bits_truncate(*b).contains(EventNotifier::SUBSCRIBE_TO_EVENTS));
+                item.set_status(if subscribable {
+                    StatusCode::Good
+                } else {
+                    StatusCode::BadAttributeIdInvalid
+                });
+                continue;
+            }
+            let read = match (&what.attribute_id, self.ids.target(&what.node_id)) {
+                (AttributeId::Value, Target::Parameter { drive, name }) => {
+                    self.read_parameter(&drive, &name, &client).await
+                }
+                _ => read,
+            };
+            if read.status() != StatusCode::BadAttributeIdInvalid {
+                item.set_initial_value(read);
+            }
+            item.set_status(StatusCode::Good);
+        }
+        Ok(())
+    }
+
+    async fn delete_monitored_items(&self, _context: &RequestContext, _items: &[&MonitoredItemRef]) {
+        // Nothing to stop: values are handed to the subscriptions as the polls bring them.
     }
 
     async fn write(
         &self,
         context: &RequestContext,
-        address_space: &RwLock<AddressSpace>,
         nodes_to_write: &mut [&mut WriteNode],
     ) -> Result<(), StatusCode> {
         if !self.within_cap(context).await {
@@ -360,7 +457,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
                 w.set_status(StatusCode::BadNotWritable);
                 continue;
             }
-            if address_space.read().find(&value.node_id).is_none() {
+            if !self.space.view().exists(&value.node_id) {
                 w.set_status(StatusCode::BadNodeIdUnknown);
                 continue;
             }
@@ -412,8 +509,7 @@ impl InMemoryNodeManagerImpl for DriveNodes {
     async fn call(
         &self,
         context: &RequestContext,
-        _address_space: &RwLock<AddressSpace>,
-        methods_to_call: &mut [&mut &mut MethodCall],
+        methods_to_call: &mut [&mut MethodCall],
     ) -> Result<(), StatusCode> {
         if !self.within_cap(context).await {
             methods_to_call.iter_mut().for_each(|m| m.set_status(StatusCode::BadTooManySessions));
@@ -428,8 +524,13 @@ impl InMemoryNodeManagerImpl for DriveNodes {
                 m.set_status(StatusCode::BadMethodInvalid);
                 continue;
             }
-            if !["Run", "Stop", "Reverse", "Reset", "SetSpeed"].contains(&method.as_str()) {
-                m.set_status(StatusCode::BadMethodInvalid);
+            if self.gw.drive(&drive).is_err() {
+                m.set_status(StatusCode::BadNodeIdUnknown);
+                continue;
+            }
+            // Only SetSpeed takes an argument (its InputArguments say so).
+            if method != "SetSpeed" && !m.arguments().is_empty() {
+                m.set_status(StatusCode::BadTooManyArguments);
                 continue;
             }
             // Authorized before the arguments are looked at.
@@ -479,6 +580,29 @@ impl InMemoryNodeManagerImpl for DriveNodes {
             }
         }
         Ok(())
+    }
+}
+
+impl DriveNodes {
+    /// One attribute of one node: a parameter's value from the drive (never a stale value; the
+    /// reads of a session's client wait in one queue on the bus), anything else from the nodes
+    /// made from the cache.
+    async fn read_one(
+        &self,
+        view: &mut super::space::View<'_>,
+        context: &RequestContext,
+        node: &opcua::server::node_manager::ParsedReadValueId,
+        max_age: f64,
+        timestamps: TimestampsToReturn,
+        client: &str,
+    ) -> DataValue {
+        let checked = view.read(context, node, max_age, timestamps);
+        match (&node.attribute_id, self.ids.target(&node.node_id)) {
+            (AttributeId::Value, Target::Parameter { drive, name }) if !checked.status().is_bad() => {
+                self.read_parameter(&drive, &name, client).await
+            }
+            _ => checked,
+        }
     }
 }
 

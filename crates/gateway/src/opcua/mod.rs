@@ -4,13 +4,16 @@
 //! ([`manager`]), the gateway's tokens as users ([`auth`]). docs/opcua.md describes it for
 //! integrators.
 //!
-//! Subscriptions cost no bus traffic: the publisher moves each poll's values into the address
-//! space once, and async-opcua notifies the monitored items of the values that changed.
+//! The drives and buses are not copied into the library's address space: [`space`] makes their
+//! nodes when a request names them, from the cache. Subscriptions cost no bus traffic: the
+//! publisher hands each poll's changed values to the monitored items that exist.
 
 pub mod auth;
+pub mod history;
 pub mod manager;
 pub mod nodes;
 pub mod sessions;
+pub mod space;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -18,7 +21,6 @@ use std::time::Duration;
 
 use opcua::crypto::SecurityPolicy;
 use opcua::server::diagnostics::NamespaceMetadata;
-use opcua::server::node_manager::memory::{InMemoryNodeManager, InMemoryNodeManagerBuilder};
 use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken, SubscriptionCache};
 use opcua::types::{
     BuildInfo, ByteString, DataValue, DateTime, LocalizedText, MessageSecurityMode, NodeId, ObjectId,
@@ -30,6 +32,7 @@ use crate::config::OpcUaConfig;
 use crate::gateway::{BusView, Change, DriveView, Gateway};
 use manager::DriveNodes;
 use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
+use opcua::types::AttributeId;
 
 /// The placeholder user that lets endpoints offer user name logins (the users themselves are
 /// the gateway's tokens, checked by [`auth::TokenAuth`]).
@@ -122,7 +125,7 @@ pub fn endpoint_url(cfg: &OpcUaConfig, listen: std::net::SocketAddr) -> Result<S
 
 /// Builds the OPC UA server for `listener` (creating its certificate on first start; errors
 /// here stop `serve` at start, with the reason) and returns what serves it until the process
-/// ends, keeping the address space current from the cache.
+/// ends, handing the cache's changes to subscriptions.
 pub fn start(
     gw: Arc<Gateway>,
     cfg: &OpcUaConfig,
@@ -136,16 +139,8 @@ pub fn start(
     let ns = handle
         .get_namespace_index(nodes::NAMESPACE)
         .ok_or_else(|| "OPC UA: the namespace urn:drivebus is missing".to_string())?;
-    let manager = handle
-        .node_managers()
-        .get_of_type::<InMemoryNodeManager<DriveNodes>>()
-        .ok_or_else(|| "OPC UA: the drive node manager is missing".to_string())?;
-    let built = manager.inner().built();
     Ok(async move {
-        tokio::spawn(async move {
-            built.notified().await;
-            publish(gw.clone(), Ids { ns }, manager, handle.clone()).await
-        });
+        tokio::spawn(async move { publish(gw.clone(), Ids { ns }, handle.clone()).await });
         server.run_with(listener).await.map_err(|e| format!("OPC UA server stopped: {e}"))
     })
 }
@@ -203,22 +198,18 @@ fn build(
         .add_user_token(TOKEN_USERS, ServerUserToken::user_pass(TOKEN_USERS, ""))
         .max_session_timeout_ms(opcua::server::constants::MAX_SESSION_TIMEOUT)
         .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone(), sessions)))
-        .with_node_manager(InMemoryNodeManagerBuilder::new(
-            move |context: opcua::server::node_manager::ServerContext,
-                  space: &mut opcua::server::address_space::AddressSpace| {
-                let index = context.type_tree.write().namespaces_mut().add_namespace(nodes::NAMESPACE);
-                space.add_namespace(nodes::NAMESPACE, index);
-                DriveNodes::new(
-                    gw_nodes,
-                    NamespaceMetadata {
-                        namespace_uri: nodes::NAMESPACE.to_string(),
-                        namespace_index: index,
-                        ..Default::default()
-                    },
-                    sessions_nodes,
-                )
-            },
-        ));
+        .with_node_manager(move |context: opcua::server::node_manager::ServerContext| {
+            let index = context.type_tree.write().namespaces_mut().add_namespace(nodes::NAMESPACE);
+            DriveNodes::new(
+                gw_nodes,
+                NamespaceMetadata {
+                    namespace_uri: nodes::NAMESPACE.to_string(),
+                    namespace_index: index,
+                    ..Default::default()
+                },
+                sessions_nodes,
+            )
+        });
     for (id, e) in endpoints() {
         builder = builder.add_endpoint(id, e);
     }
@@ -325,77 +316,68 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
         .collect()
 }
 
-/// What was last put in the address space per node, and the source timestamp last notified: a
-/// poll that changes nothing puts nothing there.
-type Last = std::collections::HashMap<NodeId, (Variant, StatusCode, Option<DateTime>)>;
-
-/// Puts a drive's changed values in the address space (notifying their monitored items). A value
-/// the poll only confirmed (same value and status, a later source timestamp) stays as it is there
-/// (reads take the source timestamp from the cache, [`manager`]) and goes to the monitored items
-/// alone: under the default trigger (StatusValue) they notify nothing, under
-/// StatusValueTimestamp each confirming poll, as the client asked.
-fn publish_drive(
-    manager: &InMemoryNodeManager<DriveNodes>,
-    subs: &SubscriptionCache,
-    ids: &Ids,
-    last: &mut Last,
-    v: &DriveView,
-    bus_online: bool,
-) {
-    let mut changed = Vec::new();
-    let mut confirmed = Vec::new();
-    for (def, dv) in DRIVE_VARIABLES.iter().zip(drive_values(v, bus_online, DateTime::now())) {
-        let id = ids.drive_member(&v.id, def.name);
-        let (value, status) = (dv.value.clone().unwrap_or_default(), dv.status());
-        match last.get_mut(&id) {
-            Some((lv, ls, lt)) if *lv == value && *ls == status => {
-                if *lt != dv.source_timestamp {
-                    *lt = dv.source_timestamp;
-                    confirmed.push((id, dv));
-                }
-            }
-            _ => {
-                last.insert(id.clone(), (value, status, dv.source_timestamp));
-                changed.push((id, dv));
-            }
-        }
-    }
-    if !changed.is_empty()
-        && manager.set_values(subs, changed.iter().map(|(id, dv)| (id, None, dv.clone()))).is_err()
-    {
-        // Not in the address space (yet): publish it in full next time.
-        for (id, _) in &changed {
-            last.remove(id);
-        }
-    }
-    if !confirmed.is_empty() {
-        subs.maybe_notify(
-            confirmed.iter().map(|(id, _)| (id, opcua::types::AttributeId::Value)),
-            |id, _, _, _| confirmed.iter().find(|(c, _)| c == id).map(|(_, dv)| dv.clone()),
-        );
-    }
+/// What was last handed to the subscriptions per drive (value, status and source timestamp)
+/// and bus (value), in [`DRIVE_VARIABLES`] and [`BUS_VARIABLES`] order: a poll that neither
+/// changes nor confirms anything hands over nothing.
+#[derive(Default)]
+struct Last {
+    drives: std::collections::HashMap<String, Vec<(Variant, StatusCode, Option<DateTime>)>>,
+    buses: std::collections::HashMap<String, Vec<Variant>>,
 }
 
-fn publish_bus(
-    manager: &InMemoryNodeManager<DriveNodes>,
-    subs: &SubscriptionCache,
-    ids: &Ids,
-    last: &mut Last,
-    b: &BusView,
-) {
+/// Hands a drive's changed and confirmed values to the monitored items that watch them (only
+/// those that exist: [`SubscriptionCache::maybe_notify`] asks for a value only for an item it
+/// has). A value the poll only confirmed (same value and status, a later source timestamp)
+/// notifies nothing under the default trigger (StatusValue), and each confirming poll under
+/// StatusValueTimestamp, as the client asked.
+fn publish_drive(subs: &SubscriptionCache, ids: &Ids, last: &mut Last, v: &DriveView, bus_online: bool) {
+    let values = drive_values(v, bus_online, DateTime::now());
+    let now: Vec<_> = values
+        .iter()
+        .map(|dv| (dv.value.clone().unwrap_or_default(), dv.status(), dv.source_timestamp))
+        .collect();
+    let before = last.drives.entry(v.id.clone()).or_default();
+    let changed: Vec<_> = DRIVE_VARIABLES
+        .iter()
+        .zip(values)
+        .enumerate()
+        .filter(|(i, _)| before.get(*i) != now.get(*i))
+        .map(|(_, (def, dv))| (ids.drive_member(&v.id, def.name), dv))
+        .collect();
+    *before = now;
+    notify(subs, &changed);
+}
+
+/// Hands the changed statistics of a bus to the monitored items that watch them.
+fn publish_bus(subs: &SubscriptionCache, ids: &Ids, last: &mut Last, b: &BusView) {
     let now = DateTime::now();
-    let mut changed = Vec::new();
-    for (def, value) in BUS_VARIABLES.iter().zip(bus_values(b)) {
-        let id = ids.bus_member(&b.name, def.name);
-        if last.get(&id).is_some_and(|(lv, _, _)| *lv == value) {
-            continue;
-        }
-        last.insert(id.clone(), (value.clone(), StatusCode::Good, None));
-        changed.push((id, DataValue::new_at(value, now)));
+    let values = bus_values(b);
+    let before = last.buses.entry(b.name.clone()).or_default();
+    let changed: Vec<_> = BUS_VARIABLES
+        .iter()
+        .zip(&values)
+        .enumerate()
+        .filter(|(i, (_, value))| before.get(*i) != Some(*value))
+        .map(|(_, (def, value))| (ids.bus_member(&b.name, def.name), DataValue::new_at(value.clone(), now)))
+        .collect();
+    *before = values;
+    notify(subs, &changed);
+}
+
+fn notify(subs: &SubscriptionCache, changed: &[(NodeId, DataValue)]) {
+    if changed.is_empty() {
+        return;
     }
-    if !changed.is_empty() {
-        let _ = manager.set_values(subs, changed.iter().map(|(id, dv)| (id, None, dv.clone())));
-    }
+    let values: std::collections::HashMap<&NodeId, &DataValue> =
+        changed.iter().map(|(id, dv)| (id, dv)).collect();
+    subs.maybe_notify(changed.iter().map(|(id, _)| (id, AttributeId::Value)), |id, _, range, _| {
+        let dv = (*values.get(id)?).clone();
+        Some(match range {
+            opcua::types::NumericRange::None => dv,
+            // A range of a scalar: what the library answers for its own nodes.
+            _ => DataValue { value: None, status: Some(StatusCode::BadIndexRangeNoData), ..dv },
+        })
+    });
 }
 
 /// Raises an event of the audit trail (trip, fault reset, online, offline, bus online or
@@ -435,45 +417,35 @@ fn raise(subs: &SubscriptionCache, ids: &Ids, gw: &Gateway, e: &drivebus_store::
     );
 }
 
-/// Keeps the address space current: each drive refresh and bus statistic from the gateway's
+/// Keeps the subscriptions current: each drive refresh and bus statistic from the gateway's
 /// changes, the audit trail's events as OPC UA events, and once a second the ages (values that
-/// go stale turn Uncertain even when no poll comes).
-async fn publish(
-    gw: Arc<Gateway>,
-    ids: Ids,
-    manager: Arc<InMemoryNodeManager<DriveNodes>>,
-    handle: ServerHandle,
-) {
+/// go stale turn Uncertain even when no poll comes). Drives and buses a reload added or removed
+/// need nothing here: the node manager makes nodes from the gateway's drives as they are now.
+async fn publish(gw: Arc<Gateway>, ids: Ids, handle: ServerHandle) {
     let subs = handle.subscriptions().clone();
     let mut changes = gw.subscribe();
-    let mut last = Last::new();
-    for d in gw.drives().iter() {
-        let v = gw.drive_view(d);
-        publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
-    }
+    let mut last = Last::default();
     let mut tick = tokio::time::interval(Duration::from_secs(1));
     loop {
         tokio::select! {
             c = changes.recv() => match c {
                 Ok(Change::Drive(v)) => {
                     if gw.drive(&v.id).is_ok() {
-                        publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
+                        publish_drive(&subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
                     }
                 }
-                Ok(Change::Bus(b)) => publish_bus(&manager, &subs, &ids, &mut last, &b),
+                Ok(Change::Bus(b)) => publish_bus(&subs, &ids, &mut last, &b),
                 Ok(Change::Event(e)) => raise(&subs, &ids, &gw, &e),
                 // Fell behind: the next tick and polls bring every value back.
                 Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
                 Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
             },
             _ = tick.tick() => {
-                // A reload added or removed drives or buses: the address space follows.
-                if manager.inner().sync(manager.address_space()) {
-                    last.clear();
-                }
-                for d in gw.drives().iter() {
+                let drives = gw.drives();
+                last.drives.retain(|name, _| drives.iter().any(|d| &d.config.name == name));
+                for d in drives.iter() {
                     let v = gw.drive_view(d);
-                    publish_drive(&manager, &subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
+                    publish_drive(&subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
                 }
             }
         }

@@ -14,7 +14,8 @@
 //! ```
 
 use opcua::server::address_space::{
-    AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, ObjectTypeBuilder, VariableBuilder,
+    AccessLevel, AddressSpace, EventNotifier, MethodBuilder, ObjectBuilder, ObjectTypeBuilder,
+    VariableBuilder,
 };
 use opcua::types::{
     DataTypeId, EUInformation, LocalizedText, NodeId, ObjectId, ObjectTypeId, QualifiedName, Range,
@@ -76,17 +77,19 @@ pub struct VariableDef {
     pub range: Option<(f64, f64)>,
     /// Whether a client may write it (with a write token).
     pub writable: bool,
+    /// Whether the store keeps it as a trend: then it is `Historizing` and answers HistoryRead.
+    pub trend: bool,
 }
 
 const fn var(name: &'static str, data_type: DataTypeId, unit: Option<Unit>) -> VariableDef {
-    VariableDef { name, data_type, unit, range: None, writable: false }
+    VariableDef { name, data_type, unit, range: None, writable: false, trend: false }
 }
 
 /// The variables of a drive, from the cache.
 pub const DRIVE_VARIABLES: &[VariableDef] = &[
-    var("OutputFrequency", DataTypeId::Double, Some(HERTZ)),
-    VariableDef { writable: true, ..var("Setpoint", DataTypeId::Double, Some(HERTZ)) },
-    var("Current", DataTypeId::Double, Some(AMPERE)),
+    VariableDef { trend: true, ..var("OutputFrequency", DataTypeId::Double, Some(HERTZ)) },
+    VariableDef { writable: true, trend: true, ..var("Setpoint", DataTypeId::Double, Some(HERTZ)) },
+    VariableDef { trend: true, ..var("Current", DataTypeId::Double, Some(AMPERE)) },
     var("Running", DataTypeId::Boolean, None),
     var("Direction", DataTypeId::String, None),
     var("FaultCode", DataTypeId::UInt32, None),
@@ -216,8 +219,8 @@ impl Ids {
     }
 }
 
-/// Adds the `EngineeringUnits` property of `id`; returns its node id.
-fn add_unit(space: &mut AddressSpace, ids: &Ids, id: &NodeId, unit: Unit) -> NodeId {
+/// Adds the `EngineeringUnits` property of `id`.
+fn add_unit(space: &mut AddressSpace, ids: &Ids, id: &NodeId, unit: Unit) {
     let eu = ids.id(format!("{}/EngineeringUnits", id_path(id)));
     VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
         .data_type(DataTypeId::EUInformation)
@@ -225,17 +228,18 @@ fn add_unit(space: &mut AddressSpace, ids: &Ids, id: &NodeId, unit: Unit) -> Nod
         .has_type_definition(VariableTypeId::PropertyType)
         .property_of(id.clone())
         .insert(space);
-    eu
 }
 
-/// Adds a variable and its properties; returns their node ids.
+/// Adds a variable and its properties; `history` when the store keeps it as a trend
+/// (`Historizing`, AccessLevel HistoryRead).
 fn add_variable(
     space: &mut AddressSpace,
     ids: &Ids,
     id: &NodeId,
     parent: &NodeId,
     def: &VariableDef,
-) -> Vec<NodeId> {
+    history: bool,
+) {
     let mut b = VariableBuilder::new(id, ids.name(def.name), def.name)
         .data_type(def.data_type)
         .value(Variant::Empty)
@@ -245,13 +249,18 @@ fn add_variable(
             VariableTypeId::BaseDataVariableType
         })
         .component_of(parent.clone());
+    let mut access = AccessLevel::CURRENT_READ;
     if def.writable {
-        b = b.writable();
+        access |= AccessLevel::CURRENT_WRITE;
     }
+    if history && def.trend {
+        access |= AccessLevel::HISTORY_READ;
+        b = b.historizing(true);
+    }
+    b = b.access_level(access).user_access_level(access);
     b.insert(space);
-    let mut made = vec![id.clone()];
     if let Some(unit) = def.unit {
-        made.push(add_unit(space, ids, id, unit));
+        add_unit(space, ids, id, unit);
     }
     if let Some((low, high)) = def.range {
         let r = ids.id(format!("{}/EURange", id_path(id)));
@@ -261,9 +270,7 @@ fn add_variable(
             .has_type_definition(VariableTypeId::PropertyType)
             .property_of(id.clone())
             .insert(space);
-        made.push(r);
     }
-    made
 }
 
 fn id_path(id: &NodeId) -> String {
@@ -273,17 +280,9 @@ fn id_path(id: &NodeId) -> String {
     }
 }
 
-/// The nodes made for each drive or bus, by name.
-pub type Made = std::collections::HashMap<String, Vec<NodeId>>;
-
-/// Builds the types, the `Drives` and `Buses` folders and every drive and bus; returns the nodes
-/// made for each drive and for each bus.
-pub fn build(
-    space: &mut AddressSpace,
-    ids: &Ids,
-    drives: &[std::sync::Arc<DriveEntry>],
-    buses: &[std::sync::Arc<BusEntry>],
-) -> (Made, Made) {
+/// Builds what exists once: the types (`DriveType`, `BusType` and their members) and the
+/// `Drives` and `Buses` folders. Drives and buses are made on demand ([`add_drive`], [`add_bus`]).
+pub fn build_types(space: &mut AddressSpace, ids: &Ids) {
     ObjectTypeBuilder::new(&ids.drive_type(), ids.name("DriveType"), "DriveType")
         .subtype_of(ObjectTypeId::BaseObjectType)
         .generates_event(ObjectTypeId::BaseEventType)
@@ -300,7 +299,7 @@ pub fn build(
     for (ty, ty_id, vars) in members {
         for def in vars {
             let id = ids.id(format!("{ty}/{}", def.name));
-            add_variable(space, ids, &id, &ty_id, def);
+            add_variable(space, ids, &id, &ty_id, def, false);
             space.insert_reference(
                 &id,
                 &NodeId::from(ObjectId::ModellingRule_Mandatory),
@@ -315,9 +314,6 @@ pub fn build(
             .event_notifier(EventNotifier::SUBSCRIBE_TO_EVENTS)
             .insert(space);
     }
-    let drives = drives.iter().map(|d| (d.config.name.clone(), add_drive(space, ids, d))).collect();
-    let buses = buses.iter().map(|b| (b.config.name.clone(), add_bus(space, ids, b))).collect();
-    (drives, buses)
 }
 
 /// Adds the object `obj` named `name`, of the type and in the folder `(type, folder)`, whose
@@ -338,16 +334,16 @@ fn add_object(
         .insert(space);
 }
 
-/// Adds one drive: its object, variables, methods and parameters. Returns every node made, for
-/// [`remove`] when a reload takes the drive away.
-pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) -> Vec<NodeId> {
+/// Adds one drive: its object, variables and methods, and with `parameters` its `Parameters`
+/// folder's contents (the folder itself is always there). `history`: the store keeps the drive's
+/// trends ([`VariableDef::trend`]).
+pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry, parameters: bool, history: bool) {
     let name = d.config.name.as_str();
     let obj = ids.drive(name);
     let description = format!("{} drive at address {} on bus {}", d.config.family, d.config.address, d.bus);
     add_object(space, ids, &obj, name, (ids.drive_type(), ids.drives()), description);
-    let mut made = vec![obj.clone()];
     for def in DRIVE_VARIABLES {
-        made.extend(add_variable(space, ids, &ids.drive_member(name, def.name), &obj, def));
+        add_variable(space, ids, &ids.drive_member(name, def.name), &obj, def, history);
     }
     for m in DRIVE_METHODS {
         let id = ids.drive_member(name, m);
@@ -358,17 +354,17 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) -> Vec<Nod
         if *m == "SetSpeed" {
             let args = ids.drive_member(name, "SetSpeed/InputArguments");
             b = b.input_args(space, &args, &[("hz", DataTypeId::Double).into()]);
-            made.push(args);
         }
         b.insert(space);
-        made.push(id);
     }
     let params = ids.drive_member(name, "Parameters");
     ObjectBuilder::new(&params, ids.name("Parameters"), "Parameters")
         .is_folder()
         .component_of(obj.clone())
         .insert(space);
-    made.push(params.clone());
+    if !parameters {
+        return;
+    }
     for p in d.catalog().iter() {
         let id = ids.parameter(name, &p.name);
         let mut b = VariableBuilder::new(&id, ids.name(&p.name), p.name.as_str())
@@ -381,32 +377,21 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry) -> Vec<Nod
             b = b.writable();
         }
         b.insert(space);
-        made.push(id.clone());
         if let Some(unit) = Unit::from_symbol(&p.unit) {
-            made.push(add_unit(space, ids, &id, unit));
+            add_unit(space, ids, &id, unit);
         }
     }
-    made
 }
 
-/// Adds one bus: its object and variables. Returns every node made.
-pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) -> Vec<NodeId> {
+/// Adds one bus: its object and variables.
+pub fn add_bus(space: &mut AddressSpace, ids: &Ids, b: &BusEntry) {
     let name = b.config.name.as_str();
     let obj = ids.bus(name);
     let c = &b.config;
-    let description = format!("{} on {} at {} {}", c.protocol, c.port, c.baud, c.format);
+    let description = format!("{} on {} at {} {}", c.protocol_name(), c.port, c.baud, c.format);
     add_object(space, ids, &obj, name, (ids.bus_type(), ids.buses()), description);
-    let mut made = vec![obj.clone()];
     for def in BUS_VARIABLES {
-        made.extend(add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def));
-    }
-    made
-}
-
-/// Removes the nodes made by [`add_drive`] or [`add_bus`], with their references.
-pub fn remove(space: &mut AddressSpace, made: &[NodeId]) {
-    for id in made.iter().rev() {
-        space.delete(id, true);
+        add_variable(space, ids, &ids.bus_member(name, def.name), &obj, def, false);
     }
 }
 

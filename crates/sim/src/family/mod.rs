@@ -6,10 +6,12 @@
 //! | [`toshiba`] | Toshiba VF-AS1 | TIP ASCII + binary, or Modbus-RTU (f829) | `seeds/002_43d8a4399c8be05f.txt` |
 //! | [`danfoss`] | Danfoss FC | FC protocol | `seeds/003_26a4c04ca1af5f26.txt` |
 //! | [`b800`] | B800 | B800 hex-ASCII | `seeds/000_04b515f0e0c1734e.txt` |
+//! | [`template`] | a template kind | Modbus RTU or ASCII, the template's map | the template's source |
 
 pub mod b800;
 pub mod danfoss;
 pub mod generic;
+pub mod template;
 pub mod toshiba;
 
 use drivebus_drive::Family;
@@ -35,5 +37,9 @@ pub fn build(spec: &DriveSpec, now: Instant) -> Result<Box<dyn VirtualDrive>, Co
             Box::new(toshiba::ToshibaDrive::new(spec.address, protocol, now).map_err(err)?)
         }
         Family::Danfoss => Box::new(danfoss::DanfossDrive::new(spec.address, now).map_err(err)?),
+        Family::Template(_) => {
+            let wire = spec.protocol.unwrap_or(spec.family.default_protocol());
+            Box::new(template::TemplateDrive::new(spec.family, spec.address, wire, now).map_err(err)?)
+        }
     })
 }

@@ -198,6 +198,7 @@
     const el = $('#bus-template').content.firstElementChild.cloneNode(true);
     el.dataset.bus = name;
     field(el, 'name').textContent = name;
+    field(el, 'scan-link').href = '#bus/' + encodeURIComponent(name);
     $('#buses').appendChild(el);
     const loading = $('#loading');
     if (loading) loading.remove();
@@ -236,6 +237,7 @@
     const tile = $('#tile-template').content.firstElementChild.cloneNode(true);
     tile.dataset.drive = v.id;
     field(tile, 'id').textContent = v.id;
+    field(tile, 'params-link').href = '#drive/' + encodeURIComponent(v.id);
     for (const btn of tile.querySelectorAll('[data-action]')) {
       btn.addEventListener('click', () => onAction(v.id, btn.dataset.action));
     }
@@ -884,6 +886,9 @@
     }, 1000);
     start();
   }
+
+  // The commissioning pages (workbench.js) use the same token and API client.
+  window.drivebus = { api, token, askToken, notice };
 
   if (document.readyState === 'loading') document.addEventListener('DOMContentLoaded', init);
   else init();

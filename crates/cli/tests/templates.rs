@@ -1,0 +1,131 @@
+//! Drive templates on the command line: `template check` on every shipped template and on bad
+//! files (every error with its line), and `--template FILE` adding a kind `--drive` names.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+#[path = "support/sim.rs"]
+mod sim;
+use sim::{drivebus, ok, output, simulate};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn shipped() -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(repo().join("templates"))
+        .expect("templates/")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn template_check_passes_every_shipped_template() {
+    let files = shipped();
+    assert!(!files.is_empty());
+    let o = output(Command::new(env!("CARGO_BIN_EXE_drivebus")).arg("template").arg("check").args(&files));
+    ok(&o, "template check");
+    assert_eq!(o.stdout.lines().count(), files.len(), "{}", o.stdout);
+    for line in o.stdout.lines() {
+        assert!(line.contains("source: ") && line.contains("checked against the simulator only"), "{line}");
+    }
+    // Each shipped file is known without --template.
+    let o = output(Command::new(env!("CARGO_BIN_EXE_drivebus")).args(["template", "list"]));
+    ok(&o, "template list");
+    assert_eq!(o.stdout.lines().count(), files.len(), "{}", o.stdout);
+}
+
+#[test]
+fn template_check_reports_every_error_with_its_line() {
+    let dir = std::env::temp_dir().join(format!("drivebus-template-check-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        "kind = \"x\"\nmaker = \"a\"\nmodel = \"b\"\nsource = \"c\"\nprotocols = [\"modbus-rtu\"]\n\
+         [serial]\nbaud = 9600\nformat = \"8N1\"\n[status]\n\
+         running = { register = 1, bit = 0 }\nreverse = { register = 1, bit = 0 }\n\
+         output_hz = { register = 70000, type = \"u24\", scale = 0.0 }\n",
+    )
+    .unwrap();
+    let o = output(Command::new(env!("CARGO_BIN_EXE_drivebus")).args(["template", "check"]).arg(&bad));
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    let lines: Vec<&str> = o.stderr.lines().collect();
+    let at = |n: usize, what: &str| {
+        assert!(
+            lines.iter().any(|l| l.contains(&format!("bad.toml:{n}: ")) && l.contains(what)),
+            "{what}: {}",
+            o.stderr
+        )
+    };
+    at(11, "bit 0 overlaps status.running's");
+    at(12, "register 70000 is not a Modbus register");
+    at(12, "unknown type \"u24\"");
+    at(12, "scale of 0");
+    assert_eq!(lines.len(), 4, "{}", o.stderr);
+    // The same file given with --template: the errors, and bad usage.
+    let o = drivebus("/dev/null", "x", None, 1, &["status", "--template", bad.to_str().unwrap()]);
+    assert_eq!(o.code, 3);
+    assert!(o.stderr.contains("--template") && o.stderr.contains("bad.toml:12"), "{}", o.stderr);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_template_given_with_template_is_a_drive_kind() {
+    // The shipped generic template under another kind's name, from a file of the user's.
+    let dir = std::env::temp_dir().join(format!("drivebus-template-kind-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("my-vfd.toml");
+    let text = std::fs::read_to_string(repo().join("templates/generic-2000h.toml")).unwrap();
+    std::fs::write(&file, text.replace("kind = \"generic-2000h\"", "kind = \"my-vfd\"")).unwrap();
+    let file = file.to_str().unwrap().to_string();
+
+    let sim = simulate("generic@4", &["--modbus-tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    let run = |args: &[&str]| {
+        drivebus(&port, "my-vfd", Some("modbus-tcp"), 4, &[args, &["--template", &file]].concat())
+    };
+    ok(&run(&["speed", "12.5"]), "speed");
+    ok(&run(&["run"]), "run");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    loop {
+        let o = run(&["status", "--json"]);
+        ok(&o, "status");
+        let s: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+        assert_eq!(s["setpoint_hz"], 12.5, "{s}");
+        if s["output_hz"] == 12.5 {
+            assert_eq!(s["running"], true);
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "{s}");
+    }
+    let o = run(&["param", "get", "P0.04"]);
+    ok(&o, "param get");
+    assert!(o.stdout.contains("50.00 Hz"), "{}", o.stdout);
+    // Without --template the kind is unknown.
+    let o = drivebus(&port, "my-vfd", Some("modbus-tcp"), 4, &["status"]);
+    assert_eq!(o.code, 3);
+    assert!(o.stderr.contains("unknown drive family \"my-vfd\""), "{}", o.stderr);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn simulate_runs_a_templated_drive() {
+    let dir = std::env::temp_dir().join(format!("drivebus-template-sim-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("sim-vfd.toml");
+    let text = std::fs::read_to_string(repo().join("templates/generic-2000h.toml")).unwrap();
+    std::fs::write(&file, text.replace("kind = \"generic-2000h\"", "kind = \"sim-vfd\"")).unwrap();
+    let file = file.to_str().unwrap();
+    let sim = simulate("sim-vfd@3", &["--template", file, "--modbus-tcp", "127.0.0.1:0"]);
+    assert!(sim.before.iter().any(|l| l.contains("sim-vfd@3:modbus-rtu")), "{:?}", sim.before);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    // The template's map is the generic drive's: the built-in profile reads the simulated drive.
+    ok(&drivebus(&port, "generic", Some("modbus-tcp"), 3, &["speed", "20"]), "speed");
+    let s = sim::status(&port, "generic", Some("modbus-tcp"), 3);
+    assert_eq!(s["setpoint_hz"], 20.0, "{s}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

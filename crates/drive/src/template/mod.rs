@@ -1,0 +1,379 @@
+//! Drive templates: a Modbus drive described in a TOML file (docs/templates.md) becomes a drive
+//! kind like the built-in families. The file gives the drive's identity and the document its map
+//! comes from, its protocols and serial defaults, where its status values are and how they are
+//! coded and scaled, its command word, its setpoint, its parameters and its fault codes.
+//!
+//! [`Template::from_toml_str`] reads and checks a file and reports every error with its line;
+//! [`register`] makes a checked template a kind ([`Family::Template`]), after which its name works
+//! wherever a family's does (`--drive`, `family = "..."`), and [`profile::TemplateProfile`] speaks
+//! to it with the same Modbus requests and replies as the built-in profiles.
+
+mod check;
+mod file;
+pub mod kinds;
+pub mod profile;
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
+
+use crate::ParamDef;
+pub use kinds::{register, registered, shipped, KindId};
+
+/// How far a template has been checked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Checked {
+    /// Against the simulator only: nobody has reported it on hardware yet.
+    Simulator,
+    /// Someone ran it against the drive itself.
+    Hardware,
+}
+
+impl Checked {
+    /// `simulator` or `hardware`, as the file says it.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Checked::Simulator => "simulator",
+            Checked::Hardware => "hardware",
+        }
+    }
+}
+
+/// Which register table a value is read from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum RegisterTable {
+    /// Holding registers (function 03), the default.
+    Holding,
+    /// Input registers (function 04).
+    Input,
+}
+
+/// How a value is coded in its registers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ValueType {
+    /// One register, unsigned.
+    U16,
+    /// One register, two's complement.
+    I16,
+    /// Two registers, unsigned.
+    U32,
+    /// Two registers, two's complement.
+    I32,
+    /// Two registers, IEEE 754 single precision.
+    F32,
+}
+
+impl ValueType {
+    /// The names a file uses.
+    pub const NAMES: &'static str = "u16, i16, u32, i32 or f32";
+
+    /// Reads the name a file uses.
+    pub fn parse(text: &str) -> Option<ValueType> {
+        Some(match text {
+            "u16" => ValueType::U16,
+            "i16" => ValueType::I16,
+            "u32" => ValueType::U32,
+            "i32" => ValueType::I32,
+            "f32" => ValueType::F32,
+            _ => return None,
+        })
+    }
+
+    /// Registers the value takes.
+    pub fn words(self) -> u16 {
+        match self {
+            ValueType::U16 | ValueType::I16 => 1,
+            _ => 2,
+        }
+    }
+
+    /// The number `words` hold (the first word first as read; `low_first` when the low word
+    /// comes first).
+    pub fn decode(self, words: &[u16], low_first: bool) -> f64 {
+        let w = |i: usize| words.get(i).copied().unwrap_or(0);
+        let dword = || {
+            if low_first {
+                u32::from(w(1)) << 16 | u32::from(w(0))
+            } else {
+                u32::from(w(0)) << 16 | u32::from(w(1))
+            }
+        };
+        match self {
+            ValueType::U16 => f64::from(w(0)),
+            ValueType::I16 => f64::from(w(0) as i16),
+            ValueType::U32 => f64::from(dword()),
+            ValueType::I32 => f64::from(dword() as i32),
+            ValueType::F32 => f64::from(f32::from_bits(dword())),
+        }
+    }
+
+    /// The registers of the raw integer (or, for f32, number) `raw`, in wire order.
+    pub fn encode(self, raw: f64, low_first: bool) -> Vec<u16> {
+        let dword = |bits: u32| {
+            let (hi, lo) = ((bits >> 16) as u16, bits as u16);
+            if low_first {
+                vec![lo, hi]
+            } else {
+                vec![hi, lo]
+            }
+        };
+        match self {
+            ValueType::U16 | ValueType::I16 => vec![raw as i64 as u16],
+            ValueType::U32 | ValueType::I32 => dword(raw as i64 as u32),
+            ValueType::F32 => dword((raw as f32).to_bits()),
+        }
+    }
+}
+
+/// Where a value is and how to read it: value = raw × scale + offset, or one bit of it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegisterValue {
+    /// The (first) register.
+    pub register: u16,
+    /// Holding or input.
+    pub table: RegisterTable,
+    /// Its coding.
+    pub kind: ValueType,
+    /// Two-register values: the low word comes first.
+    pub low_first: bool,
+    /// Units per count (0.01 for 0.01 Hz; from `full_scale` and `max`: max / full_scale).
+    pub scale: f64,
+    /// Added after scaling.
+    pub offset: f64,
+    /// A flag: this bit of the raw value (set = true).
+    pub bit: Option<u8>,
+    /// The decimals the value is shown with (from the scale).
+    pub decimals: i32,
+}
+
+impl RegisterValue {
+    /// The value in units of the registers read for it.
+    pub fn value(&self, words: &[u16]) -> f64 {
+        crate::profile::round_to(
+            self.kind.decode(words, self.low_first) * self.scale + self.offset,
+            self.decimals,
+        )
+    }
+
+    /// The flag of the registers read for it (a set bit, or any value but zero).
+    pub fn flag(&self, words: &[u16]) -> bool {
+        let raw = self.kind.decode(words, self.low_first);
+        match self.bit {
+            Some(b) => (raw as i64 as u64) >> b & 1 == 1,
+            None => raw != 0.0,
+        }
+    }
+}
+
+/// The status values a template can name (the drive's state, as every front end shows it).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StatusMap {
+    /// The fault code in force (0: none).
+    pub fault: Option<RegisterValue>,
+    /// Running.
+    pub running: Option<RegisterValue>,
+    /// Turning in reverse.
+    pub reverse: Option<RegisterValue>,
+    /// Output frequency, Hz.
+    pub output_hz: Option<RegisterValue>,
+    /// Setpoint, Hz.
+    pub setpoint_hz: Option<RegisterValue>,
+    /// Motor current, A.
+    pub current_a: Option<RegisterValue>,
+}
+
+impl StatusMap {
+    /// The names a file may use under `[status]`.
+    pub const NAMES: [&'static str; 6] =
+        ["fault", "running", "reverse", "output_hz", "setpoint_hz", "current_a"];
+
+    /// Every value given, with its name.
+    pub fn values(&self) -> impl Iterator<Item = (&'static str, &RegisterValue)> {
+        [
+            ("fault", &self.fault),
+            ("running", &self.running),
+            ("reverse", &self.reverse),
+            ("output_hz", &self.output_hz),
+            ("setpoint_hz", &self.setpoint_hz),
+            ("current_a", &self.current_a),
+        ]
+        .into_iter()
+        .filter_map(|(n, v)| v.as_ref().map(|v| (n, v)))
+    }
+
+    fn slot(&mut self, name: &str) -> Option<&mut Option<RegisterValue>> {
+        Some(match name {
+            "fault" => &mut self.fault,
+            "running" => &mut self.running,
+            "reverse" => &mut self.reverse,
+            "output_hz" => &mut self.output_hz,
+            "setpoint_hz" => &mut self.setpoint_hz,
+            "current_a" => &mut self.current_a,
+            _ => return None,
+        })
+    }
+}
+
+/// A command: a value written to the command register, or a bit of the command word.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CommandValue {
+    /// This value is written.
+    Value(u16),
+    /// This bit of the command word is set (the other bits as last written).
+    Bit(u8),
+}
+
+/// `[command]`: how the drive is run, stopped, reversed, reset and jogged.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CommandMap {
+    /// The command register.
+    pub register: u16,
+    /// Run (in the direction last commanded).
+    pub run: Option<CommandValue>,
+    /// Stop.
+    pub stop: Option<CommandValue>,
+    /// Run forward (the value form: what Reverse writes to a drive turning in reverse).
+    pub forward: Option<CommandValue>,
+    /// Run in reverse (bit form: the direction bit).
+    pub reverse: Option<CommandValue>,
+    /// Fault reset (bit form: set, then cleared).
+    pub reset: Option<CommandValue>,
+    /// Jog.
+    pub jog: Option<CommandValue>,
+    /// The command word's other bits, in the bit form.
+    pub idle: u16,
+    /// Reverse is refused while the drive is stopped (a drive whose reverse command starts it).
+    pub reverse_needs_running: bool,
+}
+
+impl CommandMap {
+    /// Whether the commands are bits of a command word.
+    pub fn is_bits(&self) -> bool {
+        [self.run, self.stop, self.forward, self.reverse, self.reset, self.jog]
+            .iter()
+            .any(|c| matches!(c, Some(CommandValue::Bit(_))))
+    }
+}
+
+/// `[setpoint]`: where the speed setpoint is written and how it is scaled.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SetpointMap {
+    /// The register.
+    pub register: u16,
+    /// Its coding.
+    pub kind: ValueType,
+    /// Two-register values: the low word comes first.
+    pub low_first: bool,
+    /// Hz per count (0.01; or max_hz / full_scale for "0x4000 = 100 % of maximum frequency").
+    pub scale: f64,
+    /// The highest setpoint, Hz, where the file gives it.
+    pub max_hz: Option<f64>,
+    /// Parameters the setpoint may not exceed (the lowest of them), by name.
+    pub limit_params: Vec<String>,
+}
+
+/// A checked template: one drive model's Modbus map.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Template {
+    /// The drive kind it adds (`--drive`, `family = "..."`).
+    pub kind: String,
+    /// Who makes the drive.
+    pub maker: String,
+    /// The model (or series).
+    pub model: String,
+    /// The document its map comes from.
+    pub source: String,
+    /// How far it has been checked.
+    pub checked: Checked,
+    /// A remark.
+    pub note: Option<String>,
+    /// The protocols it speaks, the default first (Modbus RTU and ASCII; Modbus TCP is a bus
+    /// setting open to every Modbus drive).
+    pub protocols: Vec<WireProtocol>,
+    /// The addresses a drive can have.
+    pub addresses: (u8, u8),
+    /// The most registers one read may span.
+    pub max_read: u16,
+    /// Factory baud rate.
+    pub baud: u32,
+    /// Factory character format, per protocol (the first protocol's is the default).
+    pub formats: Vec<(WireProtocol, CharFormat)>,
+    /// The status values.
+    pub status: StatusMap,
+    /// The command word.
+    pub command: Option<CommandMap>,
+    /// The setpoint.
+    pub setpoint: Option<SetpointMap>,
+    /// The parameters (their `number` is the register).
+    pub params: Vec<ParamDef>,
+    /// The fault codes and their text.
+    pub faults: BTreeMap<u32, String>,
+    /// The file it was read from.
+    pub file: String,
+}
+
+impl Template {
+    /// Reads and checks the template in `text`; `file` names it in errors. Every problem found
+    /// is reported, each with its line.
+    pub fn from_toml_str(file: &str, text: &str) -> Result<Template, TemplateError> {
+        check::check(file, text)
+    }
+
+    /// Reads and checks the template file at `path`.
+    pub fn load(path: &std::path::Path) -> Result<Template, TemplateError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| TemplateError {
+            file: file.clone(),
+            errors: vec![(0, format!("cannot read it: {e}"))],
+        })?;
+        Template::from_toml_str(&file, &text)
+    }
+
+    /// The text of a fault code: the template's, or a sentence saying it has none.
+    pub fn fault_text(&self, code: u32) -> String {
+        self.faults
+            .get(&code)
+            .cloned()
+            .unwrap_or_else(|| format!("fault code {code} (not in the template's fault list)"))
+    }
+
+    /// The serial defaults on `protocol`.
+    pub fn serial_default(&self, protocol: WireProtocol) -> (u32, CharFormat) {
+        let format = self
+            .formats
+            .iter()
+            .find(|(p, _)| *p == protocol)
+            .or(self.formats.first())
+            .map_or(CharFormat::NONE_8N1, |(_, f)| *f);
+        (self.baud, format)
+    }
+}
+
+/// A template file that cannot be used: every error found, each with its line.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TemplateError {
+    /// The file.
+    pub file: String,
+    /// Each error: its line (1-based; 0 for the file as a whole) and what is wrong.
+    pub errors: Vec<(usize, String)>,
+}
+
+impl fmt::Display for TemplateError {
+    /// One line per error: `FILE:LINE: what is wrong`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, (line, message)) in self.errors.iter().enumerate() {
+            if i > 0 {
+                f.write_str("\n")?;
+            }
+            match line {
+                0 => write!(f, "{}: {message}", self.file)?,
+                n => write!(f, "{}:{n}: {message}", self.file)?,
+            }
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for TemplateError {}

@@ -1,0 +1,543 @@
+//! The profile of a template kind: the template's map turned into Modbus requests (the same
+//! framing and reply checks as the built-in generic and Toshiba profiles) and the replies into a
+//! [`DriveStatus`] and parameter values.
+//!
+//! | operation | exchanges |
+//! |---|---|
+//! | Status | the status values' registers, read in the fewest requests: registers that touch or overlap are merged into one read as long as it spans at most `max_read` registers; holding (03) and input (04) registers apart |
+//! | Run / Stop / Jog / Reset | 06 write of the command value; in the bit form, the command word with the bit set (run, jog) or cleared (stop), reset as the bit set and then cleared |
+//! | Reverse | the direction (and running) read, then the opposite direction's command written |
+//! | SetSpeed | 06 (or 10 for a 32-bit register) write of the setpoint, scaled, after a check against `max_hz` or the lowest of `limit_params` |
+//! | ReadParam / WriteParam | 03 read / 06 write (10 for 32-bit parameters, high word first) of the parameter's register |
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU16, Ordering};
+use std::sync::{Arc, Mutex};
+
+use drivebus_proto::modbus::ExceptionCode;
+
+use super::{CommandValue, RegisterTable, RegisterValue, Template, ValueType};
+use crate::profile::generic::{ModbusAnswer, ModbusAsk, ModbusFraming};
+use crate::profile::{
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    WireProtocol,
+};
+use crate::{format_fixed, Catalog, Family, ParamDef, Size};
+
+/// One read of the status plan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadSpan {
+    /// Holding or input registers.
+    pub table: RegisterTable,
+    /// The first register.
+    pub start: u16,
+    /// How many.
+    pub quantity: u16,
+}
+
+/// The status values' registers in the fewest reads: sorted, and merged where they touch or
+/// overlap, each read at most `max_read` registers long.
+pub fn plan_reads(template: &Template) -> Vec<ReadSpan> {
+    reads_of(template.status.values().map(|(_, v)| v), template.max_read)
+}
+
+/// The reads of `values`, merged as [`plan_reads`] does.
+fn reads_of<'a>(values: impl Iterator<Item = &'a RegisterValue>, max_read: u16) -> Vec<ReadSpan> {
+    let mut wanted: Vec<(RegisterTable, u32, u32)> = values
+        .map(|v| (v.table, u32::from(v.register), u32::from(v.register) + u32::from(v.kind.words())))
+        .collect();
+    wanted.sort();
+    let mut spans: Vec<(RegisterTable, u32, u32)> = Vec::new();
+    for (table, start, end) in wanted {
+        match spans.last_mut() {
+            Some((t, s, e)) if *t == table && start <= *e && end.max(*e) - *s <= u32::from(max_read) => {
+                *e = end.max(*e);
+            }
+            _ => spans.push((table, start, end)),
+        }
+    }
+    spans
+        .into_iter()
+        .map(|(table, s, e)| ReadSpan { table, start: s as u16, quantity: (e - s) as u16 })
+        .collect()
+}
+
+/// A template kind's drive at one address (0: broadcast), in Modbus RTU or ASCII.
+pub struct TemplateProfile {
+    family: Family,
+    template: &'static Template,
+    catalog: Arc<Catalog>,
+    address: u8,
+    framing: ModbusFraming,
+    reads: Arc<[ReadSpan]>,
+    /// The reads before a Reverse: the direction and running flags only.
+    reverse_reads: Arc<[ReadSpan]>,
+    /// The raw values of the setpoint's limit parameters as last read or written (catalog
+    /// defaults at first).
+    limits: Arc<Mutex<Vec<(u32, i64)>>>,
+    /// The command word as last written (bit form).
+    word: Arc<AtomicU16>,
+}
+
+impl TemplateProfile {
+    /// The profile of drive `address` of the template kind `family` on `protocol`.
+    pub fn new(family: Family, protocol: WireProtocol, address: u8) -> Result<Self, DriveError> {
+        let template = family.template().ok_or_else(|| {
+            DriveError::Unsupported(format!("{family} is a built-in family, not a template"))
+        })?;
+        let framing = match protocol {
+            WireProtocol::ModbusRtu => ModbusFraming::Rtu,
+            WireProtocol::ModbusAscii => ModbusFraming::Ascii,
+            other => return Err(DriveError::Unsupported(format!("a {family} drive does not speak {other}"))),
+        };
+        let (lo, hi) = template.addresses;
+        if address != 0 && !(lo..=hi).contains(&address) {
+            return Err(DriveError::OutOfRange(format!(
+                "a {family} drive's address is {lo}..{hi}, or 0 for a broadcast; not {address}"
+            )));
+        }
+        let catalog = Catalog::load(family).map_err(|e| DriveError::Unsupported(e.to_string()))?;
+        let limits = template
+            .setpoint
+            .iter()
+            .flat_map(|s| &s.limit_params)
+            .filter_map(|n| catalog.get(n).map(|d| (d.number, d.default)))
+            .collect();
+        Ok(TemplateProfile {
+            family,
+            template,
+            catalog,
+            address,
+            framing,
+            reads: plan_reads(template).into(),
+            reverse_reads: reads_of(
+                [&template.status.reverse, &template.status.running].into_iter().flatten(),
+                template.max_read,
+            )
+            .into(),
+            limits: Arc::new(Mutex::new(limits)),
+            word: Arc::new(AtomicU16::new(template.command.as_ref().map_or(0, |c| c.idle))),
+        })
+    }
+
+    /// The status plan's reads.
+    pub fn reads(&self) -> &[ReadSpan] {
+        &self.reads
+    }
+
+    fn def(&self, name: &str) -> Result<&ParamDef, DriveError> {
+        self.catalog.get(name).ok_or_else(|| {
+            DriveError::Unsupported(format!(
+                "{:?} is not a parameter of the {} template ({})",
+                name.trim(),
+                self.family,
+                self.template.file
+            ))
+        })
+    }
+
+    fn needs_reply(&self, what: &str) -> Result<(), DriveError> {
+        if self.address == 0 {
+            return Err(DriveError::Unsupported(format!(
+                "{what} needs an answer, and no drive answers the broadcast address 0: use a drive's own address"
+            )));
+        }
+        Ok(())
+    }
+
+    /// The highest setpoint, Hz: the template's `max_hz`, or the lowest of its limit parameters.
+    fn max_hz(&self) -> Option<(f64, String)> {
+        let sp = self.template.setpoint.as_ref()?;
+        let limits = self.limits.lock().unwrap_or_else(|p| p.into_inner());
+        let from_params = limits
+            .iter()
+            .filter_map(|&(number, raw)| {
+                self.catalog.by_number(number).map(|d| (d.from_raw(raw), d.name.clone()))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        match (sp.max_hz, from_params) {
+            (Some(m), Some((p, name))) if p < m => Some((p, name)),
+            (Some(m), _) => Some((m, "max_hz".to_string())),
+            (None, p) => p,
+        }
+    }
+
+    fn command(&self, op: &Operation) -> Result<Vec<ModbusAsk>, DriveError> {
+        let c = self.template.command.as_ref().ok_or_else(|| {
+            DriveError::Unsupported(format!(
+                "the {} template gives no [command]: {op:?} cannot be sent",
+                self.family
+            ))
+        })?;
+        let pick = |v: Option<CommandValue>, name: &str| {
+            v.ok_or_else(|| {
+                DriveError::Unsupported(format!("the {} template gives no {name} command", self.family))
+            })
+        };
+        let write = |value: u16| ModbusAsk::Write { register: c.register, value };
+        let bit = |v: Option<CommandValue>| match v {
+            Some(CommandValue::Bit(b)) => 1u16 << b,
+            _ => 0,
+        };
+        let (run, stop, jog) = (bit(c.run), bit(c.stop), bit(c.jog));
+        let word = self.word.load(Ordering::Relaxed);
+        let (name, v) = match op {
+            Operation::Run => ("run", c.run),
+            Operation::Stop => ("stop", c.stop.or(c.run)),
+            Operation::Jog => ("jog", c.jog),
+            Operation::Reset => ("reset", c.reset),
+            _ => return Err(DriveError::Unsupported(format!("{op:?} is not a command"))),
+        };
+        let v = pick(v, name)?;
+        Ok(match (op, v) {
+            (_, CommandValue::Value(value)) => vec![write(value)],
+            (Operation::Run, CommandValue::Bit(b)) => vec![write((word | 1 << b) & !stop & !jog)],
+            (Operation::Stop, _) => vec![write((word & !run & !jog) | stop)],
+            (Operation::Jog, CommandValue::Bit(b)) => vec![write((word | 1 << b) & !stop)],
+            (Operation::Reset, CommandValue::Bit(b)) => vec![write(word | 1 << b), write(word & !(1 << b))],
+            _ => return Err(DriveError::Unsupported(format!("{op:?} is not a command"))),
+        })
+    }
+
+    fn setpoint(&self, hz: f64) -> Result<(Vec<ModbusAsk>, String), DriveError> {
+        let sp = self.template.setpoint.as_ref().ok_or_else(|| {
+            DriveError::Unsupported(format!("the {} template gives no [setpoint]", self.family))
+        })?;
+        if !hz.is_finite() || hz < 0.0 {
+            return Err(DriveError::OutOfRange(format!(
+                "{hz} Hz is not a setpoint: give 0 Hz or more (Reverse changes the direction)"
+            )));
+        }
+        if let Some((max, what)) = self.max_hz() {
+            if hz > max + 1e-9 {
+                return Err(DriveError::OutOfRange(format!(
+                    "{hz} Hz is above the maximum frequency ({what}) = {max} Hz"
+                )));
+            }
+        }
+        let raw = (hz / sp.scale).round();
+        let fits = match sp.kind {
+            ValueType::U16 => raw <= f64::from(u16::MAX),
+            ValueType::I16 => raw <= f64::from(i16::MAX),
+            ValueType::U32 => raw <= f64::from(u32::MAX),
+            ValueType::I32 | ValueType::F32 => raw <= f64::from(i32::MAX),
+        };
+        if !fits {
+            return Err(DriveError::OutOfRange(format!("{hz} Hz does not fit the setpoint register")));
+        }
+        let value = if sp.kind == ValueType::F32 { hz } else { raw };
+        let words = sp.kind.encode(value, sp.low_first);
+        let decimals = (-(sp.scale.log10())).ceil().clamp(0.0, 9.0) as i64;
+        let what = format!(
+            "setpoint {:04X}H = {} Hz",
+            sp.register,
+            format_fixed((hz * 10f64.powi(decimals as i32)).round() as i64, decimals as i8)
+        );
+        Ok((vec![write_words(sp.register, &words)], what))
+    }
+}
+
+/// The requests of `reads`: 03 for holding registers, 04 for input registers.
+fn read_asks(reads: &[ReadSpan]) -> Vec<ModbusAsk> {
+    reads
+        .iter()
+        .map(|r| match r.table {
+            RegisterTable::Holding => ModbusAsk::Read { start: r.start, quantity: r.quantity },
+            RegisterTable::Input => ModbusAsk::ReadInput { start: r.start, quantity: r.quantity },
+        })
+        .collect()
+}
+
+/// The request that writes `words` from `register`: 06 for one, 10 for two.
+fn write_words(register: u16, words: &[u16]) -> ModbusAsk {
+    match *words {
+        [a, b] => ModbusAsk::WriteTwo { start: register, values: [a, b] },
+        _ => ModbusAsk::Write { register, value: words.first().copied().unwrap_or(0) },
+    }
+}
+
+impl Profile for TemplateProfile {
+    fn family(&self) -> Family {
+        self.family
+    }
+
+    fn protocol(&self) -> WireProtocol {
+        self.framing.wire()
+    }
+
+    fn address(&self) -> u8 {
+        self.address
+    }
+
+    fn param(&self, name: &str) -> Result<&ParamDef, DriveError> {
+        self.def(name)
+    }
+
+    fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError> {
+        let (asks, finish, what): (Vec<ModbusAsk>, Finish, String) = match op {
+            Operation::Status => {
+                self.needs_reply("Status")?;
+                (read_asks(&self.reads), Finish::Status, "Status".to_string())
+            }
+            Operation::Run | Operation::Stop | Operation::Jog | Operation::Reset => {
+                (self.command(op)?, Finish::Command, format!("{op:?}"))
+            }
+            Operation::Reverse => {
+                self.needs_reply("Reverse (it reads which way the drive turns)")?;
+                let c = self.template.command.as_ref();
+                if c.and_then(|c| c.reverse).is_none() {
+                    return Err(DriveError::Unsupported(format!(
+                        "the {} template gives no reverse command",
+                        self.family
+                    )));
+                }
+                if self.template.status.reverse.is_none() {
+                    return Err(DriveError::Unsupported(format!(
+                        "the {} template gives no status.reverse, so Reverse cannot tell which way the drive turns",
+                        self.family
+                    )));
+                }
+                (read_asks(&self.reverse_reads), Finish::Reverse, "Reverse".to_string())
+            }
+            Operation::SetSpeed(hz) => {
+                let (asks, what) = self.setpoint(*hz)?;
+                (asks, Finish::Command, what)
+            }
+            Operation::ReadParam(name) => {
+                let def = self.def(name)?;
+                self.needs_reply(&format!("ReadParam {}", def.name))?;
+                let start = u16::try_from(def.number).unwrap_or(0);
+                let quantity = if def.size == Size::Dword { 2 } else { 1 };
+                (
+                    vec![ModbusAsk::Read { start, quantity }],
+                    Finish::Param(def.clone()),
+                    format!("ReadParam {}", def.name),
+                )
+            }
+            Operation::WriteParam { name, raw, .. } => {
+                let def = self.def(name)?;
+                if def.read_only {
+                    return Err(DriveError::Unsupported(format!(
+                        "{} ({}) is read-only",
+                        def.name, def.title
+                    )));
+                }
+                def.check(*raw).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
+                let start = u16::try_from(def.number).unwrap_or(0);
+                let kind = if def.size == Size::Dword { ValueType::U32 } else { ValueType::U16 };
+                let ask = write_words(start, &kind.encode(*raw as f64, false));
+                (vec![ask], Finish::Learn(def.number, *raw), format!("{} = {}", def.name, def.format(*raw)))
+            }
+        };
+        let reads =
+            if matches!(finish, Finish::Reverse) { self.reverse_reads.clone() } else { self.reads.clone() };
+        Ok(Box::new(TemplatePlan {
+            template: self.template,
+            framing: self.framing,
+            unit: self.address,
+            reads,
+            limits: self.limits.clone(),
+            word: self.word.clone(),
+            command_register: self.template.command.as_ref().map(|c| c.register),
+            asks: asks.into(),
+            answers: Vec::new(),
+            finish,
+            what,
+            sent: None,
+            finished: false,
+        }))
+    }
+}
+
+/// What a plan does with its answers at the end.
+#[derive(Debug)]
+enum Finish {
+    Status,
+    Command,
+    Reverse,
+    Param(ParamDef),
+    Learn(u32, i64),
+}
+
+struct TemplatePlan {
+    template: &'static Template,
+    framing: ModbusFraming,
+    unit: u8,
+    reads: Arc<[ReadSpan]>,
+    limits: Arc<Mutex<Vec<(u32, i64)>>>,
+    word: Arc<AtomicU16>,
+    command_register: Option<u16>,
+    asks: VecDeque<ModbusAsk>,
+    answers: Vec<Vec<u16>>,
+    finish: Finish,
+    what: String,
+    sent: Option<ModbusAsk>,
+    finished: bool,
+}
+
+impl TemplatePlan {
+    /// The words of `v` from the status reads' answers.
+    fn words_of(&self, v: &RegisterValue) -> Option<Vec<u16>> {
+        self.reads.iter().zip(&self.answers).find_map(|(r, regs)| {
+            let offset = v.register.checked_sub(r.start)?;
+            if r.table != v.table || offset + v.kind.words() > r.quantity {
+                return None;
+            }
+            regs.get(usize::from(offset)..usize::from(offset + v.kind.words())).map(<[u16]>::to_vec)
+        })
+    }
+
+    fn status(&self) -> DriveStatus {
+        let s = &self.template.status;
+        let num = |v: &Option<RegisterValue>| v.as_ref().and_then(|v| self.words_of(v).map(|w| v.value(&w)));
+        let flag = |v: &Option<RegisterValue>| v.as_ref().and_then(|v| self.words_of(v).map(|w| v.flag(&w)));
+        let output_hz = num(&s.output_hz);
+        let fault = num(&s.fault).map(|c| c as i64 as u32).filter(|&c| c != 0);
+        DriveStatus {
+            address: self.unit,
+            running: flag(&s.running).unwrap_or_else(|| output_hz.is_some_and(|hz| hz != 0.0)),
+            direction: flag(&s.reverse).map(|r| if r { "reverse" } else { "forward" }.to_string()),
+            output_hz,
+            setpoint_hz: num(&s.setpoint_hz),
+            current_a: num(&s.current_a),
+            fault: fault.map(|code| Fault { code, text: self.template.fault_text(code) }),
+        }
+    }
+
+    fn learn(&self, number: u32, raw: i64) {
+        let mut limits = self.limits.lock().unwrap_or_else(|p| p.into_inner());
+        for l in limits.iter_mut().filter(|l| l.0 == number) {
+            l.1 = raw;
+        }
+    }
+
+    /// After the reads of a Reverse: the command that turns the drive the other way.
+    fn reverse_command(&self) -> Result<ModbusAsk, DriveError> {
+        let status = self.status();
+        let c =
+            self.template.command.as_ref().ok_or_else(|| DriveError::Unsupported("no [command]".into()))?;
+        if c.reverse_needs_running && !status.running {
+            return Err(DriveError::Unsupported(
+                "the drive is stopped, and this drive's reverse command starts it: Reverse acts on a running drive"
+                    .to_string(),
+            ));
+        }
+        let in_reverse = status.direction.as_deref() == Some("reverse");
+        let word = self.word.load(Ordering::Relaxed);
+        let value = match (c.reverse, c.forward) {
+            (Some(CommandValue::Bit(b)), _) => {
+                if in_reverse {
+                    word & !(1 << b)
+                } else {
+                    word | 1 << b
+                }
+            }
+            (Some(CommandValue::Value(r)), Some(CommandValue::Value(f))) => {
+                if in_reverse {
+                    f
+                } else {
+                    r
+                }
+            }
+            (Some(CommandValue::Value(r)), _) if !in_reverse => r,
+            _ => {
+                return Err(DriveError::Unsupported(
+                    "the template gives no forward command to turn a reversing drive back".to_string(),
+                ))
+            }
+        };
+        Ok(ModbusAsk::Write { register: c.register, value })
+    }
+
+    fn answer(&self, ask: ModbusAsk, reply: Option<&[u8]>) -> Result<ModbusAnswer, DriveError> {
+        if self.unit == 0 {
+            return Ok(ModbusAnswer::Written);
+        }
+        let bytes = reply.ok_or_else(|| DriveError::Protocol(format!("no reply came to the {ask}")))?;
+        match self.framing.decode(self.unit, ask, bytes)? {
+            ModbusAnswer::Exception(code) => Err(DriveError::Refused {
+                code: u32::from(code),
+                space: CodeSpace::ModbusException,
+                meaning: format!(
+                    "{} (in reply to the {ask}: {})",
+                    ExceptionCode(code).meaning().unwrap_or("an exception code Modbus does not define"),
+                    self.what
+                ),
+            }),
+            answer => Ok(answer),
+        }
+    }
+
+    fn next(&mut self) -> Result<Option<ModbusAsk>, DriveError> {
+        if let Some(ask) = self.asks.pop_front() {
+            return Ok(Some(ask));
+        }
+        if matches!(self.finish, Finish::Reverse) && self.answers.len() == self.reads.len() {
+            let ask = self.reverse_command()?;
+            self.finish = Finish::Command;
+            return Ok(Some(ask));
+        }
+        Ok(None)
+    }
+
+    fn outcome(&self) -> Outcome {
+        match &self.finish {
+            Finish::Status => Outcome::Status(self.status()),
+            Finish::Param(def) => {
+                let words = self.answers.last().cloned().unwrap_or_default();
+                let kind = match (def.size, def.min < 0) {
+                    (Size::Dword, true) => ValueType::I32,
+                    (Size::Dword, false) => ValueType::U32,
+                    (Size::Word, true) => ValueType::I16,
+                    (Size::Word, false) => ValueType::U16,
+                };
+                let raw = kind.decode(&words, false) as i64;
+                self.learn(def.number, raw);
+                Outcome::Param(raw)
+            }
+            Finish::Learn(number, raw) => {
+                self.learn(*number, *raw);
+                Outcome::Done
+            }
+            Finish::Command | Finish::Reverse => Outcome::Done,
+        }
+    }
+}
+
+impl Plan for TemplatePlan {
+    fn step(&mut self, reply: Option<&[u8]>) -> Result<Step, DriveError> {
+        if self.finished {
+            return Err(DriveError::Protocol("this plan has finished; plan the operation again".to_string()));
+        }
+        let result = (|| {
+            if let Some(ask) = self.sent.take() {
+                match self.answer(ask, reply)? {
+                    ModbusAnswer::Registers(regs) => self.answers.push(regs),
+                    _ => {
+                        if let ModbusAsk::Write { register, value } = ask {
+                            if Some(register) == self.command_register {
+                                self.word.store(value, Ordering::Relaxed);
+                            }
+                        }
+                    }
+                }
+            }
+            self.next()
+        })();
+        match result {
+            Ok(Some(ask)) => {
+                let request = self.framing.encode(self.unit, ask)?;
+                self.sent = Some(ask);
+                Ok(Step::Send(Exchange { request, expect_reply: self.unit != 0 }))
+            }
+            Ok(None) => {
+                self.finished = true;
+                Ok(Step::Done(self.outcome()))
+            }
+            Err(e) => {
+                self.finished = true;
+                Err(e)
+            }
+        }
+    }
+}

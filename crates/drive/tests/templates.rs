@@ -1,0 +1,417 @@
+//! Drive templates: the shipped generic template against the built-in generic profile on the
+//! same simulated drive (the same bytes on the wire, the same status), every shipped template
+//! checked, and an error for each kind of bad field, with its line.
+
+mod support;
+
+use std::time::Duration;
+
+use drivebus_drive::profile::generic::{GenericProfile, GenericProtocol};
+use drivebus_drive::profile::{DriveError, Operation, Outcome, Profile};
+use drivebus_drive::template::{self, Template};
+use drivebus_drive::{Family, Storage};
+use drivebus_proto::modbus::ascii::ModbusAscii;
+use drivebus_proto::modbus::rtu::ModbusRtu;
+use drivebus_proto::Codec;
+use drivebus_sim::bus::VirtualLine;
+use drivebus_sim::family::generic as sim;
+use drivebus_sim::model::Trip;
+use support::{drive_mut, wait};
+
+const GAP: Duration = Duration::from_millis(10);
+
+fn line(protocol: sim::GenericProtocol) -> VirtualLine {
+    let format = Family::Generic.serial_default(protocol.wire()).1;
+    support::line_with(9600, format, &[1], |a, now| sim::GenericDrive::new(a, protocol, now))
+}
+
+fn generic_template() -> Family {
+    "generic-2000h".parse().expect("the shipped generic template is a kind")
+}
+
+/// Runs `op` through `p` on `line`: the outcome and the requests it sent.
+fn run<C: Codec>(
+    line: &mut VirtualLine,
+    p: &dyn Profile,
+    op: &Operation,
+) -> (Result<Outcome, DriveError>, Vec<Vec<u8>>) {
+    run_counting::<C>(line, p, op, &mut 0)
+}
+
+/// [`run`], adding the bytes of the replies to `replied`.
+fn run_counting<C: Codec>(
+    line: &mut VirtualLine,
+    p: &dyn Profile,
+    op: &Operation,
+    replied: &mut usize,
+) -> (Result<Outcome, DriveError>, Vec<Vec<u8>>) {
+    match p.plan(op) {
+        Ok(plan) => support::execute(plan, |x| {
+            let reply = support::transact::<C>(line, x, GAP);
+            *replied += reply.as_ref().map_or(0, Vec::len);
+            reply
+        }),
+        Err(e) => (Err(e), Vec::new()),
+    }
+}
+
+/// The same operations through the built-in profile and the template, each on its own
+/// simulated drive started alike: the same requests and the same results, step by step.
+fn same_traffic<C: Codec>(built_in: sim::GenericProtocol, protocol: GenericProtocol) -> usize {
+    let (mut a, mut b) = (line(built_in), line(built_in));
+    let generic = GenericProfile::new(1, protocol).unwrap();
+    let templated = drivebus_drive::profile::for_drive(generic_template(), protocol.wire(), 1).unwrap();
+    let ops = [
+        Operation::Status,
+        Operation::Reverse,
+        Operation::SetSpeed(30.0),
+        Operation::Run,
+        Operation::Status,
+        Operation::Reverse,
+        Operation::Status,
+        Operation::ReadParam("P0.04".into()),
+        Operation::WriteParam { name: "P0.05".into(), raw: 4000, storage: Storage::Eeprom },
+        Operation::SetSpeed(45.0),
+        Operation::Jog,
+        Operation::Stop,
+        Operation::Status,
+        Operation::Reset,
+        Operation::Run,
+        Operation::Status,
+    ];
+    let mut bytes = 0;
+    for (i, op) in ops.iter().enumerate() {
+        if i == 13 {
+            drive_mut(&mut a, 1).core_mut().model.trip_now(Trip::External);
+            drive_mut(&mut b, 1).core_mut().model.trip_now(Trip::External);
+            let (sa, _) = run::<C>(&mut a, &generic, &Operation::Status);
+            let (sb, _) = run::<C>(&mut b, &*templated, &Operation::Status);
+            assert_eq!(sa, sb, "a tripped drive's status");
+            assert!(
+                matches!(sa, Ok(Outcome::Status(ref s)) if s.fault.as_ref().is_some_and(|f| f.text == "external fault")),
+                "{sa:?}"
+            );
+        }
+        let (mut replied_a, mut replied_b) = (0, 0);
+        let (ra, xa) = run_counting::<C>(&mut a, &generic, op, &mut replied_a);
+        let (rb, xb) = run_counting::<C>(&mut b, &*templated, op, &mut replied_b);
+        assert_eq!(xa, xb, "the requests of {op:?}");
+        assert_eq!(replied_a, replied_b, "the replies' bytes of {op:?}");
+        match (&ra, &rb) {
+            // Refusals say the same thing, each in its profile's words.
+            (Err(ea), Err(eb)) => {
+                assert_eq!(std::mem::discriminant(ea), std::mem::discriminant(eb), "{op:?}: {ea} / {eb}")
+            }
+            _ => assert_eq!(ra, rb, "the result of {op:?}"),
+        }
+        if *op == Operation::Status {
+            bytes = xa.iter().map(Vec::len).sum();
+            eprintln!(
+                "status refresh in {}: {} requests, {bytes} bytes out, {replied_a} bytes back (built-in and template alike)",
+                C::NAME,
+                xa.len()
+            );
+        }
+        wait(&mut a, Duration::from_secs(2));
+        wait(&mut b, Duration::from_secs(2));
+    }
+    bytes
+}
+
+#[test]
+fn the_generic_template_sends_what_the_built_in_profile_sends_in_rtu() {
+    let bytes = same_traffic::<ModbusRtu>(sim::GenericProtocol::Rtu, GenericProtocol::Rtu);
+    // 03 read 2100H..2103H and 03 read 2104H: two requests of 8 bytes.
+    assert_eq!(bytes, 16);
+}
+
+#[test]
+fn the_generic_template_sends_what_the_built_in_profile_sends_in_ascii() {
+    let bytes = same_traffic::<ModbusAscii>(sim::GenericProtocol::Ascii, GenericProtocol::Ascii);
+    assert_eq!(bytes, 34);
+}
+
+#[test]
+fn every_shipped_template_checks_and_is_a_kind() {
+    let kinds = template::shipped().expect("the shipped templates check");
+    assert_eq!(kinds.len(), template::kinds::SHIPPED.len());
+    for (family, (file, text)) in kinds.iter().zip(template::kinds::SHIPPED) {
+        let t = Template::from_toml_str(file, text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(family.as_str(), t.kind);
+        assert_eq!(family.to_string().parse::<Family>(), Ok(*family));
+        assert!(!t.source.is_empty(), "{file} names its source");
+        assert_eq!(family.template().unwrap().checked, template::Checked::Simulator, "{file}");
+    }
+}
+
+#[test]
+fn the_generic_template_plans_its_status_in_two_reads() {
+    let p = template::profile::TemplateProfile::new(
+        generic_template(),
+        drivebus_proto::protocol::WireProtocol::ModbusRtu,
+        1,
+    )
+    .unwrap();
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(0x2100, 4), (0x2104, 1)], "merged up to max_read = 4");
+}
+
+const GOOD: &str = r#"kind = "test-drive"
+maker = "Test"
+model = "T1"
+source = "a public manual, table 5"
+protocols = ["modbus-rtu"]
+[serial]
+baud = 19200
+format = "8E1"
+[status]
+running = { register = 100, bit = 0 }
+reverse = { register = 100, bit = 1 }
+output_hz = { register = 101, scale = 0.1 }
+current_a = { register = 102, type = "u32", word_order = "low-first", scale = 0.01 }
+[command]
+register = 200
+run = { bit = 0 }
+reverse = { bit = 1 }
+reset = { bit = 7 }
+[setpoint]
+register = 201
+full_scale = 0x4000
+max_hz = 50.0
+[[param]]
+name = "acc"
+title = "acceleration time"
+register = 300
+unit = "s"
+scale = 0.1
+range = [0.1, 3600.0]
+default = 10.0
+"#;
+
+/// The errors of GOOD with `from` replaced by `to`.
+fn errors(from: &str, to: &str) -> Vec<(usize, String)> {
+    assert!(GOOD.contains(from), "{from}");
+    match Template::from_toml_str("t.toml", &GOOD.replacen(from, to, 1)) {
+        Ok(_) => panic!("{to:?} was taken"),
+        Err(e) => e.errors,
+    }
+}
+
+#[test]
+fn a_good_template_reads_with_its_scalings() {
+    let t = Template::from_toml_str("t.toml", GOOD).unwrap_or_else(|e| panic!("{e}"));
+    let sp = t.setpoint.as_ref().unwrap();
+    assert!((sp.scale - 50.0 / 16384.0).abs() < 1e-12, "0x4000 = 100 % of 50 Hz");
+    let cur = t.status.current_a.as_ref().unwrap();
+    assert_eq!(cur.value(&[0x86A0, 0x0001]), 1000.0, "low word first: 0x000186A0 x 0.01");
+    assert!(t.status.running.as_ref().unwrap().flag(&[0b01]));
+    assert!(!t.status.reverse.as_ref().unwrap().flag(&[0b01]));
+    assert_eq!(t.params[0].scale, 1);
+    assert_eq!((t.params[0].min, t.params[0].max, t.params[0].default), (1, 36000, 100));
+}
+
+#[test]
+fn each_kind_of_bad_field_is_named_with_its_line() {
+    // A register beyond 16 bits, line 10.
+    let e = errors("register = 100, bit = 0", "register = 70000, bit = 0");
+    assert_eq!(e[0].0, 10);
+    assert!(e[0].1.contains("register 70000 is not a Modbus register"), "{e:?}");
+    // An unknown type, line 13.
+    let e = errors("type = \"u32\"", "type = \"u24\"");
+    assert_eq!(
+        e[0],
+        (13, "status.current_a: unknown type \"u24\": use u16, i16, u32, i32 or f32".to_string())
+    );
+    // Overlapping bits, line 11: two flags on bit 0 of register 100.
+    let e = errors("register = 100, bit = 1", "register = 100, bit = 0");
+    assert!(e.iter().any(|(l, m)| *l == 11 && m.contains("overlaps")), "{e:?}");
+    // Overlapping command bits, line 18.
+    let e = errors("reset = { bit = 7 }", "reset = { bit = 0 }");
+    assert!(
+        e.iter().any(|(l, m)| *l == 18 && m.contains("command.reset: bit 0 overlaps command.run's")),
+        "{e:?}"
+    );
+    // Two numbers in one register, line 12.
+    let e = errors("register = 101, scale = 0.1", "register = 102, scale = 0.1");
+    assert!(
+        e.iter().any(
+            |(l, m)| *l == 13 && m.contains("status.current_a: register 102 overlaps status.output_hz's")
+        ),
+        "{e:?}"
+    );
+    // A scale of zero, line 12.
+    let e = errors("scale = 0.1 }", "scale = 0.0 }");
+    assert_eq!(e[0].0, 12);
+    assert!(e[0].1.contains("scale of 0"), "{e:?}");
+    // A parameter scale that is not a power of ten, and a default outside the range: both
+    // reported, in line order.
+    let two =
+        GOOD.replacen("scale = 0.1\n", "scale = 0.25\n", 1).replacen("register = 201", "register = -1", 1);
+    let e = Template::from_toml_str("t.toml", &two).unwrap_err();
+    assert_eq!(e.errors.len(), 2, "{e}");
+    assert!(e.errors[0].1.contains("setpoint: register -1"), "{e}");
+    assert!(e.errors[1].1.contains("scale 0.25 must be a power of ten"), "{e}");
+    assert_eq!(e.to_string().lines().count(), 2, "one line per error: {e}");
+    assert!(e.to_string().starts_with("t.toml:20: "), "{e}");
+    // An unknown field: toml's own error, with its line.
+    let e = errors("max_hz = 50.0", "max_hertz = 50.0");
+    assert_eq!(e[0].0, 22);
+    assert!(e[0].1.contains("unknown field `max_hertz`"), "{e:?}");
+    // A built-in family's name.
+    let e = errors("kind = \"test-drive\"", "kind = \"toshiba\"");
+    assert!(e[0].1.contains("built-in family"), "{e:?}");
+    // modbus-tcp is not the drive's protocol.
+    let e = errors("protocols = [\"modbus-rtu\"]", "protocols = [\"modbus-tcp\"]");
+    assert!(e[0].1.contains("modbus-tcp is the bus's choice"), "{e:?}");
+}
+
+#[test]
+fn a_template_kind_works_where_a_family_does() {
+    let text = GOOD.replace("test-drive", "kind-test-a");
+    let t = Template::from_toml_str("a.toml", &text).unwrap();
+    let family = template::register(t.clone()).unwrap();
+    assert_eq!(template::register(t).unwrap(), family, "the same file twice is one kind");
+    assert_eq!("KIND-TEST-A".parse::<Family>(), Ok(family));
+    assert_eq!(family.default_protocol(), drivebus_proto::protocol::WireProtocol::ModbusRtu);
+    assert_eq!(family.serial_default(family.default_protocol()), (19200, "8E1".parse().unwrap()));
+    assert_eq!(family.model(), "Test T1");
+    assert_eq!(serde_json_like(family), "kind-test-a");
+    let other = Template::from_toml_str("b.toml", &text.replace("T1", "T2")).unwrap();
+    let e = template::register(other).unwrap_err();
+    assert!(e.contains("kind \"kind-test-a\" is already given by a.toml"), "{e}");
+    let catalog = drivebus_drive::Catalog::load(family).unwrap();
+    assert_eq!(catalog.get("acc").unwrap().number, 300);
+    assert_eq!(catalog.get("300").unwrap().name, "acc", "by register number too");
+}
+
+fn serde_json_like(f: Family) -> String {
+    // Family serializes as its name (checked through toml, which the crate already has).
+    #[derive(serde::Serialize)]
+    struct W {
+        f: Family,
+    }
+    let text = toml::to_string(&W { f }).unwrap();
+    text.trim().trim_start_matches("f = ").trim_matches('"').to_string()
+}
+
+/// A line with the simulated drive of template kind `family` at `address`.
+fn template_line(family: Family, address: u8) -> VirtualLine {
+    let protocol = family.default_protocol();
+    let format = family.serial_default(protocol).1;
+    support::line_with(9600, format, &[address], |a, now| {
+        drivebus_sim::family::template::TemplateDrive::new(family, a, protocol, now)
+    })
+}
+
+/// The operations through `p` on `line`, in the protocol `p` speaks.
+fn on(line: &mut VirtualLine, p: &dyn Profile, op: Operation) -> Result<Outcome, DriveError> {
+    match p.protocol() {
+        drivebus_proto::protocol::WireProtocol::ModbusAscii => run::<ModbusAscii>(line, p, &op).0,
+        _ => run::<ModbusRtu>(line, p, &op).0,
+    }
+}
+
+fn status_on(line: &mut VirtualLine, p: &dyn Profile) -> drivebus_drive::profile::DriveStatus {
+    support::status_of("Status", on(line, p, Operation::Status))
+}
+
+/// Runs the drive to half its top speed and back, reverses it, trips and resets it: the
+/// template's profile against the template's simulated drive.
+fn round_trip(family: Family) {
+    let t = family.template().unwrap();
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    let s = status_on(&mut line, &*p);
+    assert!(!s.running, "{family}: {s:?}");
+    let top = t.setpoint.as_ref().and_then(|s| s.max_hz).unwrap_or(50.0);
+    let half = (top / 2.0).round();
+    support::done("speed", on(&mut line, &*p, Operation::SetSpeed(half)));
+    support::done("run", on(&mut line, &*p, Operation::Run));
+    wait(&mut line, Duration::from_secs(30));
+    let s = status_on(&mut line, &*p);
+    assert!(s.running, "{family}: {s:?}");
+    let out = s.output_hz.expect("output_hz");
+    assert!((out - half).abs() <= 0.05, "{family}: at {half} Hz: {s:?}");
+    if t.command.as_ref().is_some_and(|c| c.reverse.is_some()) && t.status.reverse.is_some() {
+        support::done("reverse", on(&mut line, &*p, Operation::Reverse));
+        wait(&mut line, Duration::from_secs(60));
+        let s = status_on(&mut line, &*p);
+        assert_eq!(s.direction.as_deref(), Some("reverse"), "{family}: {s:?}");
+    }
+    if t.status.fault.is_some() {
+        drive_mut(&mut line, 1).core_mut().model.trip_now(Trip::External);
+        let s = status_on(&mut line, &*p);
+        let fault = s.fault.expect("a fault");
+        assert_eq!(fault.text, t.fault_text(fault.code), "{family}");
+        if t.command.as_ref().is_some_and(|c| c.reset.is_some()) {
+            support::done("reset", on(&mut line, &*p, Operation::Reset));
+            assert_eq!(status_on(&mut line, &*p).fault, None, "{family}");
+        }
+    }
+    support::done("stop", on(&mut line, &*p, Operation::Stop));
+    wait(&mut line, Duration::from_secs(60));
+    assert!(!status_on(&mut line, &*p).running, "{family}");
+    if let Some(def) = t.params.iter().find(|d| !d.read_only) {
+        let raw = support::param_of("read", on(&mut line, &*p, Operation::ReadParam(def.name.clone())));
+        assert_eq!(raw, def.default, "{family} {}", def.name);
+        let new = if def.max > def.default { def.default + 1 } else { def.default - 1 };
+        let write = Operation::WriteParam { name: def.name.clone(), raw: new, storage: def.storage };
+        support::done("write", on(&mut line, &*p, write));
+        let back = support::param_of("read back", on(&mut line, &*p, Operation::ReadParam(def.name.clone())));
+        assert_eq!(back, new, "{family} {}", def.name);
+    }
+}
+
+#[test]
+fn every_shipped_template_round_trips_on_its_simulated_drive() {
+    for family in template::shipped().unwrap() {
+        round_trip(family);
+    }
+}
+
+#[test]
+fn a_bit_command_word_and_a_full_scale_setpoint_round_trip() {
+    // GOOD with a fault code register in the same block and a fault list.
+    let text = GOOD
+        .replace("test-drive", "bits-test")
+        .replace("current_a = {", "fault = { register = 104 }\ncurrent_a = {")
+        + "[faults]\n7 = \"external fault\"\n";
+    let family =
+        template::register(Template::from_toml_str("bits.toml", &text).unwrap_or_else(|e| panic!("{e}")))
+            .unwrap();
+    round_trip(family);
+    // What went on the wire for the setpoint: 25 Hz of 50 Hz = 0x2000 (0x4000 = 100 %).
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 201, 0x20, 0x00], "{sent:02X?}");
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Run);
+    support::done("run", r);
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 200, 0, 1], "run sets bit 0");
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Status);
+    support::status_of("status", r);
+    assert_eq!(sent.len(), 1, "registers 100..104 in one read: {sent:02X?}");
+    assert_eq!(&sent[0][..6], [3, 0x03, 0, 100, 0, 5]);
+}
+
+#[test]
+fn the_worked_example_of_the_docs_checks_and_does_what_they_say() {
+    let doc =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/templates.md")).unwrap();
+    let start = doc.find("```toml\nkind = \"fan-b1\"").expect("the example") + "```toml\n".len();
+    let text = &doc[start..start + doc[start..].find("```").unwrap()];
+    let t = Template::from_toml_str("docs/templates.md", text).unwrap_or_else(|e| panic!("{e}"));
+    let family = template::register(t).unwrap();
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 3)
+            .unwrap();
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(100, 5)], "one read of registers 100..104");
+    round_trip(family);
+    let mut line = template_line(family, 3);
+    let (_, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 201, 0x20, 0x00]);
+    let (_, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Run);
+    assert_eq!(&sent[0][..6], [3, 0x06, 0, 200, 0, 1]);
+}

@@ -1,0 +1,135 @@
+//! Templated drives in the gateway: `templates = [...]` in the configuration, `family = "<kind>"`
+//! on a virtual bus (the simulator runs the template), and the drives polled, commanded and
+//! shown like built-in ones: the views, the HTTP API, the unified Modbus TCP map and parameter
+//! reads by the template's names.
+
+mod support;
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::extract::connect_info::MockConnectInfo;
+use axum::http::Request;
+use drivebus_gateway::gateway::{Command, Gateway};
+use drivebus_gateway::GatewayConfig;
+use http_body_util::BodyExt;
+use support::wait_for;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tower::ServiceExt;
+
+/// A drive with a bit command word and a "0x4000 = 100 %" setpoint.
+const BITS: &str = r#"kind = "gw-bits"
+maker = "Test"
+model = "B1"
+source = "written for this test"
+protocols = ["modbus-rtu"]
+[serial]
+baud = 19200
+format = "8E1"
+[status]
+running = { register = 100, bit = 0 }
+reverse = { register = 100, bit = 1 }
+output_hz = { register = 101, scale = 0.1 }
+current_a = { register = 102, scale = 0.01 }
+fault = { register = 103 }
+[command]
+register = 200
+run = { bit = 0 }
+reverse = { bit = 1 }
+reset = { bit = 7 }
+[setpoint]
+register = 201
+full_scale = 0x4000
+max_hz = 60.0
+[[param]]
+name = "acc"
+title = "acceleration time"
+register = 300
+unit = "s"
+scale = 0.1
+range = [0.1, 3600.0]
+default = 10.0
+[faults]
+7 = "external fault"
+"#;
+
+fn gateway() -> Arc<Gateway> {
+    let dir = std::env::temp_dir().join(format!("drivebus-gw-templates-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("bits.toml"), BITS).unwrap();
+    let config = dir.join("plant.toml");
+    let text = "templates = [\"bits.toml\"]\n[store]\ndisabled = true\n[http]\nanonymous_read = true\n\
+         [[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"fan\"\nfamily = \"gw-bits\"\naddress = 1\npoll_ms = 100\n\
+         [[bus.drive]]\nname = \"pump\"\nfamily = \"generic-2000h\"\naddress = 2\npoll_ms = 100\n";
+    std::fs::write(&config, text).unwrap();
+    // The template's path is taken from the configuration's folder.
+    let c = GatewayConfig::from_toml(&config.display().to_string(), text).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(c.templates, [dir.join("bits.toml")]);
+    Gateway::start(c, None).unwrap()
+}
+
+/// The unified map's input registers 0..10 of `unit`, over an in-process Modbus TCP connection.
+async fn input_registers(gw: &Arc<Gateway>, unit: u8) -> Vec<u16> {
+    let (mut client, server) = tokio::io::duplex(1024);
+    let peer: SocketAddr = "127.0.0.1:5020".parse().unwrap();
+    tokio::spawn(drivebus_gateway::modbus_tcp::serve_stream(gw.clone(), server, peer));
+    client.write_all(&[0, 1, 0, 0, 0, 6, unit, 0x04, 0, 0, 0, 10]).await.unwrap();
+    let mut reply = [0u8; 9 + 20];
+    client.read_exact(&mut reply).await.unwrap();
+    assert_eq!(&reply[7..9], [0x04, 20], "{reply:?}");
+    reply[9..].chunks(2).map(|w| u16::from_be_bytes([w[0], w[1]])).collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn templated_drives_are_polled_commanded_and_shown_like_any_drive() {
+    let gw = gateway();
+    let view = |id: &str| gw.drive_view(&gw.drive(id).unwrap());
+    wait_for("both drives online", Duration::from_secs(20), || {
+        view("fan").online == Some(true) && view("pump").online == Some(true)
+    })
+    .await;
+    assert_eq!(view("fan").family, "gw-bits");
+    assert_eq!(view("pump").family, "generic-2000h");
+
+    gw.command("fan", Command::Speed(30.0), "test").await.expect("speed");
+    gw.command("fan", Command::Run, "test").await.expect("run");
+    gw.command("pump", Command::Speed(20.0), "test").await.expect("speed");
+    gw.command("pump", Command::Run, "test").await.expect("run");
+    wait_for("fan at 30 Hz and pump at 20 Hz", Duration::from_secs(60), || {
+        view("fan").output_hz == Some(30.0) && view("pump").output_hz == Some(20.0)
+    })
+    .await;
+    assert_eq!(view("fan").running, Some(true));
+    let acc = gw.read_param("fan", "acc", "test").await.expect("acc");
+    assert_eq!(acc.raw, 100, "10.0 s at 0.1 s");
+
+    // The HTTP API shows them as any drive.
+    let app = drivebus_gateway::http::router(gw.clone())
+        .layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 1], 40000))));
+    let r = app.oneshot(Request::get("/api/drives/fan").body(Body::empty()).unwrap()).await.unwrap();
+    let body = r.into_body().collect().await.unwrap().to_bytes();
+    let json: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(json["family"], "gw-bits", "{json}");
+    assert_eq!(json["output_hz"], 30.0, "{json}");
+
+    // The unified Modbus TCP map: status word running, 30.00 Hz, family 5 (a template kind).
+    let unit = gw.drive("fan").unwrap().config.unit_id;
+    let regs = input_registers(&gw, unit).await;
+    assert_eq!(regs[0] & 1, 1, "running: {regs:?}");
+    assert_eq!(regs[1], 3000, "{regs:?}");
+    assert_eq!(regs[8], 5, "a template kind: {regs:?}");
+
+    gw.command("fan", Command::Stop, "test").await.expect("stop");
+    wait_for("fan stopped", Duration::from_secs(60), || view("fan").running == Some(false)).await;
+    // A template file that cannot be read is the configuration's error, with its line.
+    let errors = GatewayConfig::from_toml("t.toml", "templates = [\"/nonexistent/x.toml\"]\n")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        errors.starts_with("t.toml:1: field `templates`: /nonexistent/x.toml: cannot read it"),
+        "{errors}"
+    );
+}

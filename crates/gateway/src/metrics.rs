@@ -368,6 +368,9 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
     let bus_online = Family::<BusLabels, Gauge>::default();
     let foreign = Family::<BusLabels, Counter>::default();
     let drive_master = Family::<BusLabels, Gauge>::default();
+    let role = Family::<BusLabels, Gauge>::default();
+    let takeovers = Family::<BusLabels, Counter>::default();
+    let yields = Family::<BusLabels, Counter>::default();
     for b in gw.buses().iter() {
         let l = BusLabels { bus: b.config.name.clone() };
         let s = b.stats();
@@ -382,6 +385,10 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         bus_online.get_or_create(&l).set(i64::from(b.online()));
         foreign.get_or_create(&l).inc_by(s.foreign_broadcasts);
         drive_master.get_or_create(&l).set(i64::from(crate::core::drive_master(&s)));
+        role.get_or_create(&l).set(i64::from(b.role() == drivebus_link::role::Role::Master));
+        let rs = b.role_status();
+        takeovers.get_or_create(&l).inc_by(rs.map_or(0, |r| r.takeovers));
+        yields.get_or_create(&l).inc_by(rs.map_or(0, |r| r.yields));
     }
     reg.register("bus_transactions", "Requests sent, retries included", transactions);
     reg.register("bus_replies", "Replies received", replies);
@@ -397,6 +404,9 @@ pub fn render(gw: &Gateway) -> Result<String, String> {
         foreign,
     );
     reg.register("bus_drive_master", "1 while a drive acts as bus master on the line", drive_master);
+    reg.register("bus_role", "1 while the gateway masters the bus, 0 while it listens as a standby", role);
+    reg.register("bus_takeovers", "Times the gateway took the line over from another master", takeovers);
+    reg.register("bus_yields", "Times the gateway stopped sending on hearing another master", yields);
 
     // The gateway's own work.
     let c = &gw.counters;

@@ -203,6 +203,21 @@ impl<P: Protocol> Engine<P> {
 
     /// The link is lost (or was never opened) at session time `now` for `error`: the next job
     /// reopens it first.
+    /// The protocol the session speaks.
+    pub(crate) fn protocol(&self) -> &P {
+        self.session.protocol()
+    }
+
+    /// The bus's response timeout.
+    pub(crate) fn response_timeout(&self) -> Duration {
+        self.timing.response_timeout
+    }
+
+    /// The link was opened again outside a job (a standby opens its port to listen).
+    pub(crate) fn link_restored(&mut self) {
+        self.lost = None;
+    }
+
     pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
         let backoff = self.lost.as_ref().map_or_else(Backoff::new, |l| l.backoff);
         self.lost = Some(Lost { error, reopen_at: now, backoff });

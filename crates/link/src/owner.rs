@@ -24,6 +24,12 @@ pub use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 use crate::engine::{with_engine, Action, Attempt, Engine, Next};
 use crate::fair::{OnDemand, Share, Turn};
 use crate::link::Link;
+use crate::overheard::{Heard, Overheard};
+use crate::role::{BusRole, RoleStatus, Transition};
+
+/// A standby's poll waits this long for the master to send the same request, then fails with
+/// [`BusError::Standby`] (the master polls something else, or nothing).
+const SHADOW_WAIT: Duration = Duration::from_secs(5);
 
 struct Job {
     address: u8,
@@ -45,6 +51,8 @@ pub struct Bus {
     name: String,
     /// Closed (its sender dropped) when the owner task has ended and released the link.
     ended: watch::Receiver<()>,
+    /// The bus's role, when it shares the line with another gateway.
+    role: Arc<Mutex<Option<RoleStatus>>>,
 }
 
 impl Bus {
@@ -61,15 +69,40 @@ impl Bus {
         let on_demand = Arc::new(OnDemand::new(config.on_demand));
         let share = Share::new(config.on_demand.share);
         let od = on_demand.clone();
+        let role_config = config.role;
+        let protocol = config.protocol;
+        let role_status = Arc::new(Mutex::new(None));
+        let status = role_status.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
             let mut engine = engine;
             if !link.is_open() {
                 engine.link_lost(link.now(), format!("{name} is not open"));
             }
-            let owner = Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx };
+            let listening = role_config.map(|rc| {
+                let seed = std::process::id() as u64
+                    ^ std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |d| d.as_nanos() as u64);
+                let role = BusRole::new(rc, link.now(), seed);
+                *status.lock().unwrap_or_else(|p| p.into_inner()) = Some(role.status(None));
+                let heard = Overheard::new(engine.protocol(), protocol, engine.response_timeout());
+                Listening { role, heard, status }
+            });
+            let owner = Owner { link, engine, rx_buf: Vec::new(), listening, _ended: ended_tx };
             tokio::spawn(owner.run(crx, brx, prx, srx, od, share));
         });
-        Ok(Bus { commands: ctx, bridged: btx, polls: ptx, scans: stx, on_demand, stats, health, name, ended })
+        Ok(Bus {
+            commands: ctx,
+            bridged: btx,
+            polls: ptx,
+            scans: stx,
+            on_demand,
+            stats,
+            health,
+            name,
+            ended,
+            role: role_status,
+        })
     }
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the
@@ -142,6 +175,27 @@ impl Bus {
     pub fn health(&self) -> HashMap<u8, Health> {
         self.health.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
+
+    /// The bus's role (master or standby) and its takeovers and yields, when it shares the
+    /// line with another gateway (`BusConfig::role`); `None` for the only master.
+    pub fn role(&self) -> Option<RoleStatus> {
+        *self.role.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// The listening side of a bus that shares its line: its role and what it hears.
+struct Listening<P: Protocol> {
+    role: BusRole,
+    heard: Overheard<P>,
+    status: Arc<Mutex<Option<RoleStatus>>>,
+}
+
+impl<P: Protocol> Listening<P> {
+    fn publish(&self, last: Option<Transition>) {
+        let mut s = self.status.lock().unwrap_or_else(|p| p.into_inner());
+        let last = last.or(s.and_then(|s| s.last));
+        *s = Some(self.role.status(last));
+    }
 }
 
 struct Owner<L: Link, P: Protocol> {
@@ -149,6 +203,8 @@ struct Owner<L: Link, P: Protocol> {
     engine: Engine<P>,
     /// The read buffer, kept between exchanges.
     rx_buf: Vec<u8>,
+    /// With another gateway on the line: the role and the listener.
+    listening: Option<Listening<P>>,
     /// Dropped after the link (fields drop in order): tells [`Bus::close`] the link is closed.
     _ended: watch::Sender<()>,
 }
@@ -176,7 +232,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 }
             };
             if let Some((job, priority)) = first {
-                let result = self.job(&job, priority).await;
+                let result = self.run_job(&job, priority).await;
                 let _ = job.done.send(result);
                 continue;
             }
@@ -191,7 +247,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 (false, false) => {
                     // Nothing else waits: a scan's probe may go now.
                     if let Ok(job) = scans.try_recv() {
-                        let result = self.job(&job, Priority::Scan).await;
+                        let result = self.run_job(&job, Priority::Scan).await;
                         let _ = job.done.send(result);
                         continue;
                     }
@@ -211,7 +267,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         Some(j) = scans.recv() => Some((j, Priority::Scan)),
                     };
                     if let Some((job, priority)) = woken {
-                        let result = self.job(&job, priority).await;
+                        let result = self.run_job(&job, priority).await;
                         let _ = job.done.send(result);
                     }
                     continue;
@@ -225,12 +281,120 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             };
             let Some(job) = job else { continue };
             let started = self.link.now();
-            let result = self.job(&job, priority).await;
+            let result = self.run_job(&job, priority).await;
             if contended {
                 share.spent(turn, self.link.now() - started);
             }
             let _ = job.done.send(result);
         }
+    }
+
+    /// Runs `job` as the bus's role allows: the only master sends at once; a master that shares
+    /// the line first hears what came since its last exchange (another master's request makes
+    /// it yield) and waits out a pause after garbled traffic; a standby refuses commands and
+    /// answers a poll with the reply it hears to the same request from the master, unless the
+    /// line falls silent and it takes the line.
+    async fn run_job(&mut self, job: &Job, priority: Priority) -> Result<Option<Vec<u8>>, BusError> {
+        if self.listening.is_none() {
+            return self.job(job, priority).await;
+        }
+        if !self.link.is_open() {
+            // Listening needs the port open too (a master's first job would open it).
+            match self.link.reopen().await {
+                Ok(()) => self.engine.link_restored(),
+                Err(e) if !self.listening.as_ref().is_some_and(|l| l.role.may_send()) => {
+                    return Err(BusError::Link(format!("{}: {e}", self.link.name())));
+                }
+                Err(_) => {}
+            }
+        }
+        let now = self.link.now();
+        self.hear_until(now, None).await;
+        while let Some(l) = self.listening.as_mut() {
+            if l.role.may_send() {
+                break;
+            }
+            let master = l.role.role() == crate::role::Role::Master;
+            if !master && priority != Priority::Poll {
+                return Err(BusError::Standby(self.link.name()));
+            }
+            let start = self.link.now();
+            let give_up = start + SHADOW_WAIT;
+            let until = l.role.poll_timeout().map_or(give_up, |t| t.min(give_up));
+            let want = (!master).then_some(job.exchange.request.as_slice());
+            if let Some(reply) = self.hear_until(until, want).await {
+                return Ok(Some(reply));
+            }
+            let now = self.link.now();
+            if let Some(l) = self.listening.as_mut() {
+                if let Some(t) = l.role.poll(now) {
+                    l.publish(Some(t));
+                }
+                if !l.role.may_send() && !master && now >= give_up {
+                    return Err(BusError::Standby(self.link.name()));
+                }
+            }
+        }
+        let result = self.job(job, priority).await;
+        if matches!(result, Err(BusError::Corrupt { .. })) {
+            // Damaged replies on a shared line: perhaps another master talking at once.
+            let now = self.link.now();
+            if let Some(l) = self.listening.as_mut() {
+                l.role.heard_garbled(now);
+                l.publish(None);
+            }
+        }
+        result
+    }
+
+    /// Reads what the line carries until `deadline` (at least what has already come), telling
+    /// the role what it heard. With `want`, returns the reply heard to that request as soon as
+    /// it comes.
+    async fn hear_until(&mut self, deadline: Instant, want: Option<&[u8]>) -> Option<Vec<u8>> {
+        let mut buf = std::mem::take(&mut self.rx_buf);
+        buf.resize(1024, 0);
+        let mut heard = Vec::new();
+        let mut sleep = crate::timer::sleep_until(self.link.clock().tokio(deadline));
+        let mut answer = None;
+        loop {
+            let n = tokio::select! {
+                biased;
+                r = self.link.read(&mut buf) => match r {
+                    Ok(n) => n,
+                    Err(_) => {
+                        // The port failed: nothing more is heard before the deadline.
+                        (&mut sleep).await;
+                        break;
+                    }
+                },
+                _ = &mut sleep => break,
+            };
+            let now = self.link.now();
+            let Some(l) = self.listening.as_mut() else { break };
+            heard.clear();
+            l.heard.push(now, &buf[..n], &mut heard);
+            for h in heard.drain(..) {
+                match h {
+                    Heard::Request(_) => {
+                        if let Some(t) = l.role.heard_request(now) {
+                            l.publish(Some(t));
+                        }
+                    }
+                    Heard::Reply { request, reply } => {
+                        if want == Some(request.as_slice()) {
+                            answer = Some(reply);
+                        }
+                    }
+                    Heard::Garbled => l.role.heard_garbled(now),
+                }
+            }
+            l.publish(None);
+            if answer.is_some() {
+                break;
+            }
+        }
+        self.rx_buf = buf;
+        answer
     }
 
     /// Carries out what the engine decides for `job`.

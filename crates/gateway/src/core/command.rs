@@ -118,6 +118,9 @@ pub enum CommandError {
     /// The command's audit record could not be committed (the store failed: disk full, read
     /// only): the command was not sent.
     NotRecorded(String),
+    /// The drive's bus listens as a standby (another gateway masters the line): nothing was
+    /// sent.
+    Standby(String),
 }
 
 impl std::fmt::Display for CommandError {
@@ -141,7 +144,10 @@ impl std::fmt::Display for CommandError {
             CommandError::Refused { code, meaning, .. } => {
                 write!(f, "the drive refused: code {code:#04X}, {meaning}")
             }
-            CommandError::NoAnswer(s) | CommandError::LinkDown(s) | CommandError::Busy(s) => f.write_str(s),
+            CommandError::NoAnswer(s)
+            | CommandError::LinkDown(s)
+            | CommandError::Busy(s)
+            | CommandError::Standby(s) => f.write_str(s),
             CommandError::NotRecorded(e) => write!(
                 f,
                 "the command was not sent: its audit record cannot be stored ({e}); free the store's disk or fix its permissions"
@@ -167,6 +173,7 @@ impl CommandError {
             CommandError::Protocol(_) => "protocol",
             CommandError::Busy(_) => "busy",
             CommandError::NotRecorded(_) => "not_recorded",
+            CommandError::Standby(_) => "standby",
         }
     }
 }
@@ -183,6 +190,7 @@ impl From<LinkError> for CommandError {
             LinkError::Bus(BusError::Link(s)) => CommandError::LinkDown(s),
             LinkError::Bus(BusError::Closed) => CommandError::LinkDown("the bus has stopped".into()),
             LinkError::Bus(e @ BusError::Busy(_)) => CommandError::Busy(e.to_string()),
+            LinkError::Bus(e @ BusError::Standby(_)) => CommandError::Standby(e.to_string()),
             LinkError::Bus(e) => CommandError::NoAnswer(e.to_string()),
         }
     }

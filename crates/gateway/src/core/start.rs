@@ -177,6 +177,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         .map(|d| d.family)
         .find(|&f| drivebus_drive::registers::generic::line_silence(f, b.protocol).is_some());
     owner.on_demand = b.on_demand;
+    owner.role = b.role;
     owner.modbus_tcp = matches!(b.port, crate::config::Port::ModbusTcp(_));
     // Opened by the bus owner before its first transaction, and again after a loss.
     let port = match &b.port {

@@ -115,7 +115,7 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::LinkDown(_) => StatusCode::SERVICE_UNAVAILABLE,
         CommandError::Protocol(_) => StatusCode::BAD_GATEWAY,
         CommandError::Busy(_) => StatusCode::TOO_MANY_REQUESTS,
-        CommandError::NotRecorded(_) => StatusCode::SERVICE_UNAVAILABLE,
+        CommandError::NotRecorded(_) | CommandError::Standby(_) => StatusCode::SERVICE_UNAVAILABLE,
     }
 }
 

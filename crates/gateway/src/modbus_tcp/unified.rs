@@ -484,7 +484,7 @@ pub fn exception_of(e: &CommandError) -> ExceptionCode {
         }
         CommandError::Refused { .. } | CommandError::Protocol(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
         CommandError::LinkDown(_) => ExceptionCode::GATEWAY_PATH_UNAVAILABLE,
-        CommandError::Busy(_) => ExceptionCode::SERVER_DEVICE_BUSY,
+        CommandError::Busy(_) | CommandError::Standby(_) => ExceptionCode::SERVER_DEVICE_BUSY,
         CommandError::NotRecorded(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
     }
 }

@@ -81,6 +81,7 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::Protocol(_) => StatusCode::BadCommunicationError,
         CommandError::Busy(_) => StatusCode::BadTooManyOperations,
         CommandError::NotRecorded(_) => StatusCode::BadResourceUnavailable,
+        CommandError::Standby(_) => StatusCode::BadInvalidState,
     }
 }
 

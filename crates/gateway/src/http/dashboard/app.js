@@ -216,6 +216,9 @@
     const on = field(el, 'online');
     on.textContent = v.online ? 'online' : 'offline';
     on.dataset.state = v.online ? 'online' : 'offline';
+    const role = field(el, 'role');
+    role.textContent = v.role || 'master';
+    role.dataset.state = v.role === 'standby' ? 'standby' : 'master';
     field(el, 'transactions').textContent = String(v.transactions);
     field(el, 'timeouts').textContent = String(v.timeouts);
     field(el, 'checksum_errors').textContent = String(v.checksum_errors);

@@ -722,3 +722,160 @@ fn the_table_view_holds_a_plant_of_1000_drives() {
          switch to 1000 cards {cards_ms:.1} ms; {per_row} cards to a row at 1900 px"
     );
 }
+
+/// The commissioning pages against `serve --demo`: back up fan-1, change P0.02 on its parameter
+/// page (confirmed old → new), see the diff against the backup show exactly that parameter,
+/// restore it, see no difference; a write the drive refuses shows the drive's reason; a scan of
+/// the generic demo bus finds its three drives while conveyor-1's data stays fresh (within four
+/// of its 250 ms poll intervals). Screenshots: `workbench-params.png`, `workbench-diff.png`,
+/// `workbench-scan.png` under target/artifacts.
+#[test]
+#[ignore = "needs chromium (.ci/install-witnesses.sh)"]
+fn the_commissioning_pages_back_up_edit_restore_and_scan_in_a_real_browser() {
+    let Some((chromium, chromedriver)) = browser_programs() else { return };
+    let (_serve, http, token) = start_serve();
+    let browser = Browser::start(&chromium, &chromedriver);
+    let artifacts = artifacts_dir();
+    browser.goto(&format!("http://{http}/"));
+    browser.js(&format!("sessionStorage.setItem('drivebus.token', {}); return true;", q(&token)));
+    browser.goto(&format!("http://{http}/#drive/fan-1"));
+    let p002 = |rest: &str| q(&format!("#wb-param-rows tr[data-param=\"P0.02\"] {rest}"));
+    browser.wait_for(
+        "fan-1's first group read, P0.02 at its default",
+        &format!(
+            "const v = document.querySelector({}); return !!v && v.textContent === '50.00 Hz'
+               && document.getElementById('wb-read').disabled === false;",
+            p002("[data-field=value]")
+        ),
+        "return document.getElementById('workbench').innerText.slice(0, 800);",
+    );
+    assert_eq!(browser.text("#wb-title"), "fan-1");
+    assert!(browser.text("#wb-read-status").starts_with("read "), "{}", browser.text("#wb-read-status"));
+    browser.screenshot(&artifacts.join("workbench-params.png"));
+
+    // The backup, as the page downloads it.
+    browser.click("[data-tab=backup]");
+    browser.click("#wb-download");
+    browser.wait_for(
+        "the backup downloaded",
+        "return document.getElementById('wb-backup-status').textContent.includes('downloaded');",
+        "return document.getElementById('wb-backup-status').textContent;",
+    );
+    let backup = browser.js("return window.drivebusWorkbench.lastBackup();").as_str().unwrap().to_string();
+    let parsed: Value = serde_json::from_str(&backup).expect("the backup is JSON");
+    assert_eq!(parsed["params"]["P0.02"]["raw"], 5000);
+
+    // Change P0.02: the confirmation shows old → new; the row shows the new value, marked.
+    browser.click("[data-tab=params]");
+    browser.type_into("#wb-param-rows tr[data-param=\"P0.02\"] [data-field=new]", "42.5");
+    browser.click("#wb-param-rows tr[data-param=\"P0.02\"] [data-action=edit]");
+    browser.wait_for(
+        "the confirmation",
+        "return !document.getElementById('wb-confirm').hidden;",
+        "return document.getElementById('wb-confirm').outerHTML;",
+    );
+    let confirm = browser.text("#wb-confirm-text");
+    assert!(confirm.contains("50.00 Hz → 42.5 Hz"), "{confirm}");
+    browser.click("#wb-confirm-yes");
+    browser.wait_for(
+        "P0.02 written and read back",
+        &format!(
+            "const v = document.querySelector({}); return !!v && v.textContent === '42.50 Hz';",
+            p002("[data-field=value]")
+        ),
+        &format!("return document.querySelector({}).parentElement.innerText;", p002("td")),
+    );
+    assert_eq!(
+        browser.js(&format!(
+            "return document.querySelector({}).classList.contains('differs');",
+            q("#wb-param-rows tr[data-param=\"P0.02\"]")
+        )),
+        json!(true)
+    );
+
+    // Upload the backup: the diff is exactly P0.02, drive 42.50 Hz, file 50.00 Hz.
+    browser.click("[data-tab=backup]");
+    let file = std::env::temp_dir().join(format!("drivebus-fan-1-{}.json", std::process::id()));
+    std::fs::write(&file, &backup).expect("write the backup file");
+    let input = browser.element("#wb-file");
+    browser.call("POST", &format!("/element/{input}/value"), Some(json!({ "text": file.to_string_lossy() })));
+    browser.wait_for(
+        "the diff",
+        "return document.querySelectorAll('#wb-diff-rows tr').length > 0
+             || document.getElementById('wb-backup-status').dataset.kind === 'error';",
+        "return document.getElementById('wb-backup').innerText;",
+    );
+    let diff = browser.js(
+        "return [...document.querySelectorAll('#wb-diff-rows tr')].map(tr => [tr.dataset.param, tr.cells[3].textContent, tr.cells[4].textContent, tr.querySelector('input').checked]);",
+    );
+    assert_eq!(diff, json!([["P0.02", "42.50 Hz", "50.00 Hz", true]]));
+    browser.screenshot(&artifacts.join("workbench-diff.png"));
+    browser.click("#wb-apply");
+    browser.wait_for(
+        "the row restored",
+        "const r = document.querySelector('#wb-diff-rows [data-field=result]'); return !!r && r.textContent === 'ok';",
+        "return document.getElementById('wb-backup').innerText;",
+    );
+    assert_eq!(browser.text("#wb-apply-status"), "1 of 1 written");
+    browser.js(&format!("window.drivebusWorkbench.restoreText({}); return true;", q(&backup)));
+    browser.wait_for(
+        "no difference left",
+        "return document.getElementById('wb-backup-status').textContent.startsWith('No difference');",
+        "return document.getElementById('wb-backup-status').textContent;",
+    );
+    let _ = std::fs::remove_file(&file);
+
+    // A write the drive refuses (the maximum frequency while the motor runs) shows its reason.
+    browser.js(
+        "window.__ran = null; window.drivebus.api('POST', '/api/drives/fan-1/run')
+           .then(() => { window.__ran = true; }, (e) => { window.__ran = String(e.message); }); return true;",
+    );
+    browser.wait_for("fan-1 running", "return window.__ran === true;", "return window.__ran;");
+    browser.click("[data-tab=params]");
+    browser.type_into("#wb-param-rows tr[data-param=\"P0.04\"] [data-field=new]", "60");
+    browser.click("#wb-param-rows tr[data-param=\"P0.04\"] [data-action=edit]");
+    browser.click("#wb-confirm-yes");
+    let msg = q("#wb-param-rows tr[data-param=\"P0.04\"] [data-field=message]");
+    browser.wait_for(
+        "the drive's refusal",
+        &format!("const m = document.querySelector({msg}); return !!m && m.dataset.kind === 'error';"),
+        &format!("return document.querySelector({msg}).textContent;"),
+    );
+    let refusal = browser.js(&format!("return document.querySelector({msg}).textContent;"));
+    let refusal = refusal.as_str().unwrap_or_default();
+    assert!(refusal.contains("409 refused") && refusal.contains("the drive refused: code"), "{refusal}");
+
+    // Find drives on the generic bus while conveyor-1 (polled every 250 ms) keeps fresh data.
+    browser.goto(&format!("http://{http}/#bus/line-generic"));
+    browser.wait_for(
+        "the bus page",
+        "return !document.getElementById('wb-bus').hidden;",
+        "return location.hash;",
+    );
+    browser.type_into("#wb-addresses", "1-8");
+    browser.click("#wb-scan");
+    let mut worst_age = 0u64;
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let (status, d) = http_json(http, "GET", "/api/drives/conveyor-1", None).expect("GET conveyor-1");
+        assert_eq!(status, 200, "{d}");
+        worst_age = worst_age.max(d["age_ms"].as_u64().unwrap_or(u64::MAX));
+        if browser.text("#wb-scan-status").starts_with("done") {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the scan did not end: {}", browser.text("#wb-scan-status"));
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(worst_age <= 4 * 250, "conveyor-1's data was {worst_age} ms old during the scan");
+    let found = browser.js(
+        "return [...document.querySelectorAll('#wb-found-rows tr')].map(tr => [Number(tr.dataset.address), tr.cells[1].textContent, tr.cells[4].textContent]);",
+    );
+    assert_eq!(
+        found,
+        json!([[1, "generic", "conveyor-1"], [2, "generic", "conveyor-2"], [3, "generic", "fan-1"]])
+    );
+    assert!(browser.text("#wb-config").contains("[[bus.drive]]"), "{}", browser.text("#wb-config"));
+    let _ =
+        writeln!(std::io::stderr(), "scan of line-generic 1-8: conveyor-1's worst data age {worst_age} ms");
+    browser.screenshot(&artifacts.join("workbench-scan.png"));
+}

@@ -123,6 +123,126 @@ fn b800_drive_over_tcp_with_control_interface() {
     assert!(e["error"].as_str().unwrap().contains("probability"));
 }
 
+/// A simulator's process (killed on drop), its `listening on` lines in order (one per master),
+/// its control address and the lines it prints after them.
+type Masters = (sim::Killed, Vec<String>, std::net::SocketAddr, std::sync::mpsc::Receiver<String>);
+
+/// `drivebus simulate <args>` with a control interface.
+fn start_masters(args: &[&str], masters: usize) -> Masters {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .arg("simulate")
+        .args(args)
+        .args(["--control", "127.0.0.1:0"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start");
+    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
+    let (mut ready, mut control) = (Vec::new(), None);
+    while ready.len() < masters {
+        let line = lines.next().expect("a ready line").unwrap();
+        if let Some(c) = line.strip_prefix("control http://") {
+            control = Some(c.trim_end_matches("/drives").parse().unwrap());
+        }
+        if let Some(at) = line.strip_prefix("listening on ") {
+            ready.push(at.to_string());
+        }
+    }
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in lines.map_while(Result::ok) {
+            let _ = tx.send(l);
+        }
+    });
+    (sim::Killed(child), ready, control.expect("a control line"), rx)
+}
+
+/// Waits (generously) for a printed line containing `what`.
+fn wait_line(rx: &std::sync::mpsc::Receiver<String>, what: &str) -> String {
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(l) if l.contains(what) => return l,
+            Ok(_) => {}
+            Err(_) => panic!("no line with {what:?}"),
+        }
+    }
+}
+
+/// Reads from `bus` until `want` bytes came, with a generous deadline.
+fn read_n(bus: &mut TcpStream, want: usize) -> Vec<u8> {
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let mut got = Vec::new();
+    let mut buf = [0u8; 256];
+    bus.set_read_timeout(Some(Duration::from_millis(200))).unwrap();
+    while got.len() < want && std::time::Instant::now() < deadline {
+        if let Ok(n) = bus.read(&mut buf) {
+            assert!(n > 0, "the simulator closed the port");
+            got.extend_from_slice(&buf[..n]);
+        }
+    }
+    got
+}
+
+#[test]
+fn several_masters_share_one_line_hear_each_other_and_garble_when_they_talk_at_once() {
+    let (_sim, ready, control, printed) = start_masters(
+        &["-v", "--drive", "b800@5", "--tcp", "127.0.0.1:0", "--tcp", "127.0.0.1:0", "--tcp", "127.0.0.1:0"],
+        3,
+    );
+    assert!(ready[0].ends_with("(master 0)") && ready[2].ends_with("(master 2)"), "{ready:?}");
+    let addr = |i: usize| ready[i].trim_start_matches("tcp ").split(' ').next().unwrap().to_string();
+    let mut a = TcpStream::connect(addr(0)).unwrap();
+    let mut b = TcpStream::connect(addr(1)).unwrap();
+    let mut c = TcpStream::connect(addr(2)).unwrap();
+    let stats = || {
+        let (status, text) = request(control, "GET", "/stats", None, None);
+        assert_eq!(status, 200);
+        serde_json::from_str::<Value>(&text).unwrap()
+    };
+    assert_eq!(stats()["masters"], 3);
+    // A asks; A gets the answer, B and C hear the request and then the answer.
+    let (req, reply) = (b800("85500960"), b"\x7E0570\x33\x33\x7F".to_vec());
+    assert_eq!(exchange(&mut a, &req, reply.len()), reply);
+    let heard = [req.clone(), reply.clone()].concat();
+    assert_eq!(read_n(&mut b, heard.len()), heard);
+    assert_eq!(read_n(&mut c, heard.len()), heard);
+    // B asks: the drive answers B, and A hears both.
+    let run = b800("8552");
+    assert_eq!(exchange(&mut b, &run, 8), b800("0572"));
+    assert_eq!(read_n(&mut a, run.len() + 8), [run.clone(), b800("0572")].concat());
+    assert_eq!(read_n(&mut c, run.len() + 8), [run.clone(), b800("0572")].concat());
+    // -v prints every frame once, each request with the master that sent it.
+    wait_line(&printed, "[master 0] b800 master to drive 5");
+    let b_request = wait_line(&printed, "[master 1] b800 master to drive 5");
+    let answer = wait_line(&printed, "b800 drive 5 to master");
+    assert!(!answer.contains("[master"), "{b_request} / {answer}");
+    let s = stats();
+    assert_eq!((s["collisions"].as_u64(), s["garbled_frames"].as_u64()), (Some(0), Some(0)), "{s}");
+    // A and B at once: 60 characters each (69 ms on the wire at 9600 baud) overlap, and the line
+    // counts both frames as garbled.
+    let long = vec![b'0'; 60];
+    a.write_all(&long).unwrap();
+    b.write_all(&long).unwrap();
+    let heard = read_n(&mut c, 120);
+    assert_eq!(heard.len(), 120, "C hears both frames' characters");
+    assert_ne!(heard, [long.clone(), long.clone()].concat(), "garbled, not as sent");
+    let s = stats();
+    assert_eq!(s["garbled_frames"].as_u64(), Some(2), "{s}");
+    assert!(s["collisions"].as_u64() > Some(0), "{s}");
+}
+
+#[test]
+fn the_same_pty_path_twice_is_refused() {
+    let path = sim::pty_path("twice");
+    let o = sim::output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["simulate", "--drive", "b800@5", "--pty", &path, "--pty", &path]),
+    );
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert!(o.stderr.contains("given twice"), "{}", o.stderr);
+}
+
 #[test]
 fn bad_options_exit_3_with_one_line() {
     for args in [

@@ -324,6 +324,7 @@ const PARAM_FIELDS: &[&str] = &[
     "while_running",
     "comm",
     "note",
+    "group",
 ];
 
 /// Typed access to one TOML table's fields, with errors that say where.
@@ -460,8 +461,10 @@ fn parse_param(file: &str, family: Family, position: &str, table: &Table) -> Res
     };
     let choices = parse_choices(&f, min, max)?;
     let note = f.optional_string("note")?;
+    let group = f.optional_string("group")?.unwrap_or_default();
 
     Ok(ParamDef {
+        group,
         name,
         alias,
         title,

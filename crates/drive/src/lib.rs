@@ -59,6 +59,7 @@ mod family;
 mod param;
 mod store;
 
+pub mod backup;
 pub mod docgen;
 pub mod interdrive;
 pub mod panel;

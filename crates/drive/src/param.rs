@@ -104,6 +104,9 @@ pub struct ParamDef {
     pub comm: bool,
     /// A remark from the catalog: where a value comes from, what is unconfirmed.
     pub note: Option<String>,
+    /// The group the parameter is listed in (the manual's chapter: "P0 basic functions",
+    /// "4-** Limits / warnings"); empty when the catalog gives none.
+    pub group: String,
 }
 
 impl ParamDef {

@@ -5,7 +5,7 @@
 //!
 //! sparkplug_fill DB NODE COUNT DRIVES      e.g. sparkplug_fill plant.db drivebus/load 3600000 1000
 
-use drivebus_gateway::gateway::DriveView;
+use drivebus_gateway::core::DriveView;
 use drivebus_gateway::sparkplug::node::{DeviceMessage, Node};
 use prost::Message;
 
@@ -54,7 +54,7 @@ fn main() {
     });
     let mut node = Node::new(group, edge);
     node.sync_devices((1..=drives).map(|i| (format!("vfd-{i}"), Vec::new())).collect());
-    let now = drivebus_gateway::gateway::unix_ms();
+    let now = drivebus_gateway::core::unix_ms();
     let start = now - 3_600_000;
     let mut batch = Vec::with_capacity(10_000);
     for n in 0..count {

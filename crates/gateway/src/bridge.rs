@@ -31,7 +31,7 @@ use tokio::net::{TcpListener, TcpStream};
 // A bridge's settings and their checks (file and --bridge) are the configuration's (config/bridge.rs).
 pub use crate::config::bridge::{check_arg as check, parse_arg};
 pub use crate::config::{BridgeConfig, Framing};
-use crate::gateway::{unix_ms, Gateway};
+use crate::core::{unix_ms, Gateway};
 use drivebus_proto::modbus::tcp::{Mbap, MBAP_LEN};
 use drivebus_proto::modbus::ExceptionCode;
 

@@ -2,8 +2,8 @@
 //!
 //! Metrics observe the core: drive and bus series are read from the cache and the bus owners
 //! at each scrape (nothing is polled for a scrape), the gateway's own work from the counters
-//! and health it exposes ([`Counters`](crate::gateway::Counters),
-//! [`Gateway::health`](crate::gateway::Gateway::health)). The front ends' own counts (HTTP
+//! and health it exposes ([`Counters`](crate::core::Counters),
+//! [`Gateway::health`](crate::core::Gateway::health)). The front ends' own counts (HTTP
 //! requests and latencies, Modbus TCP requests, MQTT publishes) accumulate in
 //! [`FrontEndMetrics`] and the Sparkplug edge node's in [`SparkplugMetrics`], one of each per
 //! gateway ([`front_ends`], `sparkplug::metrics`); the core holds them without knowing them.
@@ -23,8 +23,8 @@ use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
 use prometheus_client::metrics::MetricType;
 use prometheus_client::registry::{Registry, Unit};
 
-use crate::gateway::DriveEntry;
-use crate::gateway::Gateway;
+use crate::core::DriveEntry;
+use crate::core::Gateway;
 
 /// The content type of the exposition.
 pub const CONTENT_TYPE: &str = "application/openmetrics-text; version=1.0.0; charset=utf-8";
@@ -245,14 +245,31 @@ impl SparkplugMetrics {
     }
 }
 
+/// Everything the front ends attach to a gateway, in one place: their counts, which `/metrics`
+/// reads. A front end that keeps state of its own on the gateway adds a field here.
+#[derive(Debug, Default)]
+pub struct FrontEnds {
+    /// HTTP requests, Modbus TCP requests, MQTT publishes ([`front_ends`]).
+    pub counts: Arc<FrontEndMetrics>,
+    /// The Sparkplug B edge node's messages, refusals and queue (`sparkplug::metrics`).
+    pub sparkplug: Arc<SparkplugMetrics>,
+    /// The exposition's registry, built on the first scrape ([`render`]).
+    exposition: Exposition,
+}
+
+/// What the front ends attach to `gw`, made empty on first use.
+pub fn attached(gw: &Gateway) -> Arc<FrontEnds> {
+    gw.attached()
+}
+
 /// The front ends' counts of `gw`, made empty on first use.
 pub fn front_ends(gw: &Gateway) -> Arc<FrontEndMetrics> {
-    gw.attached()
+    attached(gw).counts.clone()
 }
 
 /// The exposition of one gateway: its registry, built on the first scrape and kept (attached
 /// to the gateway), and the length of the last text, to size the next one's buffer at once.
-#[derive(Default)]
+#[derive(Debug, Default)]
 struct Exposition {
     registry: OnceLock<Registry>,
     last_len: AtomicUsize,
@@ -266,7 +283,8 @@ struct Exposition {
 /// owners' counts and the kept health facts at each scrape. Nothing is polled, no file is
 /// touched (the store's check runs on its own schedule, `health::STORE_CHECK_EVERY`).
 pub fn render(gw: &Arc<Gateway>) -> Result<String, String> {
-    let exposition = gw.attached::<Exposition>();
+    let front_ends = attached(gw);
+    let exposition = &front_ends.exposition;
     let reg = exposition.registry.get_or_init(|| registry(gw));
     let mut out = String::with_capacity(exposition.last_len.load(Ordering::Relaxed) + 4096);
     encode(&mut out, reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
@@ -310,7 +328,7 @@ fn registry(gw: &Arc<Gateway>) -> Registry {
         f.mqtt_publishes.clone(),
     );
     fronts.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
-    gw.attached::<SparkplugMetrics>().register(&mut reg);
+    attached(gw).sparkplug.register(&mut reg);
     reg.sub_registry_with_labels(std::iter::empty())
         .register_collector(Box::new(HealthSeries { gw: Arc::downgrade(gw) }));
     reg
@@ -413,6 +431,10 @@ struct BusRow<'a> {
     labels: [(&'static str, &'a str); 1],
     stats: drivebus_link::owner::BusStats,
     online: bool,
+    /// The gateway masters the bus (not a standby listening).
+    master: bool,
+    takeovers: u64,
+    yields: u64,
 }
 
 impl<'a> BusRow<'a> {
@@ -475,10 +497,16 @@ impl Collector for CoreSeries {
         let buses: Vec<BusRow> = topo
             .buses
             .iter()
-            .map(|b| BusRow {
-                labels: [("bus", b.config.name.as_str())],
-                stats: b.stats(),
-                online: b.online(),
+            .map(|b| {
+                let rs = b.role_status();
+                BusRow {
+                    labels: [("bus", b.config.name.as_str())],
+                    stats: b.stats(),
+                    online: b.online(),
+                    master: b.role() == drivebus_link::role::Role::Master,
+                    takeovers: rs.map_or(0, |r| r.takeovers),
+                    yields: rs.map_or(0, |r| r.yields),
+                }
             })
             .collect();
         let bl = BusRow::labels;
@@ -521,7 +549,28 @@ impl Collector for CoreSeries {
             ("bus_drive_master", "1 while a drive acts as bus master on the line.", None),
             &buses,
             bl,
-            |r| Some(Value::Flag(i64::from(crate::gateway::drive_master(&r.stats)))),
+            |r| Some(Value::Flag(i64::from(crate::core::drive_master(&r.stats)))),
+        )?;
+        family(
+            e,
+            ("bus_role", "1 while the gateway masters the bus, 0 while it listens as a standby.", None),
+            &buses,
+            bl,
+            |r| Some(Value::Flag(i64::from(r.master))),
+        )?;
+        family(
+            e,
+            ("bus_takeovers", "Times the gateway took the line over from another master.", None),
+            &buses,
+            bl,
+            |r| Some(Value::Count(r.takeovers)),
+        )?;
+        family(
+            e,
+            ("bus_yields", "Times the gateway stopped sending on hearing another master.", None),
+            &buses,
+            bl,
+            |r| Some(Value::Count(r.yields)),
         )?;
 
         // The gateway's own work.

@@ -34,7 +34,7 @@ use drivebus_proto::{Deframer, Event};
 use crate::bridge::bus_frame;
 // A slave's settings are the configuration's (config/modbus_rtu.rs).
 pub use crate::config::ModbusRtuConfig;
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 use crate::health::Health;
 use crate::log;
 use crate::modbus_tcp::{Conn, Server};

@@ -38,7 +38,7 @@ use tokio::time::Instant;
 // The URL, prefix and command pattern rules are the configuration's (config/mqtt.rs).
 pub use crate::config::mqtt::{check_prefix, parse_url, Pattern, COMMANDS};
 use crate::config::MqttConfig;
-use crate::gateway::{Change, Command, CommandError, DriveView, Gateway};
+use crate::core::{Change, Command, CommandError, DriveView, Gateway};
 
 /// A drive's status is published at most this often unless its running state, fault or link
 /// health changed.

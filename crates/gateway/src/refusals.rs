@@ -4,7 +4,7 @@
 //! the last 60 s: forbidden: ...". A client that keeps being refused gets one event per window.
 //!
 //! [`Refusals`] is the bookkeeping alone (sans-IO: every call is given the time), so that it is
-//! tested on explicit times; [`crate::gateway::Gateway::audit_refusal`] feeds it and a task of
+//! tested on explicit times; [`crate::core::Gateway::audit_refusal`] feeds it and a task of
 //! the gateway closes the windows that are due.
 
 use std::collections::HashMap;

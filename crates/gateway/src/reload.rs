@@ -1,5 +1,5 @@
 //! What a configuration reload changes: the running configuration compared with the new one,
-//! section by section, before anything is touched. [`Gateway::reload`](crate::gateway::Gateway::reload)
+//! section by section, before anything is touched. [`Gateway::reload`](crate::core::Gateway::reload)
 //! carries the plan out; the plan is also what the log and the audit trail say.
 
 use serde_json::{json, Value};
@@ -72,7 +72,7 @@ fn same_bus(a: &BusConfig, b: &BusConfig) -> bool {
         (&x.port, x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15, x.rs485)
     }
     // The owner's queue and the parameter cache are built with the bus.
-    let fair = |x: &BusConfig| (x.on_demand, x.param_cache);
+    let fair = |x: &BusConfig| (x.on_demand, x.param_cache, x.role);
     let same_drives =
         || a.drives.len() == b.drives.len() && a.drives.iter().zip(&b.drives).all(|(x, y)| same_drive(x, y));
     line(a) == line(b) && fair(a) == fair(b) && (a.port != crate::config::Port::Virtual || same_drives())

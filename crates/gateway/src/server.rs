@@ -7,7 +7,7 @@ use std::sync::Arc;
 use tokio::net::{TcpListener, TcpSocket};
 
 use crate::config::GatewayConfig;
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 use crate::log;
 
 /// Where the service listens, once bound.

@@ -13,7 +13,7 @@ use std::process::Command;
 use std::sync::Arc;
 use std::time::Duration;
 
-use drivebus_gateway::gateway::Change;
+use drivebus_gateway::core::Change;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -89,7 +89,7 @@ async fn mbap(sock: &mut TcpStream, tid: u16, unit: u8, pdu: &[u8]) -> Vec<u8> {
 }
 
 /// Waits for `done` on the gateway's view of pump-1, with a generous deadline.
-async fn until(gw: &Gateway, what: &str, done: impl Fn(&drivebus_gateway::gateway::DriveView) -> bool) {
+async fn until(gw: &Gateway, what: &str, done: impl Fn(&drivebus_gateway::core::DriveView) -> bool) {
     let deadline = tokio::time::Instant::now() + Duration::from_secs(20);
     loop {
         let v = gw.drive_view(&gw.drive("pump-1").unwrap());

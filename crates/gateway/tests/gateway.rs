@@ -3,7 +3,7 @@
 
 mod support;
 
-use drivebus_gateway::gateway::{Change, Command, CommandError};
+use drivebus_gateway::core::{Change, Command, CommandError};
 use drivebus_gateway::{Gateway, GatewayConfig};
 use support::{fresh_store, settle};
 
@@ -96,7 +96,7 @@ async fn parameters_read_from_the_drive() {
 
 #[test]
 fn events_log_as_one_line() {
-    use drivebus_gateway::gateway::log_line;
+    use drivebus_gateway::core::log_line;
     use drivebus_store::{Event, EventKind};
     let mut e = Event::new(1_795_301_254_481, EventKind::Command);
     e.bus = Some("line-1".into());

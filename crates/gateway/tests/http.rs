@@ -13,7 +13,7 @@ use axum::extract::connect_info::MockConnectInfo;
 use axum::http::{header, Method, Request, StatusCode};
 use axum::Router;
 use drivebus_gateway::config::{Role, Token};
-use drivebus_gateway::gateway::{Change, Gateway};
+use drivebus_gateway::core::{Change, Gateway};
 use drivebus_gateway::http::{api::OPENAPI, router, API_ROUTES};
 use drivebus_gateway::GatewayConfig;
 use http_body_util::BodyExt;
@@ -429,7 +429,7 @@ async fn the_openapi_document_describes_exactly_the_routes_served() {
     // nothing reaches a drive), every other method is 405.
     let (_gw, app) = app(false, false);
     for (path, methods) in API_ROUTES {
-        let uri = path.replace(":id", "mixer-1").replace(":name", "F-01");
+        let uri = path.replace(":id", "mixer-1").replace(":name", "F-01").replace(":bus", "line-b800");
         for m in ["GET", "POST", "PUT", "DELETE", "PATCH"] {
             let req = Request::builder().method(Method::from_bytes(m.as_bytes()).unwrap()).uri(&uri);
             let r = app.clone().oneshot(req.body(Body::empty()).unwrap()).await.unwrap();
@@ -507,6 +507,10 @@ async fn the_openapi_schemas_match_what_is_served() {
         "method_not_allowed",
         "no_store",
         "internal",
+        "unknown_bus",
+        "bad_backup",
+        "not_scanned",
+        "busy",
     ] {
         assert!(kinds.contains(k), "error kind {k} is not in openapi.json");
     }
@@ -681,4 +685,400 @@ async fn with_anonymous_reads_the_host_must_be_a_name_of_the_gateway() {
         .unwrap();
     assert_eq!(app.clone().oneshot(req).await.unwrap().status(), 200);
     assert!(GatewayConfig::from_toml("t.toml", "[http]\nhosts = [\"http://x:80\"]\n").is_err());
+}
+
+/// A text response (the backup file): its status, headers and body.
+async fn call_text(
+    app: &Router,
+    method: &str,
+    path: &str,
+    token: Option<&str>,
+    body: Option<&str>,
+) -> (StatusCode, axum::http::HeaderMap, String) {
+    let mut req = Request::builder().method(method).uri(path);
+    if let Some(t) = token {
+        req = req.header(header::AUTHORIZATION, format!("Bearer {t}"));
+    }
+    let req = req.body(body.map_or_else(Body::empty, |b| Body::from(b.to_string()))).unwrap();
+    let r = app.clone().oneshot(req).await.unwrap();
+    let (status, headers) = (r.status(), r.headers().clone());
+    let bytes = r.into_body().collect().await.unwrap().to_bytes();
+    (status, headers, String::from_utf8(bytes.to_vec()).unwrap())
+}
+
+/// The demo gateway with room for a backup file in a request body.
+fn workbench_app(anonymous_read: bool) -> (Arc<Gateway>, Router) {
+    let mut c = config(anonymous_read);
+    c.http.max_body = 64 * 1024;
+    let dir = std::env::temp_dir().join(format!(
+        "drivebus-http-workbench-{}-{}",
+        std::process::id(),
+        rand_suffix()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let store = drivebus_store::Store::open(&dir.join("events.db")).unwrap();
+    let gw = Gateway::start(c, Some(store)).unwrap();
+    let app = app_with(&gw);
+    (gw, app)
+}
+
+fn rand_suffix() -> u32 {
+    static N: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_parameter_list_gives_every_parameter_with_its_catalog_data_and_value() {
+    let (_gw, app) = app(false, false);
+    settle(2).await;
+    let catalog = drivebus_drive::Catalog::load(drivebus_drive::Family::Generic).unwrap();
+    let r = call(&app, "GET", "/api/drives/fan-1/params", Some(READ), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    let rows = r.json.as_array().unwrap();
+    assert_eq!(rows.len(), catalog.len());
+    let p = rows.iter().find(|p| p["name"] == "P0.02").expect("P0.02");
+    assert_eq!(p["group"], "P0 basic functions");
+    assert_eq!(p["unit"], "Hz");
+    assert_eq!(
+        (p["min"].as_f64(), p["max"].as_f64(), p["default"].as_f64()),
+        (Some(0.0), Some(400.0), Some(50.0))
+    );
+    assert_eq!(p["access"], "read-write");
+    assert_eq!(p["value"], 50.0, "{p}");
+    assert_eq!(p["differs"], false);
+    let monitor = rows.iter().find(|p| p["access"] == "read-only").expect("a read-only parameter");
+    assert!(monitor["raw"].is_i64() || monitor["error"].is_object(), "{monitor}");
+    // A value changed: read again (not a value from before the write), marked as differing.
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/fan-1/params/P0.02",
+        Some(WRITE),
+        Some(r#"{"value": "42.5", "eeprom": true}"#),
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    let group = "/api/drives/fan-1/params?group=P0%20basic%20functions";
+    let r = call(&app, "GET", group, Some(READ), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    let rows = r.json.as_array().unwrap();
+    assert!(!rows.is_empty() && rows.iter().all(|p| p["group"] == "P0 basic functions"), "{}", r.json);
+    let p = rows.iter().find(|p| p["name"] == "P0.02").unwrap();
+    assert_eq!((p["value"].as_f64(), &p["differs"]), (Some(42.5), &json!(true)), "{p}");
+    // Without reading: the catalog only.
+    let r = call(&app, "GET", "/api/drives/fan-1/params?read=false", Some(READ), None).await;
+    assert!(r.json.as_array().unwrap().iter().all(|p| p["value"].is_null()), "{}", r.json);
+    // A protocol without parameter access says so on each row.
+    let r = call(&app, "GET", "/api/drives/mixer-1/params", Some(READ), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert!(r.json.as_array().unwrap().iter().all(|p| p["error"]["kind"] == "unsupported"), "{}", r.json);
+    // Refusals.
+    assert_error(&call(&app, "GET", "/api/drives/fan-1/params", None, None).await, 401, "unauthorized");
+    assert_error(
+        &call(&app, "GET", "/api/drives/fan-9/params", Some(READ), None).await,
+        404,
+        "unknown_drive",
+    );
+    let m = assert_error(
+        &call(&app, "GET", "/api/drives/fan-1/params?group=P9", Some(READ), None).await,
+        422,
+        "invalid",
+    );
+    assert!(m.contains("P0 basic functions"), "{m}");
+    assert_error(
+        &call(&app, "GET", "/api/drives/fan-1/params?read=maybe", Some(READ), None).await,
+        400,
+        "bad_request",
+    );
+}
+
+#[tokio::test(start_paused = true)]
+async fn backup_then_restore_shows_and_undoes_exactly_the_change() {
+    let (gw, app) = workbench_app(false);
+    settle(2).await;
+    let (status, headers, file) = call_text(&app, "GET", "/api/drives/fan-1/backup", Some(READ), None).await;
+    assert_eq!(status, 200, "{file}");
+    assert_eq!(headers[header::CONTENT_DISPOSITION], "attachment; filename=\"fan-1.json\"");
+    // The file `drivebus params backup` writes: the library's one writer, read back the same.
+    let backup = drivebus_drive::backup::Backup::parse(&file).unwrap();
+    assert_eq!(backup.to_text(), file);
+    assert_eq!((backup.family.as_str(), backup.address), ("generic", Some(3)));
+    let catalog = drivebus_drive::Catalog::load(drivebus_drive::Family::Generic).unwrap();
+    let settings = catalog.iter().filter(|p| drivebus_drive::backup::is_setting(p)).count();
+    assert_eq!(backup.params.len(), settings);
+    assert_eq!(backup.params["P0.02"].raw, 5000);
+
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/fan-1/params/P0.02",
+        Some(WRITE),
+        Some(r#"{"value": "42.5", "eeprom": true}"#),
+    )
+    .await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    // The diff: exactly P0.02, and nothing is written.
+    let dry = "/api/drives/fan-1/restore?dry_run=true";
+    let r = call(&app, "POST", dry, Some(WRITE), Some(&file)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!(r.json["rows"].as_array().unwrap().len(), 1, "{}", r.json);
+    let row = &r.json["rows"][0];
+    assert_eq!(row["name"], "P0.02");
+    assert_eq!(row["drive"], json!({"raw": 4250, "value": "42.50 Hz"}));
+    assert_eq!(row["file"], json!({"raw": 5000, "value": "50.00 Hz"}));
+    assert_eq!((&row["apply"], &row["result"]), (&json!(true), &Value::Null));
+    let r = call(&app, "GET", "/api/drives/fan-1/params/P0.02", Some(READ), None).await;
+    assert_eq!(r.json["value"], 42.5, "a dry run writes nothing");
+
+    // Restored: the row's result, the command audited, and no difference left.
+    let r = call(&app, "POST", "/api/drives/fan-1/restore", Some(WRITE), Some(&file)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!((&r.json["applied"], &r.json["failed"]), (&json!(1), &json!(0)), "{}", r.json);
+    assert_eq!(r.json["rows"][0]["result"], "ok");
+    let r = call(&app, "POST", dry, Some(WRITE), Some(&file)).await;
+    assert_eq!(r.json["rows"], json!([]), "{}", r.json);
+    let events = call(&app, "GET", "/api/events?kind=command&drive=fan-1", Some(READ), None).await.json;
+    let actions: Vec<&str> = events.as_array().unwrap().iter().filter_map(|e| e["action"].as_str()).collect();
+    assert!(actions.contains(&"param P0.02 = 50.00 Hz (eeprom)"), "{actions:?}");
+    drop(gw);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_restore_leaves_comm_settings_out_unless_asked_and_applies_only_what_is_named() {
+    let (_gw, app) = workbench_app(false);
+    settle(2).await;
+    let (_, _, file) = call_text(&app, "GET", "/api/drives/fan-1/backup", Some(READ), None).await;
+    let mut b = drivebus_drive::backup::Backup::parse(&file).unwrap();
+    b.params.get_mut("P3.11").unwrap().raw = 9; // its bus address
+    b.params.get_mut("P0.02").unwrap().raw = 3000;
+    b.params.get_mut("P0.03").unwrap().raw += 1;
+    let file = b.to_text();
+    let names = |r: &Reply, key: &str| -> Vec<String> {
+        r.json["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|x| x[key] == true)
+            .map(|x| x["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let r = call(&app, "POST", "/api/drives/fan-1/restore?dry_run=true", Some(WRITE), Some(&file)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!(names(&r, "comm"), ["P3.11"]);
+    assert_eq!(names(&r, "apply"), ["P0.02", "P0.03"]);
+    let r = call(
+        &app,
+        "POST",
+        "/api/drives/fan-1/restore?dry_run=true&include_comm=true",
+        Some(WRITE),
+        Some(&file),
+    )
+    .await;
+    assert_eq!(names(&r, "apply"), ["P0.02", "P0.03", "P3.11"]);
+    let r = call(&app, "POST", "/api/drives/fan-1/restore?only=p0.02", Some(WRITE), Some(&file)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!(r.json["applied"], 1, "{}", r.json);
+    let r = call(&app, "GET", "/api/drives/fan-1/params/P0.02", Some(READ), None).await;
+    assert_eq!(r.json["value"], 30.0);
+    let r = call(&app, "GET", "/api/drives/fan-1/params/P3.11", Some(READ), None).await;
+    assert_eq!(r.json["raw"], 3, "the bus address stays");
+}
+
+#[tokio::test(start_paused = true)]
+async fn restore_refusals_are_one_line_and_write_nothing() {
+    let (gw, app) = workbench_app(false);
+    settle(2).await;
+    let (_, _, file) = call_text(&app, "GET", "/api/drives/fan-1/backup", Some(READ), None).await;
+    let url = "/api/drives/fan-1/restore";
+    assert_error(&call(&app, "POST", url, None, Some(&file)).await, 401, "unauthorized");
+    assert_error(&call(&app, "POST", url, Some(READ), Some(&file)).await, 403, "forbidden");
+    assert_error(
+        &call(&app, "POST", "/api/drives/fan-9/restore", Some(WRITE), Some(&file)).await,
+        404,
+        "unknown_drive",
+    );
+    for bad in [
+        "{",
+        "not json at all",
+        r#"{"family": "generic"}"#,
+        r#"{"family": "generic", "params": {"P0.02": {"raw": "x"}}}"#,
+    ] {
+        let m = assert_error(&call(&app, "POST", url, Some(WRITE), Some(bad)).await, 400, "bad_backup");
+        assert!(m.starts_with("not a drivebus backup"), "{m}");
+    }
+    let toshiba = call_text(&app, "GET", "/api/drives/pump-1/backup", Some(READ), None).await.2;
+    let m = assert_error(&call(&app, "POST", url, Some(WRITE), Some(&toshiba)).await, 422, "invalid");
+    assert!(m.contains("toshiba parameters; this is a generic drive"), "{m}");
+    let m = assert_error(
+        &call(&app, "POST", &format!("{url}?only=P0.02,P9.99"), Some(WRITE), Some(&file)).await,
+        422,
+        "invalid",
+    );
+    assert!(m.contains("P9.99"), "{m}");
+    assert_error(
+        &call(&app, "POST", &format!("{url}?dry_run=perhaps"), Some(WRITE), Some(&file)).await,
+        400,
+        "bad_request",
+    );
+    assert_error(
+        &call(&app, "GET", "/api/drives/mixer-1/backup", Some(READ), None).await,
+        422,
+        "unsupported",
+    );
+    assert_eq!(gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed), 0);
+}
+
+/// A drive that refuses a row says why, in that row; the other rows are still applied.
+#[tokio::test(start_paused = true)]
+async fn a_row_the_drive_refuses_carries_its_reason() {
+    let (_gw, app) = workbench_app(false);
+    settle(2).await;
+    let (_, _, file) = call_text(&app, "GET", "/api/drives/fan-1/backup", Some(READ), None).await;
+    let mut b = drivebus_drive::backup::Backup::parse(&file).unwrap();
+    b.params.get_mut("P0.04").unwrap().raw = 6000; // maximum frequency: not while running
+    b.params.get_mut("P0.03").unwrap().raw += 1;
+    let r = call(&app, "POST", "/api/drives/fan-1/run", Some(WRITE), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    settle(1).await;
+    let r = call(&app, "POST", "/api/drives/fan-1/restore", Some(WRITE), Some(&b.to_text())).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    let rows = r.json["rows"].as_array().unwrap();
+    let refused = rows.iter().find(|x| x["name"] == "P0.04").unwrap();
+    assert_eq!(refused["result"], "failed", "{}", r.json);
+    assert_eq!(refused["error"]["kind"], "refused", "{}", r.json);
+    assert!(
+        refused["error"]["message"].as_str().unwrap().starts_with("the drive refused: code"),
+        "{}",
+        r.json
+    );
+    assert_eq!(rows.iter().find(|x| x["name"] == "P0.03").unwrap()["result"], "ok");
+    assert_eq!((&r.json["applied"], &r.json["failed"]), (&json!(1), &json!(1)));
+    // The single-parameter write says the same.
+    let r = call(
+        &app,
+        "PUT",
+        "/api/drives/fan-1/params/P0.04",
+        Some(WRITE),
+        Some(r#"{"value": "60", "eeprom": true}"#),
+    )
+    .await;
+    let m = assert_error(&r, 409, "refused");
+    assert!(m.starts_with("the drive refused: code"), "{m}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn trips_give_the_drives_history_and_the_gateways_trip_events() {
+    let (gw, app) = workbench_app(false);
+    settle(2).await;
+    let r = call(&app, "GET", "/api/drives/conveyor-1/trips", Some(READ), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert_eq!((&r.json["family"], &r.json["address"]), (&json!("generic"), &json!(1)));
+    assert!(r.json["source"].as_str().unwrap().contains("P4.00"), "{}", r.json);
+    assert_eq!((&r.json["current"], &r.json["events"]), (&Value::Null, &json!([])), "{}", r.json);
+    let bus = gw.buses().iter().find(|b| b.config.name == "line-generic").unwrap().clone();
+    let r = call(&app, "POST", "/api/drives/conveyor-1/run", Some(WRITE), None).await;
+    assert_eq!(r.status, 200);
+    settle(3).await;
+    {
+        let mut line = bus.line.as_ref().unwrap().lock().unwrap();
+        let port = (0..line.devices()).find(|&p| line.drive(p).is_some()).unwrap();
+        line.drive_mut(port).unwrap().core_mut().model.trip_now(drivebus_sim::model::Trip::OverCurrent);
+    }
+    settle(2).await;
+    let r = call(&app, "GET", "/api/drives/conveyor-1/trips", Some(READ), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+    assert!(r.json["current"]["code"].is_u64(), "{}", r.json);
+    assert!(!r.json["history"].as_array().unwrap().is_empty(), "{}", r.json);
+    let events = r.json["events"].as_array().unwrap();
+    assert_eq!(events.len(), 1, "{}", r.json);
+    assert_eq!(events[0]["kind"], "trip");
+    assert_eq!(events[0]["detail"]["before"]["running"], true, "the pre-trip snapshot: {}", r.json);
+    assert_error(&call(&app, "GET", "/api/drives/conveyor-1/trips", None, None).await, 401, "unauthorized");
+    assert_error(&call(&app, "GET", "/api/drives/nope/trips", Some(READ), None).await, 404, "unknown_drive");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_bus_scan_finds_the_drives_while_polling_goes_on() {
+    let (gw, app) = app(false, false);
+    settle(2).await;
+    let url = "/api/buses/line-generic/scan";
+    assert_error(&call(&app, "GET", url, Some(READ), None).await, 404, "not_scanned");
+    assert_error(&call(&app, "POST", url, None, None).await, 401, "unauthorized");
+    assert_error(&call(&app, "POST", url, Some(READ), None).await, 403, "forbidden");
+    assert_error(&call(&app, "POST", "/api/buses/line-9/scan", Some(WRITE), None).await, 404, "unknown_bus");
+    assert_error(
+        &call(&app, "POST", &format!("{url}?addresses=1-300"), Some(WRITE), None).await,
+        400,
+        "bad_request",
+    );
+    let r = call(&app, "POST", &format!("{url}?addresses=1-6"), Some(WRITE), None).await;
+    assert_eq!(r.status, 202, "{}", r.json);
+    assert_eq!((&r.json["running"], &r.json["families"]), (&json!(true), &json!(["generic", "toshiba"])));
+    assert_error(&call(&app, "POST", url, Some(WRITE), None).await, 429, "busy");
+    // conveyor-1 is polled every 250 ms: while the scan runs, a poll at least every 4 of those.
+    let conveyor = gw.drive("conveyor-1").unwrap();
+    let (mut polls, mut last, mut worst) =
+        (conveyor.state().polls, tokio::time::Instant::now(), Duration::ZERO);
+    let report = loop {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+        let now = tokio::time::Instant::now();
+        let p = conveyor.state().polls;
+        if p != polls {
+            (polls, last) = (p, now);
+        }
+        worst = worst.max(now - last);
+        let r = call(&app, "GET", url, Some(READ), None).await;
+        if r.json["running"] == false {
+            break r.json;
+        }
+        assert!(now.elapsed() < Duration::from_secs(600), "the scan never ended: {}", r.json);
+    };
+    assert!(worst <= Duration::from_millis(1000), "conveyor-1 went {worst:?} without a poll");
+    assert_eq!(report["tried"], report["total"], "{report}");
+    let found: Vec<(u64, &str, &str)> = report["found"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            (
+                f["address"].as_u64().unwrap(),
+                f["family"].as_str().unwrap(),
+                f["configured"].as_str().unwrap_or(""),
+            )
+        })
+        .collect();
+    assert_eq!(
+        found,
+        [(1, "generic", "conveyor-1"), (2, "generic", "conveyor-2"), (3, "generic", "fan-1")],
+        "{report}"
+    );
+    let config = report["config"].as_str().unwrap();
+    assert!(config.contains("# already configured on line-generic as fan-1:\n# [[bus.drive]]\n"), "{config}");
+    assert!(report["found"][0]["model"].as_str().unwrap().contains("generic"), "{report}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_openapi_schemas_of_the_workbench_match_what_is_served() {
+    let doc = openapi();
+    let schema_keys = |name: &str| -> BTreeSet<String> {
+        doc["components"]["schemas"][name]["properties"].as_object().unwrap().keys().cloned().collect()
+    };
+    let keys = |v: &Value| -> BTreeSet<String> { v.as_object().unwrap().keys().cloned().collect() };
+    let (_gw, app) = workbench_app(true);
+    settle(2).await;
+    let rows =
+        call(&app, "GET", "/api/drives/fan-1/params?group=P0%20basic%20functions", None, None).await.json;
+    assert_eq!(schema_keys("ParamRow"), keys(&rows[0]));
+    let (_, _, file) = call_text(&app, "GET", "/api/drives/fan-1/backup", None, None).await;
+    assert_eq!(schema_keys("Backup"), keys(&serde_json::from_str(&file).unwrap()));
+    let mut b = drivebus_drive::backup::Backup::parse(&file).unwrap();
+    b.params.get_mut("P0.03").unwrap().raw += 1;
+    let r = call(&app, "POST", "/api/drives/fan-1/restore", Some(WRITE), Some(&b.to_text())).await.json;
+    assert_eq!(schema_keys("RestoreResult"), keys(&r));
+    assert_eq!(schema_keys("RestoreRow"), keys(&r["rows"][0]));
+    let trips = call(&app, "GET", "/api/drives/fan-1/trips", None, None).await.json;
+    assert_eq!(schema_keys("Trips"), keys(&trips));
+    let scan = call(&app, "POST", "/api/buses/line-generic/scan?addresses=3", Some(WRITE), None).await.json;
+    assert_eq!(schema_keys("ScanReport"), keys(&scan));
 }

@@ -10,7 +10,7 @@ use axum::body::Body;
 use axum::http::{Request, StatusCode};
 use axum::routing::get;
 use axum::Router;
-use drivebus_gateway::gateway::Command;
+use drivebus_gateway::core::Command;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use tower::ServiceExt;
 

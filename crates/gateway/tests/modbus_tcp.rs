@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use drivebus_drive::{Catalog, Family};
-use drivebus_gateway::gateway::Change;
+use drivebus_gateway::core::Change;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -274,7 +274,7 @@ async fn every_exception_says_what_was_wrong() {
     assert_eq!(c.write1(6, 1, 1000).await, Err(0x01));
     let mut refused = 0;
     while let Ok(change) = changes.try_recv() {
-        if let drivebus_gateway::gateway::Change::Event(e) = change {
+        if let drivebus_gateway::core::Change::Event(e) = change {
             if e.drive.as_deref() == Some("pump-3") {
                 assert!(e.result.as_deref().unwrap_or("").starts_with("locked: "), "{e:?}");
                 assert!(e.actor.as_deref().unwrap_or("").starts_with("modbus:127.0.0.1:"), "{e:?}");

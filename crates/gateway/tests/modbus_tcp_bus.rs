@@ -8,7 +8,7 @@ mod support;
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use drivebus_gateway::gateway::Command;
+use drivebus_gateway::core::Command;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use drivebus_sim::config::BusSpec;
 use drivebus_sim::runtime::{Endpoint, Simulator};

@@ -2,7 +2,7 @@
 //! the drive's values carry the time it last answered, the gateway's own variables the time they
 //! were computed, and `AgeMs` is the gap between the two.
 
-use drivebus_gateway::gateway::DriveView;
+use drivebus_gateway::core::DriveView;
 use drivebus_gateway::opcua::nodes::DRIVE_VARIABLES;
 use drivebus_gateway::opcua::{datetime_ms, drive_values};
 use opcua::types::{DataValue, StatusCode, Variant};

@@ -65,7 +65,7 @@ async fn a_lost_port_goes_offline_and_comes_back() {
     assert!(!err.is_empty());
     let mut kinds = Vec::new();
     while let Ok(c) = changes.try_recv() {
-        if let drivebus_gateway::gateway::Change::Event(e) = c {
+        if let drivebus_gateway::core::Change::Event(e) = c {
             kinds.push((e.kind, e.bus, e.drive));
         }
     }

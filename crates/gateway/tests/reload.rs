@@ -4,7 +4,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use drivebus_gateway::gateway::Change;
+use drivebus_gateway::core::Change;
 use drivebus_gateway::{Gateway, GatewayConfig};
 
 const TOKEN_A: &str = "[[token]]\nname = \"ops-a\"\ntoken = \"aaaaaaaaaaaaaaaaaaaa\"\nrole = \"write\"\n";

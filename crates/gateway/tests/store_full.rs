@@ -14,7 +14,7 @@ use axum::body::Body;
 use axum::extract::connect_info::MockConnectInfo;
 use axum::http::{header, Request};
 use drivebus_gateway::config::{Role, Token};
-use drivebus_gateway::gateway::{Command, CommandError, Gateway};
+use drivebus_gateway::core::{Command, CommandError, Gateway};
 use drivebus_gateway::GatewayConfig;
 use drivebus_store::{Event, EventFilter, EventKind, Store};
 use http_body_util::BodyExt;

@@ -12,7 +12,7 @@ use std::time::Duration;
 use axum::body::Body;
 use axum::extract::connect_info::MockConnectInfo;
 use axum::http::Request;
-use drivebus_gateway::gateway::{Command, Gateway};
+use drivebus_gateway::core::{Command, Gateway};
 use drivebus_gateway::GatewayConfig;
 use http_body_util::BodyExt;
 use support::wait_for;

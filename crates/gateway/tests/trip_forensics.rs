@@ -5,7 +5,7 @@ mod support;
 
 use std::time::Duration;
 
-use drivebus_gateway::gateway::Command;
+use drivebus_gateway::core::Command;
 use drivebus_gateway::{Gateway, GatewayConfig};
 use drivebus_store::{EventFilter, EventKind};
 use support::fresh_store;

@@ -46,6 +46,9 @@ pub struct BusConfig {
     pub family: Option<drivebus_drive::Family>,
     /// How on-demand reads share the bus with polling.
     pub on_demand: FairConfig,
+    /// With another gateway on the same line: listen first and master the bus only when the
+    /// line falls silent (see `crate::role`). `None`: the only master, sending at once.
+    pub role: Option<crate::role::RoleConfig>,
     /// Modbus TCP: the bus's Modbus RTU frames go in MBAP to a Modbus TCP server
     /// (`protocol = "modbus-tcp"`, [`crate::mbap`]); no silence is kept between requests and
     /// the response timeout is 1 s unless given.
@@ -80,6 +83,7 @@ impl BusConfig {
             strict_t15: false,
             family: None,
             on_demand: FairConfig::default(),
+            role: None,
             modbus_tcp: false,
         }
     }
@@ -117,6 +121,8 @@ pub enum BusError {
     Closed,
     /// Too many on-demand reads wait on the bus (or from this client); nothing was sent.
     Busy(String),
+    /// The bus listens as a standby (another gateway masters the line): nothing was sent.
+    Standby(String),
 }
 
 impl fmt::Display for BusError {
@@ -135,6 +141,10 @@ impl fmt::Display for BusError {
             BusError::BadRequest(e) => write!(f, "cannot send that request: {e}"),
             BusError::Closed => f.write_str("the bus has stopped"),
             BusError::Busy(e) => write!(f, "the bus is busy: {e}"),
+            BusError::Standby(link) => write!(
+                f,
+                "{link} is listening as a standby: another gateway masters the line, send it there"
+            ),
         }
     }
 }
@@ -153,6 +163,10 @@ pub enum Priority {
     OnDemand,
     /// Cyclic polling.
     Poll,
+    /// A probe of an address that may hold no drive (a bus scan): sent only when nothing else
+    /// waits, with one attempt, and the address's link health left alone (an empty address is
+    /// not an offline drive).
+    Scan,
 }
 
 /// Counts of one bus.

@@ -124,6 +124,12 @@ impl Drive {
         Drive { priority: Priority::OnDemand, client: Arc::from(client), ..self.clone() }
     }
 
+    /// The same drive, whose requests are a scan's probes ([`Priority::Scan`]): sent only when
+    /// nothing else waits on the bus, once, leaving the address's health alone.
+    pub fn scanning(&self) -> Self {
+        Drive { priority: Priority::Scan, ..self.clone() }
+    }
+
     /// Sets this drive's response timeout (the bus default otherwise).
     pub fn with_timeout(mut self, timeout: Duration) -> Self {
         self.timeout = Some(timeout);
@@ -210,6 +216,59 @@ impl Drive {
         let def = self.profile.param(name)?;
         def.check(raw).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
         self.execute(&Operation::WriteParam { name: name.to_string(), raw, storage }).await.map(|_| ())
+    }
+}
+
+/// What a scan's probe of an address found ([`probe`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Probe {
+    /// A drive of the profile's family: its state.
+    Status(DriveStatus),
+    /// Something at the address refused the status read: it speaks the protocol, but on a
+    /// protocol several families speak it may be another family's drive.
+    Refused {
+        /// The code it answered with.
+        code: u32,
+        /// What the code means.
+        meaning: String,
+    },
+    /// Something answered with a reply that made no sense for this family.
+    Odd(String),
+}
+
+impl Probe {
+    /// How the find is told: `stopped`, `running at 40.00 Hz`, `answers (refused status: ...)`.
+    pub fn note(&self) -> String {
+        match self {
+            Probe::Status(s) => format!(
+                "{}{}",
+                if s.running { "running" } else { "stopped" },
+                s.output_hz.map(|h| format!(" at {h:.2} Hz")).unwrap_or_default()
+            ),
+            Probe::Refused { code, meaning } => format!("answers (refused status: {code}, {meaning})"),
+            Probe::Odd(e) => format!("answers oddly: {e}"),
+        }
+    }
+
+    /// A refusal on `protocol` when more than one family speaks it: the drive may be another
+    /// family's, refusing this family's map (a find only where no family read its status).
+    pub fn tentative(&self, protocol: WireProtocol) -> bool {
+        matches!(self, Probe::Refused { .. })
+            && Family::ALL.iter().filter(|&&f| f.protocols().contains(&protocol)).count() > 1
+    }
+}
+
+/// Probes `drive`'s address with a status read: what answered there, or `None` when nothing
+/// did (no answer, a damaged one, the link down).
+pub async fn probe(drive: &Drive) -> Option<Probe> {
+    match drive.status().await {
+        Ok(s) => Some(Probe::Status(s)),
+        // A refusal is an answer: something with this address speaks the protocol.
+        Err(Error::Drive(DriveError::Refused { code, meaning, .. })) => {
+            Some(Probe::Refused { code, meaning })
+        }
+        Err(Error::Drive(DriveError::Protocol(e))) => Some(Probe::Odd(e)),
+        Err(_) => None,
     }
 }
 

@@ -81,6 +81,8 @@ struct Job {
     reopened: bool,
     /// How the last attempt ended (a failed reopen before any attempt: that).
     last: Option<Attempt>,
+    /// A scan's probe: the address's health is left alone.
+    probe: bool,
 }
 
 /// How a session's exchange ended, owned (the session's event borrows it).
@@ -201,6 +203,21 @@ impl<P: Protocol> Engine<P> {
 
     /// The link is lost (or was never opened) at session time `now` for `error`: the next job
     /// reopens it first.
+    /// The protocol the session speaks.
+    pub(crate) fn protocol(&self) -> &P {
+        self.session.protocol()
+    }
+
+    /// The bus's response timeout.
+    pub(crate) fn response_timeout(&self) -> Duration {
+        self.timing.response_timeout
+    }
+
+    /// The link was opened again outside a job (a standby opens its port to listen).
+    pub(crate) fn link_restored(&mut self) {
+        self.lost = None;
+    }
+
     pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
         let backoff = self.lost.as_ref().map_or_else(Backoff::new, |l| l.backoff);
         self.lost = Some(Lost { error, reopen_at: now, backoff });
@@ -228,7 +245,9 @@ impl<P: Protocol> Engine<P> {
         };
         self.frame.clear();
         self.frame.extend_from_slice(frame);
-        self.job = Some(Job { link, address, broadcast, attempts, made: 0, reopened: false, last: None });
+        let probe = priority == Priority::Scan;
+        self.job =
+            Some(Job { link, address, broadcast, attempts, made: 0, reopened: false, last: None, probe });
         match &self.lost {
             Some(lost) if now >= lost.reopen_at => Next::Reopen,
             Some(lost) => {
@@ -319,7 +338,8 @@ impl<P: Protocol> Engine<P> {
     /// Ends the job with its last attempt.
     fn end(&mut self, now: Instant, last: Attempt) -> Next {
         let Some(job) = self.job.take() else { return Next::Done(Err(BusError::Closed)) };
-        Next::Done(self.finish(now, job.link, job.address, job.broadcast, job.attempts, last))
+        // A probe's answer or silence says nothing of a drive's health: not recorded.
+        Next::Done(self.finish(now, job.link, job.address, job.broadcast || job.probe, job.attempts, last))
     }
 
     /// Admits a job to drive `address` at session time `now`: how many attempts it gets, or
@@ -334,7 +354,10 @@ impl<P: Protocol> Engine<P> {
         timeout: Option<Duration>,
     ) -> Result<u8, BusError> {
         let mut offline = false;
-        if !broadcast {
+        if priority == Priority::Scan {
+            // One attempt, whatever the address's health: a probe is not a drive's poll.
+            offline = true;
+        } else if !broadcast {
             let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
             let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
             if !h.online

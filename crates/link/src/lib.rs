@@ -31,9 +31,11 @@ pub mod fair;
 pub mod link;
 pub mod listen;
 pub mod mbap;
+mod overheard;
 pub mod owner;
 pub mod port;
 pub mod port_link;
+pub mod role;
 #[cfg(feature = "virtual")]
 pub mod sim_link;
 pub mod timer;

@@ -4,7 +4,8 @@
 //!
 //! Commands go ahead of polling (commands served first, then bridged requests). On-demand reads
 //! share the rest with polling ([`crate::fair`]): one bounded queue per client, served in
-//! turn, and at most a configured share of the bus time while polls wait. Each drive's link health
+//! turn, and at most a configured share of the bus time while polls wait. A scan's probes
+//! ([`Priority::Scan`]) go only when nothing else waits. Each drive's link health
 //! is tracked: after `offline_after` failed transactions in a row it is offline, and polls to it
 //! are answered at once with [`BusError::Offline`] until its backoff has passed, when one probe
 //! goes out (the backoff doubles up to `max_backoff` while it stays silent). So a dead drive
@@ -23,6 +24,12 @@ pub use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 use crate::engine::{with_engine, Action, Attempt, Engine, Next};
 use crate::fair::{OnDemand, Share, Turn};
 use crate::link::Link;
+use crate::overheard::{Heard, Overheard};
+use crate::role::{BusRole, RoleStatus, Transition};
+
+/// A standby's poll waits this long for the master to send the same request, then fails with
+/// [`BusError::Standby`] (the master polls something else, or nothing).
+const SHADOW_WAIT: Duration = Duration::from_secs(5);
 
 struct Job {
     address: u8,
@@ -37,12 +44,15 @@ pub struct Bus {
     commands: mpsc::UnboundedSender<Job>,
     bridged: mpsc::UnboundedSender<Job>,
     polls: mpsc::UnboundedSender<Job>,
+    scans: mpsc::UnboundedSender<Job>,
     on_demand: Arc<OnDemand<Job>>,
     stats: Arc<Mutex<BusStats>>,
     health: Arc<Mutex<HashMap<u8, Health>>>,
     name: String,
     /// Closed (its sender dropped) when the owner task has ended and released the link.
     ended: watch::Receiver<()>,
+    /// The bus's role, when it shares the line with another gateway.
+    role: Arc<Mutex<Option<RoleStatus>>>,
 }
 
 impl Bus {
@@ -53,30 +63,57 @@ impl Bus {
         let (ctx, crx) = mpsc::unbounded_channel();
         let (btx, brx) = mpsc::unbounded_channel();
         let (ptx, prx) = mpsc::unbounded_channel();
+        let (stx, srx) = mpsc::unbounded_channel();
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
         let on_demand = Arc::new(OnDemand::new(config.on_demand));
         let share = Share::new(config.on_demand.share);
         let od = on_demand.clone();
+        let role_config = config.role;
+        let protocol = config.protocol;
+        let role_status = Arc::new(Mutex::new(None));
+        let status = role_status.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
             let mut engine = engine;
             if !link.is_open() {
                 engine.link_lost(link.now(), format!("{name} is not open"));
             }
-            let owner = Owner { link, engine, rx_buf: Vec::new(), _ended: ended_tx };
-            tokio::spawn(owner.run(crx, brx, prx, od, share));
+            let listening = role_config.map(|rc| {
+                let seed = std::process::id() as u64
+                    ^ std::time::SystemTime::now()
+                        .duration_since(std::time::UNIX_EPOCH)
+                        .map_or(0, |d| d.as_nanos() as u64);
+                let role = BusRole::new(rc, link.now(), seed);
+                *status.lock().unwrap_or_else(|p| p.into_inner()) = Some(role.status(None));
+                let heard = Overheard::new(engine.protocol(), protocol, engine.response_timeout());
+                Listening { role, heard, status }
+            });
+            let owner = Owner { link, engine, rx_buf: Vec::new(), listening, _ended: ended_tx };
+            tokio::spawn(owner.run(crx, brx, prx, srx, od, share));
         });
-        Ok(Bus { commands: ctx, bridged: btx, polls: ptx, on_demand, stats, health, name, ended })
+        Ok(Bus {
+            commands: ctx,
+            bridged: btx,
+            polls: ptx,
+            scans: stx,
+            on_demand,
+            stats,
+            health,
+            name,
+            ended,
+            role: role_status,
+        })
     }
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the
     /// serial port free for another open). The owner ends once every clone of the handle is
     /// dropped, so drop the others (and the `Drive`s holding them) first.
     pub async fn close(self) {
-        let Bus { commands, bridged, polls, mut ended, .. } = self;
+        let Bus { commands, bridged, polls, scans, mut ended, .. } = self;
         drop(commands);
         drop(bridged);
         drop(polls);
+        drop(scans);
         // Err once the owner has dropped its sender, that is ended.
         while ended.changed().await.is_ok() {}
     }
@@ -116,6 +153,7 @@ impl Bus {
             Priority::Command => &self.commands,
             Priority::Bridge => &self.bridged,
             Priority::Poll => &self.polls,
+            Priority::Scan => &self.scans,
             Priority::OnDemand => {
                 if self.commands.is_closed() {
                     return Err(BusError::Closed);
@@ -137,6 +175,27 @@ impl Bus {
     pub fn health(&self) -> HashMap<u8, Health> {
         self.health.lock().unwrap_or_else(|p| p.into_inner()).clone()
     }
+
+    /// The bus's role (master or standby) and its takeovers and yields, when it shares the
+    /// line with another gateway (`BusConfig::role`); `None` for the only master.
+    pub fn role(&self) -> Option<RoleStatus> {
+        *self.role.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// The listening side of a bus that shares its line: its role and what it hears.
+struct Listening<P: Protocol> {
+    role: BusRole,
+    heard: Overheard<P>,
+    status: Arc<Mutex<Option<RoleStatus>>>,
+}
+
+impl<P: Protocol> Listening<P> {
+    fn publish(&self, last: Option<Transition>) {
+        let mut s = self.status.lock().unwrap_or_else(|p| p.into_inner());
+        let last = last.or(s.and_then(|s| s.last));
+        *s = Some(self.role.status(last));
+    }
 }
 
 struct Owner<L: Link, P: Protocol> {
@@ -144,6 +203,8 @@ struct Owner<L: Link, P: Protocol> {
     engine: Engine<P>,
     /// The read buffer, kept between exchanges.
     rx_buf: Vec<u8>,
+    /// With another gateway on the line: the role and the listener.
+    listening: Option<Listening<P>>,
     /// Dropped after the link (fields drop in order): tells [`Bus::close`] the link is closed.
     _ended: watch::Sender<()>,
 }
@@ -154,6 +215,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         mut commands: mpsc::UnboundedReceiver<Job>,
         mut bridged: mpsc::UnboundedReceiver<Job>,
         mut polls: mpsc::UnboundedReceiver<Job>,
+        mut scans: mpsc::UnboundedReceiver<Job>,
         on_demand: Arc<OnDemand<Job>>,
         mut share: Share,
     ) {
@@ -170,7 +232,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 }
             };
             if let Some((job, priority)) = first {
-                let result = self.job(&job, priority).await;
+                let result = self.run_job(&job, priority).await;
                 let _ = job.done.send(result);
                 continue;
             }
@@ -183,6 +245,12 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 (true, false) => Turn::Poll,
                 (false, true) => Turn::OnDemand,
                 (false, false) => {
+                    // Nothing else waits: a scan's probe may go now.
+                    if let Ok(job) = scans.try_recv() {
+                        let result = self.run_job(&job, Priority::Scan).await;
+                        let _ = job.done.send(result);
+                        continue;
+                    }
                     // Nothing waits: sleep until something comes.
                     let woken = tokio::select! {
                         biased;
@@ -196,9 +264,10 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                             None
                         }
                         _ = on_demand.ready() => None,
+                        Some(j) = scans.recv() => Some((j, Priority::Scan)),
                     };
                     if let Some((job, priority)) = woken {
-                        let result = self.job(&job, priority).await;
+                        let result = self.run_job(&job, priority).await;
                         let _ = job.done.send(result);
                     }
                     continue;
@@ -212,12 +281,120 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             };
             let Some(job) = job else { continue };
             let started = self.link.now();
-            let result = self.job(&job, priority).await;
+            let result = self.run_job(&job, priority).await;
             if contended {
                 share.spent(turn, self.link.now() - started);
             }
             let _ = job.done.send(result);
         }
+    }
+
+    /// Runs `job` as the bus's role allows: the only master sends at once; a master that shares
+    /// the line first hears what came since its last exchange (another master's request makes
+    /// it yield) and waits out a pause after garbled traffic; a standby refuses commands and
+    /// answers a poll with the reply it hears to the same request from the master, unless the
+    /// line falls silent and it takes the line.
+    async fn run_job(&mut self, job: &Job, priority: Priority) -> Result<Option<Vec<u8>>, BusError> {
+        if self.listening.is_none() {
+            return self.job(job, priority).await;
+        }
+        if !self.link.is_open() {
+            // Listening needs the port open too (a master's first job would open it).
+            match self.link.reopen().await {
+                Ok(()) => self.engine.link_restored(),
+                Err(e) if !self.listening.as_ref().is_some_and(|l| l.role.may_send()) => {
+                    return Err(BusError::Link(format!("{}: {e}", self.link.name())));
+                }
+                Err(_) => {}
+            }
+        }
+        let now = self.link.now();
+        self.hear_until(now, None).await;
+        while let Some(l) = self.listening.as_mut() {
+            if l.role.may_send() {
+                break;
+            }
+            let master = l.role.role() == crate::role::Role::Master;
+            if !master && priority != Priority::Poll {
+                return Err(BusError::Standby(self.link.name()));
+            }
+            let start = self.link.now();
+            let give_up = start + SHADOW_WAIT;
+            let until = l.role.poll_timeout().map_or(give_up, |t| t.min(give_up));
+            let want = (!master).then_some(job.exchange.request.as_slice());
+            if let Some(reply) = self.hear_until(until, want).await {
+                return Ok(Some(reply));
+            }
+            let now = self.link.now();
+            if let Some(l) = self.listening.as_mut() {
+                if let Some(t) = l.role.poll(now) {
+                    l.publish(Some(t));
+                }
+                if !l.role.may_send() && !master && now >= give_up {
+                    return Err(BusError::Standby(self.link.name()));
+                }
+            }
+        }
+        let result = self.job(job, priority).await;
+        if matches!(result, Err(BusError::Corrupt { .. })) {
+            // Damaged replies on a shared line: perhaps another master talking at once.
+            let now = self.link.now();
+            if let Some(l) = self.listening.as_mut() {
+                l.role.heard_garbled(now);
+                l.publish(None);
+            }
+        }
+        result
+    }
+
+    /// Reads what the line carries until `deadline` (at least what has already come), telling
+    /// the role what it heard. With `want`, returns the reply heard to that request as soon as
+    /// it comes.
+    async fn hear_until(&mut self, deadline: Instant, want: Option<&[u8]>) -> Option<Vec<u8>> {
+        let mut buf = std::mem::take(&mut self.rx_buf);
+        buf.resize(1024, 0);
+        let mut heard = Vec::new();
+        let mut sleep = crate::timer::sleep_until(self.link.clock().tokio(deadline));
+        let mut answer = None;
+        loop {
+            let n = tokio::select! {
+                biased;
+                r = self.link.read(&mut buf) => match r {
+                    Ok(n) => n,
+                    Err(_) => {
+                        // The port failed: nothing more is heard before the deadline.
+                        (&mut sleep).await;
+                        break;
+                    }
+                },
+                _ = &mut sleep => break,
+            };
+            let now = self.link.now();
+            let Some(l) = self.listening.as_mut() else { break };
+            heard.clear();
+            l.heard.push(now, &buf[..n], &mut heard);
+            for h in heard.drain(..) {
+                match h {
+                    Heard::Request(_) => {
+                        if let Some(t) = l.role.heard_request(now) {
+                            l.publish(Some(t));
+                        }
+                    }
+                    Heard::Reply { request, reply } => {
+                        if want == Some(request.as_slice()) {
+                            answer = Some(reply);
+                        }
+                    }
+                    Heard::Garbled => l.role.heard_garbled(now),
+                }
+            }
+            l.publish(None);
+            if answer.is_some() {
+                break;
+            }
+        }
+        self.rx_buf = buf;
+        answer
     }
 
     /// Carries out what the engine decides for `job`.

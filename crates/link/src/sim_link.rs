@@ -15,6 +15,8 @@ pub struct SimLink {
     line: Arc<Mutex<VirtualLine>>,
     clock: Clock,
     name: String,
+    /// Which of the line's masters this link is (`VirtualLine::add_master`).
+    master: usize,
 }
 
 impl SimLink {
@@ -25,7 +27,13 @@ impl SimLink {
 
     /// A link to `line` telling time by `clock`.
     pub(crate) fn with_clock(line: Arc<Mutex<VirtualLine>>, name: &str, clock: Clock) -> Self {
-        SimLink { line, clock, name: name.to_string() }
+        SimLink { line, clock, name: name.to_string(), master: drivebus_sim::bus::MASTER }
+    }
+
+    /// A link to `line` as its master `master` (from `VirtualLine::add_master`): a second
+    /// gateway on the same line, telling time by the first one's `clock` (the line has one).
+    pub fn for_master(line: Arc<Mutex<VirtualLine>>, name: &str, master: usize, clock: Clock) -> Self {
+        SimLink { master, ..Self::with_clock(line, name, clock) }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, VirtualLine> {
@@ -42,7 +50,8 @@ impl Link for SimLink {
     }
     async fn write(&mut self, bytes: &[u8]) -> io::Result<()> {
         let now = self.now();
-        self.lock().master_write(now, bytes);
+        let master = self.master;
+        self.lock().master_write_from(master, now, bytes);
         Ok(())
     }
     async fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
@@ -52,7 +61,7 @@ impl Link for SimLink {
             let next = {
                 let mut line = self.lock();
                 line.advance_to(now);
-                line.master_read(&mut got);
+                line.master_read_to(self.master, &mut got);
                 line.next_deadline()
             };
             if !got.is_empty() {

@@ -200,3 +200,43 @@ async fn on_demand_floods_share_the_bus_and_polls_keep_their_interval() {
     assert!(a > 100 && b > 100, "on-demand reads were served too: {a} and {b}");
     assert!(a.abs_diff(b) * 10 <= a.max(b), "the clients were served in turn: {a} and {b}");
 }
+
+#[tokio::test(start_paused = true)]
+async fn scan_probes_wait_behind_everything_and_leave_health_alone() {
+    let (bus, _line) = bus_of(&[1], Faults::default());
+    let bus = Arc::new(bus);
+    let order = Arc::new(Mutex::new(Vec::new()));
+    let job = |what: &'static str, address: u8, priority: Priority| {
+        let (bus, order) = (bus.clone(), order.clone());
+        tokio::spawn(async move {
+            let r = bus.transact(address, read(address, 0x2103), priority, None).await;
+            order.lock().unwrap().push(what);
+            r
+        })
+    };
+    // The first keeps the line busy while the others queue up, the scan's probe first.
+    let first = job("first", 1, Priority::Poll);
+    for _ in 0..10 {
+        tokio::task::yield_now().await;
+    }
+    let scan = job("scan", 9, Priority::Scan);
+    for _ in 0..10 {
+        tokio::task::yield_now().await;
+    }
+    let others = [job("poll", 1, Priority::Poll), job("on-demand", 1, Priority::OnDemand)];
+    first.await.unwrap().unwrap();
+    for j in others {
+        j.await.unwrap().unwrap();
+    }
+    // An empty address: one attempt (no retries), and no health kept for it.
+    let probe = scan.await.unwrap();
+    assert!(matches!(probe, Err(BusError::Timeout { attempts: 1, .. })), "{probe:?}");
+    assert_eq!(*order.lock().unwrap(), ["first", "poll", "on-demand", "scan"]);
+    for _ in 0..5 {
+        let r = bus.transact(9, read(9, 0x2103), Priority::Scan, None).await;
+        assert!(matches!(r, Err(BusError::Timeout { .. })), "{r:?}");
+    }
+    assert!(!bus.health().contains_key(&9), "{:?}", bus.health());
+    // A drive that is there answers a probe.
+    assert!(bus.transact(1, read(1, 0x2103), Priority::Scan, None).await.unwrap().is_some());
+}

@@ -9,8 +9,10 @@
 //! The line is sans-IO like the protocol sessions: it never reads a clock. The caller advances
 //! it with [`VirtualLine::advance_to`] and asks [`VirtualLine::next_deadline`] when something will
 //! happen next; a test drives it on a virtual clock, the simulator's runtime maps it to wall time.
-//! The master (the program under test, on a pty or TCP) is the port [`MASTER`]; devices are
-//! numbered from 1 in the order they are added.
+//! The master (the program under test, on a pty or TCP) is master [`MASTER`]; more masters can
+//! share the line ([`VirtualLine::add_master`]: a standby gateway beside an active one), each
+//! hearing every other talker, masters and devices alike. Devices are numbered from 1 in the
+//! order they are added.
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -22,8 +24,20 @@ pub use crate::drive::Device;
 use crate::drive::VirtualDrive;
 use crate::rng::Rng;
 
-/// The port of the external master.
+/// The first external master (every line has it).
 pub const MASTER: usize = 0;
+
+/// The most bursts a log keeps unread.
+const LOG_KEEP: usize = 4096;
+
+/// Who puts a character on the line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Talker {
+    /// An external master, by its number (0 = [`MASTER`]).
+    Master(usize),
+    /// A device, by its port (1, 2, ...).
+    Device(usize),
+}
 
 /// Faults to inject, settable at run time.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -39,12 +53,15 @@ pub struct Faults {
 /// What the line has carried.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LineStats {
-    /// Bytes put on the line by the master.
+    /// Bytes put on the line by the masters.
     pub master_bytes: u64,
     /// Bytes put on the line by devices.
     pub device_bytes: u64,
     /// Bytes garbled by two talkers at once.
     pub collisions: u64,
+    /// Frames (a talker's run of characters without a gap) with at least one byte garbled by
+    /// two talkers at once: both frames of a collision count.
+    pub garbled_frames: u64,
     /// Bytes corrupted by injected noise.
     pub corrupted: u64,
     /// Bytes lost to injected drops.
@@ -58,7 +75,9 @@ struct Slot {
     /// When the character's last bit arrives.
     end: Instant,
     byte: u8,
-    talker: usize,
+    talker: Talker,
+    /// The run of characters (frame) this one belongs to.
+    run: u64,
     garbled: bool,
 }
 
@@ -67,6 +86,18 @@ struct Port {
     silent: bool,
     /// When this talker's current transmission ends.
     tx_end: Instant,
+    /// This talker's current run of characters.
+    run: u64,
+}
+
+/// An external master's end of the line.
+struct MasterPort {
+    /// When this master's current transmission ends.
+    tx_end: Instant,
+    /// This master's current run of characters.
+    run: u64,
+    /// Bytes that reached this master, not yet read.
+    inbox: VecDeque<u8>,
 }
 
 /// One RS-485 line with its devices.
@@ -76,10 +107,14 @@ pub struct VirtualLine {
     char_time: Duration,
     t35: Duration,
     ports: Vec<Port>,
+    /// The external masters, [`MASTER`] first.
+    masters: Vec<MasterPort>,
     /// Characters on the wire, in arrival order.
     wire: VecDeque<Slot>,
-    /// Bytes that reached the master, not yet read.
-    to_master: VecDeque<u8>,
+    /// The last run number handed out.
+    runs: u64,
+    /// Runs already counted in [`LineStats::garbled_frames`] (the most recent few).
+    garbled_runs: VecDeque<u64>,
     now: Instant,
     last_byte_end: Instant,
     silence_due: bool,
@@ -88,6 +123,8 @@ pub struct VirtualLine {
     stats: LineStats,
     /// What a listener on the line hears (both directions), when a tap is attached.
     tap: Option<VecDeque<u8>>,
+    /// Every burst delivered with who sent it, when a log is attached.
+    log: Option<VecDeque<(Talker, Vec<u8>)>>,
 }
 
 impl VirtualLine {
@@ -99,9 +136,11 @@ impl VirtualLine {
             format,
             char_time: format.char_time(baud),
             t35,
-            ports: vec![Port { device: None, silent: false, tx_end: now }],
+            ports: vec![Port { device: None, silent: false, tx_end: now, run: 0 }],
+            masters: vec![MasterPort { tx_end: now, run: 0, inbox: VecDeque::new() }],
             wire: VecDeque::new(),
-            to_master: VecDeque::new(),
+            runs: 0,
+            garbled_runs: VecDeque::new(),
             now,
             last_byte_end: now,
             silence_due: false,
@@ -109,6 +148,7 @@ impl VirtualLine {
             rng: Rng::new(1),
             stats: LineStats::default(),
             tap: None,
+            log: None,
         }
     }
 
@@ -136,8 +176,20 @@ impl VirtualLine {
 
     /// Adds a device; returns its port number (1, 2, ...).
     pub fn add_device(&mut self, device: Box<dyn Device + Send>) -> usize {
-        self.ports.push(Port { device: Some(device), silent: false, tx_end: self.now });
+        self.ports.push(Port { device: Some(device), silent: false, tx_end: self.now, run: 0 });
         self.ports.len() - 1
+    }
+
+    /// Adds another external master; returns its number (1, 2, ...; [`MASTER`] is 0). It hears
+    /// the drives and every other master, and they hear it.
+    pub fn add_master(&mut self) -> usize {
+        self.masters.push(MasterPort { tx_end: self.now, run: 0, inbox: VecDeque::new() });
+        self.masters.len() - 1
+    }
+
+    /// Number of external masters (at least 1).
+    pub fn masters(&self) -> usize {
+        self.masters.len()
     }
 
     /// The device on `port`.
@@ -206,8 +258,18 @@ impl VirtualLine {
     /// The master writes `bytes` at `now`: they go on the wire one character time apart,
     /// after whatever the master is still sending.
     pub fn master_write(&mut self, now: Instant, bytes: &[u8]) {
+        self.master_write_from(MASTER, now, bytes);
+    }
+
+    /// Master `master` (see [`VirtualLine::add_master`]) writes `bytes` at `now`. An unknown
+    /// master's bytes are ignored.
+    pub fn master_write_from(&mut self, master: usize, now: Instant, bytes: &[u8]) {
+        if master >= self.masters.len() {
+            return;
+        }
         self.advance_to(now);
-        self.transmit(MASTER, bytes);
+        let now = self.now;
+        self.transmit_at(Talker::Master(master), now, bytes);
     }
 
     /// Attaches a tap: from now on every character that arrives on the line, from the master
@@ -229,14 +291,35 @@ impl VirtualLine {
         self.tap.as_ref().is_some_and(|t| !t.is_empty())
     }
 
+    /// Attaches a log: from now on every burst delivered is also kept with who sent it, for
+    /// [`VirtualLine::log_read`] (a monitor that tells the masters' requests from the drives'
+    /// answers on a line with several masters).
+    pub fn attach_log(&mut self) {
+        self.log.get_or_insert_with(VecDeque::new);
+    }
+
+    /// The bursts logged since the last call, with who sent each (at most the last 4096).
+    pub fn log_read(&mut self, out: &mut Vec<(Talker, Vec<u8>)>) {
+        if let Some(l) = self.log.as_mut() {
+            out.extend(l.drain(..));
+        }
+    }
+
     /// Bytes that have reached the master by now.
     pub fn master_read(&mut self, out: &mut Vec<u8>) {
-        out.extend(self.to_master.drain(..));
+        self.master_read_to(MASTER, out);
+    }
+
+    /// Bytes that have reached master `master` by now: the drives' and the other masters'.
+    pub fn master_read_to(&mut self, master: usize, out: &mut Vec<u8>) {
+        if let Some(m) = self.masters.get_mut(master) {
+            out.extend(m.inbox.drain(..));
+        }
     }
 
     /// True when bytes wait for the master.
     pub fn master_has_input(&self) -> bool {
-        !self.to_master.is_empty()
+        !self.masters[MASTER].inbox.is_empty()
     }
 
     /// The next time something happens on the line (a byte arrives, a device answers, a
@@ -363,7 +446,7 @@ impl VirtualLine {
                 });
                 if let Some(bytes) = out {
                     if !self.ports[i].silent {
-                        self.transmit_at(i, t + self.faults.extra_latency, &bytes);
+                        self.transmit_at(Talker::Device(i), t + self.faults.extra_latency, &bytes);
                     }
                 }
             }
@@ -407,18 +490,27 @@ impl VirtualLine {
         Some(b)
     }
 
-    fn deliver(&mut self, talker: usize, t: Instant, bytes: &[u8]) {
+    fn deliver(&mut self, talker: Talker, t: Instant, bytes: &[u8]) {
         if bytes.is_empty() {
             return;
         }
-        if talker != MASTER {
-            self.to_master.extend(bytes.iter().copied());
+        for (i, m) in self.masters.iter_mut().enumerate() {
+            if talker != Talker::Master(i) {
+                m.inbox.extend(bytes.iter().copied());
+            }
         }
         if let Some(tap) = self.tap.as_mut() {
             tap.extend(bytes.iter().copied());
         }
+        if let Some(log) = self.log.as_mut() {
+            // Nobody reading (the first master's client not connected): the oldest go.
+            if log.len() >= LOG_KEEP {
+                log.pop_front();
+            }
+            log.push_back((talker, bytes.to_vec()));
+        }
         for (i, p) in self.ports.iter_mut().enumerate() {
-            if i == talker {
+            if talker == Talker::Device(i) {
                 continue;
             }
             if let Some(d) = p.device.as_mut() {
@@ -428,24 +520,36 @@ impl VirtualLine {
         }
     }
 
-    fn transmit(&mut self, talker: usize, bytes: &[u8]) {
-        let now = self.now;
-        self.transmit_at(talker, now, bytes);
-    }
-
-    fn transmit_at(&mut self, talker: usize, at: Instant, bytes: &[u8]) {
+    fn transmit_at(&mut self, talker: Talker, at: Instant, bytes: &[u8]) {
         if bytes.is_empty() {
             return;
         }
-        let start = at.max(self.ports[talker].tx_end);
+        let (tx_end, run) = match talker {
+            Talker::Master(m) => {
+                let p = &mut self.masters[m];
+                (&mut p.tx_end, &mut p.run)
+            }
+            Talker::Device(i) => {
+                let p = &mut self.ports[i];
+                (&mut p.tx_end, &mut p.run)
+            }
+        };
+        // Characters sent back to back continue the talker's frame; after a gap, a new one.
+        if at > *tx_end || *run == 0 {
+            self.runs += 1;
+            *run = self.runs;
+        }
+        let run = *run;
+        let start = at.max(*tx_end);
         let mut end = start;
         let mut new_slots = Vec::with_capacity(bytes.len());
         for &byte in bytes {
             end = end + self.char_time;
-            new_slots.push(Slot { end, byte, talker, garbled: false });
+            new_slots.push(Slot { end, byte, talker, run, garbled: false });
         }
-        self.ports[talker].tx_end = end;
+        *tx_end = end;
         // Half duplex: characters of other talkers that overlap in time garble, both ways.
+        let mut garbled_runs = Vec::new();
         for s in self.wire.iter_mut() {
             if s.talker == talker {
                 continue;
@@ -459,10 +563,21 @@ impl VirtualLine {
                     }
                     s.garbled = true;
                     n.garbled = true;
+                    garbled_runs.push(s.run);
+                    garbled_runs.push(n.run);
                 }
             }
         }
-        if talker == MASTER {
+        for r in garbled_runs {
+            if !self.garbled_runs.contains(&r) {
+                self.stats.garbled_frames += 1;
+                if self.garbled_runs.len() == 64 {
+                    self.garbled_runs.pop_front();
+                }
+                self.garbled_runs.push_back(r);
+            }
+        }
+        if matches!(talker, Talker::Master(_)) {
             self.stats.master_bytes += bytes.len() as u64;
         } else {
             self.stats.device_bytes += bytes.len() as u64;
@@ -644,6 +759,107 @@ mod tests {
         let mut got = Vec::new();
         line.master_read(&mut got);
         assert_ne!(got, [1, 2, 3, 4]);
+    }
+
+    #[test]
+    fn every_master_hears_the_other_masters_and_the_drives() {
+        let (mut line, heard, _) = echo_line(9600, 5);
+        let standby = line.add_master();
+        assert_eq!((standby, line.masters()), (1, 2));
+        line.master_write(Instant::ZERO, &[0xAB, 0xCD]);
+        // The standby hears each character when its last bit has arrived, not before.
+        line.advance_to(Instant::from_nanos(1_145_833));
+        let mut got = Vec::new();
+        line.master_read_to(standby, &mut got);
+        assert!(got.is_empty(), "{got:02X?}");
+        line.advance_to(Instant::from_nanos(2 * 1_145_834));
+        line.master_read_to(standby, &mut got);
+        assert_eq!(got, [0xAB, 0xCD]);
+        // Then the drive's answer, which both masters hear; the sender never hears itself.
+        run_until_idle(&mut line);
+        got.clear();
+        line.master_read_to(standby, &mut got);
+        assert_eq!(got, [0xAB, 0xCD], "the echo's reply");
+        got.clear();
+        line.master_read(&mut got);
+        assert_eq!(got, [0xAB, 0xCD], "only the reply, not its own request");
+        // The standby's request reaches the drive and the first master alike.
+        let t = line.now() + Duration::from_millis(20);
+        line.master_write_from(standby, t, &[0x11]);
+        run_until_idle(&mut line);
+        got.clear();
+        line.master_read(&mut got);
+        assert_eq!(got, [0x11, 0x11], "the standby's request, then the echo");
+        assert_eq!(heard.lock().unwrap().last().unwrap().1, [0x11]);
+        assert_eq!(line.stats().master_bytes, 3);
+        assert_eq!((line.stats().collisions, line.stats().garbled_frames), (0, 0));
+    }
+
+    #[test]
+    fn two_masters_at_once_garble_both_frames_and_each_is_counted_once() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        let b = line.add_master();
+        let (dev, heard, _) = echo(1);
+        line.add_device(Box::new(dev));
+        // A sends 8 bytes; B starts 2 ms later, in the middle of A's frame.
+        line.master_write(Instant::ZERO, &[1, 2, 3, 4, 5, 6, 7, 8]);
+        line.master_write_from(b, Instant::from_millis(2), &[9, 9, 9, 9]);
+        line.advance_to(Instant::from_millis(12));
+        let stats = line.stats();
+        assert_eq!(stats.garbled_frames, 2, "A's frame and B's: {stats:?}");
+        assert!(stats.collisions >= 4, "{stats:?}");
+        // What the drive heard is not A's frame.
+        let all: Vec<u8> = heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();
+        assert!(!all.windows(8).any(|w| w == [1, 2, 3, 4, 5, 6, 7, 8]), "{all:?}");
+        // A master that waits for silence collides with nobody: no new garbled frame.
+        run_until_idle(&mut line);
+        let before = line.stats().garbled_frames;
+        let t = line.now() + Duration::from_millis(10);
+        line.master_write_from(b, t, &[7, 7]);
+        run_until_idle(&mut line);
+        assert_eq!(line.stats().garbled_frames, before);
+        // Several writes back to back are one frame: a second overlap on it is not recounted.
+        let t = line.now() + Duration::from_millis(10);
+        line.master_write(t, &[1, 1, 1]);
+        line.master_write(t + Duration::from_micros(500), &[1, 1, 1]);
+        line.master_write_from(b, t + Duration::from_micros(100), &[2]);
+        line.master_write_from(b, t + Duration::from_micros(200), &[2]);
+        line.advance_to(t + Duration::from_millis(8));
+        assert_eq!(line.stats().garbled_frames, before + 2);
+    }
+
+    #[test]
+    fn the_log_tells_who_sent_each_burst() {
+        let (mut line, _, _) = echo_line(9600, 5);
+        let b = line.add_master();
+        line.attach_log();
+        line.master_write(Instant::ZERO, &[1, 2]);
+        run_until_idle(&mut line);
+        let t = line.now() + Duration::from_millis(20);
+        line.master_write_from(b, t, &[3]);
+        run_until_idle(&mut line);
+        let mut log = Vec::new();
+        line.log_read(&mut log);
+        assert_eq!(
+            log,
+            [
+                (Talker::Master(0), vec![1, 2]),
+                (Talker::Device(1), vec![1, 2]),
+                (Talker::Master(b), vec![3]),
+                (Talker::Device(1), vec![3]),
+            ]
+        );
+    }
+
+    #[test]
+    fn an_unknown_master_is_ignored() {
+        let mut line = VirtualLine::new(9600, CharFormat::EVEN_8E1, Instant::ZERO);
+        line.master_write_from(3, Instant::ZERO, &[1, 2]);
+        let mut got = Vec::new();
+        line.master_read_to(3, &mut got);
+        run_until_idle(&mut line);
+        assert!(got.is_empty());
+        assert_eq!(line.stats().master_bytes, 0);
     }
 
     #[test]

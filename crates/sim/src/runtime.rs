@@ -4,6 +4,10 @@
 //!
 //! Simulated time is the wall time since the simulator started; the line's pacing then holds
 //! in real time: a byte written by the master reaches the drives one character time later.
+//!
+//! Several masters can share the line, each on its own pty or TCP port
+//! ([`Simulator::add_master`], [`Simulator::serve_master`]): every byte one sends reaches the
+//! drives and the other masters, and two sending at once garble each other.
 
 use std::io;
 use std::net::SocketAddr;
@@ -24,7 +28,7 @@ use serde::Deserialize;
 use serde_json::{json, Value};
 use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
-use tokio::sync::Notify;
+use tokio::sync::{watch, Notify};
 
 use crate::bus::{Faults, VirtualLine};
 use crate::config::{BusSpec, ConfigError};
@@ -35,7 +39,9 @@ use crate::monitor::Monitor;
 pub struct Simulator {
     line: Mutex<VirtualLine>,
     start: std::time::Instant,
-    wake: Notify,
+    /// Bumped whenever something outside the line's own timeline changed it (a master wrote,
+    /// the control interface changed a drive): every pump then looks again.
+    changed: watch::Sender<u64>,
     /// Rung when the tap has bytes to pass on.
     tap_wake: Notify,
     protocols: Vec<WireProtocol>,
@@ -72,7 +78,7 @@ impl Simulator {
         Ok(Arc::new(Simulator {
             line: Mutex::new(line),
             start: std::time::Instant::now(),
-            wake: Notify::new(),
+            changed: watch::channel(0).0,
             tap_wake: Notify::new(),
             protocols,
         }))
@@ -100,10 +106,30 @@ impl Simulator {
         &self.protocols
     }
 
+    /// Adds another master's port to the line; returns its number for
+    /// [`Simulator::serve_master`] (the first master, served by [`Simulator::serve`], is 0).
+    pub fn add_master(&self) -> usize {
+        self.line.lock().unwrap_or_else(|p| p.into_inner()).add_master()
+    }
+
     /// Serves the bus at `endpoint` until the process ends; calls `ready` with where it
     /// listens. With `verbose`, prints a line per frame decoded.
     pub async fn serve(
         self: Arc<Self>,
+        endpoint: Endpoint,
+        verbose: bool,
+        ready: impl FnOnce(String),
+    ) -> io::Result<()> {
+        self.serve_master(crate::bus::MASTER, endpoint, verbose, ready).await
+    }
+
+    /// Serves master `master` (from [`Simulator::add_master`]) at `endpoint` until the process
+    /// ends, as [`Simulator::serve`] does the first. With `verbose` and several masters (add
+    /// them all before serving), the first prints every frame on the line, each request marked
+    /// with the master that sent it.
+    pub async fn serve_master(
+        self: Arc<Self>,
+        master: usize,
         endpoint: Endpoint,
         verbose: bool,
         ready: impl FnOnce(String),
@@ -115,7 +141,7 @@ impl Simulator {
                 let (r, w) = tokio::io::split(pty.master);
                 // The slave stays open here so the master never sees EIO between clients.
                 let _slave = pty.slave;
-                self.pump(r, w, verbose).await
+                self.pump(master, r, w, verbose).await
             }
             Endpoint::ModbusTcp(addr) => {
                 let listener = tokio::net::TcpListener::bind(addr).await?;
@@ -132,7 +158,7 @@ impl Simulator {
                     let _ = stream.set_nodelay(true);
                     let (sim, turn) = (self.clone(), turn.clone());
                     connections.spawn(async move {
-                        let result = sim.serve_mbap(stream, turn).await;
+                        let result = sim.serve_mbap(master, stream, turn).await;
                         if verbose {
                             println!(
                                 "Modbus TCP client {peer} left ({})",
@@ -152,7 +178,7 @@ impl Simulator {
                     }
                     let _ = stream.set_nodelay(true);
                     let (r, w) = stream.into_split();
-                    let result = self.clone().pump(r, w, verbose).await;
+                    let result = self.clone().pump(master, r, w, verbose).await;
                     if verbose {
                         println!(
                             "client {peer} left ({})",
@@ -164,10 +190,11 @@ impl Simulator {
         }
     }
 
-    /// Serves one Modbus TCP client on `stream`; `turn` keeps one exchange on the line at a time
-    /// across clients.
+    /// Serves one Modbus TCP client on `stream` as master `master`; `turn` keeps one exchange on
+    /// the line at a time across clients.
     async fn serve_mbap(
         self: Arc<Self>,
+        master: usize,
         mut stream: tokio::net::TcpStream,
         turn: Arc<tokio::sync::Mutex<()>>,
     ) -> io::Result<()> {
@@ -193,7 +220,7 @@ impl Simulator {
                 pos += total;
                 let answer = {
                     let _turn = turn.lock().await;
-                    self.exchange_rtu(&rtu[..rn], header.unit != 0).await
+                    self.exchange_rtu(master, &rtu[..rn], header.unit != 0).await
                 };
                 let mut out = [0u8; MAX_ADU];
                 let sent = match answer {
@@ -219,10 +246,12 @@ impl Simulator {
 
     /// Puts the Modbus RTU request `rtu` on the line and waits for the drive's reply frame
     /// (`None`: none came within [`MODBUS_TCP_WAIT`], or none is due).
-    async fn exchange_rtu(&self, rtu: &[u8], reply_due: bool) -> Option<Vec<u8>> {
+    async fn exchange_rtu(&self, master: usize, rtu: &[u8], reply_due: bool) -> Option<Vec<u8>> {
         use drivebus_proto::deframe::{Deframer, Event};
         use drivebus_proto::modbus::rtu::RtuScanner;
-        self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write(self.now(), rtu);
+        self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write_from(master, self.now(), rtu);
+        self.changed.send_modify(|g| *g = g.wrapping_add(1));
+        let mut changed = self.changed.subscribe();
         if !reply_due {
             return None;
         }
@@ -234,12 +263,12 @@ impl Simulator {
             let until = deadline.map_or(give_up, |d| self.wall(d).min(give_up));
             tokio::select! {
                 _ = tokio::time::sleep_until(until) => {}
-                _ = self.wake.notified() => {}
+                _ = changed.changed() => {}
             }
             {
                 let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
                 line.advance_to(self.now());
-                line.master_read(&mut out);
+                line.master_read_to(master, &mut out);
                 if line.tap_pending() {
                     self.tap_wake.notify_one();
                 }
@@ -262,13 +291,24 @@ impl Simulator {
         }
     }
 
-    async fn pump<R, W>(self: Arc<Self>, mut r: R, mut w: W, verbose: bool) -> io::Result<()>
+    async fn pump<R, W>(self: Arc<Self>, master: usize, mut r: R, mut w: W, verbose: bool) -> io::Result<()>
     where
         R: AsyncRead + Unpin,
         W: AsyncWrite + Unpin,
     {
         let single = self.protocols.len() == 1;
-        let mut monitors: Vec<(Monitor, Monitor)> = if verbose {
+        let several = self.line.lock().unwrap_or_else(|p| p.into_inner()).masters() > 1;
+        // With several masters, what one receives mixes the others' requests with the drives'
+        // answers: the first prints every frame from the line's log, which says who sent each.
+        let from_log = several && verbose;
+        if from_log && master == crate::bus::MASTER {
+            self.line.lock().unwrap_or_else(|p| p.into_inner()).attach_log();
+        }
+        let mut logged = Vec::new();
+        let mut changed = self.changed.subscribe();
+        // With the log, only the first master prints.
+        let mut monitors: Vec<(Monitor, Monitor)> = if verbose && !(from_log && master != crate::bus::MASTER)
+        {
             self.protocols
                 .iter()
                 .map(|&p| {
@@ -293,27 +333,45 @@ impl Simulator {
                         return Ok(());
                     }
                     let now = self.now();
-                    self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write(now, &buf[..n]);
-                    for (m, _) in &mut monitors {
+                    self.line.lock().unwrap_or_else(|p| p.into_inner()).master_write_from(master, now, &buf[..n]);
+                    self.changed.send_modify(|g| *g = g.wrapping_add(1));
+                    for (m, _) in monitors.iter_mut().filter(|_| !from_log) {
                         for l in m.push(&buf[..n]) {
                             println!("{:>10.3} {l}", now.as_nanos() as f64 / 1e9);
                         }
                     }
                 }
                 _ = sleep => {}
-                _ = self.wake.notified() => {}
+                _ = changed.changed() => {}
             }
             let now = self.now();
             {
                 let mut line = self.line.lock().unwrap_or_else(|p| p.into_inner());
                 line.advance_to(now);
-                line.master_read(&mut out);
+                line.master_read_to(master, &mut out);
+                if from_log && master == crate::bus::MASTER {
+                    line.log_read(&mut logged);
+                }
                 if line.tap_pending() {
                     self.tap_wake.notify_one();
                 }
             }
+            for (talker, bytes) in logged.drain(..) {
+                let t = now.as_nanos() as f64 / 1e9;
+                for (to_drives, from_drives) in &mut monitors {
+                    let lines = match talker {
+                        crate::bus::Talker::Master(m) => {
+                            to_drives.push(&bytes).into_iter().map(|l| format!("[master {m}] {l}")).collect()
+                        }
+                        crate::bus::Talker::Device(_) => from_drives.push(&bytes),
+                    };
+                    for l in lines {
+                        println!("{t:>10.3} {l}");
+                    }
+                }
+            }
             if !out.is_empty() {
-                for (_, m) in &mut monitors {
+                for (_, m) in monitors.iter_mut().filter(|_| !from_log) {
                     for l in m.push(&out) {
                         println!("{:>10.3} {l}", now.as_nanos() as f64 / 1e9);
                     }
@@ -398,7 +456,7 @@ async fn index() -> Json<Value> {
             "GET /drives/{n}": "drive n (1 = first --drive)",
             "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0, \"params\": {\"F-12\": 2}, \"power_cycle\": true, \"run\": true, \"keypad_hz\": 40}",
             "GET /faults, PUT /faults": "{\"corrupt_rate\": 0.01, \"drop_rate\": 0.0, \"extra_latency_ms\": 0}",
-            "GET /stats": "what the line has carried"
+            "GET /stats": "what the line has carried (garbled_frames: frames two talkers garbled at once)"
         }
     }))
 }
@@ -536,7 +594,7 @@ async fn patch_drive(
         d.press_run(run).map_err(|e| api_error(StatusCode::CONFLICT, e))?;
     }
     drop(line);
-    sim.wake.notify_one();
+    sim.changed.send_modify(|g| *g = g.wrapping_add(1));
     let mut line = sim.line();
     snapshot(&mut line, n).map(Json).ok_or_else(|| no_drive(n, count))
 }
@@ -599,7 +657,9 @@ async fn get_stats(State(sim): State<Arc<Simulator>>) -> Json<Value> {
         "serial": line.format().to_string(),
         "master_bytes": s.master_bytes,
         "device_bytes": s.device_bytes,
+        "masters": line.masters(),
         "collisions": s.collisions,
+        "garbled_frames": s.garbled_frames,
         "corrupted": s.corrupted,
         "dropped": s.dropped,
         "utilization": if elapsed > 0.0 { s.busy.as_secs_f64() / elapsed } else { 0.0 },

@@ -73,11 +73,15 @@ pub enum EventKind {
     Stopped,
     /// The configuration was reloaded (or a reload was refused: see the result).
     Reload,
+    /// The gateway took a bus's line over from another gateway that fell silent (`[standby]`).
+    Takeover,
+    /// The gateway heard another gateway master a bus and stopped sending on it.
+    Yield,
 }
 
 impl EventKind {
     /// Every kind, in declaration order.
-    pub const ALL: [EventKind; 10] = [
+    pub const ALL: [EventKind; 12] = [
         EventKind::Command,
         EventKind::Trip,
         EventKind::FaultReset,
@@ -88,10 +92,13 @@ impl EventKind {
         EventKind::Started,
         EventKind::Stopped,
         EventKind::Reload,
+        EventKind::Takeover,
+        EventKind::Yield,
     ];
 
     /// The name stored and printed: `"command"`, `"trip"`, `"fault_reset"`, `"online"`,
-    /// `"offline"`, `"bus_online"`, `"bus_offline"`, `"started"`, `"stopped"`, `"reload"`.
+    /// `"offline"`, `"bus_online"`, `"bus_offline"`, `"started"`, `"stopped"`, `"reload"`,
+    /// `"takeover"`, `"yield"`.
     pub fn as_str(self) -> &'static str {
         match self {
             EventKind::Command => "command",
@@ -104,6 +111,8 @@ impl EventKind {
             EventKind::Started => "started",
             EventKind::Stopped => "stopped",
             EventKind::Reload => "reload",
+            EventKind::Takeover => "takeover",
+            EventKind::Yield => "yield",
         }
     }
 }

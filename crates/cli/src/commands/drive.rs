@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Subcommand;
+use drivebus_drive::backup::{differences, is_setting, Backup};
 use drivebus_drive::profile::{DriveError, DriveStatus};
 use drivebus_drive::{Family, Storage};
 use drivebus_link::drive::{open_with, Drive, Error};
@@ -12,7 +13,7 @@ use drivebus_link::owner::{BusConfig, BusError};
 use drivebus_link::Priority;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
-use serde_json::{json, Map, Value};
+use serde_json::{json, Value};
 
 use crate::commands::decode::{decode_by_name, decode_reply, render_json, render_text, Item};
 use crate::commands::target::{fail, Target, EXIT_LINK, EXIT_REFUSED, EXIT_USAGE};
@@ -296,153 +297,129 @@ fn can_choose_storage(family: Family, protocol: WireProtocol) -> bool {
     )
 }
 
-/// Reads every setting (writable, stored in EEPROM) the protocol can reach. A protocol without
-/// parameter access (B800) has nothing to back up: that is an error, not an empty set.
-async fn read_all(drive: &Drive, label: &str) -> Result<Map<String, Value>> {
-    let family = drive.profile().family();
-    let catalog = drivebus_drive::Catalog::load(family).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
-    let mut out = Map::new();
+/// Reads every setting ([`is_setting`]) the protocol can reach, as a backup of the drive. A
+/// protocol without parameter access (B800) has nothing to back up: that is an error, not an
+/// empty set.
+async fn read_all(drive: &Drive, label: &str) -> Result<Backup> {
+    let p = drive.profile();
+    let catalog = drivebus_drive::Catalog::load(p.family()).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
+    let mut read = Vec::new();
     let mut unsupported = false;
-    // The drive's settings: stored in EEPROM and writable (not commands, setpoints, monitors).
-    for def in catalog.iter().filter(|d| !d.read_only && d.storage == Storage::Eeprom) {
+    for def in catalog.iter().filter(|d| is_setting(d)) {
         match drive.read_param(&def.name).await {
-            Ok((raw, def)) => {
-                out.insert(def.name.clone(), json!({"raw": raw, "value": def.format(raw)}));
-            }
+            Ok((raw, _)) => read.push((def, raw)),
             Err(Error::Drive(DriveError::Unsupported(_))) => unsupported = true,
             Err(e) => return Err(classify(e, label)),
         }
     }
-    if unsupported && out.is_empty() {
+    if unsupported && read.is_empty() {
         return Err(fail(
             EXIT_USAGE,
             format!(
                 "{label}: nothing to back up or compare: the {} protocol has no parameter access (read and set the parameters on the drive's keypad)",
-                drive.profile().protocol()
+                p.protocol()
             ),
         ));
     }
-    Ok(out)
-}
-
-/// A backup file: whose it is (family, address, model) and its parameters.
-struct Backup {
-    family: String,
-    address: Option<u64>,
-    model: Option<String>,
-    params: Map<String, Value>,
+    Ok(Backup::new(p.family(), p.protocol().name(), p.address(), read))
 }
 
 fn load_backup(file: &PathBuf) -> Result<Backup> {
     let text = std::fs::read_to_string(file)
         .with_context(|| format!("cannot read {}", file.display()))
         .map_err(|e| fail(EXIT_USAGE, format!("{e:#}")))?;
-    let v: Value = serde_json::from_str(&text)
-        .map_err(|e| fail(EXIT_USAGE, format!("{}: not a drivebus backup: {e}", file.display())))?;
-    let family = v["family"].as_str().unwrap_or_default().to_string();
-    let params = v["params"]
-        .as_object()
-        .cloned()
-        .ok_or_else(|| fail(EXIT_USAGE, format!("{}: no \"params\" object", file.display())))?;
-    Ok(Backup {
-        family,
-        address: v["address"].as_u64(),
-        model: v["model"].as_str().map(str::to_string),
-        params,
-    })
-}
-
-fn differences(
-    drive_params: &Map<String, Value>,
-    file: &Map<String, Value>,
-) -> Vec<(String, i64, i64, String, String)> {
-    let mut diffs = Vec::new();
-    for (name, want) in file {
-        let Some(want_raw) = want["raw"].as_i64() else { continue };
-        if let Some(have) = drive_params.get(name) {
-            let have_raw = have["raw"].as_i64().unwrap_or(i64::MIN);
-            if have_raw != want_raw {
-                diffs.push((
-                    name.clone(),
-                    have_raw,
-                    want_raw,
-                    have["value"].as_str().unwrap_or("").to_string(),
-                    want["value"].as_str().unwrap_or("").to_string(),
-                ));
-            }
-        }
-    }
-    diffs
+    Backup::parse(&text).map_err(|e| fail(EXIT_USAGE, format!("{}: {e}", file.display())))
 }
 
 /// `params backup|restore|diff`.
 pub fn params(t: &Target, cmd: &ParamsCmd) -> Result<u8> {
     runtime()?.block_on(async {
         let (drive, label) = connect(t).await?;
-        let family = drive.profile().family().to_string();
+        let family = drive.profile().family();
+        let catalog = drivebus_drive::Catalog::load(family).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
         match cmd {
             ParamsCmd::Backup { file } => {
-                let params = read_all(&drive, &label).await?;
-                let n = params.len();
-                let p = drive.profile();
-                let doc = json!({"family": family, "model": p.family().model(), "protocol": p.protocol().name(), "address": p.address(), "params": params});
-                let text = serde_json::to_string_pretty(&doc)?;
-                std::fs::write(file, text + "\n").map_err(|e| fail(EXIT_USAGE, format!("cannot write {}: {e}", file.display())))?;
-                println!("{label}: {n} {} saved to {}", plural(n as u64, "parameter", "parameters"), file.display());
+                let backup = read_all(&drive, &label).await?;
+                let n = backup.params.len();
+                std::fs::write(file, backup.to_text())
+                    .map_err(|e| fail(EXIT_USAGE, format!("cannot write {}: {e}", file.display())))?;
+                println!(
+                    "{label}: {n} {} saved to {}",
+                    plural(n as u64, "parameter", "parameters"),
+                    file.display()
+                );
                 Ok(0)
             }
             ParamsCmd::Restore { file, dry_run, include_comm } => {
                 let backup = load_backup(file)?;
-                let ffam = &backup.family;
-                if *ffam != family {
-                    return Err(fail(EXIT_USAGE, format!("{} holds {ffam} parameters; this is a {family} drive", file.display())));
-                }
+                backup
+                    .check_family(family, &file.display().to_string())
+                    .map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
                 let address = drive.profile().address();
                 match backup.address {
                     Some(from) if from != u64::from(address) => println!(
-                        "{label}: {} is the backup of {ffam} drive {from}{}, restored onto drive {address}",
+                        "{label}: {} is the backup of {family} drive {from}{}, restored onto drive {address}",
                         file.display(),
                         backup.model.as_deref().map(|m| format!(" ({m})")).unwrap_or_default()
                     ),
                     _ => {}
                 }
-                let catalog = drivebus_drive::Catalog::load(drive.profile().family()).map_err(|e| fail(EXIT_USAGE, e.to_string()))?;
                 let have = read_all(&drive, &label).await?;
                 // Communication settings stay as they are unless asked: another drive's address
                 // or baud rate would move this one on the bus.
-                let (diffs, kept): (Vec<_>, Vec<_>) = differences(&have, &backup.params)
-                    .into_iter()
-                    .partition(|(name, ..)| *include_comm || !catalog.get(name).is_some_and(|d| d.comm));
-                for (name, _, want, hv, wv) in &diffs {
-                    println!("{name}: {hv} -> {wv}{}", if *dry_run { " (dry run)" } else { "" });
+                let (diffs, kept): (Vec<_>, Vec<_>) =
+                    differences(&catalog, &have, &backup).into_iter().partition(|d| *include_comm || !d.comm);
+                for d in &diffs {
+                    println!(
+                        "{}: {} -> {}{}",
+                        d.name,
+                        d.drive.value,
+                        d.file.value,
+                        if *dry_run { " (dry run)" } else { "" }
+                    );
                     if !dry_run {
                         drive
-                            .execute(&drivebus_drive::profile::Operation::WriteParam { name: name.clone(), raw: *want, storage: Storage::Eeprom })
+                            .execute(&drivebus_drive::profile::Operation::WriteParam {
+                                name: d.name.clone(),
+                                raw: d.file.raw,
+                                storage: Storage::Eeprom,
+                            })
                             .await
                             .map_err(|e| classify(e, &label))?;
                     }
                 }
                 if !kept.is_empty() {
-                    let names: Vec<&str> = kept.iter().map(|(n, ..)| n.as_str()).collect();
+                    let names: Vec<&str> = kept.iter().map(|d| d.name.as_str()).collect();
                     println!(
                         "{label}: communication settings kept as they are: {} (--include-comm restores them)",
                         names.join(", ")
                     );
                 }
-                println!("{label}: {} {} {}", diffs.len(), plural(diffs.len() as u64, "parameter", "parameters"), if *dry_run { "would be written" } else { "written to EEPROM" });
+                println!(
+                    "{label}: {} {} {}",
+                    diffs.len(),
+                    plural(diffs.len() as u64, "parameter", "parameters"),
+                    if *dry_run { "would be written" } else { "written to EEPROM" }
+                );
                 Ok(0)
             }
             ParamsCmd::Diff { file } => {
                 let backup = load_backup(file)?;
                 let have = read_all(&drive, &label).await?;
-                let diffs = differences(&have, &backup.params);
+                let diffs = differences(&catalog, &have, &backup);
                 if t.json {
-                    println!("{}", json!(diffs.iter().map(|(n, h, w, _, _)| json!({"name": n, "drive": h, "file": w})).collect::<Vec<_>>()));
+                    println!(
+                        "{}",
+                        json!(diffs
+                            .iter()
+                            .map(|d| json!({"name": d.name, "drive": d.drive.raw, "file": d.file.raw}))
+                            .collect::<Vec<_>>())
+                    );
                 } else if diffs.is_empty() {
                     println!("{label}: no differences from {}", file.display());
                 } else {
-                    for (name, _, _, hv, wv) in &diffs {
-                        println!("{name}: drive {hv}, file {wv}");
+                    for d in &diffs {
+                        println!("{}: drive {}, file {}", d.name, d.drive.value, d.file.value);
                     }
                 }
                 Ok(if diffs.is_empty() { 0 } else { 1 })

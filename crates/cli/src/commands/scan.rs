@@ -5,9 +5,9 @@ use std::time::Duration;
 
 use anyhow::Result;
 use clap::Args;
-use drivebus_drive::profile::{for_drive, DriveError};
+use drivebus_drive::profile::for_drive;
 use drivebus_drive::Family;
-use drivebus_link::drive::{open_with, Drive, Error};
+use drivebus_link::drive::{open_with, probe, Drive};
 use drivebus_link::owner::BusConfig;
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
@@ -52,12 +52,6 @@ impl Found {
     fn spot(&self) -> (WireProtocol, u8) {
         (self.protocol, self.address)
     }
-}
-
-/// Whether `protocol` is spoken by more than one of the families (a refusal there may come
-/// from another family's drive).
-fn shared(protocol: WireProtocol) -> bool {
-    Family::ALL.iter().filter(|&&f| f.protocols().contains(&protocol)).count() > 1
 }
 
 fn parse_list(s: &str, what: &str) -> Result<Vec<u32>> {
@@ -201,24 +195,9 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
             let Some((_, bus)) = &current else { continue };
             let Ok(profile) = for_drive(family, protocol, address) else { continue };
             let drive = Drive::new(bus.clone(), profile);
-            let (note, refused) = match drive.status().await {
-                Ok(s) => (
-                    format!(
-                        "{}{}",
-                        if s.running { "running" } else { "stopped" },
-                        s.output_hz.map(|h| format!(" at {h:.2} Hz")).unwrap_or_default()
-                    ),
-                    false,
-                ),
-                // A refusal is an answer: something with this address speaks the protocol.
-                Err(Error::Drive(DriveError::Refused { code, meaning, .. })) => {
-                    (format!("answers (refused status: {code}, {meaning})"), true)
-                }
-                Err(Error::Drive(DriveError::Protocol(e))) => (format!("answers oddly: {e}"), false),
-                Err(_) => continue,
-            };
+            let Some(probe) = probe(&drive).await else { continue };
             drop(drive);
-            let tentative = refused && shared(protocol);
+            let (note, tentative) = (probe.note(), probe.tentative(protocol));
             let f = Found { family, protocol, address, baud, format, note, tentative };
             if f.tentative {
                 // Told at the end, if no family reads a status there.

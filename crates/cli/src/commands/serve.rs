@@ -61,6 +61,10 @@ pub struct ServeArgs {
     /// level and client id, so that two gateways on one broker stay apart.
     #[arg(long, value_name = "NAME")]
     pub name: Option<String>,
+    /// Start as a standby (`[standby] role = "standby"`): listen to another gateway on the same
+    /// lines, take a line over when it falls silent for `[standby] silence_ms` (500 ms).
+    #[arg(long)]
+    pub standby: bool,
     /// How log lines on stderr are written: `text` (one sentence each) or `json` (one object
     /// each, for log shippers reading the journal).
     #[arg(long, value_name = "FORMAT", default_value = "text")]
@@ -145,6 +149,23 @@ fn load(args: &ServeArgs, demo_token: Option<&str>) -> Result<GatewayConfig> {
         config.modbus_rtu.push(drivebus_gateway::modbus_rtu::ModbusRtuConfig::new(port));
     }
     sparkplug_overrides(args, &mut config)?;
+    if args.standby {
+        for b in &mut config.buses {
+            let silence = b.role.map_or(drivebus_link::role::RoleConfig::DEFAULT_SILENCE, |r| r.silence);
+            if let Some(why) = drivebus_gateway::config::no_standby(b) {
+                return Err(anyhow!("--standby: {why}"));
+            }
+            b.role = Some(drivebus_link::role::RoleConfig { standby: true, silence });
+            if let Some(poll) = b.drives.iter().map(|d| d.poll).min().filter(|p| *p > silence) {
+                return Err(anyhow!(
+                    "--standby: bus {}'s poll_ms {} is longer than the silence of {} ms that hands a line over: the line falls silent between polls; set [standby] silence_ms at least that",
+                    b.name,
+                    poll.as_millis(),
+                    silence.as_millis()
+                ));
+            }
+        }
+    }
     if args.no_store {
         config.store = None;
     } else if let Some(db) = &args.db {

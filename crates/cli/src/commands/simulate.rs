@@ -17,17 +17,20 @@ pub struct SimulateArgs {
     /// A TOML file describing the whole bus (see docs/simulator.md); --drive adds to it.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Create a pseudo-terminal and a symlink at PATH to it: open PATH as a serial port.
-    #[arg(long, value_name = "PATH", conflicts_with_all = ["tcp", "modbus_tcp"])]
-    pub pty: Option<PathBuf>,
-    /// Serve raw bytes on HOST:PORT, as a serial device server does.
-    #[arg(long, value_name = "HOST:PORT", conflicts_with = "modbus_tcp")]
-    pub tcp: Option<SocketAddr>,
+    /// Create a pseudo-terminal and a symlink at PATH to it: open PATH as a serial port. Give
+    /// it more than once (and with --tcp, --modbus-tcp) for several masters on one line: each
+    /// hears the drives and the other masters, and two talking at once garble each other.
+    #[arg(long, value_name = "PATH")]
+    pub pty: Vec<PathBuf>,
+    /// Serve raw bytes on HOST:PORT, as a serial device server does (more than once: several
+    /// masters, as with --pty).
+    #[arg(long, value_name = "HOST:PORT")]
+    pub tcp: Vec<SocketAddr>,
     /// Serve Modbus TCP (MBAP) on HOST:PORT, as a drive with an Ethernet card or a Modbus
     /// TCP/RTU gateway does: the unit id is the drive's address, and each drive speaks Modbus
-    /// RTU on the virtual line behind it.
+    /// RTU on the virtual line behind it (more than once: several masters, as with --pty).
     #[arg(long, value_name = "HOST:PORT")]
-    pub modbus_tcp: Option<SocketAddr>,
+    pub modbus_tcp: Vec<SocketAddr>,
     /// Create a second pseudo-terminal (symlink at PATH) that carries a copy of every byte on
     /// the virtual line, both directions, paced as on the line: open it with `drivebus sniff`.
     #[arg(long, value_name = "PATH")]
@@ -117,14 +120,31 @@ fn speak_modbus_rtu(bus: &mut BusSpec) -> Result<()> {
 
 /// Runs `drivebus simulate` until interrupted.
 pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Result<u8> {
-    let endpoint = match (&args.pty, &args.tcp, &args.modbus_tcp) {
-        (Some(p), None, None) => Endpoint::Pty(p.clone()),
-        (None, Some(a), None) => Endpoint::Tcp(*a),
-        (None, None, Some(a)) => Endpoint::ModbusTcp(*a),
-        _ => bail!("say where the master connects: --pty PATH, --tcp HOST:PORT or --modbus-tcp HOST:PORT"),
-    };
+    let endpoints: Vec<Endpoint> = args
+        .pty
+        .iter()
+        .map(|p| Endpoint::Pty(p.clone()))
+        .chain(args.tcp.iter().map(|a| Endpoint::Tcp(*a)))
+        .chain(args.modbus_tcp.iter().map(|a| Endpoint::ModbusTcp(*a)))
+        .collect();
+    if endpoints.is_empty() {
+        bail!(
+            "say where the master connects: --pty PATH, --tcp HOST:PORT or --modbus-tcp HOST:PORT (one per master)"
+        );
+    }
+    for (i, p) in args.pty.iter().enumerate() {
+        if args.pty[..i].contains(p) || args.tap.as_ref() == Some(p) {
+            bail!("{} is given twice: each --pty and the --tap needs its own path", p.display());
+        }
+    }
+    let tcp: Vec<&SocketAddr> = args.tcp.iter().chain(&args.modbus_tcp).collect();
+    for (i, a) in tcp.iter().enumerate() {
+        if a.port() != 0 && tcp[..i].contains(a) {
+            bail!("{a} is given twice: each master needs its own port");
+        }
+    }
     let mut bus = bus_spec(args, target)?;
-    if args.modbus_tcp.is_some() {
+    if !args.modbus_tcp.is_empty() {
         speak_modbus_rtu(&mut bus)?;
     }
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
@@ -167,20 +187,46 @@ pub fn run(args: &SimulateArgs, target: &crate::commands::target::Target) -> Res
             });
         }
         let verbose = args.verbose;
-        // Listened for before the ready line is printed: a signal right after it is not lost.
+        // Listened for before the ready lines are printed: a signal right after them is not lost.
         let mut stop = StopSignals::new()?;
-        let serve = sim.clone().serve(endpoint.clone(), verbose, |at| println!("listening on {at}"));
-        tokio::select! {
-            r = serve => r.with_context(|| match &endpoint {
+        let several = endpoints.len() > 1;
+        let mut masters = tokio::task::JoinSet::new();
+        let mut made: Vec<PathBuf> = Vec::new();
+        // Every master is on the line before any is served: each knows there are several.
+        let ids: Vec<usize> = (0..endpoints.len())
+            .map(|i| if i == 0 { drivebus_sim::bus::MASTER } else { sim.add_master() })
+            .collect();
+        for (endpoint, &master) in endpoints.iter().zip(&ids) {
+            // Each port is open (and its ready line printed) before the next is made: the
+            // masters' numbers follow the order of the ready lines.
+            let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
+            let what = match endpoint {
                 Endpoint::Pty(p) => format!("pty {}", p.display()),
                 Endpoint::Tcp(a) => format!("tcp {a}"),
                 Endpoint::ModbusTcp(a) => format!("modbus-tcp {a}"),
-            })?,
-            _ = stop.wait() => {}
+            };
+            let serve = sim.clone().serve_master(master, endpoint.clone(), verbose, move |at| {
+                let who = if several { format!(" (master {master})") } else { String::new() };
+                println!("listening on {at}{who}");
+                let _ = ready_tx.send(());
+            });
+            masters.spawn(async move { serve.await.with_context(|| what) });
+            // A port that fails to open ends its task at once: its error is reported below.
+            if ready_rx.await.is_ok() {
+                if let Endpoint::Pty(p) = endpoint {
+                    made.push(p.clone());
+                }
+            }
         }
-        if let Endpoint::Pty(p) = &endpoint {
+        let ended = tokio::select! {
+            Some(r) = masters.join_next() => r.context("a master's port task failed").and_then(|r| r),
+            _ = stop.wait() => Ok(()),
+        };
+        // Only the links this simulator made: a path refused (someone else's file) is kept.
+        for p in &made {
             let _ = std::fs::remove_file(p);
         }
+        ended?;
         if let Some(p) = &args.tap {
             let _ = std::fs::remove_file(p);
         }

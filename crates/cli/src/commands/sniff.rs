@@ -242,30 +242,22 @@ fn exit_code(a: &Analyzer, heard: bool) -> u8 {
     }
 }
 
-/// Finds the baud rate and format on a real port by listening at each candidate in turn.
-fn find_setting(port: &mut Listener, stop: &AtomicBool) -> Result<Option<(u32, CharFormat)>> {
-    let mut scores = Vec::new();
-    let mut buf = [0u8; 4096];
-    for (baud, format) in detect::candidates() {
-        if stop.load(Ordering::Relaxed) {
-            return Ok(None);
-        }
-        if port.set(baud, format).is_err() {
-            continue;
-        }
-        let mut bytes = Vec::new();
-        let until = std::time::Instant::now() + Duration::from_millis(150);
-        while std::time::Instant::now() < until {
-            let n = port.read(&mut buf)?;
-            bytes.extend_from_slice(&buf[..n]);
-        }
-        let s = detect::score(&bytes);
-        scores.push(((baud, format), s));
-        if s.frames >= 4 {
-            break;
-        }
+/// A serial port as the setting search sees it, on the wall clock since `start`.
+struct LivePort<'a> {
+    port: &'a mut Listener,
+    start: std::time::Instant,
+}
+
+impl detect::SettingPort for LivePort<'_> {
+    fn set(&mut self, baud: u32, format: CharFormat) -> std::io::Result<()> {
+        self.port.set(baud, format)
     }
-    Ok(detect::pick(&scores).map(|(c, _)| c))
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        self.port.read(buf)
+    }
+    fn now(&self) -> Duration {
+        self.start.elapsed()
+    }
 }
 
 fn listen(
@@ -328,9 +320,20 @@ fn listen(
                 ports[0].path()
             );
         } else {
-            eprintln!("drivebus: finding the baud rate and format from the traffic on {}", ports[0].path());
-            match find_setting(&mut ports[0], &stop)? {
-                Some((b, f)) => {
+            let candidates = detect::candidates_for(t.baud(), given);
+            eprintln!(
+                "drivebus: finding the {} from the traffic on {} ({})",
+                match (t.baud(), given) {
+                    (Some(_), _) => "format",
+                    (_, Some(_)) => "baud rate",
+                    _ => "baud rate and format",
+                },
+                ports[0].path(),
+                count(candidates.len(), "setting", "settings"),
+            );
+            let mut live = LivePort { port: &mut ports[0], start: std::time::Instant::now() };
+            match detect::find_setting(&mut live, candidates, || stop.load(Ordering::Relaxed))? {
+                Some(((b, f), _)) => {
                     (baud, format) = (t.baud().unwrap_or(b), given.unwrap_or(f));
                     eprintln!("drivebus: the line runs at {baud} {format}");
                     for p in &mut ports {

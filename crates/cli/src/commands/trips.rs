@@ -2,29 +2,10 @@
 //! (`drivebus_drive::profile::trips`).
 
 use anyhow::Result;
-use drivebus_drive::profile::trips::{history_of, history_reads, TripHistory};
-use serde_json::{json, Value};
+use drivebus_drive::profile::trips::{history_json, history_of, history_reads};
 
 use super::drive::{classify, connect, runtime};
 use super::target::Target;
-
-/// The history as JSON: `{"address", "family", "current": {"code", "text"} | null, "history":
-/// [{"index", "code", "text", "output_hz", "current_a"}], "source"}`.
-fn history_json(address: u8, family: &str, h: &TripHistory) -> Value {
-    json!({
-        "address": address,
-        "family": family,
-        "current": h.current.as_ref().map(|f| json!({"code": f.code, "text": f.text})),
-        "history": h.entries.iter().map(|e| json!({
-            "index": e.index,
-            "code": e.code,
-            "text": e.text,
-            "output_hz": e.output_hz,
-            "current_a": e.current_a,
-        })).collect::<Vec<_>>(),
-        "source": h.source,
-    })
-}
 
 /// `trips`: the trip in force and the logged trips, newest first.
 pub fn run(t: &Target) -> Result<u8> {
@@ -39,7 +20,7 @@ pub fn run(t: &Target) -> Result<u8> {
         }
         let h = history_of(family, &status, &raws);
         if t.json {
-            println!("{}", history_json(status.address, &family.to_string(), &h));
+            println!("{}", history_json(status.address, family, &h));
             return Ok(0);
         }
         println!("{label}");

@@ -17,7 +17,7 @@ mod tests {
     use drivebus_sim::config::{BusSpec, DriveSpec};
 
     use super::analyze::{Analyzer, Kind, Record, Settings, Side};
-    use super::detect::{detect, Burst};
+    use super::detect::{candidates_for, detect, find_setting, Burst, SettingPort};
 
     /// Line traffic of `exchanges` status reads of the drive `spec` on a simulated line, as a
     /// listener hears it: (when each burst's first character starts, its bytes). Also the line's
@@ -27,6 +27,17 @@ mod tests {
         baud: Option<u32>,
         format: Option<CharFormat>,
         exchanges: usize,
+    ) -> (u32, CharFormat, Vec<Burst>) {
+        traffic_every(spec, baud, format, exchanges, Duration::from_millis(300))
+    }
+
+    /// [`traffic`] with a master that sends a request every `period`.
+    fn traffic_every(
+        spec: &str,
+        baud: Option<u32>,
+        format: Option<CharFormat>,
+        exchanges: usize,
+        period: Duration,
     ) -> (u32, CharFormat, Vec<Burst>) {
         let drive: DriveSpec = spec.parse().expect("drive spec");
         let bus = BusSpec::new(vec![drive], baud, format).expect("bus");
@@ -44,7 +55,7 @@ mod tests {
             let status = run_blocking(&mut *plan, |ex| {
                 line.run_until(t);
                 line.master_write(t, &ex.request);
-                let end = t + Duration::from_millis(300);
+                let end = t + period;
                 while let Some(at) = line.next_deadline().filter(|&at| at <= end) {
                     line.advance_to(at);
                     tap.clear();
@@ -312,6 +323,169 @@ mod tests {
             assert_eq!(key(b, f), key(baud, format), "{spec} at {baud} {format}: found {b} {f}");
             assert_eq!(score.protocol, Some(protocol), "{spec} at {baud} {format}");
             assert!(score.frames >= 8, "{spec}: {score:?}");
+        }
+    }
+
+    /// A serial port at some setting on a line carrying recorded `bursts`: what it reads is what
+    /// a UART at its setting makes of each burst (see `detect::receive`), handed over when the
+    /// burst's last character has arrived, on a simulated clock that a read with nothing to give
+    /// advances by the port's read timeout, as the real port's 100 ms does.
+    struct ReplayPort {
+        bursts: Vec<Burst>,
+        baud: u32,
+        format: CharFormat,
+        setting: (u32, CharFormat),
+        set_at: Duration,
+        now: Duration,
+        next: usize,
+        /// Every setting asked for, in order.
+        sets: Vec<(u32, CharFormat)>,
+    }
+
+    impl ReplayPort {
+        fn new(bursts: Vec<Burst>, baud: u32, format: CharFormat) -> ReplayPort {
+            let setting = (9600, CharFormat::NONE_8N1);
+            ReplayPort {
+                bursts,
+                baud,
+                format,
+                setting,
+                set_at: Duration::ZERO,
+                now: Duration::ZERO,
+                next: 0,
+                sets: Vec::new(),
+            }
+        }
+    }
+
+    impl SettingPort for ReplayPort {
+        fn set(&mut self, baud: u32, format: CharFormat) -> std::io::Result<()> {
+            self.setting = (baud, format);
+            self.set_at = self.now;
+            self.sets.push((baud, format));
+            Ok(())
+        }
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            let until = self.now + Duration::from_millis(100);
+            let Some((start, bytes)) = self.bursts.get(self.next) else {
+                self.now = until;
+                return Ok(0);
+            };
+            let end = *start + self.format.wire_time(self.baud, bytes.len());
+            if end > until {
+                self.now = until;
+                return Ok(0);
+            }
+            self.next += 1;
+            self.now = self.now.max(end);
+            // A burst that began before the port was set is lost with the flush.
+            if *start < self.set_at {
+                return Ok(0);
+            }
+            let got = super::detect::receive(
+                &[(*start, bytes.clone())],
+                self.baud,
+                self.format,
+                self.setting.0,
+                self.setting.1,
+            );
+            buf[..got.len()].copy_from_slice(&got);
+            Ok(got.len())
+        }
+        fn now(&self) -> Duration {
+            self.now
+        }
+    }
+
+    #[test]
+    fn a_slow_master_is_found_on_the_port_path_at_its_real_timing() {
+        // A master reading a drive's status every 700 ms (each read two exchanges), at 38400 8O1:
+        // the 22nd of 36 candidates. With 150 ms at each candidate the right one heard at most a
+        // burst or two; the search listens until it has heard enough.
+        let odd8 = CharFormat { data_bits: 8, parity: Parity::Odd, stop_bits: 1 };
+        for (spec, protocol) in [SIX[0], SIX[4]] {
+            let (baud, format, bursts) =
+                traffic_every(spec, Some(38400), Some(odd8), 60, Duration::from_millis(700));
+            let mut port = ReplayPort::new(bursts, baud, format);
+            let found = find_setting(&mut port, candidates_for(None, None), || false).unwrap();
+            let ((b, f), score) =
+                found.unwrap_or_else(|| panic!("{spec}: nothing found; tried {:?}", port.sets));
+            assert_eq!(key(b, f), key(38400, odd8), "{spec}: found {b} {f}");
+            assert_eq!(score.protocol, Some(protocol), "{spec}");
+            assert!(score.frames >= super::detect::ENOUGH_FRAMES, "{spec}: {score:?}");
+            assert!(port.sets.len() <= 36, "{spec}: {}", port.sets.len());
+            // It took as long as the traffic needed, not the worst case of every candidate.
+            assert!(port.now < Duration::from_secs(60), "{spec}: {:?}", port.now);
+        }
+    }
+
+    #[test]
+    fn a_given_baud_or_format_narrows_the_search_to_it() {
+        let even7 = CharFormat { data_bits: 7, parity: Parity::Even, stop_bits: 1 };
+        let (baud, format, bursts) =
+            traffic_every(SIX[1].0, Some(19200), Some(even7), 40, Duration::from_millis(250));
+        // --baud 19200: only the formats at 19200 are tried.
+        let mut port = ReplayPort::new(bursts.clone(), baud, format);
+        let ((b, f), _) =
+            find_setting(&mut port, candidates_for(Some(19200), None), || false).unwrap().unwrap();
+        assert_eq!(key(b, f), key(19200, even7));
+        assert!(port.sets.iter().all(|(b, _)| *b == 19200), "{:?}", port.sets);
+        // --serial 7E1: only the baud rates, in that format.
+        let mut port = ReplayPort::new(bursts, baud, format);
+        let ((b, f), _) =
+            find_setting(&mut port, candidates_for(None, Some(even7)), || false).unwrap().unwrap();
+        assert_eq!(key(b, f), key(19200, even7));
+        assert!(port.sets.iter().all(|(_, f)| *f == even7), "{:?}", port.sets);
+        assert_eq!(candidates_for(Some(9600), Some(even7)), [(9600, even7)]);
+        assert_eq!(candidates_for(None, None).len(), 36);
+    }
+
+    #[test]
+    fn the_search_listens_by_what_it_hears_on_explicit_times() {
+        use super::detect::{Search, Step, GIVE_UP, MAX_LISTEN, MIN_LISTEN};
+        let ms = Duration::from_millis;
+        let two = vec![(9600, CharFormat::EVEN_8E1), (19200, CharFormat::EVEN_8E1)];
+        // Nothing heard: it waits at the first candidate, then gives up.
+        let mut s = Search::new(two.clone(), ms(0));
+        assert_eq!(s.poll(ms(4000)), Step::Listen(GIVE_UP));
+        assert_eq!(s.poll(GIVE_UP), Step::Done(None));
+        // Noise (no valid frame) once a second: until the pace is known a candidate gets the
+        // longest budget, then three of the gaps heard.
+        let mut s = Search::new(two.clone(), ms(0));
+        s.push(ms(1000), &[0x55; 8]);
+        assert_eq!(s.poll(ms(1000)), Step::Listen(ms(1000) + MAX_LISTEN));
+        s.push(ms(2000), &[0x55; 8]);
+        s.push(ms(3000), &[0x55; 8]);
+        assert_eq!(s.poll(ms(3000)), Step::Listen(ms(1000) + MAX_LISTEN));
+        assert_eq!(s.poll(ms(1000) + MAX_LISTEN), Step::Switch(19200, CharFormat::EVEN_8E1));
+        // Once six bursts were heard the budget is three of the longest gap: traffic every
+        // 400 ms gives a candidate 1.2 s.
+        let mut s = Search::new(vec![(9600, CharFormat::EVEN_8E1)], ms(0));
+        for i in 0..5 {
+            s.push(ms(1000 + 400 * i), &[0x55; 8]);
+        }
+        assert_eq!(s.budget(), MAX_LISTEN);
+        s.push(ms(3000), &[0x55; 8]);
+        assert_eq!(s.budget(), ms(1200));
+        assert_eq!(s.poll(ms(3000)), Step::Done(None), "six bursts and no valid frame: the last candidate");
+        // Quick traffic (bursts 20 ms apart) after a fresh start: six bursts end a candidate as
+        // soon as it has listened MIN_LISTEN.
+        let mut s = Search::new(two, ms(0));
+        for i in 0..6 {
+            s.push(ms(10 + 20 * i), &[0x55; 4]);
+        }
+        assert!(matches!(s.poll(ms(150)), Step::Listen(_)));
+        assert_eq!(s.poll(ms(10) + MIN_LISTEN), Step::Switch(19200, CharFormat::EVEN_8E1));
+        // A valid frame four times over ends the search at once.
+        let req = rtu(&[1, 3, 0x21, 0, 0, 2]);
+        for i in 0..4 {
+            s.push(ms(300 + 30 * i), &req);
+        }
+        match s.poll(ms(400)) {
+            Step::Done(Some(((19200, f), score))) => {
+                assert_eq!((f, score.protocol), (CharFormat::EVEN_8E1, Some("modbus-rtu")))
+            }
+            other => panic!("{other:?}"),
         }
     }
 

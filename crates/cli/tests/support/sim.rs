@@ -12,7 +12,7 @@ use serde_json::Value;
 mod lines;
 #[path = "output.rs"]
 mod output;
-use lines::Killed;
+pub use lines::Killed;
 pub use output::{output, Out};
 
 /// A background process killed on drop, with the line it printed when ready.

@@ -19,6 +19,25 @@
 use super::{danfoss, generic, toshiba, DriveStatus, Fault};
 use crate::{Catalog, Family};
 
+/// The history as JSON, as `drivebus trips --json` prints it and the gateway's
+/// `GET /api/drives/{id}/trips` answers it: `{"address", "family", "current": {"code", "text"} |
+/// null, "history": [{"index", "code", "text", "output_hz", "current_a"}], "source"}`.
+pub fn history_json(address: u8, family: Family, h: &TripHistory) -> serde_json::Value {
+    serde_json::json!({
+        "address": address,
+        "family": family.to_string(),
+        "current": h.current.as_ref().map(|f| serde_json::json!({"code": f.code, "text": f.text})),
+        "history": h.entries.iter().map(|e| serde_json::json!({
+            "index": e.index,
+            "code": e.code,
+            "text": e.text,
+            "output_hz": e.output_hz,
+            "current_a": e.current_a,
+        })).collect::<Vec<_>>(),
+        "source": h.source,
+    })
+}
+
 /// One trip of the history.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TripEntry {

@@ -601,6 +601,7 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             while_running: f.while_running.unwrap_or(true),
             comm: f.comm,
             note: f.note.clone(),
+            group: f.group.clone().unwrap_or_default(),
         });
     }
     out

@@ -152,4 +152,6 @@ pub(super) struct FileParam {
     pub(super) choices: BTreeMap<String, String>,
     #[serde(default)]
     pub(super) note: Option<String>,
+    #[serde(default)]
+    pub(super) group: Option<String>,
 }

@@ -120,6 +120,7 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
             echo: b.echo,
             strict_t15: b.strict_t15,
             rs485,
+            role: None,
             drives,
         });
     }

@@ -34,6 +34,15 @@ pub(super) struct FileConfig {
     pub(super) sparkplug: Option<FileSparkplug>,
     #[serde(default)]
     pub(super) limits: FileLimits,
+    pub(super) standby: Option<FileStandby>,
+}
+
+/// `[standby]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct FileStandby {
+    pub(super) role: Option<Spanned<String>>,
+    pub(super) silence_ms: Option<Spanned<u64>>,
 }
 
 /// `[limits]` as written.

@@ -108,6 +108,7 @@ mod modbus;
 mod model;
 mod name;
 mod opcua;
+mod standby;
 mod store;
 mod templates;
 mod token;
@@ -132,6 +133,17 @@ pub const DEMO: &str = include_str!("../demo.toml");
 /// The file name of the demo's store, in the state folder.
 pub const DEMO_STORE: &str = "drivebus-demo.db";
 
+/// Why bus `b` cannot share its line with a standby, if it cannot: a Modbus TCP bus has no
+/// line to listen to.
+pub fn no_standby(b: &BusConfig) -> Option<String> {
+    matches!(b.port, Port::ModbusTcp(_)).then(|| {
+        format!(
+            "bus {} speaks Modbus TCP: there is no shared line to listen to; a standby needs serial or tcp:// (raw) buses",
+            b.name
+        )
+    })
+}
+
 impl GatewayConfig {
     /// The embedded demo configuration.
     /// Its store is `drivebus-demo.db` in the state folder ([`state_dir`]), never in the
@@ -155,7 +167,14 @@ impl GatewayConfig {
         let tokens = token::check(&cx, &raw.token)?;
         http::check_plaintext(&cx, &raw.http, &http, &tokens)?;
         let name = name::check(&cx, &raw.name)?;
-        let buses = bus::check(&cx, &raw.bus)?;
+        let mut buses = bus::check(&cx, &raw.bus)?;
+        let role = raw.standby.as_ref().map(|s| standby::check(&cx, s)).transpose()?;
+        if let (Some(s), Some(r)) = (&raw.standby, &role) {
+            standby::check_polls(&cx, s, r, &buses)?;
+        }
+        for b in &mut buses {
+            b.role = role;
+        }
         let linkage = linkage::check(&cx, &raw.linkage, &buses)?;
         let mqtt = raw.mqtt.map(|m| mqtt::check(&cx, m)).transpose()?;
         let sparkplug = raw.sparkplug.map(|sp| sparkplug::check(&cx, sp)).transpose()?;

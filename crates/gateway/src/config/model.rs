@@ -202,6 +202,9 @@ pub struct BusConfig {
     /// A parameter read within this time of the last read of the same parameter is answered
     /// with that value (`param_cache_ms`; zero: always from the drive).
     pub param_cache: Duration,
+    /// With another gateway on the same line (`[standby]`, `--standby`): listen first, master
+    /// the bus only when the line falls silent. `None`: the only master.
+    pub role: Option<drivebus_link::role::RoleConfig>,
     /// The drives.
     pub drives: Vec<DriveConfig>,
 }

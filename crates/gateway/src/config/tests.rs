@@ -512,3 +512,32 @@ fn write_tokens_over_plain_http_off_loopback_are_refused_unless_opted_out() {
         assert!(GatewayConfig::from_toml("plant.toml", &ok).is_ok(), "{ok}");
     }
 }
+
+#[test]
+fn standby_sets_every_buses_role_and_bad_values_are_refused() {
+    let bus = "[[bus]]\nname = \"l\"\nport = \"/dev/ttyUSB0\"\nprotocol = \"modbus-rtu\"\n";
+    let c = GatewayConfig::from_toml("plant.toml", bus).unwrap();
+    assert_eq!(c.buses[0].role, None, "without [standby]: the only master");
+    let c = GatewayConfig::from_toml("plant.toml", &format!("[standby]\nrole = \"standby\"\n{bus}")).unwrap();
+    let role = c.buses[0].role.expect("a role");
+    assert!(role.standby);
+    assert_eq!(role.silence, Duration::from_millis(500));
+    let c = GatewayConfig::from_toml("plant.toml", &format!("[standby]\nsilence_ms = 800\n{bus}")).unwrap();
+    assert_eq!(c.buses[0].role.map(|r| (r.standby, r.silence)), Some((false, Duration::from_millis(800))));
+    let e = err(&format!("[standby]\nrole = \"backup\"\n{bus}"));
+    assert!(e.contains("standby.role") && e.contains("\"active\" or \"standby\""), "{e}");
+    let e = err(&format!("[standby]\nsilence_ms = 10\n{bus}"));
+    assert!(e.contains("standby.silence_ms") && e.contains("50..60000"), "{e}");
+    let e = err("[standby]\nrole = \"standby\"\nsilence = 3\n");
+    assert!(e.contains("silence"), "{e}");
+    // A line polled every second falls silent longer than 500 ms between polls.
+    let slow =
+        format!("{bus}[[bus.drive]]\nname = \"d\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 1000\n");
+    let e = err(&format!("[standby]\nsilence_ms = 500\n{slow}"));
+    assert!(e.contains("plant.toml:2") && e.contains("shortest poll_ms 1000"), "{e}");
+    assert!(GatewayConfig::from_toml("plant.toml", &format!("[standby]\nsilence_ms = 1500\n{slow}")).is_ok());
+    // A Modbus TCP bus has no line to listen to.
+    let mbap = "[[bus]]\nname = \"m\"\nport = \"tcp://10.0.0.5:502\"\nprotocol = \"modbus-tcp\"\n";
+    let e = err(&format!("[standby]\nrole = \"standby\"\n{mbap}"));
+    assert!(e.contains("bus m speaks Modbus TCP"), "{e}");
+}

@@ -13,7 +13,7 @@ use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use serde_json::{json, Value};
 
-use crate::gateway::{unix_ms, BusView, Command, DriveView, Gateway, ParamReading};
+use crate::core::{unix_ms, BusView, Command, DriveView, Gateway, ParamReading};
 use crate::http::auth::{ReadAccess, WriteAccess};
 use crate::http::error::ApiError;
 
@@ -24,7 +24,7 @@ pub const MAX_EVENT_LIMIT: usize = 10_000;
 /// The span of a trend when the query gives no `since`, ms.
 pub const DEFAULT_TREND_SPAN_MS: i64 = 3_600_000;
 
-type ApiResult<T> = Result<Json<T>, ApiError>;
+pub(crate) type ApiResult<T> = Result<Json<T>, ApiError>;
 
 /// `GET /api/drives`.
 pub async fn drives(_: ReadAccess, State(gw): State<Arc<Gateway>>) -> Json<Vec<DriveView>> {
@@ -47,7 +47,7 @@ pub async fn buses(_: ReadAccess, State(gw): State<Arc<Gateway>>) -> Json<Vec<Bu
 }
 
 /// The body of a request, within `[http] max_body` (413 `too_large` beyond).
-fn body(b: Result<Bytes, BytesRejection>) -> Result<Bytes, ApiError> {
+pub(crate) fn body(b: Result<Bytes, BytesRejection>) -> Result<Bytes, ApiError> {
     b.map_err(|e| ApiError::from_status(e.status(), &e.body_text()))
 }
 
@@ -170,7 +170,7 @@ pub async fn write_param(
 }
 
 /// The query string as keys and values, refusing keys not in `allowed` and repeated keys.
-fn query(
+pub(crate) fn query(
     q: Result<Query<Vec<(String, String)>>, QueryRejection>,
     allowed: &[&str],
 ) -> Result<HashMap<String, String>, ApiError> {

@@ -14,7 +14,7 @@ use axum::http::request::Parts;
 use axum::http::{header, StatusCode};
 
 use crate::config::{Role, Token};
-use crate::gateway::{Gateway, MAX_LOGIN_FAILURES};
+use crate::core::{Gateway, MAX_LOGIN_FAILURES};
 use crate::http::error::ApiError;
 
 /// Whether `a` and `b` are equal, in a time that depends only on `a`'s length.

@@ -11,12 +11,15 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// The page.
 pub const INDEX_HTML: &str = include_str!("dashboard/index.html");
 /// The page's script.
 pub const APP_JS: &str = include_str!("dashboard/app.js");
+/// The commissioning pages' script (a drive's parameters, backup and restore, compare, trips,
+/// finding drives on a bus).
+pub const WORKBENCH_JS: &str = include_str!("dashboard/workbench.js");
 /// The page's style sheet.
 pub const STYLE_CSS: &str = include_str!("dashboard/style.css");
 /// The page's icon.
@@ -30,6 +33,7 @@ const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-
 pub fn asset(name: &str) -> Option<(&'static str, &'static str)> {
     Some(match name {
         "app.js" => ("text/javascript; charset=utf-8", APP_JS),
+        "workbench.js" => ("text/javascript; charset=utf-8", WORKBENCH_JS),
         "style.css" => ("text/css; charset=utf-8", STYLE_CSS),
         "favicon.svg" => ("image/svg+xml", FAVICON_SVG),
         _ => return None,
@@ -64,8 +68,9 @@ async fn asset_handler(Path(name): Path<String>) -> Response {
     match asset(&name) {
         Some((ct, body)) => respond(ct, body),
         None => {
-            let message =
-                format!("no dashboard asset {name:?}: the page uses app.js, style.css and favicon.svg");
+            let message = format!(
+                "no dashboard asset {name:?}: the page uses app.js, workbench.js, style.css and favicon.svg"
+            );
             let body = serde_json::json!({ "error": { "kind": "not_found", "message": message } });
             (StatusCode::NOT_FOUND, axum::Json(body)).into_response()
         }
@@ -84,7 +89,7 @@ mod tests {
         }
         assert!(!INDEX_HTML.contains("http://") && !INDEX_HTML.contains("https://"));
         // The SVG namespace is a name, not a place the page goes to.
-        let js = APP_JS.replace("http://www.w3.org/2000/svg", "");
+        let js = format!("{APP_JS}{WORKBENCH_JS}").replace("http://www.w3.org/2000/svg", "");
         assert!(
             !js.contains("http://") && !js.contains("https://"),
             "the script fetches only from this gateway"
@@ -127,6 +132,7 @@ mod tests {
         assert!(body.contains("/assets/app.js") && body.contains("tile-template"));
         for (path, want) in [
             ("/assets/app.js", "text/javascript"),
+            ("/assets/workbench.js", "text/javascript"),
             ("/assets/style.css", "text/css"),
             ("/assets/favicon.svg", "image/svg+xml"),
         ] {

@@ -6,7 +6,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde_json::json;
 
-use crate::gateway::CommandError;
+use crate::core::CommandError;
 use crate::text::cut;
 
 /// An error answer: status, kind and a one-line message naming the problem.
@@ -22,7 +22,7 @@ pub struct ApiError {
 
 impl ApiError {
     /// An error with `status`, `kind` and `message` (newlines are folded into one line, and a
-    /// message over [`crate::gateway::MAX_MESSAGE_CHARS`] characters is cut: it quotes a user's
+    /// message over [`crate::core::MAX_MESSAGE_CHARS`] characters is cut: it quotes a user's
     /// value).
     pub fn new(status: StatusCode, kind: &'static str, message: impl Into<String>) -> Self {
         let message: String = message.into();
@@ -31,7 +31,7 @@ impl ApiError {
         } else {
             message
         };
-        let message = crate::text::shown_max(&message, crate::gateway::MAX_MESSAGE_CHARS);
+        let message = crate::text::shown_max(&message, crate::core::MAX_MESSAGE_CHARS);
         ApiError { status, kind, message }
     }
 
@@ -107,7 +107,7 @@ impl std::fmt::Display for ApiError {
 /// The HTTP status that says what happened to a command or parameter read.
 pub fn status_of(e: &CommandError) -> StatusCode {
     match e {
-        CommandError::UnknownDrive(_) => StatusCode::NOT_FOUND,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) => StatusCode::NOT_FOUND,
         CommandError::Locked(_) => StatusCode::LOCKED,
         CommandError::Invalid(_) | CommandError::Unsupported(_) => StatusCode::UNPROCESSABLE_ENTITY,
         CommandError::Refused { .. } => StatusCode::CONFLICT,
@@ -115,7 +115,7 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::LinkDown(_) => StatusCode::SERVICE_UNAVAILABLE,
         CommandError::Protocol(_) => StatusCode::BAD_GATEWAY,
         CommandError::Busy(_) => StatusCode::TOO_MANY_REQUESTS,
-        CommandError::NotRecorded(_) => StatusCode::SERVICE_UNAVAILABLE,
+        CommandError::NotRecorded(_) | CommandError::Standby(_) => StatusCode::SERVICE_UNAVAILABLE,
     }
 }
 
@@ -124,6 +124,7 @@ impl From<CommandError> for ApiError {
         let message = match e {
             // Where an HTTP client finds the names.
             CommandError::UnknownDrive(_) => format!("{e}: GET /api/drives lists them"),
+            CommandError::UnknownBus(_) => format!("{e}: GET /api/buses lists them"),
             _ => e.to_string(),
         };
         ApiError::new(status_of(&e), e.kind(), message)

@@ -11,7 +11,7 @@ use axum::routing::get;
 use axum::{Json, Router};
 use serde_json::json;
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// `/healthz` and `/readyz`, to merge into the HTTP router (no token needed).
 pub fn routes() -> Router<Arc<Gateway>> {

@@ -14,7 +14,7 @@ use axum::http::{header, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 use crate::http::error::ApiError;
 
 /// Middleware: 421 `bad_host` for a `Host` that is not one of the gateway's names.

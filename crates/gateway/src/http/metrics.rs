@@ -13,7 +13,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 use crate::http::auth::ReadAccess;
 use crate::metrics;
 

@@ -1,6 +1,6 @@
 //! The HTTP/JSON API (axum): drives, buses, commands, parameters, events, the live stream and
 //! the OpenAPI description. Reads come from the cache; writes go through
-//! [`Gateway::command`](crate::gateway::Gateway::command). docs/http-api.md describes every
+//! [`Gateway::command`](crate::core::Gateway::command). docs/http-api.md describes every
 //! route.
 //!
 //! Every answer that is not a success is JSON (`{"error": {"kind", "message"}}`, [`error`]),
@@ -15,6 +15,7 @@ pub mod health;
 pub mod host;
 pub mod metrics;
 pub mod stream;
+pub mod workbench;
 
 use std::sync::Arc;
 
@@ -26,7 +27,7 @@ use axum::routing::{get, post};
 use axum::Router;
 use futures_util::FutureExt;
 
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 use error::ApiError;
 
 /// The API's routes as axum writes them (`:id` for `{id}`) with their methods; the OpenAPI
@@ -40,9 +41,14 @@ pub const API_ROUTES: &[(&str, &[&str])] = &[
     ("/api/drives/:id/jog", &["POST"]),
     ("/api/drives/:id/reset", &["POST"]),
     ("/api/drives/:id/speed", &["POST"]),
+    ("/api/drives/:id/params", &["GET"]),
     ("/api/drives/:id/params/:name", &["GET", "PUT"]),
+    ("/api/drives/:id/backup", &["GET"]),
+    ("/api/drives/:id/restore", &["POST"]),
+    ("/api/drives/:id/trips", &["GET"]),
     ("/api/drives/:id/trend", &["GET"]),
     ("/api/buses", &["GET"]),
+    ("/api/buses/:bus/scan", &["GET", "POST"]),
     ("/api/events", &["GET"]),
     ("/api/stream", &["GET"]),
     ("/api/openapi.json", &["GET"]),
@@ -57,7 +63,12 @@ pub fn api_routes() -> Router<Arc<Gateway>> {
         r = r.route(&format!("/api/drives/:id/{name}"), post(api::command));
     }
     r.route("/api/drives/:id/speed", post(api::speed))
+        .route("/api/drives/:id/params", get(workbench::params))
         .route("/api/drives/:id/params/:name", get(api::read_param).put(api::write_param))
+        .route("/api/drives/:id/backup", get(workbench::backup))
+        .route("/api/drives/:id/restore", post(workbench::restore))
+        .route("/api/drives/:id/trips", get(workbench::trips))
+        .route("/api/buses/:bus/scan", get(workbench::scan).post(workbench::start_scan))
         .route("/api/drives/:id/trend", get(api::trend))
         .route("/api/buses", get(api::buses))
         .route("/api/events", get(api::events))

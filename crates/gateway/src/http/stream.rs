@@ -14,7 +14,7 @@ use futures_util::stream::{self, Stream};
 use serde_json::json;
 use tokio::sync::broadcast::error::RecvError;
 
-use crate::gateway::{Change, Gateway};
+use crate::core::{Change, Gateway};
 use crate::http::auth::ReadAccess;
 use crate::http::error::ApiError;
 

@@ -5,7 +5,7 @@
 
 use drivebus_drive::Family;
 
-use crate::gateway::{DriveEntry, DriveState};
+use crate::core::{DriveEntry, DriveState};
 
 /// Input registers (FC 04): how many there are.
 pub const INPUT_COUNT: u16 = 10;

@@ -21,7 +21,7 @@ use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpListener;
 
 use super::unified::{Conn, Server};
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// The longest Modbus TCP frame: 7 bytes of MBAP header and a 253-byte PDU.
 const MAX_FRAME: usize = MAX_ADU;

@@ -17,7 +17,7 @@ use drivebus_proto::modbus::{ExceptionCode, RegisterAddress, Registers, ReplyPdu
 use super::map::*;
 use super::service::{exception, reply};
 use crate::config::ModbusConfig;
-use crate::gateway::{Command, CommandError, DriveEntry, Gateway};
+use crate::core::{Command, CommandError, DriveEntry, Gateway};
 use crate::metrics::FrontEndMetrics;
 
 /// Exception 01: illegal function (also: writes refused by configuration or a lock).
@@ -474,7 +474,9 @@ impl Server {
 /// (docs/register-map.md). A drive's own Modbus exception is passed through as it came.
 pub fn exception_of(e: &CommandError) -> ExceptionCode {
     match e {
-        CommandError::UnknownDrive(_) | CommandError::NoAnswer(_) => ExceptionCode::GATEWAY_TARGET_FAILED,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) | CommandError::NoAnswer(_) => {
+            ExceptionCode::GATEWAY_TARGET_FAILED
+        }
         CommandError::Locked(_) | CommandError::Unsupported(_) => ExceptionCode::ILLEGAL_FUNCTION,
         CommandError::Invalid(_) => ExceptionCode::ILLEGAL_DATA_VALUE,
         CommandError::Refused { code: code @ 1..=0xFF, space: CodeSpace::ModbusException, .. } => {
@@ -482,7 +484,7 @@ pub fn exception_of(e: &CommandError) -> ExceptionCode {
         }
         CommandError::Refused { .. } | CommandError::Protocol(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
         CommandError::LinkDown(_) => ExceptionCode::GATEWAY_PATH_UNAVAILABLE,
-        CommandError::Busy(_) => ExceptionCode::SERVER_DEVICE_BUSY,
+        CommandError::Busy(_) | CommandError::Standby(_) => ExceptionCode::SERVER_DEVICE_BUSY,
         CommandError::NotRecorded(_) => ExceptionCode::SERVER_DEVICE_FAILURE,
     }
 }

@@ -19,7 +19,7 @@ use opcua::types::{Error, StatusCode, UAString, UserTokenPolicy, UserTokenType};
 
 use super::sessions::Sessions;
 use crate::config::{Role, Token};
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// The user token of anonymous sessions (async-opcua's own).
 pub const ANONYMOUS: &str = "ANONYMOUS";

@@ -14,7 +14,7 @@ use opcua::types::{
 
 use super::nodes::{Ids, Target, DRIVE_VARIABLES};
 use super::space::Space;
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// The most values one answer carries when the client asks for all (0): the rest follows
 /// with a continuation point.

@@ -23,7 +23,7 @@ use super::nodes::{Ids, Target};
 use super::sessions::{Seen, Sessions};
 use super::space::Space;
 use crate::config::Role;
-use crate::gateway::{Command, CommandError, Gateway};
+use crate::core::{Command, CommandError, Gateway};
 
 /// The node manager of `urn:drivebus`: the types and folders kept, every drive and bus made
 /// on demand from the gateway ([`super::space`]).
@@ -71,7 +71,7 @@ impl DriveNodes {
 /// A command's failure in OPC UA's words (docs/opcua.md, "Status codes").
 pub fn status_of(e: &CommandError) -> StatusCode {
     match e {
-        CommandError::UnknownDrive(_) => StatusCode::BadNodeIdUnknown,
+        CommandError::UnknownDrive(_) | CommandError::UnknownBus(_) => StatusCode::BadNodeIdUnknown,
         CommandError::Locked(_) => StatusCode::BadNotWritable,
         CommandError::Invalid(_) => StatusCode::BadOutOfRange,
         CommandError::Refused { .. } => StatusCode::BadInvalidState,
@@ -81,6 +81,7 @@ pub fn status_of(e: &CommandError) -> StatusCode {
         CommandError::Protocol(_) => StatusCode::BadCommunicationError,
         CommandError::Busy(_) => StatusCode::BadTooManyOperations,
         CommandError::NotRecorded(_) => StatusCode::BadResourceUnavailable,
+        CommandError::Standby(_) => StatusCode::BadInvalidState,
     }
 }
 

@@ -29,7 +29,7 @@ use opcua::types::{
 use tokio::net::TcpListener;
 
 use crate::config::OpcUaConfig;
-use crate::gateway::{BusView, Change, DriveView, Gateway};
+use crate::core::{BusView, Change, DriveView, Gateway};
 use manager::DriveNodes;
 use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
 use opcua::types::AttributeId;
@@ -399,7 +399,7 @@ fn raise(subs: &SubscriptionCache, ids: &Ids, gw: &Gateway, e: &drivebus_store::
     let event = opcua::server::address_space::BaseEventType::new(
         opcua::types::ObjectTypeId::BaseEventType,
         event_id,
-        LocalizedText::from(crate::gateway::log_line(e).as_str()),
+        LocalizedText::from(crate::core::log_line(e).as_str()),
         datetime_ms(e.time_ms),
     )
     .set_source_node(source.clone())

@@ -22,7 +22,7 @@ use opcua::types::{
     ReferenceTypeId, UAString, VariableTypeId, Variant,
 };
 
-use crate::gateway::{BusEntry, DriveEntry};
+use crate::core::{BusEntry, DriveEntry};
 
 /// The namespace of every node of the gateway.
 pub const NAMESPACE: &str = "urn:drivebus";

@@ -14,7 +14,7 @@ use opcua::types::{
 };
 
 use super::nodes::{self, Ids, BUS_VARIABLES, DRIVE_VARIABLES};
-use crate::gateway::Gateway;
+use crate::core::Gateway;
 
 /// Where a node of the namespace lives.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]

@@ -40,7 +40,7 @@ use payload::Payload;
 use session::{Session, Step};
 
 use crate::config::SparkplugConfig;
-use crate::gateway::{unix_ms, Change, Command, DriveEntry, Gateway};
+use crate::core::{unix_ms, Change, Command, DriveEntry, Gateway};
 use crate::metrics::{MessageLabels, RefusedLabels, SparkplugMetrics as Metrics};
 
 /// Most messages sent from the store-and-forward queue per batch.
@@ -238,7 +238,7 @@ struct EdgeNode {
 
 /// The edge node's counts of `gw` (one per gateway, made empty on first use).
 pub fn metrics(gw: &Gateway) -> Arc<Metrics> {
-    gw.attached()
+    crate::metrics::attached(gw).sparkplug.clone()
 }
 
 fn device_list(drives: &[Arc<DriveEntry>]) -> Vec<(String, Vec<drivebus_drive::ParamDef>)> {

@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, HashMap};
 use drivebus_drive::ParamDef;
 
 use super::payload::{DataType, Metric, Payload, Value};
-use crate::gateway::{BusView, Command, DriveView};
+use crate::core::{BusView, Command, DriveView};
 
 /// The Sparkplug B topic namespace.
 pub const NAMESPACE: &str = "spBv1.0";
@@ -548,7 +548,7 @@ fn check_type(m: &Metric, want: DataType) -> Result<(), Refusal> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gateway::FaultView;
+    use crate::core::FaultView;
     use drivebus_drive::{Catalog, Family};
 
     fn view(id: &str, online: Option<bool>, hz: f64) -> DriveView {

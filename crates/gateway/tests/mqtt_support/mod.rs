@@ -257,7 +257,7 @@ pub fn collect_events(gw: &Arc<Gateway>) -> Arc<Mutex<Vec<drivebus_store::Event>
     tokio::spawn(async move {
         loop {
             match changes.recv().await {
-                Ok(drivebus_gateway::gateway::Change::Event(e)) => kept.lock().unwrap().push(e),
+                Ok(drivebus_gateway::core::Change::Event(e)) => kept.lock().unwrap().push(e),
                 Ok(_) | Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
                 Err(_) => return,
             }

@@ -198,6 +198,7 @@
     const el = $('#bus-template').content.firstElementChild.cloneNode(true);
     el.dataset.bus = name;
     field(el, 'name').textContent = name;
+    field(el, 'scan-link').href = '#bus/' + encodeURIComponent(name);
     $('#buses').appendChild(el);
     const loading = $('#loading');
     if (loading) loading.remove();
@@ -215,6 +216,9 @@
     const on = field(el, 'online');
     on.textContent = v.online ? 'online' : 'offline';
     on.dataset.state = v.online ? 'online' : 'offline';
+    const role = field(el, 'role');
+    role.textContent = v.role || 'master';
+    role.dataset.state = v.role === 'standby' ? 'standby' : 'master';
     field(el, 'transactions').textContent = String(v.transactions);
     field(el, 'timeouts').textContent = String(v.timeouts);
     field(el, 'checksum_errors').textContent = String(v.checksum_errors);
@@ -233,6 +237,7 @@
     const tile = $('#tile-template').content.firstElementChild.cloneNode(true);
     tile.dataset.drive = v.id;
     field(tile, 'id').textContent = v.id;
+    field(tile, 'params-link').href = '#drive/' + encodeURIComponent(v.id);
     for (const btn of tile.querySelectorAll('[data-action]')) {
       btn.addEventListener('click', () => onAction(v.id, btn.dataset.action));
     }
@@ -881,6 +886,9 @@
     }, 1000);
     start();
   }
+
+  // The commissioning pages (workbench.js) use the same token and API client.
+  window.drivebus = { api, token, askToken, notice };
 
   if (document.readyState === 'loading') document.addEventListener('DOMContentLoaded', init);
   else init();

@@ -1,10 +1,10 @@
-//! The hub: the [`Gateway`] every front end holds, what it runs ([`Topology`], swapped whole by
+//! The gateway: the [`Gateway`] every front end holds, what it runs ([`Topology`], swapped whole by
 //! a reload), its counters and its accessors. The other files of this folder add its methods.
 
-use std::any::{Any, TypeId};
+use std::any::Any;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64};
-use std::sync::{Arc, Mutex, RwLock};
+use std::sync::{Arc, Mutex, OnceLock, RwLock};
 
 use drivebus_drive::Family;
 use drivebus_store::Store;
@@ -71,12 +71,15 @@ pub struct Gateway {
     pub(super) limits: crate::limits::Limits,
     /// Refused writes counted per client and reason ([`Gateway::audit_refusal`]).
     pub(super) refusals: Mutex<Refusals>,
-    /// The front ends' own state, one of each type ([`Gateway::attached`]).
-    pub(super) attached: RwLock<HashMap<TypeId, Arc<dyn Any + Send + Sync>>>,
+    /// The front ends' own state: one value, `metrics::FrontEnds`, which lists all of it
+    /// ([`Gateway::attached`]).
+    pub(super) attached: OnceLock<Arc<dyn Any + Send + Sync>>,
     /// Wakes the store's check before its time (a reload may change `[store] min_free_mb`).
     pub(super) store_recheck: tokio::sync::Notify,
     /// One lane per drive: commands in the order handed over ([`Gateway::in_lane`]).
     pub(super) lanes: super::lanes::Lanes,
+    /// Bus scans, their progress and findings, by bus (`Gateway::start_scan`).
+    pub(super) scans: super::scan::Scans,
 }
 
 impl Gateway {
@@ -93,9 +96,10 @@ impl Gateway {
             health: crate::health::Health::default(),
             limits,
             refusals: Mutex::new(Refusals::default()),
-            attached: RwLock::new(HashMap::new()),
+            attached: OnceLock::new(),
             store_recheck: tokio::sync::Notify::new(),
             lanes: super::lanes::Lanes::default(),
+            scans: super::scan::Scans::default(),
         }
     }
 
@@ -164,20 +168,20 @@ impl Gateway {
         self.changes.subscribe()
     }
 
-    /// The state of type `T` attached to this gateway, made with `T::default()` on first use: a
-    /// front end keeps its own counts there (`metrics::FrontEndMetrics`, `sparkplug::Metrics`),
-    /// one per gateway, without the core knowing the type.
+    /// The front ends' state attached to this gateway, made with `T::default()` on first use:
+    /// the front ends keep their counts there, one value per gateway, without the core knowing
+    /// its type. There is one such type, `metrics::FrontEnds`, the one place that lists what
+    /// each front end attaches; `metrics::attached` is the accessor the front ends use.
     pub fn attached<T: Any + Send + Sync + Default>(&self) -> Arc<T> {
-        let key = TypeId::of::<T>();
-        let found = self.attached.read().unwrap_or_else(|p| p.into_inner()).get(&key).cloned();
-        let any = match found {
-            Some(a) => a,
-            None => {
-                let mut all = self.attached.write().unwrap_or_else(|p| p.into_inner());
-                all.entry(key).or_insert_with(|| Arc::new(T::default())).clone()
-            }
-        };
-        any.downcast::<T>().unwrap_or_else(|_| unreachable!("the state attached under T's TypeId is a T"))
+        let any = self.attached.get_or_init(|| Arc::new(T::default())).clone();
+        any.downcast::<T>().unwrap_or_else(|_| {
+            unreachable!("one type is attached to a gateway: metrics::FrontEnds, through metrics::attached")
+        })
+    }
+
+    /// The bus scans, by bus.
+    pub(crate) fn scans(&self) -> &super::scan::Scans {
+        &self.scans
     }
 
     /// Why the gateway is not ready (empty when it is): listeners down, store not writable at

@@ -6,8 +6,10 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use super::cache::{BusEntry, DriveEntry};
-use super::hub::Gateway;
+use super::gateway::Gateway;
 use super::views::Change;
+use drivebus_store::time::now_ms;
+use drivebus_store::{Event, EventKind};
 
 impl Gateway {
     /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do).
@@ -58,13 +60,40 @@ impl Gateway {
         }
     }
 
-    /// Sends every bus's view to live subscribers once a second.
+    /// Sends every bus's view to live subscribers once a second, and records each takeover
+    /// and yield of a bus that shares its line with another gateway as an event.
     pub(super) async fn publish_buses(self: Arc<Self>) {
         let mut tick = tokio::time::interval(Duration::from_secs(1));
+        // Per bus: the takeovers and yields already recorded.
+        let mut seen: std::collections::HashMap<String, (u64, u64)> = std::collections::HashMap::new();
         loop {
             tick.tick().await;
             for b in self.buses().iter() {
                 let _ = self.changes.send(Change::Bus(self.bus_view(b)));
+                let Some(r) = b.role_status() else { continue };
+                let (takeovers, yields) = seen.get(&b.config.name).copied().unwrap_or((0, 0));
+                for (kind, new, what) in [
+                    (
+                        EventKind::Takeover,
+                        r.takeovers.saturating_sub(takeovers),
+                        "took the line over: the other gateway fell silent",
+                    ),
+                    (
+                        EventKind::Yield,
+                        r.yields.saturating_sub(yields),
+                        "stopped sending: another gateway masters the line",
+                    ),
+                ] {
+                    for _ in 0..new {
+                        let mut e = Event::new(now_ms(), kind);
+                        e.bus = Some(b.config.name.clone());
+                        e.actor = Some("gateway".into());
+                        e.result = Some(what.into());
+                        e.detail = serde_json::json!({ "role": r.role.as_str() });
+                        self.record_async(e).await;
+                    }
+                }
+                seen.insert(b.config.name.clone(), (r.takeovers, r.yields));
             }
         }
     }

@@ -97,6 +97,9 @@ pub struct BusView {
     /// True while a drive acts as bus master on this line: a broadcast the gateway did not
     /// send was heard within the last [`DRIVE_MASTER_WINDOW_S`] seconds.
     pub drive_master: bool,
+    /// `master` while the gateway polls the bus, `standby` while it only listens (another
+    /// gateway masters the line, `[standby]`).
+    pub role: &'static str,
     /// The drives' ids.
     pub drives: Vec<String>,
 }
@@ -175,6 +178,7 @@ impl BusView {
             utilization: s.utilization(),
             foreign_broadcasts: s.foreign_broadcasts,
             drive_master: drive_master(&s),
+            role: b.role().as_str(),
             drives: drives.iter().filter(|d| d.bus == b.config.name).map(|d| d.config.name.clone()).collect(),
         }
     }

@@ -11,7 +11,7 @@ use serde_json::json;
 
 use super::cache::DriveEntry;
 use super::command::{Command, CommandError, MAX_MESSAGE_CHARS};
-use super::hub::Gateway;
+use super::gateway::Gateway;
 use crate::log::log_line;
 use crate::refusals::{Refused, Seen};
 

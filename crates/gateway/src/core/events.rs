@@ -13,7 +13,7 @@ use drivebus_store::{Event, EventKind, Sample};
 use serde_json::json;
 
 use super::cache::{BusEntry, DriveEntry};
-use super::hub::Gateway;
+use super::gateway::Gateway;
 use super::views::Change;
 use crate::log::log_line;
 

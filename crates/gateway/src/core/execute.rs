@@ -9,7 +9,7 @@ use drivebus_drive::Storage;
 
 use super::cache::DriveEntry;
 use super::command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX_SPEED_HZ};
-use super::hub::Gateway;
+use super::gateway::Gateway;
 
 impl Gateway {
     /// Sends `command` to drive `id` on behalf of `actor` (for the audit trail); the future

@@ -14,7 +14,8 @@
 //!  command    Command, CommandError, ParamReading: what is asked, what happened
 //!  cache      DriveEntry (DriveState; the drive's profile on its bus owner), BusEntry
 //!  views      DriveView, BusView (built from the cache), Change for live subscribers
-//!  hub        Gateway: Topology (what runs), counters, accessors, drive_view/bus_view
+//!  scan       ScanReport, Found, Scans: a bus scan's progress and findings (crate::scan runs it)
+//!  gateway    Gateway: Topology (what runs), counters, accessors, drive_view/bus_view
 //!  linkage    impl: follow: a leader's new output ──► its followers' setpoints
 //!  events     impl: update ◄── a poll's result: DriveState, trip/offline events, trend samples
 //!                   record/announce: an event ──► store, log, live subscribers (Change)
@@ -22,31 +23,35 @@
 //!  lanes      impl: in_lane(): one lane per drive, work carried out in the order handed over
 //!  execute    impl: command(): lane ──► lock ──► audit ──► drive ──► audit ──► refresh; read_param()
 //!  scheduler  impl: per bus, poll each drive when due ──► update; refresh after a command
+//!  workbench  impl: read_params(), backup(), restore() (rows through command()), trip_history()
 //!  start      impl: config ──► buses (owner + drives) ──► Topology ──► Gateway; reload swaps it
 //! ```
 //!
 //! The core knows no front end: each front end says a [`CommandError`] in its own words, and
-//! keeps its own counts in state it attaches to the gateway ([`Gateway::attached`]), which the
-//! metrics read.
+//! keeps its own counts in the one value it attaches to the gateway ([`Gateway::attached`]):
+//! `metrics::FrontEnds` lists them all, and the metrics read them.
 
 mod audit;
 mod cache;
 mod command;
 mod events;
 mod execute;
-mod hub;
+mod gateway;
 mod lanes;
 mod linkage;
+pub mod scan;
 mod scheduler;
 mod start;
 mod views;
+mod workbench;
 
 pub use audit::MAX_LOGIN_FAILURES;
 pub use cache::{BusEntry, DriveEntry, DriveState};
 pub use command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX_SPEED_HZ};
-pub use hub::{Counters, Gateway, Topology};
+pub use gateway::{Counters, Gateway, Topology};
 pub use lanes::MAX_LANE_QUEUE;
 pub use start::Reload;
 pub use views::{drive_master, log_line, BusView, Change, DriveView, FaultView, DRIVE_MASTER_WINDOW_S};
+pub use workbench::{ParamRow, RestoreOptions, RestoreRow, RowError};
 
 pub use drivebus_store::time::now_ms as unix_ms;

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use super::cache::DriveEntry;
 use super::command::Command;
-use super::hub::Gateway;
+use super::gateway::Gateway;
 
 /// No linkage write to the drive yet.
 pub(super) const LINKAGE_NONE: u8 = 0;

@@ -13,7 +13,7 @@ use serde_json::json;
 use tokio::sync::Notify;
 
 use super::cache::{BusEntry, DriveEntry, DriveState};
-use super::hub::{Gateway, Topology};
+use super::gateway::{Gateway, Topology};
 use super::linkage::LINKAGE_NONE;
 use crate::config::{BusConfig, DriveConfig, GatewayConfig, HttpConfig};
 #[cfg(feature = "virtual")]
@@ -181,6 +181,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         .map(|d| d.family)
         .find(|&f| drivebus_drive::registers::generic::line_silence(f, b.protocol).is_some());
     owner.on_demand = b.on_demand;
+    owner.role = b.role;
     owner.modbus_tcp = matches!(b.port, crate::config::Port::ModbusTcp(_));
     // Opened by the bus owner before its first transaction, and again after a loss.
     let port = match &b.port {

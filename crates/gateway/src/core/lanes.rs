@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex};
 use tokio::sync::oneshot;
 
 use super::command::CommandError;
-use super::hub::Gateway;
+use super::gateway::Gateway;
 
 /// How much work may wait in one drive's lane; beyond it a hand-over is refused with
 /// [`CommandError::Busy`] (nothing is sent).
@@ -106,7 +106,7 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::gateway::{Change, Command};
+    use crate::core::{Change, Command};
 
     fn gateway() -> Arc<Gateway> {
         let mut cfg = crate::GatewayConfig::demo();

@@ -116,6 +116,17 @@ pub struct BusEntry {
 }
 
 impl BusEntry {
+    /// Master or standby, with the takeovers and yields, when the bus shares its line with
+    /// another gateway (`[standby]`); `None` for the only master.
+    pub fn role_status(&self) -> Option<drivebus_link::role::RoleStatus> {
+        self.bus.role()
+    }
+
+    /// Master (it polls) or standby (it listens); the only master is master.
+    pub fn role(&self) -> drivebus_link::role::Role {
+        self.role_status().map_or(drivebus_link::role::Role::Master, |s| s.role)
+    }
+
     /// The bus owner's counts.
     pub fn stats(&self) -> BusStats {
         self.bus.stats()

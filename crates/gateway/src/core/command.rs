@@ -89,6 +89,8 @@ impl Command {
 pub enum CommandError {
     /// No drive has that id.
     UnknownDrive(String),
+    /// No bus has that name.
+    UnknownBus(String),
     /// The drive is locked against writes.
     Locked(String),
     /// The request was not valid (bad value, unknown parameter) and nothing was sent.
@@ -116,6 +118,9 @@ pub enum CommandError {
     /// The command's audit record could not be committed (the store failed: disk full, read
     /// only): the command was not sent.
     NotRecorded(String),
+    /// The drive's bus listens as a standby (another gateway masters the line): nothing was
+    /// sent.
+    Standby(String),
 }
 
 impl std::fmt::Display for CommandError {
@@ -126,6 +131,10 @@ impl std::fmt::Display for CommandError {
                 let (shown, more) = crate::text::cut(id, 64);
                 write!(f, "no drive {shown:?}{more}")
             }
+            CommandError::UnknownBus(name) => {
+                let (shown, more) = crate::text::cut(name, 64);
+                write!(f, "no bus {shown:?}{more}")
+            }
             CommandError::Locked(id) => {
                 write!(f, "drive {id:?} is locked against writes: unlock it in the configuration")
             }
@@ -135,7 +144,10 @@ impl std::fmt::Display for CommandError {
             CommandError::Refused { code, meaning, .. } => {
                 write!(f, "the drive refused: code {code:#04X}, {meaning}")
             }
-            CommandError::NoAnswer(s) | CommandError::LinkDown(s) | CommandError::Busy(s) => f.write_str(s),
+            CommandError::NoAnswer(s)
+            | CommandError::LinkDown(s)
+            | CommandError::Busy(s)
+            | CommandError::Standby(s) => f.write_str(s),
             CommandError::NotRecorded(e) => write!(
                 f,
                 "the command was not sent: its audit record cannot be stored ({e}); free the store's disk or fix its permissions"
@@ -151,6 +163,7 @@ impl CommandError {
     pub fn kind(&self) -> &'static str {
         match self {
             CommandError::UnknownDrive(_) => "unknown_drive",
+            CommandError::UnknownBus(_) => "unknown_bus",
             CommandError::Locked(_) => "locked",
             CommandError::Invalid(_) => "invalid",
             CommandError::Refused { .. } => "refused",
@@ -160,6 +173,7 @@ impl CommandError {
             CommandError::Protocol(_) => "protocol",
             CommandError::Busy(_) => "busy",
             CommandError::NotRecorded(_) => "not_recorded",
+            CommandError::Standby(_) => "standby",
         }
     }
 }
@@ -176,6 +190,7 @@ impl From<LinkError> for CommandError {
             LinkError::Bus(BusError::Link(s)) => CommandError::LinkDown(s),
             LinkError::Bus(BusError::Closed) => CommandError::LinkDown("the bus has stopped".into()),
             LinkError::Bus(e @ BusError::Busy(_)) => CommandError::Busy(e.to_string()),
+            LinkError::Bus(e @ BusError::Standby(_)) => CommandError::Standby(e.to_string()),
             LinkError::Bus(e) => CommandError::NoAnswer(e.to_string()),
         }
     }

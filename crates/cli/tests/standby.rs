@@ -1,0 +1,259 @@
+//! Two `drivebus serve` processes on one simulated line of 8 drives (`drivebus simulate` with two
+//! ptys, one per gateway): the standby serves what it hears, takes the line within 1.5 s of a
+//! `kill -9` of the master, and the old master restarted stays standby; two started at once end
+//! with one master and no garbled frame on the line after that.
+//!
+//! `DRIVEBUS_STANDBY_KILLS=20` runs twenty kills (three by default) and prints the takeover
+//! times.
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+#[path = "support/http.rs"]
+mod http;
+#[path = "support/sim.rs"]
+mod sim;
+use http::free_port;
+use sim::Killed;
+
+const DRIVES: u8 = 8;
+/// The write token of the test's gateways (made up for the test).
+const TOKEN: &str = "standby-test-token-0123456789abcdef";
+
+/// `drivebus simulate` with 8 generic Modbus RTU drives and two ptys; its control address.
+fn simulate(dir: &Path) -> (Killed, [PathBuf; 2], SocketAddr) {
+    let ptys = [dir.join("pty-a"), dir.join("pty-b")];
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.arg("simulate");
+    for a in 1..=DRIVES {
+        cmd.args(["--drive", &format!("generic@{a}:modbus-rtu")]);
+    }
+    cmd.arg("--pty").arg(&ptys[0]).arg("--pty").arg(&ptys[1]).args(["--control", "127.0.0.1:0"]);
+    let mut child = cmd.stdout(Stdio::piped()).spawn().expect("start simulate");
+    let mut out = BufReader::new(child.stdout.take().unwrap()).lines();
+    let (mut ready, mut control) = (0, None);
+    while ready < 2 {
+        let l = out.next().expect("simulate's lines").unwrap();
+        if let Some(c) = l.strip_prefix("control http://") {
+            control = Some(c.trim_end_matches("/drives").parse().unwrap());
+        }
+        ready += usize::from(l.starts_with("listening on "));
+    }
+    std::thread::spawn(move || for _ in out {});
+    (Killed(child), ptys, control.expect("control"))
+}
+
+/// The configuration of a gateway on `pty`.
+fn config(dir: &Path, name: &str, pty: &Path, role: &str) -> PathBuf {
+    let mut text = format!(
+        "name = \"{name}\"\n[[token]]\nname = \"ops\"\ntoken = \"{TOKEN}\"\nrole = \"write\"\n\
+         [http]\nanonymous_read = true\n[standby]\nrole = \"{role}\"\nsilence_ms = 500\n\
+         [[bus]]\nname = \"line\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\n",
+        pty.display()
+    );
+    for a in 1..=DRIVES {
+        text.push_str(&format!(
+            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 500\n"
+        ));
+    }
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+/// A `drivebus serve` process.
+struct Gateway {
+    child: Option<Killed>,
+    http: SocketAddr,
+}
+
+impl Gateway {
+    fn start(config: &Path, standby: bool) -> Gateway {
+        let http: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+        let modbus = format!("127.0.0.1:{}", free_port());
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+        cmd.args(["serve", "--no-opcua", "--http", &http.to_string(), "--modbus", &modbus, "--config"])
+            .arg(config)
+            .arg("--db")
+            .arg(config.with_extension("db"));
+        if standby {
+            cmd.arg("--standby");
+        }
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::null()).spawn().expect("start serve");
+        let out = BufReader::new(child.stdout.take().unwrap());
+        let mut lines = out.lines();
+        // The listeners are bound when the banner's HTTP line is out.
+        for l in lines.by_ref() {
+            if l.unwrap().contains("HTTP API") {
+                break;
+            }
+        }
+        std::thread::spawn(move || for _ in lines {});
+        Gateway { child: Some(Killed(child)), http }
+    }
+
+    fn get(&self, path: &str) -> Value {
+        match http::http_json(self.http, "GET", path, None) {
+            Ok((200, v)) => v,
+            other => panic!("GET {path}: {other:?}"),
+        }
+    }
+
+    fn role(&self) -> String {
+        self.get("/api/buses")[0]["role"].as_str().unwrap_or_default().to_string()
+    }
+
+    fn transactions(&self) -> u64 {
+        self.get("/api/buses")[0]["transactions"].as_u64().unwrap_or(0)
+    }
+
+    /// `kill -9`.
+    fn kill9(&mut self) {
+        if let Some(mut k) = self.child.take() {
+            let _ = k.0.kill();
+            let _ = k.0.wait();
+        }
+    }
+}
+
+/// Waits (generously) until `done`.
+fn wait(what: &str, done: impl Fn() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !done() {
+        assert!(Instant::now() < deadline, "{what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Every drive's data age as the gateway reports it, ms (`None`: no value yet).
+fn ages(g: &Gateway) -> Vec<Option<u64>> {
+    g.get("/api/drives").as_array().unwrap().iter().map(|d| d["age_ms"].as_u64()).collect()
+}
+
+fn garbled(control: SocketAddr) -> u64 {
+    let (_, v) = http::http_json(control, "GET", "/stats", None).unwrap();
+    v["garbled_frames"].as_u64().unwrap()
+}
+
+#[test]
+fn the_standby_takes_over_a_killed_master_and_the_old_one_stays_standby() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_sim, ptys, control) = simulate(dir.path());
+    let configs = [config(dir.path(), "a", &ptys[0], "active"), config(dir.path(), "b", &ptys[1], "active")];
+    let mut gw = [Gateway::start(&configs[0], false), Gateway::start(&configs[1], true)];
+    wait("a masters the line", || gw[0].role() == "master");
+    wait("b serves every drive from what it hears", || {
+        gw[1].role() == "standby" && ages(&gw[1]).iter().all(|a| a.is_some_and(|a| a < 2500))
+    });
+    assert_eq!(gw[1].transactions(), 0, "a standby sends nothing");
+    // A command to the standby is refused with the reason, and sent nowhere.
+    let (status, text) =
+        http::request(gw[1].http, "POST", "/api/drives/d1/speed", Some(TOKEN), Some(r#"{"hz": 30}"#));
+    assert_eq!(status, 503, "{text}");
+    let v: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(v["error"]["kind"], "standby", "{v}");
+    assert!(v["error"]["message"].as_str().unwrap().contains("standby"), "{v}");
+    assert_eq!(gw[1].transactions(), 0);
+    let events = gw[1].get("/api/events?kind=command");
+    assert!(events.to_string().contains("standby"), "the refusal is audited: {events}");
+    let kills: usize = std::env::var("DRIVEBUS_STANDBY_KILLS").ok().and_then(|v| v.parse().ok()).unwrap_or(3);
+    let mut took = Vec::new();
+    let mut master = 0;
+    for kill in 0..kills {
+        let standby = 1 - master;
+        let sent = gw[standby].transactions();
+        gw[master].kill9();
+        let killed = Instant::now();
+        // The standby polls within 1.5 s, and no drive's age goes over 2.5 s meanwhile.
+        let mut worst = 0;
+        loop {
+            worst = worst.max(ages(&gw[standby]).iter().map(|a| a.unwrap_or(u64::MAX)).max().unwrap());
+            if gw[standby].role() == "master" && gw[standby].transactions() > sent {
+                break;
+            }
+            assert!(killed.elapsed() < Duration::from_secs(10), "kill {kill}: no takeover");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        took.push(killed.elapsed());
+        wait("the takeover is an event", || {
+            let v = gw[standby].get("/api/events?kind=takeover");
+            v.as_array().is_some_and(|a| a.iter().any(|e| e["bus"] == "line"))
+        });
+        assert!(worst <= 2500, "kill {kill}: a drive's data was {worst} ms old");
+        // The old master restarted (as configured: active) hears the new one and stays standby.
+        gw[master] = Gateway::start(&configs[master], false);
+        let restarted = Instant::now();
+        wait("the restarted one serves values", || {
+            ages(&gw[master]).iter().all(|a| a.is_some_and(|a| a < 2500))
+        });
+        while restarted.elapsed() < Duration::from_secs(1) {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        assert_eq!(gw[master].role(), "standby", "kill {kill}: the restarted one stays standby");
+        assert_eq!(gw[standby].role(), "master");
+        master = standby;
+    }
+    took.sort();
+    println!(
+        "takeover over {} kills: min {:?}, median {:?}, max {:?}; garbled frames on the line: {}",
+        took.len(),
+        took[0],
+        took[took.len() / 2],
+        took[took.len() - 1],
+        garbled(control)
+    );
+    assert!(took.iter().all(|t| *t <= Duration::from_millis(1500)), "{took:?}");
+}
+
+#[test]
+fn two_gateways_started_at_once_end_with_one_master_and_a_quiet_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_sim, ptys, control) = simulate(dir.path());
+    let configs = [config(dir.path(), "a", &ptys[0], "active"), config(dir.path(), "b", &ptys[1], "active")];
+    let (c0, c1) = (configs[0].clone(), configs[1].clone());
+    let t0 = std::thread::spawn(move || Gateway::start(&c0, false));
+    let g1 = Gateway::start(&c1, false);
+    let g0 = t0.join().unwrap();
+    let started = Instant::now();
+    while started.elapsed() < Duration::from_secs(3) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    wait("one master", || {
+        let roles = [g0.role(), g1.role()];
+        roles.iter().filter(|r| *r == "master").count() == 1
+    });
+    let before = garbled(control);
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(3) {
+        let roles = [g0.role(), g1.role()];
+        assert_eq!(roles.iter().filter(|r| *r == "master").count(), 1, "{roles:?}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(garbled(control), before, "no garbled frame once one gateway masters the line");
+    println!("garbled frames at the common start: {before}");
+}
+
+#[test]
+fn a_standby_whose_line_idles_longer_than_the_silence_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("slow.toml");
+    std::fs::write(
+        &file,
+        "[[bus]]\nname = \"l\"\nport = \"/dev/ttyUSB9\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"d\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 1000\n",
+    )
+    .unwrap();
+    let o = sim::output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .args(["serve", "--standby", "--no-store", "--no-opcua", "--config"])
+            .arg(&file),
+    );
+    assert_eq!(o.code, 3, "{}{}", o.stdout, o.stderr);
+    assert!(o.stderr.contains("poll_ms 1000") && o.stderr.contains("silence_ms"), "{}", o.stderr);
+    assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+}

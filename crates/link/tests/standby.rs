@@ -1,0 +1,197 @@
+//! Two bus owners on one virtual line, on tokio's paused clock: a standby answers its polls from
+//! what it hears of the master's, refuses commands, takes the line when the master falls
+//! silent; the old master restarted stays listening. The line counts no garbled frame.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use drivebus_drive::profile::Exchange;
+use drivebus_drive::Family;
+use drivebus_link::link::Link;
+use drivebus_link::role::{Role, RoleConfig};
+use drivebus_link::{Bus, BusConfig, BusError, Priority, SimLink};
+use drivebus_proto::checksum::crc16_modbus;
+use drivebus_proto::line::CharFormat;
+use drivebus_proto::protocol::WireProtocol;
+use drivebus_proto::Instant;
+use drivebus_sim::bus::VirtualLine;
+use drivebus_sim::config::DriveSpec;
+
+fn rtu(frame: &[u8]) -> Vec<u8> {
+    let mut v = frame.to_vec();
+    v.extend_from_slice(&crc16_modbus(frame).to_le_bytes());
+    v
+}
+
+fn read(addr: u8, reg: u16) -> Exchange {
+    Exchange { request: rtu(&[addr, 0x03, (reg >> 8) as u8, reg as u8, 0, 1]), expect_reply: true }
+}
+
+/// Each poll's drive and result.
+type Answers = Arc<Mutex<Vec<(u8, Result<Option<Vec<u8>>, BusError>)>>>;
+
+const SILENCE: Duration = Duration::from_millis(500);
+
+fn config(role: Option<bool>) -> BusConfig {
+    let mut cfg = BusConfig::new(WireProtocol::ModbusRtu, 19200, CharFormat::NONE_8N2);
+    cfg.response_timeout = Some(Duration::from_millis(50));
+    cfg.role = role.map(|standby| RoleConfig { standby, silence: SILENCE });
+    cfg
+}
+
+/// A line of generic RTU drives 1 and 2 with two masters' ports.
+fn line() -> Arc<Mutex<VirtualLine>> {
+    let mut line = VirtualLine::new(19200, CharFormat::NONE_8N2, Instant::ZERO);
+    for a in [1, 2] {
+        let spec = DriveSpec {
+            family: Family::Generic,
+            address: a,
+            protocol: Some(WireProtocol::ModbusRtu),
+            response: Duration::from_millis(3),
+            load: 0.5,
+            params: Vec::new(),
+        };
+        line.add_device(drivebus_sim::family::build(&spec, Instant::ZERO).unwrap());
+    }
+    assert_eq!(line.add_master(), 1);
+    Arc::new(Mutex::new(line))
+}
+
+/// Polls drives 1 and 2 (setpoint 2102H) in turn every 20 ms until aborted; counts answers.
+fn poller(bus: Bus, answers: Answers) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        loop {
+            for a in [1u8, 2] {
+                let r = bus.transact(a, read(a, 0x2102), Priority::Poll, None).await;
+                answers.lock().unwrap().push((a, r));
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        }
+    })
+}
+
+/// Waits on the paused clock until `done`, at most `limit`.
+async fn wait_for(limit: Duration, what: &str, done: impl Fn() -> bool) -> Duration {
+    let start = tokio::time::Instant::now();
+    while !done() {
+        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    start.elapsed()
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_listens_refuses_commands_takes_over_and_the_old_master_stays_standby() {
+    let line = line();
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+    let (a_answers, b_answers): (Answers, Answers) = Default::default();
+    let a_poll = poller(a.clone(), a_answers.clone());
+    let b_poll = poller(b.clone(), b_answers.clone());
+
+    // The active one takes the line after its silence; the standby stays listening.
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    // Its polls are answered from what it heard, the same replies the master got.
+    let heard: Vec<_> =
+        b_answers.lock().unwrap().iter().filter(|(_, r)| matches!(r, Ok(Some(_)))).cloned().collect();
+    assert!(heard.len() >= 10, "{:?}", b_answers.lock().unwrap());
+    let got: Vec<Vec<u8>> =
+        a_answers.lock().unwrap().iter().filter_map(|(_, r)| r.as_ref().ok().cloned().flatten()).collect();
+    for (addr, r) in &heard {
+        let reply = r.as_ref().unwrap().as_ref().unwrap();
+        assert_eq!(reply[0], *addr, "the reply of the drive asked");
+        assert!(got.contains(reply), "a reply the master got: {reply:02X?}");
+    }
+    // Commands are refused, with the reason.
+    let e = b.transact(1, read(1, 0x2102), Priority::Command, None).await.unwrap_err();
+    assert!(matches!(e, BusError::Standby(_)), "{e}");
+    assert!(e.to_string().contains("standby"), "{e}");
+
+    // The master dies: the standby polls within 1.5 s.
+    a_poll.abort();
+    drop(a);
+    let killed = tokio::time::Instant::now();
+    let sent_before = b.stats().transactions;
+    wait_for(Duration::from_millis(1500), "the standby takes over", || {
+        b.role().is_some_and(|r| r.role == Role::Master) && b.stats().transactions > sent_before
+    })
+    .await;
+    let took = killed.elapsed();
+    let status = b.role().unwrap();
+    assert_eq!((status.takeovers, status.yields), (1, 0), "{status:?}");
+    assert!(took >= SILENCE, "not before the silence: {took:?}");
+
+    // The old master restarted (active) hears the new one and stays standby.
+    let a2_link = SimLink::for_master(line.clone(), "a again", 0, clock);
+    let a2 = Bus::spawn(a2_link, config(Some(false))).unwrap();
+    let a2_answers: Answers = Default::default();
+    let a2_poll = poller(a2.clone(), a2_answers.clone());
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    assert_eq!(a2.role().unwrap().role, Role::Standby);
+    assert_eq!(a2.stats().transactions, 0);
+    assert_eq!(b.role().unwrap().role, Role::Master);
+    assert_eq!(line.lock().unwrap().stats().garbled_frames, 0, "no two masters ever talked at once");
+    a2_poll.abort();
+    b_poll.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn two_active_owners_started_together_end_with_one_master() {
+    for round in 0..5 {
+        let line = line();
+        let a_link = SimLink::new(line.clone(), "a");
+        let clock = a_link.clock();
+        let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+        let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(false))).unwrap();
+        let (x, y): (Answers, Answers) = Default::default();
+        let pa = poller(a.clone(), x);
+        let pb = poller(b.clone(), y);
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        let masters =
+            [&a, &b].iter().filter(|bus| bus.role().is_some_and(|r| r.role == Role::Master)).count();
+        assert_eq!(masters, 1, "round {round}: {:?} {:?}", a.role(), b.role());
+        let garbled = line.lock().unwrap().stats().garbled_frames;
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        assert_eq!(line.lock().unwrap().stats().garbled_frames, garbled, "round {round}: none after 3 s");
+        pa.abort();
+        pb.abort();
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn twenty_kills_each_hand_the_line_over_within_one_and_a_half_seconds() {
+    let mut took = Vec::new();
+    for kill in 0..20 {
+        let line = line();
+        let a_link = SimLink::new(line.clone(), "a");
+        let clock = a_link.clock();
+        let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+        let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+        let (x, y): (Answers, Answers) = Default::default();
+        let pa = poller(a.clone(), x);
+        let pb = poller(b.clone(), y);
+        wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master))
+            .await;
+        // Killed at a different point of its polling cycle each time.
+        tokio::time::sleep(Duration::from_millis(1000 + 7 * kill)).await;
+        pa.abort();
+        drop(a);
+        let killed = tokio::time::Instant::now();
+        let sent = b.stats().transactions;
+        wait_for(Duration::from_millis(1500), "the standby polls", || {
+            b.role().is_some_and(|r| r.role == Role::Master) && b.stats().transactions > sent
+        })
+        .await;
+        took.push(killed.elapsed());
+        assert_eq!(line.lock().unwrap().stats().garbled_frames, 0, "kill {kill}");
+        pb.abort();
+    }
+    took.sort();
+    println!("takeover over 20 kills: min {:?}, median {:?}, max {:?}", took[0], took[10], took[19]);
+    assert!(took[0] >= SILENCE && took[19] <= Duration::from_millis(1500), "{took:?}");
+}

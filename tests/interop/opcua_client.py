@@ -34,6 +34,15 @@
         Checks: Objects/Drives lists all COUNT drives; a drive's Parameters browse and one of them
         reads Good from the drive; a drive variable of the last drive reads.
 
+    opcua_client.py order URL HTTP TOKEN DRIVE COUNT
+        URL      opc.tcp://HOST:PORT of a gateway with a store and DRIVE; insecure_writes on
+        HTTP     http://HOST:PORT of its HTTP API (anonymous reads on)
+        TOKEN    the write token of user "demo"
+        Checks: COUNT method calls to DRIVE (SetSpeed 10 + i % 40 Hz, Run, Stop, over
+        and over) sent on one
+        session without waiting for each answer are all Good, the audit trail lists them in the
+        order they were sent, and the drive ends in the last commanded state.
+
 Prints one line per check and exits 0 when every check passed, 1 otherwise.
 """
 
@@ -453,6 +462,70 @@ async def trust(url, write_token, read_token, certdir, max_sessions, host):
     say("ALL OK")
 
 
+def events_after(http, drive, after_id):
+    url = f"{http}/api/events?kind=command&drive={drive}&limit=10000&after_id={after_id}"
+    with urllib.request.urlopen(url, timeout=10) as r:
+        return sorted(json.load(r), key=lambda e: e["id"])
+
+
+async def order(url, http, token, drive, count):
+    count = int(count)
+    # The calls are answered one after another: time enough for all of them.
+    c = Client(url, timeout=PATIENCE)
+    c.set_user("demo")
+    c.set_password(token)
+    async with c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        d = node(c, ns, f"Drives/{drive}")
+        method = {m: (await d.get_child(f"{ns}:{m}")).nodeid for m in ("SetSpeed", "Run", "Stop")}
+        last = max([e["id"] for e in events_after(http, drive, 0)], default=0)
+
+        plan = []
+        for i in range(count):
+            call = ua.CallMethodRequest()
+            call.ObjectId = d.nodeid
+            if i % 3 == 0:
+                call.MethodId = method["SetSpeed"]
+                hz = 10 + i % 40
+                call.InputArguments = [ua.Variant(float(hz), ua.VariantType.Double)]
+                plan.append((f"speed {hz} Hz", call))
+            else:
+                name = "Run" if i % 3 == 1 else "Stop"
+                call.MethodId = method[name]
+                call.InputArguments = []
+                plan.append((name.lower(), call))
+        # gather starts the calls in this order, each sent before the next starts, all on one
+        # connection, none waiting for an answer.
+        results = await asyncio.gather(*[c.uaclient.call([call]) for _, call in plan])
+        codes = [r[0].StatusCode.name for r in results]
+        assert all(code == "Good" for code in codes), f"pipelined calls: {codes}"
+        sent = [action for action, _ in plan]
+
+        async def all_there():
+            found = events_after(http, drive, last)
+            return found if len(found) >= count else None
+        found = await until(f"{count} commands in the audit trail", all_there)
+        done = [e["action"] for e in found]
+        assert [e["result"] for e in found] == ["ok"] * count, f"results {[e['result'] for e in found]}"
+        if done != sent:
+            at = next(i for i, (a, b) in enumerate(zip(done, sent)) if a != b)
+            raise AssertionError(f"the audit trail's command {at + 1} of {count} is {done[at]!r}, sent "
+                                 f"{sent[at]!r}: trail {done[max(0, at - 3):at + 4]}, sent "
+                                 f"{sent[max(0, at - 3):at + 4]}")
+        say(f"order: {count} pipelined calls, the audit trail lists them in the order sent")
+
+        speed = float(10 + max(i for i in range(count) if i % 3 == 0) % 40)
+        running = [a for a in sent if a in ("run", "stop")][-1] == "run"
+
+        async def settled():
+            sp = await node(c, ns, f"Drives/{drive}/Setpoint").read_value()
+            run = await node(c, ns, f"Drives/{drive}/Running").read_value()
+            return abs(sp - speed) < 0.05 and run == running
+        await until(f"{drive} at setpoint {speed} Hz, running {running}", settled)
+        say(f"order: {drive} ends at setpoint {speed} Hz, running {running}, as last commanded")
+    say("ALL OK")
+
+
 def main():
     if len(sys.argv) >= 3 and sys.argv[1] == "mkcert":
         asyncio.run(mkcert(sys.argv[2]))
@@ -471,6 +544,12 @@ def main():
     elif len(sys.argv) == 4 and sys.argv[1] == "big":
         try:
             asyncio.run(big(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
+    elif len(sys.argv) == 7 and sys.argv[1] == "order":
+        try:
+            asyncio.run(order(*sys.argv[2:]))
         except AssertionError as e:
             print(f"FAILED: {e}", flush=True)
             sys.exit(1)

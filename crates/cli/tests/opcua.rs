@@ -283,3 +283,40 @@ fn asyncua_browses_and_reads_a_parameter_on_a_1000_drive_plant() {
     let url = at[0].split_whitespace().next().unwrap().to_string();
     client(&["big", &url, "1000"]);
 }
+
+/// Method calls pipelined on one session (sent one after another without waiting for the
+/// answers) are carried out in the order they were sent: the audit trail lists them so, and the
+/// drive ends in the last commanded state. The OPC UA server library runs each request in a task
+/// of its own; Write and Call requests of one channel wait for each other (the third `drivebus:`
+/// change, vendor/async-opcua-server/DRIVEBUS.md).
+#[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
+fn asyncua_pipelined_calls_to_one_drive_are_carried_out_in_the_order_sent() {
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let token = "opcua-order-token-0123456789";
+    let config = format!(
+        "[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
+         [[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
+         [opcua]\ninsecure_writes = true\n\
+         [[bus]]\nname = \"line-1\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
+         [[bus.drive]]\nname = \"pump-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
+        dir.path().join("store.db").display(),
+    );
+    let file = dir.path().join("plant.toml");
+    std::fs::write(&file, config).unwrap();
+    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", "127.0.0.1:0"])
+        .arg("--config")
+        .arg(&file)
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
+    let _serve = Killed(serve);
+    let http = at[0].trim_end_matches('/').to_string();
+    let url = at[1].split_whitespace().next().unwrap().to_string();
+    client(&["order", &url, &http, token, "pump-1", "120"]);
+}

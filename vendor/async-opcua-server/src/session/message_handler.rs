@@ -27,6 +27,10 @@ pub(crate) struct MessageHandler {
     node_managers: NodeManagers,
     info: Arc<ServerInfo>,
     subscriptions: Arc<SubscriptionCache>,
+    // drivebus: the end of the chain of Write and Call requests on this channel: the last one's
+    // task signals it when done (or drops it when it panics or is aborted), and the next one
+    // waits for it before it starts, so Write and Call requests run in the order they arrived.
+    ordered_tail: Option<tokio::sync::oneshot::Receiver<()>>,
 }
 
 /// Result of a message. All messages should be able to yield a response, but
@@ -136,6 +140,77 @@ impl<T> Request<T> {
     }
 }
 
+// drivebus: one link of the chain of Write and Call requests: the previous request's signal,
+// until it came, and this request's own. Dropped before the previous request is done (this
+// request's task aborted at its deadline while it waited), it hands the wait on to a task of its
+// own, so the next request still starts after the previous one.
+struct OrderedLink {
+    previous: Option<tokio::sync::oneshot::Receiver<()>>,
+    done: Option<tokio::sync::oneshot::Sender<()>>,
+}
+
+impl OrderedLink {
+    /// Waits until the previous request is done (or its task is gone).
+    async fn wait(&mut self) {
+        if let Some(previous) = self.previous.as_mut() {
+            let _ = previous.await;
+        }
+        self.previous = None;
+    }
+
+    /// Lets the next request start.
+    fn finish(mut self) {
+        if let Some(done) = self.done.take() {
+            let _ = done.send(());
+        }
+    }
+}
+
+impl Drop for OrderedLink {
+    fn drop(&mut self) {
+        if let (Some(previous), Some(done)) = (self.previous.take(), self.done.take()) {
+            if let Ok(runtime) = tokio::runtime::Handle::try_current() {
+                runtime.spawn(async move {
+                    let _ = previous.await;
+                    let _ = done.send(());
+                });
+            }
+        }
+    }
+}
+
+// drivebus: like `async_service_call!`, but the request starts when the previous Write or
+// Call request of this channel is done (a dropped signal, from a task that panicked or was
+// aborted while it ran, lets it start too) and signals the next one when it is done itself.
+macro_rules! ordered_service_call {
+    ($m:path, $slf:ident, $req:ident, $r:ident) => {{
+        let (done, next) = tokio::sync::oneshot::channel::<()>();
+        let mut link = OrderedLink {
+            previous: $slf.ordered_tail.replace(next),
+            done: Some(done),
+        };
+        let call = $m(
+            $slf.node_managers.clone(),
+            Request::new(
+                $req,
+                $slf.info.clone(),
+                $r.request_id,
+                $r.request_handle,
+                $r.session,
+                $r.token,
+                $slf.subscriptions.clone(),
+                $r.session_id,
+            ),
+        );
+        HandleMessageResult::AsyncMessage(tokio::task::spawn(async move {
+            link.wait().await;
+            let response = call.await;
+            link.finish();
+            response
+        }))
+    }};
+}
+
 /// Macro for calling a service asynchronously.
 macro_rules! async_service_call {
     ($m:path, $slf:ident, $req:ident, $r:ident) => {
@@ -174,6 +249,7 @@ impl MessageHandler {
             node_managers,
             info,
             subscriptions,
+            ordered_tail: None,
         }
     }
 
@@ -307,7 +383,8 @@ impl MessageHandler {
             }
 
             RequestMessage::Write(request) => {
-                async_service_call!(services::write, self, request, data)
+                // drivebus: in arrival order with the other Write and Call requests.
+                ordered_service_call!(services::write, self, request, data)
             }
 
             RequestMessage::QueryFirst(request) => {
@@ -319,7 +396,8 @@ impl MessageHandler {
             }
 
             RequestMessage::Call(request) => {
-                async_service_call!(services::call, self, request, data)
+                // drivebus: in arrival order with the other Write and Call requests.
+                ordered_service_call!(services::call, self, request, data)
             }
 
             RequestMessage::AddNodes(request) => {

@@ -11,15 +11,15 @@
 //! a missing witness is a failure.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 
 #[path = "support/http.rs"]
 mod http;
-#[path = "support/lines.rs"]
-mod lines;
+#[path = "support/opcua_plant.rs"]
+mod plant;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
-use lines::{wait_for_lines as lines, Killed};
+use plant::{Plant, Serve};
 use witness::witness;
 
 fn script() -> PathBuf {
@@ -39,6 +39,12 @@ fn client(args: &[&str]) {
     eprintln!("{said}");
 }
 
+/// Makes the asyncua client's certificate and key in `dir` (`client.der` is the certificate).
+fn mkcert(dir: &Path) {
+    let out = Command::new("python3").arg(script()).arg("mkcert").arg(dir).output().unwrap();
+    assert!(out.status.success(), "mkcert: {}", String::from_utf8_lossy(&out.stderr));
+}
+
 #[test]
 #[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
 fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be() {
@@ -50,80 +56,15 @@ fn asyncua_browses_reads_subscribes_commands_and_is_refused_where_it_should_be()
     std::fs::create_dir_all(&dir).unwrap();
 
     // The client's certificate, trusted by the gateway's configuration.
-    let out = Command::new("python3").arg(script()).arg("mkcert").arg(dir.join("client")).output().unwrap();
-    assert!(out.status.success(), "mkcert: {}", String::from_utf8_lossy(&out.stderr));
+    mkcert(&dir.join("client"));
 
-    // A drive on a simulator, to trip while the client watches.
-    let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
-        .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let at = lines(&mut sim, "drivebus simulate", &["listening on tcp", "control http://"]);
-    let _sim = Killed(sim);
-    let control = format!("http://{}", at[1].trim_end_matches("/drives"));
-
-    let token = "opcua-test-token-0123456789";
-    let demo =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../gateway/src/demo.toml"))
-            .unwrap()
-            + &format!("[store]\npath = \"{}\"\n", dir.join("store.db").display());
-    let config = format!(
-        "{demo}\n[[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
-         [opcua]\ntrusted_clients = [\"{}\"]\ninsecure_writes = true\n\
-         [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
-         [[bus.drive]]\nname = \"press-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n\
-         [[bus]]\nname = \"line-b\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
-         [[bus.drive]]\nname = \"ghost-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
-        dir.join("client/client.der").display(),
-        at[0],
-        dir.join("ttyUSB-unplugged").display()
-    );
-    let file = dir.join("plant.toml");
-    std::fs::write(&file, config).unwrap();
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args([
-            "serve",
-            "--http",
-            "127.0.0.1:0",
-            "--modbus",
-            "127.0.0.1:0",
-            "--opcua",
-            "127.0.0.1:0",
-            "--config",
-        ])
-        .arg(&file)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
-    let _serve = Killed(serve);
-    let http: std::net::SocketAddr =
-        at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
-    let url = at[1].split_whitespace().next().unwrap().to_string();
-    assert!(url.starts_with("opc.tcp://127.0.0.1:"), "{url}");
-    // The certificate the server made for itself on first start, in pki beside the store.
-    assert!(dir.join("pki/own/cert.der").exists());
-
-    let drives =
-        "conveyor-1,conveyor-2,fan-1,pump-1,pump-2,pump-3,ahu-1,ahu-2,mixer-1,mixer-2,press-1,ghost-1";
-    let out = Command::new("python3")
-        .arg(script())
-        .args(["check", &url, token, drives, "ghost-1", "press-1", &control])
-        .arg(dir.join("client"))
-        .output()
-        .unwrap();
-    let said = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success() && said.contains("ALL OK"),
-        "the asyncua client: {said}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    eprintln!("{said}");
+    let plant = Plant::start_with(&dir, &dir.join("client/client.der"), "insecure_writes = true\n");
+    let (url, http, token) = (&plant.url, plant.http, plant::TOKEN);
+    let certs = dir.join("client").display().to_string();
+    client(&["check", url, token, plant::DRIVES, plant::OFFLINE, plant::SIMULATED, &plant.control, &certs]);
 
     // pump-1 has been running for a while: its history is the HTTP trend's.
-    client(&["history", &url, &format!("http://{http}"), "pump-1"]);
+    client(&["history", url, &format!("http://{http}"), "pump-1"]);
 
     // Every command is in the audit trail with its OPC UA actor.
     let (status, body) =
@@ -155,9 +96,7 @@ fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let out =
-        Command::new("python3").arg(script()).arg("mkcert").arg(dir.path().join("client")).output().unwrap();
-    assert!(out.status.success(), "mkcert: {}", String::from_utf8_lossy(&out.stderr));
+    mkcert(&dir.path().join("client"));
     let (write, read) = ("opcua-trust-write-0123456789", "opcua-trust-read-0123456789");
     let config = format!(
         "[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
@@ -171,45 +110,15 @@ fn asyncua_finds_passwords_encrypted_writes_signed_and_sessions_capped() {
     );
     let file = dir.path().join("plant.toml");
     std::fs::write(&file, config).unwrap();
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args([
-            "serve",
-            "--http",
-            "127.0.0.1:0",
-            "--modbus",
-            "127.0.0.1:0",
-            "--opcua",
-            "0.0.0.0:0",
-            "--config",
-        ])
-        .arg(&file)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
-    let _serve = Killed(serve);
-    let http: std::net::SocketAddr =
-        at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
+    let serve = Serve::start(&file, "0.0.0.0:0", &[]);
+    let (http, url) = (serve.http, &serve.url);
     // Listening on every address, it advertises the machine's name, never 0.0.0.0.
-    let url = at[1].split_whitespace().next().unwrap().to_string();
     let (host, port) = url.trim_start_matches("opc.tcp://").rsplit_once(':').unwrap();
     let machine = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap();
     assert_eq!(host, machine.trim(), "{url}");
 
-    let out = Command::new("python3")
-        .arg(script())
-        .args(["trust", &format!("opc.tcp://127.0.0.1:{port}"), write, read])
-        .arg(dir.path().join("client"))
-        .args(["3", host])
-        .output()
-        .unwrap();
-    let said = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success() && said.contains("ALL OK"),
-        "the asyncua client: {said}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    eprintln!("{said}");
+    let client_dir = dir.path().join("client").display().to_string();
+    client(&["trust", &format!("opc.tcp://127.0.0.1:{port}"), write, read, &client_dir, "3", host]);
 
     // Each kind of refusal is in the audit trail, with who and why.
     let (status, body) = http::request(http, "GET", "/api/events?kind=command", None, None);
@@ -262,26 +171,8 @@ fn asyncua_browses_and_reads_a_parameter_on_a_1000_drive_plant() {
     assert_eq!(n, 1000);
     let file = dir.path().join("plant.toml");
     std::fs::write(&file, config).unwrap();
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args([
-            "serve",
-            "--no-store",
-            "--http",
-            "127.0.0.1:0",
-            "--modbus",
-            "127.0.0.1:0",
-            "--opcua",
-            "127.0.0.1:0",
-        ])
-        .arg("--config")
-        .arg(&file)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let at = lines(&mut serve, "drivebus serve", &["OPC UA"]);
-    let _serve = Killed(serve);
-    let url = at[0].split_whitespace().next().unwrap().to_string();
-    client(&["big", &url, "1000"]);
+    let serve = Serve::start(&file, "127.0.0.1:0", &["--no-store"]);
+    client(&["big", &serve.url, "1000"]);
 }
 
 /// Method calls pipelined on one session (sent one after another without waiting for the
@@ -307,16 +198,7 @@ fn asyncua_pipelined_calls_to_one_drive_are_carried_out_in_the_order_sent() {
     );
     let file = dir.path().join("plant.toml");
     std::fs::write(&file, config).unwrap();
-    let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args(["serve", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", "127.0.0.1:0"])
-        .arg("--config")
-        .arg(&file)
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let at = lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
-    let _serve = Killed(serve);
-    let http = at[0].trim_end_matches('/').to_string();
-    let url = at[1].split_whitespace().next().unwrap().to_string();
-    client(&["order", &url, &http, token, "pump-1", "120"]);
+    let serve = Serve::start(&file, "127.0.0.1:0", &[]);
+    let http = format!("http://{}", serve.http);
+    client(&["order", &serve.url, &http, token, "pump-1", "120"]);
 }

@@ -15,7 +15,7 @@ mod http;
 #[path = "support/lines.rs"]
 mod lines;
 use http::{free_port, request as raw};
-use lines::{wait_for_lines, Killed};
+use lines::{serve_command, wait_for_lines, Killed};
 
 /// A `drivebus serve --demo` process, killed on drop.
 struct Serve {
@@ -330,22 +330,12 @@ fn serve_starts_with_a_missing_rtu_slave_port_and_readyz_names_it() {
 fn the_demo_writes_nothing_in_the_working_directory_and_says_where_the_key_is() {
     let cwd = tempfile::tempdir().unwrap();
     let home = tempfile::tempdir().unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-        .args([
-            "serve",
-            "--demo",
-            "--http",
-            "127.0.0.1:0",
-            "--modbus",
-            "127.0.0.1:0",
-            "--opcua",
-            "127.0.0.1:0",
-        ])
+    let mut child = serve_command("127.0.0.1:0")
+        .arg("--demo")
         .current_dir(cwd.path())
         .env("HOME", home.path())
         .env_remove("XDG_STATE_HOME")
         .env_remove("STATE_DIRECTORY")
-        .stdout(Stdio::piped())
         .spawn()
         .expect("start drivebus serve");
     let said = wait_for_lines(

@@ -4,7 +4,7 @@
 #![allow(dead_code)]
 
 use std::io::{BufRead, BufReader};
-use std::process::Child;
+use std::process::{Child, Command, Stdio};
 
 /// Reads `child`'s stdout until `want` has matched a line for each of its prefixes (events, not
 /// sleeps); the rest of each matching line, in the order of `want`. The rest of the output is
@@ -25,6 +25,15 @@ pub fn wait_for_lines(child: &mut Child, what: &str, want: &[&str]) -> Vec<Strin
     }
     std::thread::spawn(move || for _ in lines {});
     found.into_iter().flatten().collect()
+}
+
+/// `drivebus serve` with HTTP and Modbus TCP on free loopback ports (port 0) and OPC UA on
+/// `opcua`, its stdout piped for [`wait_for_lines`]; more flags to be given.
+pub fn serve_command(opcua: &str) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
+    cmd.args(["serve", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", opcua])
+        .stdout(Stdio::piped());
+    cmd
 }
 
 /// A child process killed (and reaped) on drop.

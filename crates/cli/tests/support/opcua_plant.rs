@@ -11,7 +11,7 @@ use std::process::{Command, Stdio};
 
 #[path = "lines.rs"]
 mod lines;
-use lines::{wait_for_lines, Killed};
+use lines::{serve_command, wait_for_lines, Killed};
 
 /// The write token of user `demo`.
 pub const TOKEN: &str = "opcua-test-token-0123456789";
@@ -23,6 +23,29 @@ pub const OFFLINE: &str = "ghost-1";
 /// The drive on the simulator (address 1 there).
 pub const SIMULATED: &str = "press-1";
 
+/// A running `drivebus serve --config` with OPC UA; killed on drop.
+pub struct Serve {
+    /// The gateway's HTTP address.
+    pub http: SocketAddr,
+    /// The OPC UA endpoint URL the gateway printed.
+    pub url: String,
+    _child: Killed,
+}
+
+impl Serve {
+    /// Starts `drivebus serve --config file` with HTTP and Modbus TCP on free loopback ports,
+    /// OPC UA on `opcua` and the further flags `extra`; returns once it has printed its
+    /// dashboard and OPC UA lines.
+    pub fn start(file: &Path, opcua: &str, extra: &[&str]) -> Serve {
+        let mut child = serve_command(opcua).arg("--config").arg(file).args(extra).spawn().unwrap();
+        let at = wait_for_lines(&mut child, "drivebus serve", &["dashboard", "OPC UA"]);
+        let child = Killed(child);
+        let http = at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
+        let url = at[1].split_whitespace().next().unwrap().to_string();
+        Serve { http, url, _child: child }
+    }
+}
+
 /// The running plant; its processes are killed on drop.
 pub struct Plant {
     /// The gateway's HTTP address.
@@ -33,7 +56,7 @@ pub struct Plant {
     pub control: String,
     /// The gateway's certificate (DER), made on its first start.
     pub server_cert: PathBuf,
-    _serve: Killed,
+    _serve: Serve,
     _sim: Killed,
 }
 
@@ -41,6 +64,12 @@ impl Plant {
     /// Starts the simulator and `serve` with their files in `dir`, trusting the client
     /// certificate `client_der`.
     pub fn start(dir: &Path, client_der: &Path) -> Plant {
+        Plant::start_with(dir, client_der, "")
+    }
+
+    /// [`Plant::start`] with `opcua`, more lines of the `[opcua]` table (e.g.
+    /// `insecure_writes = true\n`).
+    pub fn start_with(dir: &Path, client_der: &Path, opcua: &str) -> Plant {
         let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
             .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
             .args(["--tcp", "127.0.0.1:0", "--control", "127.0.0.1:0"])
@@ -63,7 +92,7 @@ impl Plant {
         };
         let config = format!(
             "{demo}\n[[token]]\nname = \"demo\"\ntoken = \"{TOKEN}\"\nrole = \"write\"\n\
-             [opcua]\ntrusted_clients = [\"{}\"]\n\
+             [opcua]\ntrusted_clients = [\"{}\"]\n{opcua}\
              [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
              [[bus.drive]]\nname = \"{SIMULATED}\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n\
              [[bus]]\nname = \"line-b\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
@@ -74,17 +103,8 @@ impl Plant {
         );
         let file = dir.join("plant.toml");
         std::fs::write(&file, config).unwrap();
-        let mut serve = Command::new(env!("CARGO_BIN_EXE_drivebus"))
-            .args(["serve", "--http", "127.0.0.1:0", "--modbus", "127.0.0.1:0", "--opcua", "127.0.0.1:0"])
-            .arg("--config")
-            .arg(&file)
-            .stdout(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let at = wait_for_lines(&mut serve, "drivebus serve", &["dashboard", "OPC UA"]);
-        let serve = Killed(serve);
-        let http = at[0].trim_start_matches("http://").trim_end_matches('/').parse().unwrap();
-        let url = at[1].split_whitespace().next().unwrap().to_string();
+        let serve = Serve::start(&file, "127.0.0.1:0", &[]);
+        let (http, url) = (serve.http, serve.url.clone());
         assert!(url.starts_with("opc.tcp://127.0.0.1:"), "{url}");
         // The certificate the server made for itself on first start, in pki beside the store.
         let server_cert = dir.join("pki/own/cert.der");

@@ -728,6 +728,13 @@ fn rand_suffix() -> u32 {
     N.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
+/// Writes 42.5 Hz to P0.02 of fan-1 (and its EEPROM) as the write token; asserts it was taken.
+async fn write_fan_1_p0_02_42_5(app: &Router) {
+    let body = r#"{"value": "42.5", "eeprom": true}"#;
+    let r = call(app, "PUT", "/api/drives/fan-1/params/P0.02", Some(WRITE), Some(body)).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+}
+
 #[tokio::test(start_paused = true)]
 async fn the_parameter_list_gives_every_parameter_with_its_catalog_data_and_value() {
     let (_gw, app) = app(false, false);
@@ -750,15 +757,7 @@ async fn the_parameter_list_gives_every_parameter_with_its_catalog_data_and_valu
     let monitor = rows.iter().find(|p| p["access"] == "read-only").expect("a read-only parameter");
     assert!(monitor["raw"].is_i64() || monitor["error"].is_object(), "{monitor}");
     // A value changed: read again (not a value from before the write), marked as differing.
-    let r = call(
-        &app,
-        "PUT",
-        "/api/drives/fan-1/params/P0.02",
-        Some(WRITE),
-        Some(r#"{"value": "42.5", "eeprom": true}"#),
-    )
-    .await;
-    assert_eq!(r.status, 200, "{}", r.json);
+    write_fan_1_p0_02_42_5(&app).await;
     let group = "/api/drives/fan-1/params?group=P0%20basic%20functions";
     let r = call(&app, "GET", group, Some(READ), None).await;
     assert_eq!(r.status, 200, "{}", r.json);
@@ -809,15 +808,7 @@ async fn backup_then_restore_shows_and_undoes_exactly_the_change() {
     assert_eq!(backup.params.len(), settings);
     assert_eq!(backup.params["P0.02"].raw, 5000);
 
-    let r = call(
-        &app,
-        "PUT",
-        "/api/drives/fan-1/params/P0.02",
-        Some(WRITE),
-        Some(r#"{"value": "42.5", "eeprom": true}"#),
-    )
-    .await;
-    assert_eq!(r.status, 200, "{}", r.json);
+    write_fan_1_p0_02_42_5(&app).await;
     // The diff: exactly P0.02, and nothing is written.
     let dry = "/api/drives/fan-1/restore?dry_run=true";
     let r = call(&app, "POST", dry, Some(WRITE), Some(&file)).await;

@@ -3,6 +3,7 @@
 //! counts requests by route.
 
 use std::collections::HashMap;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -363,16 +364,23 @@ fn exposed_series(text: &str) -> std::collections::BTreeMap<String, (String, Vec
     out
 }
 
-#[tokio::test(start_paused = true)]
-async fn the_exposition_has_exactly_the_series_docs_metrics_md_lists() {
-    let dir = std::env::temp_dir().join(format!("drivebus-metrics-golden-{}", std::process::id()));
+/// The demo gateway with its store in a new, empty file of the folder
+/// `drivebus-metrics-<test>-<pid>` in the temporary folder (no free-space floor); the folder, for
+/// the test to remove.
+fn demo_with_store(test: &str) -> (PathBuf, Arc<Gateway>) {
+    let dir = std::env::temp_dir().join(format!("drivebus-metrics-{test}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let db = dir.join("events.db");
     std::fs::write(&db, b"").unwrap();
     let mut config = GatewayConfig::demo();
     config.store = Some(db);
     config.store_min_free_mb = 0;
-    let gw = Gateway::start(config, None).unwrap();
+    (dir, Gateway::start(config, None).unwrap())
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_exposition_has_exactly_the_series_docs_metrics_md_lists() {
+    let (dir, gw) = demo_with_store("golden");
     gw.command("pump-1", Command::Speed(40.0), "test").await.unwrap();
     gw.command("pump-1", Command::Run, "test").await.unwrap();
     // Every conditional series made present: a request of each front end, an RTU slave's port.
@@ -404,14 +412,7 @@ async fn the_exposition_has_exactly_the_series_docs_metrics_md_lists() {
 #[tokio::test(start_paused = true)]
 async fn a_scrape_touches_no_file_the_store_is_checked_on_its_own_schedule() {
     use drivebus_gateway::health::STORE_CHECK_EVERY;
-    let dir = std::env::temp_dir().join(format!("drivebus-metrics-noio-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let db = dir.join("events.db");
-    std::fs::write(&db, b"").unwrap();
-    let mut config = GatewayConfig::demo();
-    config.store = Some(db);
-    config.store_min_free_mb = 0;
-    let gw = Gateway::start(config, None).unwrap();
+    let (dir, gw) = demo_with_store("noio");
     let app = app(&gw).merge(drivebus_gateway::http::health::routes().with_state(gw.clone()));
     let writable = |text: &str| {
         text.lines().find_map(|l| l.strip_prefix("drivebus_store_writable ")).map(str::to_string)

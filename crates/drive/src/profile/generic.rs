@@ -50,6 +50,17 @@ pub use crate::registers::generic::{command, reg, status};
 
 /// The broadcast address: every drive acts, none answers ("主机使用广播地址发送命令时, 从机不应答").
 pub const BROADCAST: u8 = 0;
+
+/// Refuses `what`, an operation that reads an answer, for the Modbus [`BROADCAST`] address
+/// (no drive answers it); the generic and the templated drives share it.
+pub(crate) fn needs_reply(address: u8, what: &str) -> Result<(), DriveError> {
+    if address == BROADCAST {
+        return Err(DriveError::Unsupported(format!(
+            "{what} needs an answer, and no drive answers the broadcast address 0: use a drive's own address"
+        )));
+    }
+    Ok(())
+}
 /// The highest address the manual allows ("最大可到 254 (FEH)").
 pub const MAX_ADDRESS: u8 = 254;
 
@@ -208,12 +219,7 @@ impl GenericProfile {
     }
 
     fn needs_reply(&self, what: &str) -> Result<(), DriveError> {
-        if self.is_broadcast() {
-            return Err(DriveError::Unsupported(format!(
-                "{what} needs an answer, and no drive answers the broadcast address 0: use a drive's own address"
-            )));
-        }
-        Ok(())
+        needs_reply(self.address, what)
     }
 
     fn plan_for(&self, job: Job) -> Box<dyn Plan> {

@@ -17,7 +17,7 @@ use std::sync::{Arc, Mutex};
 use drivebus_proto::modbus::ExceptionCode;
 
 use super::{CommandValue, RegisterTable, RegisterValue, Template, ValueType};
-use crate::profile::generic::{ModbusAnswer, ModbusAsk, ModbusFraming};
+use crate::profile::generic::{self, ModbusAnswer, ModbusAsk, ModbusFraming};
 use crate::profile::{
     CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
     WireProtocol,
@@ -137,12 +137,7 @@ impl TemplateProfile {
     }
 
     fn needs_reply(&self, what: &str) -> Result<(), DriveError> {
-        if self.address == 0 {
-            return Err(DriveError::Unsupported(format!(
-                "{what} needs an answer, and no drive answers the broadcast address 0: use a drive's own address"
-            )));
-        }
-        Ok(())
+        generic::needs_reply(self.address, what)
     }
 
     /// The highest setpoint, Hz: the template's `max_hz`, or the lowest of its limit parameters.

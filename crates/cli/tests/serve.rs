@@ -15,7 +15,7 @@ mod http;
 #[path = "support/lines.rs"]
 mod lines;
 use http::{free_port, request as raw};
-use lines::{serve_command, wait_for_lines, Killed};
+use lines::{serve_command, stdout_until, wait_for_lines, Killed};
 
 /// A `drivebus serve --demo` process, killed on drop.
 struct Serve {
@@ -205,9 +205,7 @@ fn serve_config_stderr(dir: &std::path::Path, tokens: &str) -> String {
         .spawn()
         .expect("start drivebus serve");
     // The listeners line on stdout comes after every startup warning on stderr.
-    let out = BufReader::new(child.stdout.take().unwrap());
-    let said: Vec<String> =
-        out.lines().map_while(Result::ok).take_while(|l| !l.contains("Modbus TCP")).collect();
+    let said = stdout_until(&mut child, "Modbus TCP");
     let _ = child.kill();
     let mut err = String::new();
     child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
@@ -247,9 +245,7 @@ fn serve_bridge_flag_passes_modbus_tcp_to_the_bus_and_bad_flags_are_one_line() {
         .stderr(Stdio::null())
         .spawn()
         .expect("start drivebus serve");
-    let lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let said: Vec<String> =
-        lines.map_while(Result::ok).take_while(|l| !l.contains("demo write token")).collect();
+    let said = stdout_until(&mut child, "demo write token");
     assert!(
         said.iter().any(|l| l.contains(&format!("bridge      {bridge} -> bus line-generic"))),
         "{said:?}"
@@ -291,9 +287,7 @@ fn serve_starts_with_a_missing_rtu_slave_port_and_readyz_names_it() {
         .stderr(Stdio::piped())
         .spawn()
         .expect("start drivebus serve");
-    let out = BufReader::new(child.stdout.take().unwrap());
-    let said: Vec<String> =
-        out.lines().map_while(Result::ok).take_while(|l| !l.contains("demo write token")).collect();
+    let said = stdout_until(&mut child, "demo write token");
     assert!(said.iter().any(|l| l.contains("Modbus RTU  slave on /nonexistent/ttyS9")), "{said:?}");
     let deadline = Instant::now() + Duration::from_secs(60);
     let answer = loop {

@@ -27,6 +27,13 @@ pub fn wait_for_lines(child: &mut Child, what: &str, want: &[&str]) -> Vec<Strin
     found.into_iter().flatten().collect()
 }
 
+/// `child`'s stdout lines before the first one that contains `marker` (all of them if none
+/// does); stdout is closed after it.
+pub fn stdout_until(child: &mut Child, marker: &str) -> Vec<String> {
+    let out = BufReader::new(child.stdout.take().expect("stdout"));
+    out.lines().map_while(Result::ok).take_while(|l| !l.contains(marker)).collect()
+}
+
 /// `drivebus serve` with HTTP and Modbus TCP on free loopback ports (port 0) and OPC UA on
 /// `opcua`, its stdout piped for [`wait_for_lines`]; more flags to be given.
 pub fn serve_command(opcua: &str) -> Command {

@@ -70,7 +70,10 @@ pub fn simulate_with(args: &[&str]) -> Proc {
 /// `drivebus --port <port> --drive <family> --address <address> [--protocol P] <args>`.
 pub fn drivebus(port: &str, family: &str, protocol: Option<&str>, address: u8, args: &[&str]) -> Out {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_drivebus"));
-    cmd.args(["--port", port, "--drive", family, "--address", &address.to_string(), "--timeout", "200"]);
+    // A response timeout well above the simulator's answer time even on a loaded machine: a
+    // retry sent while the drive still answers collides with its reply on the simulated
+    // half-duplex line, and the tests here are about the commands, not the timing.
+    cmd.args(["--port", port, "--drive", family, "--address", &address.to_string(), "--timeout", "1000"]);
     if let Some(p) = protocol {
         cmd.args(["--protocol", p]);
     }

@@ -77,7 +77,7 @@ enum Command {
     /// Run the gateway: every bus polled, one view over Modbus TCP, HTTP/JSON and the dashboard
     /// (`--demo` runs simulated drives with nothing attached).
     Serve(commands::serve::ServeArgs),
-    /// List the gateway's event log (drivebus.db, or the demo's drivebus-demo.db): commands with who, what and the result,
+    /// List the gateway's event log (drivebus.db in the state folder, or the demo's drivebus-demo.db): commands with who, what and the result,
     /// trips, fault resets, drives and buses going online and offline. --drive ID narrows it.
     Events(commands::history::EventsArgs),
     /// Check a gateway configuration without running it.

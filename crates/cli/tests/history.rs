@@ -15,8 +15,15 @@ mod closed_pipe;
 mod output;
 use output::{output, Out};
 
+/// Runs `drivebus` in `dir` with the state folder `dir/state/drivebus` (never the user's own).
 fn run_in(dir: &Path, args: &[&str]) -> Out {
-    output(Command::new(env!("CARGO_BIN_EXE_drivebus")).current_dir(dir).args(args))
+    output(
+        Command::new(env!("CARGO_BIN_EXE_drivebus"))
+            .current_dir(dir)
+            .env("XDG_STATE_HOME", dir.join("state"))
+            .env_remove("STATE_DIRECTORY")
+            .args(args),
+    )
 }
 
 /// Asserts a run that found nothing: success, nothing on stdout, `said` on stderr.
@@ -243,12 +250,18 @@ fn a_missing_store_is_exit_2_with_what_to_do() {
     for args in [&["events"][..], &["trend", "--drive", "p"][..]] {
         let r = run_in(dir.path(), args);
         assert_eq!(r.code, 2, "{args:?}");
+        // The gateway's default store is named: drivebus.db in the state folder.
+        let default = dir.path().join("state/drivebus/drivebus.db");
         assert_eq!(
             r.stderr.trim(),
-            "drivebus: no event store at drivebus.db: start `drivebus serve` or give --db FILE",
+            format!(
+                "drivebus: no event store at {}: start `drivebus serve` or give --db FILE",
+                default.display()
+            ),
             "{args:?}"
         );
         assert!(!dir.path().join("drivebus.db").exists(), "reading must not create the store");
+        assert!(!default.exists(), "reading must not create the store");
     }
 }
 
@@ -311,6 +324,18 @@ fn events_to_a_reader_that_stops_early_end_without_a_panic() {
     cmd.current_dir(dir.path()).args(["events", "--limit", "5000"]);
     let first = closed_pipe::first_line_then_close(cmd);
     assert!(first.contains("TIME"), "{first}");
+}
+
+/// `drivebus serve` without `[store] path` keeps drivebus.db in the state folder: `events`
+/// finds it there without --db.
+#[test]
+fn events_find_the_gateways_default_store_in_the_state_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(dir.path().join("state/drivebus")).unwrap();
+    fixture_named(&dir.path().join("state/drivebus"), "drivebus.db");
+    let r = run_in(dir.path(), &["events", "--since", "0", "--kind", "trip"]);
+    assert_eq!(r.code, 0, "{}", r.stderr);
+    assert!(r.stdout.contains("fan-2") && r.stdout.contains("trip"), "{}", r.stdout);
 }
 
 /// `drivebus serve --demo` keeps its store, drivebus-demo.db, in the state folder

@@ -347,3 +347,34 @@ fn the_demo_writes_nothing_in_the_working_directory_and_says_where_the_key_is() 
     let left: Vec<_> = std::fs::read_dir(cwd.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert!(left.is_empty(), "serve --demo wrote {left:?} in its working directory");
 }
+
+/// `serve --config` whose file names no `[store] path` keeps its store, drivebus.db, in the state
+/// folder ($XDG_STATE_HOME/drivebus here) and writes nothing in its working directory.
+#[test]
+fn a_config_without_a_store_path_writes_the_store_in_the_state_folder_not_the_working_directory() {
+    let cwd = tempfile::tempdir().unwrap();
+    let conf = tempfile::tempdir().unwrap();
+    let state = tempfile::tempdir().unwrap();
+    let cfg = conf.path().join("plant.toml");
+    std::fs::write(
+        &cfg,
+        "name = \"t\"\n[[bus]]\nname = \"l\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"d\"\nfamily = \"generic\"\naddress = 1\n",
+    )
+    .unwrap();
+    let mut child = serve_command("127.0.0.1:0")
+        .arg("--config")
+        .arg(&cfg)
+        .current_dir(cwd.path())
+        .env("XDG_STATE_HOME", state.path())
+        .env_remove("STATE_DIRECTORY")
+        .spawn()
+        .expect("start drivebus serve");
+    let said = wait_for_lines(&mut child, "drivebus serve", &["event store"]);
+    let _child = Killed(child);
+    let db = state.path().join("drivebus/drivebus.db");
+    assert_eq!(said[0], db.display().to_string());
+    assert!(db.exists(), "no store at {}", db.display());
+    let left: Vec<_> = std::fs::read_dir(cwd.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(left.is_empty(), "serve wrote {left:?} in its working directory");
+}

@@ -10,30 +10,36 @@ use drivebus_store::{EventFilter, EventKind, Resolution, Store, StoreError, Tren
 
 use crate::commands::target::{link_failure, usage, Target};
 
-/// The store file both the gateway and these commands use when not told otherwise.
-pub const DEFAULT_DB: &str = "drivebus.db";
+/// The store file name these commands look for in the working directory (a `[store] path`
+/// written relative, as older configurations did) before the state folder.
+const DEFAULT_DB: &str = drivebus_gateway::config::DEFAULT_STORE_FILE;
 
-/// The store to read: `--db`, else drivebus.db, else the store `drivebus serve --demo` writes
-/// (drivebus-demo.db in the state folder) when there is no drivebus.db here.
+/// The store to read: `--db`, else drivebus.db here, else the gateway's default store
+/// (drivebus.db in the state folder), else the store `drivebus serve --demo` writes
+/// (drivebus-demo.db in the state folder). When none exists, the state folder's drivebus.db
+/// (the error then names it).
 fn store_path(db: Option<&Path>) -> PathBuf {
     if let Some(db) = db {
         return db.to_path_buf();
     }
-    let default = PathBuf::from(DEFAULT_DB);
-    if default.exists() {
-        return default;
+    let here = PathBuf::from(DEFAULT_DB);
+    if here.exists() {
+        return here;
     }
-    match drivebus_gateway::config::GatewayConfig::demo().store {
-        Some(demo) if demo.exists() => demo,
-        _ => default,
+    let state = drivebus_gateway::config::state_dir::state_dir().ok().map(|d| d.join(DEFAULT_DB));
+    let demo = drivebus_gateway::config::GatewayConfig::demo().store;
+    let candidates = [state.clone(), demo];
+    if let Some(found) = candidates.into_iter().flatten().find(|p| p.exists()) {
+        return found;
     }
+    state.unwrap_or(here)
 }
 
 /// Arguments of `drivebus events` (with --drive ID and --json from `crate::options`).
 #[derive(Args, Debug)]
 pub struct EventsArgs {
-    /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
-    /// drivebus-demo.db in the state folder when there is no drivebus.db here).
+    /// The store file written by `drivebus serve` (default: drivebus.db here, else drivebus.db
+    /// or the demo's drivebus-demo.db in the state folder, the first that exists).
     #[arg(long, value_name = "FILE")]
     pub db: Option<PathBuf>,
     /// Events at or after TIME: RFC 3339 (2026-11-21T10:00:00Z), unix ms, or -10m, -2h, -1d.
@@ -54,8 +60,8 @@ pub struct EventsArgs {
 /// Arguments of `drivebus trend` (with --drive ID, required, and --json from `crate::options`).
 #[derive(Args, Debug)]
 pub struct TrendArgs {
-    /// The store file written by `drivebus serve` (default: drivebus.db, or the demo's
-    /// drivebus-demo.db in the state folder when there is no drivebus.db here).
+    /// The store file written by `drivebus serve` (default: drivebus.db here, else drivebus.db
+    /// or the demo's drivebus-demo.db in the state folder, the first that exists).
     #[arg(long, value_name = "FILE")]
     pub db: Option<PathBuf>,
     /// Buckets from TIME (default: an hour ago at 1s, a day ago at 1m): RFC 3339, unix ms, or

@@ -226,8 +226,10 @@ pub fn run(args: &ServeArgs) -> Result<u8> {
     }
     let store = match &config.store {
         Some(path) => {
-            if args.demo && args.db.is_none() {
-                // The demo's store is in the state folder, made here on first run.
+            let state = drivebus_gateway::config::state_dir::state_dir().ok();
+            if args.db.is_none() && path.parent().is_some() && path.parent() == state.as_deref() {
+                // The default store (the demo's too) is in the state folder, made here on first
+                // run; a folder the user named is theirs to make.
                 if let Some(dir) = path.parent() {
                     std::fs::create_dir_all(dir)
                         .with_context(|| format!("cannot make the state folder {}", dir.display()))?;

@@ -33,7 +33,7 @@
 //! max_connections = 16384               # beyond it, new connections are closed
 //!
 //! [store]
-//! path = "drivebus.db"
+//! path = "/var/lib/drivebus/drivebus.db" # default: drivebus.db in the state folder
 //! retention_days = 365                  # events older are deleted (0: kept for ever)
 //! max_size_mb = 1024                    # beyond it the oldest events and trends go (0: no cap)
 //! min_free_mb = 64                      # /readyz: the free space its filesystem needs (0: any)
@@ -110,6 +110,7 @@ mod name;
 mod opcua;
 mod standby;
 mod store;
+pub use store::DEFAULT_FILE as DEFAULT_STORE_FILE;
 mod templates;
 mod token;
 
@@ -179,7 +180,7 @@ impl GatewayConfig {
         let mqtt = raw.mqtt.map(|m| mqtt::check(&cx, m)).transpose()?;
         let sparkplug = raw.sparkplug.map(|sp| sparkplug::check(&cx, sp)).transpose()?;
         let store_min_free_mb = raw.store.min_free_mb;
-        let (store, store_limits) = store::check(raw.store);
+        let (store, store_limits) = store::check(&cx, raw.store, state_dir::state_dir())?;
         let opcua = opcua::check(&cx, &raw.opcua, &http)?;
         let limits = limits::check(&cx, &raw.limits)?;
         let bridges = bridge::check(&cx, &raw.bridge, &buses)?;

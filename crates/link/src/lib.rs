@@ -33,6 +33,7 @@ pub mod listen;
 pub mod mbap;
 mod overheard;
 pub mod owner;
+mod pipelined;
 pub mod port;
 pub mod port_link;
 pub mod role;

@@ -235,3 +235,28 @@ async fn four_requests_are_outstanding_at_once_and_answers_in_another_order_are_
     assert_eq!((stats.timeouts, stats.stray_replies), (0, 0), "{stats:?}");
     sim_task.abort();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulators_modbus_tcp_endpoint_answers_pipelined_requests() {
+    use tokio::io::AsyncWriteExt;
+    let (addr, sim) = endpoint("127.0.0.1:0".parse().unwrap()).await;
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    // Three reads in one write, before any answer: the generic drive's 2103H twice, the
+    // Toshiba drive's FD00, each with its own transaction id.
+    let mut requests = Vec::new();
+    for (t, unit, reg) in [(7u16, 1u8, 0x2103u16), (8, 2, 0xFD00), (9, 1, 0x2103)] {
+        let [t0, t1] = t.to_be_bytes();
+        let [r0, r1] = reg.to_be_bytes();
+        requests.extend_from_slice(&[t0, t1, 0, 0, 0, 6, unit, 0x03, r0, r1, 0, 1]);
+    }
+    s.write_all(&requests).await.unwrap();
+    let mut answered = Vec::new();
+    for _ in 0..3 {
+        let f = tokio::time::timeout(Duration::from_secs(30), mbap_frame(&mut s)).await.unwrap().unwrap();
+        assert_eq!(f[7], 0x03, "a read's answer, not an exception: {f:02X?}");
+        answered.push((u16::from_be_bytes([f[0], f[1]]), f[6]));
+    }
+    answered.sort_unstable();
+    assert_eq!(answered, [(7, 1), (8, 2), (9, 1)]);
+    sim.abort();
+}

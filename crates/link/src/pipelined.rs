@@ -224,7 +224,9 @@ impl<L: Link> Pipelined<L> {
         let mut before: Vec<u8> = Vec::new();
         for (i, (job, priority)) in self.held.iter().enumerate() {
             let blocked = !job.exchange.expect_reply && i > 0 || before.contains(&job.address);
-            if !blocked && self.may_start(job) && best.is_none_or(|b| rank(*priority) < rank(self.held[b].1))
+            if !blocked
+                && self.may_start(job)
+                && best.map_or(true, |b| rank(*priority) < rank(self.held[b].1))
             {
                 best = Some(i);
             }

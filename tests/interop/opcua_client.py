@@ -34,6 +34,13 @@
         Checks: Objects/Drives lists all COUNT drives; a drive's Parameters browse and one of them
         reads Good from the drive; a drive variable of the last drive reads.
 
+    opcua_client.py template URL TOKEN DRIVE
+        URL      opc.tcp://HOST:PORT of a gateway with DRIVE of the generic-2000h template kind;
+                 insecure_writes on
+        TOKEN    the write token of user "demo"
+        Checks: Objects/Drives lists DRIVE, its OutputFrequency reads Good, SetSpeed(20.0) and Run
+        bring it to 20 Hz, and Parameters/P0.04 (the template's name) reads 50.0 from the drive.
+
     opcua_client.py order URL HTTP TOKEN DRIVE COUNT
         URL      opc.tcp://HOST:PORT of a gateway with a store and DRIVE; insecure_writes on
         HTTP     http://HOST:PORT of its HTTP API (anonymous reads on)
@@ -526,6 +533,48 @@ async def order(url, http, token, drive, count):
     say("ALL OK")
 
 
+async def template(url, token, drive):
+    """A templated drive: browsed, its values read, commanded by method, a parameter read."""
+    async with Client(url) as c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        folder = await c.nodes.objects.get_child([f"{ns}:Drives"])
+        found = [(await k.read_browse_name()).Name for k in await folder.get_children()]
+        assert drive in found, f"Objects/Drives has {found}, not {drive}"
+        say(f"browse: Objects/Drives has {drive}")
+
+        async def good():
+            v = await node(c, ns, f"Drives/{drive}/OutputFrequency").read_data_value(raise_on_bad_status=False)
+            return v.StatusCode_.is_good() and v
+        v = await until(f"{drive}/OutputFrequency Good", good)
+        assert isinstance(v.Value.Value, float), f"OutputFrequency = {v.Value!r}"
+        say(f"read: {drive}/OutputFrequency = {v.Value.Value} Hz, Good")
+
+    c = Client(url)
+    c.set_user("demo")
+    c.set_password(token)
+    async with c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        d = node(c, ns, f"Drives/{drive}")
+        await d.call_method(f"{ns}:SetSpeed", ua.Variant(20.0, ua.VariantType.Double))
+        await d.call_method(f"{ns}:Run")
+
+        async def reached():
+            hz = await node(c, ns, f"Drives/{drive}/OutputFrequency").read_value()
+            return abs(hz - 20.0) <= 0.05 and hz
+        await until(f"{drive} at 20 Hz after SetSpeed and Run", reached, 120)
+        say(f"call: SetSpeed(20.0) and Run, {drive} turns at 20 Hz")
+
+        p = node(c, ns, f"Drives/{drive}/Parameters/P0.04")
+
+        async def param():
+            v = await p.read_data_value(raise_on_bad_status=False)
+            return v.StatusCode_.is_good() and v
+        v = await until(f"{drive}/Parameters/P0.04 Good", param)
+        assert abs(v.Value.Value - 50.0) < 1e-9, f"P0.04 = {v.Value!r}"
+        say(f"parameters: {drive}/Parameters/P0.04 = {v.Value.Value} Hz, by the template's name")
+    say("ALL OK")
+
+
 def main():
     if len(sys.argv) >= 3 and sys.argv[1] == "mkcert":
         asyncio.run(mkcert(sys.argv[2]))
@@ -550,6 +599,12 @@ def main():
     elif len(sys.argv) == 7 and sys.argv[1] == "order":
         try:
             asyncio.run(order(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
+    elif len(sys.argv) == 5 and sys.argv[1] == "template":
+        try:
+            asyncio.run(template(*sys.argv[2:]))
         except AssertionError as e:
             print(f"FAILED: {e}", flush=True)
             sys.exit(1)

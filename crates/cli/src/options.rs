@@ -137,7 +137,7 @@ pub fn before_the_command() -> Vec<Arg> {
         port(),
         drive(
             "FAMILY | KIND@ADDR[:PROTOCOL] | ID",
-            "The drive family (generic, toshiba, danfoss, b800, or auto for scan); for simulate a drive \
+            "The drive family (generic, toshiba, danfoss, b800, a template kind, or auto for scan: the families, then the template kinds); for simulate a drive \
              as KIND@ADDR[:PROTOCOL]; for events and trend the drive's name in the gateway",
         ),
         template(),

@@ -202,3 +202,29 @@ fn asyncua_pipelined_calls_to_one_drive_are_carried_out_in_the_order_sent() {
     let http = format!("http://{}", serve.http);
     client(&["order", &serve.url, &http, token, "pump-1", "120"]);
 }
+
+/// A templated drive (the shipped `generic-2000h` kind) in OPC UA: browsed, OutputFrequency read,
+/// SetSpeed and Run called, a parameter read by the template's name; then its trend in the store
+/// is what OPC UA's history read gives (the `history` check), as for a built-in drive.
+#[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
+fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() {
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let token = "opcua-template-token-0123456789";
+    let config = format!(
+        "[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
+         [[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
+         [opcua]\ninsecure_writes = true\n\
+         [[bus]]\nname = \"line-t\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
+         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"generic-2000h\"\naddress = 1\npoll_ms = 200\n",
+        dir.path().join("store.db").display(),
+    );
+    let file = dir.path().join("plant.toml");
+    std::fs::write(&file, config).unwrap();
+    let serve = Serve::start(&file, "127.0.0.1:0", &[]);
+    client(&["template", &serve.url, token, "tpl-1"]);
+    client(&["history", &serve.url, &format!("http://{}", serve.http), "tpl-1"]);
+}

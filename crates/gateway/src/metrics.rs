@@ -519,6 +519,11 @@ impl Collector for CoreSeries {
             count("bus_timeouts", "Requests not answered in time.", |s| s.timeouts),
             count("bus_checksum_errors", "Damaged replies.", |s| s.checksum_errors),
             count("bus_retries", "Retries after a timeout or a damaged reply.", |s| s.retries),
+            count(
+                "bus_stray_replies",
+                "Modbus TCP answers to no request in flight (a stray or repeated transaction id), dropped.",
+                |s| s.stray_replies,
+            ),
         ] {
             family(e, (name, help, None), &buses, bl, v)?;
         }

@@ -1,7 +1,8 @@
 //! A bus with `protocol = "modbus-tcp"`: the gateway polls and commands simulated drives behind
 //! a Modbus TCP endpoint (the simulator's `--modbus-tcp`), one unit id per drive, and opens the
-//! connection again when the endpoint goes away and comes back. Real time: the endpoint is a
-//! TCP port.
+//! connection again when the endpoint goes away and comes back; with `max_in_flight = 4` it
+//! keeps four requests outstanding on the connection and matches answers that come back in
+//! another order. Real time: the endpoint is a TCP port.
 
 mod support;
 
@@ -92,8 +93,12 @@ fn a_modbus_tcp_bus_is_checked() {
         "unknown protocol: use modbus-rtu, modbus-ascii, toshiba-ascii, toshiba-binary, danfoss-fc or b800 or modbus-tcp",
     );
     bad(
-        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-tcp\"\nmax_in_flight = 4\n",
-        "t.toml:5: field `bus.max_in_flight`: 4: this version sends one request at a time on a Modbus TCP bus: use 1",
+        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-tcp\"\nmax_in_flight = 0\n",
+        "t.toml:5: field `bus.max_in_flight`: 0 is outside 1..16",
+    );
+    bad(
+        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-tcp\"\nmax_in_flight = 17\n",
+        "t.toml:5: field `bus.max_in_flight`: 17 is outside 1..16",
     );
     bad(
         "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-rtu\"\nmax_in_flight = 1\n",
@@ -106,4 +111,152 @@ fn a_modbus_tcp_bus_is_checked() {
     .unwrap();
     assert_eq!(c.buses[0].port, drivebus_gateway::config::Port::ModbusTcp("10.0.0.5:502".into()));
     assert_eq!(c.buses[0].protocol_name(), "modbus-tcp");
+    assert_eq!(c.buses[0].max_in_flight, 1, "one request at a time unless asked");
+    let c = GatewayConfig::from_toml(
+        "t.toml",
+        "[[bus]]\nname = \"a\"\nport = \"tcp://10.0.0.5\"\nprotocol = \"modbus-tcp\"\nmax_in_flight = 4\n[[bus.drive]]\nname = \"x\"\nfamily = \"generic\"\naddress = 1\n",
+    )
+    .unwrap();
+    assert_eq!(c.buses[0].max_in_flight, 4);
+}
+
+/// What the holding endpoint saw.
+#[derive(Default)]
+struct Held {
+    /// The most requests outstanding at once, and their unit ids then.
+    most: usize,
+    units: Vec<u8>,
+    /// Batches answered in reverse order.
+    reversed: usize,
+}
+
+/// Reads one MBAP frame from `s` (`None` at its end).
+async fn mbap_frame(s: &mut tokio::net::TcpStream) -> Option<Vec<u8>> {
+    use tokio::io::AsyncReadExt;
+    let mut head = [0u8; 6];
+    s.read_exact(&mut head).await.ok()?;
+    let len = usize::from(u16::from_be_bytes([head[4], head[5]]));
+    let mut frame = head.to_vec();
+    frame.resize(6 + len, 0);
+    s.read_exact(&mut frame[6..]).await.ok()?;
+    Some(frame)
+}
+
+/// A Modbus TCP endpoint in front of `upstream` (the simulator's) that holds requests until
+/// `batch` are outstanding, has the simulator answer each, then sends the answers back last
+/// first, as a gateway to several serial lines may; its address and what it saw.
+async fn holding_endpoint(
+    upstream: SocketAddr,
+    batch: usize,
+) -> (SocketAddr, std::sync::Arc<std::sync::Mutex<Held>>) {
+    use tokio::io::AsyncWriteExt;
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let at = listener.local_addr().unwrap();
+    let held = std::sync::Arc::new(std::sync::Mutex::new(Held::default()));
+    let seen = held.clone();
+    tokio::spawn(async move {
+        let (mut client, _) = listener.accept().await.unwrap();
+        let mut sim = tokio::net::TcpStream::connect(upstream).await.unwrap();
+        loop {
+            let mut requests = Vec::new();
+            while requests.len() < batch {
+                let Some(f) = mbap_frame(&mut client).await else { return };
+                requests.push(f);
+            }
+            {
+                let mut h = seen.lock().unwrap();
+                if requests.len() > h.most {
+                    h.most = requests.len();
+                    h.units = requests.iter().map(|f| f[6]).collect();
+                }
+            }
+            let mut answers = Vec::new();
+            for r in &requests {
+                sim.write_all(r).await.unwrap();
+                answers.push(mbap_frame(&mut sim).await.expect("the simulator answers"));
+            }
+            for a in answers.iter().rev() {
+                if client.write_all(a).await.is_err() {
+                    return;
+                }
+            }
+            seen.lock().unwrap().reversed += 1;
+        }
+    });
+    (at, held)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn four_requests_are_outstanding_at_once_and_answers_in_another_order_are_matched() {
+    let drives = (1..=4).map(|a| format!("generic@{a}:modbus-rtu").parse().unwrap()).collect();
+    let spec = BusSpec::new(drives, Some(19200), Some("8E1".parse().unwrap())).unwrap();
+    let sim = Simulator::new(&spec).unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    let sim_task = tokio::spawn(async move {
+        let _ = sim
+            .serve(Endpoint::ModbusTcp("127.0.0.1:0".parse().unwrap()), false, move |at| {
+                let _ = tx.send(at);
+            })
+            .await;
+    });
+    let upstream: SocketAddr = rx.await.unwrap().trim_start_matches("modbus-tcp ").parse().unwrap();
+    let (addr, held) = holding_endpoint(upstream, 4).await;
+    // A generous timeout: the endpoint holds each request until three others have come.
+    let mut text = format!(
+        "[store]\ndisabled = true\n\
+         [[bus]]\nname = \"eth\"\nport = \"tcp://{addr}\"\nprotocol = \"modbus-tcp\"\nmax_in_flight = 4\ntimeout_ms = 10000\nretries = 0\n"
+    );
+    for a in 1..=4 {
+        text.push_str(&format!(
+            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 50\n"
+        ));
+    }
+    let gw = Gateway::start(GatewayConfig::from_toml("t.toml", &text).unwrap(), None).unwrap();
+    let view = |id: &str| gw.drive_view(&gw.drive(id).unwrap());
+    wait_for("four drives online", Duration::from_secs(60), || {
+        (1..=4).all(|a| view(&format!("d{a}")).online == Some(true))
+    })
+    .await;
+    // Each drive's own answer, though they came back last first: a setpoint given to one
+    // drive shows on that drive only.
+    gw.command("d3", Command::Speed(33.0), "test").await.expect("speed");
+    wait_for("d3's setpoint", Duration::from_secs(60), || view("d3").setpoint_hz == Some(33.0)).await;
+    wait_for("a few reversed batches", Duration::from_secs(60), || held.lock().unwrap().reversed >= 5).await;
+    for a in [1, 2, 4] {
+        assert_ne!(view(&format!("d{a}")).setpoint_hz, Some(33.0), "d{a}");
+    }
+    let (most, mut units) = {
+        let h = held.lock().unwrap();
+        (h.most, h.units.clone())
+    };
+    units.sort_unstable();
+    assert_eq!((most, units), (4, vec![1, 2, 3, 4]), "four requests outstanding, one per drive");
+    let stats = gw.buses()[0].stats();
+    assert_eq!((stats.timeouts, stats.stray_replies), (0, 0), "{stats:?}");
+    sim_task.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulators_modbus_tcp_endpoint_answers_pipelined_requests() {
+    use tokio::io::AsyncWriteExt;
+    let (addr, sim) = endpoint("127.0.0.1:0".parse().unwrap()).await;
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    // Three reads in one write, before any answer: the generic drive's 2103H twice, the
+    // Toshiba drive's FD00, each with its own transaction id.
+    let mut requests = Vec::new();
+    for (t, unit, reg) in [(7u16, 1u8, 0x2103u16), (8, 2, 0xFD00), (9, 1, 0x2103)] {
+        let [t0, t1] = t.to_be_bytes();
+        let [r0, r1] = reg.to_be_bytes();
+        requests.extend_from_slice(&[t0, t1, 0, 0, 0, 6, unit, 0x03, r0, r1, 0, 1]);
+    }
+    s.write_all(&requests).await.unwrap();
+    let mut answered = Vec::new();
+    for _ in 0..3 {
+        let f = tokio::time::timeout(Duration::from_secs(30), mbap_frame(&mut s)).await.unwrap().unwrap();
+        assert_eq!(f[7], 0x03, "a read's answer, not an exception: {f:02X?}");
+        answered.push((u16::from_be_bytes([f[0], f[1]]), f[6]));
+    }
+    answered.sort_unstable();
+    assert_eq!(answered, [(7, 1), (8, 2), (9, 1)]);
+    sim.abort();
 }

@@ -262,3 +262,39 @@ async fn support_wait<T: std::fmt::Debug>(ready: impl Fn() -> bool, what: impl F
         tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     }
 }
+
+/// A drive of a shipped template kind (`generic-2000h`): its retained status says its kind and
+/// its values, Home Assistant discovers its sensors, and a command by topic moves it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_templated_drive_has_its_state_topics_discovery_and_commands() {
+    let (broker, broker5) = rumqttd_both().await;
+    let text = "name = \"hall-t\"\n[store]\ndisabled = true\n\
+                [[bus]]\nname = \"line-t\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+                [[bus.drive]]\nname = \"tpl\"\nfamily = \"generic-2000h\"\naddress = 1\npoll_ms = 100\n";
+    let config = drivebus_gateway::GatewayConfig::from_toml("plant.toml", text).unwrap();
+    let gw = drivebus_gateway::Gateway::start(config, None).unwrap();
+    let mqtt = drivebus_gateway::config::MqttConfig {
+        url: format!("mqtt://{broker5}"),
+        topic_prefix: None,
+        discovery: true,
+        allow_commands: vec!["line-t/tpl/*".to_string()],
+        client_id: None,
+        credentials: None,
+        tls: Default::default(),
+    };
+    drivebus_gateway::mqtt::spawn(gw.clone(), &mqtt).unwrap();
+    let p = "drivebus/hall-t/line-t/tpl";
+    let sub = Subscriber::start(broker, "watcher", "#").await;
+    let status = sub.wait_json(&format!("{p}/status"), |v| v["online"] == true).await;
+    assert_eq!(status["family"], "generic-2000h", "{status}");
+    let config = sub
+        .wait_json("homeassistant/sensor/hall-t_tpl_output_hz/config", |c| c["unit_of_measurement"] == "Hz")
+        .await;
+    assert_eq!(config["state_topic"], format!("{p}/status"));
+    sub.wait_json("homeassistant/sensor/hall-t_tpl_state/config", |_| true).await;
+    sub.publish(&format!("{p}/set/speed"), r#"{"hz": 15}"#, false).await;
+    let r = sub.wait_json(&format!("{p}/result"), |r| r["command"] == "speed").await;
+    assert_eq!(r["ok"], true, "{r}");
+    sub.publish(&format!("{p}/set/run"), "1", false).await;
+    sub.wait_json(&format!("{p}/status"), |v| running_at(v, 15.0)).await;
+}

@@ -11,7 +11,7 @@ mod mqtt_support;
 use std::net::SocketAddr;
 
 use drivebus_gateway::config::SparkplugConfig;
-use drivebus_gateway::sparkplug::payload::{self, Payload};
+use drivebus_gateway::sparkplug::payload::{self, DataType, Payload};
 use drivebus_gateway::{Command, Gateway, GatewayConfig};
 use mqtt_support::{rumqttd, Msg, Subscriber, PATIENCE};
 
@@ -361,4 +361,43 @@ async fn the_primary_host_offline_brings_the_ndeath_a_new_session_and_the_kept_d
     assert!(ramp.len() >= 3 && ramp.windows(2).all(|w| w[0] <= w[1]), "the ramp, in order: {ramp:?}");
     assert_seq_continues(&log, "hall-h");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A drive of a shipped template kind (`generic-2000h`) is a Sparkplug device like any other:
+/// its DBIRTH carries the status metrics and its parameters by the template's names, and a new
+/// setpoint shows in its DDATA.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_templated_drive_is_born_with_its_status_and_parameters() {
+    let broker = rumqttd().await;
+    let sub = Subscriber::start(broker, "host", "spBv1.0/#").await;
+    let text = "[[bus]]\nname = \"line-t\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 38400\n\
+                [[bus.drive]]\nname = \"tpl\"\nfamily = \"generic-2000h\"\naddress = 1\npoll_ms = 100\n";
+    let gw = Gateway::start(config("hall-t", text), None).unwrap();
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sparkplug(broker)).unwrap();
+    let birth = sub
+        .wait("tpl's DBIRTH", |log| {
+            log.iter().find(|m| kind(m, "hall-t") == Some(("DBIRTH", Some("tpl")))).map(decoded)
+        })
+        .await;
+    let metric = |name: &str| birth.metrics.iter().find(|m| m.name.as_deref() == Some(name));
+    for (name, _, _) in drivebus_gateway::sparkplug::node::STATUS_METRICS {
+        assert!(metric(name).is_some(), "{name} in {:?}", birth.metrics);
+    }
+    // The template's parameters, by its names (P0.04: the maximum frequency, in Hz).
+    let p004 = metric("Parameters/P0.04").expect("a parameter of the template");
+    assert_eq!(p004.datatype, Some(DataType::Double as u32), "{p004:?}");
+    // A new setpoint shows in a DDATA.
+    gw.command("tpl", Command::Speed(12.5), "test").await.expect("speed");
+    sub.wait("tpl's setpoint in a DDATA", |log| {
+        log.iter()
+            .filter(|m| kind(m, "hall-t") == Some(("DDATA", Some("tpl"))))
+            .any(|m| {
+                decoded(m)
+                    .metrics
+                    .iter()
+                    .any(|x| matches!(x.value, Some(payload::Value::Double(hz)) if hz == 12.5))
+            })
+            .then_some(())
+    })
+    .await;
 }

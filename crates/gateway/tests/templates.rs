@@ -133,3 +133,37 @@ async fn templated_drives_are_polled_commanded_and_shown_like_any_drive() {
         "{errors}"
     );
 }
+
+/// Backup, diff (a dry-run restore) and restore of a templated drive: its parameters by the
+/// template's names, the file read back as the same kind, a changed parameter found and written
+/// back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_templated_drive_is_backed_up_compared_and_restored() {
+    use drivebus_drive::backup::Backup;
+    use drivebus_gateway::core::RestoreOptions;
+    let gw = gateway();
+    let view = |id: &str| gw.drive_view(&gw.drive(id).unwrap());
+    wait_for("fan online", Duration::from_secs(20), || view("fan").online == Some(true)).await;
+    let backup = gw.backup("fan", "test").await.expect("backup");
+    let text = backup.to_text();
+    assert!(text.contains("gw-bits") && text.contains("acc"), "{text}");
+    let file = Backup::parse(&text).expect("the file reads back");
+    assert_eq!(file, backup);
+    // acc changed on the drive: the diff finds it, the restore writes the file's value back.
+    let set = Command::SetParamRaw { name: "acc".into(), raw: 250, shown: "25.0 s".into(), eeprom: true };
+    gw.command("fan", set, "test").await.expect("set acc");
+    let dry = RestoreOptions { dry_run: true, only: None, include_comm: false };
+    let rows = gw.restore("fan", &file, &dry, "test", "test").await.expect("diff");
+    let found: Vec<(&str, i64, i64)> =
+        rows.iter().map(|r| (r.name.as_str(), r.drive.raw, r.file.raw)).collect();
+    assert_eq!(found, [("acc", 250, 100)]);
+    assert_eq!(gw.read_param("fan", "acc", "test").await.unwrap().raw, 250, "a dry run writes nothing");
+    let apply = RestoreOptions { dry_run: false, ..dry.clone() };
+    let rows = gw.restore("fan", &file, &apply, "test", "test").await.expect("restore");
+    assert_eq!(rows[0].result, Some("ok"), "{:?}", rows[0].error);
+    assert_eq!(gw.read_param("fan", "acc", "test").await.unwrap().raw, 100);
+    // A backup of another kind is refused.
+    let other = gw.backup("pump", "test").await.expect("the pump's backup");
+    let e = gw.restore("fan", &other, &dry, "test", "test").await.expect_err("another kind");
+    assert!(e.to_string().contains("generic-2000h"), "{e}");
+}

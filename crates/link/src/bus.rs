@@ -53,6 +53,10 @@ pub struct BusConfig {
     /// (`protocol = "modbus-tcp"`, [`crate::mbap`]); no silence is kept between requests and
     /// the response timeout is 1 s unless given.
     pub modbus_tcp: bool,
+    /// Modbus TCP: the most requests in flight on the connection (`max_in_flight`, default 1).
+    /// Above 1 the bus is run by the pipelined owner ([`crate::Bus::spawn_pipelined`]): answers
+    /// matched by transaction id, one request per drive at a time.
+    pub max_in_flight: usize,
 }
 
 impl BusConfig {
@@ -85,6 +89,7 @@ impl BusConfig {
             on_demand: FairConfig::default(),
             role: None,
             modbus_tcp: false,
+            max_in_flight: 1,
         }
     }
 }
@@ -195,6 +200,9 @@ pub struct BusStats {
     pub wire_bytes: u64,
     /// Session time since the bus started, seconds.
     pub elapsed_seconds: f64,
+    /// Modbus TCP answers to no request in flight (a stray or repeated transaction id, or an
+    /// answer that came after its request timed out), dropped.
+    pub stray_replies: u64,
 }
 
 impl BusStats {

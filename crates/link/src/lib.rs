@@ -9,7 +9,9 @@
 //! attempt it says what to do next (retry, reopen the link and retry, or give up with which
 //! error), and two thin drivers carry it out with their own I/O: the bus owner ([`owner`]), one
 //! task per half-duplex bus over a [`PortLink`], commands ahead of polling, on-demand reads
-//! sharing the bus fairly with polling ([`fair`]); and the blocking bus ([`blocking`]) in the
+//! sharing the bus fairly with polling ([`fair`]), or on a Modbus TCP bus with `max_in_flight`
+//! above 1 the pipelined owner ([`Bus::spawn_pipelined`]: one engine per request in flight,
+//! answers matched by transaction id); and the blocking bus ([`blocking`]) in the
 //! calling thread. [`bus`] holds what both share: the configuration, errors and counts.
 //!
 //! ```text
@@ -33,6 +35,7 @@ pub mod listen;
 pub mod mbap;
 mod overheard;
 pub mod owner;
+mod pipelined;
 pub mod port;
 pub mod port_link;
 pub mod role;

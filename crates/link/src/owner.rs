@@ -31,11 +31,21 @@ use crate::role::{BusRole, RoleStatus, Transition};
 /// [`BusError::Standby`] (the master polls something else, or nothing).
 const SHADOW_WAIT: Duration = Duration::from_secs(5);
 
-struct Job {
-    address: u8,
-    exchange: Exchange,
-    timeout: Option<Duration>,
-    done: oneshot::Sender<Result<Option<Vec<u8>>, BusError>>,
+/// A transaction waiting for the bus: to which drive, what, its timeout, and where its result
+/// goes.
+pub(crate) struct Job {
+    pub(crate) address: u8,
+    pub(crate) exchange: Exchange,
+    pub(crate) timeout: Option<Duration>,
+    pub(crate) done: oneshot::Sender<Result<Option<Vec<u8>>, BusError>>,
+}
+
+/// The owner's ends of a bus's queues but the on-demand reads'.
+pub(crate) struct Queues {
+    pub(crate) commands: mpsc::UnboundedReceiver<Job>,
+    pub(crate) bridged: mpsc::UnboundedReceiver<Job>,
+    pub(crate) polls: mpsc::UnboundedReceiver<Job>,
+    pub(crate) scans: mpsc::UnboundedReceiver<Job>,
 }
 
 /// A handle to a running bus owner; cheap to clone.
@@ -102,6 +112,42 @@ impl Bus {
             name,
             ended,
             role: role_status,
+        })
+    }
+
+    /// Starts a pipelined owner for a Modbus TCP bus with `config.max_in_flight` requests in
+    /// flight (`crate::pipelined`). `link` carries MBAP bytes as they are: a TCP link to the
+    /// Modbus TCP server (`Port::Tcp`), not a `Port::ModbusTcp` link, which frames for one
+    /// request at a time.
+    pub fn spawn_pipelined<L: Link>(link: L, config: BusConfig) -> Result<Bus, BusError> {
+        if !config.modbus_tcp || config.protocol != drivebus_proto::protocol::WireProtocol::ModbusRtu {
+            return Err(BusError::BadRequest(
+                "only a modbus-tcp bus can have requests in flight together".to_string(),
+            ));
+        }
+        let stats = Arc::new(Mutex::new(BusStats::default()));
+        let health = Arc::new(Mutex::new(HashMap::new()));
+        let (ctx, commands) = mpsc::unbounded_channel();
+        let (btx, bridged) = mpsc::unbounded_channel();
+        let (ptx, polls) = mpsc::unbounded_channel();
+        let (stx, scans) = mpsc::unbounded_channel();
+        let name = link.name();
+        let (ended_tx, ended) = watch::channel(());
+        let on_demand = Arc::new(OnDemand::new(config.on_demand));
+        let owner = crate::pipelined::Pipelined::new(link, config, stats.clone(), health.clone(), ended_tx);
+        let queues = Queues { commands, bridged, polls, scans };
+        tokio::spawn(owner.run(queues, on_demand.clone()));
+        Ok(Bus {
+            commands: ctx,
+            bridged: btx,
+            polls: ptx,
+            scans: stx,
+            on_demand,
+            stats,
+            health,
+            name,
+            ended,
+            role: Arc::new(Mutex::new(None)),
         })
     }
 

@@ -6,7 +6,7 @@ use std::time::Duration;
 use anyhow::Result;
 use clap::Args;
 use drivebus_drive::profile::for_drive;
-use drivebus_drive::Family;
+use drivebus_drive::{template, Family};
 use drivebus_link::drive::{open_with, probe, Drive};
 use drivebus_link::owner::BusConfig;
 use drivebus_proto::line::CharFormat;
@@ -86,7 +86,9 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 "say which drive family, or --drive auto to try them all",
             ))
         }
-        [one] if one == "auto" => Family::ALL.to_vec(),
+        // The built-in families first, then every template kind known to the command (the
+        // shipped ones and --template FILEs).
+        [one] if one == "auto" => Family::ALL.iter().copied().chain(template::registered()).collect(),
         names => names
             .iter()
             .map(|n| {
@@ -193,6 +195,17 @@ pub fn run(args: &ScanArgs, t: &Target) -> Result<u8> {
                 current = Some((key, bus));
             }
             let Some((_, bus)) = &current else { continue };
+            // A template kind is tried only where no built-in family read a status: a template
+            // that repeats a built-in map (generic-2000h) would find the same drive again.
+            if matches!(family, Family::Template(_))
+                && found.iter().any(|f: &Found| {
+                    !f.tentative
+                        && f.spot() == (protocol, address)
+                        && !matches!(f.family, Family::Template(_))
+                })
+            {
+                continue;
+            }
             let Ok(profile) = for_drive(family, protocol, address) else { continue };
             let drive = Drive::new(bus.clone(), profile);
             let Some(probe) = probe(&drive).await else { continue };

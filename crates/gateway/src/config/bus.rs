@@ -12,6 +12,9 @@ use super::file::FileBus;
 use super::name::valid_name;
 use super::{BusConfig, ConfigError, Port, PARAM_CACHE_MS};
 
+/// The most requests a modbus-tcp bus may have in flight (`max_in_flight`).
+const MAX_IN_FLIGHT: i64 = 16;
+
 /// Checks the `[[bus]]` sections and their drives.
 pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigError> {
     let mut buses: Vec<BusConfig> = Vec::new();
@@ -65,14 +68,9 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
                     "only a modbus-tcp bus can have requests in flight together",
                 );
             }
-            if *m.get_ref() != 1 {
-                return cx.err(
-                    m.span(),
-                    "bus.max_in_flight",
-                    format!("{}: this version sends one request at a time on a Modbus TCP bus: use 1 (the default)", m.get_ref()),
-                );
-            }
         }
+        let max_in_flight =
+            cx.within(&b.max_in_flight, 1..=MAX_IN_FLIGHT, "bus.max_in_flight", "", 1)? as usize;
         for (d, raw_drive) in drives.iter().zip(&b.drive) {
             if matches!(port, Port::ModbusTcp(_)) && d.family.check_protocol(protocol).is_err() {
                 return cx.err(
@@ -121,6 +119,7 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
             strict_t15: b.strict_t15,
             rs485,
             role: None,
+            max_in_flight,
             drives,
         });
     }

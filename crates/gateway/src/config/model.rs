@@ -205,6 +205,9 @@ pub struct BusConfig {
     /// With another gateway on the same line (`[standby]`, `--standby`): listen first, master
     /// the bus only when the line falls silent. `None`: the only master.
     pub role: Option<drivebus_link::role::RoleConfig>,
+    /// A modbus-tcp bus: the most requests in flight on its connection (`max_in_flight`, 1..16,
+    /// default 1); above 1 they are pipelined, one per drive at a time.
+    pub max_in_flight: usize,
     /// The drives.
     pub drives: Vec<DriveConfig>,
 }

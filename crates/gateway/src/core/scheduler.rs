@@ -21,11 +21,17 @@ impl Gateway {
 
     /// The scheduler of `bus`: polls each of its drives when due (the most urgent first, by
     /// priority on a tie) until a reload retires the bus; a reload that changes its drives keeps
-    /// the kept drives' schedule and polls new ones at once.
+    /// the kept drives' schedule and polls new ones at once. One drive is polled at a time, or
+    /// up to the bus's `max_in_flight` drives at once on a modbus-tcp bus that pipelines (a
+    /// drive's own reads stay one after another).
     pub(super) async fn poll_bus(self: Arc<Self>, bus: Arc<BusEntry>) {
+        let limit = bus.config.max_in_flight.max(1);
         let mut generation = u64::MAX;
         let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
         let mut due: Vec<tokio::time::Instant> = Vec::new();
+        // The polls under way, each ending with its drive.
+        let mut polling: tokio::task::JoinSet<Arc<DriveEntry>> = tokio::task::JoinSet::new();
+        let mut busy: Vec<Arc<DriveEntry>> = Vec::new();
         loop {
             if bus.retired.load(Ordering::Relaxed) {
                 return;
@@ -43,20 +49,36 @@ impl Gateway {
                 mine = next;
             }
             let wake = bus.wake.notified();
-            if mine.is_empty() {
+            if mine.is_empty() && polling.is_empty() {
                 wake.await;
                 continue;
             }
-            let k = (0..mine.len()).min_by_key(|&k| (due[k], mine[k].config.priority)).expect("not empty");
+            // The most urgent drive not being polled, while fewer than `limit` polls are under way.
+            let pick = (0..mine.len())
+                .filter(|&k| busy.len() < limit && !busy.iter().any(|b| Arc::ptr_eq(b, &mine[k])))
+                .min_by_key(|&k| (due[k], mine[k].config.priority));
+            let at = pick.map_or_else(|| tokio::time::Instant::now() + Duration::from_secs(3600), |k| due[k]);
             tokio::select! {
-                _ = tokio::time::sleep_until(due[k]) => {}
+                _ = tokio::time::sleep_until(at), if pick.is_some() => {
+                    let d = mine[pick.expect("picked")].clone();
+                    busy.push(d.clone());
+                    let (gw, bus) = (self.clone(), bus.clone());
+                    polling.spawn(async move {
+                        let result = d.poll.status().await;
+                        gw.update(&bus, &d, result).await;
+                        d
+                    });
+                }
+                Some(done) = polling.join_next(), if !polling.is_empty() => {
+                    let Ok(d) = done else { continue };
+                    busy.retain(|b| !Arc::ptr_eq(b, &d));
+                    if let Some(k) = mine.iter().position(|m| Arc::ptr_eq(m, &d)) {
+                        let next = due[k] + d.config.poll;
+                        due[k] = next.max(tokio::time::Instant::now());
+                    }
+                }
                 _ = wake => continue,
             }
-            let d = mine[k].clone();
-            let result = d.poll.status().await;
-            self.update(&bus, &d, result).await;
-            let next = due[k] + d.config.poll;
-            due[k] = next.max(tokio::time::Instant::now());
         }
     }
 

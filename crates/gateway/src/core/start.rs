@@ -208,7 +208,15 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         LinkPort::Virtual(v) => Some(v.line.clone()),
         _ => None,
     };
-    let bus = Bus::spawn(PortLink::new(port), owner).map_err(|e| format!("bus {}: {e}", b.name))?;
+    let bus = match port {
+        // Requests pipelined: the owner carries MBAP itself on a plain TCP connection.
+        LinkPort::ModbusTcp(addr) if b.max_in_flight > 1 => {
+            owner.max_in_flight = b.max_in_flight;
+            Bus::spawn_pipelined(PortLink::new(LinkPort::Tcp(addr)), owner)
+        }
+        port => Bus::spawn(PortLink::new(port), owner),
+    }
+    .map_err(|e| format!("bus {}: {e}", b.name))?;
     let wake = Arc::new(Notify::new());
     let members = b.drives.iter().map(|d| drive_entry(b, d, &bus).map(Arc::new)).collect::<Result<_, _>>()?;
     Ok(Arc::new(BusEntry {

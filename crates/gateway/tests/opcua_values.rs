@@ -29,6 +29,7 @@ fn view(last_seen_ms: Option<i64>, age_ms: Option<u64>, online: Option<bool>) ->
         polls: 3,
         last_error: None,
         poll_ms: 500,
+        source: "master",
     }
 }
 

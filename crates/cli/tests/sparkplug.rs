@@ -509,7 +509,9 @@ fn standby_serve(dir: &Path, name: &str, pty: &Path, broker: SocketAddr, standby
         pty.display()
     );
     for a in 1..=2 {
-        text.push_str(&format!("[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 200\n"));
+        text.push_str(&format!(
+            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 200\n"
+        ));
     }
     let config = dir.join(format!("{name}.toml"));
     std::fs::write(&config, text).unwrap();
@@ -597,7 +599,8 @@ async fn the_host_sees_the_killed_masters_ndeath_and_the_standbys_nbirth() {
     // The master dies: its will says NDEATH with its bdSeq; the standby births as master.
     let mark = host.len();
     master.kill();
-    let death = host.wait("hall-a's NDEATH", |log| of(log, "NDEATH", "hall-a").next().map(|(_, m)| m.clone())).await;
+    let death =
+        host.wait("hall-a's NDEATH", |log| of(log, "NDEATH", "hall-a").next().map(|(_, m)| m.clone())).await;
     assert_eq!(death["bdSeq"].as_u64(), Some(bd_seq), "{death}");
     let born = host.wait("hall-b's births", |log| births_of(log, "hall-b", mark, &devices)).await;
     assert!(host.log()[born]["bdSeq"].is_u64());

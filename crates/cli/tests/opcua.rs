@@ -17,8 +17,6 @@ use std::process::Command;
 mod http;
 #[path = "support/opcua_plant.rs"]
 mod plant;
-#[path = "support/sim.rs"]
-mod sim;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 use plant::{Plant, Serve};
@@ -215,19 +213,23 @@ fn asyncua_sees_a_standby_marked_and_its_commands_refused_with_bad_invalid_state
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let sim = sim::simulate(
-        "generic@1:modbus-rtu",
-        &["--baud", "19200", "--serial", "8N1", "--tcp", "127.0.0.1:0"],
-    );
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
+        .args(["--tcp", "127.0.0.1:0"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let at = plant::lines::wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp"]);
+    let _sim = plant::lines::Killed(sim);
     // Nobody else masters the line: a standby listens twice 60 s before it takes it.
     let config = format!(
         "name = \"standby\"\n[http]\nanonymous_read = true\n[[token]]\nname = \"demo\"\ntoken = \"{}\"\nrole = \"write\"\n\
          [opcua]\ninsecure_writes = true\n[store]\npath = \"{}\"\n[standby]\nrole = \"standby\"\nsilence_ms = 60000\n\
-         [[bus]]\nname = \"line-a\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
+         [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
          [[bus.drive]]\nname = \"press-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
         plant::TOKEN,
         dir.path().join("store.db").display(),
-        sim.tcp_port()
+        at[0]
     );
     let file = dir.path().join("standby.toml");
     std::fs::write(&file, config).unwrap();

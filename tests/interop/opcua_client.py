@@ -41,6 +41,13 @@
         Checks: Objects/Drives lists DRIVE, its OutputFrequency reads Good, SetSpeed(20.0) and Run
         bring it to 20 Hz, and Parameters/P0.04 (the template's name) reads 50.0 from the drive.
 
+    opcua_client.py standby URL TOKEN DRIVE BUS
+        URL      opc.tcp://HOST:PORT of a gateway that is a standby on BUS (another gateway
+                 masters the line, [standby]); insecure_writes on
+        TOKEN    the write token of user "demo"
+        Checks: DRIVE's Source and BUS's Role read "standby" (Good); a write to DRIVE's
+        Setpoint and a call of its Run are refused with Bad_InvalidState.
+
     opcua_client.py order URL HTTP TOKEN DRIVE COUNT
         URL      opc.tcp://HOST:PORT of a gateway with a store and DRIVE; insecure_writes on
         HTTP     http://HOST:PORT of its HTTP API (anonymous reads on)
@@ -575,6 +582,26 @@ async def template(url, token, drive):
     say("ALL OK")
 
 
+async def standby(url, token, drive, bus):
+    c = Client(url)
+    c.set_user("demo")
+    c.set_password(token)
+    async with c:
+        ns = await c.get_namespace_index("urn:drivebus")
+        for path in (f"Drives/{drive}/Source", f"Buses/{bus}/Role"):
+            v = await node(c, ns, path).read_data_value(raise_on_bad_status=False)
+            assert v.StatusCode_.is_good(), f"{path}: {v.StatusCode_.name}"
+            assert v.Value.Value == "standby", f"{path} is {v.Value.Value!r}"
+        say(f"standby: {drive}/Source and {bus}/Role read standby, Good")
+        setpoint = node(c, ns, f"Drives/{drive}/Setpoint")
+        code = await status_of(setpoint.write_value(ua.DataValue(ua.Variant(20.0, ua.VariantType.Double))))
+        assert code == "BadInvalidState", f"Setpoint written on a standby: {code}"
+        code = await status_of(node(c, ns, f"Drives/{drive}").call_method(f"{ns}:Run"))
+        assert code == "BadInvalidState", f"Run called on a standby: {code}"
+        say("standby: a Setpoint write and a Run call are Bad_InvalidState")
+    say("ALL OK")
+
+
 def main():
     if len(sys.argv) >= 3 and sys.argv[1] == "mkcert":
         asyncio.run(mkcert(sys.argv[2]))
@@ -605,6 +632,12 @@ def main():
     elif len(sys.argv) == 5 and sys.argv[1] == "template":
         try:
             asyncio.run(template(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
+    elif len(sys.argv) == 6 and sys.argv[1] == "standby":
+        try:
+            asyncio.run(standby(*sys.argv[2:]))
         except AssertionError as e:
             print(f"FAILED: {e}", flush=True)
             sys.exit(1)

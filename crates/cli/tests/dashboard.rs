@@ -879,3 +879,55 @@ fn the_commissioning_pages_back_up_edit_restore_and_scan_in_a_real_browser() {
         writeln!(std::io::stderr(), "scan of line-generic 1-8: conveyor-1's worst data age {worst_age} ms");
     browser.screenshot(&artifacts.join("workbench-scan.png"));
 }
+
+/// Issue 27: a gateway that is a standby on its line (another gateway masters it) shows the
+/// bus's role `standby`, a `standby` badge on the drive's tile, and the tile's command
+/// controls off with the reason.
+#[test]
+#[ignore = "needs chromium (.ci/install-witnesses.sh)"]
+fn a_standby_shows_its_role_and_its_drives_controls_are_off() {
+    let Some((chromium, chromedriver)) = browser_programs() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
+        .args(["--tcp", "127.0.0.1:0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start drivebus simulate");
+    let at = wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp"]);
+    let _sim = Killed(sim);
+    // Nobody else masters the line: a standby listens twice 60 s before it takes it.
+    let config = dir.path().join("standby.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"standby\"\n[http]\nanonymous_read = true\n[store]\ndisabled = true\n\
+             [standby]\nrole = \"standby\"\nsilence_ms = 60000\n\
+             [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
+             [[bus.drive]]\nname = \"press-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
+            at[0]
+        ),
+    )
+    .unwrap();
+    let (_serve, http) = serve_config(&config, &[]);
+    let browser = Browser::start(&chromium, &chromedriver);
+    browser.goto(&format!("http://{http}/"));
+    browser.wait_for(
+        "the bus's role standby and the drive's standby badge",
+        "const role = document.querySelector('[data-bus] [data-field=role]');
+         const badge = document.querySelector('[data-drive=\"press-1\"] [data-field=source]');
+         return role !== null && role.textContent === 'standby' && badge !== null && !badge.hidden;",
+        "return [document.querySelector('[data-bus] [data-field=role]')?.textContent,
+                 document.querySelector('[data-drive=\"press-1\"] [data-field=source]')?.hidden];",
+    );
+    let run = browser.js(&format!(
+        "const b = document.querySelector({}); return [b.disabled, b.title];",
+        q(&tile("press-1", "[data-action=run]"))
+    ));
+    assert_eq!(run[0], json!(true), "{run}");
+    assert!(run[1].as_str().unwrap().starts_with("standby:"), "{run}");
+    assert!(browser
+        .text(&tile("press-1", "[data-field=locked-why]"))
+        .contains("another gateway masters the line"));
+}

@@ -228,3 +228,51 @@ fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() 
     client(&["template", &serve.url, token, "tpl-1"]);
     client(&["history", &serve.url, &format!("http://{}", serve.http), "tpl-1"]);
 }
+
+/// Issue 27: a gateway that is a standby on a line (another gateway masters it) serves the
+/// drive's values marked as heard (`Source`, the bus's `Role`) and refuses writes and calls with
+/// Bad_InvalidState; the refusal is in the audit trail.
+#[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
+fn asyncua_sees_a_standby_marked_and_its_commands_refused_with_bad_invalid_state() {
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut sim = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["simulate", "--drive", "generic@1:modbus-rtu", "--baud", "19200", "--serial", "8N1"])
+        .args(["--tcp", "127.0.0.1:0"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let at = plant::lines::wait_for_lines(&mut sim, "drivebus simulate", &["listening on tcp"]);
+    let _sim = plant::lines::Killed(sim);
+    // Nobody else masters the line: a standby listens twice 60 s before it takes it.
+    let config = format!(
+        "name = \"standby\"\n[http]\nanonymous_read = true\n[[token]]\nname = \"demo\"\ntoken = \"{}\"\nrole = \"write\"\n\
+         [opcua]\ninsecure_writes = true\n[store]\npath = \"{}\"\n[standby]\nrole = \"standby\"\nsilence_ms = 60000\n\
+         [[bus]]\nname = \"line-a\"\nport = \"tcp://{}\"\nprotocol = \"modbus-rtu\"\nbaud = 19200\nserial = \"8N1\"\n\
+         [[bus.drive]]\nname = \"press-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 200\n",
+        plant::TOKEN,
+        dir.path().join("store.db").display(),
+        at[0]
+    );
+    let file = dir.path().join("standby.toml");
+    std::fs::write(&file, config).unwrap();
+    let serve = Serve::start(&file, "127.0.0.1:0", &[]);
+    client(&["standby", &serve.url, plant::TOKEN, "press-1", "line-a"]);
+
+    let (status, body) =
+        http::request(serve.http, "GET", "/api/events?kind=command&drive=press-1", None, None);
+    assert_eq!(status, 200, "{body}");
+    let events: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert!(
+        events
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|e| e["actor"].as_str().is_some_and(|a| a.starts_with("opcua:demo@"))
+                && e["result"].as_str().is_some_and(|r| r.starts_with("standby: "))),
+        "the refusal audited: {events}"
+    );
+}

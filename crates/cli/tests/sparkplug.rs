@@ -21,10 +21,12 @@ mod http;
 #[path = "../../gateway/tests/mqtt_support/mod.rs"]
 mod mqtt_support;
 
+#[path = "support/sim.rs"]
+mod sim;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 
-use mqtt_support::{demo_drives, free_port, mosquitto_binary, Mosquitto, PATIENCE};
+use mqtt_support::{demo_drives, free_port, mosquitto_binary, Mosquitto, Subscriber, PATIENCE};
 use witness::witness;
 
 fn script() -> PathBuf {
@@ -193,10 +195,17 @@ fn metric<'a>(m: &'a Value, name: &str) -> Option<&'a Value> {
 
 /// Index of the first NBIRTH of `edge` at or after `from`, once every demo drive's DBIRTH followed.
 fn births_from(log: &[Value], edge: &str, from: usize) -> Option<usize> {
+    let drives: Vec<String> = demo_drives().into_iter().map(|(_, d)| d).collect();
+    births_of(log, edge, from, &drives)
+}
+
+/// Index of the first NBIRTH of `edge` at or after `from`, once the DBIRTH of every one of
+/// `devices` followed.
+fn births_of(log: &[Value], edge: &str, from: usize, devices: &[String]) -> Option<usize> {
     let (at, _) = of(log, "NBIRTH", edge).find(|(i, _)| *i >= from)?;
     let born: Vec<&str> =
         of(log, "DBIRTH", edge).filter(|(i, _)| *i > at).filter_map(|(_, m)| m["device"].as_str()).collect();
-    demo_drives().iter().all(|(_, d)| born.contains(&d.as_str())).then_some(at)
+    devices.iter().all(|d| born.contains(&d.as_str())).then_some(at)
 }
 
 async fn wait_births(host: &Host, edge: &str, from: usize) -> usize {
@@ -488,4 +497,119 @@ fn bad_sparkplug_flags_are_one_line_errors() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(says) && err.lines().count() == 1, "{args:?}: {err}");
     }
+}
+
+/// A `drivebus serve` of `[standby]` on `pty` (drives d1, d2 of a simulated line), publishing
+/// MQTT and Sparkplug B to `broker`, as edge node and MQTT gateway `name`.
+fn standby_serve(dir: &Path, name: &str, pty: &Path, broker: SocketAddr, standby: bool) -> Serve {
+    let mut text = format!(
+        "name = \"{name}\"\n[http]\nanonymous_read = true\n[standby]\nrole = \"{}\"\nsilence_ms = 500\n\
+         [[bus]]\nname = \"line\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\n",
+        if standby { "standby" } else { "active" },
+        pty.display()
+    );
+    for a in 1..=2 {
+        text.push_str(&format!(
+            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 200\n"
+        ));
+    }
+    let config = dir.join(format!("{name}.toml"));
+    std::fs::write(&config, text).unwrap();
+    let http: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .args(["serve", "--no-opcua", "--config"])
+        .arg(&config)
+        .arg("--db")
+        .arg(dir.join(format!("{name}.db")))
+        .args(["--http", &http.to_string()])
+        .args(["--modbus", &format!("127.0.0.1:{}", free_port())])
+        .args(["--sparkplug", &format!("mqtt://{broker}"), "--mqtt", &format!("mqtt://{broker}")])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start drivebus serve");
+    Serve { child, http }
+}
+
+/// Issue 27: "MQTT and Sparkplug B publish from the gateway that is master; a Sparkplug host sees
+/// the old node's NDEATH and the new one's NBIRTH". Two gateways on one simulated line: the
+/// standby, which hears every answer, publishes no state; `kill -9` of the master brings its
+/// NDEATH (its will, its bdSeq), and the standby takes the line and births.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs mosquitto and pysparkplug (.ci/install-witnesses.sh)"]
+async fn the_host_sees_the_killed_masters_ndeath_and_the_standbys_nbirth() {
+    let Some(bin) = witnesses() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let broker = Mosquitto::start(&bin, free_port()).await;
+    let host = Host::start(broker.addr, None).await;
+    let watcher = Subscriber::start(broker.addr, "watcher", "drivebus/#").await;
+    let (a, b) = (dir.path().join("pty-a"), dir.path().join("pty-b"));
+    let _line = sim::simulate_with(&[
+        "--drive",
+        "generic@1:modbus-rtu",
+        "--drive",
+        "generic@2:modbus-rtu",
+        "--pty",
+        a.to_str().unwrap(),
+        "--pty",
+        b.to_str().unwrap(),
+    ]);
+    let start = std::time::Instant::now();
+    while !(a.exists() && b.exists()) {
+        assert!(start.elapsed() < PATIENCE, "the simulator's ptys");
+        tokio::time::sleep(std::time::Duration::from_millis(50)).await;
+    }
+    let devices = ["d1".to_string(), "d2".to_string()];
+    let mut master = standby_serve(dir.path(), "hall-a", &a, broker.addr, false);
+    let at = host.wait("hall-a's births", |log| births_of(log, "hall-a", 0, &devices)).await;
+    let bd_seq = host.log()[at]["bdSeq"].as_u64().expect("bdSeq");
+    let standby = standby_serve(dir.path(), "hall-b", &b, broker.addr, true);
+
+    // The standby is connected (it says offline) and hears the master's answers...
+    watcher
+        .wait("hall-b offline", |log| {
+            log.iter().any(|m| m.topic == "drivebus/hall-b/status" && m.text == "offline").then_some(())
+        })
+        .await;
+    let heard = |s: &Serve| {
+        let (_, body) = http::request(s.http, "GET", "/api/drives", None, None);
+        serde_json::from_str::<Value>(&body).ok().is_some_and(|v| {
+            v.as_array().is_some_and(|d| {
+                d.len() == 2 && d.iter().all(|d| d["source"] == "standby" && d["polls"].as_u64() >= Some(3))
+            })
+        })
+    };
+    let start = std::time::Instant::now();
+    while !heard(&standby) {
+        assert!(start.elapsed() < PATIENCE, "the standby never heard the master's answers");
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+    }
+    // ... and published none of it, on MQTT or Sparkplug.
+    let published: Vec<_> = watcher
+        .log
+        .lock()
+        .unwrap()
+        .iter()
+        .filter(|m| m.topic.starts_with("drivebus/hall-b/") && m.topic != "drivebus/hall-b/status")
+        .map(|m| m.topic.clone())
+        .collect();
+    assert!(published.is_empty(), "a standby published {published:?}");
+    assert!(of(&host.log(), "NBIRTH", "hall-b").next().is_none(), "a standby births nothing");
+
+    // The master dies: its will says NDEATH with its bdSeq; the standby births as master.
+    let mark = host.len();
+    master.kill();
+    let death =
+        host.wait("hall-a's NDEATH", |log| of(log, "NDEATH", "hall-a").next().map(|(_, m)| m.clone())).await;
+    assert_eq!(death["bdSeq"].as_u64(), Some(bd_seq), "{death}");
+    let born = host.wait("hall-b's births", |log| births_of(log, "hall-b", mark, &devices)).await;
+    assert!(host.log()[born]["bdSeq"].is_u64());
+    watcher
+        .wait("hall-b online with d1's status as master", |log| {
+            let online = log.iter().any(|m| m.topic == "drivebus/hall-b/status" && m.text == "online");
+            let d1 = log.iter().rev().find(|m| m.topic == "drivebus/hall-b/line/d1/status");
+            (online && d1.is_some_and(|m| m.text.contains(r#""source":"master""#))).then_some(())
+        })
+        .await;
+    host.assert_no_violation();
 }

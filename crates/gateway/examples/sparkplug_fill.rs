@@ -31,6 +31,7 @@ fn view(id: &str, hz: f64, time_ms: i64) -> DriveView {
         polls: 1,
         last_error: None,
         poll_ms: 500,
+        source: "master",
     }
 }
 

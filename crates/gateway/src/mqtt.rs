@@ -22,6 +22,13 @@
 //! sent and ending the connection, and its command subscription asks for the retain flag as
 //! published, so a retained command is recognised (and refused) on its first delivery too.
 //! Every refused command message gets a result and an audit record ([`Gateway::audit_refusal`]).
+//!
+//! With `[standby]` the gateway publishes only while it masters at least one bus
+//! ([`Gateway::mastering`]): a standby stays connected and subscribed, says `offline` on its
+//! availability topic, and publishes no drive status, discovery or event; it answers command
+//! messages (refused: `standby`). On becoming master it says `online` and publishes the
+//! discovery messages and every drive's status at once; on losing its last bus it says
+//! `offline` again. A killed master's will says `offline` as before.
 //! docs/mqtt.md is the user's description.
 
 use std::collections::HashMap;
@@ -201,6 +208,8 @@ struct Publisher {
     s: Arc<Settings>,
     client: AsyncClient,
     connected: bool,
+    /// The gateway masters a bus ([`Gateway::mastering`]): drive data is published.
+    master: bool,
     in_flight: Arc<tokio::sync::Semaphore>,
 }
 
@@ -221,7 +230,6 @@ impl Publisher {
 
     fn on_connect(&self, throttle: &mut HashMap<String, Throttle>) {
         crate::metrics::front_ends(&self.gw).mqtt_connected();
-        self.send("availability", self.s.availability(), true, b"online".to_vec());
         // The retain flag as published: a retained command is known as such when it is
         // delivered live too, not only when a subscription brings it.
         let filter = Filter {
@@ -233,6 +241,18 @@ impl Publisher {
         };
         if let Err(e) = self.client.try_subscribe_many([filter]) {
             crate::log::warn(&format!("MQTT: cannot subscribe to the command topics: {e}"));
+        }
+        self.announce(throttle);
+    }
+
+    /// Availability, and while master the discovery messages and every drive's status: at
+    /// each connection and each change of [`Publisher::master`].
+    fn announce(&self, throttle: &mut HashMap<String, Throttle>) {
+        let availability: &[u8] = if self.master { b"online" } else { b"offline" };
+        self.send("availability", self.s.availability(), true, availability.to_vec());
+        throttle.clear();
+        if !self.master {
+            return;
         }
         if self.s.discovery {
             for d in self.gw.drives().iter() {
@@ -250,6 +270,9 @@ impl Publisher {
     }
 
     fn on_drive(&self, v: DriveView, t: &mut Throttle) {
+        if !self.master {
+            return;
+        }
         let now = Instant::now();
         let due = match &t.last {
             None => true,
@@ -278,6 +301,9 @@ impl Publisher {
     }
 
     fn on_event(&self, e: &drivebus_store::Event) {
+        if !self.master {
+            return;
+        }
         let topic = match (&e.bus, &e.drive) {
             (Some(b), Some(d)) => self.s.drive_topic(b, d, "events"),
             (Some(b), None) => format!("{}/{b}/events", self.s.prefix),
@@ -504,9 +530,11 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
         s,
         client,
         connected: false,
+        master: *gw.mastering().borrow(),
         in_flight: Arc::new(tokio::sync::Semaphore::new(MAX_COMMANDS_IN_FLIGHT)),
     };
     let mut changes = gw.subscribe();
+    let mut mastering = gw.mastering();
     let mut throttle: HashMap<String, Throttle> = HashMap::new();
     let mut tick = tokio::time::interval(Duration::from_millis(250));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -532,6 +560,10 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
                 Err(broadcast::error::RecvError::Closed) => return,
             },
             _ = tick.tick() => p.flush(&mut throttle),
+            Ok(()) = mastering.changed() => {
+                p.master = *mastering.borrow_and_update();
+                p.announce(&mut throttle);
+            }
         }
     }
 }

@@ -1073,3 +1073,69 @@ async fn the_openapi_schemas_of_the_workbench_match_what_is_served() {
     let scan = call(&app, "POST", "/api/buses/line-generic/scan?addresses=3", Some(WRITE), None).await.json;
     assert_eq!(schema_keys("ScanReport"), keys(&scan));
 }
+
+/// `config` with every bus a standby that takes its line only after `silence` twice.
+fn standby(mut c: GatewayConfig, silence: Duration) -> GatewayConfig {
+    for b in &mut c.buses {
+        b.role = Some(drivebus_link::role::RoleConfig { standby: true, silence });
+    }
+    c
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_marks_its_values_and_refuses_commands_audited_once_per_window() {
+    // A line nobody else masters: the standby listens for twice 60 s before it takes it.
+    let gw = Gateway::start(standby(config(true), Duration::from_secs(60)), None).unwrap();
+    let app = app_with(&gw);
+    let mut rx = gw.subscribe();
+    settle(3).await;
+    assert!(!*gw.mastering().borrow(), "a standby on every bus masters none");
+    let r = call(&app, "GET", "/api/buses", None, None).await;
+    assert!(r.json.as_array().unwrap().iter().all(|b| b["role"] == "standby"), "{}", r.json);
+    let r = call(&app, "GET", "/api/drives", None, None).await;
+    assert!(r.json.as_array().unwrap().iter().all(|d| d["source"] == "standby"), "{}", r.json);
+
+    for _ in 0..3 {
+        let r = call(&app, "POST", "/api/drives/pump-1/run", Some(WRITE), None).await;
+        let message = assert_error(&r, 503, "standby");
+        assert!(message.contains("another gateway masters the line"), "{message}");
+    }
+    settle(1).await;
+    // The first refusal audited at once, the repeats counted (crate::refusals), never a
+    // command record per attempt.
+    let audited = |rx: &mut tokio::sync::broadcast::Receiver<Change>| {
+        let mut seen = Vec::new();
+        while let Ok(c) = rx.try_recv() {
+            if let Change::Event(e) = c {
+                if e.kind == drivebus_store::EventKind::Command && e.drive.as_deref() == Some("pump-1") {
+                    seen.push(e);
+                }
+            }
+        }
+        seen
+    };
+    let first = audited(&mut rx);
+    assert_eq!(first.len(), 1, "{first:?}");
+    assert!(first[0].result.as_deref().unwrap().starts_with("standby: "), "{first:?}");
+    assert_eq!(first[0].actor.as_deref(), Some("http:writer@127.0.0.7"));
+    settle(61).await;
+    let window = audited(&mut rx);
+    assert_eq!(window.len(), 1, "{window:?}");
+    assert_eq!(window[0].detail["repeated"], 2, "{window:?}");
+    assert_eq!(window[0].detail["reason"], "standby", "{window:?}");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_that_takes_its_silent_lines_serves_as_master() {
+    let gw = Gateway::start(standby(config(true), Duration::from_millis(500)), None).unwrap();
+    let app = app_with(&gw);
+    let mut mastering = gw.mastering();
+    assert!(!*mastering.borrow_and_update());
+    tokio::time::timeout(Duration::from_secs(10), mastering.changed()).await.unwrap().unwrap();
+    assert!(*mastering.borrow(), "the first bus taken");
+    settle(3).await;
+    let r = call(&app, "GET", "/api/drives", None, None).await;
+    assert!(r.json.as_array().unwrap().iter().all(|d| d["source"] == "master"), "{}", r.json);
+    let r = call(&app, "POST", "/api/drives/pump-1/run", Some(WRITE), None).await;
+    assert_eq!(r.status, 200, "{}", r.json);
+}

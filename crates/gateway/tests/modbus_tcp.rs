@@ -546,3 +546,38 @@ async fn a_refused_request_does_nothing_of_what_it_asks() {
     assert_eq!(commands(&gw), before, "no command reached a drive");
     assert_ne!(gw.drive_view(&gw.drive("fan-1").unwrap()).setpoint_hz, Some(25.0));
 }
+
+/// A standby (`[standby]`, another gateway masters the line): every unit's status word says so
+/// (bit 6), and a write is refused with exception 06 (server device busy), audited.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_standby_says_so_in_the_status_word_and_refuses_writes_with_exception_06() {
+    use drivebus_gateway::modbus_tcp::map::{IN_STATUS, ST_STANDBY};
+    let mut config = GatewayConfig::demo();
+    // A line nobody else masters: the standby listens for twice 60 s before it takes it.
+    let silence = Duration::from_secs(60);
+    for b in &mut config.buses {
+        b.role = Some(drivebus_link::role::RoleConfig { standby: true, silence });
+    }
+    let (gw, addr) = start(config).await;
+    let mut events = gw.subscribe();
+    let mut c = Client::connect(addr).await;
+    for unit in 1..=10 {
+        let word = c.input(unit, IN_STATUS, 1).await.unwrap()[0];
+        assert_ne!(word & ST_STANDBY, 0, "unit {unit}: status word {word:#06X}");
+    }
+    assert_eq!(c.write1(3, 1, 1000).await, Err(0x06));
+    assert_eq!(c.write(3, 0, &[1, 1000]).await, Err(0x06));
+    let refused = tokio::time::timeout(PATIENCE, async {
+        loop {
+            if let Ok(Change::Event(e)) = events.recv().await {
+                if e.actor.as_deref().is_some_and(|a| a.starts_with("modbus:")) {
+                    return e;
+                }
+            }
+        }
+    })
+    .await
+    .expect("the refusal audited");
+    assert!(refused.result.as_deref().unwrap().starts_with("standby: "), "{refused:?}");
+    assert_eq!(gw.counters.commands_ok.load(std::sync::atomic::Ordering::Relaxed), 0);
+}

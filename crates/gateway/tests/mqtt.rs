@@ -298,3 +298,52 @@ async fn a_templated_drive_has_its_state_topics_discovery_and_commands() {
     sub.publish(&format!("{p}/set/run"), "1", false).await;
     sub.wait_json(&format!("{p}/status"), |v| running_at(v, 15.0)).await;
 }
+
+/// `[standby]`: a gateway that masters no bus says `offline` and publishes no drive status, no
+/// discovery and no event; once it takes a line it says `online` and publishes them all.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_standby_publishes_no_state_until_it_masters_a_bus() {
+    let (broker, broker5) = rumqttd_both().await;
+    let watcher = Subscriber::start(broker, "watcher", "#").await;
+    // Nobody else masters the demo's lines: the standby takes them after twice 3 s.
+    let role = drivebus_link::role::RoleConfig { standby: true, silence: std::time::Duration::from_secs(3) };
+    let gw = demo_gateway_as("standby-a", broker5, &[], true, None, Some(role));
+    let p = "drivebus/standby-a";
+    let availability = format!("{p}/status");
+    let online = watcher
+        .wait("the gateway online", |log| {
+            log.iter().position(|m| m.topic == availability && m.text == "online")
+        })
+        .await;
+    assert!(*gw.mastering().borrow(), "online only once it masters a bus");
+    let log = watcher.log.lock().unwrap().clone();
+    let before: Vec<_> = log[..online].iter().map(|m| (m.topic.as_str(), m.text.as_str())).collect();
+    assert!(!before.is_empty(), "a standby says offline while it listens");
+    assert!(
+        before.iter().all(|&(t, text)| t == availability && text == "offline"),
+        "a standby publishes nothing but its availability: {before:#?}"
+    );
+    // As master: discovery and every drive's status, each saying its values are its own.
+    wait_every_status(&watcher, p, "every drive's status from the new master").await;
+    watcher
+        .wait("discovery", |log| {
+            log[online..].iter().find(|m| m.topic.starts_with("homeassistant/")).cloned()
+        })
+        .await;
+    // The lines are taken one by one: a drive's status says `standby` until its own is.
+    let drives = demo_drives();
+    watcher
+        .wait("every drive's status saying master", |log| {
+            drives
+                .iter()
+                .all(|(b, d)| {
+                    let topic = format!("{p}/{b}/{d}/status");
+                    log.iter()
+                        .rev()
+                        .find(|m| m.topic == topic)
+                        .is_some_and(|m| m.text.contains(r#""source":"master""#))
+                })
+                .then_some(())
+        })
+        .await;
+}

@@ -29,6 +29,7 @@ fn view(last_seen_ms: Option<i64>, age_ms: Option<u64>, online: Option<bool>) ->
         polls: 3,
         last_error: None,
         poll_ms: 500,
+        source: "master",
     }
 }
 
@@ -70,4 +71,20 @@ fn an_offline_drive_keeps_the_time_of_its_last_answer_and_a_new_one_has_none_yet
     let hz = by_name(&values, "OutputFrequency");
     assert_eq!(hz.status(), StatusCode::BadWaitingForInitialData);
     assert_eq!(hz.source_timestamp, Some(now));
+}
+
+#[test]
+fn a_standby_says_so_in_source_and_its_fresh_values_stay_good() {
+    let answered = 1_800_000_000_000;
+    let now = datetime_ms(answered + 120);
+    let mut v = view(Some(answered), Some(120), Some(true));
+    assert_eq!(by_name(&drive_values(&v, true, now), "Source").value, Some(Variant::from("master")));
+    v.source = "standby";
+    let values = drive_values(&v, true, now);
+    let source = by_name(&values, "Source");
+    assert_eq!(source.value, Some(Variant::from("standby")));
+    assert_eq!((source.status(), source.source_timestamp), (StatusCode::Good, Some(now)));
+    let hz = by_name(&values, "OutputFrequency");
+    assert_eq!(hz.status(), StatusCode::Good, "heard values are the drive's answers, fresh");
+    assert_eq!(hz.source_timestamp, Some(datetime_ms(answered)));
 }

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 #[path = "lines.rs"]
-mod lines;
+pub mod lines;
 use lines::{serve_command, wait_for_lines, Killed};
 
 /// The write token of user `demo`.

@@ -86,6 +86,20 @@ impl DriveEntry {
         self.locked.load(Ordering::Relaxed)
     }
 
+    /// Master (the gateway polls the drive's bus) or standby (it only hears another gateway's
+    /// polls of the drive, `[standby]`).
+    pub fn role(&self) -> drivebus_link::role::Role {
+        self.poll.bus().role().map_or(drivebus_link::role::Role::Master, |s| s.role)
+    }
+
+    /// The standby refusal of a command to this drive, while its bus listens: nothing is sent.
+    pub fn standby_refusal(&self) -> Option<CommandError> {
+        (self.role() == drivebus_link::role::Role::Standby).then(|| {
+            let e = drivebus_link::bus::BusError::Standby(self.poll.bus().name().to_string());
+            CommandError::Standby(e.to_string())
+        })
+    }
+
     /// The parameter named `name` in this drive's catalog.
     pub fn param(&self, name: &str) -> Result<&ParamDef, CommandError> {
         self.command.profile().param(name).map_err(|e| CommandError::Invalid(e.to_string()))

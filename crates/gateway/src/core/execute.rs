@@ -48,6 +48,12 @@ impl Gateway {
             self.audit(Some(d.bus.clone()), id, actor, &command.action(), outcome).await;
             return Err(e);
         }
+        if let Some(e) = d.standby_refusal() {
+            // Refused before a record is made: a client that keeps writing to a standby is
+            // counted per window (crate::refusals) rather than filling the trail.
+            self.audit_refusal(id, actor, &command.action(), &format!("{}: {e}", e.kind())).await;
+            return Err(e);
+        }
         let pending = self.audit_pending(&d, actor, &command).await?;
         let mut result = self.execute(&d, &command).await;
         if let Err(CommandError::Refused { meaning, .. }) = &mut result {

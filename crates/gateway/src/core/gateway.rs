@@ -8,13 +8,16 @@ use std::sync::{Arc, Mutex, OnceLock, RwLock};
 
 use drivebus_drive::Family;
 use drivebus_store::Store;
-use tokio::sync::broadcast;
+use tokio::sync::{broadcast, watch};
 
 use super::cache::{BusEntry, DriveEntry};
 use super::command::CommandError;
 use super::views::{BusView, Change, DriveView};
 use crate::config::GatewayConfig;
 use crate::refusals::Refusals;
+
+/// How often the buses' roles are looked at for [`Gateway::mastering`].
+pub const ROLE_WATCH: std::time::Duration = std::time::Duration::from_millis(50);
 
 /// Counters of the gateway's own work, for metrics.
 #[derive(Debug, Default)]
@@ -80,6 +83,8 @@ pub struct Gateway {
     pub(super) lanes: super::lanes::Lanes,
     /// Bus scans, their progress and findings, by bus (`Gateway::start_scan`).
     pub(super) scans: super::scan::Scans,
+    /// Whether the gateway masters at least one bus ([`Gateway::mastering`]).
+    pub(super) mastering: watch::Sender<bool>,
 }
 
 impl Gateway {
@@ -100,6 +105,7 @@ impl Gateway {
             store_recheck: tokio::sync::Notify::new(),
             lanes: super::lanes::Lanes::default(),
             scans: super::scan::Scans::default(),
+            mastering: watch::channel(true).0,
         }
     }
 
@@ -161,6 +167,22 @@ impl Gateway {
     /// The API view of a bus.
     pub fn bus_view(&self, b: &BusEntry) -> BusView {
         BusView::of(b, &self.drives())
+    }
+
+    /// True while the gateway masters at least one of its buses: always without `[standby]`
+    /// (and with no bus at all); with it, from the first bus it takes (at start or by a
+    /// takeover) until it yields or listens on every bus. MQTT and Sparkplug B publish only
+    /// then (docs/gateway.md, "A warm standby"). The receiver sees each change within
+    /// [`ROLE_WATCH`].
+    pub fn mastering(&self) -> watch::Receiver<bool> {
+        self.mastering.subscribe()
+    }
+
+    /// Whether the gateway masters at least one bus now, from the buses' roles (see
+    /// [`Gateway::mastering`]).
+    pub fn masters_any_bus(&self) -> bool {
+        let buses = self.buses();
+        buses.is_empty() || buses.iter().any(|b| b.role() == drivebus_link::role::Role::Master)
     }
 
     /// Subscribes to live changes.

@@ -48,7 +48,7 @@ mod workbench;
 pub use audit::MAX_LOGIN_FAILURES;
 pub use cache::{BusEntry, DriveEntry, DriveState};
 pub use command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX_SPEED_HZ};
-pub use gateway::{Counters, Gateway, Topology};
+pub use gateway::{Counters, Gateway, Topology, ROLE_WATCH};
 pub use lanes::MAX_LANE_QUEUE;
 pub use start::Reload;
 pub use views::{drive_master, log_line, BusView, Change, DriveView, FaultView, DRIVE_MASTER_WINDOW_S};

@@ -82,6 +82,18 @@ impl Gateway {
         }
     }
 
+    /// Keeps [`Gateway::mastering`] up to date: the buses' roles are looked at every
+    /// [`super::gateway::ROLE_WATCH`] (they change in the bus owners, which tell no one).
+    pub(super) async fn watch_roles(self: Arc<Self>) {
+        let mut tick = tokio::time::interval(super::gateway::ROLE_WATCH);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tick.tick().await;
+            let now = self.masters_any_bus();
+            self.mastering.send_if_modified(|m| std::mem::replace(m, now) != now);
+        }
+    }
+
     /// Sends every bus's view to live subscribers once a second, and records each takeover
     /// and yield of a bus that shares its line with another gateway as an event.
     pub(super) async fn publish_buses(self: Arc<Self>) {

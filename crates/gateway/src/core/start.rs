@@ -43,6 +43,8 @@ impl Gateway {
             tokio::spawn(gw.clone().poll_bus(b.clone()));
         }
         tokio::spawn(gw.clone().publish_buses());
+        gw.mastering.send_replace(gw.masters_any_bus());
+        tokio::spawn(gw.clone().watch_roles());
         tokio::spawn(gw.clone().close_refusal_windows());
         // The first verdict before any front end asks; the next ones on their schedule.
         gw.check_store();

@@ -54,6 +54,9 @@ pub struct DriveView {
     pub last_error: Option<String>,
     /// The poll interval, ms.
     pub poll_ms: u64,
+    /// Where the values come from: `master` (this gateway polls the drive) or `standby` (it
+    /// heard another gateway's polls of the drive; `[standby]`, writes refused).
+    pub source: &'static str,
 }
 
 /// A fault as the API shows it.
@@ -153,6 +156,7 @@ impl DriveView {
                 polls: s.polls,
                 last_error: s.last_error.clone(),
                 poll_ms: d.config.poll.as_millis() as u64,
+                source: d.role().as_str(),
             }
         })
     }

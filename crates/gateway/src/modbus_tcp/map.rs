@@ -42,6 +42,9 @@ pub const ST_ONLINE: u16 = 1 << 3;
 pub const ST_STALE: u16 = 1 << 4;
 /// Status word bit 5: the drive is locked against writes.
 pub const ST_LOCKED: u16 = 1 << 5;
+/// Status word bit 6: the values were heard, not polled: the gateway is a standby on the
+/// drive's bus (another gateway masters the line, `[standby]`) and refuses writes to it.
+pub const ST_STANDBY: u16 = 1 << 6;
 
 /// Holding register 0: the command word.
 pub const HR_COMMAND: u16 = 0;
@@ -90,6 +93,7 @@ pub fn is_reverse(s: &DriveState) -> bool {
 pub fn input_registers(d: &DriveEntry, out: &mut [u16; INPUT_COUNT as usize]) {
     let poll_ms = d.config.poll.as_millis().min(u128::from(u64::MAX)) as u64;
     let locked = d.locked();
+    let standby = d.role() == drivebus_link::role::Role::Standby;
     d.with_state(|s| {
         let st = s.status.as_ref();
         let age_ms = s.updated.map(|t| t.elapsed().as_millis().min(u128::from(u64::MAX)) as u64);
@@ -111,6 +115,9 @@ pub fn input_registers(d: &DriveEntry, out: &mut [u16; INPUT_COUNT as usize]) {
         }
         if locked {
             word |= ST_LOCKED;
+        }
+        if standby {
+            word |= ST_STANDBY;
         }
         out[IN_STATUS as usize] = word;
         out[IN_OUTPUT_HZ as usize] = hundredths(st.and_then(|x| x.output_hz));

@@ -255,14 +255,15 @@ pub fn quality(v: &DriveView, bus_online: bool) -> StatusCode {
 }
 
 /// The variables of a drive that are the gateway's own knowledge, not the drive's values.
-const GATEWAY_KNOWLEDGE: [&str; 3] = ["Online", "AgeMs", "ErrorRate"];
+const GATEWAY_KNOWLEDGE: [&str; 4] = ["Online", "AgeMs", "ErrorRate", "Source"];
 
 /// A drive's variables as data values, in [`DRIVE_VARIABLES`] order, from the view `v` taken at
 /// `now` (docs/opcua.md, "Values, timestamps and status"). The drive's values carry as source
 /// timestamp the time the drive last answered: the last poll that confirmed them, whether it
 /// changed them or not (`now` before the first answer), so a client sees how fresh they are.
-/// `Online`, `AgeMs` and `ErrorRate` are the gateway's own knowledge, always Good, their source
-/// timestamp `now`: `AgeMs` is its server timestamp minus the drive values' source timestamp.
+/// `Online`, `AgeMs`, `ErrorRate` and `Source` are the gateway's own knowledge, always Good,
+/// their source timestamp `now`: `AgeMs` is its server timestamp minus the drive values' source
+/// timestamp; `Source` says `standby` while the values are heard from another gateway's polls.
 pub fn drive_values(v: &DriveView, bus_online: bool, now: DateTime) -> Vec<DataValue> {
     let q = quality(v, bus_online);
     let answered = v.last_seen_ms.map(datetime_ms).unwrap_or(now);
@@ -282,6 +283,7 @@ pub fn drive_values(v: &DriveView, bus_online: bool, now: DateTime) -> Vec<DataV
                 )),
                 "Online" => Variant::Boolean(v.online == Some(true) && bus_online),
                 "AgeMs" => v.age_ms.map_or(Variant::Empty, |a| Variant::Double(a as f64)),
+                "Source" => Variant::String(UAString::from(v.source)),
                 _ => Variant::Double(v.error_rate),
             };
             let own = GATEWAY_KNOWLEDGE.contains(&def.name);
@@ -311,6 +313,7 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
             "ChecksumErrors" => Variant::UInt64(b.checksum_errors),
             "Retries" => Variant::UInt64(b.retries),
             "Utilization" => Variant::Double(b.utilization),
+            "Role" => Variant::String(UAString::from(b.role)),
             _ => Variant::Boolean(b.online),
         })
         .collect()

@@ -97,6 +97,8 @@ pub const DRIVE_VARIABLES: &[VariableDef] = &[
     var("Online", DataTypeId::Boolean, None),
     var("AgeMs", DataTypeId::Double, Some(MILLISECOND)),
     VariableDef { range: Some((0.0, 1.0)), ..var("ErrorRate", DataTypeId::Double, None) },
+    // `master` (polled by this gateway) or `standby` (heard from another gateway's polls).
+    var("Source", DataTypeId::String, None),
 ];
 
 /// The variables of a bus, from the bus owner's statistics.
@@ -107,6 +109,8 @@ pub const BUS_VARIABLES: &[VariableDef] = &[
     var("Retries", DataTypeId::UInt64, None),
     VariableDef { range: Some((0.0, 1.0)), ..var("Utilization", DataTypeId::Double, None) },
     var("Online", DataTypeId::Boolean, None),
+    // `master` or `standby` (`[standby]`).
+    var("Role", DataTypeId::String, None),
 ];
 
 /// The methods of a drive; `SetSpeed` takes one Double argument, `hz`.

@@ -162,7 +162,8 @@ async fn sessions(gw: Arc<Gateway>, s: Arc<Settings>, tx: mpsc::Sender<FromBroke
         let cap = 256 + 4 * gw.drives().len();
         let (client, mut eventloop) = AsyncClient::new(opts, cap);
         let mut connected = false;
-        // The edge node left on purpose (its primary host went offline): the next session goes
+        // The edge node left on purpose (its primary host went offline, or the gateway became
+        // a standby): the next session goes
         // to the next broker in the list.
         let mut left = false;
         loop {
@@ -413,10 +414,10 @@ impl EdgeNode {
         self.session.born(stored > 0 || !self.pending.is_empty());
     }
 
-    /// The primary host went offline: the NDEATH of this session's bdSeq, then a disconnect; the
-    /// session loop starts the next session (the next bdSeq), which births when the host is back.
+    /// The primary host went offline, or the gateway masters no bus any more: the NDEATH of this
+    /// session's bdSeq, then a disconnect; the session loop starts the next session (the next
+    /// bdSeq), which births when the host is back and the gateway masters a bus.
     async fn leave(&mut self) {
-        crate::log::info("Sparkplug: the primary host is offline: NDEATH, new session, keeping data");
         let Some(client) = self.client.take() else { return };
         let topic = self.node.node_topic("NDEATH");
         let p = Node::ndeath(self.bd_seq, unix_ms());
@@ -522,8 +523,12 @@ impl EdgeNode {
             Err(e) => return crate::log::warn(&format!("Sparkplug: {e}")),
         };
         let step = self.session.host_state(online, timestamp);
-        if step == Step::Birth {
-            crate::log::info("Sparkplug: the primary host is online: publishing");
+        match step {
+            Step::Birth => crate::log::info("Sparkplug: the primary host is online: publishing"),
+            Step::Leave => {
+                crate::log::info("Sparkplug: the primary host is offline: NDEATH, new session, keeping data")
+            }
+            Step::Stay => {}
         }
         self.step(step).await;
     }
@@ -603,7 +608,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
         s: s.clone(),
         client: None,
         bd_seq: 0,
-        session: Session::new(s.primary.is_some()),
+        session: Session::new(s.primary.is_some(), *gw.mastering().borrow()),
         pending: Vec::new(),
         drain_next: tokio::time::Instant::now(),
         drives: gw.drives(),
@@ -612,6 +617,7 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
     };
     e.sync_topology();
     let mut changes = gw.subscribe();
+    let mut mastering = gw.mastering();
     let mut tick = tokio::time::interval(FLUSH_INTERVAL);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
@@ -663,6 +669,18 @@ async fn run(gw: Arc<Gateway>, s: Arc<Settings>) {
                     e.reloaded().await;
                 }
                 e.flush().await;
+            }
+            Ok(()) = mastering.changed() => {
+                let master = *mastering.borrow_and_update();
+                let step = e.session.master(master);
+                match step {
+                    Step::Birth => crate::log::info("Sparkplug: the gateway masters a bus: NBIRTH"),
+                    Step::Leave => crate::log::info(
+                        "Sparkplug: the gateway masters no bus any more (standby): NDEATH, new session",
+                    ),
+                    Step::Stay => {}
+                }
+                e.step(step).await;
             }
             _ = tokio::time::sleep_until(e.drain_next), if e.session.phase() == session::Phase::Draining => e.drain().await,
         }

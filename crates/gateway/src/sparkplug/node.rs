@@ -573,6 +573,7 @@ mod tests {
             polls: 1,
             last_error: None,
             poll_ms: 250,
+            source: "master",
         }
     }
 

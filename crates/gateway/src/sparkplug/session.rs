@@ -8,8 +8,17 @@
 //! Draining             --queue empty-->     Publishing
 //! Publishing, Draining --rebirth-->         Birth
 //! Publishing, Draining --STATE offline-->   Leaving (Leave: NDEATH, DISCONNECT)
+//! Publishing, Draining --not master-->      Leaving (Leave: NDEATH, DISCONNECT)
+//! Connected            --master-->          Birth (with the host online, if there is one)
 //! any                  --lost-->            Disconnected (the next session: the next bdSeq)
 //! ```
+//!
+//! With `[standby]` the node births only while the gateway masters at least one bus
+//! ([`Session::master`]): a standby keeps its MQTT session (its will the NDEATH of its bdSeq)
+//! without births and keeps no data (the master publishes it). Losing the last bus ends the
+//! Sparkplug session as a primary host going offline does: the explicit NDEATH carries the
+//! bdSeq of the session it ends, and the next session (the next bdSeq) births when the gateway
+//! masters a bus again.
 //!
 //! With a primary host, the node births only after a STATE of that host saying online in this
 //! MQTT session (message-flow-edge-node-birth-publish-phid-wait); a STATE older than the newest
@@ -52,12 +61,23 @@ pub struct Session {
     phase: Phase,
     primary: bool,
     host_timestamp: Option<u64>,
+    /// The primary host said online in this MQTT session (always true without one).
+    host_online: bool,
+    /// The gateway masters at least one bus.
+    master: bool,
 }
 
 impl Session {
-    /// A node not connected yet; `primary`: it waits for a primary host.
-    pub fn new(primary: bool) -> Session {
-        Session { phase: Phase::Disconnected, primary, host_timestamp: None }
+    /// A node not connected yet; `primary`: it waits for a primary host; `master`: the
+    /// gateway masters a bus now ([`Session::master`]).
+    pub fn new(primary: bool, master: bool) -> Session {
+        Session { phase: Phase::Disconnected, primary, host_timestamp: None, host_online: !primary, master }
+    }
+
+    /// Births may go out in a connected session: the primary host (if any) said online in it,
+    /// and the gateway masters a bus.
+    fn ready(&self) -> bool {
+        self.host_online && self.master
     }
 
     /// Where the node stands.
@@ -71,18 +91,37 @@ impl Session {
     }
 
     /// New data goes to the store-and-forward queue rather than out live.
+    /// A standby keeps nothing: the master publishes the data.
     pub fn keeps_data(&self) -> bool {
-        self.phase != Phase::Publishing
+        self.master && self.phase != Phase::Publishing
     }
 
     /// An MQTT session opened: births at once without a primary host; with one, only once its
     /// STATE in this session says online.
     pub fn connected(&mut self) -> Step {
         self.phase = Phase::Connected;
-        if self.primary {
-            Step::Stay
-        } else {
+        self.host_online = !self.primary;
+        if self.ready() {
             Step::Birth
+        } else {
+            Step::Stay
+        }
+    }
+
+    /// The gateway took its first bus (`true`) or lost its last one (`false`): a connected
+    /// node births (once the primary host is online), a node with births leaves.
+    pub fn master(&mut self, master: bool) -> Step {
+        if master == self.master {
+            return Step::Stay;
+        }
+        self.master = master;
+        match (master, self.phase) {
+            (true, Phase::Connected) if self.ready() => Step::Birth,
+            (false, Phase::Publishing | Phase::Draining) => {
+                self.phase = Phase::Leaving;
+                Step::Leave
+            }
+            _ => Step::Stay,
         }
     }
 
@@ -122,8 +161,11 @@ impl Session {
             return Step::Stay;
         }
         self.host_timestamp = Some(timestamp);
+        if matches!(self.phase, Phase::Connected | Phase::Publishing | Phase::Draining) {
+            self.host_online = online;
+        }
         match (online, self.phase) {
-            (true, Phase::Connected) => Step::Birth,
+            (true, Phase::Connected) if self.ready() => Step::Birth,
             (false, Phase::Publishing | Phase::Draining) => {
                 self.phase = Phase::Leaving;
                 Step::Leave
@@ -151,7 +193,7 @@ mod tests {
     use super::*;
 
     fn publishing(primary: bool) -> Session {
-        let mut s = Session::new(primary);
+        let mut s = Session::new(primary, true);
         let step = s.connected();
         if primary {
             assert_eq!(step, Step::Stay);
@@ -166,7 +208,7 @@ mod tests {
 
     #[test]
     fn without_a_primary_host_a_session_births_at_once_and_states_are_ignored() {
-        let mut s = Session::new(false);
+        let mut s = Session::new(false, true);
         assert_eq!(s.phase(), Phase::Disconnected);
         assert!(s.keeps_data() && !s.publishing());
         assert_eq!(s.connected(), Step::Birth);
@@ -182,7 +224,7 @@ mod tests {
 
     #[test]
     fn with_a_primary_host_births_wait_for_its_online_state_in_the_session() {
-        let mut s = Session::new(true);
+        let mut s = Session::new(true, true);
         // A STATE before any session: remembered, nothing to do.
         assert_eq!(s.host_state(true, 5), Step::Stay);
         assert_eq!(s.connected(), Step::Stay, "waits for a STATE in this session");
@@ -234,6 +276,57 @@ mod tests {
         s.born(false);
         assert_eq!(s.phase(), Phase::Disconnected, "births need a session");
         assert_eq!(s.connected(), Step::Birth);
+    }
+
+    #[test]
+    fn a_standby_births_only_once_it_masters_a_bus_and_keeps_no_data_before() {
+        for primary in [false, true] {
+            let mut s = Session::new(primary, false);
+            assert!(!s.keeps_data(), "a standby keeps nothing, even disconnected");
+            assert_eq!(s.connected(), Step::Stay, "connected, no births while standby");
+            if primary {
+                assert_eq!(s.host_state(true, 3), Step::Stay, "the host online: still standby");
+            }
+            assert_eq!(s.phase(), Phase::Connected);
+            assert!(!s.keeps_data() && !s.publishing());
+            assert_eq!(s.rebirth(), Step::Stay, "no rebirth without births");
+            assert_eq!(s.master(false), Step::Stay);
+            assert_eq!(s.master(true), Step::Birth, "its first bus: NBIRTH and DBIRTHs");
+            assert!(s.keeps_data(), "a master keeps data until the births are out");
+            s.born(false);
+            assert_eq!(s.phase(), Phase::Publishing);
+            assert_eq!(s.master(true), Step::Stay, "another bus taken: nothing new");
+        }
+        // With a primary host not online yet, a takeover waits for the host as births do.
+        let mut s = Session::new(true, false);
+        s.connected();
+        assert_eq!(s.master(true), Step::Stay, "no host online in this session");
+        assert_eq!(s.host_state(true, 1), Step::Birth);
+    }
+
+    #[test]
+    fn losing_the_last_bus_ends_the_session_with_its_ndeath_and_the_next_one_waits() {
+        for draining in [false, true] {
+            let mut s = publishing(false);
+            if draining {
+                assert_eq!(s.rebirth(), Step::Birth);
+                s.born(true);
+            }
+            assert_eq!(s.master(false), Step::Leave, "the NDEATH of this session's bdSeq");
+            assert_eq!(s.phase(), Phase::Leaving);
+            assert!(!s.publishing() && !s.keeps_data());
+            assert_eq!(s.master(false), Step::Stay);
+            s.lost();
+            assert_eq!(s.connected(), Step::Stay, "the next session: no births while standby");
+            assert_eq!(s.master(true), Step::Birth, "taken back: births with the new bdSeq");
+        }
+        // A node that lost its bus while disconnected has nothing to end; it births on its
+        // next takeover only.
+        let mut s = publishing(false);
+        s.lost();
+        assert_eq!(s.master(false), Step::Stay);
+        assert_eq!(s.connected(), Step::Stay);
+        assert_eq!(s.master(true), Step::Birth);
     }
 
     #[test]

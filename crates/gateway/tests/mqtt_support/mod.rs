@@ -232,9 +232,25 @@ pub fn demo_gateway_with(
     discovery: bool,
     credentials: Option<(&str, &str)>,
 ) -> Arc<Gateway> {
+    demo_gateway_as(name, broker, allow, discovery, credentials, None)
+}
+
+/// [`demo_gateway_with`] whose buses, with `role`, share their lines with another gateway
+/// (`[standby]`).
+pub fn demo_gateway_as(
+    name: &str,
+    broker: SocketAddr,
+    allow: &[&str],
+    discovery: bool,
+    credentials: Option<(&str, &str)>,
+    role: Option<drivebus_link::role::RoleConfig>,
+) -> Arc<Gateway> {
     let mut config = GatewayConfig::demo();
     config.name = name.to_string();
     config.store = None;
+    for b in &mut config.buses {
+        b.role = role;
+    }
     let mqtt = MqttConfig {
         url: format!("mqtt://{broker}"),
         topic_prefix: None,

@@ -170,6 +170,7 @@
   }
 
   const LOCKED_WHY = 'the gateway refuses commands to this drive (locked = true in its configuration)';
+  const STANDBY_WHY = 'this gateway is a standby on the drive\'s bus: another gateway masters the line, send commands there';
 
   function driveState(v) {
     if (v.online === false) return 'offline';
@@ -303,6 +304,7 @@
     const lock = field(t, 'locked');
     lock.hidden = !v.locked;
     lock.title = v.locked ? 'locked: ' + LOCKED_WHY : '';
+    field(t, 'source').hidden = v.source !== 'standby';
     applyLock(d);
     const hz = field(t, 'output_hz');
     hz.textContent = num(v.output_hz, 2);
@@ -327,16 +329,18 @@
     if (d.trendOpen) drawTrend(d);
   }
 
-  // A locked drive's command controls are disabled, and say why; Trend stays.
+  // A locked drive's command controls are disabled, and say why, as are those of a drive this
+  // gateway only hears as a standby; Trend stays.
   function applyLock(d) {
-    const locked = !!d.view.locked;
+    const why = d.view.locked ? 'locked: ' + LOCKED_WHY
+      : d.view.source === 'standby' ? 'standby: ' + STANDBY_WHY : '';
     for (const el of d.tile.querySelectorAll('.controls button:not([data-action="trend"]), .controls input')) {
-      el.disabled = locked || d.sending === true;
-      el.title = locked ? 'locked: ' + LOCKED_WHY : '';
+      el.disabled = why !== '' || d.sending === true;
+      el.title = why;
     }
-    const why = field(d.tile, 'locked-why');
-    why.hidden = !locked;
-    why.textContent = locked ? 'Commands are off: ' + LOCKED_WHY + '.' : '';
+    const line = field(d.tile, 'locked-why');
+    line.hidden = why === '';
+    line.textContent = why === '' ? '' : 'Commands are off: ' + why.replace(/^[a-z]+: /, '') + '.';
   }
 
   // The values' age now: as the gateway gave it, plus the time since it arrived.

@@ -550,7 +550,7 @@ mod tests {
             output_hz: Some(hz),
             setpoint_hz: Some(40.0),
             current_a: Some(amps),
-            fault,
+            fault, values: Vec::new(), 
         }
     }
 

@@ -182,15 +182,32 @@ pub struct StatusMap {
     pub setpoint_hz: Option<RegisterValue>,
     /// Motor current, A.
     pub current_a: Option<RegisterValue>,
+    /// A flag set while the drive is tripped: where given, the fault code shows only while it is
+    /// set (a drive whose fault code register keeps the last fault after a reset).
+    pub tripped: Option<RegisterValue>,
+    /// The values beyond these (`[values]`: DC-bus voltage, power, temperature, ...), in the
+    /// file's name order.
+    pub extra: Vec<ExtraValue>,
+}
+
+/// A status value beyond the six every front end shows: its name, unit and register.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExtraValue {
+    /// The name (`dc_bus_v`), as views and `/api/drives` show it.
+    pub name: String,
+    /// Its unit (`V`), or empty.
+    pub unit: String,
+    /// Where it is and how it is coded.
+    pub value: RegisterValue,
 }
 
 impl StatusMap {
     /// The names a file may use under `[status]`.
-    pub const NAMES: [&'static str; 6] =
-        ["fault", "running", "reverse", "output_hz", "setpoint_hz", "current_a"];
+    pub const NAMES: [&'static str; 7] =
+        ["fault", "running", "reverse", "output_hz", "setpoint_hz", "current_a", "tripped"];
 
-    /// Every value given, with its name.
-    pub fn values(&self) -> impl Iterator<Item = (&'static str, &RegisterValue)> {
+    /// Every value given, with its name, the `[values]` ones last.
+    pub fn values(&self) -> impl Iterator<Item = (&str, &RegisterValue)> {
         [
             ("fault", &self.fault),
             ("running", &self.running),
@@ -198,9 +215,11 @@ impl StatusMap {
             ("output_hz", &self.output_hz),
             ("setpoint_hz", &self.setpoint_hz),
             ("current_a", &self.current_a),
+            ("tripped", &self.tripped),
         ]
         .into_iter()
         .filter_map(|(n, v)| v.as_ref().map(|v| (n, v)))
+        .chain(self.extra.iter().map(|e| (e.name.as_str(), &e.value)))
     }
 
     fn slot(&mut self, name: &str) -> Option<&mut Option<RegisterValue>> {
@@ -211,6 +230,7 @@ impl StatusMap {
             "output_hz" => &mut self.output_hz,
             "setpoint_hz" => &mut self.setpoint_hz,
             "current_a" => &mut self.current_a,
+            "tripped" => &mut self.tripped,
             _ => return None,
         })
     }
@@ -310,6 +330,8 @@ pub struct Template {
     pub params: Vec<ParamDef>,
     /// The fault codes and their text.
     pub faults: BTreeMap<u32, String>,
+    /// The parameters holding the last faults' codes, newest first (`fault_history`).
+    pub fault_history: Vec<String>,
     /// The file it was read from.
     pub file: String,
 }

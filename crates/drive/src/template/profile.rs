@@ -19,7 +19,7 @@ use drivebus_proto::modbus::ExceptionCode;
 use super::{CommandValue, RegisterTable, RegisterValue, Template, ValueType};
 use crate::profile::generic::{self, ModbusAnswer, ModbusAsk, ModbusFraming};
 use crate::profile::{
-    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, NamedValue, Operation, Outcome, Plan, Profile, Step,
     WireProtocol,
 };
 use crate::{format_fixed, Catalog, Family, ParamDef, Size};
@@ -387,7 +387,8 @@ impl TemplatePlan {
         let num = |v: &Option<RegisterValue>| v.as_ref().and_then(|v| self.words_of(v).map(|w| v.value(&w)));
         let flag = |v: &Option<RegisterValue>| v.as_ref().and_then(|v| self.words_of(v).map(|w| v.flag(&w)));
         let output_hz = num(&s.output_hz);
-        let fault = num(&s.fault).map(|c| c as i64 as u32).filter(|&c| c != 0);
+        let tripped = flag(&s.tripped).unwrap_or(true);
+        let fault = num(&s.fault).map(|c| c as i64 as u32).filter(|&c| c != 0 && tripped);
         DriveStatus {
             address: self.unit,
             running: flag(&s.running).unwrap_or_else(|| output_hz.is_some_and(|hz| hz != 0.0)),
@@ -396,6 +397,17 @@ impl TemplatePlan {
             setpoint_hz: num(&s.setpoint_hz),
             current_a: num(&s.current_a),
             fault: fault.map(|code| Fault { code, text: self.template.fault_text(code) }),
+            values: s
+                .extra
+                .iter()
+                .filter_map(|x| {
+                    self.words_of(&x.value).map(|w| NamedValue {
+                        name: x.name.clone(),
+                        value: x.value.value(&w),
+                        unit: x.unit.clone(),
+                    })
+                })
+                .collect(),
         }
     }
 

@@ -133,3 +133,44 @@ async fn templated_drives_are_polled_commanded_and_shown_like_any_drive() {
         "{errors}"
     );
 }
+
+/// GET `path` on the gateway's HTTP API (anonymous reads allowed): the JSON answer.
+async fn get_json(gw: &Arc<Gateway>, path: &str) -> serde_json::Value {
+    let app = drivebus_gateway::http::router(gw.clone())
+        .layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 1], 40000))));
+    let r = app.oneshot(Request::get(path).body(Body::empty()).unwrap()).await.unwrap();
+    let body = r.into_body().collect().await.unwrap().to_bytes();
+    serde_json::from_slice(&body).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_shipped_template_shows_its_named_values_and_its_fault_history() {
+    // abb-acs550 is shipped: no `templates = [...]` line.
+    let text = "[store]\ndisabled = true\n[http]\nanonymous_read = true\n\
+         [[bus]]\nname = \"b\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"acs\"\nfamily = \"abb-acs550\"\naddress = 1\npoll_ms = 100\n";
+    let gw = Gateway::start(GatewayConfig::from_toml("plant.toml", text).unwrap_or_else(|e| panic!("{e}")), None)
+        .unwrap();
+    let view = |id: &str| gw.drive_view(&gw.drive(id).unwrap());
+    wait_for("acs online", Duration::from_secs(20), || view("acs").online == Some(true)).await;
+    let json = get_json(&gw, "/api/drives/acs").await;
+    assert_eq!(json["values"]["dc_bus_v"], serde_json::json!({"value": 540.0, "unit": "V"}), "{json}");
+    assert_eq!(json["values"]["power_kw"]["unit"], "kW", "{json}");
+
+    // A trip, then a reset: 0401 keeps the code, the drive is no longer tripped, the history has it.
+    let bus = gw.buses().iter().find(|b| b.config.name == "b").unwrap().clone();
+    {
+        let mut line = bus.line.as_ref().unwrap().lock().unwrap();
+        let port = (0..=line.devices()).find(|&p| line.drive(p).is_some()).unwrap();
+        line.drive_mut(port).unwrap().core_mut().model.trip_now(drivebus_sim::model::Trip::OverCurrent);
+    }
+    wait_for("the trip seen", Duration::from_secs(20), || view("acs").fault.is_some()).await;
+    assert_eq!(view("acs").fault.unwrap().text, "over-current (OVERCURRENT)");
+    gw.command("acs", Command::Reset, "test").await.expect("reset");
+    wait_for("the fault cleared", Duration::from_secs(20), || view("acs").fault.is_none()).await;
+    let trips = get_json(&gw, "/api/drives/acs/trips").await;
+    assert_eq!(trips["current"], serde_json::Value::Null, "{trips}");
+    assert_eq!(trips["history"][0]["code"], 1, "{trips}");
+    assert_eq!(trips["history"][0]["text"], "over-current (OVERCURRENT)", "{trips}");
+    assert!(trips["source"].as_str().is_some_and(|s| s.contains("0401, 0412, 0413")), "{trips}");
+}

@@ -35,8 +35,10 @@ fn list() -> &'static RwLock<Vec<&'static Kind>> {
 }
 
 /// The templates shipped with drivebus (`templates/` at the repository root): file name and text.
-pub const SHIPPED: &[(&str, &str)] =
-    &[("templates/generic-2000h.toml", include_str!("../../../../templates/generic-2000h.toml"))];
+pub const SHIPPED: &[(&str, &str)] = &[
+    ("templates/generic-2000h.toml", include_str!("../../../../templates/generic-2000h.toml")),
+    ("templates/abb-acs550.toml", include_str!("../../../../templates/abb-acs550.toml")),
+];
 
 /// The shipped templates, registered on first use; an error names a shipped file that does not
 /// check (the crate's tests check every one, so it means a broken build).

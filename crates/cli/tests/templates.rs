@@ -129,3 +129,27 @@ fn simulate_runs_a_templated_drive() {
     assert_eq!(s["setpoint_hz"], 20.0, "{s}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_shipped_template_needs_no_template_flag_and_shows_its_values_and_history() {
+    // abb-acs550 is shipped: the simulator and the commands know it without --template.
+    let sim = simulate("abb-acs550@2", &["--modbus-tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    let o = drivebus(&port, "abb-acs550", Some("modbus-tcp"), 2, &["status", "--json"]);
+    ok(&o, "status");
+    let s: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(s["values"]["dc_bus_v"]["unit"], "V", "{s}");
+    assert_eq!(s["fault"], serde_json::Value::Null, "{s}");
+    let o = drivebus(&port, "abb-acs550", Some("modbus-tcp"), 2, &["status"]);
+    ok(&o, "status");
+    assert!(
+        o.stdout.lines().any(|l| l.trim_start().starts_with("dc_bus_v") && l.ends_with(" V")),
+        "{}",
+        o.stdout
+    );
+    let o = drivebus(&port, "abb-acs550", Some("modbus-tcp"), 2, &["trips", "--json"]);
+    ok(&o, "trips");
+    let t: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(t["history"], serde_json::json!([]), "no trip yet: {t}");
+    assert!(t["source"].as_str().is_some_and(|s| s.contains("fault_history 0401, 0412, 0413")), "{t}");
+}

@@ -82,7 +82,8 @@ mod tests {
             output_hz: Some(out),
             setpoint_hz: Some(set),
             current_a: None,
-            fault: None, values: Vec::new(), 
+            fault: None,
+            values: Vec::new(),
         }
     }
 

@@ -465,7 +465,8 @@ access = "ro"
 #[test]
 fn the_new_fields_read_and_their_errors_have_lines() {
     let t = Template::from_toml_str("v.toml", WITH_VALUES).unwrap_or_else(|e| panic!("{e}"));
-    let names: Vec<(&str, &str)> = t.status.extra.iter().map(|x| (x.name.as_str(), x.unit.as_str())).collect();
+    let names: Vec<(&str, &str)> =
+        t.status.extra.iter().map(|x| (x.name.as_str(), x.unit.as_str())).collect();
     assert_eq!(names, [("dc_bus_v", "V"), ("power_kw", "kW")]);
     assert_eq!(t.fault_history, ["last", "previous"]);
     assert_eq!(t.status.tripped.as_ref().unwrap().bit, Some(3));
@@ -488,7 +489,8 @@ fn the_new_fields_read_and_their_errors_have_lines() {
     // Two values in one register, line 17 (106..107 overlaps dc_bus_v's 106).
     let e = bad("register = 107, type", "register = 106, type");
     assert!(
-        e.iter().any(|(l, m)| *l == 17 && m.contains("values.power_kw: register 106 overlaps values.dc_bus_v's")),
+        e.iter()
+            .any(|(l, m)| *l == 17 && m.contains("values.power_kw: register 106 overlaps values.dc_bus_v's")),
         "{e:?}"
     );
     // A unit on one of the six, line 13.
@@ -497,10 +499,16 @@ fn the_new_fields_read_and_their_errors_have_lines() {
     assert!(e[0].1.contains("a unit is for [values]"), "{e:?}");
     // tripped overlapping running's bit, line 12.
     let e = bad("register = 100, bit = 3", "register = 100, bit = 0");
-    assert!(e.iter().any(|(l, m)| *l == 12 && m.contains("status.tripped: bit 0 overlaps status.running's")), "{e:?}");
+    assert!(
+        e.iter().any(|(l, m)| *l == 12 && m.contains("status.tripped: bit 0 overlaps status.running's")),
+        "{e:?}"
+    );
     // An unknown type on a value, line 17.
     let e = bad("type = \"f32\"", "type = \"f64\"");
-    assert_eq!(e[0], (17, "values.power_kw: unknown type \"f64\": use u16, i16, u32, i32 or f32".to_string()));
+    assert_eq!(
+        e[0],
+        (17, "values.power_kw: unknown type \"f64\": use u16, i16, u32, i32 or f32".to_string())
+    );
 }
 
 #[test]
@@ -528,7 +536,8 @@ fn named_values_a_latched_fault_and_the_fault_history_come_from_the_simulated_dr
         .map(|n| support::param_of("history", on(&mut line, &*p, Operation::ReadParam(n))))
         .collect();
     let h = drivebus_drive::profile::trips::history_of(family, &s, &raws);
-    let codes: Vec<(usize, u32, &str)> = h.entries.iter().map(|e| (e.index, e.code, e.text.as_str())).collect();
+    let codes: Vec<(usize, u32, &str)> =
+        h.entries.iter().map(|e| (e.index, e.code, e.text.as_str())).collect();
     assert_eq!(codes, [(1, 14, "external fault"), (2, 1, "over-current")]);
     assert!(h.source.contains("fault_history last, previous"), "{}", h.source);
 }

@@ -149,8 +149,9 @@ async fn a_shipped_template_shows_its_named_values_and_its_fault_history() {
     let text = "[store]\ndisabled = true\n[http]\nanonymous_read = true\n\
          [[bus]]\nname = \"b\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
          [[bus.drive]]\nname = \"acs\"\nfamily = \"abb-acs550\"\naddress = 1\npoll_ms = 100\n";
-    let gw = Gateway::start(GatewayConfig::from_toml("plant.toml", text).unwrap_or_else(|e| panic!("{e}")), None)
-        .unwrap();
+    let gw =
+        Gateway::start(GatewayConfig::from_toml("plant.toml", text).unwrap_or_else(|e| panic!("{e}")), None)
+            .unwrap();
     let view = |id: &str| gw.drive_view(&gw.drive(id).unwrap());
     wait_for("acs online", Duration::from_secs(20), || view("acs").online == Some(true)).await;
     let json = get_json(&gw, "/api/drives/acs").await;

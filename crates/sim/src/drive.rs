@@ -297,7 +297,8 @@ pub fn panel_display<D: VirtualDrive + ?Sized>(drive: &D) -> String {
         output_hz: Some(m.output_hz()),
         setpoint_hz: Some(m.setpoint_hz()),
         current_a: None,
-        fault, values: Vec::new(), 
+        fault,
+        values: Vec::new(),
     };
     panel::display(family, &status)
 }

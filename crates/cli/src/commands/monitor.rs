@@ -550,7 +550,8 @@ mod tests {
             output_hz: Some(hz),
             setpoint_hz: Some(40.0),
             current_a: Some(amps),
-            fault, values: Vec::new(), 
+            fault,
+            values: Vec::new(),
         }
     }
 

@@ -448,7 +448,8 @@ impl B800Plan {
             output_hz: if off { Some(0.0) } else { self.output_hz.map(|hz| super::round_to(hz, 3)) },
             setpoint_hz: *self.setpoint(),
             current_a: if off { Some(0.0) } else { self.current_a },
-            fault, values: Vec::new(), 
+            fault,
+            values: Vec::new(),
         }))
     }
 }

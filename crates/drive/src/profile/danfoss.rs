@@ -980,7 +980,8 @@ impl FcPlan {
                     output_hz: hz.map(|h| super::round_to(h.abs(), 3)),
                     setpoint_hz: memory.setpoint_hz,
                     current_a: self.current_a,
-                    fault, values: Vec::new(), 
+                    fault,
+                    values: Vec::new(),
                 }))
             }
         }

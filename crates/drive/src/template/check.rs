@@ -10,8 +10,8 @@ use toml::Spanned;
 
 use super::file::{FileCommandValue, FileParam, FileTemplate, FileValue};
 use super::{
-    Checked, CommandMap, CommandValue, ExtraValue, RegisterTable, RegisterValue, SetpointMap, StatusMap, Template,
-    TemplateError, ValueType,
+    Checked, CommandMap, CommandValue, ExtraValue, RegisterTable, RegisterValue, SetpointMap, StatusMap,
+    Template, TemplateError, ValueType,
 };
 use crate::{Choice, Family, ParamDef, Size, Storage};
 
@@ -168,7 +168,10 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
         let flag = is_flag(name);
         let value = value(e, &format!("status.{name}"), v, flag);
         if let Some(u) = &v.get_ref().unit {
-            e.at(u.span(), format!("status.{name}: a unit is for [values]; the six status values have theirs"));
+            e.at(
+                u.span(),
+                format!("status.{name}: a unit is for [values]; the six status values have theirs"),
+            );
         }
         match status.slot(name) {
             Some(slot) => *slot = value,
@@ -379,7 +382,10 @@ fn value(e: &mut Errors<'_>, what: &str, v: &Spanned<FileValue>, flag: bool) -> 
         Some(b) => {
             let width = 16 * i64::from(kind.words());
             if !flag {
-                e.at(b.span(), format!("{what}: a bit makes a flag; only running, reverse and tripped are flags"));
+                e.at(
+                    b.span(),
+                    format!("{what}: a bit makes a flag; only running, reverse and tripped are flags"),
+                );
                 None
             } else if kind == ValueType::F32 || !(0..width).contains(b.get_ref()) {
                 e.at(
@@ -413,7 +419,8 @@ fn check_flag_bits(e: &mut Errors<'_>, status: &[(String, &Spanned<FileValue>)])
     let mut numbers: HashMap<(i64, String), &str> = HashMap::new();
     let mut by_place: Vec<_> = status.iter().map(|(n, v)| (n, *v)).collect();
     by_place.sort_by_key(|(_, v)| v.span().start);
-    let label = |name: &str| if name.starts_with("values.") { name.to_string() } else { format!("status.{name}") };
+    let label =
+        |name: &str| if name.starts_with("values.") { name.to_string() } else { format!("status.{name}") };
     for (name, v) in by_place {
         let f = v.get_ref();
         if f.bit.is_some() || is_flag(name) {

@@ -10,6 +10,7 @@
 //! | toshiba | FC90 (status) | FE10–FE13 past trips 1–4 (FE10 the newest, with FE00 output frequency at the trip) |
 //! | danfoss | 15-30[0] (status) | 15-30 Alarm Log, elements 0–9 (0 the newest) |
 //! | b800 | `t` status, high byte | none: F-13 keeps the last four trips, but the protocol has no parameter access |
+//! | a template | `status.fault` (with `tripped`, only while it is set) | the `fault_history` parameters, newest first |
 //!
 //! A drive that logs the trip in force shows it as the newest entry of its history too.
 //!

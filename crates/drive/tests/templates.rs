@@ -541,3 +541,38 @@ fn named_values_a_latched_fault_and_the_fault_history_come_from_the_simulated_dr
     assert_eq!(codes, [(1, 14, "external fault"), (2, 1, "over-current")]);
     assert!(h.source.contains("fault_history last, previous"), "{}", h.source);
 }
+
+#[test]
+fn f32_and_low_word_first_parameters_are_read_and_written_in_their_coding() {
+    let text = GOOD.replace("test-drive", "wide-test").replacen("[[param]]", "[[param]]\nname = \"flow\"\ntitle = \"flow setpoint\"\nregister = 500\ntype = \"f32\"\nword_order = \"low-first\"\nunit = \"m3/h\"\nscale = 0.01\nrange = [0.0, 1000.0]\ndefault = 12.5\n[[param]]\nname = \"count\"\ntitle = \"a signed counter\"\nregister = 510\ntype = \"i32\"\nword_order = \"low-first\"\nrange = [-100000, 100000]\ndefault = -70000\n[[param]]", 1);
+    let t = Template::from_toml_str("w.toml", &text).unwrap_or_else(|e| panic!("{e}"));
+    let flow = t.params.iter().find(|d| d.name == "flow").unwrap();
+    assert_eq!((flow.default, flow.scale), (1250, 2), "12.5 at 0.01");
+    assert_eq!(t.param_words(flow, 2025), [0x0000, 0x41A2], "20.25 as f32 0x41A20000, low word first");
+    let count = t.params.iter().find(|d| d.name == "count").unwrap();
+    assert_eq!(t.param_words(count, -70000), [0xEE90, 0xFFFE], "0xFFFEEE90, low word first");
+    assert_eq!(t.param_raw(count, &[0xEE90, 0xFFFE]), -70000);
+    let family = template::register(t).unwrap();
+    round_trip(family);
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    let (r, sent) = run::<ModbusRtu>(
+        &mut line,
+        &*p,
+        &Operation::WriteParam { name: "flow".into(), raw: 2025, storage: Storage::Eeprom },
+    );
+    support::done("write flow", r);
+    assert_eq!(&sent[0][..11], [3, 0x10, 0x01, 0xF4, 0, 2, 4, 0x00, 0x00, 0x41, 0xA2], "{sent:02X?}");
+    let back = support::param_of("read flow", on(&mut line, &*p, Operation::ReadParam("flow".into())));
+    assert_eq!(back, 2025, "20.25 read back");
+    let c = support::param_of("read count", on(&mut line, &*p, Operation::ReadParam("count".into())));
+    assert_eq!(c, -70000);
+    // word_order on a one-register parameter is an error, with its line.
+    let bad = text.replacen("type = \"i32\"\nword_order", "type = \"i16\"\nword_order", 1);
+    let e = Template::from_toml_str("w.toml", &bad).unwrap_err();
+    assert!(e.to_string().contains("parameter count: word_order is for the 32-bit types"), "{e}");
+    assert!(
+        e.errors.iter().any(|(l, _)| bad.lines().nth(l - 1).is_some_and(|t| t.starts_with("word_order"))),
+        "{e}"
+    );
+}

@@ -10,8 +10,8 @@ use toml::Spanned;
 
 use super::file::{FileCommandValue, FileParam, FileTemplate, FileValue};
 use super::{
-    Checked, CommandMap, CommandValue, ExtraValue, RegisterTable, RegisterValue, SetpointMap, StatusMap,
-    Template, TemplateError, ValueType,
+    Checked, CommandMap, CommandValue, ExtraValue, ParamCoding, RegisterTable, RegisterValue, SetpointMap,
+    StatusMap, Template, TemplateError, ValueType,
 };
 use crate::{Choice, Family, ParamDef, Size, Storage};
 
@@ -210,7 +210,7 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
     }
     check_flag_bits(e, &all);
 
-    let params = params(e, &raw.param);
+    let (params, param_codings) = params(e, &raw.param);
     let command = raw.command.as_ref().map(|c| command(e, c));
     let setpoint = raw.setpoint.as_ref().map(|s| setpoint(e, s, &params));
     let mut fault_history = Vec::new();
@@ -261,6 +261,7 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
         command,
         setpoint,
         params,
+        param_codings,
         faults,
         fault_history,
         file: file.to_string(),
@@ -544,8 +545,9 @@ fn setpoint(e: &mut Errors<'_>, s: &Spanned<super::file::FileSetpoint>, params: 
     SetpointMap { register: reg, kind, low_first, scale, max_hz, limit_params }
 }
 
-fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
+fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> (Vec<ParamDef>, BTreeMap<u32, ParamCoding>) {
     let mut out: Vec<ParamDef> = Vec::new();
+    let mut codings = BTreeMap::new();
     let mut registers: HashMap<u16, String> = HashMap::new();
     for p in raw {
         let f = p.get_ref();
@@ -560,12 +562,12 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             continue;
         }
         let kind = value_type(e, &what, &f.kind);
-        if kind == ValueType::F32 {
+        let low_first = word_order(e, &what, &f.word_order);
+        if low_first && kind.words() == 1 {
             e.at(
-                f.kind.as_ref().map(Spanned::span).unwrap_or_default(),
-                format!("{what}: f32 parameters are not read or written yet: use u16, i16, u32 or i32"),
+                f.word_order.as_ref().map(Spanned::span).unwrap_or_default(),
+                format!("{what}: word_order is for the 32-bit types (u32, i32, f32), not {kind:?}"),
             );
-            continue;
         }
         let reg = register(e, &what, &f.register, kind.words());
         for r in reg..reg.saturating_add(kind.words()) {
@@ -593,6 +595,7 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             ValueType::U16 => (0, 0xFFFF),
             ValueType::I16 => (i64::from(i16::MIN), i64::from(i16::MAX)),
             ValueType::U32 => (0, i64::from(u32::MAX)),
+            // An f32 holds the value itself; its raw integer (at the scale) is kept in an i32.
             _ => (i64::from(i32::MIN), i64::from(i32::MAX)),
         };
         if min > max {
@@ -643,6 +646,7 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             }
         }
         choices.sort_by_key(|c| c.value);
+        codings.insert(u32::from(reg), ParamCoding { kind, low_first });
         out.push(ParamDef {
             name,
             alias: None,
@@ -664,5 +668,5 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             group: f.group.clone().unwrap_or_default(),
         });
     }
-    out
+    (out, codings)
 }

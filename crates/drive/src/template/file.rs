@@ -146,6 +146,8 @@ pub(super) struct FileParam {
     #[serde(default, rename = "type")]
     pub(super) kind: Option<Spanned<String>>,
     #[serde(default)]
+    pub(super) word_order: Option<Spanned<String>>,
+    #[serde(default)]
     pub(super) scale: Option<Spanned<f64>>,
     pub(super) range: Spanned<[f64; 2]>,
     pub(super) default: Spanned<f64>,

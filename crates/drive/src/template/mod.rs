@@ -328,6 +328,8 @@ pub struct Template {
     pub setpoint: Option<SetpointMap>,
     /// The parameters (their `number` is the register).
     pub params: Vec<ParamDef>,
+    /// How each parameter is coded in its registers, by register.
+    pub param_codings: BTreeMap<u32, ParamCoding>,
     /// The fault codes and their text.
     pub faults: BTreeMap<u32, String>,
     /// The parameters holding the last faults' codes, newest first (`fault_history`).
@@ -361,6 +363,39 @@ impl Template {
             .unwrap_or_else(|| format!("fault code {code} (not in the template's fault list)"))
     }
 
+    /// How parameter `def` is coded in its registers (`type` and `word_order`).
+    pub fn param_coding(&self, def: &ParamDef) -> ParamCoding {
+        self.param_codings.get(&def.number).copied().unwrap_or(ParamCoding {
+            kind: match (def.size, def.min < 0) {
+                (crate::Size::Dword, true) => ValueType::I32,
+                (crate::Size::Dword, false) => ValueType::U32,
+                (_, true) => ValueType::I16,
+                _ => ValueType::U16,
+            },
+            low_first: false,
+        })
+    }
+
+    /// The registers that hold `raw` (the parameter's raw integer) of parameter `def`, in wire
+    /// order; an f32 parameter holds the value in its unit.
+    pub fn param_words(&self, def: &ParamDef, raw: i64) -> Vec<u16> {
+        let c = self.param_coding(def);
+        let v = if c.kind == ValueType::F32 { def.from_raw(raw) } else { raw as f64 };
+        c.kind.encode(v, c.low_first)
+    }
+
+    /// The raw integer of parameter `def` from its registers (an f32 rounded to the
+    /// parameter's scale).
+    pub fn param_raw(&self, def: &ParamDef, words: &[u16]) -> i64 {
+        let c = self.param_coding(def);
+        let v = c.kind.decode(words, c.low_first);
+        if c.kind == ValueType::F32 {
+            (v * 10f64.powi(i32::from(def.scale))).round() as i64
+        } else {
+            v as i64
+        }
+    }
+
     /// The serial defaults on `protocol`.
     pub fn serial_default(&self, protocol: WireProtocol) -> (u32, CharFormat) {
         let format = self
@@ -371,6 +406,15 @@ impl Template {
             .map_or(CharFormat::NONE_8N1, |(_, f)| *f);
         (self.baud, format)
     }
+}
+
+/// How a parameter is coded in its registers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ParamCoding {
+    /// Its type.
+    pub kind: ValueType,
+    /// Two-register values: the low word comes first.
+    pub low_first: bool,
 }
 
 /// A template file that cannot be used: every error found, each with its line.

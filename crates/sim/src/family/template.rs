@@ -211,16 +211,13 @@ impl State {
                     Some(k) => i64::from(self.logged_fault(k)),
                     None => self.core.params.get(d.number).unwrap_or(d.default),
                 };
-                if d.size == drivebus_drive::Size::Dword {
-                    (raw >> 16) as u16
-                } else {
-                    raw as u16
-                }
+                self.template.param_words(d, raw)[0]
             } else if let Some(d) = r.checked_sub(1).and_then(|p| catalog.by_number(u32::from(p))) {
                 if d.size != drivebus_drive::Size::Dword {
                     return Err(ILLEGAL_ADDRESS);
                 }
-                self.core.params.get(d.number).unwrap_or(d.default) as u16
+                let raw = self.core.params.get(d.number).unwrap_or(d.default);
+                self.template.param_words(d, raw)[1]
             } else {
                 return Err(ILLEGAL_ADDRESS);
             };
@@ -255,12 +252,7 @@ impl State {
         if values.len() != words {
             return Err(ILLEGAL_ADDRESS);
         }
-        let raw = match (words, def.min < 0) {
-            (2, true) => ValueType::I32.decode(values, false),
-            (2, false) => ValueType::U32.decode(values, false),
-            (_, true) => ValueType::I16.decode(values, false),
-            _ => ValueType::U16.decode(values, false),
-        } as i64;
+        let raw = t.param_raw(&def, values);
         let running = self.core.model.is_running();
         self.core.params.set(def.name.as_str(), raw, Storage::Eeprom, running).map_err(|e| match e {
             WriteError::UnknownParameter { .. }

@@ -576,3 +576,21 @@ fn f32_and_low_word_first_parameters_are_read_and_written_in_their_coding() {
         "{e}"
     );
 }
+
+#[test]
+fn the_acs550_template_reads_its_status_in_four_requests() {
+    let family: Family = "abb-acs550".parse().expect("shipped");
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 1)
+            .unwrap();
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    // 40004 status word; 40103..40104; 40106..40107; 40401: registers that do not touch are
+    // never merged.
+    assert_eq!(spans, [(3, 1), (102, 2), (105, 2), (400, 1)]);
+    let mut line = template_line(family, 1);
+    let mut replied = 0;
+    let (r, sent) = run_counting::<ModbusRtu>(&mut line, &p, &Operation::Status, &mut replied);
+    support::status_of("status", r);
+    let asked: usize = sent.iter().map(Vec::len).sum();
+    assert_eq!((asked, replied), (32, 32), "4 x 8 bytes asked; 7 + 9 + 9 + 7 bytes replied");
+}

@@ -330,8 +330,9 @@ fn round_trip(family: Family) {
     wait(&mut line, Duration::from_secs(30));
     let s = status_on(&mut line, &*p);
     assert!(s.running, "{family}: {s:?}");
-    let out = s.output_hz.expect("output_hz");
-    assert!((out - half).abs() <= 0.05, "{family}: at {half} Hz: {s:?}");
+    // A template without output_hz: the simulated drive's own output frequency.
+    let out = s.output_hz.unwrap_or_else(|| drive_mut(&mut line, 1).core_mut().model.output_hz());
+    assert!((out - half).abs() <= 0.05, "{family}: at {half} Hz: {s:?} ({out} Hz)");
     if t.command.as_ref().is_some_and(|c| c.reverse.is_some()) && t.status.reverse.is_some() {
         support::done("reverse", on(&mut line, &*p, Operation::Reverse));
         wait(&mut line, Duration::from_secs(60));
@@ -578,19 +579,21 @@ fn f32_and_low_word_first_parameters_are_read_and_written_in_their_coding() {
 }
 
 #[test]
-fn the_acs550_template_reads_its_status_in_four_requests() {
+fn the_acs550_template_reads_its_status_in_two_requests() {
     let family: Family = "abb-acs550".parse().expect("shipped");
     let p =
         template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 1)
             .unwrap();
     let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
-    // 40004 status word; 40103..40104; 40106..40107; 40401: registers that do not touch are
-    // never merged.
-    assert_eq!(spans, [(3, 1), (102, 2), (105, 2), (400, 1)]);
+    // 40004 status word and 40401 LAST FAULT: the operating data 40103... are left out (their
+    // resolutions were not confirmed from a public page).
+    assert_eq!(spans, [(3, 1), (400, 1)]);
     let mut line = template_line(family, 1);
     let mut replied = 0;
     let (r, sent) = run_counting::<ModbusRtu>(&mut line, &p, &Operation::Status, &mut replied);
-    support::status_of("status", r);
+    let s = support::status_of("status", r);
+    assert!(s.values.is_empty(), "no named values: {s:?}");
+    assert_eq!(s.output_hz, None, "{s:?}");
     let asked: usize = sent.iter().map(Vec::len).sum();
-    assert_eq!((asked, replied), (32, 32), "4 x 8 bytes asked; 7 + 9 + 9 + 7 bytes replied");
+    assert_eq!((asked, replied), (16, 14), "2 x 8 bytes asked; 7 + 7 bytes replied");
 }

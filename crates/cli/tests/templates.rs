@@ -75,12 +75,18 @@ fn template_check_reports_every_error_with_its_line() {
 
 #[test]
 fn a_template_given_with_template_is_a_drive_kind() {
-    // The shipped generic template under another kind's name, from a file of the user's.
+    // The shipped generic template under another kind's name, from a file of the user's, with a
+    // named value.
     let dir = std::env::temp_dir().join(format!("drivebus-template-kind-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("my-vfd.toml");
     let text = std::fs::read_to_string(repo().join("templates/generic-2000h.toml")).unwrap();
-    std::fs::write(&file, text.replace("kind = \"generic-2000h\"", "kind = \"my-vfd\"")).unwrap();
+    let text = text.replace("kind = \"generic-2000h\"", "kind = \"my-vfd\"");
+    std::fs::write(
+        &file,
+        format!("{text}\n[values]\ndc_bus_v = {{ register = 0x2105, scale = 0.1, unit = \"V\" }}\n"),
+    )
+    .unwrap();
     let file = file.to_str().unwrap().to_string();
 
     let sim = simulate("generic@4", &["--modbus-tcp", "127.0.0.1:0"]);
@@ -105,6 +111,20 @@ fn a_template_given_with_template_is_a_drive_kind() {
     let o = run(&["param", "get", "P0.04"]);
     ok(&o, "param get");
     assert!(o.stdout.contains("50.00 Hz"), "{}", o.stdout);
+    // The [values] the user's file adds: 2105H, the DC bus in 0.1 V.
+    let o = run(&["status", "--json"]);
+    ok(&o, "status");
+    let s: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(s["values"]["dc_bus_v"]["unit"], "V", "{s}");
+    let dc = s["values"]["dc_bus_v"]["value"].as_f64().unwrap_or_default();
+    assert!((500.0..520.0).contains(&dc), "about 1.35 x 380 V: {s}");
+    let o = run(&["status"]);
+    ok(&o, "status");
+    assert!(
+        o.stdout.lines().any(|l| l.trim_start().starts_with("dc_bus_v") && l.ends_with(" V")),
+        "{}",
+        o.stdout
+    );
     // Without --template the kind is unknown.
     let o = drivebus(&port, "my-vfd", Some("modbus-tcp"), 4, &["status"]);
     assert_eq!(o.code, 3);
@@ -212,4 +232,22 @@ fn scan_auto_tries_the_templates_after_the_built_in_families() {
     ]));
     assert!(!o.stdout.contains("fan-b1"), "{}", o.stdout);
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_shipped_template_needs_no_template_flag_and_shows_its_history() {
+    // abb-acs550 is shipped: the simulator and the commands know it without --template.
+    let sim = simulate("abb-acs550@2", &["--modbus-tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    let o = drivebus(&port, "abb-acs550", Some("modbus-tcp"), 2, &["status", "--json"]);
+    ok(&o, "status");
+    let s: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(s["fault"], serde_json::Value::Null, "{s}");
+    // No named values: the template leaves out what no public page gave the scale of.
+    assert_eq!(s["values"], serde_json::Value::Null, "{s}");
+    let o = drivebus(&port, "abb-acs550", Some("modbus-tcp"), 2, &["trips", "--json"]);
+    ok(&o, "trips");
+    let t: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(t["history"], serde_json::json!([]), "no trip yet: {t}");
+    assert!(t["source"].as_str().is_some_and(|s| s.contains("fault_history 0401, 0412, 0413")), "{t}");
 }

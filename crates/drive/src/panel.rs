@@ -83,6 +83,7 @@ mod tests {
             setpoint_hz: Some(set),
             current_a: None,
             fault: None,
+            values: Vec::new(),
         }
     }
 

@@ -98,7 +98,8 @@ fn set_speed_then_run_ramps_and_status_shows_it() {
                 output_hz: Some(0.0),
                 setpoint_hz: Some(40.0),
                 current_a: Some(0.0),
-                fault: None
+                fault: None,
+                values: Vec::new()
             }),
             "T".into()
         )

@@ -122,7 +122,8 @@ fn first_status_reads_the_scale_then_one_telegram() {
             output_hz: Some(0.0),
             setpoint_hz: Some(0.0),
             current_a: Some(0.0),
-            fault: None
+            fault: None,
+            values: Vec::new()
         }
     );
     // The setpoint is known now: one telegram per status.

@@ -25,6 +25,7 @@ fn view(id: &str, hz: f64, time_ms: i64) -> DriveView {
         setpoint_hz: Some(50.0),
         current_a: Some(hz / 5.0),
         fault: None,
+        values: Default::default(),
         age_ms: Some(0),
         last_seen_ms: Some(time_ms),
         error_rate: 0.0,

@@ -23,6 +23,7 @@ fn view(last_seen_ms: Option<i64>, age_ms: Option<u64>, online: Option<bool>) ->
         setpoint_hz: Some(0.0),
         current_a: Some(0.0),
         fault: None,
+        values: Default::default(),
         age_ms,
         last_seen_ms,
         error_rate: 0.0,

@@ -34,6 +34,9 @@ reverse = { register = 100, bit = 1 }
 output_hz = { register = 101, scale = 0.1 }
 current_a = { register = 102, scale = 0.01 }
 fault = { register = 103 }
+[values]
+dc_bus_v = { register = 104, unit = "V" }
+power_kw = { register = 105, scale = 0.1, unit = "kW" }
 [command]
 register = 200
 run = { bit = 0 }
@@ -114,6 +117,11 @@ async fn templated_drives_are_polled_commanded_and_shown_like_any_drive() {
     let json: serde_json::Value = serde_json::from_slice(&body).unwrap();
     assert_eq!(json["family"], "gw-bits", "{json}");
     assert_eq!(json["output_hz"], 30.0, "{json}");
+    // Its named values, with their units.
+    assert_eq!(json["values"]["dc_bus_v"]["unit"], "V", "{json}");
+    let dc = json["values"]["dc_bus_v"]["value"].as_f64().unwrap_or_default();
+    assert!((400.0..700.0).contains(&dc), "the simulated DC bus: {json}");
+    assert_eq!(json["values"]["power_kw"]["unit"], "kW", "{json}");
 
     // The unified Modbus TCP map: status word running, 30.00 Hz, family 5 (a template kind).
     let unit = gw.drive("fan").unwrap().config.unit_id;
@@ -166,4 +174,46 @@ async fn a_templated_drive_is_backed_up_compared_and_restored() {
     let other = gw.backup("pump", "test").await.expect("the pump's backup");
     let e = gw.restore("fan", &other, &dry, "test", "test").await.expect_err("another kind");
     assert!(e.to_string().contains("generic-2000h"), "{e}");
+}
+
+/// GET `path` on the gateway's HTTP API (anonymous reads allowed): the JSON answer.
+async fn get_json(gw: &Arc<Gateway>, path: &str) -> serde_json::Value {
+    let app = drivebus_gateway::http::router(gw.clone())
+        .layer(MockConnectInfo(SocketAddr::from(([127, 0, 0, 1], 40000))));
+    let r = app.oneshot(Request::get(path).body(Body::empty()).unwrap()).await.unwrap();
+    let body = r.into_body().collect().await.unwrap().to_bytes();
+    serde_json::from_slice(&body).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_shipped_template_shows_its_fault_history() {
+    // abb-acs550 is shipped: no `templates = [...]` line.
+    let text = "[store]\ndisabled = true\n[http]\nanonymous_read = true\n\
+         [[bus]]\nname = \"b\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"acs\"\nfamily = \"abb-acs550\"\naddress = 1\npoll_ms = 100\n";
+    let gw =
+        Gateway::start(GatewayConfig::from_toml("plant.toml", text).unwrap_or_else(|e| panic!("{e}")), None)
+            .unwrap();
+    let view = |id: &str| gw.drive_view(&gw.drive(id).unwrap());
+    wait_for("acs online", Duration::from_secs(20), || view("acs").online == Some(true)).await;
+    let json = get_json(&gw, "/api/drives/acs").await;
+    // Its template gives no named values (their scales were not confirmed): none shown.
+    assert_eq!(json["values"], serde_json::Value::Null, "{json}");
+
+    // A trip, then a reset: 0401 keeps the code, the drive is no longer tripped, the history has it.
+    let bus = gw.buses().iter().find(|b| b.config.name == "b").unwrap().clone();
+    {
+        let mut line = bus.line.as_ref().unwrap().lock().unwrap();
+        let port = (0..=line.devices()).find(|&p| line.drive(p).is_some()).unwrap();
+        line.drive_mut(port).unwrap().core_mut().model.trip_now(drivebus_sim::model::Trip::OverCurrent);
+    }
+    wait_for("the trip seen", Duration::from_secs(20), || view("acs").fault.is_some()).await;
+    assert_eq!(view("acs").fault.unwrap().text, "over-current (OVERCURRENT)");
+    gw.command("acs", Command::Reset, "test").await.expect("reset");
+    wait_for("the fault cleared", Duration::from_secs(20), || view("acs").fault.is_none()).await;
+    let trips = get_json(&gw, "/api/drives/acs/trips").await;
+    assert_eq!(trips["current"], serde_json::Value::Null, "{trips}");
+    assert_eq!(trips["history"][0]["code"], 1, "{trips}");
+    assert_eq!(trips["history"][0]["text"], "over-current (OVERCURRENT)", "{trips}");
+    assert!(trips["source"].as_str().is_some_and(|s| s.contains("0401, 0412, 0413")), "{trips}");
 }

@@ -298,6 +298,7 @@ pub fn panel_display<D: VirtualDrive + ?Sized>(drive: &D) -> String {
         setpoint_hz: Some(m.setpoint_hz()),
         current_a: None,
         fault,
+        values: Vec::new(),
     };
     panel::display(family, &status)
 }

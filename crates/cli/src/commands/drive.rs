@@ -164,7 +164,7 @@ pub(crate) fn runtime() -> Result<tokio::runtime::Runtime> {
 }
 
 pub(crate) fn status_json(s: &DriveStatus) -> Value {
-    json!({
+    let mut out = json!({
         "address": s.address,
         "running": s.running,
         "direction": s.direction,
@@ -172,7 +172,13 @@ pub(crate) fn status_json(s: &DriveStatus) -> Value {
         "setpoint_hz": s.setpoint_hz,
         "current_a": s.current_a,
         "fault": s.fault.as_ref().map(|f| json!({"code": f.code, "text": f.text})),
-    })
+    });
+    // A template's `[values]`, by name, where it gives any.
+    if !s.values.is_empty() {
+        out["values"] =
+            s.values.iter().map(|v| (v.name.clone(), json!({"value": v.value, "unit": v.unit}))).collect();
+    }
+    out
 }
 
 fn opt(v: Option<f64>, unit: &str, d: usize) -> String {
@@ -196,6 +202,9 @@ pub fn status(t: &Target) -> Result<u8> {
             match &s.fault {
                 Some(f) => println!("  fault      {} ({})", f.code, f.text),
                 None => println!("  fault      none"),
+            }
+            for v in &s.values {
+                println!("  {:<10} {} {}", v.name, v.value, v.unit);
             }
             let st = drive.bus().stats();
             println!(

@@ -551,6 +551,7 @@ mod tests {
             setpoint_hz: Some(40.0),
             current_a: Some(amps),
             fault,
+            values: Vec::new(),
         }
     }
 

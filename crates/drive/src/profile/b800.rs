@@ -449,6 +449,7 @@ impl B800Plan {
             setpoint_hz: *self.setpoint(),
             current_a: if off { Some(0.0) } else { self.current_a },
             fault,
+            values: Vec::new(),
         }))
     }
 }

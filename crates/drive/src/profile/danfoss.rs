@@ -981,6 +981,7 @@ impl FcPlan {
                     setpoint_hz: memory.setpoint_hz,
                     current_a: self.current_a,
                     fault,
+                    values: Vec::new(),
                 }))
             }
         }

@@ -818,6 +818,7 @@ fn status_of(unit: u8, s: &StatusRead, current: u16) -> DriveStatus {
         setpoint_hz: Some(f64::from(s.set) / 100.0),
         current_a: Some(f64::from(current) / 10.0),
         fault: (s.fault != 0).then(|| Fault { code: u32::from(s.fault), text: fault_text(s.fault) }),
+        values: Vec::new(),
     }
 }
 

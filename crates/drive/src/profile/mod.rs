@@ -77,6 +77,20 @@ pub struct DriveStatus {
     pub current_a: Option<f64>,
     /// The fault in force, if any.
     pub fault: Option<Fault>,
+    /// Values beyond these, by name, where the drive kind gives them (a template's `[values]`:
+    /// DC-bus voltage, power, temperature, ...); empty for the built-in families.
+    pub values: Vec<NamedValue>,
+}
+
+/// A status value beyond the six every drive has: `dc_bus_v = 560 V`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct NamedValue {
+    /// Its name (`dc_bus_v`).
+    pub name: String,
+    /// The value, in `unit`.
+    pub value: f64,
+    /// Its unit (`V`), or empty.
+    pub unit: String,
 }
 
 /// `x` rounded to `places` decimals: a value at the resolution the drive reports it, without

@@ -1005,6 +1005,7 @@ fn status_of(address: u8, m: &Monitors, rated_current: u32) -> DriveStatus {
         current_a: (rated_current > 0)
             .then(|| super::round_to(f64::from(m.fe03) * f64::from(rated_current) / 100_000.0, 2)),
         fault: (tripped || code != 0).then(|| Fault { code: u32::from(code), text: trip_text(code) }),
+        values: Vec::new(),
     }
 }
 

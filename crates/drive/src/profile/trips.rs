@@ -10,6 +10,7 @@
 //! | toshiba | FC90 (status) | FE10–FE13 past trips 1–4 (FE10 the newest, with FE00 output frequency at the trip) |
 //! | danfoss | 15-30[0] (status) | 15-30 Alarm Log, elements 0–9 (0 the newest) |
 //! | b800 | `t` status, high byte | none: F-13 keeps the last four trips, but the protocol has no parameter access |
+//! | a template | `status.fault` (with `tripped`, only while it is set) | the `fault_history` parameters, newest first |
 //!
 //! A drive that logs the trip in force shows it as the newest entry of its history too.
 //!
@@ -73,7 +74,7 @@ pub fn source(family: Family) -> &'static str {
         Family::B800 => {
             "the t status (trip in force) only: the protocol has no parameter access, F-13 (last four trips) is on the keypad"
         }
-        Family::Template(_) => "the fault in force only: a template gives no fault history yet",
+        Family::Template(id) => crate::template::kinds::history_source(id),
     }
 }
 
@@ -84,7 +85,8 @@ pub fn history_reads(family: Family) -> Vec<String> {
         Family::Generic => ["P4.00", "P4.01", "P4.02", "P4.03"].map(String::from).to_vec(),
         Family::Toshiba => ["FE10", "FE11", "FE12", "FE13", "FE00"].map(String::from).to_vec(),
         Family::Danfoss => (0..10).map(|i| format!("15-30[{i}]")).collect(),
-        Family::B800 | Family::Template(_) => Vec::new(),
+        Family::B800 => Vec::new(),
+        Family::Template(_) => family.template().map_or_else(Vec::new, |t| t.fault_history.clone()),
     }
 }
 
@@ -92,6 +94,19 @@ pub fn history_reads(family: Family) -> Vec<String> {
 /// [`history_reads`] (in that order; missing values count as 0, "no trip").
 pub fn history_of(family: Family, status: &DriveStatus, raws: &[i64]) -> TripHistory {
     let raw = |i: usize| raws.get(i).copied().unwrap_or(0);
+    if let Some(t) = family.template() {
+        // A template's `fault_history`: codes only, newest first, the template's texts.
+        let entries = (0..t.fault_history.len())
+            .map(raw)
+            .filter(|&code| code != 0)
+            .enumerate()
+            .map(|(i, code)| {
+                let code = u32::try_from(code).unwrap_or(0);
+                TripEntry { index: i + 1, code, text: t.fault_text(code), output_hz: None, current_a: None }
+            })
+            .collect();
+        return TripHistory { current: status.fault.clone(), entries, source: source(family) };
+    }
     // The value in units of catalog parameter `name`, as the catalog scales it.
     let scaled = |name: &str, raw: i64| {
         Catalog::load(family)

@@ -10,8 +10,8 @@ use toml::Spanned;
 
 use super::file::{FileCommandValue, FileParam, FileTemplate, FileValue};
 use super::{
-    Checked, CommandMap, CommandValue, RegisterTable, RegisterValue, SetpointMap, StatusMap, Template,
-    TemplateError, ValueType,
+    Checked, CommandMap, CommandValue, ExtraValue, ParamCoding, RegisterTable, RegisterValue, SetpointMap,
+    StatusMap, Template, TemplateError, ValueType,
 };
 use crate::{Choice, Family, ParamDef, Size, Storage};
 
@@ -165,8 +165,14 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
 
     let mut status = StatusMap::default();
     for (name, v) in raw.status.get_ref() {
-        let flag = matches!(name.as_str(), "running" | "reverse");
-        let value = value(e, name, v, flag);
+        let flag = is_flag(name);
+        let value = value(e, &format!("status.{name}"), v, flag);
+        if let Some(u) = &v.get_ref().unit {
+            e.at(
+                u.span(),
+                format!("status.{name}: a unit is for [values]; the six status values have theirs"),
+            );
+        }
         match status.slot(name) {
             Some(slot) => *slot = value,
             None => e.at(v.span(), format!("status value {name:?}: use {}", StatusMap::NAMES.join(", "))),
@@ -175,11 +181,54 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
     if status.running.is_none() && status.output_hz.is_none() {
         e.at(raw.status.span(), "[status] gives neither running nor output_hz: a drive's state needs one");
     }
-    check_flag_bits(e, raw.status.get_ref());
+    let mut extra = Vec::new();
+    if let Some(values) = &raw.values {
+        for (name, v) in values.get_ref() {
+            let good = !name.is_empty()
+                && name.len() <= 40
+                && name.bytes().all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_')
+                && name.as_bytes()[0].is_ascii_lowercase();
+            if !good {
+                e.at(v.span(), format!("value {name:?}: use lower-case letters, digits and _ (a letter first), with its unit last: dc_bus_v, power_kw"));
+                continue;
+            }
+            if StatusMap::NAMES.contains(&name.as_str()) {
+                e.at(v.span(), format!("value {name:?} is a [status] value: give it there"));
+                continue;
+            }
+            let what = format!("values.{name}");
+            let Some(value) = value(e, &what, v, false) else { continue };
+            let unit = v.get_ref().unit.as_ref().map_or(String::new(), |u| u.get_ref().trim().to_string());
+            extra.push(ExtraValue { name: name.clone(), unit, value });
+        }
+    }
+    status.extra = extra;
+    let mut all: Vec<(String, &Spanned<FileValue>)> =
+        raw.status.get_ref().iter().map(|(n, v)| (n.clone(), v)).collect();
+    if let Some(values) = &raw.values {
+        all.extend(values.get_ref().iter().map(|(n, v)| (format!("values.{n}"), v)));
+    }
+    check_flag_bits(e, &all);
 
-    let params = params(e, &raw.param);
+    let (params, param_codings) = params(e, &raw.param);
     let command = raw.command.as_ref().map(|c| command(e, c));
     let setpoint = raw.setpoint.as_ref().map(|s| setpoint(e, s, &params));
+    let mut fault_history = Vec::new();
+    for name in &raw.fault_history {
+        match params.iter().find(|d| d.name.eq_ignore_ascii_case(name.get_ref())) {
+            Some(d) => fault_history.push(d.name.clone()),
+            None => e.at(
+                name.span(),
+                format!(
+                    "fault_history: {:?} is not one of the template's parameters: list the [[param]]s holding the last faults, newest first",
+                    name.get_ref()
+                ),
+            ),
+        }
+    }
+    if !raw.fault_history.is_empty() && status.fault.is_none() {
+        e.at(raw.fault_history[0].span(), "fault_history needs status.fault: the codes are the fault list's");
+    }
     let mut faults = BTreeMap::new();
     if let Some(f) = &raw.faults {
         for (code, text) in f.get_ref() {
@@ -212,7 +261,9 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
         command,
         setpoint,
         params,
+        param_codings,
         faults,
+        fault_history,
         file: file.to_string(),
     }
 }
@@ -305,9 +356,14 @@ fn decimals(scale: f64) -> i32 {
     ((-scale.abs().log10()) - 1e-9).ceil().clamp(0.0, 9.0) as i32
 }
 
-fn value(e: &mut Errors<'_>, name: &str, v: &Spanned<FileValue>, flag: bool) -> Option<RegisterValue> {
+/// Whether the `[status]` value `name` is a flag (a bit, or any value but zero).
+fn is_flag(name: &str) -> bool {
+    matches!(name, "running" | "reverse" | "tripped")
+}
+
+fn value(e: &mut Errors<'_>, what: &str, v: &Spanned<FileValue>, flag: bool) -> Option<RegisterValue> {
     let f = v.get_ref();
-    let what = format!("status.{name}");
+    let what = what.to_string();
     let kind = value_type(e, &what, &f.kind);
     let reg = register(e, &what, &f.register, kind.words());
     let table = match f.table.as_ref().map(|t| t.get_ref().as_str()) {
@@ -327,7 +383,10 @@ fn value(e: &mut Errors<'_>, name: &str, v: &Spanned<FileValue>, flag: bool) -> 
         Some(b) => {
             let width = 16 * i64::from(kind.words());
             if !flag {
-                e.at(b.span(), format!("{what}: a bit makes a flag; only running and reverse are flags"));
+                e.at(
+                    b.span(),
+                    format!("{what}: a bit makes a flag; only running, reverse and tripped are flags"),
+                );
                 None
             } else if kind == ValueType::F32 || !(0..width).contains(b.get_ref()) {
                 e.at(
@@ -357,13 +416,15 @@ fn value(e: &mut Errors<'_>, name: &str, v: &Spanned<FileValue>, flag: bool) -> 
 }
 
 /// Two flags on the same bit of the same register, or two numbers in the same register.
-fn check_flag_bits(e: &mut Errors<'_>, status: &BTreeMap<String, Spanned<FileValue>>) {
+fn check_flag_bits(e: &mut Errors<'_>, status: &[(String, &Spanned<FileValue>)]) {
     let mut numbers: HashMap<(i64, String), &str> = HashMap::new();
-    let mut by_place: Vec<_> = status.iter().collect();
+    let mut by_place: Vec<_> = status.iter().map(|(n, v)| (n, *v)).collect();
     by_place.sort_by_key(|(_, v)| v.span().start);
+    let label =
+        |name: &str| if name.starts_with("values.") { name.to_string() } else { format!("status.{name}") };
     for (name, v) in by_place {
         let f = v.get_ref();
-        if f.bit.is_some() || matches!(name.as_str(), "running" | "reverse") {
+        if f.bit.is_some() || is_flag(name) {
             continue;
         }
         let words = match f.kind.as_ref().map(|k| k.get_ref().as_str()) {
@@ -373,13 +434,13 @@ fn check_flag_bits(e: &mut Errors<'_>, status: &BTreeMap<String, Spanned<FileVal
         let table = f.table.as_ref().map_or("holding".to_string(), |t| t.get_ref().clone());
         for r in *f.register.get_ref()..*f.register.get_ref() + words {
             if let Some(other) = numbers.insert((r, table.clone()), name) {
-                e.at(f.register.span(), format!("status.{name}: register {r} overlaps status.{other}'s"));
+                e.at(f.register.span(), format!("{}: register {r} overlaps {}'s", label(name), label(other)));
             }
         }
     }
     let mut seen: HashMap<(i64, String, i64), &str> = HashMap::new();
     // In file order: the later of two is the one reported.
-    let mut in_order: Vec<_> = status.iter().collect();
+    let mut in_order: Vec<_> = status.iter().map(|(n, v)| (n, *v)).collect();
     in_order.sort_by_key(|(_, v)| v.span().start);
     for (name, v) in in_order {
         let f = v.get_ref();
@@ -387,7 +448,7 @@ fn check_flag_bits(e: &mut Errors<'_>, status: &BTreeMap<String, Spanned<FileVal
         let table = f.table.as_ref().map_or("holding".to_string(), |t| t.get_ref().clone());
         let key = (*f.register.get_ref(), table, *bit.get_ref());
         if let Some(other) = seen.insert(key, name) {
-            e.at(bit.span(), format!("status.{name}: bit {} overlaps status.{other}'s", bit.get_ref()));
+            e.at(bit.span(), format!("{}: bit {} overlaps {}'s", label(name), bit.get_ref(), label(other)));
         }
     }
 }
@@ -484,8 +545,9 @@ fn setpoint(e: &mut Errors<'_>, s: &Spanned<super::file::FileSetpoint>, params: 
     SetpointMap { register: reg, kind, low_first, scale, max_hz, limit_params }
 }
 
-fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
+fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> (Vec<ParamDef>, BTreeMap<u32, ParamCoding>) {
     let mut out: Vec<ParamDef> = Vec::new();
+    let mut codings = BTreeMap::new();
     let mut registers: HashMap<u16, String> = HashMap::new();
     for p in raw {
         let f = p.get_ref();
@@ -500,12 +562,12 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             continue;
         }
         let kind = value_type(e, &what, &f.kind);
-        if kind == ValueType::F32 {
+        let low_first = word_order(e, &what, &f.word_order);
+        if low_first && kind.words() == 1 {
             e.at(
-                f.kind.as_ref().map(Spanned::span).unwrap_or_default(),
-                format!("{what}: f32 parameters are not read or written yet: use u16, i16, u32 or i32"),
+                f.word_order.as_ref().map(Spanned::span).unwrap_or_default(),
+                format!("{what}: word_order is for the 32-bit types (u32, i32, f32), not {kind:?}"),
             );
-            continue;
         }
         let reg = register(e, &what, &f.register, kind.words());
         for r in reg..reg.saturating_add(kind.words()) {
@@ -533,6 +595,7 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             ValueType::U16 => (0, 0xFFFF),
             ValueType::I16 => (i64::from(i16::MIN), i64::from(i16::MAX)),
             ValueType::U32 => (0, i64::from(u32::MAX)),
+            // An f32 holds the value itself; its raw integer (at the scale) is kept in an i32.
             _ => (i64::from(i32::MIN), i64::from(i32::MAX)),
         };
         if min > max {
@@ -583,6 +646,7 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             }
         }
         choices.sort_by_key(|c| c.value);
+        codings.insert(u32::from(reg), ParamCoding { kind, low_first });
         out.push(ParamDef {
             name,
             alias: None,
@@ -604,5 +668,5 @@ fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> Vec<ParamDef> {
             group: f.group.clone().unwrap_or_default(),
         });
     }
-    out
+    (out, codings)
 }

@@ -33,6 +33,12 @@ pub(super) struct FileTemplate {
     pub(super) param: Vec<Spanned<FileParam>>,
     #[serde(default)]
     pub(super) faults: Option<Spanned<BTreeMap<String, Spanned<String>>>>,
+    /// Parameters holding the last faults, newest first (`drivebus trips`).
+    #[serde(default)]
+    pub(super) fault_history: Vec<Spanned<String>>,
+    /// Status values beyond the six, by name (`dc_bus_v = { register = 106, unit = "V" }`).
+    #[serde(default)]
+    pub(super) values: Option<Spanned<BTreeMap<String, Spanned<FileValue>>>>,
 }
 
 /// `[serial]`: the factory serial settings.
@@ -67,6 +73,9 @@ pub(super) struct FileValue {
     pub(super) max: Option<Spanned<f64>>,
     #[serde(default)]
     pub(super) bit: Option<Spanned<i64>>,
+    /// The unit of a value under `[values]`.
+    #[serde(default)]
+    pub(super) unit: Option<Spanned<String>>,
 }
 
 /// A command: a value written to the command register, or a bit of the command word.
@@ -136,6 +145,8 @@ pub(super) struct FileParam {
     pub(super) unit: String,
     #[serde(default, rename = "type")]
     pub(super) kind: Option<Spanned<String>>,
+    #[serde(default)]
+    pub(super) word_order: Option<Spanned<String>>,
     #[serde(default)]
     pub(super) scale: Option<Spanned<f64>>,
     pub(super) range: Spanned<[f64; 2]>,

@@ -25,6 +25,8 @@ pub(crate) struct Kind {
     pub(crate) source: &'static str,
     pub(crate) protocols: &'static [WireProtocol],
     pub(crate) catalog: Arc<Catalog>,
+    /// What `drivebus trips` says the history comes from.
+    pub(crate) history_source: &'static str,
 }
 
 fn list() -> &'static RwLock<Vec<&'static Kind>> {
@@ -33,8 +35,10 @@ fn list() -> &'static RwLock<Vec<&'static Kind>> {
 }
 
 /// The templates shipped with drivebus (`templates/` at the repository root): file name and text.
-pub const SHIPPED: &[(&str, &str)] =
-    &[("templates/generic-2000h.toml", include_str!("../../../../templates/generic-2000h.toml"))];
+pub const SHIPPED: &[(&str, &str)] = &[
+    ("templates/generic-2000h.toml", include_str!("../../../../templates/generic-2000h.toml")),
+    ("templates/abb-acs550.toml", include_str!("../../../../templates/abb-acs550.toml")),
+];
 
 /// The shipped templates, registered on first use; an error names a shipped file that does not
 /// check (the crate's tests check every one, so it means a broken build).
@@ -84,6 +88,17 @@ fn register_one(template: Template) -> Result<Family, String> {
         source: Box::leak(template.source.clone().into_boxed_str()),
         protocols: Box::leak(template.protocols.clone().into_boxed_slice()),
         catalog: Arc::new(catalog),
+        history_source: Box::leak(
+            if template.fault_history.is_empty() {
+                "the fault in force only: the template gives no fault_history".to_string()
+            } else {
+                format!(
+                    "the template's status.fault (fault in force) and fault_history {} (newest first)",
+                    template.fault_history.join(", ")
+                )
+            }
+            .into_boxed_str(),
+        ),
         template,
     }));
     kinds.push(kind);
@@ -95,6 +110,11 @@ pub(crate) fn kind(id: KindId) -> &'static Kind {
     let kinds = list().read().unwrap_or_else(|p| p.into_inner());
     // A KindId is only ever made by `register`, for an entry that stays.
     kinds[usize::from(id.0)]
+}
+
+/// What the trip history of kind `id` comes from (`drivebus trips`).
+pub(crate) fn history_source(id: KindId) -> &'static str {
+    kind(id).history_source
 }
 
 /// The kind named `name` (any letter case), the shipped templates included.

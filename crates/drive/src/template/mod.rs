@@ -182,15 +182,32 @@ pub struct StatusMap {
     pub setpoint_hz: Option<RegisterValue>,
     /// Motor current, A.
     pub current_a: Option<RegisterValue>,
+    /// A flag set while the drive is tripped: where given, the fault code shows only while it is
+    /// set (a drive whose fault code register keeps the last fault after a reset).
+    pub tripped: Option<RegisterValue>,
+    /// The values beyond these (`[values]`: DC-bus voltage, power, temperature, ...), in the
+    /// file's name order.
+    pub extra: Vec<ExtraValue>,
+}
+
+/// A status value beyond the six every front end shows: its name, unit and register.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExtraValue {
+    /// The name (`dc_bus_v`), as views and `/api/drives` show it.
+    pub name: String,
+    /// Its unit (`V`), or empty.
+    pub unit: String,
+    /// Where it is and how it is coded.
+    pub value: RegisterValue,
 }
 
 impl StatusMap {
     /// The names a file may use under `[status]`.
-    pub const NAMES: [&'static str; 6] =
-        ["fault", "running", "reverse", "output_hz", "setpoint_hz", "current_a"];
+    pub const NAMES: [&'static str; 7] =
+        ["fault", "running", "reverse", "output_hz", "setpoint_hz", "current_a", "tripped"];
 
-    /// Every value given, with its name.
-    pub fn values(&self) -> impl Iterator<Item = (&'static str, &RegisterValue)> {
+    /// Every value given, with its name, the `[values]` ones last.
+    pub fn values(&self) -> impl Iterator<Item = (&str, &RegisterValue)> {
         [
             ("fault", &self.fault),
             ("running", &self.running),
@@ -198,9 +215,11 @@ impl StatusMap {
             ("output_hz", &self.output_hz),
             ("setpoint_hz", &self.setpoint_hz),
             ("current_a", &self.current_a),
+            ("tripped", &self.tripped),
         ]
         .into_iter()
         .filter_map(|(n, v)| v.as_ref().map(|v| (n, v)))
+        .chain(self.extra.iter().map(|e| (e.name.as_str(), &e.value)))
     }
 
     fn slot(&mut self, name: &str) -> Option<&mut Option<RegisterValue>> {
@@ -211,6 +230,7 @@ impl StatusMap {
             "output_hz" => &mut self.output_hz,
             "setpoint_hz" => &mut self.setpoint_hz,
             "current_a" => &mut self.current_a,
+            "tripped" => &mut self.tripped,
             _ => return None,
         })
     }
@@ -308,8 +328,12 @@ pub struct Template {
     pub setpoint: Option<SetpointMap>,
     /// The parameters (their `number` is the register).
     pub params: Vec<ParamDef>,
+    /// How each parameter is coded in its registers, by register.
+    pub param_codings: BTreeMap<u32, ParamCoding>,
     /// The fault codes and their text.
     pub faults: BTreeMap<u32, String>,
+    /// The parameters holding the last faults' codes, newest first (`fault_history`).
+    pub fault_history: Vec<String>,
     /// The file it was read from.
     pub file: String,
 }
@@ -339,6 +363,39 @@ impl Template {
             .unwrap_or_else(|| format!("fault code {code} (not in the template's fault list)"))
     }
 
+    /// How parameter `def` is coded in its registers (`type` and `word_order`).
+    pub fn param_coding(&self, def: &ParamDef) -> ParamCoding {
+        self.param_codings.get(&def.number).copied().unwrap_or(ParamCoding {
+            kind: match (def.size, def.min < 0) {
+                (crate::Size::Dword, true) => ValueType::I32,
+                (crate::Size::Dword, false) => ValueType::U32,
+                (_, true) => ValueType::I16,
+                _ => ValueType::U16,
+            },
+            low_first: false,
+        })
+    }
+
+    /// The registers that hold `raw` (the parameter's raw integer) of parameter `def`, in wire
+    /// order; an f32 parameter holds the value in its unit.
+    pub fn param_words(&self, def: &ParamDef, raw: i64) -> Vec<u16> {
+        let c = self.param_coding(def);
+        let v = if c.kind == ValueType::F32 { def.from_raw(raw) } else { raw as f64 };
+        c.kind.encode(v, c.low_first)
+    }
+
+    /// The raw integer of parameter `def` from its registers (an f32 rounded to the
+    /// parameter's scale).
+    pub fn param_raw(&self, def: &ParamDef, words: &[u16]) -> i64 {
+        let c = self.param_coding(def);
+        let v = c.kind.decode(words, c.low_first);
+        if c.kind == ValueType::F32 {
+            (v * 10f64.powi(i32::from(def.scale))).round() as i64
+        } else {
+            v as i64
+        }
+    }
+
     /// The serial defaults on `protocol`.
     pub fn serial_default(&self, protocol: WireProtocol) -> (u32, CharFormat) {
         let format = self
@@ -349,6 +406,15 @@ impl Template {
             .map_or(CharFormat::NONE_8N1, |(_, f)| *f);
         (self.baud, format)
     }
+}
+
+/// How a parameter is coded in its registers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ParamCoding {
+    /// Its type.
+    pub kind: ValueType,
+    /// Two-register values: the low word comes first.
+    pub low_first: bool,
 }
 
 /// A template file that cannot be used: every error found, each with its line.

@@ -8,7 +8,7 @@
 //! | Run / Stop / Jog / Reset | 06 write of the command value; in the bit form, the command word with the bit set (run, jog) or cleared (stop), reset as the bit set and then cleared |
 //! | Reverse | the direction (and running) read, then the opposite direction's command written |
 //! | SetSpeed | 06 (or 10 for a 32-bit register) write of the setpoint, scaled, after a check against `max_hz` or the lowest of `limit_params` |
-//! | ReadParam / WriteParam | 03 read / 06 write (10 for 32-bit parameters, high word first) of the parameter's register |
+//! | ReadParam / WriteParam | 03 read / 06 write (10 for 32-bit parameters, in the parameter's word order; an f32 holds the value in its unit) of the parameter's register |
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU16, Ordering};
@@ -19,7 +19,7 @@ use drivebus_proto::modbus::ExceptionCode;
 use super::{CommandValue, RegisterTable, RegisterValue, Template, ValueType};
 use crate::profile::generic::{self, ModbusAnswer, ModbusAsk, ModbusFraming};
 use crate::profile::{
-    CodeSpace, DriveError, DriveStatus, Exchange, Fault, Operation, Outcome, Plan, Profile, Step,
+    CodeSpace, DriveError, DriveStatus, Exchange, Fault, NamedValue, Operation, Outcome, Plan, Profile, Step,
     WireProtocol,
 };
 use crate::{format_fixed, Catalog, Family, ParamDef, Size};
@@ -319,8 +319,7 @@ impl Profile for TemplateProfile {
                 }
                 def.check(*raw).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
                 let start = u16::try_from(def.number).unwrap_or(0);
-                let kind = if def.size == Size::Dword { ValueType::U32 } else { ValueType::U16 };
-                let ask = write_words(start, &kind.encode(*raw as f64, false));
+                let ask = write_words(start, &self.template.param_words(def, *raw));
                 (vec![ask], Finish::Learn(def.number, *raw), format!("{} = {}", def.name, def.format(*raw)))
             }
         };
@@ -387,7 +386,8 @@ impl TemplatePlan {
         let num = |v: &Option<RegisterValue>| v.as_ref().and_then(|v| self.words_of(v).map(|w| v.value(&w)));
         let flag = |v: &Option<RegisterValue>| v.as_ref().and_then(|v| self.words_of(v).map(|w| v.flag(&w)));
         let output_hz = num(&s.output_hz);
-        let fault = num(&s.fault).map(|c| c as i64 as u32).filter(|&c| c != 0);
+        let tripped = flag(&s.tripped).unwrap_or(true);
+        let fault = num(&s.fault).map(|c| c as i64 as u32).filter(|&c| c != 0 && tripped);
         DriveStatus {
             address: self.unit,
             running: flag(&s.running).unwrap_or_else(|| output_hz.is_some_and(|hz| hz != 0.0)),
@@ -396,6 +396,17 @@ impl TemplatePlan {
             setpoint_hz: num(&s.setpoint_hz),
             current_a: num(&s.current_a),
             fault: fault.map(|code| Fault { code, text: self.template.fault_text(code) }),
+            values: s
+                .extra
+                .iter()
+                .filter_map(|x| {
+                    self.words_of(&x.value).map(|w| NamedValue {
+                        name: x.name.clone(),
+                        value: x.value.value(&w),
+                        unit: x.unit.clone(),
+                    })
+                })
+                .collect(),
         }
     }
 
@@ -480,13 +491,7 @@ impl TemplatePlan {
             Finish::Status => Outcome::Status(self.status()),
             Finish::Param(def) => {
                 let words = self.answers.last().cloned().unwrap_or_default();
-                let kind = match (def.size, def.min < 0) {
-                    (Size::Dword, true) => ValueType::I32,
-                    (Size::Dword, false) => ValueType::U32,
-                    (Size::Word, true) => ValueType::I16,
-                    (Size::Word, false) => ValueType::U16,
-                };
-                let raw = kind.decode(&words, false) as i64;
+                let raw = self.template.param_raw(def, &words);
                 self.learn(def.number, raw);
                 Outcome::Param(raw)
             }

@@ -2,6 +2,7 @@
 //! subscribers receive ([`Change`]), and an event as one log line ([`log_line`], from
 //! [`crate::log`]).
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use drivebus_link::owner::BusStats;
@@ -42,6 +43,10 @@ pub struct DriveView {
     pub current_a: Option<f64>,
     /// The fault in force.
     pub fault: Option<FaultView>,
+    /// Values beyond these, by name, where the drive gives them (a template's `[values]`:
+    /// `{"dc_bus_v": {"value": 560.0, "unit": "V"}}`); left out when there are none.
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub values: BTreeMap<String, ValueView>,
     /// Age of the values, ms (`null` before the first answer).
     pub age_ms: Option<u64>,
     /// When the drive last answered, unix ms.
@@ -57,6 +62,15 @@ pub struct DriveView {
     /// Where the values come from: `master` (this gateway polls the drive) or `standby` (it
     /// heard another gateway's polls of the drive; `[standby]`, writes refused).
     pub source: &'static str,
+}
+
+/// A named value as the API shows it.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ValueView {
+    /// The value, in `unit`.
+    pub value: f64,
+    /// Its unit (`V`), or empty.
+    pub unit: String,
 }
 
 /// A fault as the API shows it.
@@ -150,6 +164,14 @@ impl DriveView {
                 fault: st
                     .and_then(|x| x.fault.as_ref())
                     .map(|f| FaultView { code: f.code, text: f.text.clone() }),
+                values: st
+                    .map(|x| {
+                        x.values
+                            .iter()
+                            .map(|v| (v.name.clone(), ValueView { value: v.value, unit: v.unit.clone() }))
+                            .collect()
+                    })
+                    .unwrap_or_default(),
                 age_ms: s.updated.map(|t| t.elapsed().as_millis() as u64),
                 last_seen_ms: s.updated_ms,
                 error_rate: if s.polls == 0 { 0.0 } else { s.poll_errors as f64 / s.polls as f64 },

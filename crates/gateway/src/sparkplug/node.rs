@@ -567,6 +567,7 @@ mod tests {
             setpoint_hz: Some(40.0),
             current_a: Some(1.5),
             fault: None,
+            values: Default::default(),
             age_ms: Some(0),
             last_seen_ms: Some(1_000),
             error_rate: 0.0,

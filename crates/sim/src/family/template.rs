@@ -97,6 +97,21 @@ fn settings_of(t: &Template, params: &ParamStore) -> ModelSettings {
     s
 }
 
+/// The model's value for a template's `[values]` entry `name`, by the names docs/templates.md
+/// lists (`dc_bus_v`, `output_v`, `power_kw`, `heatsink_c`, `run_hours`, `motor_rpm`); 0 for
+/// any other.
+fn extra_value(m: &crate::model::DriveModel, name: &str) -> f64 {
+    match name {
+        "dc_bus_v" => m.dc_bus_v(),
+        "output_v" => m.output_v(),
+        "power_kw" => 3f64.sqrt() * m.output_v() * m.current_a() * 0.85 / 1000.0,
+        "heatsink_c" | "drive_temp_c" => m.heatsink_c(),
+        "run_hours" => m.run_hours(),
+        "motor_rpm" => m.motor_rpm(),
+        _ => 0.0,
+    }
+}
+
 /// The template's fault code for `trip`: the one whose text names it, else drivebus' number.
 fn fault_code(t: &Template, trip: Trip) -> u32 {
     let words: &[&str] = match trip {
@@ -127,19 +142,29 @@ impl State {
                 *regs.entry((table, register.wrapping_add(i as u16))).or_insert(0) |= w;
             }
         };
+        // A drive with a `tripped` flag keeps its last fault's code after a reset.
+        let fault = match s.tripped {
+            Some(_) => self.logged_fault(0),
+            None => m.trip().map_or(0, |t| fault_code(self.template, t)),
+        };
         let numbers = [
             (&s.output_hz, m.output_hz()),
             (&s.setpoint_hz, m.setpoint_hz()),
             (&s.current_a, m.current_a()),
-            (&s.fault, f64::from(m.trip().map_or(0, |t| fault_code(self.template, t)))),
+            (&s.fault, f64::from(fault)),
         ];
+        let extra = s.extra.iter().map(|x| (&x.value, extra_value(m, &x.name)));
+        let numbers = numbers.iter().filter_map(|(v, n)| v.as_ref().map(|v| (v, *n))).chain(extra);
         for (value, v) in numbers {
-            let Some(value) = value else { continue };
             let raw = (v - value.offset) / value.scale;
             let raw = if value.kind == ValueType::F32 { raw } else { raw.round() };
             put(value.table, value.register, value.kind.encode(raw, value.low_first));
         }
-        let flags = [(&s.running, m.is_running()), (&s.reverse, m.output_rotation() == Rotation::Reverse)];
+        let flags = [
+            (&s.running, m.is_running()),
+            (&s.reverse, m.output_rotation() == Rotation::Reverse),
+            (&s.tripped, m.trip().is_some()),
+        ];
         for (value, on) in flags {
             let Some(value) = value else { continue };
             let raw = match (value.bit, on) {
@@ -150,6 +175,11 @@ impl State {
             put(value.table, value.register, value.kind.encode(raw, value.low_first));
         }
         regs
+    }
+
+    /// The code of the `k`-th newest trip of the model's log (0: the newest), 0 where there is none.
+    fn logged_fault(&self, k: usize) -> u32 {
+        self.core.model.recent_trips().nth(k).map_or(0, |r| fault_code(self.template, r.trip))
     }
 
     /// Registers `start..start + quantity` of `table`, or the exception.
@@ -176,17 +206,18 @@ impl State {
             {
                 self.setpoint[usize::from(r - sp.register)]
             } else if let Some(d) = catalog.by_number(u32::from(r)) {
-                let raw = self.core.params.get(d.number).unwrap_or(d.default);
-                if d.size == drivebus_drive::Size::Dword {
-                    (raw >> 16) as u16
-                } else {
-                    raw as u16
-                }
+                let history = self.template.fault_history.iter().position(|n| *n == d.name);
+                let raw = match history {
+                    Some(k) => i64::from(self.logged_fault(k)),
+                    None => self.core.params.get(d.number).unwrap_or(d.default),
+                };
+                self.template.param_words(d, raw)[0]
             } else if let Some(d) = r.checked_sub(1).and_then(|p| catalog.by_number(u32::from(p))) {
                 if d.size != drivebus_drive::Size::Dword {
                     return Err(ILLEGAL_ADDRESS);
                 }
-                self.core.params.get(d.number).unwrap_or(d.default) as u16
+                let raw = self.core.params.get(d.number).unwrap_or(d.default);
+                self.template.param_words(d, raw)[1]
             } else {
                 return Err(ILLEGAL_ADDRESS);
             };
@@ -221,12 +252,7 @@ impl State {
         if values.len() != words {
             return Err(ILLEGAL_ADDRESS);
         }
-        let raw = match (words, def.min < 0) {
-            (2, true) => ValueType::I32.decode(values, false),
-            (2, false) => ValueType::U32.decode(values, false),
-            (_, true) => ValueType::I16.decode(values, false),
-            _ => ValueType::U16.decode(values, false),
-        } as i64;
+        let raw = t.param_raw(&def, values);
         let running = self.core.model.is_running();
         self.core.params.set(def.name.as_str(), raw, Storage::Eeprom, running).map_err(|e| match e {
             WriteError::UnknownParameter { .. }

@@ -126,13 +126,22 @@ impl Analyzer {
                     self.garbled += 1;
                 }
                 self.frames += 1;
-                out.push(Record { time, protocol, direction, frame, latency: None, request: None, kind: Kind::Frame });
+                out.push(Record {
+                    time,
+                    protocol,
+                    direction,
+                    frame,
+                    latency: None,
+                    request: None,
+                    kind: Kind::Frame,
+                });
                 return;
             }
         };
         self.frames += 1;
         let direction = frame.direction.unwrap_or(Direction::Master);
-        let mut record = Record { time, protocol, direction, frame, latency: None, request: None, kind: Kind::Frame };
+        let mut record =
+            Record { time, protocol, direction, frame, latency: None, request: None, kind: Kind::Frame };
         match direction {
             Direction::Master => {
                 if let Some(p) = self.pending.remove(protocol) {

@@ -451,4 +451,3 @@ fn set_quantity(field: &mut FieldReport, value: f64, unit: &str, decimals: usize
     field.json["value"] = json!(shown.parse::<f64>().unwrap_or(value));
     field.json["unit"] = json!(unit);
 }
-

@@ -32,6 +32,10 @@ use crate::role::{BusRole, RoleStatus, Transition};
 /// fails with [`BusError::Standby`] (the master polls something else, or nothing).
 const SHADOW_WAIT: Duration = Duration::from_secs(5);
 
+/// A bus that shares its line hears it in slices this long while no job waits (a job ends a
+/// slice at once).
+const IDLE_SLICE: Duration = Duration::from_millis(100);
+
 struct Job {
     address: u8,
     exchange: Exchange,
@@ -193,6 +197,11 @@ impl Bus {
     pub fn learnt_schedule(&self) -> HashMap<u8, Duration> {
         self.learnt.lock().unwrap_or_else(|p| p.into_inner()).schedule()
     }
+
+    /// The interval at which another master on the line was heard polling drive `address`.
+    pub fn learnt_interval(&self, address: u8) -> Option<Duration> {
+        self.learnt.lock().unwrap_or_else(|p| p.into_inner()).interval(address)
+    }
 }
 
 /// The listening side of a bus that shares its line: its role and what it hears.
@@ -273,7 +282,9 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         let _ = job.done.send(result);
                         continue;
                     }
-                    // Nothing waits: sleep until something comes.
+                    // Nothing waits: sleep until something comes. A bus that shares its line
+                    // hears it meanwhile, so what it learns is timed as it came.
+                    let listen = self.listening.is_some();
                     let woken = tokio::select! {
                         biased;
                         j = commands.recv() => match j {
@@ -287,6 +298,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         }
                         _ = on_demand.ready() => None,
                         Some(j) = scans.recv() => Some((j, Priority::Scan)),
+                        _ = self.hear_while_idle(), if listen => None,
                     };
                     if let Some((job, priority)) = woken {
                         let result = self.run_job(&job, priority).await;
@@ -393,6 +405,20 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             }
         }
         result
+    }
+
+    /// Hears the line for a moment ([`IDLE_SLICE`]) while no job waits.
+    async fn hear_while_idle(&mut self) {
+        if !self.link.is_open() {
+            if self.link.reopen().await.is_err() {
+                // Tried again after a while (a master's next job reopens it too).
+                tokio::time::sleep(IDLE_SLICE).await;
+                return;
+            }
+            self.engine.link_restored();
+        }
+        let until = self.link.now() + IDLE_SLICE;
+        let _ = self.hear_until(until, None).await;
     }
 
     /// Reads what the line carries until `deadline` (at least what has already come), telling

@@ -296,3 +296,33 @@ async fn a_standby_learns_values_health_and_schedule_from_a_master_that_polls_ot
     a_poll.abort();
     b_poll.abort();
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_that_polls_seldom_still_times_what_it_hears_as_it_came() {
+    let line = line();
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+    let master = a.clone();
+    let a_poll = tokio::spawn(async move {
+        loop {
+            let _ = master.transact(1, read(1, 0x2102), Priority::Poll, None).await;
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    });
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    // The standby has no poll for a while; then the master dies, and 300 ms later the standby
+    // polls: what it heard is at least 300 ms old, older than the master's interval, so it
+    // answers no poll; the poll is answered once the standby has taken the line and asked the
+    // drive itself.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    a_poll.abort();
+    drop(a);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(b.stats().transactions, 0);
+    let reply = b.transact(1, read(1, 0x2102), Priority::Poll, None).await.unwrap();
+    assert!(reply.is_some());
+    assert_eq!(b.role().unwrap().role, Role::Master);
+    assert!(b.stats().transactions >= 1, "answered by its own exchange, not by what it heard before");
+}

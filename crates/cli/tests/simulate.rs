@@ -230,6 +230,7 @@ fn several_masters_share_one_line_hear_each_other_and_garble_when_they_talk_at_o
     let s = stats();
     assert_eq!(s["garbled_frames"].as_u64(), Some(2), "{s}");
     assert!(s["collisions"].as_u64() > Some(0), "{s}");
+    assert_eq!(s["garbled_frames_by_master"], serde_json::json!([1, 1, 0]), "A's frame and B's: {s}");
 }
 
 #[test]

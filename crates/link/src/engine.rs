@@ -201,13 +201,6 @@ impl<P: Protocol> Engine<P> {
         }
     }
 
-    /// The link is lost (or was never opened) at session time `now` for `error`: the next job
-    /// reopens it first.
-    /// The protocol the session speaks.
-    pub(crate) fn protocol(&self) -> &P {
-        self.session.protocol()
-    }
-
     /// The bus's response timeout.
     pub(crate) fn response_timeout(&self) -> Duration {
         self.timing.response_timeout
@@ -218,6 +211,8 @@ impl<P: Protocol> Engine<P> {
         self.lost = None;
     }
 
+    /// The link is lost (or was never opened) at session time `now` for `error`: the next job
+    /// reopens it first.
     pub(crate) fn link_lost(&mut self, now: Instant, error: String) {
         let backoff = self.lost.as_ref().map_or_else(Backoff::new, |l| l.backoff);
         self.lost = Some(Lost { error, reopen_at: now, backoff });
@@ -502,7 +497,14 @@ impl<P: Protocol> Engine<P> {
         result
     }
 
-    fn record(&mut self, now: Instant, address: u8, ok: bool) {
+    /// False once drive `address` is offline (no answer `offline_after` times in a row).
+    pub(crate) fn online(&self, address: u8) -> bool {
+        self.health.lock().unwrap_or_else(|p| p.into_inner()).get(&address).map_or(true, |h| h.online)
+    }
+
+    /// Counts a transaction with drive `address` that ended at `now`, answered or not, into its
+    /// health (offline after `offline_after` failures in a row). A standby counts those it hears.
+    pub(crate) fn record(&mut self, now: Instant, address: u8, ok: bool) {
         let mut health = self.health.lock().unwrap_or_else(|p| p.into_inner());
         let h = health.entry(address).or_insert_with(|| Health { online: true, ..Health::default() });
         h.transactions += 1;

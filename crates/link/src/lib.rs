@@ -30,6 +30,7 @@ pub mod bus;
 pub mod drive;
 mod engine;
 pub mod fair;
+mod learn;
 pub mod link;
 pub mod listen;
 pub mod mbap;

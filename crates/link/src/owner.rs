@@ -23,13 +23,18 @@ use tokio::sync::{mpsc, oneshot, watch};
 pub use crate::bus::{BusConfig, BusError, BusStats, Health, Priority};
 use crate::engine::{with_engine, Action, Attempt, Engine, Next};
 use crate::fair::{OnDemand, Share, Turn};
+use crate::learn::Learnt;
 use crate::link::Link;
 use crate::overheard::{Heard, Overheard};
 use crate::role::{BusRole, RoleStatus, Transition};
 
-/// A standby's poll waits this long for the master to send the same request, then fails with
-/// [`BusError::Standby`] (the master polls something else, or nothing).
+/// A standby's poll waits this long to hear what answers it from the master's traffic, then
+/// fails with [`BusError::Standby`] (the master polls something else, or nothing).
 const SHADOW_WAIT: Duration = Duration::from_secs(5);
+
+/// A bus that shares its line hears it in slices this long while no job waits (a job ends a
+/// slice at once).
+const IDLE_SLICE: Duration = Duration::from_millis(100);
 
 /// A transaction waiting for the bus: to which drive, what, its timeout, and where its result
 /// goes.
@@ -63,6 +68,8 @@ pub struct Bus {
     ended: watch::Receiver<()>,
     /// The bus's role, when it shares the line with another gateway.
     role: Arc<Mutex<Option<RoleStatus>>>,
+    /// What the bus heard of another master's traffic.
+    learnt: Arc<Mutex<Learnt>>,
 }
 
 impl Bus {
@@ -80,9 +87,11 @@ impl Bus {
         let share = Share::new(config.on_demand.share);
         let od = on_demand.clone();
         let role_config = config.role;
-        let protocol = config.protocol;
+        let heard_config = config.clone();
         let role_status = Arc::new(Mutex::new(None));
         let status = role_status.clone();
+        let learnt = Arc::new(Mutex::new(Learnt::new(config.protocol)));
+        let learning = learnt.clone();
         with_engine!(config, stats.clone(), health.clone(), |engine| {
             let mut engine = engine;
             if !link.is_open() {
@@ -95,8 +104,8 @@ impl Bus {
                         .map_or(0, |d| d.as_nanos() as u64);
                 let role = BusRole::new(rc, link.now(), seed);
                 *status.lock().unwrap_or_else(|p| p.into_inner()) = Some(role.status(None));
-                let heard = Overheard::new(engine.protocol(), protocol, engine.response_timeout());
-                Listening { role, heard, status }
+                let heard = Overheard::new(&heard_config, engine.response_timeout());
+                Listening { role, heard, status, learnt: learning }
             });
             let owner = Owner { link, engine, rx_buf: Vec::new(), listening, _ended: ended_tx };
             tokio::spawn(owner.run(crx, brx, prx, srx, od, share));
@@ -112,6 +121,7 @@ impl Bus {
             name,
             ended,
             role: role_status,
+            learnt,
         })
     }
 
@@ -134,6 +144,7 @@ impl Bus {
         let name = link.name();
         let (ended_tx, ended) = watch::channel(());
         let on_demand = Arc::new(OnDemand::new(config.on_demand));
+        let config_protocol = config.protocol;
         let owner = crate::pipelined::Pipelined::new(link, config, stats.clone(), health.clone(), ended_tx);
         let queues = Queues { commands, bridged, polls, scans };
         tokio::spawn(owner.run(queues, on_demand.clone()));
@@ -148,6 +159,8 @@ impl Bus {
             name,
             ended,
             role: Arc::new(Mutex::new(None)),
+            // A pipelined bus masters its connection alone: nothing is heard, nothing learnt.
+            learnt: Arc::new(Mutex::new(Learnt::new(config_protocol))),
         })
     }
 
@@ -227,16 +240,37 @@ impl Bus {
     pub fn role(&self) -> Option<RoleStatus> {
         *self.role.lock().unwrap_or_else(|p| p.into_inner())
     }
+
+    /// The interval at which another master on the line was heard polling each drive
+    /// (by address); empty for the only master, or before anything was heard.
+    pub fn learnt_schedule(&self) -> HashMap<u8, Duration> {
+        self.learnt.lock().unwrap_or_else(|p| p.into_inner()).schedule()
+    }
+
+    /// The interval at which another master on the line was heard polling drive `address`.
+    pub fn learnt_interval(&self, address: u8) -> Option<Duration> {
+        self.learnt.lock().unwrap_or_else(|p| p.into_inner()).interval(address)
+    }
 }
 
 /// The listening side of a bus that shares its line: its role and what it hears.
-struct Listening<P: Protocol> {
+struct Listening {
     role: BusRole,
-    heard: Overheard<P>,
+    heard: Overheard,
     status: Arc<Mutex<Option<RoleStatus>>>,
+    learnt: Arc<Mutex<Learnt>>,
 }
 
-impl<P: Protocol> Listening<P> {
+/// What a standby's poll waits to hear: the answer to its request, made of what was heard since
+/// it began, or that the master got no answer from its drive.
+#[derive(Clone, Copy)]
+struct Want<'a> {
+    request: &'a [u8],
+    address: u8,
+    since: Instant,
+}
+
+impl Listening {
     fn publish(&self, last: Option<Transition>) {
         let mut s = self.status.lock().unwrap_or_else(|p| p.into_inner());
         let last = last.or(s.and_then(|s| s.last));
@@ -250,7 +284,7 @@ struct Owner<L: Link, P: Protocol> {
     /// The read buffer, kept between exchanges.
     rx_buf: Vec<u8>,
     /// With another gateway on the line: the role and the listener.
-    listening: Option<Listening<P>>,
+    listening: Option<Listening>,
     /// Dropped after the link (fields drop in order): tells [`Bus::close`] the link is closed.
     _ended: watch::Sender<()>,
 }
@@ -297,7 +331,9 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         let _ = job.done.send(result);
                         continue;
                     }
-                    // Nothing waits: sleep until something comes.
+                    // Nothing waits: sleep until something comes. A bus that shares its line
+                    // hears it meanwhile, so what it learns is timed as it came.
+                    let listen = self.listening.is_some();
                     let woken = tokio::select! {
                         biased;
                         j = commands.recv() => match j {
@@ -311,6 +347,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         }
                         _ = on_demand.ready() => None,
                         Some(j) = scans.recv() => Some((j, Priority::Scan)),
+                        _ = self.hear_while_idle(), if listen => None,
                     };
                     if let Some((job, priority)) = woken {
                         let result = self.run_job(&job, priority).await;
@@ -338,8 +375,10 @@ impl<L: Link, P: Protocol> Owner<L, P> {
     /// Runs `job` as the bus's role allows: the only master sends at once; a master that shares
     /// the line first hears what came since its last exchange (another master's request makes
     /// it yield) and waits out a pause after garbled traffic; a standby refuses commands and
-    /// answers a poll with the reply it hears to the same request from the master, unless the
-    /// line falls silent and it takes the line.
+    /// answers a poll from what it hears of the master's traffic ([`crate::learn`]), or with a
+    /// timeout when the master's request to that drive went unanswered (offline after
+    /// `offline_after` of them, as a polled drive), unless the line falls silent and it takes
+    /// the line.
     async fn run_job(&mut self, job: &Job, priority: Priority) -> Result<Option<Vec<u8>>, BusError> {
         if self.listening.is_none() {
             return self.job(job, priority).await;
@@ -355,7 +394,14 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             }
         }
         let now = self.link.now();
-        self.hear_until(now, None).await;
+        let _ = self.hear_until(now, None).await;
+        // A standby's poll is answered by what the master's last poll of that drive saw, and
+        // newer: heard since the poll began, or within the master's interval (at most the
+        // silence) before.
+        let since = self.listening.as_ref().map_or(now, |l| {
+            let every = l.learnt.lock().unwrap_or_else(|p| p.into_inner()).interval(job.address);
+            self.link.now() - every.unwrap_or(Duration::ZERO).min(l.role.silence())
+        });
         while let Some(l) = self.listening.as_mut() {
             if l.role.may_send() {
                 break;
@@ -367,9 +413,26 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             let start = self.link.now();
             let give_up = start + SHADOW_WAIT;
             let until = l.role.poll_timeout().map_or(give_up, |t| t.min(give_up));
-            let want = (!master).then_some(job.exchange.request.as_slice());
-            if let Some(reply) = self.hear_until(until, want).await {
-                return Ok(Some(reply));
+            let want = (!master).then_some(Want {
+                request: job.exchange.request.as_slice(),
+                address: job.address,
+                since,
+            });
+            if let Some(w) = want {
+                // A drive the master gets no answer from is offline here too, as a polled one:
+                // its polls are answered at once until a reply of it is heard again.
+                if !self.engine.online(w.address) {
+                    return Err(BusError::Offline { address: w.address });
+                }
+                // Perhaps heard already.
+                if let Some(reply) =
+                    l.learnt.lock().unwrap_or_else(|p| p.into_inner()).answer(w.request, w.since)
+                {
+                    return Ok(Some(reply));
+                }
+            }
+            if let Some(answer) = self.hear_until(until, want).await {
+                return answer;
             }
             let now = self.link.now();
             if let Some(l) = self.listening.as_mut() {
@@ -393,49 +456,94 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         result
     }
 
+    /// Hears the line for a moment ([`IDLE_SLICE`]) while no job waits.
+    async fn hear_while_idle(&mut self) {
+        if !self.link.is_open() {
+            if self.link.reopen().await.is_err() {
+                // Tried again after a while (a master's next job reopens it too).
+                tokio::time::sleep(IDLE_SLICE).await;
+                return;
+            }
+            self.engine.link_restored();
+        }
+        let until = self.link.now() + IDLE_SLICE;
+        let _ = self.hear_until(until, None).await;
+    }
+
     /// Reads what the line carries until `deadline` (at least what has already come), telling
-    /// the role what it heard. With `want`, returns the reply heard to that request as soon as
-    /// it comes.
-    async fn hear_until(&mut self, deadline: Instant, want: Option<&[u8]>) -> Option<Vec<u8>> {
+    /// the role what it heard and learning from it: values, the master's schedule, each drive's
+    /// health (answered or not, as if polled). With `want`, returns as soon as it is answered:
+    /// the reply, or a timeout when the master's request to that drive went unanswered.
+    async fn hear_until(
+        &mut self,
+        deadline: Instant,
+        want: Option<Want<'_>>,
+    ) -> Option<Result<Option<Vec<u8>>, BusError>> {
         let mut buf = std::mem::take(&mut self.rx_buf);
         buf.resize(1024, 0);
         let mut heard = Vec::new();
         let mut sleep = crate::timer::sleep_until(self.link.clock().tokio(deadline));
         let mut answer = None;
         loop {
-            let n = tokio::select! {
+            let read = tokio::select! {
                 biased;
                 r = self.link.read(&mut buf) => match r {
-                    Ok(n) => n,
+                    Ok(n) => Some(n),
                     Err(_) => {
                         // The port failed: nothing more is heard before the deadline.
                         (&mut sleep).await;
-                        break;
+                        None
                     }
                 },
-                _ = &mut sleep => break,
+                _ = &mut sleep => None,
             };
             let now = self.link.now();
             let Some(l) = self.listening.as_mut() else { break };
             heard.clear();
-            l.heard.push(now, &buf[..n], &mut heard);
+            match read {
+                Some(n) => l.heard.push(now, &buf[..n], &mut heard),
+                // The deadline: a reply now overdue, a frame ended by the quiet, are heard too.
+                None => l.heard.tick(now, &mut heard),
+            }
+            let mut learnt = l.learnt.lock().unwrap_or_else(|p| p.into_inner());
+            let mut replied = false;
             for h in heard.drain(..) {
                 match h {
-                    Heard::Request(_) => {
+                    Heard::Request { address, bytes } => {
                         if let Some(t) = l.role.heard_request(now) {
                             l.publish(Some(t));
                         }
-                    }
-                    Heard::Reply { request, reply } => {
-                        if want == Some(request.as_slice()) {
-                            answer = Some(reply);
+                        if let Some(a) = address.filter(|a| *a != 0) {
+                            learnt.request(now, a, &bytes);
                         }
                     }
+                    Heard::Reply { address, request, reply } => {
+                        learnt.reply(now, &request, &reply);
+                        if let Some(a) = address {
+                            self.engine.record(now, a, true);
+                        }
+                        replied = true;
+                    }
+                    Heard::NoReply { address: Some(a) } => {
+                        self.engine.record(now, a, false);
+                        if want.is_some_and(|w| w.address == a) {
+                            answer = Some(Err(BusError::Timeout {
+                                link: self.link.name(),
+                                address: a,
+                                attempts: 1,
+                            }));
+                        }
+                    }
+                    Heard::NoReply { address: None } => {}
                     Heard::Garbled => l.role.heard_garbled(now),
                 }
             }
+            if let Some(w) = want.filter(|_| replied && answer.is_none()) {
+                answer = learnt.answer(w.request, w.since).map(|r| Ok(Some(r)));
+            }
+            drop(learnt);
             l.publish(None);
-            if answer.is_some() {
+            if answer.is_some() || read.is_none() {
                 break;
             }
         }

@@ -160,6 +160,11 @@ impl BusRole {
         self.state
     }
 
+    /// How long the line must carry no master request before a listener takes it.
+    pub fn silence(&self) -> Duration {
+        self.config.silence
+    }
+
     /// Master or standby.
     pub fn role(&self) -> Role {
         match self.state {

@@ -5,8 +5,9 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_drive::profile::Exchange;
+use drivebus_drive::profile::{for_drive, DriveStatus, Exchange};
 use drivebus_drive::Family;
+use drivebus_link::drive::Drive;
 use drivebus_link::link::Link;
 use drivebus_link::role::{Role, RoleConfig};
 use drivebus_link::{Bus, BusConfig, BusError, Priority, SimLink};
@@ -194,4 +195,134 @@ async fn twenty_kills_each_hand_the_line_over_within_one_and_a_half_seconds() {
     took.sort();
     println!("takeover over 20 kills: min {:?}, median {:?}, max {:?}", took[0], took[10], took[19]);
     assert!(took[0] >= SILENCE && took[19] <= Duration::from_millis(1500), "{took:?}");
+}
+
+/// Each status read's drive, when it ended and its result.
+type Statuses = Arc<Mutex<Vec<(u8, tokio::time::Instant, Result<DriveStatus, String>)>>>;
+
+/// Reads `quantity` registers from `start` of drive `addr`.
+fn read_span(addr: u8, start: u16, quantity: u16) -> Exchange {
+    Exchange {
+        request: rtu(&[addr, 0x03, (start >> 8) as u8, start as u8, (quantity >> 8) as u8, quantity as u8]),
+        expect_reply: true,
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_learns_values_health_and_schedule_from_a_master_that_polls_otherwise() {
+    let line = line();
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+    // The master polls every 150 ms with its own spans and order: 2102H..2104H first, then
+    // 2100H..2101H (a profile's status reads 2100H..2103H, then 2104H), and drive 3, which is
+    // not on the line.
+    let master = a.clone();
+    let a_poll = tokio::spawn(async move {
+        loop {
+            for addr in [1u8, 2, 3] {
+                let _ = master.transact(addr, read_span(addr, 0x2102, 3), Priority::Poll, None).await;
+                let _ = master.transact(addr, read_span(addr, 0x2100, 2), Priority::Poll, None).await;
+            }
+            tokio::time::sleep(Duration::from_millis(150)).await;
+        }
+    });
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    // It runs drive 1 at 40 Hz and drive 2 at 25 Hz.
+    for (addr, hz) in [(1u8, 40.0), (2, 25.0)] {
+        let d = Drive::new(a.clone(), for_drive(Family::Generic, WireProtocol::ModbusRtu, addr).unwrap());
+        d.set_speed(hz).await.unwrap();
+        d.run().await.unwrap();
+    }
+    // The standby reads each drive's status with the profile, as the gateway polls, at its own
+    // 40 ms.
+    let statuses: Statuses = Default::default();
+    let (standby, seen) = (b.clone(), statuses.clone());
+    let b_poll = tokio::spawn(async move {
+        let drives: Vec<Drive> = [1u8, 2, 3]
+            .into_iter()
+            .map(|a| {
+                let p = for_drive(Family::Generic, WireProtocol::ModbusRtu, a).unwrap();
+                Drive::new(standby.clone(), p).polling()
+            })
+            .collect();
+        loop {
+            for (a, d) in (1u8..).zip(&drives) {
+                let r = d.status().await.map_err(|e| e.to_string());
+                seen.lock().unwrap().push((a, tokio::time::Instant::now(), r));
+                tokio::time::sleep(Duration::from_millis(40)).await;
+            }
+        }
+    });
+    // Let the drives reach their speed.
+    tokio::time::sleep(Duration::from_secs(15)).await;
+    let since = tokio::time::Instant::now();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    // Every answer shows the drive's true state.
+    let seen: Vec<_> = statuses.lock().unwrap().iter().filter(|(_, t, _)| *t >= since).cloned().collect();
+    for (addr, hz) in [(1u8, 40.0), (2, 25.0)] {
+        let mine: Vec<_> = seen.iter().filter(|(a, _, _)| *a == addr).collect();
+        assert!(mine.len() >= 5, "drive {addr}: {seen:?}");
+        for (_, _, r) in mine {
+            let s = r.as_ref().unwrap_or_else(|e| panic!("drive {addr}: {e}"));
+            assert!(s.running, "drive {addr}: {s:?}");
+            assert_eq!((s.setpoint_hz, s.output_hz), (Some(hz), Some(hz)), "drive {addr}: {s:?}");
+        }
+    }
+    // Drive 3 never answers the master: the standby's polls fail and it is offline, as a
+    // polled one would be.
+    let three: Vec<_> = seen.iter().filter(|(a, _, _)| *a == 3).collect();
+    assert!(!three.is_empty(), "{seen:?}");
+    for (_, _, r) in three {
+        let e = r.as_ref().unwrap_err();
+        assert!(e.contains("no answer from drive 3") || e.contains("drive 3 is offline"), "{e}");
+    }
+    let health = b.health();
+    assert!(!health[&3].online && health[&1].online && health[&2].online, "{health:?}");
+
+    // The schedule it learnt: drives 1 and 2 polled every cycle, 150 ms plus the cycle's
+    // exchanges (drive 3 only probed after its backoff).
+    let learnt = b.learnt_schedule();
+    for addr in [1u8, 2] {
+        let every = learnt.get(&addr).copied().unwrap_or_default();
+        assert!(
+            every >= Duration::from_millis(150) && every < Duration::from_millis(400),
+            "drive {addr}: {every:?}"
+        );
+    }
+    a_poll.abort();
+    b_poll.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_that_polls_seldom_still_times_what_it_hears_as_it_came() {
+    let line = line();
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+    let master = a.clone();
+    let a_poll = tokio::spawn(async move {
+        loop {
+            let _ = master.transact(1, read(1, 0x2102), Priority::Poll, None).await;
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    });
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    // The standby has no poll for a while; then the master dies, and 300 ms later the standby
+    // polls: what it heard is at least 300 ms old, older than the master's interval, so it
+    // answers no poll; the poll is answered once the standby has taken the line and asked the
+    // drive itself.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    a_poll.abort();
+    drop(a);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(b.stats().transactions, 0);
+    let reply = b.transact(1, read(1, 0x2102), Priority::Poll, None).await.unwrap();
+    assert!(reply.is_some());
+    assert_eq!(b.role().unwrap().role, Role::Master);
+    assert!(b.stats().transactions >= 1, "answered by its own exchange, not by what it heard before");
 }

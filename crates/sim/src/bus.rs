@@ -98,6 +98,9 @@ struct MasterPort {
     run: u64,
     /// Bytes that reached this master, not yet read.
     inbox: VecDeque<u8>,
+    /// This master's frames garbled by another talker at once (counted in
+    /// [`LineStats::garbled_frames`] too).
+    garbled_frames: u64,
 }
 
 /// One RS-485 line with its devices.
@@ -137,7 +140,7 @@ impl VirtualLine {
             char_time: format.char_time(baud),
             t35,
             ports: vec![Port { device: None, silent: false, tx_end: now, run: 0 }],
-            masters: vec![MasterPort { tx_end: now, run: 0, inbox: VecDeque::new() }],
+            masters: vec![MasterPort { tx_end: now, run: 0, inbox: VecDeque::new(), garbled_frames: 0 }],
             wire: VecDeque::new(),
             runs: 0,
             garbled_runs: VecDeque::new(),
@@ -183,8 +186,15 @@ impl VirtualLine {
     /// Adds another external master; returns its number (1, 2, ...; [`MASTER`] is 0). It hears
     /// the drives and every other master, and they hear it.
     pub fn add_master(&mut self) -> usize {
-        self.masters.push(MasterPort { tx_end: self.now, run: 0, inbox: VecDeque::new() });
+        self.masters.push(MasterPort { tx_end: self.now, run: 0, inbox: VecDeque::new(), garbled_frames: 0 });
         self.masters.len() - 1
+    }
+
+    /// How many frames of master `master` another talker garbled (a master's share of
+    /// [`LineStats::garbled_frames`]): on a line with two masters, tells the one that sent into
+    /// another's traffic from the one sent into. 0 for an unknown master.
+    pub fn master_garbled_frames(&self, master: usize) -> u64 {
+        self.masters.get(master).map_or(0, |m| m.garbled_frames)
     }
 
     /// Number of external masters (at least 1).
@@ -563,14 +573,17 @@ impl VirtualLine {
                     }
                     s.garbled = true;
                     n.garbled = true;
-                    garbled_runs.push(s.run);
-                    garbled_runs.push(n.run);
+                    garbled_runs.push((s.run, s.talker));
+                    garbled_runs.push((n.run, n.talker));
                 }
             }
         }
-        for r in garbled_runs {
+        for (r, who) in garbled_runs {
             if !self.garbled_runs.contains(&r) {
                 self.stats.garbled_frames += 1;
+                if let Talker::Master(m) = who {
+                    self.masters[m].garbled_frames += 1;
+                }
                 if self.garbled_runs.len() == 64 {
                     self.garbled_runs.pop_front();
                 }
@@ -807,6 +820,7 @@ mod tests {
         line.advance_to(Instant::from_millis(12));
         let stats = line.stats();
         assert_eq!(stats.garbled_frames, 2, "A's frame and B's: {stats:?}");
+        assert_eq!((line.master_garbled_frames(MASTER), line.master_garbled_frames(b)), (1, 1));
         assert!(stats.collisions >= 4, "{stats:?}");
         // What the drive heard is not A's frame.
         let all: Vec<u8> = heard.lock().unwrap().iter().flat_map(|(_, b)| b.clone()).collect();

@@ -456,7 +456,7 @@ async fn index() -> Json<Value> {
             "GET /drives/{n}": "drive n (1 = first --drive)",
             "POST /drives/{n}": "change drive n: {\"load\": 0.8, \"trip\": \"over-current\", \"reset\": true, \"silent\": true, \"hardware_enable\": false, \"supply\": 1.0, \"params\": {\"F-12\": 2}, \"power_cycle\": true, \"run\": true, \"keypad_hz\": 40}",
             "GET /faults, PUT /faults": "{\"corrupt_rate\": 0.01, \"drop_rate\": 0.0, \"extra_latency_ms\": 0}",
-            "GET /stats": "what the line has carried (garbled_frames: frames two talkers garbled at once)"
+            "GET /stats": "what the line has carried (garbled_frames: frames two talkers garbled at once; garbled_frames_by_master: each master's share)"
         }
     }))
 }
@@ -660,6 +660,7 @@ async fn get_stats(State(sim): State<Arc<Simulator>>) -> Json<Value> {
         "masters": line.masters(),
         "collisions": s.collisions,
         "garbled_frames": s.garbled_frames,
+        "garbled_frames_by_master": (0..line.masters()).map(|m| line.master_garbled_frames(m)).collect::<Vec<_>>(),
         "corrupted": s.corrupted,
         "dropped": s.dropped,
         "utilization": if elapsed > 0.0 { s.busy.as_secs_f64() / elapsed } else { 0.0 },

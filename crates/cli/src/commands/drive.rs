@@ -15,9 +15,9 @@ use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
 use serde_json::{json, Value};
 
-use crate::commands::decode::{decode_by_name, decode_reply, render_json, render_text, Item};
 use crate::commands::target::{fail, Target, EXIT_LINK, EXIT_REFUSED, EXIT_USAGE};
 use crate::hexarg::parse_hex_args;
+use drivebus_analyze::report::{decode_by_name, decode_reply, render_json, render_text, Item};
 
 /// `param` subcommands.
 #[derive(Subcommand, Debug)]

@@ -2,7 +2,7 @@
 //! [`analyze`] frames, pairs and counts what a listener hears, [`detect`] finds the baud rate and
 //! format from traffic, [`capture`] writes and reads captures.
 
-pub mod analyze;
+pub use drivebus_analyze as analyze;
 pub mod capture;
 pub mod detect;
 

@@ -11,6 +11,14 @@ use super::views::Change;
 use drivebus_store::time::now_ms;
 use drivebus_store::{Event, EventKind};
 
+/// How often a drive is polled: at its `poll_ms`, or at the interval another master on the line
+/// was heard polling it (`learnt`, a standby's schedule, kept after it takes the line) when that
+/// is shorter. Never slower than `poll_ms`: `[standby] silence_ms` is checked against it, and a
+/// line polled more slowly would fall silent long enough for another standby to take it.
+pub(super) fn poll_every(own: Duration, learnt: Option<Duration>) -> Duration {
+    learnt.filter(|l| !l.is_zero()).map_or(own, |l| l.min(own))
+}
+
 impl Gateway {
     /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do).
     pub(super) async fn refresh(self: &Arc<Self>, d: &Arc<DriveEntry>) {
@@ -20,10 +28,10 @@ impl Gateway {
     }
 
     /// The scheduler of `bus`: polls each of its drives when due (the most urgent first, by
-    /// priority on a tie) until a reload retires the bus; a reload that changes its drives keeps
-    /// the kept drives' schedule and polls new ones at once. One drive is polled at a time, or
-    /// up to the bus's `max_in_flight` drives at once on a modbus-tcp bus that pipelines (a
-    /// drive's own reads stay one after another).
+    /// priority on a tie; at [`poll_every`]) until a reload retires the bus; a reload that
+    /// changes its drives keeps the kept drives' schedule and polls new ones at once. One drive
+    /// is polled at a time, or up to the bus's `max_in_flight` drives at once on a modbus-tcp bus
+    /// that pipelines (a drive's own reads stay one after another).
     pub(super) async fn poll_bus(self: Arc<Self>, bus: Arc<BusEntry>) {
         let limit = bus.config.max_in_flight.max(1);
         let mut generation = u64::MAX;
@@ -73,7 +81,7 @@ impl Gateway {
                     let Ok(d) = done else { continue };
                     busy.retain(|b| !Arc::ptr_eq(b, &d));
                     if let Some(k) = mine.iter().position(|m| Arc::ptr_eq(m, &d)) {
-                        let next = due[k] + d.config.poll;
+                        let next = due[k] + poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
                         due[k] = next.max(tokio::time::Instant::now());
                     }
                 }
@@ -130,5 +138,20 @@ impl Gateway {
                 seen.insert(b.config.name.clone(), (r.takeovers, r.yields));
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::poll_every;
+    use std::time::Duration;
+
+    #[test]
+    fn a_drive_is_polled_at_the_learnt_interval_never_slower_than_its_own() {
+        let ms = Duration::from_millis;
+        assert_eq!(poll_every(ms(1000), None), ms(1000), "nothing heard: its own poll_ms");
+        assert_eq!(poll_every(ms(1000), Some(ms(200))), ms(200), "the master polled it faster");
+        assert_eq!(poll_every(ms(1000), Some(ms(3000))), ms(1000), "never slower than poll_ms");
+        assert_eq!(poll_every(ms(1000), Some(Duration::ZERO)), ms(1000));
     }
 }

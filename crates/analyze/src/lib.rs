@@ -1,8 +1,11 @@
+//! # drivebus-analyze
+//!
 //! What a passive listener makes of the bytes on a line, without I/O: frames cut by each
 //! protocol's deframer plus the line's silences (Modbus RTU t3.5), the direction of each frame,
 //! requests paired with their replies and the latency between them, per-address statistics and
-//! the bus load. The caller gives timestamped reads; `drivebus sniff` does the I/O.
-
+//! the bus load. The caller gives timestamped reads; `drivebus sniff` and a standby gateway's
+//! bus owner (`drivebus_link::owner`) do the I/O. [`report`] reads one frame in the manual's
+//! words (`drivebus decode` prints it too).
 //!
 //! In four parts: [`framing`] (each protocol's deframer behind one trait, and parsing a frame),
 //! [`pairing`] (a frame's direction on a shared pair, requests and their replies, missing
@@ -17,11 +20,12 @@ use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::{Direction, Target};
 use serde_json::{json, Value};
 
-use crate::commands::decode::{render_json, FrameReport};
+use crate::report::{render_json, FrameReport};
 
 mod detection;
 mod framing;
 mod pairing;
+pub mod report;
 mod statistics;
 
 use framing::{framer, Framer};
@@ -101,6 +105,8 @@ pub struct Record {
     pub frame: FrameReport,
     /// For a reply: the time from its request's read to its own.
     pub latency: Option<Duration>,
+    /// For a reply: the bytes of the request it answers.
+    pub request: Option<Vec<u8>>,
     /// Frame or missing reply.
     pub kind: Kind,
 }
@@ -123,7 +129,7 @@ impl Record {
     /// The `--json` object: `time` (seconds), `protocol`, `direction`, `address`, `valid`,
     /// `function` (Modbus) or `command`, `fields`, `error` when invalid, `latency_ms` for a reply.
     pub fn json(&self) -> Value {
-        let mut v = render_json(self.protocol, &crate::commands::decode::Item::Frame(self.frame.clone()))
+        let mut v = render_json(self.protocol, &crate::report::Item::Frame(self.frame.clone()))
             .unwrap_or_else(|| json!({}));
         if let Value::Object(o) = &mut v {
             o.remove("offset");
@@ -163,12 +169,12 @@ impl Record {
             return format!("no reply to {code} {name}");
         }
         if let Some(e) = &f.error {
-            return format!("INVALID: {e} [{}]", crate::commands::decode::hex_string(&f.bytes));
+            return format!("INVALID: {e} [{}]", crate::report::hex_string(&f.bytes));
         }
         let (code, _, name) = f.command.clone().unwrap_or_default();
         let fields = f.fields.iter().map(|x| x.text.as_str()).collect::<Vec<_>>().join(", ");
         match self.direction {
-            Direction::Master => match crate::commands::decode::master_drive_broadcast(self.protocol, f) {
+            Direction::Master => match crate::report::master_drive_broadcast(self.protocol, f) {
                 Some(note) => format!("{code} {name}; {fields} ({note})"),
                 None => format!("{code} {name}; {fields}"),
             },
@@ -210,6 +216,8 @@ pub struct Analyzer {
     recent: std::collections::VecDeque<(usize, Duration, Vec<u8>)>,
     /// True while decoding bytes in which a protocol not decoded yet found a valid frame.
     foreign: bool,
+    /// False for a listener that runs for good: the reply latencies are not kept.
+    keep_latencies: bool,
 }
 
 impl Analyzer {
@@ -251,7 +259,15 @@ impl Analyzer {
             frames: 0,
             recent: std::collections::VecDeque::new(),
             foreign: false,
+            keep_latencies: true,
         }
+    }
+
+    /// The listener for a line heard for good (a standby gateway's): the counts are kept, the
+    /// reply latencies ([`AddressStats::latencies`]) are not, so its memory stays bounded.
+    pub fn endless(mut self) -> Self {
+        self.keep_latencies = false;
+        self
     }
 
     /// The protocols being decoded (found so far, in auto mode).

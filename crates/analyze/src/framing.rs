@@ -4,7 +4,7 @@
 use drivebus_proto::protocol::{CodecJob, WireProtocol};
 use drivebus_proto::{Codec, Deframer, Direction, Event, Scan, Scanner};
 
-use crate::commands::decode::{describe, FrameReport};
+use crate::report::{describe, FrameReport};
 
 /// A frame candidate out of a deframer: its bytes and, when it is not a whole frame with a
 /// good checksum, why.

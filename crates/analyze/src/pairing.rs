@@ -7,7 +7,7 @@ use drivebus_proto::{Direction, Target};
 
 use super::framing::{parse, Cut};
 use super::{Analyzer, Kind, Record, Side};
-use crate::commands::decode::FrameReport;
+use crate::report::FrameReport;
 
 /// A frame identical to the waiting request (a Modbus 05/06 reply echoes its request) that
 /// comes later than this after it is the master's retry, not the drive's echo: drives answer
@@ -126,13 +126,22 @@ impl Analyzer {
                     self.garbled += 1;
                 }
                 self.frames += 1;
-                out.push(Record { time, protocol, direction, frame, latency: None, kind: Kind::Frame });
+                out.push(Record {
+                    time,
+                    protocol,
+                    direction,
+                    frame,
+                    latency: None,
+                    request: None,
+                    kind: Kind::Frame,
+                });
                 return;
             }
         };
         self.frames += 1;
         let direction = frame.direction.unwrap_or(Direction::Master);
-        let mut record = Record { time, protocol, direction, frame, latency: None, kind: Kind::Frame };
+        let mut record =
+            Record { time, protocol, direction, frame, latency: None, request: None, kind: Kind::Frame };
         match direction {
             Direction::Master => {
                 if let Some(p) = self.pending.remove(protocol) {
@@ -159,6 +168,7 @@ impl Analyzer {
                 }
                 if let Some(p) = &answered {
                     record.latency = Some(time.saturating_sub(p.record.time));
+                    record.request = Some(p.record.frame.bytes.clone());
                     // A reply that carries no address (Toshiba 1:1) is the waiting request's drive's.
                     if record.address().is_none() {
                         record.frame.target = p.record.frame.target;
@@ -170,7 +180,7 @@ impl Analyzer {
                     if record.frame.refusal {
                         s.errors += 1;
                     }
-                    if let Some(l) = record.latency {
+                    if let Some(l) = record.latency.filter(|_| self.keep_latencies) {
                         s.latencies.push(l);
                     }
                 }

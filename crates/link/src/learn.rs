@@ -1,0 +1,244 @@
+//! What a listening gateway learns from another master's traffic, without I/O: the values its
+//! drives answered and when, and which drives the master polls how often.
+//!
+//! Values: in a Modbus protocol each register read (03, 04) that got its reply is kept by
+//! drive, table and register with the time it was heard, so a standby's own poll is answered
+//! from whatever reads of the master covered its registers, whatever their span, order or
+//! interval; the reply is rebuilt as the drive would send it and the profile decodes it as its
+//! own (one decoding for both). In the other protocols a request has one reading: its reply is
+//! kept by the request's bytes. What answers a poll was heard since it began, or at most the
+//! master's own poll interval of that drive before (the bus owner chooses, [`Learnt::interval`]):
+//! the standby's value is never older than the master's view of it.
+//!
+//! Schedule: the interval between two requests with the same bytes to one drive, smoothed; a
+//! drive's interval is its most frequent request's.
+
+use std::collections::HashMap;
+use std::time::Duration;
+
+use drivebus_proto::modbus::pdu::RegisterAddress;
+use drivebus_proto::modbus::{Registers, Reply, ReplyPdu, Request, RequestPdu, UnitId};
+use drivebus_proto::protocol::WireProtocol;
+use drivebus_proto::Instant;
+
+/// At most this many distinct requests (or replies by request) are remembered; more (a master
+/// reading everything once, a scan) start the memory afresh.
+const MAX_REQUESTS: usize = 4096;
+/// At most this many registers are remembered.
+const MAX_REGISTERS: usize = 65536;
+
+/// A request heard repeatedly: when last, and the smoothed interval between its sendings.
+#[derive(Clone, Copy, Debug)]
+struct Repeat {
+    address: u8,
+    last: Instant,
+    interval: Option<Duration>,
+}
+
+/// What one bus's listener has learnt.
+pub(crate) struct Learnt {
+    protocol: WireProtocol,
+    /// Modbus: (drive, function 03 or 04, register) -> (value, when heard).
+    registers: HashMap<(u8, u8, u16), (u16, Instant)>,
+    /// Other protocols: request bytes -> (reply bytes, when heard).
+    replies: HashMap<Vec<u8>, (Vec<u8>, Instant)>,
+    /// Each distinct request heard, for the schedule.
+    requests: HashMap<Vec<u8>, Repeat>,
+    /// The last request heard, and whether its reply was.
+    last: Option<(Vec<u8>, bool)>,
+}
+
+/// A Modbus register read: drive, function, first register, count.
+type Read = (u8, u8, u16, u16);
+
+impl Learnt {
+    /// Nothing learnt yet on a bus speaking `protocol`.
+    pub(crate) fn new(protocol: WireProtocol) -> Self {
+        Learnt {
+            protocol,
+            registers: HashMap::new(),
+            replies: HashMap::new(),
+            requests: HashMap::new(),
+            last: None,
+        }
+    }
+
+    /// Another master's request to `address` heard at `now`.
+    pub(crate) fn request(&mut self, now: Instant, address: u8, request: &[u8]) {
+        // The same request again after no reply is the master's retry, not its next poll.
+        let retry = self.last.as_ref().is_some_and(|(r, answered)| r == request && !answered);
+        self.last = Some((request.to_vec(), false));
+        if retry {
+            return;
+        }
+        if self.requests.len() >= MAX_REQUESTS && !self.requests.contains_key(request) {
+            self.requests.clear();
+        }
+        let r =
+            self.requests.entry(request.to_vec()).or_insert(Repeat { address, last: now, interval: None });
+        let gap = now.saturating_since(r.last);
+        if !gap.is_zero() {
+            // Smoothed over about four sendings: one late poll does not change the schedule.
+            r.interval = Some(match r.interval {
+                None => gap,
+                Some(i) => (i * 3 + gap) / 4,
+            });
+        }
+        r.last = now;
+    }
+
+    /// The drive's `reply` to `request` heard at `now`.
+    pub(crate) fn reply(&mut self, now: Instant, request: &[u8], reply: &[u8]) {
+        if let Some((r, answered)) = &mut self.last {
+            *answered |= r == request;
+        }
+        if self.protocol.is_modbus() {
+            let Some((unit, function, start, count)) = self.read(request) else { return };
+            let Some(values) = self.values(reply, unit, function) else { return };
+            if values.len() != count as usize {
+                return;
+            }
+            if self.registers.len() + values.len() > MAX_REGISTERS {
+                self.registers.clear();
+            }
+            for (i, v) in values.into_iter().enumerate() {
+                self.registers.insert((unit, function, start.wrapping_add(i as u16)), (v, now));
+            }
+        } else {
+            if self.replies.len() >= MAX_REQUESTS && !self.replies.contains_key(request) {
+                self.replies.clear();
+            }
+            self.replies.insert(request.to_vec(), (reply.to_vec(), now));
+        }
+    }
+
+    /// The reply to `request` made of what was heard at or after `since`, when all of it was.
+    pub(crate) fn answer(&self, request: &[u8], since: Instant) -> Option<Vec<u8>> {
+        if let Some((reply, at)) = self.replies.get(request) {
+            if *at >= since {
+                return Some(reply.clone());
+            }
+        }
+        if !self.protocol.is_modbus() {
+            return None;
+        }
+        let (unit, function, start, count) = self.read(request)?;
+        let mut values = Vec::with_capacity(count as usize);
+        for i in 0..count {
+            let (v, at) = self.registers.get(&(unit, function, start.wrapping_add(i)))?;
+            if *at < since {
+                return None;
+            }
+            values.push(*v);
+        }
+        let values = Registers::from_values(&values);
+        let pdu = match function {
+            3 => ReplyPdu::ReadHoldingRegisters { values },
+            _ => ReplyPdu::ReadInputRegisters { values },
+        };
+        let reply = Reply { unit: UnitId(unit), pdu };
+        let mut out = [0u8; 520];
+        let n = match self.protocol {
+            WireProtocol::ModbusAscii => reply.emit_ascii(&mut out).ok()?,
+            _ => reply.emit_rtu(&mut out).ok()?,
+        };
+        Some(out[..n].to_vec())
+    }
+
+    /// The interval at which the master polled each drive it polled (a drive's most frequent
+    /// request's).
+    pub(crate) fn schedule(&self) -> HashMap<u8, Duration> {
+        let addresses: std::collections::HashSet<u8> = self.requests.values().map(|r| r.address).collect();
+        addresses.into_iter().filter_map(|a| Some((a, self.interval(a)?))).collect()
+    }
+
+    /// The interval at which the master polled drive `address`, once heard twice.
+    pub(crate) fn interval(&self, address: u8) -> Option<Duration> {
+        self.requests.values().filter(|r| r.address == address).filter_map(|r| r.interval).min()
+    }
+
+    /// `request` as a Modbus register read (03 or 04) to one drive.
+    fn read(&self, request: &[u8]) -> Option<Read> {
+        let r = match self.protocol {
+            WireProtocol::ModbusAscii => Request::parse_ascii(request).ok()?,
+            _ => Request::parse_rtu(request).ok()?,
+        };
+        let (function, start, quantity) = match r.pdu {
+            RequestPdu::ReadHoldingRegisters { start: RegisterAddress(s), quantity } => (3, s, quantity),
+            RequestPdu::ReadInputRegisters { start: RegisterAddress(s), quantity } => (4, s, quantity),
+            _ => return None,
+        };
+        (r.unit.0 != 0).then_some((r.unit.0, function, start, quantity))
+    }
+
+    /// The register values of `reply`, when it is drive `unit`'s answer to a read `function`.
+    fn values(&self, reply: &[u8], unit: u8, function: u8) -> Option<Vec<u16>> {
+        let r = match self.protocol {
+            WireProtocol::ModbusAscii => Reply::parse_ascii(reply).ok()?,
+            _ => Reply::parse_rtu(reply).ok()?,
+        };
+        if r.unit.0 != unit {
+            return None;
+        }
+        let values = match (function, r.pdu) {
+            (3, ReplyPdu::ReadHoldingRegisters { values }) | (4, ReplyPdu::ReadInputRegisters { values }) => {
+                values
+            }
+            _ => return None,
+        };
+        Some(values.iter().collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use drivebus_proto::checksum::crc16_modbus;
+
+    fn rtu(frame: &[u8]) -> Vec<u8> {
+        let mut v = frame.to_vec();
+        v.extend_from_slice(&crc16_modbus(frame).to_le_bytes());
+        v
+    }
+
+    #[test]
+    fn a_read_is_answered_from_other_spans_heard_since_it_began() {
+        let mut l = Learnt::new(WireProtocol::ModbusRtu);
+        let t = Instant::from_millis;
+        // The master reads 2100H..2101H, then 2102H alone.
+        l.reply(t(10), &rtu(&[1, 3, 0x21, 0x00, 0, 2]), &rtu(&[1, 3, 4, 0, 7, 0x0F, 0xA0]));
+        l.reply(t(20), &rtu(&[1, 3, 0x21, 0x02, 0, 1]), &rtu(&[1, 3, 2, 0x01, 0x02]));
+        // The standby's own read of 2101H..2102H, begun at 5 ms: rebuilt from both.
+        let mine = rtu(&[1, 3, 0x21, 0x01, 0, 2]);
+        assert_eq!(l.answer(&mine, t(5)), Some(rtu(&[1, 3, 4, 0x0F, 0xA0, 0x01, 0x02])));
+        // Begun after the first read was heard: not all of it is fresh.
+        assert_eq!(l.answer(&mine, t(15)), None);
+        // Another drive, or another table: nothing heard.
+        assert_eq!(l.answer(&rtu(&[2, 3, 0x21, 0x01, 0, 2]), t(0)), None);
+        assert_eq!(l.answer(&rtu(&[1, 4, 0x21, 0x01, 0, 2]), t(0)), None);
+    }
+
+    #[test]
+    fn the_schedule_is_each_drives_most_frequent_request() {
+        let mut l = Learnt::new(WireProtocol::ModbusRtu);
+        let a = rtu(&[1, 3, 0x21, 0x00, 0, 2]);
+        let b = rtu(&[1, 3, 0x30, 0x00, 0, 1]);
+        for k in 0..10u64 {
+            l.request(Instant::from_millis(k * 200), 1, &a);
+            l.request(Instant::from_millis(k * 1000 + 5), 1, &b);
+        }
+        let s = l.schedule();
+        assert_eq!(s.get(&1), Some(&Duration::from_millis(200)));
+        assert_eq!(s.get(&2), None);
+        // Drive 2 polled every second, each poll retried once 50 ms later and answered: every
+        // second.
+        let c = rtu(&[2, 3, 0x21, 0x00, 0, 2]);
+        let answer = rtu(&[2, 3, 4, 0, 0, 0, 0]);
+        for k in 0..10u64 {
+            l.request(Instant::from_millis(k * 1000), 2, &c);
+            l.request(Instant::from_millis(k * 1000 + 50), 2, &c);
+            l.reply(Instant::from_millis(k * 1000 + 60), &c, &answer);
+        }
+        assert_eq!(l.schedule().get(&2), Some(&Duration::from_secs(1)));
+    }
+}

@@ -31,6 +31,10 @@ pub struct Catalog {
     /// Lower-case names and aliases to indices into `params`.
     by_name: HashMap<String, usize>,
     by_number: HashMap<u32, usize>,
+    /// Where each parameter's values start in a flat list of every parameter's values in
+    /// catalog order, and (last) the list's length: a [`ParamStore`](crate::store::ParamStore)
+    /// holds one such list.
+    starts: Vec<usize>,
 }
 
 /// A parameter named as a person or a frame names it.
@@ -131,6 +135,7 @@ impl Catalog {
             params: Vec::with_capacity(entries.len()),
             by_name: HashMap::new(),
             by_number: HashMap::new(),
+            starts: vec![0],
         };
         for (index, entry) in entries.iter().enumerate() {
             let position = format!("#{}", index + 1);
@@ -157,6 +162,7 @@ impl Catalog {
             params: Vec::with_capacity(params.len()),
             by_name: HashMap::new(),
             by_number: HashMap::new(),
+            starts: vec![0],
         };
         for def in params {
             catalog.insert(def)?;
@@ -183,8 +189,20 @@ impl Catalog {
             return Err(CatalogError::new(&self.file, Some(&def.name), Some("number"), &message));
         }
         self.by_number.insert(def.number, index);
+        self.starts.push(self.value_count() + def.len());
         self.params.push(def);
         Ok(())
+    }
+
+    /// Where the values of the parameter at index `i` are in a flat list of every parameter's
+    /// values in catalog order (one per array element).
+    pub fn value_range(&self, i: usize) -> std::ops::Range<usize> {
+        self.starts[i]..self.starts[i + 1]
+    }
+
+    /// The length of the flat list of every parameter's values ([`value_range`](Self::value_range)).
+    pub fn value_count(&self) -> usize {
+        self.starts.last().copied().unwrap_or(0)
     }
 
     /// The family this catalog describes.

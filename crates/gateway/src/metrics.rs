@@ -11,16 +11,14 @@
 //! the HTTP front end (`http::metrics`).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, OnceLock, Weak};
+use std::sync::{Arc, OnceLock};
 
-use prometheus_client::collector::Collector;
-use prometheus_client::encoding::text::encode;
-use prometheus_client::encoding::{DescriptorEncoder, EncodeLabelSet, MetricEncoder, NoLabelSet};
+use prometheus_client::encoding::text::{encode_eof, encode_registry};
+use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{exponential_buckets, Histogram};
-use prometheus_client::metrics::MetricType;
 use prometheus_client::registry::{Registry, Unit};
 
 use crate::core::DriveEntry;
@@ -277,62 +275,62 @@ struct Exposition {
 
 /// The exposition now, as `GET /metrics` serves it.
 ///
-/// The registry is built once per gateway: the front ends' families are registered as they are
-/// (shared with the front ends that count), and the drive, bus, gateway and health series are
-/// written by collectors ([`CoreSeries`], [`HealthSeries`]) straight from the cache, the bus
-/// owners' counts and the kept health facts at each scrape. Nothing is polled, no file is
+/// The series come out in this order: drives, buses, the gateway's counts, the front ends',
+/// Sparkplug's, health. The drive, bus, gateway and health series are written by hand straight
+/// from the cache, the bus owners' counts and the kept health facts into one buffer sized from
+/// the last scrape: each drive's state is read under one short lock, its labels are written
+/// once per scrape and copied into each of its series, and no series allocates. The front
+/// ends' families (labels made by the front ends as they count) are encoded by
+/// `prometheus-client` from a registry built once per gateway. Nothing is polled, no file is
 /// touched (the store's check runs on its own schedule, `health::STORE_CHECK_EVERY`).
 pub fn render(gw: &Arc<Gateway>) -> Result<String, String> {
     let front_ends = attached(gw);
     let exposition = &front_ends.exposition;
     let reg = exposition.registry.get_or_init(|| registry(gw));
     let mut out = String::with_capacity(exposition.last_len.load(Ordering::Relaxed) + 4096);
-    encode(&mut out, reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
+    core_series(gw, &mut out);
+    encode_registry(&mut out, reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
+    health_series(gw, &mut out);
+    encode_eof(&mut out).map_err(|e| format!("cannot encode the metrics: {e}"))?;
     exposition.last_len.store(out.len(), Ordering::Relaxed);
     Ok(out)
 }
 
-/// The registry of `gw`'s exposition; the series come out in this order: drives, buses, the
-/// gateway's counts, the front ends', Sparkplug's, health.
+/// The registry of the front ends' families (HTTP, Modbus TCP, MQTT, Sparkplug B), built once
+/// per gateway and shared with the front ends that count.
 fn registry(gw: &Arc<Gateway>) -> Registry {
-    let mut reg = Registry::with_prefix("drivebus");
-    reg.register_collector(Box::new(CoreSeries { gw: Arc::downgrade(gw) }));
+    let mut reg = Registry::with_prefix(PREFIX);
     let f = front_ends(gw);
-    // A sub-registry of the same prefix: encoded after the collector above.
-    let fronts = reg.sub_registry_with_labels(std::iter::empty());
-    fronts.register(
+    reg.register(
         "http_requests",
         "HTTP requests answered, by route, method and status",
         f.http_requests.clone(),
     );
-    fronts.register_with_unit(
+    reg.register_with_unit(
         "http_request_duration",
         "Time to the response's head, by route",
         Unit::Seconds,
         f.http_latency.clone(),
     );
-    fronts.register(
+    reg.register(
         "modbus_requests",
         "Modbus TCP requests, by function code and result",
         f.modbus_requests.clone(),
     );
-    fronts.register_with_unit(
+    reg.register_with_unit(
         "modbus_request_duration",
         "Time to answer a Modbus TCP request, from the cache or through the bus",
         Unit::Seconds,
         f.modbus_latency.clone(),
     );
-    fronts.register(
-        "mqtt_publishes",
-        "MQTT messages handed to the client, by kind",
-        f.mqtt_publishes.clone(),
-    );
-    fronts.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
+    reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
+    reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
     attached(gw).sparkplug.register(&mut reg);
-    reg.sub_registry_with_labels(std::iter::empty())
-        .register_collector(Box::new(HealthSeries { gw: Arc::downgrade(gw) }));
     reg
 }
+
+/// The prefix of every series name.
+const PREFIX: &str = "drivebus";
 
 /// One value of a series.
 #[derive(Clone, Copy)]
@@ -343,51 +341,118 @@ enum Value {
 }
 
 impl Value {
-    fn kind(self) -> MetricType {
+    /// The OpenMetrics type.
+    fn kind(self) -> &'static str {
         match self {
-            Value::Gauge(_) | Value::Flag(_) => MetricType::Gauge,
-            Value::Count(_) => MetricType::Counter,
+            Value::Gauge(_) | Value::Flag(_) => "gauge",
+            Value::Count(_) => "counter",
         }
     }
 
-    /// Writes the value as a gauge (`Gauge`, `Flag`) or a counter (`Count`), as the
-    /// registered metrics of those types do.
-    fn encode(self, mut series: MetricEncoder) -> Result<(), std::fmt::Error> {
+    /// Writes the value as `prometheus-client` writes a gauge or a counter of its type.
+    fn write(self, out: &mut String) {
         match self {
-            Value::Gauge(x) => series.encode_gauge(&x),
-            Value::Flag(x) => series.encode_gauge(&x),
-            Value::Count(x) => series.encode_counter::<NoLabelSet, _, u64>(&x, None),
+            Value::Gauge(x) => out.push_str(dtoa::Buffer::new().format(x)),
+            Value::Flag(x) => out.push_str(itoa::Buffer::new().format(x)),
+            Value::Count(x) => out.push_str(itoa::Buffer::new().format(x)),
         }
     }
 }
 
-/// Writes family `name` with one series per row that has a value; nothing (not even its
-/// description) when none has one, as a registered family without series.
-fn family<'r, R, L: EncodeLabelSet>(
-    enc: &mut DescriptorEncoder,
-    (name, help, unit): (&str, &str, Option<&Unit>),
-    rows: &'r [R],
-    labels: impl Fn(&'r R) -> L,
-    value: impl Fn(&R) -> Option<Value>,
-) -> Result<(), std::fmt::Error> {
-    let Some(first) = rows.iter().find_map(&value) else { return Ok(()) };
-    let mut m = enc.encode_descriptor(name, help, unit, first.kind())?;
-    for r in rows {
-        let Some(v) = value(r) else { continue };
-        let l = labels(r);
-        v.encode(m.encode_family(&l)?)?;
+/// A family's name (without the prefix and the unit), help text and unit.
+type Desc<'d> = (&'d str, &'d str, Option<&'d str>);
+
+/// Writes `drivebus_<name>[_<unit>]`.
+fn write_name(out: &mut String, (name, _, unit): Desc) {
+    out.push_str(PREFIX);
+    out.push('_');
+    out.push_str(name);
+    if let Some(unit) = unit {
+        out.push('_');
+        out.push_str(unit);
     }
-    Ok(())
 }
 
-/// Writes family `name` of one series without labels.
-fn single(enc: &mut DescriptorEncoder, (name, help): (&str, &str), v: Value) -> Result<(), std::fmt::Error> {
-    v.encode(enc.encode_descriptor(name, help, None, v.kind())?)
+/// Writes family `d` with one series per row that has a value; nothing (not even its
+/// description) when none has one, as a registered family without series. A row is its label
+/// text (`k="v",...`, [`push_labels`]; empty for none) and its value.
+fn family<'a>(out: &mut String, d: Desc, rows: impl IntoIterator<Item = (&'a str, Option<Value>)>) {
+    let mut described = false;
+    for (labels, v) in rows {
+        let Some(v) = v else { continue };
+        if !described {
+            described = true;
+            for (what, text) in [("# HELP ", d.1), ("# TYPE ", v.kind())] {
+                out.push_str(what);
+                write_name(out, d);
+                out.push(' ');
+                out.push_str(text);
+                out.push('\n');
+            }
+            if let Some(unit) = d.2 {
+                out.push_str("# UNIT ");
+                write_name(out, d);
+                out.push(' ');
+                out.push_str(unit);
+                out.push('\n');
+            }
+        }
+        write_name(out, d);
+        if let Value::Count(_) = v {
+            out.push_str("_total");
+        }
+        if !labels.is_empty() {
+            out.push('{');
+            out.push_str(labels);
+            out.push('}');
+        }
+        out.push(' ');
+        v.write(out);
+        out.push('\n');
+    }
+}
+
+/// Writes family `d` of one series without labels.
+fn single(out: &mut String, (name, help): (&str, &str), v: Value) {
+    family(out, (name, help, None), [("", Some(v))]);
+}
+
+/// Appends the label text `k="v",...` of `pairs`, the values escaped as OpenMetrics wants
+/// (`\\`, `\"`, `\n`), and returns where it is in `text`.
+fn push_labels(text: &mut String, pairs: &[(&str, &str)]) -> std::ops::Range<usize> {
+    let start = text.len();
+    for (i, (k, v)) in pairs.iter().enumerate() {
+        if i > 0 {
+            text.push(',');
+        }
+        text.push_str(k);
+        text.push_str("=\"");
+        for c in v.chars() {
+            match c {
+                '\\' => text.push_str("\\\\"),
+                '"' => text.push_str("\\\""),
+                '\n' => text.push_str("\\n"),
+                c => text.push(c),
+            }
+        }
+        text.push('"');
+    }
+    start..text.len()
+}
+
+/// `rows` as [`family`] takes them: each one's label text (at `labels` in `text`) and value.
+fn rows<'a, R>(
+    rows: &'a [R],
+    text: &'a str,
+    labels: fn(&R) -> std::ops::Range<usize>,
+    value: impl Fn(&R) -> Option<Value> + 'a,
+) -> impl Iterator<Item = (&'a str, Option<Value>)> + 'a {
+    rows.iter().map(move |r| (&text[labels(r)], value(r)))
 }
 
 /// What a scrape reads of one drive, under one lock of its state.
-struct DriveRow<'a> {
-    labels: [(&'static str, &'a str); 3],
+struct DriveRow {
+    labels: std::ops::Range<usize>,
     output_hz: Option<f64>,
     setpoint_hz: Option<f64>,
     current_a: Option<f64>,
@@ -399,17 +464,17 @@ struct DriveRow<'a> {
     poll_errors: u64,
 }
 
-impl<'a> DriveRow<'a> {
-    fn labels(&self) -> [(&'static str, &'a str); 3] {
-        self.labels
-    }
-
-    fn of(d: &'a DriveEntry) -> DriveRow<'a> {
+impl DriveRow {
+    fn of(d: &DriveEntry, labels: &mut String) -> DriveRow {
+        let labels = push_labels(
+            labels,
+            &[("bus", &d.bus), ("drive", &d.config.name), ("family", d.config.family.as_str())],
+        );
         d.with_state(|s| {
             let st = s.status.as_ref();
             let running = st.map(|x| x.running);
             DriveRow {
-                labels: [("bus", &d.bus), ("drive", &d.config.name), ("family", d.config.family.as_str())],
+                labels,
                 output_hz: st.and_then(|x| x.output_hz),
                 setpoint_hz: s.setpoint_hz(),
                 current_a: st.and_then(|x| x.current_a),
@@ -427,8 +492,8 @@ impl<'a> DriveRow<'a> {
 }
 
 /// What a scrape reads of one bus.
-struct BusRow<'a> {
-    labels: [(&'static str, &'a str); 1],
+struct BusRow {
+    labels: std::ops::Range<usize>,
     stats: drivebus_link::owner::BusStats,
     online: bool,
     /// The gateway masters the bus (not a standby listening).
@@ -437,238 +502,307 @@ struct BusRow<'a> {
     yields: u64,
 }
 
-impl<'a> BusRow<'a> {
-    fn labels(&self) -> [(&'static str, &'a str); 1] {
-        self.labels
+/// The drive, bus and gateway series, read from the cache, the bus owners and the counters.
+fn core_series(gw: &Gateway, out: &mut String) {
+    let topo = gw.topology();
+
+    // Per drive: a snapshot of each (one lock each), then one pass per family. A value the
+    // drive has not given yet is absent, not zero.
+    let mut text = String::with_capacity(topo.drives.len() * 64);
+    let drives: Vec<DriveRow> = topo.drives.iter().map(|d| DriveRow::of(d, &mut text)).collect();
+    let per_drive = |f: fn(&DriveRow) -> Option<Value>| rows(&drives, &text, |r| r.labels.clone(), f);
+    fn gauge(x: Option<f64>) -> Option<Value> {
+        x.map(Value::Gauge)
     }
-}
-
-/// The drive, bus and gateway series, read from the cache, the bus owners and the counters at
-/// each scrape.
-#[derive(Debug)]
-struct CoreSeries {
-    gw: Weak<Gateway>,
-}
-
-impl Collector for CoreSeries {
-    fn encode(&self, mut enc: DescriptorEncoder) -> Result<(), std::fmt::Error> {
-        let Some(gw) = self.gw.upgrade() else { return Ok(()) };
-        let topo = gw.topology();
-
-        // Per drive. A value the drive has not given yet is absent, not zero.
-        let drives: Vec<DriveRow> = topo.drives.iter().map(|d| DriveRow::of(d)).collect();
-        let e = &mut enc;
-        let dl = DriveRow::labels;
-        let gauge = |x: Option<f64>| x.map(Value::Gauge);
-        let flag = |x: Option<bool>| x.map(|b| Value::Flag(i64::from(b)));
-        family(e, ("drive_output_hz", "Output frequency, Hz.", None), &drives, dl, |r| gauge(r.output_hz))?;
-        family(
-            e,
-            (
-                "drive_setpoint_hz",
-                "Speed setpoint, Hz (the last commanded where the drive does not tell).",
-                None,
-            ),
-            &drives,
-            dl,
-            |r| gauge(r.setpoint_hz),
-        )?;
-        family(e, ("drive_current_a", "Motor current, A.", None), &drives, dl, |r| gauge(r.current_a))?;
-        family(e, ("drive_running", "1 when the output is on.", None), &drives, dl, |r| flag(r.running))?;
-        family(
-            e,
-            ("drive_fault_code", "The drive's code of the fault in force, 0 when none.", None),
-            &drives,
-            dl,
-            |r| r.fault_code.map(|c| Value::Flag(i64::from(c))),
-        )?;
-        family(e, ("drive_online", "1 when the drive answers its polls.", None), &drives, dl, |r| {
-            flag(r.online)
-        })?;
-        family(e, ("drive_data_age", "Age of the cached values.", Some(&Unit::Seconds)), &drives, dl, |r| {
-            gauge(r.age)
-        })?;
-        family(e, ("drive_polls", "Status polls made.", None), &drives, dl, |r| Some(Value::Count(r.polls)))?;
-        family(e, ("drive_poll_errors", "Status polls that failed.", None), &drives, dl, |r| {
-            Some(Value::Count(r.poll_errors))
-        })?;
-
-        // Per bus.
-        let buses: Vec<BusRow> = topo
-            .buses
-            .iter()
-            .map(|b| {
-                let rs = b.role_status();
-                BusRow {
-                    labels: [("bus", b.config.name.as_str())],
-                    stats: b.stats(),
-                    online: b.online(),
-                    master: b.role() == drivebus_link::role::Role::Master,
-                    takeovers: rs.map_or(0, |r| r.takeovers),
-                    yields: rs.map_or(0, |r| r.yields),
-                }
-            })
-            .collect();
-        let bl = BusRow::labels;
-        let count = |name, help, f: fn(&drivebus_link::owner::BusStats) -> u64| {
-            (name, help, move |r: &BusRow<'_>| Some(Value::Count(f(&r.stats))))
-        };
-        for (name, help, v) in [
-            count("bus_transactions", "Requests sent, retries included.", |s| s.transactions),
-            count("bus_replies", "Replies received.", |s| s.replies),
-            count("bus_timeouts", "Requests not answered in time.", |s| s.timeouts),
-            count("bus_checksum_errors", "Damaged replies.", |s| s.checksum_errors),
-            count("bus_retries", "Retries after a timeout or a damaged reply.", |s| s.retries),
-            count(
-                "bus_stray_replies",
-                "Modbus TCP answers to no request in flight (a stray or repeated transaction id), dropped.",
-                |s| s.stray_replies,
-            ),
-        ] {
-            family(e, (name, help, None), &buses, bl, v)?;
-        }
-        family(
-            e,
-            ("bus_utilization", "Time on the wire over time elapsed (0..1).", None),
-            &buses,
-            bl,
-            |r| {
-                let u = r.stats.utilization();
-                Some(Value::Gauge(if u.is_finite() { u } else { 0.0 }))
-            },
-        )?;
-        let (name, help, v) =
-            count("bus_wire_bytes", "Bytes of the requests and their replies on the line.", |s| s.wire_bytes);
-        family(e, (name, help, None), &buses, bl, v)?;
-        family(e, ("bus_online", "1 unless the bus's port failed.", None), &buses, bl, |r| {
-            Some(Value::Flag(i64::from(r.online)))
-        })?;
-        let (name, help, v) = count(
-            "bus_foreign_broadcasts",
-            "Broadcasts heard on the line that the gateway did not send (a drive acting as bus master).",
-            |s| s.foreign_broadcasts,
-        );
-        family(e, (name, help, None), &buses, bl, v)?;
-        family(
-            e,
-            ("bus_drive_master", "1 while a drive acts as bus master on the line.", None),
-            &buses,
-            bl,
-            |r| Some(Value::Flag(i64::from(crate::core::drive_master(&r.stats)))),
-        )?;
-        family(
-            e,
-            ("bus_role", "1 while the gateway masters the bus, 0 while it listens as a standby.", None),
-            &buses,
-            bl,
-            |r| Some(Value::Flag(i64::from(r.master))),
-        )?;
-        family(
-            e,
-            ("bus_takeovers", "Times the gateway took the line over from another master.", None),
-            &buses,
-            bl,
-            |r| Some(Value::Count(r.takeovers)),
-        )?;
-        family(
-            e,
-            ("bus_yields", "Times the gateway stopped sending on hearing another master.", None),
-            &buses,
-            bl,
-            |r| Some(Value::Count(r.yields)),
-        )?;
-
-        // The gateway's own work.
-        let c = &gw.counters;
-        let results = [
-            ([("result", "ok")], c.commands_ok.load(Ordering::Relaxed)),
-            ([("result", "failed")], c.commands_failed.load(Ordering::Relaxed)),
-        ];
-        family(
-            e,
-            ("commands", "Commands confirmed by a drive (ok) or refused or failed.", None),
-            &results,
-            |r| r.0,
-            |r| Some(Value::Count(r.1)),
-        )?;
-        single(
-            e,
-            ("store_errors", "Events that could not be written to the store."),
-            Value::Count(c.store_errors.load(Ordering::Relaxed)),
-        )?;
-        single(
-            e,
-            (
-                "commands_not_recorded",
-                "Commands refused, not sent, because their audit record could not be committed.",
-            ),
-            Value::Count(c.commands_not_recorded.load(Ordering::Relaxed)),
-        )
+    fn flag(x: Option<bool>) -> Option<Value> {
+        x.map(|b| Value::Flag(i64::from(b)))
     }
+    family(out, ("drive_output_hz", "Output frequency, Hz.", None), per_drive(|r| gauge(r.output_hz)));
+    family(
+        out,
+        ("drive_setpoint_hz", "Speed setpoint, Hz (the last commanded where the drive does not tell).", None),
+        per_drive(|r| gauge(r.setpoint_hz)),
+    );
+    family(out, ("drive_current_a", "Motor current, A.", None), per_drive(|r| gauge(r.current_a)));
+    family(out, ("drive_running", "1 when the output is on.", None), per_drive(|r| flag(r.running)));
+    family(
+        out,
+        ("drive_fault_code", "The drive's code of the fault in force, 0 when none.", None),
+        per_drive(|r| r.fault_code.map(|c| Value::Flag(i64::from(c)))),
+    );
+    family(out, ("drive_online", "1 when the drive answers its polls.", None), per_drive(|r| flag(r.online)));
+    family(
+        out,
+        ("drive_data_age", "Age of the cached values.", Some("seconds")),
+        per_drive(|r| gauge(r.age)),
+    );
+    family(out, ("drive_polls", "Status polls made.", None), per_drive(|r| Some(Value::Count(r.polls))));
+    family(
+        out,
+        ("drive_poll_errors", "Status polls that failed.", None),
+        per_drive(|r| Some(Value::Count(r.poll_errors))),
+    );
+
+    // Per bus.
+    text.clear();
+    let buses: Vec<BusRow> = topo
+        .buses
+        .iter()
+        .map(|b| {
+            let rs = b.role_status();
+            BusRow {
+                labels: push_labels(&mut text, &[("bus", b.config.name.as_str())]),
+                stats: b.stats(),
+                online: b.online(),
+                master: b.role() == drivebus_link::role::Role::Master,
+                takeovers: rs.map_or(0, |r| r.takeovers),
+                yields: rs.map_or(0, |r| r.yields),
+            }
+        })
+        .collect();
+    fn per_bus<'a>(
+        buses: &'a [BusRow],
+        text: &'a str,
+        f: impl Fn(&BusRow) -> Value + 'a,
+    ) -> impl Iterator<Item = (&'a str, Option<Value>)> + 'a {
+        rows(buses, text, |r| r.labels.clone(), move |r| Some(f(r)))
+    }
+    let count = |name, help, f: fn(&drivebus_link::owner::BusStats) -> u64| {
+        (name, help, move |r: &BusRow| Value::Count(f(&r.stats)))
+    };
+    for (name, help, v) in [
+        count("bus_transactions", "Requests sent, retries included.", |s| s.transactions),
+        count("bus_replies", "Replies received.", |s| s.replies),
+        count("bus_timeouts", "Requests not answered in time.", |s| s.timeouts),
+        count("bus_checksum_errors", "Damaged replies.", |s| s.checksum_errors),
+        count("bus_retries", "Retries after a timeout or a damaged reply.", |s| s.retries),
+        count(
+            "bus_stray_replies",
+            "Modbus TCP answers to no request in flight (a stray or repeated transaction id), dropped.",
+            |s| s.stray_replies,
+        ),
+    ] {
+        family(out, (name, help, None), per_bus(&buses, &text, v));
+    }
+    family(
+        out,
+        ("bus_utilization", "Time on the wire over time elapsed (0..1).", None),
+        per_bus(&buses, &text, |r| {
+            let u = r.stats.utilization();
+            Value::Gauge(if u.is_finite() { u } else { 0.0 })
+        }),
+    );
+    let (name, help, v) =
+        count("bus_wire_bytes", "Bytes of the requests and their replies on the line.", |s| s.wire_bytes);
+    family(out, (name, help, None), per_bus(&buses, &text, v));
+    family(
+        out,
+        ("bus_online", "1 unless the bus's port failed.", None),
+        per_bus(&buses, &text, |r| Value::Flag(i64::from(r.online))),
+    );
+    let (name, help, v) = count(
+        "bus_foreign_broadcasts",
+        "Broadcasts heard on the line that the gateway did not send (a drive acting as bus master).",
+        |s| s.foreign_broadcasts,
+    );
+    family(out, (name, help, None), per_bus(&buses, &text, v));
+    family(
+        out,
+        ("bus_drive_master", "1 while a drive acts as bus master on the line.", None),
+        per_bus(&buses, &text, |r| Value::Flag(i64::from(crate::core::drive_master(&r.stats)))),
+    );
+    family(
+        out,
+        ("bus_role", "1 while the gateway masters the bus, 0 while it listens as a standby.", None),
+        per_bus(&buses, &text, |r| Value::Flag(i64::from(r.master))),
+    );
+    family(
+        out,
+        ("bus_takeovers", "Times the gateway took the line over from another master.", None),
+        per_bus(&buses, &text, |r| Value::Count(r.takeovers)),
+    );
+    family(
+        out,
+        ("bus_yields", "Times the gateway stopped sending on hearing another master.", None),
+        per_bus(&buses, &text, |r| Value::Count(r.yields)),
+    );
+
+    // The gateway's own work.
+    let c = &gw.counters;
+    family(
+        out,
+        ("commands", "Commands confirmed by a drive (ok) or refused or failed.", None),
+        [
+            ("result=\"ok\"", Some(Value::Count(c.commands_ok.load(Ordering::Relaxed)))),
+            ("result=\"failed\"", Some(Value::Count(c.commands_failed.load(Ordering::Relaxed)))),
+        ],
+    );
+    single(
+        out,
+        ("store_errors", "Events that could not be written to the store."),
+        Value::Count(c.store_errors.load(Ordering::Relaxed)),
+    );
+    single(
+        out,
+        (
+            "commands_not_recorded",
+            "Commands refused, not sent, because their audit record could not be committed.",
+        ),
+        Value::Count(c.commands_not_recorded.load(Ordering::Relaxed)),
+    );
 }
 
 /// The health series (the facts of /readyz) and the reloads: the kept facts, the store's as of
 /// its last scheduled check.
-#[derive(Debug)]
-struct HealthSeries {
-    gw: Weak<Gateway>,
+fn health_series(gw: &Gateway, out: &mut String) {
+    let h = gw.health();
+    let flag = |b: bool| Value::Flag(i64::from(b));
+    single(
+        out,
+        ("ready", "1 when every configured listener and Modbus RTU slave is up and the store is writable."),
+        flag(gw.not_ready().is_empty()),
+    );
+    let mut text = String::new();
+    let listeners: Vec<_> = h
+        .listeners()
+        .iter()
+        .map(|l| (push_labels(&mut text, &[("listener", l.name.as_str())]), l.up))
+        .collect();
+    family(
+        out,
+        ("listener_up", "1 when the listener accepts connections.", None),
+        listeners.iter().map(|(l, up)| (&text[l.clone()], Some(flag(*up)))),
+    );
+    let mut text = String::new();
+    let slaves: Vec<_> = h
+        .slave_ports()
+        .iter()
+        .map(|p| (push_labels(&mut text, &[("port", p.port.as_str())]), p.down.is_none()))
+        .collect();
+    family(
+        out,
+        ("modbus_rtu_up", "1 when the Modbus RTU slave's port is open and served.", None),
+        slaves.iter().map(|(l, up)| (&text[l.clone()], Some(flag(*up)))),
+    );
+    if let Some(verdict) = h.store_verdict() {
+        single(
+            out,
+            (
+                "store_writable",
+                "1 when the store's folder and file take writes and its filesystem has [store] min_free_mb free.",
+            ),
+            flag(verdict.is_ok()),
+        );
+    }
+    let (ok, failed) = h.reloads();
+    family(
+        out,
+        ("config_reloads", "Configuration reloads applied (ok) or refused (failed).", None),
+        [("result=\"ok\"", Some(Value::Count(ok))), ("result=\"failed\"", Some(Value::Count(failed)))],
+    );
+    single(
+        out,
+        ("config_reload_failed", "1 while the last reload was refused (the previous configuration runs)."),
+        flag(h.last_reload_error().is_some()),
+    );
 }
 
-impl Collector for HealthSeries {
-    fn encode(&self, mut enc: DescriptorEncoder) -> Result<(), std::fmt::Error> {
-        let Some(gw) = self.gw.upgrade() else { return Ok(()) };
-        let e = &mut enc;
-        let h = gw.health();
-        let flag = |b: bool| Value::Flag(i64::from(b));
-        single(
-            e,
+#[cfg(test)]
+mod tests {
+    use prometheus_client::metrics::gauge::Gauge;
+    use std::sync::atomic::AtomicU64;
+
+    use super::*;
+
+    type Labels = Vec<(String, String)>;
+
+    fn labels(pairs: &[(&str, &str)]) -> Labels {
+        pairs.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect()
+    }
+
+    /// The series written by hand are the text `prometheus-client` writes for the same
+    /// families: names, units, `_total`, label escaping and number formats.
+    #[test]
+    fn hand_written_series_are_what_prometheus_client_writes() {
+        let rows = [
             (
-                "ready",
-                "1 when every configured listener and Modbus RTU slave is up and the store is writable.",
+                labels(&[("bus", "line-1"), ("drive", "pump \"A\\1\"\nnew"), ("family", "generic")]),
+                40.25,
+                7,
+                -3,
             ),
-            flag(gw.not_ready().is_empty()),
-        )?;
-        let listeners = h.listeners();
-        family(
-            e,
-            ("listener_up", "1 when the listener accepts connections.", None),
-            &listeners,
-            |l| [("listener", l.name.as_str())],
-            |l| Some(flag(l.up)),
-        )?;
-        let slaves = h.slave_ports();
-        family(
-            e,
-            ("modbus_rtu_up", "1 when the Modbus RTU slave's port is open and served.", None),
-            &slaves,
-            |p| [("port", p.port.as_str())],
-            |p| Some(flag(p.down.is_none())),
-        )?;
-        if let Some(verdict) = h.store_verdict() {
-            single(
-                e,
-                (
-                    "store_writable",
-                    "1 when the store's folder and file take writes and its filesystem has [store] min_free_mb free.",
-                ),
-                flag(verdict.is_ok()),
-            )?;
+            (labels(&[("bus", "line-2"), ("drive", "fan-1"), ("family", "b800")]), 0.1, 0, 1),
+        ];
+        let mut reg = Registry::with_prefix(PREFIX);
+        let hz = Family::<Labels, Gauge<f64, AtomicU64>>::default();
+        let age = Family::<Labels, Gauge<f64, AtomicU64>>::default();
+        let polls = Family::<Labels, Counter>::default();
+        let fault = Family::<Labels, Gauge>::default();
+        let ready = Gauge::<i64>::default();
+        // The registry ends each help text with a full stop of its own.
+        reg.register("drive_output_hz", "Output frequency, Hz", hz.clone());
+        reg.register_with_unit("drive_data_age", "Age of the cached values", Unit::Seconds, age.clone());
+        reg.register("drive_polls", "Status polls made", polls.clone());
+        reg.register("drive_fault_code", "Fault", fault.clone());
+        reg.register("ready", "1 when ready", ready.clone());
+        for (l, x, n, f) in &rows {
+            hz.get_or_create(l).set(*x);
+            age.get_or_create(l).set(*x * 3.0);
+            polls.get_or_create(l).inc_by(*n);
+            fault.get_or_create(l).set(*f);
         }
-        let (ok, failed) = h.reloads();
+        ready.set(1);
+        let mut theirs = String::new();
+        encode_registry(&mut theirs, &reg).unwrap();
+
+        let mut text = String::new();
+        let ours_rows: Vec<_> = rows
+            .iter()
+            .map(|(l, x, n, f)| {
+                let pairs: Vec<(&str, &str)> = l.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect();
+                (push_labels(&mut text, &pairs), *x, *n, *f)
+            })
+            .collect();
+        let each = |f: &dyn Fn(f64, u64, i64) -> Value| {
+            ours_rows.iter().map(|(l, x, n, c)| (&text[l.clone()], Some(f(*x, *n, *c)))).collect::<Vec<_>>()
+        };
+        let mut ours = String::new();
         family(
-            e,
-            ("config_reloads", "Configuration reloads applied (ok) or refused (failed).", None),
-            &[([("result", "ok")], ok), ([("result", "failed")], failed)],
-            |r| r.0,
-            |r| Some(Value::Count(r.1)),
-        )?;
-        single(
-            e,
-            (
-                "config_reload_failed",
-                "1 while the last reload was refused (the previous configuration runs).",
-            ),
-            flag(h.last_reload_error().is_some()),
-        )
+            &mut ours,
+            ("drive_output_hz", "Output frequency, Hz.", None),
+            each(&|x, _, _| Value::Gauge(x)),
+        );
+        family(
+            &mut ours,
+            ("drive_data_age", "Age of the cached values.", Some("seconds")),
+            each(&|x, _, _| Value::Gauge(x * 3.0)),
+        );
+        family(&mut ours, ("drive_polls", "Status polls made.", None), each(&|_, n, _| Value::Count(n)));
+        family(&mut ours, ("drive_fault_code", "Fault.", None), each(&|_, _, f| Value::Flag(f)));
+        single(&mut ours, ("ready", "1 when ready."), Value::Flag(1));
+        // The same descriptors in the same order, and the same series (a family of the
+        // library keeps its series in a hash map: their order is its own).
+        let described =
+            |t: &str| t.lines().filter(|l| l.starts_with('#')).map(String::from).collect::<Vec<_>>();
+        assert_eq!(described(&ours), described(&theirs));
+        let sorted = |t: &str| {
+            let mut l: Vec<String> = t.lines().map(String::from).collect();
+            l.sort();
+            l
+        };
+        assert_eq!(sorted(&ours), sorted(&theirs), "{ours}\n---\n{theirs}");
+    }
+
+    /// A family none of whose rows has a value is left out whole, as a registered family
+    /// without series.
+    #[test]
+    fn a_family_without_values_is_not_written() {
+        let mut out = String::new();
+        family(
+            &mut out,
+            ("drive_output_hz", "Output frequency, Hz.", None),
+            [("drive=\"a\"", None), ("", None)],
+        );
+        assert_eq!(out, "");
     }
 }

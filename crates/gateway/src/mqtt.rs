@@ -58,6 +58,10 @@ pub const MAX_COMMAND_PAYLOAD: usize = 256;
 /// connection as the MQTT 5 Maximum Packet Size: the broker drops larger messages for us).
 pub const MAX_INCOMING_PACKET: u32 = 1 << 20;
 
+/// Most QoS 1 publishes awaiting the broker's acknowledgement at once (the broker's Receive
+/// Maximum lowers it further); more wait in the client's queue.
+pub const MAX_PUBLISHES_IN_FLIGHT: u16 = 1024;
+
 /// Most MQTT commands in progress at once; more are refused (`busy`) rather than queued.
 pub const MAX_COMMANDS_IN_FLIGHT: usize = 32;
 
@@ -470,18 +474,27 @@ fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
         .collect()
 }
 
-async fn run(gw: Arc<Gateway>, s: Settings) {
-    let s = Arc::new(s);
+/// The client's options for a plant of `drives` drives.
+fn options(s: &Settings, drives: usize) -> MqttOptions {
     let mut opts = MqttOptions::new(s.client_id.clone(), s.host.clone(), s.port);
     opts.set_keep_alive(Duration::from_secs(15));
     opts.set_transport(s.transport.clone());
     opts.set_clean_start(true);
     opts.set_last_will(LastWill::new(s.availability(), "offline", QoS::AtLeastOnce, true, None));
     opts.set_max_packet_size(Some(MAX_INCOMING_PACKET));
+    // The client keeps a slot for every publish it may have in flight, made at once: without
+    // a limit that is 65 536 slots, 14 MB, whatever the broker allows (issue 25).
+    opts.set_outgoing_inflight_upper_limit(MAX_PUBLISHES_IN_FLIGHT);
     if let Some((user, password)) = &s.credentials {
         opts.set_credentials(user.clone(), password.clone());
     }
-    opts.set_request_channel_capacity(64 + 16 * gw.drives().len());
+    opts.set_request_channel_capacity(64 + 16 * drives);
+    opts
+}
+
+async fn run(gw: Arc<Gateway>, s: Settings) {
+    let s = Arc::new(s);
+    let opts = options(&s, gw.drives().len());
     let (client, mut eventloop) = AsyncClient::new(opts, 64 + 16 * gw.drives().len());
 
     // The event loop runs on its own so that publishing never waits for the network.
@@ -571,6 +584,26 @@ async fn run(gw: Arc<Gateway>, s: Settings) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The client's slots for publishes in flight are bounded: rumqttc makes one per packet id
+    /// it may use, 65 536 of them (14 MB) unless told a limit (issue 25).
+    #[test]
+    fn publishes_in_flight_are_bounded() {
+        let s = Settings {
+            host: "127.0.0.1".into(),
+            port: 1883,
+            transport: rumqttc::Transport::Tcp,
+            prefix: "drivebus/plant".into(),
+            client_id: "drivebus-plant".into(),
+            allow: Vec::new(),
+            discovery: false,
+            gateway: "plant".into(),
+            credentials: None,
+        };
+        let opts = options(&s, 10_000);
+        assert_eq!(opts.get_outgoing_inflight_upper_limit(), Some(MAX_PUBLISHES_IN_FLIGHT));
+        assert!(usize::from(MAX_PUBLISHES_IN_FLIGHT) * std::mem::size_of::<Option<Publish>>() < 1 << 20);
+    }
 
     #[test]
     fn speed_payloads() {

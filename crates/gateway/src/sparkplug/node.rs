@@ -3,6 +3,7 @@
 //! ([`super::run`]) decides what is published and what waits in the store.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 
 use drivebus_drive::ParamDef;
 
@@ -81,7 +82,8 @@ pub enum DeviceMessage {
 
 struct Device {
     base_alias: u64,
-    params: Vec<ParamDef>,
+    /// Shared with every device of the same catalog.
+    params: Arc<[ParamDef]>,
     born: bool,
     last: Option<[Option<Value>; 8]>,
 }
@@ -211,7 +213,7 @@ impl Node {
     /// Puts the devices in line with the gateway's drives: `(id, writable parameters)`. New ones
     /// get aliases never used before in this process; returns the ids that are gone and were
     /// born (they need a DDEATH).
-    pub fn sync_devices(&mut self, drives: Vec<(String, Vec<ParamDef>)>) -> Vec<String> {
+    pub fn sync_devices(&mut self, drives: Vec<(String, Arc<[ParamDef]>)>) -> Vec<String> {
         let keep: std::collections::HashSet<&String> = drives.iter().map(|(id, _)| id).collect();
         let gone: Vec<String> = self.devices.keys().filter(|id| !keep.contains(id)).cloned().collect();
         let mut dead = Vec::new();
@@ -221,7 +223,7 @@ impl Node {
             }
         }
         for (id, params) in drives {
-            if self.devices.get(&id).is_some_and(|d| d.params == params) {
+            if self.devices.get(&id).is_some_and(|d| Arc::ptr_eq(&d.params, &params) || d.params == params) {
                 continue;
             }
             let base_alias = self.next_alias;
@@ -578,7 +580,7 @@ mod tests {
         }
     }
 
-    fn params() -> Vec<ParamDef> {
+    fn params() -> Arc<[ParamDef]> {
         Catalog::load(Family::Generic).unwrap().iter().filter(|p| !p.read_only).cloned().collect()
     }
 
@@ -728,7 +730,7 @@ mod tests {
         by_alias.metrics[0].name = None;
         by_alias.metrics[0].alias = alias("Command/Run");
         assert_eq!(n.device_command("pump-1", &by_alias), Ok(vec![Command::Run]));
-        let p = params().into_iter().find(|p| p.max > p.min).unwrap();
+        let p = params().iter().find(|p| p.max > p.min).unwrap().clone();
         let ok = p.from_raw(p.min);
         assert_eq!(
             n.device_command(

@@ -13,8 +13,8 @@ pub struct Plan {
     pub buses_added: Vec<String>,
     /// Buses in the old configuration only.
     pub buses_removed: Vec<String>,
-    /// Buses in both whose port, protocol, baud, format or timing changed (or, on a virtual
-    /// bus, any of its drives): closed and opened again.
+    /// Buses in both whose port, protocol, baud, format, timing or `max_in_flight` changed
+    /// (or, on a virtual bus, any of its drives): closed and opened again.
     pub buses_changed: Vec<String>,
     /// Drives added to buses that are kept.
     pub drives_added: Vec<String>,
@@ -71,8 +71,9 @@ fn same_bus(a: &BusConfig, b: &BusConfig) -> bool {
     ) {
         (&x.port, x.protocol, x.baud, x.format, x.timeout, x.retries, x.echo, x.strict_t15, x.rs485)
     }
-    // The owner's queue and the parameter cache are built with the bus.
-    let fair = |x: &BusConfig| (x.on_demand, x.param_cache, x.role);
+    // The owner's queue and the parameter cache are built with the bus, and so is the owner
+    // itself: one request in flight or the pipelined one (`max_in_flight` on modbus-tcp).
+    let fair = |x: &BusConfig| (x.on_demand, x.param_cache, x.role, x.max_in_flight);
     let same_drives =
         || a.drives.len() == b.drives.len() && a.drives.iter().zip(&b.drives).all(|(x, y)| same_drive(x, y));
     line(a) == line(b) && fair(a) == fair(b) && (a.port != crate::config::Port::Virtual || same_drives())
@@ -255,6 +256,20 @@ address = 1
         let p = plan(&cfg(BASE), &cfg(&more));
         assert_eq!(p.drives_added, vec!["fan-2"]);
         assert!(p.buses_changed.is_empty(), "{p:?}");
+    }
+
+    #[test]
+    fn a_max_in_flight_change_reopens_the_modbus_tcp_bus() {
+        let tcp = |n: u8| {
+            format!(
+                "[[bus]]\nname = \"eth\"\nport = \"tcp://10.0.0.5:502\"\nprotocol = \"modbus-tcp\"\n\
+                 max_in_flight = {n}\n[[bus.drive]]\nname = \"fan\"\nfamily = \"generic\"\naddress = 1\n"
+            )
+        };
+        let p = plan(&cfg(&tcp(1)), &cfg(&tcp(4)));
+        assert_eq!(p.buses_changed, vec!["eth"], "{p:?}");
+        assert!(p.drives_changed.is_empty() && p.needs_restart.is_empty(), "{p:?}");
+        assert!(plan(&cfg(&tcp(4)), &cfg(&tcp(4))).is_empty());
     }
 
     #[test]

@@ -1,5 +1,5 @@
 //! Finding drives on a running bus: each address, for each family that speaks the bus's
-//! protocol, is probed with a status read through the bus's owner at the lowest priority
+//! protocol (the built-in families, then the template kinds the gateway knows), is probed with a status read through the bus's owner at the lowest priority
 //! ([`drivebus_link::Priority::Scan`]: only when nothing else waits, one attempt, the address's
 //! health left alone), so polling goes on as before. One scan per bus at a time; its progress
 //! and findings stay for [`Gateway::scan_report`] after it ends.
@@ -10,7 +10,7 @@ use crate::core::scan::config_lines;
 pub use crate::core::scan::{parse_addresses, Found, ScanReport, Scans};
 use crate::core::{unix_ms, CommandError, Gateway};
 use drivebus_drive::profile::for_drive;
-use drivebus_drive::Family;
+use drivebus_drive::{template, Family};
 use drivebus_link::drive::{probe, Drive};
 
 impl Gateway {
@@ -28,8 +28,15 @@ impl Gateway {
             .cloned()
             .ok_or_else(|| CommandError::UnknownBus(bus.to_string()))?;
         let protocol = entry.config.protocol;
-        let families: Vec<Family> =
-            Family::ALL.iter().copied().filter(|f| f.protocols().contains(&protocol)).collect();
+        // The built-in families first, then the template kinds the gateway knows (the shipped
+        // ones and the configuration's `templates = [...]`): a kind is reached only where no
+        // family before it read a status, as `drivebus scan --drive auto` does.
+        let families: Vec<Family> = Family::ALL
+            .iter()
+            .copied()
+            .chain(template::registered())
+            .filter(|f| f.protocols().contains(&protocol))
+            .collect();
         let addresses = addresses.unwrap_or_else(|| {
             let mut all: Vec<u8> = families
                 .iter()

@@ -1009,7 +1009,11 @@ async fn a_bus_scan_finds_the_drives_while_polling_goes_on() {
     );
     let r = call(&app, "POST", &format!("{url}?addresses=1-6"), Some(WRITE), None).await;
     assert_eq!(r.status, 202, "{}", r.json);
-    assert_eq!((&r.json["running"], &r.json["families"]), (&json!(true), &json!(["generic", "toshiba"])));
+    // The built-in families, then the shipped template kinds speaking Modbus RTU.
+    assert_eq!(
+        (&r.json["running"], &r.json["families"]),
+        (&json!(true), &json!(["generic", "toshiba", "generic-2000h"]))
+    );
     assert_error(&call(&app, "POST", url, Some(WRITE), None).await, 429, "busy");
     // conveyor-1 is polled every 250 ms: while the scan runs, a poll at least every 4 of those.
     let conveyor = gw.drive("conveyor-1").unwrap();
@@ -1051,6 +1055,83 @@ async fn a_bus_scan_finds_the_drives_while_polling_goes_on() {
     let config = report["config"].as_str().unwrap();
     assert!(config.contains("# already configured on line-generic as fan-1:\n# [[bus.drive]]\n"), "{config}");
     assert!(report["found"][0]["model"].as_str().unwrap().contains("generic"), "{report}");
+}
+
+/// A drive with its own map (status at 100.., command at 200), speaking Modbus ASCII so that no
+/// other test's bus (the demo's line-generic speaks RTU) sees its kind.
+const SCAN_KIND: &str = r#"kind = "http-scan-bits"
+maker = "Test"
+model = "S1"
+source = "written for this test"
+protocols = ["modbus-ascii"]
+[serial]
+baud = 19200
+format = "7E1"
+[status]
+running = { register = 100, bit = 0 }
+output_hz = { register = 101, scale = 0.1 }
+current_a = { register = 102, scale = 0.01 }
+fault = { register = 103 }
+[command]
+register = 200
+run = { bit = 0 }
+reset = { bit = 7 }
+[setpoint]
+register = 201
+full_scale = 0x4000
+max_hz = 60.0
+"#;
+
+#[tokio::test(start_paused = true)]
+async fn a_bus_scan_also_tries_the_template_kinds_the_gateway_knows() {
+    let dir =
+        std::env::temp_dir().join(format!("drivebus-http-scan-{}-{}", std::process::id(), rand_suffix()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("bits.toml"), SCAN_KIND).unwrap();
+    let path = dir.join("plant.toml");
+    let text = "templates = [\"bits.toml\"]\n[[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"modbus-ascii\"\n\
+         [[bus.drive]]\nname = \"fan\"\nfamily = \"http-scan-bits\"\naddress = 1\npoll_ms = 500\n\
+         [[bus.drive]]\nname = \"pump\"\nfamily = \"generic\"\naddress = 2\npoll_ms = 500\n";
+    let mut c = GatewayConfig::from_toml(&path.display().to_string(), text).unwrap_or_else(|e| panic!("{e}"));
+    c.store = None;
+    c.tokens = vec![Token { name: "writer".into(), secret: WRITE.into(), role: Role::Write }];
+    let gw = Gateway::start(c, None).unwrap();
+    let app = app_with(&gw);
+    settle(2).await;
+    let url = "/api/buses/a/scan";
+    let r = call(&app, "POST", &format!("{url}?addresses=1-3"), Some(WRITE), None).await;
+    assert_eq!(r.status, 202, "{}", r.json);
+    let families: Vec<&str> =
+        r.json["families"].as_array().unwrap().iter().map(|f| f.as_str().unwrap()).collect();
+    // The built-in family speaking Modbus ASCII, then the shipped kind, then the configured one.
+    assert_eq!(families, ["generic", "generic-2000h", "http-scan-bits"], "{}", r.json);
+    let start = tokio::time::Instant::now();
+    let report = loop {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let r = call(&app, "GET", url, Some(WRITE), None).await;
+        if r.json["running"] == false {
+            break r.json;
+        }
+        assert!(start.elapsed() < Duration::from_secs(600), "the scan never ended: {}", r.json);
+    };
+    let found: Vec<(u64, &str, &str)> = report["found"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            (
+                f["address"].as_u64().unwrap(),
+                f["family"].as_str().unwrap(),
+                f["configured"].as_str().unwrap_or(""),
+            )
+        })
+        .collect();
+    // The templated drive is found by its kind; the generic one still by the built-in family
+    // (the shipped generic-2000h kind, which reads the same map, is not reached there).
+    assert_eq!(found, [(1, "http-scan-bits", "fan"), (2, "generic", "pump")], "{report}");
+    assert_eq!(report["found"][0]["model"], "Test S1", "{report}");
+    assert!(report["config"].as_str().unwrap().contains("# family = \"http-scan-bits\"\n"), "{report}");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(start_paused = true)]

@@ -250,11 +250,18 @@ impl Probe {
         }
     }
 
-    /// A refusal on `protocol` when more than one family speaks it: the drive may be another
-    /// family's, refusing this family's map (a find only where no family read its status).
+    /// A refusal on `protocol` when more than one family speaks it (the built-in families and
+    /// the template kinds registered): the drive may be another family's, refusing this
+    /// family's map (a find only where no family read its status).
     pub fn tentative(&self, protocol: WireProtocol) -> bool {
         matches!(self, Probe::Refused { .. })
-            && Family::ALL.iter().filter(|&&f| f.protocols().contains(&protocol)).count() > 1
+            && Family::ALL
+                .iter()
+                .copied()
+                .chain(drivebus_drive::template::registered())
+                .filter(|f| f.protocols().contains(&protocol))
+                .count()
+                > 1
     }
 }
 

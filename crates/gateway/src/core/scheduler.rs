@@ -1,6 +1,8 @@
 //! The poll loops: one scheduler per bus that polls each drive at its interval, a status read
 //! ahead of polls after a command, and the buses' statistics for live subscribers.
 
+use std::collections::HashMap;
+use std::future::Future;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::Duration;
@@ -37,9 +39,8 @@ impl Gateway {
         let mut generation = u64::MAX;
         let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
         let mut due: Vec<tokio::time::Instant> = Vec::new();
-        // The polls under way, each ending with its drive.
-        let mut polling: tokio::task::JoinSet<Arc<DriveEntry>> = tokio::task::JoinSet::new();
-        let mut busy: Vec<Arc<DriveEntry>> = Vec::new();
+        // The polls under way, each with its drive (released even when a poll panics).
+        let mut polling: InFlight<Arc<DriveEntry>> = InFlight::default();
         loop {
             if bus.retired.load(Ordering::Relaxed) {
                 return;
@@ -63,23 +64,19 @@ impl Gateway {
             }
             // The most urgent drive not being polled, while fewer than `limit` polls are under way.
             let pick = (0..mine.len())
-                .filter(|&k| busy.len() < limit && !busy.iter().any(|b| Arc::ptr_eq(b, &mine[k])))
+                .filter(|&k| polling.len() < limit && !polling.keys().any(|b| Arc::ptr_eq(b, &mine[k])))
                 .min_by_key(|&k| (due[k], mine[k].config.priority));
             let at = pick.map_or_else(|| tokio::time::Instant::now() + Duration::from_secs(3600), |k| due[k]);
             tokio::select! {
                 _ = tokio::time::sleep_until(at), if pick.is_some() => {
                     let d = mine[pick.expect("picked")].clone();
-                    busy.push(d.clone());
-                    let (gw, bus) = (self.clone(), bus.clone());
-                    polling.spawn(async move {
-                        let result = d.poll.status().await;
-                        gw.update(&bus, &d, result).await;
-                        d
+                    let (gw, bus, drive) = (self.clone(), bus.clone(), d.clone());
+                    polling.start(d, async move {
+                        let result = drive.poll.status().await;
+                        gw.update(&bus, &drive, result).await;
                     });
                 }
-                Some(done) = polling.join_next(), if !polling.is_empty() => {
-                    let Ok(d) = done else { continue };
-                    busy.retain(|b| !Arc::ptr_eq(b, &d));
+                Some(d) = polling.next_done(), if !polling.is_empty() => {
                     if let Some(k) = mine.iter().position(|m| Arc::ptr_eq(m, &d)) {
                         let next = due[k] + poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
                         due[k] = next.max(tokio::time::Instant::now());
@@ -141,10 +138,78 @@ impl Gateway {
     }
 }
 
+/// Tasks under way, each with its key (the scheduler's polls, keyed by drive): the key comes
+/// back when its task ends, also when the task panicked or was cancelled, so a drive is never
+/// left "being polled" for good.
+struct InFlight<K> {
+    tasks: tokio::task::JoinSet<()>,
+    keys: HashMap<tokio::task::Id, K>,
+}
+
+impl<K> Default for InFlight<K> {
+    fn default() -> Self {
+        InFlight { tasks: tokio::task::JoinSet::new(), keys: HashMap::new() }
+    }
+}
+
+impl<K> InFlight<K> {
+    /// Runs `task` for `key`.
+    fn start(&mut self, key: K, task: impl Future<Output = ()> + Send + 'static) {
+        let id = self.tasks.spawn(task).id();
+        self.keys.insert(id, key);
+    }
+
+    /// The tasks under way.
+    fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    /// Whether none is under way.
+    fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// The keys of the tasks under way.
+    fn keys(&self) -> impl Iterator<Item = &K> {
+        self.keys.values()
+    }
+
+    /// The key of the next task to end, however it ended (`None` when none is under way).
+    async fn next_done(&mut self) -> Option<K> {
+        loop {
+            let id = match self.tasks.join_next_with_id().await? {
+                Ok((id, ())) => id,
+                // A panic was told by the panic hook; the drive is polled again when due.
+                Err(e) => e.id(),
+            };
+            if let Some(key) = self.keys.remove(&id) {
+                return Some(key);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::poll_every;
+    use super::{poll_every, InFlight};
     use std::time::Duration;
+
+    #[tokio::test]
+    async fn a_task_that_panics_gives_its_key_back() {
+        let mut polls: InFlight<&str> = InFlight::default();
+        let (go, wait) = tokio::sync::oneshot::channel::<()>();
+        polls.start("fan", async move {
+            let _ = wait.await;
+            panic!("a poll that fails badly");
+        });
+        polls.start("pump", std::future::pending());
+        assert_eq!((polls.len(), polls.keys().any(|k| *k == "fan")), (2, true));
+        go.send(()).unwrap();
+        let back = tokio::time::timeout(std::time::Duration::from_secs(60), polls.next_done()).await;
+        assert_eq!(back, Ok(Some("fan")));
+        assert_eq!(polls.keys().collect::<Vec<_>>(), [&"pump"]);
+        assert!(!polls.is_empty());
+    }
 
     #[test]
     fn a_drive_is_polled_at_the_learnt_interval_never_slower_than_its_own() {

@@ -12,6 +12,7 @@
 #   - the gateway's RSS per client.
 #
 # SECS=20 CLIENTS="1 20" PUBLISH_MS=100 bench/opcua.sh
+# BIN=path measures that build of drivebus instead of building the release one here.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . bench/lib/plant.sh
@@ -21,12 +22,17 @@ PUBLISH_MS=${PUBLISH_MS:-1000}
 SAMPLE_MS=${SAMPLE_MS:-1000}
 TOKEN=bench-opcua-token-0123456789
 
-cargo build --release -q -p drivebus
-BIN=target/release/drivebus
+# BIN: another build of drivebus to measure (default: the release build, built here).
+if [ -z "${BIN:-}" ]; then
+  cargo build --release -q -p drivebus
+  BIN=target/release/drivebus
+fi
 . bench/lib/run.sh
 HZ=$(getconf CLK_TCK)
 
-write_plant "$TMP/plant.toml" bench "$(printf '[store]\ndisabled = true\n[[token]]\nname = "bench"\ntoken = "%s"\nrole = "write"\n' "$TOKEN")"
+# Every subscriber is anonymous: one user, allowed as many sessions as the most clients.
+MAX_CLIENTS=$(printf '%s\n' $CLIENTS | sort -n | tail -n 1)
+write_plant "$TMP/plant.toml" bench "$(printf '[store]\ndisabled = true\n[opcua]\nmax_sessions_per_user = %d\n[[token]]\nname = "bench"\ntoken = "%s"\nrole = "write"\n' "$((MAX_CLIENTS + 1))" "$TOKEN")"
 HP=$(free_port); MP=$(free_port); OP=$(free_port)
 taskset -c 0 "$BIN" serve --config "$TMP/plant.toml" --http "127.0.0.1:$HP" --modbus "127.0.0.1:$MP" \
   --opcua "127.0.0.1:$OP" >"$TMP/gw.log" 2>&1 &

@@ -14,13 +14,17 @@ pub mod manager;
 pub mod nodes;
 pub mod sessions;
 pub mod space;
+pub mod standard;
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
 use opcua::crypto::SecurityPolicy;
-use opcua::server::diagnostics::NamespaceMetadata;
+use opcua::server::address_space::AddressSpace;
+use opcua::server::diagnostics::{DiagnosticsNodeManagerBuilder, NamespaceMetadata};
+use opcua::server::node_manager::memory::{CoreNodeManagerImpl, InMemoryNodeManagerBuilder};
+use opcua::server::node_manager::ServerContext;
 use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken, SubscriptionCache};
 use opcua::types::{
     BuildInfo, ByteString, DataValue, DateTime, LocalizedText, MessageSecurityMode, NodeId, ObjectId,
@@ -178,6 +182,19 @@ fn build(
     let sessions = Arc::new(sessions::Sessions::new(pending_for));
     let sessions_nodes = sessions.clone();
     let mut builder = ServerBuilder::new()
+        // Namespace 0: the part of the core namespace clients use (standard.rs), not all of
+        // it; then the library's diagnostics, then the drives.
+        .without_node_managers()
+        .with_node_manager(InMemoryNodeManagerBuilder::new(
+            |context: ServerContext, space: &mut AddressSpace| {
+                space.import_node_set(
+                    &standard::StandardNodes::new(),
+                    context.type_tree.write().namespaces_mut(),
+                );
+                CoreNodeManagerImpl::new(context.node_managers.clone(), context.status.clone())
+            },
+        ))
+        .with_node_manager(DiagnosticsNodeManagerBuilder)
         .application_name("drivebus gateway")
         .application_uri(format!("urn:drivebus:gateway:{}", gw.config().name))
         .product_uri("urn:drivebus")
@@ -198,7 +215,7 @@ fn build(
         .add_user_token(TOKEN_USERS, ServerUserToken::user_pass(TOKEN_USERS, ""))
         .max_session_timeout_ms(opcua::server::constants::MAX_SESSION_TIMEOUT)
         .with_authenticator(Arc::new(auth::TokenAuth::new(gw.clone(), sessions)))
-        .with_node_manager(move |context: opcua::server::node_manager::ServerContext| {
+        .with_node_manager(move |context: ServerContext| {
             let index = context.type_tree.write().namespaces_mut().add_namespace(nodes::NAMESPACE);
             DriveNodes::new(
                 gw_nodes,

@@ -614,6 +614,14 @@ impl MonitoredItem {
             self.queue_overflow = true;
         }
 
+        // drivebus: the queue never holds more than queue_size notifications (one is dropped
+        // above before one is added), so its first push makes room for that many, at most 4,
+        // instead of the 4 a VecDeque makes room for: the queue of a data item (size 1) held
+        // the memory of 4 notifications for its one.
+        if self.notification_queue.capacity() == 0 {
+            self.notification_queue
+                .reserve_exact(self.queue_size.clamp(1, 4));
+        }
         self.notification_queue.push_back(notification);
     }
 
@@ -1056,6 +1064,40 @@ pub(super) mod tests {
                 assert_eq!(n.value.status, Some(StatusCode::Good));
             }
         }
+    }
+
+    // drivebus: change 5 (DRIVEBUS.md).
+    #[test]
+    fn a_data_items_queue_holds_room_for_its_queue_size() {
+        let item = |queue_size| {
+            let mut item = new_monitored_item(
+                1,
+                ReadValueId {
+                    node_id: NodeId::null(),
+                    attribute_id: AttributeId::Value as u32,
+                    ..Default::default()
+                },
+                MonitoringMode::Reporting,
+                FilterType::None,
+                SamplingInterval::Zero,
+                true,
+                Some(DataValue::new_now(0)),
+            );
+            item.notification_queue = Default::default();
+            item.queue_size = queue_size;
+            item
+        };
+        let mut one = item(1);
+        for v in 1..5 {
+            assert!(one.notify_data_value(DataValue::new_now(v), &DateTime::now(), false));
+            assert_eq!(one.notification_queue.len(), 1);
+            assert_eq!(one.notification_queue.capacity(), 1);
+        }
+        let mut ten = item(10);
+        for v in 1..11 {
+            assert!(ten.notify_data_value(DataValue::new_now(v), &DateTime::now(), false));
+        }
+        assert_eq!(ten.notification_queue.len(), 10);
     }
 
     #[test]

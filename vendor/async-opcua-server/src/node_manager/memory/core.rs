@@ -216,7 +216,10 @@ impl InMemoryNodeManagerImpl for CoreNodeManagerImpl {
 }
 
 impl CoreNodeManagerImpl {
-    pub(super) fn new(node_managers: NodeManagersRef, status: Arc<ServerStatusWrapper>) -> Self {
+    // drivebus: public (was `pub(super)`), so that a server can build the core node manager
+    // over a part of the core namespace (its own `NodeSetImport`) instead of all of it.
+    /// Create the core node manager's implementation, for an address space the caller filled.
+    pub fn new(node_managers: NodeManagersRef, status: Arc<ServerStatusWrapper>) -> Self {
         Self {
             sampler: SyncSampler::new(),
             status,

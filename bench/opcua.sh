@@ -41,21 +41,29 @@ until grep -q "OPC UA" "$TMP/gw.log"; do sleep 0.2; done
 URL="opc.tcp://127.0.0.1:$OP"
 
 # Every drive running, its speed changed every 4 s (all values keep changing while they ramp).
+# A command takes a bus exchange or two (tens of ms), so the stirrer sends from 32 threads, one
+# per slice of the drives, or most drives would still stand when the measurement starts.
 python3 - "$HP" "$TOKEN" >"$TMP/stir.log" 2>&1 <<'PY' &
-import http.client, json, random, sys, time
+import http.client, json, random, sys, threading, time
 port, token = int(sys.argv[1]), sys.argv[2]
-conn = http.client.HTTPConnection("127.0.0.1", port)
-def post(path, body=None):
-    conn.request("POST", path, body=json.dumps(body) if body else None,
-                 headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"})
-    conn.getresponse().read()
-for i in range(1, 1001):
-    post(f"/api/drives/vfd-{i}/speed", {"hz": 30})
-    post(f"/api/drives/vfd-{i}/run")
+def stir(k):
+    conn = http.client.HTTPConnection("127.0.0.1", port)
+    def post(path, body=None):
+        conn.request("POST", path, body=json.dumps(body) if body else None,
+                     headers={"Authorization": f"Bearer {token}", "Content-Type": "application/json"})
+        conn.getresponse().read()
+    mine = range(1 + k, 1001, 32)
+    for i in mine:
+        post(f"/api/drives/vfd-{i}/speed", {"hz": 30})
+        post(f"/api/drives/vfd-{i}/run")
+    while True:
+        for i in mine:
+            post(f"/api/drives/vfd-{i}/speed", {"hz": random.choice([20, 30, 40, 50])})
+        time.sleep(4)
+for k in range(32):
+    threading.Thread(target=stir, args=(k,), daemon=True).start()
 while True:
-    for i in range(1, 1001):
-        post(f"/api/drives/vfd-{i}/speed", {"hz": random.choice([20, 30, 40, 50])})
-    time.sleep(4)
+    time.sleep(60)
 PY
 PIDS+=("$!")
 sleep 15

@@ -75,24 +75,15 @@ pub struct Bus {
 impl Bus {
     /// Starts the owner task for `link` with `config` on the current tokio runtime.
     pub fn spawn<L: Link>(link: L, config: BusConfig) -> Result<Bus, BusError> {
-        let stats = Arc::new(Mutex::new(BusStats::default()));
-        let health = Arc::new(Mutex::new(HashMap::new()));
-        let (ctx, crx) = mpsc::unbounded_channel();
-        let (btx, brx) = mpsc::unbounded_channel();
-        let (ptx, prx) = mpsc::unbounded_channel();
-        let (stx, srx) = mpsc::unbounded_channel();
-        let name = link.name();
-        let (ended_tx, ended) = watch::channel(());
-        let on_demand = Arc::new(OnDemand::new(config.on_demand));
+        let (bus, queues, ended_tx) = Bus::handle(link.name(), &config);
+        let (stats, health, name) = (bus.stats.clone(), bus.health.clone(), bus.name.clone());
         let share = Share::new(config.on_demand.share);
-        let od = on_demand.clone();
+        let od = bus.on_demand.clone();
         let role_config = config.role;
         let heard_config = config.clone();
-        let role_status = Arc::new(Mutex::new(None));
-        let status = role_status.clone();
-        let learnt = Arc::new(Mutex::new(Learnt::new(config.protocol)));
-        let learning = learnt.clone();
-        with_engine!(config, stats.clone(), health.clone(), |engine| {
+        let status = bus.role.clone();
+        let learning = bus.learnt.clone();
+        with_engine!(config, stats, health, |engine| {
             let mut engine = engine;
             if !link.is_open() {
                 engine.link_lost(link.now(), format!("{name} is not open"));
@@ -108,21 +99,35 @@ impl Bus {
                 Listening { role, heard, status, learnt: learning }
             });
             let owner = Owner { link, engine, rx_buf: Vec::new(), listening, _ended: ended_tx };
-            tokio::spawn(owner.run(crx, brx, prx, srx, od, share));
+            let Queues { commands, bridged, polls, scans } = queues;
+            tokio::spawn(owner.run(commands, bridged, polls, scans, od, share));
         });
-        Ok(Bus {
-            commands: ctx,
-            bridged: btx,
-            polls: ptx,
-            scans: stx,
-            on_demand,
-            stats,
-            health,
+        Ok(bus)
+    }
+
+    /// A bus's handle and its owner's ends (the queues, the sender whose drop says the owner
+    /// ended), for either owner: the channels, statistics, health, on-demand reads, role and
+    /// what is learnt from the line, made in one place.
+    fn handle(name: String, config: &BusConfig) -> (Bus, Queues, watch::Sender<()>) {
+        let (commands, crx) = mpsc::unbounded_channel();
+        let (bridged, brx) = mpsc::unbounded_channel();
+        let (polls, prx) = mpsc::unbounded_channel();
+        let (scans, srx) = mpsc::unbounded_channel();
+        let (ended_tx, ended) = watch::channel(());
+        let bus = Bus {
+            commands,
+            bridged,
+            polls,
+            scans,
+            on_demand: Arc::new(OnDemand::new(config.on_demand)),
+            stats: Arc::new(Mutex::new(BusStats::default())),
+            health: Arc::new(Mutex::new(HashMap::new())),
             name,
             ended,
-            role: role_status,
-            learnt,
-        })
+            role: Arc::new(Mutex::new(None)),
+            learnt: Arc::new(Mutex::new(Learnt::new(config.protocol))),
+        };
+        (bus, Queues { commands: crx, bridged: brx, polls: prx, scans: srx }, ended_tx)
     }
 
     /// Starts a pipelined owner for a Modbus TCP bus with `config.max_in_flight` requests in
@@ -135,33 +140,12 @@ impl Bus {
                 "only a modbus-tcp bus can have requests in flight together".to_string(),
             ));
         }
-        let stats = Arc::new(Mutex::new(BusStats::default()));
-        let health = Arc::new(Mutex::new(HashMap::new()));
-        let (ctx, commands) = mpsc::unbounded_channel();
-        let (btx, bridged) = mpsc::unbounded_channel();
-        let (ptx, polls) = mpsc::unbounded_channel();
-        let (stx, scans) = mpsc::unbounded_channel();
-        let name = link.name();
-        let (ended_tx, ended) = watch::channel(());
-        let on_demand = Arc::new(OnDemand::new(config.on_demand));
-        let config_protocol = config.protocol;
-        let owner = crate::pipelined::Pipelined::new(link, config, stats.clone(), health.clone(), ended_tx);
-        let queues = Queues { commands, bridged, polls, scans };
-        tokio::spawn(owner.run(queues, on_demand.clone()));
-        Ok(Bus {
-            commands: ctx,
-            bridged: btx,
-            polls: ptx,
-            scans: stx,
-            on_demand,
-            stats,
-            health,
-            name,
-            ended,
-            role: Arc::new(Mutex::new(None)),
-            // A pipelined bus masters its connection alone: nothing is heard, nothing learnt.
-            learnt: Arc::new(Mutex::new(Learnt::new(config_protocol))),
-        })
+        // A pipelined bus masters its connection alone: no role, nothing heard, nothing learnt.
+        let (bus, queues, ended_tx) = Bus::handle(link.name(), &config);
+        let owner =
+            crate::pipelined::Pipelined::new(link, config, bus.stats.clone(), bus.health.clone(), ended_tx);
+        tokio::spawn(owner.run(queues, bus.on_demand.clone()));
+        Ok(bus)
     }
 
     /// Drops this handle and waits until the owner task has ended and closed the link (the

@@ -150,44 +150,21 @@ fn simulate_runs_a_templated_drive() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A drive map no built-in family reads (the worked example of docs/templates.md).
-const FAN_B1: &str = r#"kind = "fan-b1"
-maker = "Example"
-model = "B1"
-source = "B1 communication manual, table 5 (example)"
-protocols = ["modbus-rtu"]
-
-[serial]
-baud = 19200
-format = "8E1"
-
-[status]
-running = { register = 100, bit = 0 }
-reverse = { register = 100, bit = 1 }
-output_hz = { register = 101, scale = 0.1 }
-fault = { register = 104 }
-
-[command]
-register = 200
-run = { bit = 0 }
-reverse = { bit = 1 }
-reset = { bit = 7 }
-
-[setpoint]
-register = 201
-full_scale = 0x4000
-max_hz = 50.0
-
-[faults]
-7 = "external fault"
-"#;
+/// A drive map no built-in family reads: the worked example of docs/templates.md, as the page
+/// gives it.
+fn fan_b1() -> String {
+    let doc =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/templates.md")).unwrap();
+    let start = doc.find("```toml\nkind = \"fan-b1\"").expect("the worked example") + "```toml\n".len();
+    doc[start..start + doc[start..].find("```").unwrap()].to_string()
+}
 
 #[test]
 fn scan_auto_tries_the_templates_after_the_built_in_families() {
     let dir = std::env::temp_dir().join(format!("drivebus-template-scan-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let file = dir.join("fan-b1.toml");
-    std::fs::write(&file, FAN_B1).unwrap();
+    std::fs::write(&file, fan_b1()).unwrap();
     let file = file.to_str().unwrap();
     // A templated drive at 3 and a generic one at 2 on the same line.
     let sim = simulate(

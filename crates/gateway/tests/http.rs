@@ -1035,18 +1035,7 @@ async fn a_bus_scan_finds_the_drives_while_polling_goes_on() {
     };
     assert!(worst <= Duration::from_millis(1000), "conveyor-1 went {worst:?} without a poll");
     assert_eq!(report["tried"], report["total"], "{report}");
-    let found: Vec<(u64, &str, &str)> = report["found"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| {
-            (
-                f["address"].as_u64().unwrap(),
-                f["family"].as_str().unwrap(),
-                f["configured"].as_str().unwrap_or(""),
-            )
-        })
-        .collect();
+    let found = scan_found(&report);
     assert_eq!(
         found,
         [(1, "generic", "conveyor-1"), (2, "generic", "conveyor-2"), (3, "generic", "fan-1")],
@@ -1114,18 +1103,7 @@ async fn a_bus_scan_also_tries_the_template_kinds_the_gateway_knows() {
         }
         assert!(start.elapsed() < Duration::from_secs(600), "the scan never ended: {}", r.json);
     };
-    let found: Vec<(u64, &str, &str)> = report["found"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|f| {
-            (
-                f["address"].as_u64().unwrap(),
-                f["family"].as_str().unwrap(),
-                f["configured"].as_str().unwrap_or(""),
-            )
-        })
-        .collect();
+    let found = scan_found(&report);
     // The templated drive is found by its kind; the generic one still by the built-in family
     // (the shipped generic-2000h kind, which reads the same map, is not reached there).
     assert_eq!(found, [(1, "http-scan-bits", "fan"), (2, "generic", "pump")], "{report}");
@@ -1223,4 +1201,20 @@ async fn a_standby_that_takes_its_silent_lines_serves_as_master() {
     assert!(r.json.as_array().unwrap().iter().all(|d| d["source"] == "master"), "{}", r.json);
     let r = call(&app, "POST", "/api/drives/pump-1/run", Some(WRITE), None).await;
     assert_eq!(r.status, 200, "{}", r.json);
+}
+
+/// A scan report's findings: (address, family, the configured drive's name or "").
+fn scan_found(report: &Value) -> Vec<(u64, &str, &str)> {
+    report["found"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            (
+                f["address"].as_u64().unwrap(),
+                f["family"].as_str().unwrap(),
+                f["configured"].as_str().unwrap_or(""),
+            )
+        })
+        .collect()
 }

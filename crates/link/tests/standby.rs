@@ -40,6 +40,16 @@ fn config(role: Option<bool>) -> BusConfig {
     cfg
 }
 
+/// Bus owners on `line`'s two masters' ports, on one clock: `a` active, `b` a standby when
+/// `b_standby`.
+fn masters(line: &Arc<Mutex<VirtualLine>>, b_standby: bool) -> (Bus, Bus) {
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(b_standby))).unwrap();
+    (a, b)
+}
+
 /// A line of generic RTU drives 1 and 2 with two masters' ports.
 fn line() -> Arc<Mutex<VirtualLine>> {
     let mut line = VirtualLine::new(19200, CharFormat::NONE_8N2, Instant::ZERO);
@@ -145,10 +155,7 @@ async fn a_standby_listens_refuses_commands_takes_over_and_the_old_master_stays_
 async fn two_active_owners_started_together_end_with_one_master() {
     for round in 0..5 {
         let line = line();
-        let a_link = SimLink::new(line.clone(), "a");
-        let clock = a_link.clock();
-        let a = Bus::spawn(a_link, config(Some(false))).unwrap();
-        let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(false))).unwrap();
+        let (a, b) = masters(&line, false);
         let (x, y): (Answers, Answers) = Default::default();
         let pa = poller(a.clone(), x);
         let pb = poller(b.clone(), y);
@@ -169,10 +176,7 @@ async fn twenty_kills_each_hand_the_line_over_within_one_and_a_half_seconds() {
     let mut took = Vec::new();
     for kill in 0..20 {
         let line = line();
-        let a_link = SimLink::new(line.clone(), "a");
-        let clock = a_link.clock();
-        let a = Bus::spawn(a_link, config(Some(false))).unwrap();
-        let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+        let (a, b) = masters(&line, true);
         let (x, y): (Answers, Answers) = Default::default();
         let pa = poller(a.clone(), x);
         let pb = poller(b.clone(), y);
@@ -211,10 +215,7 @@ fn read_span(addr: u8, start: u16, quantity: u16) -> Exchange {
 #[tokio::test(start_paused = true)]
 async fn a_standby_learns_values_health_and_schedule_from_a_master_that_polls_otherwise() {
     let line = line();
-    let a_link = SimLink::new(line.clone(), "a");
-    let clock = a_link.clock();
-    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
-    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+    let (a, b) = masters(&line, true);
     // The master polls every 150 ms with its own spans and order: 2102H..2104H first, then
     // 2100H..2101H (a profile's status reads 2100H..2103H, then 2104H), and drive 3, which is
     // not on the line.
@@ -300,10 +301,7 @@ async fn a_standby_learns_values_health_and_schedule_from_a_master_that_polls_ot
 #[tokio::test(start_paused = true)]
 async fn a_standby_that_polls_seldom_still_times_what_it_hears_as_it_came() {
     let line = line();
-    let a_link = SimLink::new(line.clone(), "a");
-    let clock = a_link.clock();
-    let a = Bus::spawn(a_link, config(Some(false))).unwrap();
-    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), config(Some(true))).unwrap();
+    let (a, b) = masters(&line, true);
     let master = a.clone();
     let a_poll = tokio::spawn(async move {
         loop {

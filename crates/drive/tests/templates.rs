@@ -333,7 +333,8 @@ fn round_trip(family: Family) {
     // A template without output_hz: the simulated drive's own output frequency.
     let out = s.output_hz.unwrap_or_else(|| drive_mut(&mut line, 1).core_mut().model.output_hz());
     assert!((out - half).abs() <= 0.05, "{family}: at {half} Hz: {s:?} ({out} Hz)");
-    if t.command.as_ref().is_some_and(|c| c.reverse.is_some()) && t.status.reverse.is_some() {
+    let by_sign = t.setpoint.as_ref().is_some_and(|s| s.reverse_negative);
+    if by_sign || t.command.as_ref().is_some_and(|c| c.reverse.is_some()) && t.status.reverse.is_some() {
         support::done("reverse", on(&mut line, &*p, Operation::Reverse));
         wait(&mut line, Duration::from_secs(60));
         let s = status_on(&mut line, &*p);
@@ -596,4 +597,220 @@ fn the_acs550_template_reads_its_status_in_two_requests() {
     assert_eq!(s.output_hz, None, "{s:?}");
     let asked: usize = sent.iter().map(Vec::len).sum();
     assert_eq!((asked, replied), (16, 14), "2 x 8 bytes asked; 7 + 7 bytes replied");
+}
+
+/// A drive whose commands write several registers (a run enable and a start register, a
+/// direction register, a reset pulse, a jog over two adjacent registers) and whose setpoint
+/// comes with a run enable in the register after it.
+const MULTI: &str = r#"kind = "multi-test"
+maker = "Test"
+model = "M1"
+source = "a public manual, table 7"
+protocols = ["modbus-rtu"]
+[serial]
+baud = 19200
+format = "8E1"
+[status]
+output_hz = { register = 23, type = "i16", scale = 0.01 }
+reverse = { register = 4 }
+fault = { register = 30 }
+[command]
+run = [{ register = 3, value = 1 }, { register = 5, value = 1 }]
+stop = [{ register = 5, value = 0 }]
+forward = [{ register = 4, value = 0 }]
+reverse = [{ register = 4, value = 1 }]
+reset = [{ register = 6, value = 1 }, { register = 6, value = 0 }]
+jog = [{ register = 10, value = 1 }, { register = 11, value = 1 }]
+[setpoint]
+register = 2
+full_scale = 10000
+max_hz = 50.0
+writes = [{ register = 3, value = 1 }]
+[faults]
+7 = "external fault"
+"#;
+
+#[test]
+fn commands_over_several_registers_round_trip_on_the_simulated_drive() {
+    let family =
+        template::register(Template::from_toml_str("multi.toml", MULTI).unwrap_or_else(|e| panic!("{e}")))
+            .unwrap();
+    round_trip(family);
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    // The setpoint and the run enable after it: one 10 write of registers 2..3 (25 Hz of 50 Hz
+    // is 5000 of 10000).
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(sent.len(), 1, "{sent:02X?}");
+    assert_eq!(&sent[0][..11], [3, 0x10, 0, 2, 0, 2, 4, 0x13, 0x88, 0, 1], "{sent:02X?}");
+    // Run: registers 3 and 5 do not touch: two 06 writes, in order.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Run);
+    support::done("run", r);
+    let heads: Vec<&[u8]> = sent.iter().map(|x| &x[..6]).collect();
+    assert_eq!(heads, [&[3, 0x06, 0, 3, 0, 1][..], &[3, 0x06, 0, 5, 0, 1][..]]);
+    wait(&mut line, Duration::from_secs(30));
+    let s = status_on(&mut line, &*p);
+    assert!(s.running, "{s:?}");
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("forward")), "{s:?}");
+    // Reverse reads the direction register, then writes reverse's register.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Reverse);
+    support::done("reverse", r);
+    assert_eq!(&sent.last().unwrap()[..6], [3, 0x06, 0, 4, 0, 1], "{sent:02X?}");
+    wait(&mut line, Duration::from_secs(60));
+    // A signed output frequency reads negative in reverse; the view shows it with its direction.
+    let (r, _) = run::<ModbusRtu>(&mut line, &*p, &Operation::Status);
+    let s = support::status_of("status", r);
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("reverse")), "{s:?}");
+    let words = drive_mut(&mut line, 1).core_mut().model.output_hz();
+    assert!((words - 25.0).abs() < 0.01, "the model turns at 25 Hz: {words}");
+    // Jog: registers 10 and 11 touch: one 10 write.
+    support::done("stop", on(&mut line, &*p, Operation::Stop));
+    wait(&mut line, Duration::from_secs(60));
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Jog);
+    support::done("jog", r);
+    assert_eq!(sent.len(), 1, "{sent:02X?}");
+    assert_eq!(&sent[0][..11], [3, 0x10, 0, 10, 0, 2, 4, 0, 1, 0, 1]);
+    assert!(drive_mut(&mut line, 1).core_mut().model.is_jogging(), "the simulated drive jogs");
+    // Reset: the same register twice, two writes in order (a pulse).
+    support::done("stop", on(&mut line, &*p, Operation::Stop));
+    drive_mut(&mut line, 1).core_mut().model.trip_now(Trip::External);
+    let (r, sent) = run::<ModbusRtu>(&mut line, &*p, &Operation::Reset);
+    support::done("reset", r);
+    let heads: Vec<&[u8]> = sent.iter().map(|x| &x[..6]).collect();
+    assert_eq!(heads, [&[3, 0x06, 0, 6, 0, 1][..], &[3, 0x06, 0, 6, 0, 0][..]]);
+    assert_eq!(status_on(&mut line, &*p).fault, None);
+}
+
+#[test]
+fn bad_writes_are_named_with_their_lines() {
+    let bad = |from: &str, to: &str| {
+        assert!(MULTI.contains(from), "{from}");
+        match Template::from_toml_str("m.toml", &MULTI.replacen(from, to, 1)) {
+            Ok(_) => panic!("{to:?} was taken"),
+            Err(e) => e.errors,
+        }
+    };
+    // A register beyond 16 bits in run's second write, line 14.
+    let e = bad("{ register = 5, value = 1 }", "{ register = 70000, value = 1 }");
+    assert_eq!(
+        e,
+        [(14, "command.run: write 2: register 70000 is not a Modbus register (0..65535, 0x0000..0xFFFF)".into())]
+    );
+    // A value beyond 16 bits, line 15.
+    let e = bad("{ register = 5, value = 0 }", "{ register = 5, value = 65536 }");
+    assert_eq!(e, [(15, "command.stop: write 1: value 65536 does not fit a register (0..65535)".into())]);
+    // An unknown key in a write: toml's own error, on its line.
+    let e = bad("{ register = 4, value = 0 }", "{ register = 4, val = 0 }");
+    assert_eq!(e[0].0, 16, "{e:?}");
+    // A mix of forms.
+    let e = bad("stop = [{ register = 5, value = 0 }]", "stop = 7");
+    assert!(e.iter().any(|(l, m)| *l == 13 && m.contains("not a mix")), "{e:?}");
+    // A command register where every command names its own.
+    let e = bad("[command]\n", "[command]\nregister = 9\n");
+    assert_eq!(e.len(), 1, "{e:?}");
+    assert_eq!(e[0].0, 14);
+    assert!(e[0].1.starts_with("command.register: every command here names its own registers"), "{e:?}");
+    // Reverse without forward.
+    let e = bad("forward = [{ register = 4, value = 0 }]\n", "");
+    assert!(e.iter().any(|(l, m)| *l == 13 && m.contains("reverse and forward together")), "{e:?}");
+    // The setpoint's writes may not write the setpoint itself, line 24.
+    let e = bad("writes = [{ register = 3, value = 1 }]", "writes = [{ register = 2, value = 1 }]");
+    assert_eq!(e, [(24, "setpoint.writes: write 1: register 2 is the setpoint's own".into())]);
+    // A value or bit form without its command register.
+    let text = GOOD.replacen("register = 200\n", "", 1);
+    let e = Template::from_toml_str("t.toml", &text).unwrap_err().errors;
+    assert!(e.iter().any(|(_, m)| m.starts_with("[command] needs register")), "{e:?}");
+}
+
+/// A drive whose direction is the setpoint's sign (an i16 REF, 20000 = 50 Hz, as the ABB Drives
+/// profile's REF1), with a value-form control word.
+const SIGNED: &str = r#"kind = "signed-test"
+maker = "Test"
+model = "S1"
+source = "a public manual, table 8"
+protocols = ["modbus-rtu"]
+[serial]
+baud = 9600
+format = "8N2"
+[status]
+running = { register = 3, bit = 2 }
+output_hz = { register = 4, type = "i16", scale = 0.1 }
+[command]
+register = 0
+run = 0x7F
+stop = 0x76
+[setpoint]
+register = 1
+type = "i16"
+full_scale = 20000
+max_hz = 50.0
+reverse = "negative"
+"#;
+
+#[test]
+fn a_negative_setpoint_reverses_the_simulated_drive() {
+    let family =
+        template::register(Template::from_toml_str("signed.toml", SIGNED).unwrap_or_else(|e| panic!("{e}")))
+            .unwrap();
+    round_trip(family);
+    let mut line = template_line(family, 3);
+    let p = template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 3)
+        .unwrap();
+    // The status reads the setpoint, then the status word and output frequency (3..4).
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(1, 1), (3, 2)]);
+    // A reverse with the setpoint at 0 has no sign to turn: refused, nothing written.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reverse);
+    assert!(matches!(&r, Err(DriveError::Unsupported(m)) if m.contains("setpoint is 0 Hz")), "{r:?}");
+    assert_eq!(sent.len(), 1, "the setpoint read only: {sent:02X?}");
+    // 25 Hz: the setpoint read (0, forward), then 10000 written.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(&sent[0][..6], [3, 0x03, 0, 1, 0, 1]);
+    assert_eq!(&sent[1][..6], [3, 0x06, 0, 1, 0x27, 0x10]);
+    support::done("run", on(&mut line, &p, Operation::Run));
+    wait(&mut line, Duration::from_secs(30));
+    let s = status_on(&mut line, &p);
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("forward")), "{s:?}");
+    // Reverse: the setpoint read and written back negated (-10000 = 0xD8F0).
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reverse);
+    support::done("reverse", r);
+    assert_eq!(&sent[1][..6], [3, 0x06, 0, 1, 0xD8, 0xF0], "{sent:02X?}");
+    wait(&mut line, Duration::from_secs(60));
+    let s = status_on(&mut line, &p);
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("reverse")), "{s:?}");
+    let m = drive_mut(&mut line, 1).core_mut().model.output_rotation();
+    assert_eq!(m, drivebus_sim::model::Rotation::Reverse, "the simulated drive turns in reverse");
+    // A new speed keeps the direction: 20 Hz in reverse is -8000 (0xE0C0).
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(20.0));
+    support::done("speed", r);
+    assert_eq!(&sent[1][..6], [3, 0x06, 0, 1, 0xE0, 0xC0], "{sent:02X?}");
+    // And Reverse turns it forward again (+8000).
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reverse);
+    support::done("reverse", r);
+    assert_eq!(&sent[1][..6], [3, 0x06, 0, 1, 0x1F, 0x40], "{sent:02X?}");
+    wait(&mut line, Duration::from_secs(60));
+    let s = status_on(&mut line, &p);
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(20.0), Some("forward")), "{s:?}");
+}
+
+#[test]
+fn a_negative_setpoint_needs_a_signed_type_and_no_reverse_command() {
+    let bad = |from: &str, to: &str| {
+        assert!(SIGNED.contains(from), "{from}");
+        match Template::from_toml_str("s.toml", &SIGNED.replacen(from, to, 1)) {
+            Ok(_) => panic!("{to:?} was taken"),
+            Err(e) => e.errors,
+        }
+    };
+    let e = bad("type = \"i16\"\nfull", "type = \"u16\"\nfull");
+    assert_eq!(e.len(), 1, "{e:?}");
+    assert_eq!(e[0].0, 21);
+    assert!(e[0].1.starts_with("setpoint.reverse = \"negative\" needs a signed type"), "{e:?}");
+    let e = bad("reverse = \"negative\"", "reverse = \"sign\"");
+    assert_eq!(e[0].0, 21);
+    assert!(e[0].1.contains("the one form is \"negative\""), "{e:?}");
+    let e = bad("stop = 0x76\n", "stop = 0x76\nreverse = 0x77\n");
+    assert!(e.iter().any(|(l, m)| *l == 12 && m.contains("leave reverse and forward out")), "{e:?}");
 }

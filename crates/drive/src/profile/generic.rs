@@ -513,8 +513,8 @@ pub(crate) enum ModbusFraming {
     Ascii,
 }
 
-/// A Modbus request the profiles send: one 03 or 04 read, one 06 write, or one 10 write of two
-/// registers (a template's 32-bit values).
+/// A Modbus request the profiles send: one 03 or 04 read, one 06 write, or one 10 write of up to
+/// [`WRITE_MAX`] registers (a template's 32-bit values and its commands over adjacent registers).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum ModbusAsk {
     /// 03: `quantity` registers from `start`.
@@ -523,8 +523,27 @@ pub(crate) enum ModbusAsk {
     ReadInput { start: u16, quantity: u16 },
     /// 06: `value` into `register`.
     Write { register: u16, value: u16 },
-    /// 10: `values` into `start` and the register after it.
-    WriteTwo { start: u16, values: [u16; 2] },
+    /// 10: the first `count` of `values` into `start` and the registers after it.
+    WriteMany { start: u16, count: u8, values: [u16; WRITE_MAX] },
+}
+
+/// The most registers one 10 write of a profile carries.
+pub(crate) const WRITE_MAX: usize = 16;
+
+impl ModbusAsk {
+    /// The request that writes `words` from `register`: 06 for one, 10 for more (at most
+    /// [`WRITE_MAX`]; the rest are left out, so callers split longer runs first).
+    pub(crate) fn write_words(register: u16, words: &[u16]) -> ModbusAsk {
+        match words {
+            [value] => ModbusAsk::Write { register, value: *value },
+            _ => {
+                let count = words.len().min(WRITE_MAX);
+                let mut values = [0; WRITE_MAX];
+                values[..count].copy_from_slice(&words[..count]);
+                ModbusAsk::WriteMany { start: register, count: count as u8, values }
+            }
+        }
+    }
 }
 
 impl fmt::Display for ModbusAsk {
@@ -539,8 +558,13 @@ impl fmt::Display for ModbusAsk {
                 write!(f, "04 read of {start:04X}H..{:04X}H", u32::from(start) + u32::from(quantity) - 1)
             }
             ModbusAsk::Write { register, value } => write!(f, "06 write of {value:04X}H to {register:04X}H"),
-            ModbusAsk::WriteTwo { start, values: [a, b] } => {
-                write!(f, "10 write of {a:04X}H {b:04X}H to {start:04X}H..{:04X}H", u32::from(start) + 1)
+            ModbusAsk::WriteMany { start, count, ref values } => {
+                f.write_str("10 write of")?;
+                for v in &values[..usize::from(count)] {
+                    write!(f, " {v:04X}H")?;
+                }
+                let last = u32::from(start) + u32::from(count).max(1) - 1;
+                write!(f, " to {start:04X}H..{last:04X}H")
             }
         }
     }
@@ -584,8 +608,9 @@ impl ModbusFraming {
             ModbusAsk::Write { register, value } => {
                 Request::write_single_register(UnitId(unit), register, value)
             }
-            ModbusAsk::WriteTwo { start, ref values } => {
-                return self.emit(ask, &Request::write_multiple_registers(UnitId(unit), start, values))
+            ModbusAsk::WriteMany { start, count, ref values } => {
+                let values = &values[..usize::from(count)];
+                return self.emit(ask, &Request::write_multiple_registers(UnitId(unit), start, values));
             }
         };
         self.emit(ask, &request)
@@ -616,7 +641,7 @@ impl ModbusFraming {
             ModbusAsk::Read { .. } => 0x03,
             ModbusAsk::ReadInput { .. } => 0x04,
             ModbusAsk::Write { .. } => 0x06,
-            ModbusAsk::WriteTwo { .. } => 0x10,
+            ModbusAsk::WriteMany { .. } => 0x10,
         };
         match (reply.pdu, ask) {
             (ReplyPdu::Exception { function: f, code }, _) if f == function => {
@@ -643,9 +668,9 @@ impl ModbusFraming {
             }
             (
                 ReplyPdu::WriteMultipleRegisters { start, quantity },
-                ModbusAsk::WriteTwo { start: sent, .. },
+                ModbusAsk::WriteMany { start: sent, count, .. },
             ) => {
-                if start.0 != sent || quantity != 2 {
+                if start.0 != sent || quantity != u16::from(count) {
                     return Err(bad(format!("confirms {quantity} registers at {:04X}H instead", start.0)));
                 }
                 Ok(ModbusAnswer::Written)

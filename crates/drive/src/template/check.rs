@@ -10,8 +10,8 @@ use toml::Spanned;
 
 use super::file::{FileCommandValue, FileParam, FileTemplate, FileValue};
 use super::{
-    Checked, CommandMap, CommandValue, ExtraValue, ParamCoding, RegisterTable, RegisterValue, SetpointMap,
-    StatusMap, Template, TemplateError, ValueType,
+    Checked, CommandMap, CommandValue, ExtraValue, ParamCoding, RegisterTable, RegisterValue, RegisterWrite,
+    SetpointMap, StatusMap, Template, TemplateError, ValueType,
 };
 use crate::{Choice, Family, ParamDef, Size, Storage};
 
@@ -213,6 +213,14 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
     let (params, param_codings) = params(e, &raw.param);
     let command = raw.command.as_ref().map(|c| command(e, c));
     let setpoint = raw.setpoint.as_ref().map(|s| setpoint(e, s, &params));
+    if let (Some(sp), Some(c), Some(raw_c)) = (&setpoint, &command, &raw.command) {
+        if sp.reverse_negative && (c.reverse.is_some() || c.forward.is_some()) {
+            e.at(
+                raw_c.span(),
+                "[command]: the direction is the setpoint's sign here (setpoint.reverse = \"negative\"): leave reverse and forward out",
+            );
+        }
+    }
     let mut fault_history = Vec::new();
     for name in &raw.fault_history {
         match params.iter().find(|d| d.name.eq_ignore_ascii_case(name.get_ref())) {
@@ -453,11 +461,35 @@ fn check_flag_bits(e: &mut Errors<'_>, status: &[(String, &Spanned<FileValue>)])
     }
 }
 
+/// One `{ register = R, value = V }` of a list of writes (`what` names the list), or an error
+/// at `span`.
+fn register_write(
+    e: &mut Errors<'_>,
+    what: &str,
+    index: usize,
+    w: &super::file::FileWrite,
+    span: Range<usize>,
+) -> Option<RegisterWrite> {
+    let n = index + 1;
+    if !(0..=0xFFFF).contains(&w.register) {
+        e.at(
+            span,
+            format!("{what}: write {n}: register {} is not a Modbus register (0..65535, 0x0000..0xFFFF)", w.register),
+        );
+        return None;
+    }
+    if !(0..=0xFFFF).contains(&w.value) {
+        e.at(span, format!("{what}: write {n}: value {} does not fit a register (0..65535)", w.value));
+        return None;
+    }
+    Some(RegisterWrite { register: w.register as u16, value: w.value as u16 })
+}
+
 fn command(e: &mut Errors<'_>, c: &Spanned<super::file::FileCommand>) -> CommandMap {
     let f = c.get_ref();
-    let reg = register(e, "command", &f.register, 1);
+    let reg = f.register.as_ref().map(|r| register(e, "command", r, 1));
     let mut bits: HashMap<i64, &str> = HashMap::new();
-    let (mut values, mut bitwise) = (false, false);
+    let (mut values, mut bitwise, mut writes) = (false, false, false);
     let mut one = |e: &mut Errors<'_>, name: &'static str, v: &Option<Spanned<FileCommandValue>>| {
         let v = v.as_ref()?;
         match v.get_ref() {
@@ -480,6 +512,20 @@ fn command(e: &mut Errors<'_>, c: &Spanned<super::file::FileCommand>) -> Command
                 e.at(v.span(), format!("command.{name}: bit {bit} is not a bit of a register (0..15)"));
                 None
             }
+            FileCommandValue::Writes(list) => {
+                writes = true;
+                if list.is_empty() {
+                    e.at(
+                        v.span(),
+                        format!("command.{name}: no writes: give [{{ register = R, value = V }}, ...]"),
+                    );
+                    return None;
+                }
+                let what = format!("command.{name}");
+                let out: Vec<_> =
+                    list.iter().enumerate().filter_map(|(i, w)| register_write(e, &what, i, w, v.span())).collect();
+                (out.len() == list.len()).then_some(CommandValue::Writes(out))
+            }
         }
     };
     let run = one(e, "run", &f.run);
@@ -488,11 +534,32 @@ fn command(e: &mut Errors<'_>, c: &Spanned<super::file::FileCommand>) -> Command
     let reverse = one(e, "reverse", &f.reverse);
     let reset = one(e, "reset", &f.reset);
     let jog = one(e, "jog", &f.jog);
-    if values && bitwise {
-        e.at(c.span(), "[command]: give every command as a value or every one as { bit = N }, not both");
+    if [values, bitwise, writes].iter().filter(|f| **f).count() > 1 {
+        e.at(
+            c.span(),
+            "[command]: give every command as a value, every one as { bit = N }, or every one as writes ([{ register = R, value = V }, ...]), not a mix",
+        );
     }
-    if run.is_none() || (stop.is_none() && !bitwise) {
+    match &f.register {
+        None if values || bitwise => e.at(
+            c.span(),
+            "[command] needs register: the command register the values or bits are written to",
+        ),
+        Some(r) if writes && !values && !bitwise => e.at(
+            r.span(),
+            "command.register: every command here names its own registers (writes): leave register out",
+        ),
+        _ => {}
+    }
+    // A command given but bad has its own error already.
+    if f.run.is_none() || (f.stop.is_none() && !bitwise) {
         e.at(c.span(), "[command] needs run and stop (in the bit form, stop clears run's bit)");
+    }
+    if writes && reverse.is_some() != forward.is_some() {
+        e.at(
+            c.span(),
+            "[command]: in the writes form give reverse and forward together (the writes that set each direction)",
+        );
     }
     let idle = match &f.idle {
         None => 0,
@@ -542,7 +609,49 @@ fn setpoint(e: &mut Errors<'_>, s: &Spanned<super::file::FileSetpoint>, params: 
             "[setpoint] needs a limit: max_hz, or limit_params naming the maximum frequency parameter",
         );
     }
-    SetpointMap { register: reg, kind, low_first, scale, max_hz, limit_params }
+    let mut writes = Vec::new();
+    if let Some(list) = &f.writes {
+        for (i, w) in list.get_ref().iter().enumerate() {
+            let Some(w) = register_write(e, "setpoint.writes", i, w, list.span()) else { continue };
+            if (reg..reg.saturating_add(kind.words())).contains(&w.register) {
+                e.at(
+                    list.span(),
+                    format!(
+                        "setpoint.writes: write {}: register {} is the setpoint's own",
+                        i + 1,
+                        w.register
+                    ),
+                );
+                continue;
+            }
+            writes.push(w);
+        }
+        if list.get_ref().is_empty() {
+            e.at(list.span(), "setpoint.writes is empty: give [{ register = R, value = V }, ...] or leave it out");
+        }
+    }
+    let reverse_negative = match f.reverse.as_ref().map(|r| (r, r.get_ref().as_str())) {
+        None => false,
+        Some((r, "negative")) => {
+            if matches!(kind, ValueType::U16 | ValueType::U32) {
+                e.at(
+                    r.span(),
+                    format!(
+                        "setpoint.reverse = \"negative\" needs a signed type: give type = \"i16\", \"i32\" or \"f32\" (a {kind:?} has no negative)"
+                    ),
+                );
+            }
+            true
+        }
+        Some((r, other)) => {
+            e.at(
+                r.span(),
+                format!("setpoint.reverse {other:?}: the one form is \"negative\" (a negative setpoint runs in reverse)"),
+            );
+            false
+        }
+    };
+    SetpointMap { register: reg, kind, low_first, scale, max_hz, limit_params, writes, reverse_negative }
 }
 
 fn params(e: &mut Errors<'_>, raw: &[Spanned<FileParam>]) -> (Vec<ParamDef>, BTreeMap<u32, ParamCoding>) {

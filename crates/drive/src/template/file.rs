@@ -89,13 +89,25 @@ pub(super) enum FileCommandValue {
         /// Its number.
         bit: i64,
     },
+    /// Writes to several registers, in order.
+    Writes(Vec<FileWrite>),
+}
+
+/// One register written, with its value (`{ register = 3, value = 1 }`).
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct FileWrite {
+    pub(super) register: i64,
+    pub(super) value: i64,
 }
 
 /// `[command]`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct FileCommand {
-    pub(super) register: Spanned<i64>,
+    /// The command register (value and bit forms).
+    #[serde(default)]
+    pub(super) register: Option<Spanned<i64>>,
     #[serde(default)]
     pub(super) run: Option<Spanned<FileCommandValue>>,
     #[serde(default)]
@@ -132,6 +144,12 @@ pub(super) struct FileSetpoint {
     pub(super) max_hz: Option<Spanned<f64>>,
     #[serde(default)]
     pub(super) limit_params: Vec<Spanned<String>>,
+    /// Other registers written with every setpoint.
+    #[serde(default)]
+    pub(super) writes: Option<Spanned<Vec<FileWrite>>>,
+    /// `"negative"`: the direction is the setpoint's sign.
+    #[serde(default)]
+    pub(super) reverse: Option<Spanned<String>>,
 }
 
 /// One `[[param]]`.

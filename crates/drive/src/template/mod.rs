@@ -236,27 +236,59 @@ impl StatusMap {
     }
 }
 
-/// A command: a value written to the command register, or a bit of the command word.
+/// One register a command (or the setpoint) writes, with its value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RegisterWrite {
+    /// The register.
+    pub register: u16,
+    /// The value written to it.
+    pub value: u16,
+}
+
+/// The requests of `writes`, in order: each run of registers that follow one another (register
+/// = the previous one + 1) is one 10 write of at most 16 registers, any other register its own
+/// write. Each item is the first register and the values written from it.
+pub fn write_groups(writes: &[RegisterWrite]) -> Vec<(u16, Vec<u16>)> {
+    let mut groups: Vec<(u16, Vec<u16>)> = Vec::new();
+    for w in writes {
+        match groups.last_mut() {
+            Some((start, values))
+                if values.len() < 16 && u32::from(*start) + values.len() as u32 == u32::from(w.register) =>
+            {
+                values.push(w.value)
+            }
+            _ => groups.push((w.register, vec![w.value])),
+        }
+    }
+    groups
+}
+
+/// A command: a value written to the command register, a bit of the command word, or writes to
+/// several registers.
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum CommandValue {
     /// This value is written.
     Value(u16),
     /// This bit of the command word is set (the other bits as last written).
     Bit(u8),
+    /// These registers are written, in order (adjacent ones in one write).
+    Writes(Vec<RegisterWrite>),
 }
 
 /// `[command]`: how the drive is run, stopped, reversed, reset and jogged.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CommandMap {
-    /// The command register.
-    pub register: u16,
+    /// The command register (the value and bit forms; `None` where every command names its
+    /// registers).
+    pub register: Option<u16>,
     /// Run (in the direction last commanded).
     pub run: Option<CommandValue>,
     /// Stop.
     pub stop: Option<CommandValue>,
-    /// Run forward (the value form: what Reverse writes to a drive turning in reverse).
+    /// Run forward (the value form: what Reverse writes to a drive turning in reverse; the writes
+    /// form: the direction set to forward).
     pub forward: Option<CommandValue>,
-    /// Run in reverse (bit form: the direction bit).
+    /// Run in reverse (bit form: the direction bit; writes form: the direction set to reverse).
     pub reverse: Option<CommandValue>,
     /// Fault reset (bit form: set, then cleared).
     pub reset: Option<CommandValue>,
@@ -271,9 +303,27 @@ pub struct CommandMap {
 impl CommandMap {
     /// Whether the commands are bits of a command word.
     pub fn is_bits(&self) -> bool {
-        [self.run, self.stop, self.forward, self.reverse, self.reset, self.jog]
-            .iter()
-            .any(|c| matches!(c, Some(CommandValue::Bit(_))))
+        self.all().any(|(_, c)| matches!(c, CommandValue::Bit(_)))
+    }
+
+    /// Whether the commands are writes to several registers.
+    pub fn is_writes(&self) -> bool {
+        self.all().any(|(_, c)| matches!(c, CommandValue::Writes(_)))
+    }
+
+    /// Every command given, with its name, in the order a drive carries them out when several
+    /// hold at once (reset, stop, forward, reverse, run, jog).
+    pub fn all(&self) -> impl Iterator<Item = (&'static str, &CommandValue)> {
+        [
+            ("reset", &self.reset),
+            ("stop", &self.stop),
+            ("forward", &self.forward),
+            ("reverse", &self.reverse),
+            ("run", &self.run),
+            ("jog", &self.jog),
+        ]
+        .into_iter()
+        .filter_map(|(n, c)| c.as_ref().map(|c| (n, c)))
     }
 }
 
@@ -292,6 +342,11 @@ pub struct SetpointMap {
     pub max_hz: Option<f64>,
     /// Parameters the setpoint may not exceed (the lowest of them), by name.
     pub limit_params: Vec<String>,
+    /// Other registers written with every setpoint, after its own (`writes`).
+    pub writes: Vec<RegisterWrite>,
+    /// The direction is the setpoint's sign: a negative setpoint runs the drive in reverse
+    /// (`reverse = "negative"`).
+    pub reverse_negative: bool,
 }
 
 /// A checked template: one drive model's Modbus map.

@@ -5,9 +5,9 @@
 //! | operation | exchanges |
 //! |---|---|
 //! | Status | the status values' registers, read in the fewest requests: registers that touch or overlap are merged into one read as long as it spans at most `max_read` registers; holding (03) and input (04) registers apart |
-//! | Run / Stop / Jog / Reset | 06 write of the command value; in the bit form, the command word with the bit set (run, jog) or cleared (stop), reset as the bit set and then cleared |
-//! | Reverse | the direction (and running) read, then the opposite direction's command written |
-//! | SetSpeed | 06 (or 10 for a 32-bit register) write of the setpoint, scaled, after a check against `max_hz` or the lowest of `limit_params` |
+//! | Run / Stop / Jog / Reset | 06 write of the command value; in the bit form, the command word with the bit set (run, jog) or cleared (stop), reset as the bit set and then cleared; in the writes form, the command's writes in order, registers that follow one another in one 10 write |
+//! | Reverse | the direction (and running) read, then the opposite direction's command written; where the direction is the setpoint's sign, the setpoint read and written back negated |
+//! | SetSpeed | 06 (or 10 for a 32-bit register) write of the setpoint, scaled, after a check against `max_hz` or the lowest of `limit_params`, with the setpoint's `writes`; where the direction is the setpoint's sign, the setpoint read first and its sign kept |
 //! | ReadParam / WriteParam | 03 read / 06 write (10 for 32-bit parameters, in the parameter's word order; an f32 holds the value in its unit) of the parameter's register |
 
 use std::collections::VecDeque;
@@ -16,7 +16,7 @@ use std::sync::{Arc, Mutex};
 
 use drivebus_proto::modbus::ExceptionCode;
 
-use super::{CommandValue, RegisterTable, RegisterValue, Template, ValueType};
+use super::{write_groups, CommandValue, RegisterTable, RegisterValue, RegisterWrite, SetpointMap, Template, ValueType};
 use crate::profile::generic::{self, ModbusAnswer, ModbusAsk, ModbusFraming};
 use crate::profile::{
     CodeSpace, DriveError, DriveStatus, Exchange, Fault, NamedValue, Operation, Outcome, Plan, Profile, Step,
@@ -38,7 +38,50 @@ pub struct ReadSpan {
 /// The status values' registers in the fewest reads: sorted, and merged where they touch or
 /// overlap, each read at most `max_read` registers long.
 pub fn plan_reads(template: &Template) -> Vec<ReadSpan> {
-    reads_of(template.status.values().map(|(_, v)| v), template.max_read)
+    let setpoint = setpoint_direction(template);
+    reads_of(template.status.values().map(|(_, v)| v).chain(setpoint.as_ref()), template.max_read)
+}
+
+/// Where the direction is the setpoint's sign and no `status.reverse` gives it: the setpoint
+/// register as a status value (read with the status, its sign the direction).
+fn setpoint_direction(template: &Template) -> Option<RegisterValue> {
+    let sp = template.setpoint.as_ref().filter(|s| s.reverse_negative)?;
+    if template.status.reverse.is_some() {
+        return None;
+    }
+    Some(setpoint_value(sp))
+}
+
+/// The setpoint's register(s) as a value read back (Hz).
+fn setpoint_value(sp: &SetpointMap) -> RegisterValue {
+    RegisterValue {
+        register: sp.register,
+        table: RegisterTable::Holding,
+        kind: sp.kind,
+        low_first: sp.low_first,
+        scale: if sp.kind == ValueType::F32 { 1.0 } else { sp.scale },
+        offset: 0.0,
+        bit: None,
+        decimals: 9,
+    }
+}
+
+/// The requests of `writes`, in order: registers that follow one another in one 10 write.
+fn writes_asks(writes: &[RegisterWrite]) -> Vec<ModbusAsk> {
+    write_groups(writes).into_iter().map(|(start, values)| ModbusAsk::write_words(start, &values)).collect()
+}
+
+/// The requests that write the setpoint's raw value `value` (counts; Hz for an f32), with the
+/// setpoint's other `writes` after it.
+fn setpoint_asks(sp: &SetpointMap, value: f64) -> Vec<ModbusAsk> {
+    let words = sp.kind.encode(value, sp.low_first);
+    let mut writes: Vec<RegisterWrite> = words
+        .iter()
+        .enumerate()
+        .map(|(i, &value)| RegisterWrite { register: sp.register.wrapping_add(i as u16), value })
+        .collect();
+    writes.extend(&sp.writes);
+    writes_asks(&writes)
 }
 
 /// The reads of `values`, merged as [`plan_reads`] does.
@@ -70,8 +113,11 @@ pub struct TemplateProfile {
     address: u8,
     framing: ModbusFraming,
     reads: Arc<[ReadSpan]>,
-    /// The reads before a Reverse: the direction and running flags only.
+    /// The reads before a Reverse: the direction and running flags only (the setpoint, where
+    /// the direction is its sign).
     reverse_reads: Arc<[ReadSpan]>,
+    /// The reads before a SetSpeed where the direction is the setpoint's sign: the setpoint.
+    setpoint_reads: Arc<[ReadSpan]>,
     /// The raw values of the setpoint's limit parameters as last read or written (catalog
     /// defaults at first).
     limits: Arc<Mutex<Vec<(u32, i64)>>>,
@@ -110,11 +156,18 @@ impl TemplateProfile {
             address,
             framing,
             reads: plan_reads(template).into(),
-            reverse_reads: reads_of(
-                [&template.status.reverse, &template.status.running].into_iter().flatten(),
-                template.max_read,
-            )
-            .into(),
+            reverse_reads: match template.setpoint.as_ref().filter(|s| s.reverse_negative) {
+                Some(sp) => reads_of([setpoint_value(sp)].iter(), template.max_read).into(),
+                None => reads_of(
+                    [&template.status.reverse, &template.status.running].into_iter().flatten(),
+                    template.max_read,
+                )
+                .into(),
+            },
+            setpoint_reads: match &template.setpoint {
+                Some(sp) => reads_of([setpoint_value(sp)].iter(), template.max_read).into(),
+                None => Arc::from(Vec::new()),
+            },
             limits: Arc::new(Mutex::new(limits)),
             word: Arc::new(AtomicU16::new(template.command.as_ref().map_or(0, |c| c.idle))),
         })
@@ -169,22 +222,25 @@ impl TemplateProfile {
                 DriveError::Unsupported(format!("the {} template gives no {name} command", self.family))
             })
         };
-        let write = |value: u16| ModbusAsk::Write { register: c.register, value };
-        let bit = |v: Option<CommandValue>| match v {
+        // The value and bit forms always have a command register (checked).
+        let register = c.register.unwrap_or(0);
+        let write = |value: u16| ModbusAsk::Write { register, value };
+        let bit = |v: &Option<CommandValue>| match v {
             Some(CommandValue::Bit(b)) => 1u16 << b,
             _ => 0,
         };
-        let (run, stop, jog) = (bit(c.run), bit(c.stop), bit(c.jog));
+        let (run, stop, jog) = (bit(&c.run), bit(&c.stop), bit(&c.jog));
         let word = self.word.load(Ordering::Relaxed);
         let (name, v) = match op {
-            Operation::Run => ("run", c.run),
-            Operation::Stop => ("stop", c.stop.or(c.run)),
-            Operation::Jog => ("jog", c.jog),
-            Operation::Reset => ("reset", c.reset),
+            Operation::Run => ("run", c.run.clone()),
+            Operation::Stop => ("stop", c.stop.clone().or(c.run.clone())),
+            Operation::Jog => ("jog", c.jog.clone()),
+            Operation::Reset => ("reset", c.reset.clone()),
             _ => return Err(DriveError::Unsupported(format!("{op:?} is not a command"))),
         };
         let v = pick(v, name)?;
         Ok(match (op, v) {
+            (_, CommandValue::Writes(w)) => writes_asks(&w),
             (_, CommandValue::Value(value)) => vec![write(value)],
             (Operation::Run, CommandValue::Bit(b)) => vec![write((word | 1 << b) & !stop & !jog)],
             (Operation::Stop, _) => vec![write((word & !run & !jog) | stop)],
@@ -194,7 +250,8 @@ impl TemplateProfile {
         })
     }
 
-    fn setpoint(&self, hz: f64) -> Result<(Vec<ModbusAsk>, String), DriveError> {
+    /// The setpoint's raw value for `hz` (counts; Hz for an f32) and what it is, after the checks.
+    fn setpoint(&self, hz: f64) -> Result<(f64, String), DriveError> {
         let sp = self.template.setpoint.as_ref().ok_or_else(|| {
             DriveError::Unsupported(format!("the {} template gives no [setpoint]", self.family))
         })?;
@@ -221,14 +278,13 @@ impl TemplateProfile {
             return Err(DriveError::OutOfRange(format!("{hz} Hz does not fit the setpoint register")));
         }
         let value = if sp.kind == ValueType::F32 { hz } else { raw };
-        let words = sp.kind.encode(value, sp.low_first);
         let decimals = (-(sp.scale.log10())).ceil().clamp(0.0, 9.0) as i64;
         let what = format!(
             "setpoint {:04X}H = {} Hz",
             sp.register,
             format_fixed((hz * 10f64.powi(decimals as i32)).round() as i64, decimals as i8)
         );
-        Ok((vec![write_words(sp.register, &words)], what))
+        Ok((value, what))
     }
 }
 
@@ -243,13 +299,6 @@ fn read_asks(reads: &[ReadSpan]) -> Vec<ModbusAsk> {
         .collect()
 }
 
-/// The request that writes `words` from `register`: 06 for one, 10 for two.
-fn write_words(register: u16, words: &[u16]) -> ModbusAsk {
-    match *words {
-        [a, b] => ModbusAsk::WriteTwo { start: register, values: [a, b] },
-        _ => ModbusAsk::Write { register, value: words.first().copied().unwrap_or(0) },
-    }
-}
 
 impl Profile for TemplateProfile {
     fn family(&self) -> Family {
@@ -280,7 +329,12 @@ impl Profile for TemplateProfile {
             Operation::Reverse => {
                 self.needs_reply("Reverse (it reads which way the drive turns)")?;
                 let c = self.template.command.as_ref();
-                if c.and_then(|c| c.reverse).is_none() {
+                let by_sign = self.template.setpoint.as_ref().is_some_and(|s| s.reverse_negative);
+                if by_sign {
+                    self.needs_reply("Reverse (it reads the setpoint, whose sign is the direction)")?;
+                    return Ok(self.plan_with(Vec::new(), Finish::Reverse, "Reverse".to_string()));
+                }
+                if c.and_then(|c| c.reverse.as_ref()).is_none() {
                     return Err(DriveError::Unsupported(format!(
                         "the {} template gives no reverse command",
                         self.family
@@ -292,11 +346,19 @@ impl Profile for TemplateProfile {
                         self.family
                     )));
                 }
-                (read_asks(&self.reverse_reads), Finish::Reverse, "Reverse".to_string())
+                (Vec::new(), Finish::Reverse, "Reverse".to_string())
             }
             Operation::SetSpeed(hz) => {
-                let (asks, what) = self.setpoint(*hz)?;
-                (asks, Finish::Command, what)
+                let (value, what) = self.setpoint(*hz)?;
+                let sp = self.template.setpoint.as_ref().ok_or_else(|| {
+                    DriveError::Unsupported(format!("the {} template gives no [setpoint]", self.family))
+                })?;
+                if sp.reverse_negative {
+                    self.needs_reply(&format!("{what} (it reads the setpoint, whose sign is the direction)"))?;
+                    (Vec::new(), Finish::Speed(value), what)
+                } else {
+                    (setpoint_asks(sp, value), Finish::Command, what)
+                }
             }
             Operation::ReadParam(name) => {
                 let def = self.def(name)?;
@@ -319,27 +381,41 @@ impl Profile for TemplateProfile {
                 }
                 def.check(*raw).map_err(|e| DriveError::OutOfRange(e.to_string()))?;
                 let start = u16::try_from(def.number).unwrap_or(0);
-                let ask = write_words(start, &self.template.param_words(def, *raw));
+                let ask = ModbusAsk::write_words(start, &self.template.param_words(def, *raw));
                 (vec![ask], Finish::Learn(def.number, *raw), format!("{} = {}", def.name, def.format(*raw)))
             }
         };
-        let reads =
-            if matches!(finish, Finish::Reverse) { self.reverse_reads.clone() } else { self.reads.clone() };
-        Ok(Box::new(TemplatePlan {
+        Ok(self.plan_with(asks, finish, what))
+    }
+}
+
+impl TemplateProfile {
+    /// The plan of `asks`, finished by `finish`; a Reverse or a signed SetSpeed reads first.
+    fn plan_with(&self, asks: Vec<ModbusAsk>, finish: Finish, what: String) -> Box<dyn Plan> {
+        let reads = match finish {
+            Finish::Reverse => self.reverse_reads.clone(),
+            Finish::Speed(_) => self.setpoint_reads.clone(),
+            _ => self.reads.clone(),
+        };
+        let asks = match finish {
+            Finish::Reverse | Finish::Speed(_) => read_asks(&reads),
+            _ => asks,
+        };
+        Box::new(TemplatePlan {
             template: self.template,
             framing: self.framing,
             unit: self.address,
             reads,
             limits: self.limits.clone(),
             word: self.word.clone(),
-            command_register: self.template.command.as_ref().map(|c| c.register),
+            command_register: self.template.command.as_ref().and_then(|c| c.register),
             asks: asks.into(),
             answers: Vec::new(),
             finish,
             what,
             sent: None,
             finished: false,
-        }))
+        })
     }
 }
 
@@ -349,6 +425,8 @@ enum Finish {
     Status,
     Command,
     Reverse,
+    /// A setpoint whose sign is the direction: this raw magnitude, written with the sign read.
+    Speed(f64),
     Param(ParamDef),
     Learn(u32, i64),
 }
@@ -388,12 +466,24 @@ impl TemplatePlan {
         let output_hz = num(&s.output_hz);
         let tripped = flag(&s.tripped).unwrap_or(true);
         let fault = num(&s.fault).map(|c| c as i64 as u32).filter(|&c| c != 0 && tripped);
+        // The direction: status.reverse, else (where the direction is the setpoint's sign) the
+        // sign of the setpoint read with the status; none while the setpoint is 0.
+        let reverse = flag(&s.reverse).or_else(|| {
+            let sp = setpoint_direction(self.template)?;
+            let v = self.words_of(&sp).map(|w| sp.kind.decode(&w, sp.low_first))?;
+            (v != 0.0).then_some(v < 0.0)
+        });
+        let direction = reverse.map(|r| if r { "reverse" } else { "forward" }.to_string());
+        // A drive with a direction shows its frequencies as magnitudes (a signed output
+        // frequency is negative in reverse).
+        let has_direction = direction.is_some();
+        let magnitude = |v: Option<f64>| if has_direction { v.map(f64::abs) } else { v };
         DriveStatus {
             address: self.unit,
             running: flag(&s.running).unwrap_or_else(|| output_hz.is_some_and(|hz| hz != 0.0)),
-            direction: flag(&s.reverse).map(|r| if r { "reverse" } else { "forward" }.to_string()),
-            output_hz,
-            setpoint_hz: num(&s.setpoint_hz),
+            direction,
+            output_hz: magnitude(output_hz),
+            setpoint_hz: magnitude(num(&s.setpoint_hz)),
             current_a: num(&s.current_a),
             fault: fault.map(|code| Fault { code, text: self.template.fault_text(code) }),
             values: s
@@ -417,8 +507,29 @@ impl TemplatePlan {
         }
     }
 
-    /// After the reads of a Reverse: the command that turns the drive the other way.
-    fn reverse_command(&self) -> Result<ModbusAsk, DriveError> {
+    /// The setpoint read before a Reverse or a signed SetSpeed: its raw value (counts; Hz for an
+    /// f32).
+    fn setpoint_read(&self) -> Option<(&'static SetpointMap, f64)> {
+        let sp = self.template.setpoint.as_ref()?;
+        let v = setpoint_value(sp);
+        let words = self.words_of(&v)?;
+        Some((sp, sp.kind.decode(&words, sp.low_first)))
+    }
+
+    /// After the reads of a Reverse: the requests that turn the drive the other way.
+    fn reverse_command(&self) -> Result<Vec<ModbusAsk>, DriveError> {
+        if self.template.setpoint.as_ref().is_some_and(|s| s.reverse_negative) {
+            let (sp, raw) = self
+                .setpoint_read()
+                .ok_or_else(|| DriveError::Protocol("the setpoint read gave no value".to_string()))?;
+            if raw == 0.0 {
+                return Err(DriveError::Unsupported(
+                    "the setpoint is 0 Hz, and this drive's direction is the setpoint's sign: set a speed, then reverse"
+                        .to_string(),
+                ));
+            }
+            return Ok(setpoint_asks(sp, -raw));
+        }
         let status = self.status();
         let c =
             self.template.command.as_ref().ok_or_else(|| DriveError::Unsupported("no [command]".into()))?;
@@ -430,7 +541,11 @@ impl TemplatePlan {
         }
         let in_reverse = status.direction.as_deref() == Some("reverse");
         let word = self.word.load(Ordering::Relaxed);
-        let value = match (c.reverse, c.forward) {
+        if let (Some(CommandValue::Writes(r)), Some(CommandValue::Writes(f))) = (&c.reverse, &c.forward) {
+            return Ok(writes_asks(if in_reverse { f } else { r }));
+        }
+        let register = c.register.unwrap_or(0);
+        let value = match (c.reverse.clone(), c.forward.clone()) {
             (Some(CommandValue::Bit(b)), _) => {
                 if in_reverse {
                     word & !(1 << b)
@@ -452,7 +567,7 @@ impl TemplatePlan {
                 ))
             }
         };
-        Ok(ModbusAsk::Write { register: c.register, value })
+        Ok(vec![ModbusAsk::Write { register, value }])
     }
 
     fn answer(&self, ask: ModbusAsk, reply: Option<&[u8]>) -> Result<ModbusAnswer, DriveError> {
@@ -478,10 +593,20 @@ impl TemplatePlan {
         if let Some(ask) = self.asks.pop_front() {
             return Ok(Some(ask));
         }
-        if matches!(self.finish, Finish::Reverse) && self.answers.len() == self.reads.len() {
-            let ask = self.reverse_command()?;
+        if self.answers.len() == self.reads.len() {
+            let asks = match self.finish {
+                Finish::Reverse => self.reverse_command()?,
+                Finish::Speed(magnitude) => {
+                    let (sp, raw) = self
+                        .setpoint_read()
+                        .ok_or_else(|| DriveError::Protocol("the setpoint read gave no value".to_string()))?;
+                    setpoint_asks(sp, if raw < 0.0 { -magnitude } else { magnitude })
+                }
+                _ => return Ok(None),
+            };
             self.finish = Finish::Command;
-            return Ok(Some(ask));
+            self.asks.extend(asks);
+            return Ok(self.asks.pop_front());
         }
         Ok(None)
     }
@@ -499,7 +624,7 @@ impl TemplatePlan {
                 self.learn(*number, *raw);
                 Outcome::Done
             }
-            Finish::Command | Finish::Reverse => Outcome::Done,
+            Finish::Command | Finish::Reverse | Finish::Speed(_) => Outcome::Done,
         }
     }
 }

@@ -7,14 +7,21 @@
 //!   exception 02, and a read longer than the template's `max_read` exception 03.
 //! - Writes (06, 10) to the command register run, stop, reverse, reset and jog the model (a
 //!   value the template does not name, or a command the model refuses, is exception 03); to the
-//!   setpoint register set the setpoint; to a parameter store it (read-only: 02; out of range:
-//!   03). A parameter named in the setpoint's `limit_params` limits the model's frequency.
+//!   setpoint register set the setpoint (where the direction is the setpoint's sign, a negative
+//!   one runs the model in reverse); to a parameter store it (read-only: 02; out of range: 03).
+//!   A parameter named in the setpoint's `limit_params` limits the model's frequency. One 10
+//!   write may span several of these registers.
+//! - Commands in the writes form: the registers they name keep what was last written; after a
+//!   write, every command whose writes all hold and which names a register just written is
+//!   carried out (reset, stop, forward, reverse, run, jog, in that order; forward and reverse set
+//!   the direction only). The registers of the setpoint's `writes` keep what was written.
+//! - A signed output frequency or setpoint (i16, i32, f32) reads negative in reverse.
 //! - A trip shows as the template's fault code whose text names it (over-current, over-voltage,
 //!   under-voltage, temperature, external, communication), else drivebus' number of the trip.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 
-use drivebus_drive::template::{CommandValue, RegisterTable, Template, ValueType};
+use drivebus_drive::template::{CommandMap, CommandValue, RegisterTable, Template, ValueType};
 use drivebus_drive::{Family, ParamStore, Storage, WriteError};
 use drivebus_proto::modbus::ascii::ModbusAscii;
 use drivebus_proto::modbus::rtu::ModbusRtu;
@@ -47,6 +54,8 @@ struct State {
     command: u16,
     /// The setpoint registers as last written.
     setpoint: [u16; 2],
+    /// The registers the writes-form commands and the setpoint's `writes` name, as last written.
+    written: BTreeMap<u16, u16>,
 }
 
 const ILLEGAL_FUNCTION: ExceptionCode = ExceptionCode::ILLEGAL_FUNCTION;
@@ -70,9 +79,21 @@ impl TemplateDrive {
         };
         let idle = template.command.as_ref().map_or(0, |c| c.idle);
         core.model.set_settings(settings_of(template, &core.params));
+        let written = template
+            .command
+            .iter()
+            .flat_map(CommandMap::all)
+            .filter_map(|(_, c)| match c {
+                CommandValue::Writes(w) => Some(w.as_slice()),
+                _ => None,
+            })
+            .chain(template.setpoint.iter().map(|s| s.writes.as_slice()))
+            .flatten()
+            .map(|w| (w.register, 0))
+            .collect();
         Ok(TemplateDrive {
             session,
-            state: State { core, template, protocol, command: idle, setpoint: [0; 2] },
+            state: State { core, template, protocol, command: idle, setpoint: [0; 2], written },
         })
     }
 }
@@ -147,9 +168,15 @@ impl State {
             Some(_) => self.logged_fault(0),
             None => m.trip().map_or(0, |t| fault_code(self.template, t)),
         };
+        let sign = |r: Rotation| if r == Rotation::Reverse { -1.0 } else { 1.0 };
+        let signed = |v: &Option<drivebus_drive::template::RegisterValue>| {
+            v.as_ref().is_some_and(|v| matches!(v.kind, ValueType::I16 | ValueType::I32 | ValueType::F32))
+        };
+        let out_sign = if signed(&s.output_hz) { sign(m.output_rotation()) } else { 1.0 };
+        let set_sign = if signed(&s.setpoint_hz) { sign(m.rotation()) } else { 1.0 };
         let numbers = [
-            (&s.output_hz, m.output_hz()),
-            (&s.setpoint_hz, m.setpoint_hz()),
+            (&s.output_hz, out_sign * m.output_hz()),
+            (&s.setpoint_hz, set_sign * m.setpoint_hz()),
             (&s.current_a, m.current_a()),
             (&s.fault, f64::from(fault)),
         ];
@@ -196,8 +223,10 @@ impl State {
                 *v
             } else if table == RegisterTable::Input {
                 return Err(ILLEGAL_ADDRESS);
-            } else if self.template.command.as_ref().is_some_and(|c| c.register == r) {
+            } else if self.template.command.as_ref().is_some_and(|c| c.register == Some(r)) {
                 self.command
+            } else if let Some(v) = self.written.get(&r) {
+                *v
             } else if let Some(sp) = self
                 .template
                 .setpoint
@@ -226,32 +255,66 @@ impl State {
         Ok(out)
     }
 
-    /// Writes `values` from `start`.
+    /// Writes `values` from `start`: the registers one after another, each a command, setpoint,
+    /// writes-form or parameter register (a setpoint or parameter whole); then the writes-form
+    /// commands that now hold are carried out.
     fn write(&mut self, start: u16, values: &[u16]) -> Result<(), ExceptionCode> {
         let t = self.template;
-        if let Some(c) = t.command.as_ref().filter(|c| c.register == start) {
-            if values.len() != 1 {
-                return Err(ILLEGAL_ADDRESS);
+        let mut touched = Vec::new();
+        let mut i = 0;
+        while i < values.len() {
+            let r = start.checked_add(i as u16).ok_or(ILLEGAL_ADDRESS)?;
+            let rest = &values[i..];
+            if let Some(c) = t.command.as_ref().filter(|c| c.register == Some(r)) {
+                self.command(c, rest[0])?;
+                i += 1;
+            } else if let Some(v) = self.written.get_mut(&r) {
+                *v = rest[0];
+                touched.push(r);
+                i += 1;
+            } else if let Some(sp) = t.setpoint.as_ref().filter(|s| s.register == r) {
+                let words = usize::from(sp.kind.words());
+                let words = rest.get(..words).ok_or(ILLEGAL_ADDRESS)?;
+                self.write_setpoint(sp, words)?;
+                i += words.len();
+            } else {
+                i += self.write_param(r, rest)?;
             }
-            return self.command(c, values[0]);
         }
-        if let Some(sp) = t.setpoint.as_ref().filter(|s| s.register == start) {
-            if values.len() != usize::from(sp.kind.words()) {
-                return Err(ILLEGAL_ADDRESS);
+        if !touched.is_empty() {
+            if let Some(c) = &t.command {
+                self.writes_commands(c, &touched)?;
             }
-            let hz = sp.kind.decode(values, sp.low_first) * sp.scale;
-            if !(0.0..=self.core.model.settings().max_hz + 1e-9).contains(&hz) {
-                return Err(ILLEGAL_VALUE);
-            }
-            self.setpoint[..values.len()].copy_from_slice(values);
-            self.core.model.set_setpoint_hz(hz);
-            return Ok(());
         }
-        let def = self.core.params.catalog().by_number(u32::from(start)).cloned().ok_or(ILLEGAL_ADDRESS)?;
+        Ok(())
+    }
+
+    /// The setpoint's registers written: the model's setpoint (and direction, where it is the
+    /// setpoint's sign).
+    fn write_setpoint(
+        &mut self,
+        sp: &drivebus_drive::template::SetpointMap,
+        words: &[u16],
+    ) -> Result<(), ExceptionCode> {
+        let hz = sp.kind.decode(words, sp.low_first) * sp.scale;
+        let max = self.core.model.settings().max_hz + 1e-9;
+        if !(hz.abs() <= max) || (!sp.reverse_negative && hz < 0.0) {
+            return Err(ILLEGAL_VALUE);
+        }
+        self.setpoint[..words.len()].copy_from_slice(words);
+        if sp.reverse_negative && hz != 0.0 {
+            self.core.model.set_rotation(if hz < 0.0 { Rotation::Reverse } else { Rotation::Forward });
+        }
+        self.core.model.set_setpoint_hz(hz.abs());
+        Ok(())
+    }
+
+    /// The parameter at register `r` written from `values`; the registers it took.
+    fn write_param(&mut self, r: u16, values: &[u16]) -> Result<usize, ExceptionCode> {
+        let t = self.template;
+        let def = self.core.params.catalog().by_number(u32::from(r)).cloned().ok_or(ILLEGAL_ADDRESS)?;
         let words = if def.size == drivebus_drive::Size::Dword { 2 } else { 1 };
-        if values.len() != words {
-            return Err(ILLEGAL_ADDRESS);
-        }
+        let values = values.get(..words).ok_or(ILLEGAL_ADDRESS)?;
         let raw = t.param_raw(&def, values);
         let running = self.core.model.is_running();
         self.core.params.set(def.name.as_str(), raw, Storage::Eeprom, running).map_err(|e| match e {
@@ -267,6 +330,41 @@ impl State {
             let settings = settings_of(t, &self.core.params);
             self.core.model.set_settings(settings);
         }
+        Ok(words)
+    }
+
+    /// After a write to the registers `touched`: every writes-form command whose writes all hold
+    /// now and which names one of them, carried out.
+    fn writes_commands(&mut self, c: &CommandMap, touched: &[u16]) -> Result<(), ExceptionCode> {
+        let holding: Vec<&str> = c
+            .all()
+            .filter_map(|(name, v)| match v {
+                CommandValue::Writes(w) => Some((name, w)),
+                _ => None,
+            })
+            .filter(|(_, w)| {
+                // The last value written to each register is what it holds.
+                let mut last: BTreeMap<u16, u16> = BTreeMap::new();
+                for x in w.iter() {
+                    last.insert(x.register, x.value);
+                }
+                last.iter().all(|(r, v)| self.written.get(r) == Some(v))
+                    && w.iter().any(|x| touched.contains(&x.register))
+            })
+            .map(|(name, _)| name)
+            .collect();
+        let m = &mut self.core.model;
+        for name in holding {
+            match name {
+                "reset" => m.reset().map(|_| ()).map_err(|_| ILLEGAL_VALUE)?,
+                "stop" => m.stop(),
+                "forward" => m.set_rotation(Rotation::Forward),
+                "reverse" => m.set_rotation(Rotation::Reverse),
+                "run" if !m.is_running() => m.run().map_err(|_| ILLEGAL_VALUE)?,
+                "jog" if !m.is_running() => m.jog().map_err(|_| ILLEGAL_VALUE)?,
+                _ => {}
+            }
+        }
         Ok(())
     }
 
@@ -274,12 +372,12 @@ impl State {
         let m = &mut self.core.model;
         let refused = |_| ILLEGAL_VALUE;
         if c.is_bits() {
-            let bit = |v: Option<CommandValue>| match v {
+            let bit = |v: &Option<CommandValue>| match v {
                 Some(CommandValue::Bit(b)) => 1u16 << b,
                 _ => 0,
             };
             let (run, stop, reverse, reset, jog) =
-                (bit(c.run), bit(c.stop), bit(c.reverse), bit(c.reset), bit(c.jog));
+                (bit(&c.run), bit(&c.stop), bit(&c.reverse), bit(&c.reset), bit(&c.jog));
             let rising = |mask: u16| mask != 0 && word & mask != 0 && self.command & mask == 0;
             if rising(reset) {
                 let _ = m.reset();
@@ -297,20 +395,20 @@ impl State {
             self.command = word;
             return Ok(());
         }
-        let is = |v: Option<CommandValue>| v == Some(CommandValue::Value(word));
-        if is(c.reset) {
+        let is = |v: &Option<CommandValue>| *v == Some(CommandValue::Value(word));
+        if is(&c.reset) {
             m.reset().map_err(|_| ILLEGAL_VALUE)?;
-        } else if is(c.stop) {
+        } else if is(&c.stop) {
             m.stop();
-        } else if is(c.run) {
+        } else if is(&c.run) {
             m.run().map_err(refused)?;
-        } else if is(c.forward) {
+        } else if is(&c.forward) {
             m.set_rotation(Rotation::Forward);
             m.run().map_err(refused)?;
-        } else if is(c.reverse) {
+        } else if is(&c.reverse) {
             m.set_rotation(Rotation::Reverse);
             m.run().map_err(refused)?;
-        } else if is(c.jog) {
+        } else if is(&c.jog) {
             m.jog().map_err(refused)?;
         } else {
             return Err(ILLEGAL_VALUE);

@@ -580,15 +580,16 @@ fn f32_and_low_word_first_parameters_are_read_and_written_in_their_coding() {
 }
 
 #[test]
-fn the_acs550_template_reads_its_status_in_two_requests() {
+fn the_acs550_template_reads_its_status_in_three_requests() {
     let family: Family = "abb-acs550".parse().expect("shipped");
     let p =
         template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 1)
             .unwrap();
     let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
-    // 40004 status word and 40401 LAST FAULT: the operating data 40103... are left out (their
-    // resolutions were not confirmed from a public page).
-    assert_eq!(spans, [(3, 1), (400, 1)]);
+    // 40002 REF1 (its sign is the direction), 40004 status word and 40401 LAST FAULT: the
+    // operating data 40103... are left out (their resolutions were not confirmed from a public
+    // page).
+    assert_eq!(spans, [(1, 1), (3, 1), (400, 1)]);
     let mut line = template_line(family, 1);
     let mut replied = 0;
     let (r, sent) = run_counting::<ModbusRtu>(&mut line, &p, &Operation::Status, &mut replied);
@@ -596,7 +597,7 @@ fn the_acs550_template_reads_its_status_in_two_requests() {
     assert!(s.values.is_empty(), "no named values: {s:?}");
     assert_eq!(s.output_hz, None, "{s:?}");
     let asked: usize = sent.iter().map(Vec::len).sum();
-    assert_eq!((asked, replied), (16, 14), "2 x 8 bytes asked; 7 + 7 bytes replied");
+    assert_eq!((asked, replied), (24, 21), "3 x 8 bytes asked; 3 x 7 bytes replied");
 }
 
 /// A drive whose commands write several registers (a run enable and a start register, a

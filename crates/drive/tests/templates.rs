@@ -815,3 +815,90 @@ fn a_negative_setpoint_needs_a_signed_type_and_no_reverse_command() {
     let e = bad("stop = 0x76\n", "stop = 0x76\nreverse = 0x77\n");
     assert!(e.iter().any(|(l, m)| *l == 12 && m.contains("leave reverse and forward out")), "{e:?}");
 }
+
+/// The first six bytes of each request (unit, function, register or start, value or quantity).
+fn heads(sent: &[Vec<u8>]) -> Vec<Vec<u8>> {
+    sent.iter().map(|x| x[..6].to_vec()).collect()
+}
+
+#[test]
+fn the_v20_template_runs_by_two_registers_and_reverses_by_a_third() {
+    let family: Family = "siemens-v20".parse().expect("shipped");
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 1)
+            .unwrap();
+    // 40005 (the direction) alone, then 40024...40030 in one read.
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(4, 1), (23, 7)]);
+    let mut line = template_line(family, 1);
+    // 25 Hz of P2000 = 50 Hz: 50.00 % = 5000 into 40003.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0, 2, 0x13, 0x88]]);
+    // Run: RUN ENABLE (40004), then CMD START (40006).
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Run);
+    support::done("run", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0, 3, 0, 1], vec![1, 0x06, 0, 5, 0, 1]]);
+    wait(&mut line, Duration::from_secs(30));
+    let s = status_on(&mut line, &p);
+    assert!(s.running, "{s:?}");
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("forward")), "{s:?}");
+    let names: Vec<&str> = s.values.iter().map(|v| v.name.as_str()).collect();
+    assert_eq!(names, ["dc_bus_v", "energy_kwh", "motor_rpm", "power_kw", "torque_nm"]);
+    assert!(s.values.iter().any(|v| v.name == "dc_bus_v" && v.value > 100.0), "{s:?}");
+    // Reverse: 40005 read, then 1 written to it.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reverse);
+    support::done("reverse", r);
+    assert_eq!(heads(&sent), [vec![1, 0x03, 0, 4, 0, 1], vec![1, 0x06, 0, 4, 0, 1]]);
+    wait(&mut line, Duration::from_secs(60));
+    let s = status_on(&mut line, &p);
+    // FREQ OUTPUT reads -25.00 Hz on the wire; the view shows 25 Hz in reverse.
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("reverse")), "{s:?}");
+    // Stop: CMD START = 0 only.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Stop);
+    support::done("stop", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0, 5, 0, 0]]);
+    wait(&mut line, Duration::from_secs(60));
+    assert!(!status_on(&mut line, &p).running);
+    // Reset: a pulse on FAULT ACK (40007).
+    drive_mut(&mut line, 1).core_mut().model.trip_now(Trip::External);
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reset);
+    support::done("reset", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0, 6, 0, 1], vec![1, 0x06, 0, 6, 0, 0]]);
+    assert_eq!(drive_mut(&mut line, 1).core_mut().model.trip(), None, "the simulated drive was reset");
+}
+
+#[test]
+fn the_fc51_template_commands_its_fc_profile_control_word() {
+    let family: Family = "danfoss-fc51".parse().expect("shipped");
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 1)
+            .unwrap();
+    // 16-13, 16-14, the control word read back and the status word: four reads (none touch).
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(16129, 1), (16139, 1), (49999, 1), (50199, 1)]);
+    let mut line = template_line(family, 1);
+    // 25 Hz of 50 Hz: 0x2000 into 50010 REF.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0xC3, 0x59, 0x20, 0x00]]);
+    // Run: 0x043C with bit 6 (start) set into 50000 CTW.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Run);
+    support::done("run", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0xC3, 0x4F, 0x04, 0x7C]]);
+    wait(&mut line, Duration::from_secs(30));
+    let s = status_on(&mut line, &p);
+    assert!(s.running, "{s:?}");
+    assert_eq!((s.output_hz, s.direction.as_deref()), (Some(25.0), Some("forward")), "{s:?}");
+    // Reverse: bit 15 added to the word as last written.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reverse);
+    support::done("reverse", r);
+    assert_eq!(heads(&sent).last().unwrap(), &[1, 0x06, 0xC3, 0x4F, 0x84, 0x7C]);
+    wait(&mut line, Duration::from_secs(60));
+    let s = status_on(&mut line, &p);
+    assert_eq!(s.direction.as_deref(), Some("reverse"), "{s:?}");
+    // Stop: bit 6 cleared, the rest kept.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Stop);
+    support::done("stop", r);
+    assert_eq!(heads(&sent), [vec![1, 0x06, 0xC3, 0x4F, 0x84, 0x3C]]);
+}

@@ -38,6 +38,8 @@ fn list() -> &'static RwLock<Vec<&'static Kind>> {
 pub const SHIPPED: &[(&str, &str)] = &[
     ("templates/generic-2000h.toml", include_str!("../../../../templates/generic-2000h.toml")),
     ("templates/abb-acs550.toml", include_str!("../../../../templates/abb-acs550.toml")),
+    ("templates/siemens-v20.toml", include_str!("../../../../templates/siemens-v20.toml")),
+    ("templates/danfoss-fc51.toml", include_str!("../../../../templates/danfoss-fc51.toml")),
 ];
 
 /// The shipped templates, registered on first use; an error names a shipped file that does not

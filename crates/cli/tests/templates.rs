@@ -228,3 +228,25 @@ fn a_shipped_template_needs_no_template_flag_and_shows_its_history() {
     assert_eq!(t["history"], serde_json::json!([]), "no trip yet: {t}");
     assert!(t["source"].as_str().is_some_and(|s| s.contains("fault_history 0401, 0412, 0413")), "{t}");
 }
+
+#[test]
+fn the_shipped_v20_template_runs_and_reverses_a_simulated_v20() {
+    // siemens-v20 runs by two registers (RUN ENABLE and CMD START) and reverses by a third: the
+    // simulator carries out what the commands write, over Modbus TCP as over RS485.
+    let sim = simulate("siemens-v20@3", &["--modbus-tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    let tcp = Some("modbus-tcp");
+    ok(&drivebus(&port, "siemens-v20", tcp, 3, &["speed", "20"]), "speed");
+    ok(&drivebus(&port, "siemens-v20", tcp, 3, &["run"]), "run");
+    let s = sim::wait_status(&port, "siemens-v20", tcp, 3, "running forward at 20 Hz", |s| {
+        s["running"] == true && s["output_hz"] == 20.0
+    });
+    assert_eq!(s["direction"], "forward", "{s}");
+    ok(&drivebus(&port, "siemens-v20", tcp, 3, &["reverse"]), "reverse");
+    let s = sim::wait_status(&port, "siemens-v20", tcp, 3, "running in reverse at 20 Hz", |s| {
+        s["direction"] == "reverse" && s["output_hz"] == 20.0
+    });
+    assert!(s["values"]["dc_bus_v"]["value"].as_f64().is_some_and(|v| v > 100.0), "{s}");
+    ok(&drivebus(&port, "siemens-v20", tcp, 3, &["stop"]), "stop");
+    sim::wait_status(&port, "siemens-v20", tcp, 3, "stopped", |s| s["running"] == false);
+}

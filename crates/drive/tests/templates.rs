@@ -696,7 +696,10 @@ fn bad_writes_are_named_with_their_lines() {
     let e = bad("{ register = 5, value = 1 }", "{ register = 70000, value = 1 }");
     assert_eq!(
         e,
-        [(14, "command.run: write 2: register 70000 is not a Modbus register (0..65535, 0x0000..0xFFFF)".into())]
+        [(
+            14,
+            "command.run: write 2: register 70000 is not a Modbus register (0..65535, 0x0000..0xFFFF)".into()
+        )]
     );
     // A value beyond 16 bits, line 15.
     let e = bad("{ register = 5, value = 0 }", "{ register = 5, value = 65536 }");
@@ -756,8 +759,9 @@ fn a_negative_setpoint_reverses_the_simulated_drive() {
             .unwrap();
     round_trip(family);
     let mut line = template_line(family, 3);
-    let p = template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 3)
-        .unwrap();
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 3)
+            .unwrap();
     // The status reads the setpoint, then the status word and output frequency (3..4).
     let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
     assert_eq!(spans, [(1, 1), (3, 2)]);

@@ -1012,7 +1012,10 @@ async fn a_bus_scan_finds_the_drives_while_polling_goes_on() {
     // The built-in families, then the shipped template kinds speaking Modbus RTU.
     assert_eq!(
         (&r.json["running"], &r.json["families"]),
-        (&json!(true), &json!(["generic", "toshiba", "generic-2000h", "abb-acs550"]))
+        (
+            &json!(true),
+            &json!(["generic", "toshiba", "generic-2000h", "abb-acs550", "siemens-v20", "danfoss-fc51"])
+        )
     );
     assert_error(&call(&app, "POST", url, Some(WRITE), None).await, 429, "busy");
     // conveyor-1 is polled every 250 ms: while the scan runs, a poll at least every 4 of those.

@@ -474,7 +474,10 @@ fn register_write(
     if !(0..=0xFFFF).contains(&w.register) {
         e.at(
             span,
-            format!("{what}: write {n}: register {} is not a Modbus register (0..65535, 0x0000..0xFFFF)", w.register),
+            format!(
+                "{what}: write {n}: register {} is not a Modbus register (0..65535, 0x0000..0xFFFF)",
+                w.register
+            ),
         );
         return None;
     }
@@ -522,8 +525,11 @@ fn command(e: &mut Errors<'_>, c: &Spanned<super::file::FileCommand>) -> Command
                     return None;
                 }
                 let what = format!("command.{name}");
-                let out: Vec<_> =
-                    list.iter().enumerate().filter_map(|(i, w)| register_write(e, &what, i, w, v.span())).collect();
+                let out: Vec<_> = list
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(i, w)| register_write(e, &what, i, w, v.span()))
+                    .collect();
                 (out.len() == list.len()).then_some(CommandValue::Writes(out))
             }
         }
@@ -541,10 +547,9 @@ fn command(e: &mut Errors<'_>, c: &Spanned<super::file::FileCommand>) -> Command
         );
     }
     match &f.register {
-        None if values || bitwise => e.at(
-            c.span(),
-            "[command] needs register: the command register the values or bits are written to",
-        ),
+        None if values || bitwise => {
+            e.at(c.span(), "[command] needs register: the command register the values or bits are written to")
+        }
         Some(r) if writes && !values && !bitwise => e.at(
             r.span(),
             "command.register: every command here names its own registers (writes): leave register out",
@@ -627,7 +632,10 @@ fn setpoint(e: &mut Errors<'_>, s: &Spanned<super::file::FileSetpoint>, params: 
             writes.push(w);
         }
         if list.get_ref().is_empty() {
-            e.at(list.span(), "setpoint.writes is empty: give [{ register = R, value = V }, ...] or leave it out");
+            e.at(
+                list.span(),
+                "setpoint.writes is empty: give [{ register = R, value = V }, ...] or leave it out",
+            );
         }
     }
     let reverse_negative = match f.reverse.as_ref().map(|r| (r, r.get_ref().as_str())) {

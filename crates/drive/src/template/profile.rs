@@ -16,7 +16,9 @@ use std::sync::{Arc, Mutex};
 
 use drivebus_proto::modbus::ExceptionCode;
 
-use super::{write_groups, CommandValue, RegisterTable, RegisterValue, RegisterWrite, SetpointMap, Template, ValueType};
+use super::{
+    write_groups, CommandValue, RegisterTable, RegisterValue, RegisterWrite, SetpointMap, Template, ValueType,
+};
 use crate::profile::generic::{self, ModbusAnswer, ModbusAsk, ModbusFraming};
 use crate::profile::{
     CodeSpace, DriveError, DriveStatus, Exchange, Fault, NamedValue, Operation, Outcome, Plan, Profile, Step,
@@ -299,7 +301,6 @@ fn read_asks(reads: &[ReadSpan]) -> Vec<ModbusAsk> {
         .collect()
 }
 
-
 impl Profile for TemplateProfile {
     fn family(&self) -> Family {
         self.family
@@ -354,7 +355,9 @@ impl Profile for TemplateProfile {
                     DriveError::Unsupported(format!("the {} template gives no [setpoint]", self.family))
                 })?;
                 if sp.reverse_negative {
-                    self.needs_reply(&format!("{what} (it reads the setpoint, whose sign is the direction)"))?;
+                    self.needs_reply(&format!(
+                        "{what} (it reads the setpoint, whose sign is the direction)"
+                    ))?;
                     (Vec::new(), Finish::Speed(value), what)
                 } else {
                     (setpoint_asks(sp, value), Finish::Command, what)

@@ -298,7 +298,8 @@ impl State {
     ) -> Result<(), ExceptionCode> {
         let hz = sp.kind.decode(words, sp.low_first) * sp.scale;
         let max = self.core.model.settings().max_hz + 1e-9;
-        if !(hz.abs() <= max) || (!sp.reverse_negative && hz < 0.0) {
+        // A NaN (an f32 setpoint) is refused too.
+        if hz.is_nan() || hz.abs() > max || (!sp.reverse_negative && hz < 0.0) {
             return Err(ILLEGAL_VALUE);
         }
         self.setpoint[..words.len()].copy_from_slice(words);

@@ -721,6 +721,15 @@ fn bad_writes_are_named_with_their_lines() {
     // The setpoint's writes may not write the setpoint itself, line 24.
     let e = bad("writes = [{ register = 3, value = 1 }]", "writes = [{ register = 2, value = 1 }]");
     assert_eq!(e, [(24, "setpoint.writes: write 1: register 2 is the setpoint's own".into())]);
+    // A command writing the setpoint's register.
+    let e = bad("stop = [{ register = 5, value = 0 }]", "stop = [{ register = 2, value = 0 }]");
+    assert_eq!(
+        e,
+        [(
+            13,
+            "command.stop: write 1: register 2 is the setpoint's: give the setpoint under [setpoint]".into()
+        )]
+    );
     // A value or bit form without its command register.
     let text = GOOD.replacen("register = 200\n", "", 1);
     let e = Template::from_toml_str("t.toml", &text).unwrap_err().errors;
@@ -835,6 +844,11 @@ fn the_v20_template_runs_by_two_registers_and_reverses_by_a_third() {
     let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
     assert_eq!(spans, [(4, 1), (23, 7)]);
     let mut line = template_line(family, 1);
+    // A status refresh on the wire: 2 requests of 8 bytes; 7 + 19 bytes back.
+    let mut replied = 0;
+    let (r, sent) = run_counting::<ModbusRtu>(&mut line, &p, &Operation::Status, &mut replied);
+    support::status_of("status", r);
+    assert_eq!((sent.iter().map(Vec::len).sum::<usize>(), replied), (16, 26));
     // 25 Hz of P2000 = 50 Hz: 50.00 % = 5000 into 40003.
     let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
     support::done("speed", r);
@@ -882,6 +896,11 @@ fn the_fc51_template_commands_its_fc_profile_control_word() {
     let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
     assert_eq!(spans, [(16129, 1), (16139, 1), (49999, 1), (50199, 1)]);
     let mut line = template_line(family, 1);
+    // A status refresh on the wire: 4 requests of 8 bytes; 4 replies of 7.
+    let mut replied = 0;
+    let (r, sent) = run_counting::<ModbusRtu>(&mut line, &p, &Operation::Status, &mut replied);
+    support::status_of("status", r);
+    assert_eq!((sent.iter().map(Vec::len).sum::<usize>(), replied), (32, 28));
     // 25 Hz of 50 Hz: 0x2000 into 50010 REF.
     let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
     support::done("speed", r);

@@ -214,6 +214,20 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
     let command = raw.command.as_ref().map(|c| command(e, c));
     let setpoint = raw.setpoint.as_ref().map(|s| setpoint(e, s, &params));
     if let (Some(sp), Some(c), Some(raw_c)) = (&setpoint, &command, &raw.command) {
+        let own = sp.register..sp.register.saturating_add(sp.kind.words());
+        for (name, v) in c.all() {
+            let CommandValue::Writes(writes) = v else { continue };
+            if let Some((i, w)) = writes.iter().enumerate().find(|(_, w)| own.contains(&w.register)) {
+                e.at(
+                    raw_c.span(),
+                    format!(
+                        "command.{name}: write {}: register {} is the setpoint's: give the setpoint under [setpoint]",
+                        i + 1,
+                        w.register
+                    ),
+                );
+            }
+        }
         if sp.reverse_negative && (c.reverse.is_some() || c.forward.is_some()) {
             e.at(
                 raw_c.span(),

@@ -925,3 +925,107 @@ fn the_fc51_template_commands_its_fc_profile_control_word() {
     support::done("stop", r);
     assert_eq!(heads(&sent), [vec![1, 0x06, 0xC3, 0x4F, 0x84, 0x3C]]);
 }
+
+/// A drive whose register 5 packs the fault code in its low byte and the state in its high byte
+/// (running bit 8, tripped bit 9), with a temperature in the high byte of register 7.
+const PACKED: &str = r#"kind = "packed-test"
+maker = "Test"
+model = "Packed"
+source = "written for this test"
+protocols = ["modbus-rtu"]
+[serial]
+baud = 9600
+format = "8N1"
+[status]
+running = { register = 5, bit = 8 }
+tripped = { register = 5, bit = 9 }
+fault = { register = 5, mask = 0x00FF }
+output_hz = { register = 6, scale = 0.1 }
+[values]
+heatsink_c = { register = 7, mask = 0xFF00, unit = "C" }
+[command]
+register = 0
+run = 1
+stop = 0
+reset = 4
+[setpoint]
+register = 1
+scale = 0.1
+max_hz = 50.0
+[faults]
+14 = "external fault"
+200 = "over-current"
+"#;
+
+#[test]
+fn a_mask_takes_a_field_of_a_register() {
+    let t = Template::from_toml_str("p.toml", PACKED).unwrap_or_else(|e| panic!("{e}"));
+    let fault = t.status.fault.as_ref().unwrap();
+    assert_eq!(fault.mask, Some(0x00FF));
+    assert_eq!(fault.value(&[0x020E]), 14.0, "the low byte of 0x020E");
+    assert!(t.status.tripped.as_ref().unwrap().flag(&[0x020E]));
+    assert!(!t.status.running.as_ref().unwrap().flag(&[0x020E]));
+    let heat = &t.status.extra[0].value;
+    assert_eq!(heat.value(&[0x2AFF]), 42.0, "the high byte of 0x2AFF, shifted down");
+    assert_eq!(heat.encode(42.0), [0x2A00], "written into its field, the other bits 0");
+    assert_eq!(heat.encode(300.0), [0xFF00], "held to the field's largest value");
+}
+
+#[test]
+fn packed_fields_come_from_the_simulated_drive() {
+    let family = template::register(Template::from_toml_str("p.toml", PACKED).unwrap()).unwrap();
+    round_trip(family);
+    let mut line = template_line(family, 3);
+    let p = drivebus_drive::profile::for_drive(family, family.default_protocol(), 3).unwrap();
+    let heat = drivebus_drive::profile::round_to(support::model(&mut line, 1).heatsink_c(), 0);
+    let s = status_on(&mut line, &*p);
+    let v = s.values.iter().find(|v| v.name == "heatsink_c").expect("heatsink_c");
+    assert_eq!(v.value, heat, "the high byte of register 7: {s:?}");
+    drive_mut(&mut line, 1).core_mut().model.trip_now(Trip::External);
+    let s = status_on(&mut line, &*p);
+    let fault = s.fault.clone().expect("tripped: the low byte's code");
+    assert_eq!((fault.code, fault.text.as_str()), (14, "external fault"), "{s:?}");
+    assert!(!s.running, "{s:?}");
+}
+
+#[test]
+fn bad_masks_are_named_with_their_lines() {
+    let bad = |from: &str, to: &str| {
+        assert!(PACKED.contains(from), "{from}");
+        Template::from_toml_str("p.toml", &PACKED.replacen(from, to, 1)).unwrap_err().errors
+    };
+    let on = |e: &[(usize, String)], line: usize, text: &str| {
+        assert!(e.iter().any(|(l, m)| *l == line && m.contains(text)), "line {line}: {text}: {e:?}")
+    };
+    // A mask of zero, line 12.
+    let e = bad("mask = 0x00FF", "mask = 0");
+    on(&e, 12, "status.fault: mask 0x0 takes no bit");
+    // Wider than the type, line 12.
+    let e = bad("mask = 0x00FF", "mask = 0x1FF00");
+    on(&e, 12, "status.fault: mask 0x1FF00 is wider than a U16 (0x1..0xFFFF)");
+    // A 32-bit value takes a 32-bit mask.
+    let wide = PACKED.replacen("mask = 0xFF00, unit", "type = \"u32\", mask = 0x1FF00, unit", 1);
+    let t = Template::from_toml_str("p.toml", &wide).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(t.status.extra[0].value.value(&[0x0001, 0x8000]), 0x180 as f64, "bits 8..16 of 0x00018000");
+    // Overlapping a flag's bit, line 12: bits 0..8 take running's bit 8.
+    let e = bad("mask = 0x00FF", "mask = 0x01FF");
+    on(&e, 12, "status.fault: mask 0x01FF overlaps status.running's (register 5)");
+    // A flag's bit inside a field given before it, line 12 (the second of the two).
+    let e = bad(
+        "tripped = { register = 5, bit = 9 }\nfault = { register = 5, mask = 0x00FF }",
+        "fault = { register = 5, mask = 0x00FF }\ntripped = { register = 5, bit = 3 }",
+    );
+    on(&e, 12, "status.tripped: bit 3 overlaps status.fault's (register 5)");
+    // Both bit and mask, line 10.
+    let e = bad("register = 5, bit = 8 }", "register = 5, bit = 8, mask = 0x0100 }");
+    on(&e, 10, "status.running: give bit or mask, not both");
+    // Gaps, line 12.
+    let e = bad("mask = 0x00FF", "mask = 0x0F0F");
+    on(&e, 12, "status.fault: mask 0x0F0F has gaps");
+    // A signed type, line 12.
+    let e = bad("mask = 0x00FF", "type = \"i16\", mask = 0x00FF");
+    on(&e, 12, "a mask takes an unsigned field");
+    // A fault code the field cannot hold, line 27.
+    let e = bad("200 = \"over-current\"", "300 = \"over-current\"");
+    on(&e, 27, "fault 300: status.fault's mask holds 0..255");
+}

@@ -258,7 +258,15 @@ fn read(e: &mut Errors<'_>, file: &str, raw: FileTemplate) -> Template {
                 Some(hex) => u32::from_str_radix(hex, 16).ok(),
                 None => code.parse::<u32>().ok(),
             };
+            let field = status.fault.as_ref().and_then(|f| f.mask).map(|m| m >> m.trailing_zeros());
             match parsed {
+                Some(c) if field.is_some_and(|largest| c > largest) => e.at(
+                    text.span(),
+                    format!(
+                        "fault {code}: status.fault's mask holds 0..{} (a code this large never shows)",
+                        field.unwrap_or(0)
+                    ),
+                ),
                 Some(c) if !text.get_ref().trim().is_empty() => {
                     faults.insert(c, text.get_ref().clone());
                 }
@@ -425,6 +433,7 @@ fn value(e: &mut Errors<'_>, what: &str, v: &Spanned<FileValue>, flag: bool) -> 
             }
         }
     };
+    let mask = f.mask.as_ref().and_then(|m| field_mask(e, &what, m, kind, f.bit.is_some()));
     Some(RegisterValue {
         register: reg,
         table,
@@ -433,44 +442,110 @@ fn value(e: &mut Errors<'_>, what: &str, v: &Spanned<FileValue>, flag: bool) -> 
         scale,
         offset,
         bit,
+        mask,
         decimals: decimals(scale),
     })
 }
 
-/// Two flags on the same bit of the same register, or two numbers in the same register.
+/// A `mask`: bits that follow one another, within an unsigned integer type, not with `bit`.
+fn field_mask(e: &mut Errors<'_>, what: &str, m: &Spanned<i64>, kind: ValueType, bit: bool) -> Option<u32> {
+    let mask = *m.get_ref();
+    let widest = match kind {
+        ValueType::U16 => 0xFFFF,
+        ValueType::U32 => 0xFFFF_FFFF,
+        _ => {
+            e.at(
+                m.span(),
+                format!(
+                    "{what}: a mask takes an unsigned field: give type = \"u16\" or \"u32\" (not {kind:?})"
+                ),
+            );
+            return None;
+        }
+    };
+    if bit {
+        e.at(m.span(), format!("{what}: give bit or mask, not both (a flag of one bit is bit = N)"));
+        return None;
+    }
+    if mask == 0 {
+        e.at(
+            m.span(),
+            format!("{what}: mask 0x0 takes no bit: give the field's bits (0xFF00: the high byte)"),
+        );
+        return None;
+    }
+    if !(1..=widest).contains(&mask) {
+        e.at(
+            m.span(),
+            format!(
+                "{what}: mask {} is wider than a {kind:?} (0x1..{widest:#X})",
+                if mask < 0 { mask.to_string() } else { format!("{mask:#X}") }
+            ),
+        );
+        return None;
+    }
+    let mask = mask as u32;
+    if (mask >> mask.trailing_zeros()).count_ones() != (mask >> mask.trailing_zeros()).trailing_ones() {
+        e.at(
+            m.span(),
+            format!("{what}: mask {mask:#06X} has gaps: a field's bits follow one another (0x00FF, 0xFF00, 0x0070)"),
+        );
+        return None;
+    }
+    Some(mask)
+}
+
+/// Two values on the same bits of a register: two numbers in the same register, two flags on the
+/// same bit, a `mask` field overlapping another field, number or flag bit. A flag without a bit
+/// (any value but zero) is not checked.
 fn check_flag_bits(e: &mut Errors<'_>, status: &[(String, &Spanned<FileValue>)]) {
-    let mut numbers: HashMap<(i64, String), &str> = HashMap::new();
-    let mut by_place: Vec<_> = status.iter().map(|(n, v)| (n, *v)).collect();
-    by_place.sort_by_key(|(_, v)| v.span().start);
+    // The bits of each register taken so far, and by whom.
+    let mut taken: HashMap<(i64, String), Vec<(u16, &str)>> = HashMap::new();
+    // In file order: the later of two is the one reported.
+    let mut in_order: Vec<_> = status.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+    in_order.sort_by_key(|(_, v)| v.span().start);
     let label =
         |name: &str| if name.starts_with("values.") { name.to_string() } else { format!("status.{name}") };
-    for (name, v) in by_place {
+    for (name, v) in in_order {
         let f = v.get_ref();
-        if f.bit.is_some() || is_flag(name) {
-            continue;
-        }
-        let words = match f.kind.as_ref().map(|k| k.get_ref().as_str()) {
+        let words: i64 = match f.kind.as_ref().map(|k| k.get_ref().as_str()) {
             Some("u32" | "i32" | "f32") => 2,
             _ => 1,
         };
-        let table = f.table.as_ref().map_or("holding".to_string(), |t| t.get_ref().clone());
-        for r in *f.register.get_ref()..*f.register.get_ref() + words {
-            if let Some(other) = numbers.insert((r, table.clone()), name) {
-                e.at(f.register.span(), format!("{}: register {r} overlaps {}'s", label(name), label(other)));
+        let low_first = f.word_order.as_ref().is_some_and(|w| w.get_ref() == "low-first");
+        // The value's bits, as one number of 16 × words bits; where the error is reported.
+        let (bits, span, what): (u64, _, String) = match (&f.bit, &f.mask) {
+            (Some(b), _) if (0..16 * words).contains(b.get_ref()) => {
+                (1 << b.get_ref(), b.span(), format!("bit {}", b.get_ref()))
             }
-        }
-    }
-    let mut seen: HashMap<(i64, String, i64), &str> = HashMap::new();
-    // In file order: the later of two is the one reported.
-    let mut in_order: Vec<_> = status.iter().map(|(n, v)| (n, *v)).collect();
-    in_order.sort_by_key(|(_, v)| v.span().start);
-    for (name, v) in in_order {
-        let f = v.get_ref();
-        let Some(bit) = &f.bit else { continue };
+            (Some(_), _) => continue,
+            (None, Some(m)) if *m.get_ref() > 0 && *m.get_ref() < 1 << (16 * words) => {
+                (*m.get_ref() as u64, m.span(), format!("mask {:#06X}", m.get_ref()))
+            }
+            (None, Some(_)) => continue,
+            (None, None) if is_flag(name) => continue,
+            (None, None) => (u64::MAX >> (64 - 16 * words), f.register.span(), String::new()),
+        };
         let table = f.table.as_ref().map_or("holding".to_string(), |t| t.get_ref().clone());
-        let key = (*f.register.get_ref(), table, *bit.get_ref());
-        if let Some(other) = seen.insert(key, name) {
-            e.at(bit.span(), format!("{}: bit {} overlaps {}'s", label(name), bit.get_ref(), label(other)));
+        for i in 0..words {
+            // The word at register + i: the high word first unless low-first.
+            let shift = if words == 2 && (i == 0) != low_first { 16 } else { 0 };
+            let word = (bits >> shift) as u16;
+            if word == 0 {
+                continue;
+            }
+            let r = *f.register.get_ref() + i;
+            let slot = taken.entry((r, table.clone())).or_default();
+            if let Some((_, other)) = slot.iter().find(|(b, _)| b & word != 0) {
+                let message = if what.is_empty() {
+                    format!("{}: register {r} overlaps {}'s", label(name), label(other))
+                } else {
+                    format!("{}: {what} overlaps {}'s (register {r})", label(name), label(other))
+                };
+                e.at(span.clone(), message);
+                break;
+            }
+            slot.push((word, name));
         }
     }
 }

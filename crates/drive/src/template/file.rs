@@ -73,6 +73,9 @@ pub(super) struct FileValue {
     pub(super) max: Option<Spanned<f64>>,
     #[serde(default)]
     pub(super) bit: Option<Spanned<i64>>,
+    /// A field of the register: `0xFF00` (the high byte), the shift implied by the mask.
+    #[serde(default)]
+    pub(super) mask: Option<Spanned<i64>>,
     /// The unit of a value under `[values]`.
     #[serde(default)]
     pub(super) unit: Option<Spanned<String>>,

@@ -144,25 +144,50 @@ pub struct RegisterValue {
     pub offset: f64,
     /// A flag: this bit of the raw value (set = true).
     pub bit: Option<u8>,
+    /// A field of the register(s): the value is `(raw & mask) >> shift`, the shift being the
+    /// mask's lowest set bit (`0xFF00`: the high byte). Its bits follow one another; u16 or u32
+    /// only (a field is unsigned).
+    pub mask: Option<u32>,
     /// The decimals the value is shown with (from the scale).
     pub decimals: i32,
 }
 
 impl RegisterValue {
-    /// The value in units of the registers read for it.
-    pub fn value(&self, words: &[u16]) -> f64 {
-        crate::profile::round_to(
-            self.kind.decode(words, self.low_first) * self.scale + self.offset,
-            self.decimals,
-        )
+    /// The raw number of the registers read for it: the whole value, or its `mask` field.
+    fn raw(&self, words: &[u16]) -> f64 {
+        let raw = self.kind.decode(words, self.low_first);
+        match self.mask {
+            Some(mask) => f64::from((raw as i64 as u32 & mask) >> mask.trailing_zeros()),
+            None => raw,
+        }
     }
 
-    /// The flag of the registers read for it (a set bit, or any value but zero).
+    /// The value in units of the registers read for it.
+    pub fn value(&self, words: &[u16]) -> f64 {
+        crate::profile::round_to(self.raw(words) * self.scale + self.offset, self.decimals)
+    }
+
+    /// The flag of the registers read for it (a set bit, or any value but zero; with a `mask`,
+    /// any bit of the field set).
     pub fn flag(&self, words: &[u16]) -> bool {
-        let raw = self.kind.decode(words, self.low_first);
         match self.bit {
-            Some(b) => (raw as i64 as u64) >> b & 1 == 1,
-            None => raw != 0.0,
+            Some(b) => (self.kind.decode(words, self.low_first) as i64 as u64) >> b & 1 == 1,
+            None => self.raw(words) != 0.0,
+        }
+    }
+
+    /// The registers holding the raw number `raw` (rounded by the caller; an f32 holds it as
+    /// it is), in wire order: with a `mask`, `raw` (held to the field's largest value) shifted
+    /// into the field and the other bits 0, so values sharing a register can be ORed together.
+    pub fn encode(&self, raw: f64) -> Vec<u16> {
+        match self.mask {
+            Some(mask) => {
+                let shift = mask.trailing_zeros();
+                let largest = f64::from(mask >> shift);
+                let field = (raw.clamp(0.0, largest) as u32) << shift & mask;
+                self.kind.encode(f64::from(field), self.low_first)
+            }
+            None => self.kind.encode(raw, self.low_first),
         }
     }
 }

@@ -64,6 +64,7 @@ fn setpoint_value(sp: &SetpointMap) -> RegisterValue {
         scale: if sp.kind == ValueType::F32 { 1.0 } else { sp.scale },
         offset: 0.0,
         bit: None,
+        mask: None,
         decimals: 9,
     }
 }

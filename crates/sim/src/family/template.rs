@@ -2,7 +2,7 @@
 //! behind the template's own Modbus map, so a template can be tried with no hardware.
 //!
 //! - Reads (03, 04) answer the template's status registers from the model (values coded and
-//!   scaled as the template says, flags as their bits), the command and setpoint registers as
+//!   scaled as the template says, flags as their bits, fields in their masks), the command and setpoint registers as
 //!   last written, and the parameters from the template's catalog; any other register is
 //!   exception 02, and a read longer than the template's `max_read` exception 03.
 //! - Writes (06, 10) to the command register run, stop, reverse, reset and jog the model (a
@@ -153,7 +153,7 @@ fn fault_code(t: &Template, trip: Trip) -> u32 {
 }
 
 impl State {
-    /// Every status register's value now (flags sharing a register ORed together).
+    /// Every status register's value now (flags and `mask` fields sharing a register ORed together).
     fn status_registers(&self) -> HashMap<(RegisterTable, u16), u16> {
         let m = &self.core.model;
         let s = &self.template.status;
@@ -185,7 +185,7 @@ impl State {
         for (value, v) in numbers {
             let raw = (v - value.offset) / value.scale;
             let raw = if value.kind == ValueType::F32 { raw } else { raw.round() };
-            put(value.table, value.register, value.kind.encode(raw, value.low_first));
+            put(value.table, value.register, value.encode(raw));
         }
         let flags = [
             (&s.running, m.is_running()),
@@ -199,7 +199,7 @@ impl State {
                 (None, true) => 1.0,
                 (_, false) => 0.0,
             };
-            put(value.table, value.register, value.kind.encode(raw, value.low_first));
+            put(value.table, value.register, value.encode(raw));
         }
         regs
     }

@@ -311,7 +311,7 @@ mod tests {
         let err = "siemens".parse::<Family>().unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown drive family \"siemens\": expected generic, toshiba, danfoss, b800 or a template kind (generic-2000h, abb-acs550, siemens-v20, danfoss-fc51, or one a template file adds: docs/templates.md)"
+            "unknown drive family \"siemens\": expected generic, toshiba, danfoss, b800 or a template kind (generic-2000h, abb-acs550, siemens-v20, danfoss-fc51, invertek-optidrive-e3, or one a template file adds: docs/templates.md)"
         );
     }
 

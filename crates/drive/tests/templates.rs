@@ -926,6 +926,92 @@ fn the_fc51_template_commands_its_fc_profile_control_word() {
     assert_eq!(heads(&sent), [vec![1, 0x06, 0xC3, 0x4F, 0x84, 0x3C]]);
 }
 
+/// The status refresh through `p`: its outcome, the requests and the replies, byte for byte.
+fn status_bytes(
+    line: &mut VirtualLine,
+    p: &dyn Profile,
+) -> (drivebus_drive::profile::DriveStatus, Vec<Vec<u8>>, Vec<Vec<u8>>) {
+    let mut replies = Vec::new();
+    let plan = p.plan(&Operation::Status).expect("a status plan");
+    let (r, sent) = support::execute(plan, |x| {
+        let reply = support::transact::<ModbusRtu>(line, x, GAP);
+        replies.push(reply.clone().unwrap_or_default());
+        reply
+    });
+    (support::status_of("status", r), sent, replies)
+}
+
+#[test]
+fn the_optidrive_e3_template_reads_its_packed_status_word_and_commands_bit_0() {
+    let family: Family = "invertek-optidrive-e3".parse().expect("shipped");
+    let t = family.template().unwrap();
+    assert_eq!((t.baud, t.serial_default(t.protocols[0]).1.to_string().as_str()), (115200, "8N1"));
+    let p =
+        template::profile::TemplateProfile::new(family, drivebus_proto::protocol::WireProtocol::ModbusRtu, 1)
+            .unwrap();
+    // Registers 6...8 (status word, output frequency, current) and 22...24 (speed reference,
+    // DC bus, heatsink): two reads of three.
+    let spans: Vec<(u16, u16)> = p.reads().iter().map(|r| (r.start, r.quantity)).collect();
+    assert_eq!(spans, [(5, 3), (21, 3)]);
+    let mut line = template_line(family, 1);
+    // A status refresh on the wire: 2 requests of 8 bytes; 2 replies of 11.
+    let (s, sent, replies) = status_bytes(&mut line, &p);
+    assert!(!s.running, "{s:?}");
+    assert_eq!(
+        sent,
+        [
+            vec![0x01, 0x03, 0x00, 0x05, 0x00, 0x03, 0x15, 0xCA],
+            vec![0x01, 0x03, 0x00, 0x15, 0x00, 0x03, 0x14, 0x0F]
+        ]
+    );
+    assert_eq!(replies.iter().map(Vec::len).collect::<Vec<_>>(), [11, 11]);
+    // 25 Hz: 250 (Hz x10) into register 2.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::SetSpeed(25.0));
+    support::done("speed", r);
+    assert_eq!(sent, [vec![0x01, 0x06, 0x00, 0x01, 0x00, 0xFA, 0x58, 0x49]]);
+    // Run: bit 0 (run enable) of register 1.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Run);
+    support::done("run", r);
+    assert_eq!(sent, [vec![0x01, 0x06, 0x00, 0x00, 0x00, 0x01, 0x48, 0x0A]]);
+    wait(&mut line, Duration::from_secs(30));
+    let (s, _, replies) = status_bytes(&mut line, &p);
+    assert!(s.running, "{s:?}");
+    assert_eq!((s.output_hz, s.setpoint_hz, s.direction.as_deref()), (Some(25.0), Some(25.0), None), "{s:?}");
+    // Register 6 running: status byte bit 0, no error code; register 7: 250.
+    assert_eq!(replies[0][3..7], [0x00, 0x01, 0x00, 0xFA], "{replies:?}");
+    let names: Vec<&str> = s.values.iter().map(|v| v.name.as_str()).collect();
+    assert_eq!(names, ["dc_bus_v", "heatsink_c"]);
+    assert!(s.values.iter().any(|v| v.name == "dc_bus_v" && v.value > 100.0), "{s:?}");
+    // Stop: bit 0 cleared.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Stop);
+    support::done("stop", r);
+    assert_eq!(sent, [vec![0x01, 0x06, 0x00, 0x00, 0x00, 0x00, 0x89, 0xCA]]);
+    wait(&mut line, Duration::from_secs(60));
+    assert!(!status_on(&mut line, &p).running);
+    // An external trip: register 6 holds 11 in its high byte and the tripped bit (1) in its low.
+    drive_mut(&mut line, 1).core_mut().model.trip_now(Trip::External);
+    let (s, _, replies) = status_bytes(&mut line, &p);
+    assert_eq!(replies[0][3..5], [0x0B, 0x02], "{replies:?}");
+    let fault = s.fault.clone().expect("tripped");
+    assert_eq!((fault.code, fault.text.as_str()), (11, "external trip"), "{s:?}");
+    // Reset: bit 2 set, then cleared.
+    let (r, sent) = run::<ModbusRtu>(&mut line, &p, &Operation::Reset);
+    support::done("reset", r);
+    assert_eq!(
+        sent,
+        [
+            vec![0x01, 0x06, 0x00, 0x00, 0x00, 0x04, 0x88, 0x09],
+            vec![0x01, 0x06, 0x00, 0x00, 0x00, 0x00, 0x89, 0xCA]
+        ]
+    );
+    assert_eq!(drive_mut(&mut line, 1).core_mut().model.trip(), None, "the simulated drive was reset");
+    // The error code stays in the high byte after the reset; the tripped bit is clear, so no
+    // fault shows.
+    let (s, _, replies) = status_bytes(&mut line, &p);
+    assert_eq!(replies[0][3..5], [0x0B, 0x00], "{replies:?}");
+    assert_eq!(s.fault, None, "{s:?}");
+}
+
 /// A drive whose register 5 packs the fault code in its low byte and the state in its high byte
 /// (running bit 8, tripped bit 9), with a temperature in the high byte of register 7.
 const PACKED: &str = r#"kind = "packed-test"

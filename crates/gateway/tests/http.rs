@@ -1014,7 +1014,15 @@ async fn a_bus_scan_finds_the_drives_while_polling_goes_on() {
         (&r.json["running"], &r.json["families"]),
         (
             &json!(true),
-            &json!(["generic", "toshiba", "generic-2000h", "abb-acs550", "siemens-v20", "danfoss-fc51"])
+            &json!([
+                "generic",
+                "toshiba",
+                "generic-2000h",
+                "abb-acs550",
+                "siemens-v20",
+                "danfoss-fc51",
+                "invertek-optidrive-e3"
+            ])
         )
     );
     assert_error(&call(&app, "POST", url, Some(WRITE), None).await, 429, "busy");

@@ -40,6 +40,10 @@ pub const SHIPPED: &[(&str, &str)] = &[
     ("templates/abb-acs550.toml", include_str!("../../../../templates/abb-acs550.toml")),
     ("templates/siemens-v20.toml", include_str!("../../../../templates/siemens-v20.toml")),
     ("templates/danfoss-fc51.toml", include_str!("../../../../templates/danfoss-fc51.toml")),
+    (
+        "templates/invertek-optidrive-e3.toml",
+        include_str!("../../../../templates/invertek-optidrive-e3.toml"),
+    ),
 ];
 
 /// The shipped templates, registered on first use; an error names a shipped file that does not

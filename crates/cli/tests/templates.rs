@@ -250,3 +250,22 @@ fn the_shipped_v20_template_runs_and_reverses_a_simulated_v20() {
     ok(&drivebus(&port, "siemens-v20", tcp, 3, &["stop"]), "stop");
     sim::wait_status(&port, "siemens-v20", tcp, 3, "stopped", |s| s["running"] == false);
 }
+
+#[test]
+fn the_shipped_optidrive_e3_template_runs_and_stops_a_simulated_e3() {
+    // invertek-optidrive-e3 runs by bit 0 of its control word and takes running and the error
+    // code apart from one status word (bit 0, high byte): the simulator fills the word's fields.
+    let kind = "invertek-optidrive-e3";
+    let sim = simulate(&format!("{kind}@4"), &["--modbus-tcp", "127.0.0.1:0"]);
+    let port = format!("tcp://{}", sim.ready.trim_start_matches("modbus-tcp "));
+    let tcp = Some("modbus-tcp");
+    ok(&drivebus(&port, kind, tcp, 4, &["speed", "30"]), "speed");
+    ok(&drivebus(&port, kind, tcp, 4, &["run"]), "run");
+    let s = sim::wait_status(&port, kind, tcp, 4, "running at 30 Hz", |s| {
+        s["running"] == true && s["output_hz"] == 30.0
+    });
+    assert_eq!((&s["setpoint_hz"], &s["fault"]), (&serde_json::json!(30.0), &serde_json::Value::Null), "{s}");
+    assert!(s["values"]["heatsink_c"]["value"].as_f64().is_some(), "{s}");
+    ok(&drivebus(&port, kind, tcp, 4, &["stop"]), "stop");
+    sim::wait_status(&port, kind, tcp, 4, "stopped", |s| s["running"] == false && s["output_hz"] == 0.0);
+}

@@ -48,7 +48,9 @@ fn template_check_reports_every_error_with_its_line() {
         "kind = \"x\"\nmaker = \"a\"\nmodel = \"b\"\nsource = \"c\"\nprotocols = [\"modbus-rtu\"]\n\
          [serial]\nbaud = 9600\nformat = \"8N1\"\n[status]\n\
          running = { register = 1, bit = 0 }\nreverse = { register = 1, bit = 0 }\n\
-         output_hz = { register = 70000, type = \"u24\", scale = 0.0 }\n",
+         output_hz = { register = 70000, type = \"u24\", scale = 0.0 }\n\
+         fault = { register = 1, mask = 0 }\n\
+         current_a = { register = 1, mask = 0x000F }\n",
     )
     .unwrap();
     let o = output(Command::new(env!("CARGO_BIN_EXE_drivebus")).args(["template", "check"]).arg(&bad));
@@ -65,7 +67,9 @@ fn template_check_reports_every_error_with_its_line() {
     at(12, "register 70000 is not a Modbus register");
     at(12, "unknown type \"u24\"");
     at(12, "scale of 0");
-    assert_eq!(lines.len(), 4, "{}", o.stderr);
+    at(13, "status.fault: mask 0x0 takes no bit");
+    at(14, "status.current_a: mask 0x000F overlaps status.running's (register 1)");
+    assert_eq!(lines.len(), 6, "{}", o.stderr);
     // The same file given with --template: the errors, and bad usage.
     let o = drivebus("/dev/null", "x", None, 1, &["status", "--template", bad.to_str().unwrap()]);
     assert_eq!(o.code, 3);

@@ -46,7 +46,7 @@ mod views;
 mod workbench;
 
 pub use audit::MAX_LOGIN_FAILURES;
-pub use cache::{BusEntry, DriveEntry, DriveState};
+pub use cache::{BusEntry, DriveEntry, DriveState, ValueDef};
 pub use command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX_SPEED_HZ};
 pub use gateway::{Counters, Gateway, Topology, ROLE_WATCH};
 pub use lanes::MAX_LANE_QUEUE;

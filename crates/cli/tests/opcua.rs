@@ -203,9 +203,10 @@ fn asyncua_pipelined_calls_to_one_drive_are_carried_out_in_the_order_sent() {
     client(&["order", &serve.url, &http, token, "pump-1", "120"]);
 }
 
-/// A templated drive (the shipped `generic-2000h` kind) in OPC UA: browsed, OutputFrequency read,
-/// SetSpeed and Run called, a parameter read by the template's name; then its trend in the store
-/// is what OPC UA's history read gives (the `history` check), as for a built-in drive.
+/// A templated drive (the shipped `generic-2000h` map, with `[values]` added) in OPC UA: browsed,
+/// OutputFrequency read, its named values read (with their units) and subscribed to, SetSpeed
+/// and Run called, a parameter read by the template's name; then its trend in the store is what
+/// OPC UA's history read gives (the `history` check), as for a built-in drive.
 #[test]
 #[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
 fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() {
@@ -214,12 +215,20 @@ fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() 
     }
     let dir = tempfile::tempdir().unwrap();
     let token = "opcua-template-token-0123456789";
+    // The shipped map under a kind of the user's, with two named values.
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../templates/generic-2000h.toml");
+    let text = std::fs::read_to_string(shipped)
+        .unwrap()
+        .replace("kind = \"generic-2000h\"", "kind = \"tpl-values\"");
+    let values = "[values]\ndc_bus_v = { register = 0x2105, scale = 0.1, unit = \"V\" }\n\
+                  power_kw = { register = 0x2106, scale = 0.01, unit = \"kW\" }\n";
+    std::fs::write(dir.path().join("tpl.toml"), format!("{text}\n{values}")).unwrap();
     let config = format!(
-        "[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
+        "templates = [\"tpl.toml\"]\n[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
          [[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
          [opcua]\ninsecure_writes = true\n\
          [[bus]]\nname = \"line-t\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
-         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"generic-2000h\"\naddress = 1\npoll_ms = 200\n",
+         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"tpl-values\"\naddress = 1\npoll_ms = 200\n",
         dir.path().join("store.db").display(),
     );
     let file = dir.path().join("plant.toml");

@@ -17,6 +17,8 @@ use std::process::Command;
 mod http;
 #[path = "support/opcua_plant.rs"]
 mod plant;
+#[path = "support/values_template.rs"]
+mod values_template;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 use plant::{Plant, Serve};
@@ -216,20 +218,15 @@ fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() 
     let dir = tempfile::tempdir().unwrap();
     let token = "opcua-template-token-0123456789";
     // The shipped map under a kind of the user's, with two named values.
-    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../templates/generic-2000h.toml");
-    let text = std::fs::read_to_string(shipped)
-        .unwrap()
-        .replace("kind = \"generic-2000h\"", "kind = \"tpl-values\"");
-    let values = "[values]\ndc_bus_v = { register = 0x2105, scale = 0.1, unit = \"V\" }\n\
-                  power_kw = { register = 0x2106, scale = 0.01, unit = \"kW\" }\n";
-    std::fs::write(dir.path().join("tpl.toml"), format!("{text}\n{values}")).unwrap();
+    values_template::write(dir.path());
     let config = format!(
         "templates = [\"tpl.toml\"]\n[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
          [[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
          [opcua]\ninsecure_writes = true\n\
          [[bus]]\nname = \"line-t\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
-         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"tpl-values\"\naddress = 1\npoll_ms = 200\n",
+         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"{}\"\naddress = 1\npoll_ms = 200\n",
         dir.path().join("store.db").display(),
+        values_template::KIND,
     );
     let file = dir.path().join("plant.toml");
     std::fs::write(&file, config).unwrap();

@@ -437,25 +437,19 @@ fn discovery(s: &Settings, v: &DriveView, values: &[ValueDef]) -> Vec<(String, V
     });
     // (value, name, unit, device class, template)
     type Sensor<'a> = (String, &'a str, Option<&'a str>, Option<&'a str>, String);
-    let standard: [(&str, &str, Option<&str>, Option<&str>, &str); 5] = [
-        ("output_hz", "output frequency", Some("Hz"), Some("frequency"), "{{ value_json.output_hz }}"),
-        ("setpoint_hz", "setpoint", Some("Hz"), Some("frequency"), "{{ value_json.setpoint_hz }}"),
-        ("current_a", "current", Some("A"), Some("current"), "{{ value_json.current_a }}"),
+    let mut sensors: Vec<Sensor> = vec![
+        ("output_hz".into(), "output frequency", Some("Hz"), Some("frequency"), "{{ value_json.output_hz }}".into()),
+        ("setpoint_hz".into(), "setpoint", Some("Hz"), Some("frequency"), "{{ value_json.setpoint_hz }}".into()),
+        ("current_a".into(), "current", Some("A"), Some("current"), "{{ value_json.current_a }}".into()),
         (
-            "state",
+            "state".into(),
             "state",
             None,
             None,
-            "{{ 'offline' if value_json.online == false else ('fault' if value_json.fault else ('running' if value_json.running else 'stopped')) }}",
+            "{{ 'offline' if value_json.online == false else ('fault' if value_json.fault else ('running' if value_json.running else 'stopped')) }}".into(),
         ),
-        ("fault", "fault", None, None, "{{ value_json.fault.text if value_json.fault else 'none' }}"),
+        ("fault".into(), "fault", None, None, "{{ value_json.fault.text if value_json.fault else 'none' }}".into()),
     ];
-    let mut sensors: Vec<Sensor> = standard
-        .into_iter()
-        .map(|(value, name, unit, class, template)| {
-            (value.to_string(), name, unit, class, template.to_string())
-        })
-        .collect();
     // `values` is also a method of a Jinja mapping: read it by key. Before the first answer the
     // status has no `values`, and the sensor is unknown.
     sensors.extend(values.iter().map(|x| {

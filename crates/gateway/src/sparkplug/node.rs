@@ -94,6 +94,13 @@ pub struct DeviceDef {
     pub values: Arc<[ValueDef]>,
 }
 
+impl Default for DeviceDef {
+    /// No parameters, no named values.
+    fn default() -> Self {
+        DeviceDef { params: Arc::from([]), values: Arc::from([]) }
+    }
+}
+
 impl PartialEq for DeviceDef {
     fn eq(&self, other: &Self) -> bool {
         (Arc::ptr_eq(&self.params, &other.params) || self.params == other.params)

@@ -35,11 +35,14 @@
         reads Good from the drive; a drive variable of the last drive reads.
 
     opcua_client.py template URL TOKEN DRIVE
-        URL      opc.tcp://HOST:PORT of a gateway with DRIVE of the generic-2000h template kind;
-                 insecure_writes on
+        URL      opc.tcp://HOST:PORT of a gateway with DRIVE of a kind made from the generic-2000h
+                 template with [values] dc_bus_v (V) and power_kw (kW); insecure_writes on
         TOKEN    the write token of user "demo"
-        Checks: Objects/Drives lists DRIVE, its OutputFrequency reads Good, SetSpeed(20.0) and Run
-        bring it to 20 Hz, and Parameters/P0.04 (the template's name) reads 50.0 from the drive.
+        Checks: Objects/Drives lists DRIVE, its OutputFrequency reads Good, its Values folder
+        holds dc_bus_v and power_kw, dc_bus_v reads Good (the simulated DC bus) with
+        EngineeringUnits V (UnitId VLT), a subscription to power_kw is notified of the power
+        once SetSpeed(20.0) and Run bring the drive to 20 Hz, and Parameters/P0.04 (the
+        template's name) reads 50.0 from the drive.
 
     opcua_client.py standby URL TOKEN DRIVE BUS
         URL      opc.tcp://HOST:PORT of a gateway that is a standby on BUS (another gateway
@@ -556,12 +559,33 @@ async def template(url, token, drive):
         assert isinstance(v.Value.Value, float), f"OutputFrequency = {v.Value!r}"
         say(f"read: {drive}/OutputFrequency = {v.Value.Value} Hz, Good")
 
+        # The template's [values]: a variable each in the drive's Values folder, with its unit.
+        values = await node(c, ns, f"Drives/{drive}").get_child([f"{ns}:Values"])
+        names = sorted([(await k.read_browse_name()).Name for k in await values.get_children()])
+        assert names == ["dc_bus_v", "power_kw"], f"{drive}/Values has {names}"
+        dc = node(c, ns, f"Drives/{drive}/Values/dc_bus_v")
+
+        async def dc_good():
+            v = await dc.read_data_value(raise_on_bad_status=False)
+            return v.StatusCode_.is_good() and v
+        v = await until(f"{drive}/Values/dc_bus_v Good", dc_good)
+        assert isinstance(v.Value.Value, float) and 400.0 < v.Value.Value < 700.0, f"dc_bus_v = {v.Value!r}"
+        assert v.SourceTimestamp is not None, "dc_bus_v has no source timestamp"
+        eu = await (await dc.get_child(["0:EngineeringUnits"])).read_value()
+        assert eu.DisplayName.Text == "V" and eu.UnitId == 0x564C54, f"dc_bus_v's EngineeringUnits: {eu}"
+        code = await status_of(dc.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double))))
+        assert code in ("BadNotWritable", "BadUserAccessDenied"), f"dc_bus_v written: {code}"
+        say(f"values: {drive}/Values/dc_bus_v = {v.Value.Value} V, Good, EngineeringUnits V, read-only")
+
     c = Client(url)
     c.set_user("demo")
     c.set_password(token)
     async with c:
         ns = await c.get_namespace_index("urn:drivebus")
         d = node(c, ns, f"Drives/{drive}")
+        changes = Changes()
+        sub = await c.create_subscription(100, changes)
+        await sub.subscribe_data_change(node(c, ns, f"Drives/{drive}/Values/power_kw"))
         await d.call_method(f"{ns}:SetSpeed", ua.Variant(20.0, ua.VariantType.Double))
         await d.call_method(f"{ns}:Run")
 
@@ -570,6 +594,11 @@ async def template(url, token, drive):
             return abs(hz - 20.0) <= 0.05 and hz
         await until(f"{drive} at 20 Hz after SetSpeed and Run", reached, 120)
         say(f"call: SetSpeed(20.0) and Run, {drive} turns at 20 Hz")
+
+        async def powered():
+            return [v for v in changes.values if isinstance(v, float) and v > 0.0]
+        kw = await until(f"a notification of {drive}/Values/power_kw above 0", powered)
+        say(f"subscription: {drive}/Values/power_kw notified {kw[-1]} kW while running")
 
         p = node(c, ns, f"Drives/{drive}/Parameters/P0.04")
 

@@ -97,6 +97,14 @@ fn tuning() -> Vec<Arg> {
             .long("echo")
             .action(ArgAction::SetTrue)
             .help("Discard the local echo of our own requests (2-wire adapters that hear themselves)"),
+        Arg::new("max_in_flight")
+            .long("max-in-flight")
+            .value_name("N")
+            .value_parser(clap::value_parser!(usize))
+            .help(
+                "Modbus TCP (--protocol modbus-tcp): the most requests in flight on the connection, 1..16 \
+                 (default 1), where the server or gateway takes pipelined requests",
+            ),
     ]
 }
 
@@ -319,6 +327,7 @@ pub fn target(matches: &ArgMatches) -> anyhow::Result<Target> {
         rs485: one(&levels, "rs485").unwrap_or_else(|| "off".to_string()),
         strict_t15: one(&levels, "strict_t15").unwrap_or(false),
         echo: one(&levels, "echo").unwrap_or(false),
+        max_in_flight: one(&levels, "max_in_flight"),
         json: one(&levels, "json").unwrap_or(false),
     })
 }

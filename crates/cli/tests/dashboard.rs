@@ -32,6 +32,8 @@ use http::{free_port, http_json};
 #[path = "support/lines.rs"]
 mod lines;
 use lines::{wait_for_lines, Killed};
+#[path = "support/values_template.rs"]
+mod values_template;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 use witness::witness;
@@ -930,4 +932,56 @@ fn a_standby_shows_its_role_and_its_drives_controls_are_off() {
     assert!(browser
         .text(&tile("press-1", "[data-field=locked-why]"))
         .contains("another gateway masters the line"));
+}
+
+/// A templated drive's named values (its template's `[values]`) on its tile: a line each with
+/// the template's name and the value in its unit; a built-in drive's tile has no such list.
+#[test]
+#[ignore = "needs chromium (.ci/install-witnesses.sh)"]
+fn a_templated_drives_tile_lists_its_named_values_with_their_units() {
+    let Some((chromium, chromedriver)) = browser_programs() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    values_template::write(dir.path());
+    let config = dir.path().join("plant.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "name = \"values\"\ntemplates = [\"tpl.toml\"]\n[http]\nanonymous_read = true\n[store]\ndisabled = true\n\
+             [[bus]]\nname = \"line-v\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
+             [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"{}\"\naddress = 1\npoll_ms = 200\n\
+             [[bus.drive]]\nname = \"plain-1\"\nfamily = \"generic\"\naddress = 2\npoll_ms = 200\n",
+            values_template::KIND
+        ),
+    )
+    .unwrap();
+    let (_serve, http) = serve_config(&config, &[]);
+    let browser = Browser::start(&chromium, &chromedriver);
+    browser.goto(&format!("http://{http}/"));
+    let values = tile("tpl-1", "[data-field=values]");
+    browser.wait_for(
+        "tpl-1's named values on its tile",
+        &format!(
+            "const l = document.querySelector({}); return l !== null && !l.hidden && \
+             /^\\d+(\\.\\d+)? V$/.test(l.querySelector('dd[data-value=dc_bus_v]')?.textContent ?? '');",
+            q(&values)
+        ),
+        &format!("return document.querySelector({})?.outerHTML;", q(&values)),
+    );
+    let names = browser.js(&format!(
+        "return [...document.querySelectorAll({})].map((e) => e.textContent);",
+        q(&tile("tpl-1", "[data-field=values] dt"))
+    ));
+    assert_eq!(names, json!(["dc_bus_v", "power_kw"]));
+    let dc = browser.text(&tile("tpl-1", "[data-field=values] dd[data-value=dc_bus_v]"));
+    let volts: f64 = dc.trim_end_matches(" V").parse().unwrap();
+    assert!((400.0..700.0).contains(&volts), "the simulated DC bus: {dc}");
+    let kw = browser.text(&tile("tpl-1", "[data-field=values] dd[data-value=power_kw]"));
+    assert!(kw.ends_with(" kW"), "{kw}");
+    // A built-in drive's tile shows no list.
+    let plain = browser.js(&format!(
+        "return document.querySelector({}).hidden;",
+        q(&tile("plain-1", "[data-field=values]"))
+    ));
+    assert_eq!(plain, json!(true));
+    browser.screenshot(&artifacts_dir().join("dashboard-values.png"));
 }

@@ -8,7 +8,7 @@ use std::process::Command;
 mod sim;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
-use sim::{drivebus, ok, simulate, wait_status, Proc};
+use sim::{drivebus, ok, simulate, simulate_with, wait_status, Proc};
 
 /// Where a simulator started with `--modbus-tcp` listens, as `--port` takes it.
 fn port_of(sim: &Proc) -> String {
@@ -39,6 +39,102 @@ fn commissioning_commands_run_a_drive_over_modbus_tcp() {
     let o = drivebus("/dev/ttyS99", "generic", Some("modbus-tcp"), 1, &["status"]);
     assert_eq!(o.code, 2, "{}", o.stderr);
     assert!(o.stderr.contains("give tcp://HOST[:PORT]"), "{}", o.stderr);
+}
+
+/// `--max-in-flight N` on the commissioning commands: requests pipelined on a modbus-tcp link
+/// (status and a speed on one drive, `monitor` on two drives of one server), under the
+/// gateway's `max_in_flight` rule: 1..16, and a modbus-tcp link only, refused otherwise in one
+/// line with exit 3.
+#[test]
+fn max_in_flight_pipelines_a_modbus_tcp_link_and_is_refused_elsewhere() {
+    let sim = simulate_with(&["--drive", "generic@1", "--drive", "generic@2", "--modbus-tcp", "127.0.0.1:0"]);
+    let port = port_of(&sim);
+    let run = |address: u8, args: &[&str]| drivebus(&port, "generic", Some("modbus-tcp"), address, args);
+    ok(&run(2, &["speed", "15", "--max-in-flight", "4"]), "speed");
+    let o = run(2, &["status", "--json", "--max-in-flight", "4"]);
+    ok(&o, "status");
+    let s: serde_json::Value = serde_json::from_str(o.stdout.trim()).unwrap();
+    assert_eq!(s["setpoint_hz"], 15.0, "{s}");
+    // monitor of both drives through a proxy that passes nothing on until two requests are
+    // waiting: with two in flight both drives answer; one at a time, drive 1's request waits
+    // until it timed out (no retry), and drive 1 has not answered.
+    let monitor = |extra: &[&str]| {
+        let proxy = two_at_once_proxy(port.trim_start_matches("tcp://"));
+        let args =
+            [&["monitor", "--address", "2", "--count", "1", "--json", "--retries", "0"][..], extra].concat();
+        let o = drivebus(&proxy, "generic", Some("modbus-tcp"), 1, &args);
+        ok(&o, "monitor");
+        let seen: Vec<serde_json::Value> =
+            o.stdout.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        let answered = |address: u8| {
+            seen.iter().any(|d| d["address"] == address && d["error"].is_null() && d["running"].is_boolean())
+        };
+        (answered(1), answered(2), o.stdout)
+    };
+    let (one, two, said) = monitor(&["--max-in-flight", "2"]);
+    assert!(one && two, "both drives answer with two requests in flight: {said}");
+    let (one, two, said) = monitor(&[]);
+    assert!(!one && two, "one at a time, drive 1's request waited for a second one: {said}");
+
+    // The rule and its refusals.
+    for (n, want) in
+        [("0", "--max-in-flight 0 is outside 1..16"), ("17", "--max-in-flight 17 is outside 1..16")]
+    {
+        let o = run(1, &["status", "--max-in-flight", n]);
+        assert_eq!(o.code, 3, "{}", o.stderr);
+        assert_eq!(o.stderr.trim(), format!("drivebus: {want}"), "{}", o.stderr);
+    }
+    let not_modbus_tcp = [
+        drivebus("/dev/ttyS99", "generic", Some("modbus-rtu"), 1, &["status", "--max-in-flight", "2"]),
+        drivebus(&port, "generic", None, 1, &["status", "--max-in-flight", "2"]),
+    ];
+    for o in not_modbus_tcp {
+        assert_eq!(o.code, 3, "{}", o.stderr);
+        assert!(
+            o.stderr.contains("--max-in-flight: only a modbus-tcp bus can have requests in flight together"),
+            "{}",
+            o.stderr
+        );
+        assert_eq!(o.stderr.trim().lines().count(), 1, "{}", o.stderr);
+    }
+}
+
+/// A one-connection proxy to the Modbus TCP server `upstream` that holds what the client sends
+/// until two whole MBAP requests are waiting, passes them on together, then everything as it
+/// comes; its port as `--port` takes it.
+fn two_at_once_proxy(upstream: &str) -> String {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let at = format!("tcp://{}", listener.local_addr().unwrap());
+    let upstream = upstream.to_string();
+    std::thread::spawn(move || {
+        let Ok((mut client, _)) = listener.accept() else { return };
+        let mut server = std::net::TcpStream::connect(&upstream).unwrap();
+        let (mut answers, mut to_client) = (server.try_clone().unwrap(), client.try_clone().unwrap());
+        std::thread::spawn(move || std::io::copy(&mut answers, &mut to_client));
+        let (mut held, mut passing) = (Vec::new(), false);
+        let mut buf = [0u8; 512];
+        while let Ok(n @ 1..) = client.read(&mut buf) {
+            if passing {
+                let _ = server.write_all(&buf[..n]);
+                continue;
+            }
+            held.extend_from_slice(&buf[..n]);
+            let (mut at, mut whole) = (0, 0);
+            while held.len() >= at + 6 {
+                let end = at + 6 + usize::from(u16::from_be_bytes([held[at + 4], held[at + 5]]));
+                if held.len() < end {
+                    break;
+                }
+                (at, whole) = (end, whole + 1);
+            }
+            if whole >= 2 {
+                passing = true;
+                let _ = server.write_all(&held);
+            }
+        }
+    });
+    at
 }
 
 #[test]

@@ -17,6 +17,8 @@ use std::process::Command;
 mod http;
 #[path = "support/opcua_plant.rs"]
 mod plant;
+#[path = "support/values_template.rs"]
+mod values_template;
 #[path = "../../../tests/interop/witness.rs"]
 mod witness;
 use plant::{Plant, Serve};
@@ -203,9 +205,10 @@ fn asyncua_pipelined_calls_to_one_drive_are_carried_out_in_the_order_sent() {
     client(&["order", &serve.url, &http, token, "pump-1", "120"]);
 }
 
-/// A templated drive (the shipped `generic-2000h` kind) in OPC UA: browsed, OutputFrequency read,
-/// SetSpeed and Run called, a parameter read by the template's name; then its trend in the store
-/// is what OPC UA's history read gives (the `history` check), as for a built-in drive.
+/// A templated drive (the shipped `generic-2000h` map, with `[values]` added) in OPC UA: browsed,
+/// OutputFrequency read, its named values read (with their units) and subscribed to, SetSpeed
+/// and Run called, a parameter read by the template's name; then its trend in the store is what
+/// OPC UA's history read gives (the `history` check), as for a built-in drive.
 #[test]
 #[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
 fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() {
@@ -214,13 +217,16 @@ fn asyncua_browses_reads_and_commands_a_templated_drive_and_reads_its_history() 
     }
     let dir = tempfile::tempdir().unwrap();
     let token = "opcua-template-token-0123456789";
+    // The shipped map under a kind of the user's, with two named values.
+    values_template::write(dir.path());
     let config = format!(
-        "[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
+        "templates = [\"tpl.toml\"]\n[http]\nanonymous_read = true\n[store]\npath = \"{}\"\n\
          [[token]]\nname = \"demo\"\ntoken = \"{token}\"\nrole = \"write\"\n\
          [opcua]\ninsecure_writes = true\n\
          [[bus]]\nname = \"line-t\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
-         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"generic-2000h\"\naddress = 1\npoll_ms = 200\n",
+         [[bus.drive]]\nname = \"tpl-1\"\nfamily = \"{}\"\naddress = 1\npoll_ms = 200\n",
         dir.path().join("store.db").display(),
+        values_template::KIND,
     );
     let file = dir.path().join("plant.toml");
     std::fs::write(&file, config).unwrap();

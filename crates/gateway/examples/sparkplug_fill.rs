@@ -55,7 +55,7 @@ fn main() {
         std::process::exit(1);
     });
     let mut node = Node::new(group, edge);
-    node.sync_devices((1..=drives).map(|i| (format!("vfd-{i}"), Vec::new().into())).collect());
+    node.sync_devices((1..=drives).map(|i| (format!("vfd-{i}"), Default::default())).collect());
     let now = drivebus_gateway::core::unix_ms();
     let start = now - 3_600_000;
     let mut batch = Vec::with_capacity(10_000);

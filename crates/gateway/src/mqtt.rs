@@ -45,7 +45,7 @@ use tokio::time::Instant;
 // The URL, prefix and command pattern rules are the configuration's (config/mqtt.rs).
 pub use crate::config::mqtt::{check_prefix, parse_url, Pattern, COMMANDS};
 use crate::config::MqttConfig;
-use crate::core::{Change, Command, CommandError, DriveView, Gateway};
+use crate::core::{Change, Command, CommandError, DriveView, Gateway, ValueDef};
 
 /// A drive's status is published at most this often unless its running state, fault or link
 /// health changed.
@@ -260,7 +260,7 @@ impl Publisher {
         }
         if self.s.discovery {
             for d in self.gw.drives().iter() {
-                for (topic, payload) in discovery(&self.s, &self.gw.drive_view(d)) {
+                for (topic, payload) in discovery(&self.s, &self.gw.drive_view(d), &d.named_values()) {
                     self.send("discovery", topic, true, payload.to_string().into_bytes());
                 }
             }
@@ -420,8 +420,10 @@ fn send(
     }
 }
 
-/// Home Assistant discovery messages of one drive: `(topic, config)`.
-fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
+/// Home Assistant discovery messages of one drive: `(topic, config)`. `values` are the named
+/// values its kind gives (a template's `[values]`): a sensor each, `<gateway>_<drive>_values_<name>`,
+/// reading `values.<name>.value` of the status topic, in its unit.
+fn discovery(s: &Settings, v: &DriveView, values: &[ValueDef]) -> Vec<(String, Value)> {
     let state_topic = s.drive_topic(&v.bus, &v.id, "status");
     let object = |value: &str| format!("{}_{}_{value}", s.gateway, v.id);
     let device = json!({
@@ -434,20 +436,30 @@ fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
         // name is not a room, and Home Assistant would create an area of that name.
     });
     // (value, name, unit, device class, template)
-    type Sensor<'a> = (&'a str, &'a str, Option<&'a str>, Option<&'a str>, &'a str);
-    let sensors: [Sensor; 5] = [
-        ("output_hz", "output frequency", Some("Hz"), Some("frequency"), "{{ value_json.output_hz }}"),
-        ("setpoint_hz", "setpoint", Some("Hz"), Some("frequency"), "{{ value_json.setpoint_hz }}"),
-        ("current_a", "current", Some("A"), Some("current"), "{{ value_json.current_a }}"),
+    type Sensor<'a> = (String, &'a str, Option<&'a str>, Option<&'a str>, String);
+    let mut sensors: Vec<Sensor> = vec![
+        ("output_hz".into(), "output frequency", Some("Hz"), Some("frequency"), "{{ value_json.output_hz }}".into()),
+        ("setpoint_hz".into(), "setpoint", Some("Hz"), Some("frequency"), "{{ value_json.setpoint_hz }}".into()),
+        ("current_a".into(), "current", Some("A"), Some("current"), "{{ value_json.current_a }}".into()),
         (
-            "state",
+            "state".into(),
             "state",
             None,
             None,
-            "{{ 'offline' if value_json.online == false else ('fault' if value_json.fault else ('running' if value_json.running else 'stopped')) }}",
+            "{{ 'offline' if value_json.online == false else ('fault' if value_json.fault else ('running' if value_json.running else 'stopped')) }}".into(),
         ),
-        ("fault", "fault", None, None, "{{ value_json.fault.text if value_json.fault else 'none' }}"),
+        ("fault".into(), "fault", None, None, "{{ value_json.fault.text if value_json.fault else 'none' }}".into()),
     ];
+    // `values` is also a method of a Jinja mapping: read it by key. Before the first answer the
+    // status has no `values`, and the sensor is unknown.
+    sensors.extend(values.iter().map(|x| {
+        let template = format!(
+            "{{{{ value_json['values']['{0}']['value'] if 'values' in value_json and '{0}' in value_json['values'] else none }}}}",
+            x.name
+        );
+        let unit = (!x.unit.is_empty()).then_some(x.unit.as_str());
+        (format!("values_{}", x.name), x.name.as_str(), unit, unit.and_then(device_class), template)
+    }));
     sensors
         .iter()
         .map(|(value, name, unit, class, template)| {
@@ -472,6 +484,18 @@ fn discovery(s: &Settings, v: &DriveView) -> Vec<(String, Value)> {
             (format!("homeassistant/sensor/{}/config", object(value)), c)
         })
         .collect()
+}
+
+/// Home Assistant's device class of a value in `unit`, where the unit is one that class takes.
+fn device_class(unit: &str) -> Option<&'static str> {
+    Some(match unit {
+        "V" => "voltage",
+        "A" => "current",
+        "Hz" => "frequency",
+        "W" | "kW" => "power",
+        "°C" => "temperature",
+        _ => return None,
+    })
 }
 
 /// The client's options for a plant of `drives` drives.

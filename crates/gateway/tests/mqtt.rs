@@ -4,6 +4,7 @@
 //! generous and nothing asserts speed.
 
 mod mqtt_support;
+mod support;
 
 use std::collections::HashSet;
 
@@ -297,6 +298,51 @@ async fn a_templated_drive_has_its_state_topics_discovery_and_commands() {
     assert_eq!(r["ok"], true, "{r}");
     sub.publish(&format!("{p}/set/run"), "1", false).await;
     sub.wait_json(&format!("{p}/status"), |v| running_at(v, 15.0)).await;
+}
+
+/// A template's `[values]` in Home Assistant: a sensor per value, with its unit, device class
+/// and the drive's status topic, whose `values.<name>.value` the template reads, announced
+/// with the standard sensors.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_templated_drives_named_values_are_discovered_as_sensors() {
+    let (broker, broker5) = rumqttd_both().await;
+    let text = "name = \"hall-v\"\ntemplates = [\"bits.toml\"]\n[store]\ndisabled = true\n\
+                [[bus]]\nname = \"line-v\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+                [[bus.drive]]\nname = \"fan\"\nfamily = \"gw-bits\"\naddress = 1\npoll_ms = 100\n";
+    let (_, config) = support::with_bits_template("mqtt-values", text);
+    let gw = drivebus_gateway::Gateway::start(config, None).unwrap();
+    let mqtt = drivebus_gateway::config::MqttConfig {
+        url: format!("mqtt://{broker5}"),
+        topic_prefix: None,
+        discovery: true,
+        allow_commands: vec![],
+        client_id: None,
+        credentials: None,
+        tls: Default::default(),
+    };
+    drivebus_gateway::mqtt::spawn(gw.clone(), &mqtt).unwrap();
+    let sub = Subscriber::start(broker, "ha", "#").await;
+    let status_topic = "drivebus/hall-v/line-v/fan/status";
+    for (name, unit, class) in [("dc_bus_v", "V", "voltage"), ("power_kw", "kW", "power")] {
+        let c =
+            sub.wait_json(&format!("homeassistant/sensor/hall-v_fan_values_{name}/config"), |_| true).await;
+        assert_eq!(c["unique_id"], format!("hall-v_fan_values_{name}"), "{c}");
+        assert_eq!(c["name"], name, "{c}");
+        assert_eq!(c["state_topic"], status_topic, "{c}");
+        assert_eq!(c["unit_of_measurement"], unit, "{c}");
+        assert_eq!(c["device_class"], class, "{c}");
+        assert_eq!(c["state_class"], "measurement", "{c}");
+        assert_eq!(c["availability_topic"], "drivebus/hall-v/status", "{c}");
+        assert_eq!(c["device"]["identifiers"][0], "drivebus_hall-v_fan", "{c}");
+        // The template reads the value the status topic carries.
+        let template = c["value_template"].as_str().unwrap();
+        assert!(template.contains(&format!("value_json['values']['{name}']['value']")), "{template}");
+    }
+    let status = sub.wait_json(status_topic, |v| v["values"]["dc_bus_v"]["value"].is_number()).await;
+    assert_eq!(status["values"]["dc_bus_v"]["unit"], "V", "{status}");
+    // The standard sensors are still there.
+    sub.wait_json("homeassistant/sensor/hall-v_fan_output_hz/config", |c| c["unit_of_measurement"] == "Hz")
+        .await;
 }
 
 /// `[standby]`: a gateway that masters no bus says `offline` and publishes no drive status, no

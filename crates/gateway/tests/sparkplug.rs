@@ -7,6 +7,7 @@
 //! The interop with a Sparkplug host nobody here wrote is in crates/cli/tests/sparkplug.rs.
 
 mod mqtt_support;
+mod support;
 
 use std::net::SocketAddr;
 
@@ -396,6 +397,73 @@ async fn a_templated_drive_is_born_with_its_status_and_parameters() {
                     .metrics
                     .iter()
                     .any(|x| matches!(x.value, Some(payload::Value::Double(hz)) if hz == 12.5))
+            })
+            .then_some(())
+    })
+    .await;
+}
+
+/// A template's `[values]` are metrics of its device: `Values/<name>`, Double, with the value's
+/// unit (`engUnit`) and its reading in the DBIRTH, then in DDATA by alias as it changes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_templates_named_values_are_metrics_in_dbirth_and_ddata() {
+    let broker = rumqttd().await;
+    let sub = Subscriber::start(broker, "host", "spBv1.0/#").await;
+    let text = "name = \"hall-v\"\ntemplates = [\"bits.toml\"]\n[store]\ndisabled = true\n\
+                [[bus]]\nname = \"line-v\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
+                [[bus.drive]]\nname = \"fan\"\nfamily = \"gw-bits\"\naddress = 1\npoll_ms = 100\n";
+    let (_, config) = support::with_bits_template("sparkplug-values", text);
+    let gw = Gateway::start(config, None).unwrap();
+    drivebus_gateway::sparkplug::spawn(gw.clone(), &sparkplug(broker)).unwrap();
+    let birth = sub
+        .wait("fan's DBIRTH", |log| {
+            log.iter().find(|m| kind(m, "hall-v") == Some(("DBIRTH", Some("fan")))).map(decoded)
+        })
+        .await;
+    let metric = |name: &str| birth.metrics.iter().find(|m| m.name.as_deref() == Some(name)).cloned();
+    let unit = |m: &payload::Metric| {
+        let p = m.properties.as_ref()?;
+        let at = p.keys.iter().position(|k| k == "engUnit")?;
+        match &p.values[at].value {
+            Some(payload::PropertyValueKind::String(s)) => Some(s.clone()),
+            _ => None,
+        }
+    };
+    let dc = metric("Values/dc_bus_v").unwrap_or_else(|| panic!("Values/dc_bus_v in {:?}", birth.metrics));
+    assert_eq!(dc.datatype, Some(DataType::Double as u32), "{dc:?}");
+    assert_eq!(unit(&dc).as_deref(), Some("V"), "{dc:?}");
+    // Its reading: in the DBIRTH when the drive had answered, else (born null) in a DDATA.
+    let dc_alias = dc.alias.expect("an alias");
+    let simulated = |m: &payload::Metric| matches!(m.value, Some(payload::Value::Double(v)) if (400.0..700.0).contains(&v));
+    assert!(simulated(&dc) || dc.is_null == Some(true), "{dc:?}");
+    sub.wait("the simulated DC bus", |log| {
+        let data = log.iter().filter(|m| kind(m, "hall-v") == Some(("DDATA", Some("fan")))).map(decoded);
+        (simulated(&dc)
+            || data.into_iter().any(|p| p.metrics.iter().any(|x| x.alias == Some(dc_alias) && simulated(x))))
+        .then_some(())
+    })
+    .await;
+    let power = metric("Values/power_kw").expect("Values/power_kw");
+    assert_eq!(unit(&power).as_deref(), Some("kW"), "{power:?}");
+    let power_alias = power.alias.expect("an alias");
+    // Every alias of the device is its own.
+    let mut aliases: Vec<u64> = birth.metrics.iter().filter_map(|m| m.alias).collect();
+    let count = aliases.len();
+    aliases.sort_unstable();
+    aliases.dedup();
+    assert_eq!(aliases.len(), count, "{:?}", birth.metrics);
+
+    // Running at 40 Hz the power moves: its DDATA by alias.
+    gw.command("fan", Command::Speed(40.0), "test").await.expect("speed");
+    gw.command("fan", Command::Run, "test").await.expect("run");
+    sub.wait("the power in a DDATA", |log| {
+        log.iter()
+            .filter(|m| kind(m, "hall-v") == Some(("DDATA", Some("fan"))))
+            .any(|m| {
+                decoded(m).metrics.iter().any(|x| {
+                    x.alias == Some(power_alias)
+                        && matches!(x.value, Some(payload::Value::Double(v)) if v > 0.0)
+                })
             })
             .then_some(())
     })

@@ -19,57 +19,13 @@ use support::wait_for;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tower::ServiceExt;
 
-/// A drive with a bit command word and a "0x4000 = 100 %" setpoint.
-const BITS: &str = r#"kind = "gw-bits"
-maker = "Test"
-model = "B1"
-source = "written for this test"
-protocols = ["modbus-rtu"]
-[serial]
-baud = 19200
-format = "8E1"
-[status]
-running = { register = 100, bit = 0 }
-reverse = { register = 100, bit = 1 }
-output_hz = { register = 101, scale = 0.1 }
-current_a = { register = 102, scale = 0.01 }
-fault = { register = 103 }
-[values]
-dc_bus_v = { register = 104, unit = "V" }
-power_kw = { register = 105, scale = 0.1, unit = "kW" }
-[command]
-register = 200
-run = { bit = 0 }
-reverse = { bit = 1 }
-reset = { bit = 7 }
-[setpoint]
-register = 201
-full_scale = 0x4000
-max_hz = 60.0
-[[param]]
-name = "acc"
-title = "acceleration time"
-register = 300
-unit = "s"
-scale = 0.1
-range = [0.1, 3600.0]
-default = 10.0
-[faults]
-7 = "external fault"
-"#;
-
 fn gateway() -> Arc<Gateway> {
-    let dir = std::env::temp_dir().join(format!("drivebus-gw-templates-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("bits.toml"), BITS).unwrap();
-    let config = dir.join("plant.toml");
     let text = "templates = [\"bits.toml\"]\n[store]\ndisabled = true\n[http]\nanonymous_read = true\n\
          [[bus]]\nname = \"a\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\n\
          [[bus.drive]]\nname = \"fan\"\nfamily = \"gw-bits\"\naddress = 1\npoll_ms = 100\n\
          [[bus.drive]]\nname = \"pump\"\nfamily = \"generic-2000h\"\naddress = 2\npoll_ms = 100\n";
-    std::fs::write(&config, text).unwrap();
+    let (dir, c) = support::with_bits_template("gw-templates", text);
     // The template's path is taken from the configuration's folder.
-    let c = GatewayConfig::from_toml(&config.display().to_string(), text).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(c.templates, [dir.join("bits.toml")]);
     Gateway::start(c, None).unwrap()
 }

@@ -59,6 +59,13 @@ pub struct BusConfig {
     pub max_in_flight: usize,
 }
 
+/// The most requests a Modbus TCP bus may have in flight ([`BusConfig::max_in_flight`]: 1..16,
+/// the gateway's `max_in_flight` and the commands' `--max-in-flight`).
+pub const MAX_IN_FLIGHT: usize = 16;
+
+/// Why requests in flight together are refused on any bus but a Modbus TCP one.
+pub const IN_FLIGHT_NEEDS_MODBUS_TCP: &str = "only a modbus-tcp bus can have requests in flight together";
+
 impl BusConfig {
     /// The protocol's name as users give it: `modbus-tcp` for Modbus over MBAP, else the wire
     /// protocol's.

@@ -77,13 +77,20 @@ pub async fn open(port: &str, protocol: WireProtocol, baud: u32, format: CharFor
     open_with(port, BusConfig::new(protocol, baud, format)).await
 }
 
-/// Opens `port` and starts a bus owner with `config`.
+/// Opens `port` and starts a bus owner with `config`: on a Modbus TCP bus with
+/// `max_in_flight` above 1, the pipelined owner ([`Bus::spawn_pipelined`]) over a plain TCP
+/// connection to the server.
 pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
     let port = if config.modbus_tcp {
         Port::modbus_tcp(port).map_err(BusError::Link)?
     } else {
         Port::parse(port, config.baud, config.format, config.rs485)
     };
+    if let (Port::ModbusTcp(addr), true) = (&port, config.max_in_flight > 1) {
+        let link =
+            PortLink::open(Port::Tcp(addr.clone())).await.map_err(|e| BusError::Link(e.to_string()))?;
+        return Ok(Bus::spawn_pipelined(link, config)?);
+    }
     let link = PortLink::open(port).await.map_err(|e| BusError::Link(e.to_string()))?;
     Ok(Bus::spawn(link, config)?)
 }

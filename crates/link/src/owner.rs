@@ -136,9 +136,7 @@ impl Bus {
     /// request at a time.
     pub fn spawn_pipelined<L: Link>(link: L, config: BusConfig) -> Result<Bus, BusError> {
         if !config.modbus_tcp || config.protocol != drivebus_proto::protocol::WireProtocol::ModbusRtu {
-            return Err(BusError::BadRequest(
-                "only a modbus-tcp bus can have requests in flight together".to_string(),
-            ));
+            return Err(BusError::BadRequest(crate::bus::IN_FLIGHT_NEEDS_MODBUS_TCP.to_string()));
         }
         // A pipelined bus masters its connection alone: no role, nothing heard, nothing learnt.
         let (bus, queues, ended_tx) = Bus::handle(link.name(), &config);

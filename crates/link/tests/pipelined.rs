@@ -2,7 +2,9 @@
 //! clock over an in-memory connection, the server a script in each test: requests to several
 //! drives in flight together, answers matched by transaction id in any order, one drive's jobs
 //! kept in order, a silent drive timing out alone, stray and repeated answers counted and
-//! dropped, and a lost connection failing every request in flight and opened again.
+//! dropped, and a lost connection failing every request in flight and opened again. And
+//! `open_with` (the commands' opener, `--max-in-flight`) starting this owner on a real TCP
+//! connection.
 
 use std::io;
 use std::time::Duration;
@@ -10,7 +12,7 @@ use std::time::Duration;
 use drivebus_drive::profile::Exchange;
 use drivebus_link::{Bus, BusConfig, BusError, Clock, Link, Priority};
 use drivebus_proto::protocol::WireProtocol;
-use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, DuplexStream};
 use tokio::sync::mpsc;
 
 /// A link over in-memory connections: each (re)open takes the next one the test offers, and
@@ -57,8 +59,8 @@ impl Link for MemLink {
 }
 
 /// The server's end of a connection: whole MBAP requests in, answers out.
-struct Server {
-    stream: DuplexStream,
+struct Server<S = DuplexStream> {
+    stream: S,
     pending: Vec<u8>,
 }
 
@@ -70,7 +72,7 @@ struct Request {
     register: u16,
 }
 
-impl Server {
+impl<S: AsyncRead + AsyncWrite + Unpin> Server<S> {
     /// The next request; `None` when the client closed the connection.
     async fn request(&mut self) -> Option<Request> {
         loop {
@@ -275,4 +277,38 @@ async fn a_lost_connection_fails_every_request_in_flight_and_is_opened_again() {
     let r = server.request().await.expect("opened again after the backoff");
     server.answer(r, 7).await;
     assert_eq!(read.await.unwrap(), Ok(7));
+}
+
+/// `open_with` on a Modbus TCP port with `max_in_flight` 2 starts the pipelined owner: a server
+/// on a real loopback connection receives both drives' requests before it answers either (the
+/// one-at-a-time owner would send the second only after the first's answer). Real sockets and
+/// the real clock: the waits are generous deadlines, nothing asserts speed.
+#[tokio::test]
+async fn open_with_starts_the_pipelined_owner_on_a_modbus_tcp_port_with_max_in_flight() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let port = format!("tcp://{}", listener.local_addr().unwrap());
+    let server = tokio::spawn(async move {
+        let (stream, _) = listener.accept().await.unwrap();
+        let mut server = Server { stream, pending: Vec::new() };
+        let a = server.request().await.expect("a request");
+        let b = server.request().await.expect("a second request before any answer");
+        for r in [b, a] {
+            server.answer(r, 200 + u16::from(r.unit)).await;
+        }
+        // Keep the connection until the client is done.
+        server.request().await
+    });
+    let mut c = BusConfig::new(WireProtocol::ModbusRtu, 9600, "8N1".parse().unwrap());
+    c.modbus_tcp = true;
+    c.max_in_flight = 2;
+    c.retries = 0;
+    c.response_timeout = Some(Duration::from_secs(30));
+    let bus = drivebus_link::drive::open_with(&port, c).await.expect("open");
+    let reads = [spawn_read(&bus, 1, 0x2103), spawn_read(&bus, 2, 0x2103)];
+    for (unit, read) in (1..=2u8).zip(reads) {
+        let got = tokio::time::timeout(Duration::from_secs(60), read).await.expect("an answer in time");
+        assert_eq!(got.unwrap(), Ok(200 + u16::from(unit)), "drive {unit}");
+    }
+    bus.close().await;
+    assert_eq!(server.await.unwrap(), None, "the client closed the connection");
 }

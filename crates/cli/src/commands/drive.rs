@@ -136,6 +136,9 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
     config.strict_t15 = t.strict_t15;
     config.family = Some(family);
     config.modbus_tcp = modbus_tcp;
+    if let Some(n) = t.max_in_flight {
+        config.max_in_flight = max_in_flight(n, modbus_tcp)?;
+    }
     if let Some(gap) = t.gap {
         if !(0.0..=1000.0).contains(&gap) {
             return Err(fail(EXIT_USAGE, format!("--gap {gap} is outside 0..1000 ms")));
@@ -148,6 +151,23 @@ pub(crate) fn resolve_for(t: &Target, address: u8) -> Result<Resolved> {
         format!("{family} drive {address} on {port}")
     };
     Ok(Resolved { family, protocol, address, port, config, label })
+}
+
+/// `--max-in-flight N`: the gateway's `max_in_flight` rule (1..16, a modbus-tcp link only).
+fn max_in_flight(n: usize, modbus_tcp: bool) -> Result<usize> {
+    use drivebus_link::bus::{IN_FLIGHT_NEEDS_MODBUS_TCP, MAX_IN_FLIGHT};
+    if !modbus_tcp {
+        return Err(fail(
+            EXIT_USAGE,
+            format!(
+                "--max-in-flight: {IN_FLIGHT_NEEDS_MODBUS_TCP}: give --port tcp://HOST[:502] --protocol modbus-tcp, or drop it"
+            ),
+        ));
+    }
+    if !(1..=MAX_IN_FLIGHT).contains(&n) {
+        return Err(fail(EXIT_USAGE, format!("--max-in-flight {n} is outside 1..{MAX_IN_FLIGHT}")));
+    }
+    Ok(n)
 }
 
 pub(crate) async fn connect(t: &Target) -> Result<(Drive, String)> {

@@ -374,10 +374,19 @@ fn render_bus(frame: &mut Frame, area: Rect, state: &MonitorState) {
     );
 }
 
-/// Reads every drive once and brings `state` up to date.
+/// Reads every drive once and brings `state` up to date. The reads are handed to the bus
+/// together: it sends them one at a time, or on a Modbus TCP link with `--max-in-flight` up to
+/// that many at once.
 async fn refresh(drives: &[Drive], state: &mut MonitorState, start: std::time::Instant) {
-    for (drive, view) in drives.iter().zip(state.drives.iter_mut()) {
-        let r = drive.status().await.map_err(|e| e.to_string());
+    let reads: Vec<_> = drives
+        .iter()
+        .map(|d| {
+            let d = d.clone();
+            tokio::spawn(async move { d.status().await.map_err(|e| e.to_string()) })
+        })
+        .collect();
+    for ((drive, view), read) in drives.iter().zip(state.drives.iter_mut()).zip(reads) {
+        let r = read.await.unwrap_or_else(|e| Err(format!("the read was lost: {e}")));
         let now_s = start.elapsed().as_secs_f64();
         let health: HashMap<u8, Health> = drive.bus().health();
         view.record(now_s, r, health.get(&view.address));

@@ -35,6 +35,8 @@ pub struct Target {
     pub strict_t15: bool,
     /// Discard the local echo of our own requests.
     pub echo: bool,
+    /// Modbus TCP: the most requests in flight on the connection (1..16; default 1).
+    pub max_in_flight: Option<usize>,
     /// Output JSON.
     pub json: bool,
 }

@@ -13,7 +13,7 @@ use super::name::valid_name;
 use super::{BusConfig, ConfigError, Port, PARAM_CACHE_MS};
 
 /// The most requests a modbus-tcp bus may have in flight (`max_in_flight`).
-const MAX_IN_FLIGHT: i64 = 16;
+const MAX_IN_FLIGHT: i64 = drivebus_link::bus::MAX_IN_FLIGHT as i64;
 
 /// Checks the `[[bus]]` sections and their drives.
 pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigError> {
@@ -62,11 +62,7 @@ pub(super) fn check(cx: &Ctx, raw: &[FileBus]) -> Result<Vec<BusConfig>, ConfigE
         let protocol_at = b.protocol.as_ref().map_or(b.name.span(), |p| p.span());
         if let Some(m) = &b.max_in_flight {
             if !matches!(port, Port::ModbusTcp(_)) {
-                return cx.err(
-                    m.span(),
-                    "bus.max_in_flight",
-                    "only a modbus-tcp bus can have requests in flight together",
-                );
+                return cx.err(m.span(), "bus.max_in_flight", drivebus_link::bus::IN_FLIGHT_NEEDS_MODBUS_TCP);
             }
         }
         let max_in_flight =

@@ -109,6 +109,27 @@ impl DriveEntry {
     pub fn catalog(&self) -> Arc<drivebus_drive::Catalog> {
         drivebus_drive::Catalog::load(self.config.family).expect("embedded catalogs load (tested)")
     }
+
+    /// The named values beyond the six that the drive's kind gives (a template's `[values]`,
+    /// in the file's order; none for a built-in family): known from the configuration, before
+    /// the first poll, so the front ends announce them up front ([`DriveView::values`] holds
+    /// their readings).
+    ///
+    /// [`DriveView::values`]: super::views::DriveView::values
+    pub fn named_values(&self) -> Vec<ValueDef> {
+        self.config.family.template().map_or_else(Vec::new, |t| {
+            t.status.extra.iter().map(|e| ValueDef { name: e.name.clone(), unit: e.unit.clone() }).collect()
+        })
+    }
+}
+
+/// A named value a drive's kind gives: its name (`dc_bus_v`) and unit (`V`, or empty).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ValueDef {
+    /// Its name, as [`super::views::DriveView::values`] keys it.
+    pub name: String,
+    /// Its unit, or empty.
+    pub unit: String,
 }
 
 /// One bus in the gateway.

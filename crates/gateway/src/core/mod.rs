@@ -46,12 +46,14 @@ mod views;
 mod workbench;
 
 pub use audit::MAX_LOGIN_FAILURES;
-pub use cache::{BusEntry, DriveEntry, DriveState};
+pub use cache::{BusEntry, DriveEntry, DriveState, ValueDef};
 pub use command::{Command, CommandError, ParamReading, MAX_MESSAGE_CHARS, MAX_SPEED_HZ};
 pub use gateway::{Counters, Gateway, Topology, ROLE_WATCH};
 pub use lanes::MAX_LANE_QUEUE;
 pub use start::Reload;
-pub use views::{drive_master, log_line, BusView, Change, DriveView, FaultView, DRIVE_MASTER_WINDOW_S};
+pub use views::{
+    drive_master, log_line, BusView, Change, DriveView, FaultView, ValueView, DRIVE_MASTER_WINDOW_S,
+};
 pub use workbench::{ParamRow, RestoreOptions, RestoreRow, RowError};
 
 pub use drivebus_store::time::now_ms as unix_ms;

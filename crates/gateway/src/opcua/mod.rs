@@ -315,6 +315,45 @@ pub fn drive_values(v: &DriveView, bus_online: bool, now: DateTime) -> Vec<DataV
         .collect()
 }
 
+/// A drive's named values (`Values/<name>`, a template's `[values]`) `names` as data values,
+/// under the rules of the drive's values in [`drive_values`]: the status of [`quality`], the
+/// source timestamp of the drive's last answer, empty before the first.
+pub fn named_values<'a>(
+    v: &DriveView,
+    names: impl IntoIterator<Item = &'a str>,
+    bus_online: bool,
+    now: DateTime,
+) -> Vec<DataValue> {
+    let q = quality(v, bus_online);
+    let answered = v.last_seen_ms.map(datetime_ms).unwrap_or(now);
+    names
+        .into_iter()
+        .map(|name| DataValue {
+            value: Some(v.values.get(name).map_or(Variant::Empty, |x| Variant::Double(x.value))),
+            status: Some(q),
+            source_timestamp: Some(answered),
+            server_timestamp: Some(now),
+            ..Default::default()
+        })
+        .collect()
+}
+
+/// Every variable of drive `v` with its data value: [`DRIVE_VARIABLES`], then the named values
+/// its view holds (`Values/<name>`).
+fn drive_data(ids: &Ids, v: &DriveView, bus_online: bool, now: DateTime) -> Vec<(NodeId, DataValue)> {
+    let standard = DRIVE_VARIABLES
+        .iter()
+        .map(|def| ids.drive_member(&v.id, def.name))
+        .zip(drive_values(v, bus_online, now));
+    let named = v.values.keys().map(|name| ids.value(&v.id, name)).zip(named_values(
+        v,
+        v.values.keys().map(String::as_str),
+        bus_online,
+        now,
+    ));
+    standard.chain(named).collect()
+}
+
 /// Whether `bus` is online (a bus the gateway does not know counts as online).
 pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
     gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
@@ -337,7 +376,7 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
 }
 
 /// What was last handed to the subscriptions per drive (value, status and source timestamp)
-/// and bus (value), in [`DRIVE_VARIABLES`] and [`BUS_VARIABLES`] order: a poll that neither
+/// and bus (value), in [`drive_data`] and [`BUS_VARIABLES`] order: a poll that neither
 /// changes nor confirms anything hands over nothing.
 #[derive(Default)]
 struct Last {
@@ -351,18 +390,17 @@ struct Last {
 /// notifies nothing under the default trigger (StatusValue), and each confirming poll under
 /// StatusValueTimestamp, as the client asked.
 fn publish_drive(subs: &SubscriptionCache, ids: &Ids, last: &mut Last, v: &DriveView, bus_online: bool) {
-    let values = drive_values(v, bus_online, DateTime::now());
+    let values = drive_data(ids, v, bus_online, DateTime::now());
     let now: Vec<_> = values
         .iter()
-        .map(|dv| (dv.value.clone().unwrap_or_default(), dv.status(), dv.source_timestamp))
+        .map(|(_, dv)| (dv.value.clone().unwrap_or_default(), dv.status(), dv.source_timestamp))
         .collect();
     let before = last.drives.entry(v.id.clone()).or_default();
-    let changed: Vec<_> = DRIVE_VARIABLES
-        .iter()
-        .zip(values)
+    let changed: Vec<_> = values
+        .into_iter()
         .enumerate()
         .filter(|(i, _)| before.get(*i) != now.get(*i))
-        .map(|(_, (def, dv))| (ids.drive_member(&v.id, def.name), dv))
+        .map(|(_, x)| x)
         .collect();
     *before = now;
     notify(subs, &changed);

@@ -7,7 +7,8 @@
 //! │  └─ <drive id>                DriveType; events: trips, resets, online/offline
 //! │     ├─ OutputFrequency ...    variables from the cache (see DRIVE_VARIABLES)
 //! │     ├─ Run Stop Reverse Reset SetSpeed(hz)   methods
-//! │     └─ Parameters/<name>      every catalog parameter, read from the drive when read
+//! │     ├─ Parameters/<name>      every catalog parameter, read from the drive when read
+//! │     └─ Values/<name>          a templated drive's named values ([values]), from the cache
 //! └─ Buses                        folder
 //!    └─ <bus name>                BusType; events: bus offline/online
 //!       └─ Transactions ...       the bus owner's statistics (see BUS_VARIABLES)
@@ -45,6 +46,25 @@ pub const AMPERE: Unit = Unit { code: "AMP", symbol: "A", name: "ampere" };
 /// Millisecond.
 pub const MILLISECOND: Unit = Unit { code: "C26", symbol: "ms", name: "millisecond" };
 
+/// The units a template's value or a catalog parameter may give, by their symbols (UNECE
+/// Recommendation 20 common codes).
+const UNITS: [Unit; 14] = [
+    HERTZ,
+    AMPERE,
+    MILLISECOND,
+    Unit { code: "VLT", symbol: "V", name: "volt" },
+    Unit { code: "WTT", symbol: "W", name: "watt" },
+    Unit { code: "KWT", symbol: "kW", name: "kilowatt" },
+    Unit { code: "KWH", symbol: "kWh", name: "kilowatt hour" },
+    Unit { code: "CEL", symbol: "°C", name: "degree Celsius" },
+    Unit { code: "SEC", symbol: "s", name: "second" },
+    Unit { code: "MIN", symbol: "min", name: "minute" },
+    Unit { code: "HUR", symbol: "h", name: "hour" },
+    Unit { code: "RPM", symbol: "rpm", name: "revolutions per minute" },
+    Unit { code: "P1", symbol: "%", name: "percent" },
+    Unit { code: "BAR", symbol: "bar", name: "bar [unit of pressure]" },
+];
+
 impl Unit {
     /// The unit as OPC UA's EUInformation: UnitId is the common code's three characters, one
     /// byte each (OPC UA Part 8, 5.6.3).
@@ -58,9 +78,24 @@ impl Unit {
         }
     }
 
-    /// The unit of a catalog parameter's unit text (`Hz`, `A`, `ms`), if it is one of these.
+    /// The unit of a catalog parameter's or a template value's unit text (`Hz`, `A`, `ms`,
+    /// `V`, `kW`, `°C`, ...), if it is one the gateway knows.
     pub fn from_symbol(symbol: &str) -> Option<Unit> {
-        [HERTZ, AMPERE, MILLISECOND].into_iter().find(|u| u.symbol == symbol)
+        UNITS.into_iter().find(|u| u.symbol == symbol)
+    }
+}
+
+/// A unit text as EUInformation: the unit's common code where the gateway knows the symbol,
+/// else UnitId -1 ("no code", OPC UA Part 8, 5.6.3) with the text as its display name.
+pub fn eu_information_of(symbol: &str) -> EUInformation {
+    match Unit::from_symbol(symbol) {
+        Some(u) => u.eu_information(),
+        None => EUInformation {
+            namespace_uri: UAString::from("http://www.opcfoundation.org/UA/units/un/cefact"),
+            unit_id: -1,
+            display_name: LocalizedText::new("", symbol),
+            description: LocalizedText::new("", symbol),
+        },
     }
 }
 
@@ -155,6 +190,10 @@ impl Ids {
     pub fn parameter(&self, drive: &str, name: &str) -> NodeId {
         self.id(format!("Drives/{drive}/Parameters/{name}"))
     }
+    /// `Drives/<drive>/Values/<name>`: a named value of a templated drive.
+    pub fn value(&self, drive: &str, name: &str) -> NodeId {
+        self.id(format!("Drives/{drive}/Values/{name}"))
+    }
     /// `Buses/<bus>`.
     pub fn bus(&self, bus: &str) -> NodeId {
         self.id(format!("Buses/{bus}"))
@@ -224,11 +263,11 @@ impl Ids {
 }
 
 /// Adds the `EngineeringUnits` property of `id`.
-fn add_unit(space: &mut AddressSpace, ids: &Ids, id: &NodeId, unit: Unit) {
+fn add_unit(space: &mut AddressSpace, ids: &Ids, id: &NodeId, unit: EUInformation) {
     let eu = ids.id(format!("{}/EngineeringUnits", id_path(id)));
     VariableBuilder::new(&eu, QualifiedName::new(0, "EngineeringUnits"), "EngineeringUnits")
         .data_type(DataTypeId::EUInformation)
-        .value(unit.eu_information())
+        .value(unit)
         .has_type_definition(VariableTypeId::PropertyType)
         .property_of(id.clone())
         .insert(space);
@@ -264,7 +303,7 @@ fn add_variable(
     b = b.access_level(access).user_access_level(access);
     b.insert(space);
     if let Some(unit) = def.unit {
-        add_unit(space, ids, id, unit);
+        add_unit(space, ids, id, unit.eu_information());
     }
     if let Some((low, high)) = def.range {
         let r = ids.id(format!("{}/EURange", id_path(id)));
@@ -366,6 +405,7 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry, parameters
         .is_folder()
         .component_of(obj.clone())
         .insert(space);
+    add_values(space, ids, d, &obj);
     if !parameters {
         return;
     }
@@ -382,7 +422,43 @@ pub fn add_drive(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry, parameters
         }
         b.insert(space);
         if let Some(unit) = Unit::from_symbol(&p.unit) {
-            add_unit(space, ids, &id, unit);
+            add_unit(space, ids, &id, unit.eu_information());
+        }
+    }
+}
+
+/// Adds a drive's `Values` folder and a variable per named value (a template's `[values]`):
+/// Double, read-only, an AnalogItemType with its EngineeringUnits where it has a unit. A drive
+/// without named values has no folder.
+fn add_values(space: &mut AddressSpace, ids: &Ids, d: &DriveEntry, obj: &NodeId) {
+    let named = d.named_values();
+    if named.is_empty() {
+        return;
+    }
+    let drive = d.config.name.as_str();
+    let folder = ids.drive_member(drive, "Values");
+    ObjectBuilder::new(&folder, ids.name("Values"), "Values")
+        .is_folder()
+        .description("The drive's values beyond the standard ones, as its template names them")
+        .component_of(obj.clone())
+        .insert(space);
+    for x in &named {
+        let id = ids.value(drive, &x.name);
+        let access = AccessLevel::CURRENT_READ;
+        VariableBuilder::new(&id, ids.name(&x.name), x.name.as_str())
+            .data_type(DataTypeId::Double)
+            .value(Variant::Empty)
+            .has_type_definition(if x.unit.is_empty() {
+                VariableTypeId::BaseDataVariableType
+            } else {
+                VariableTypeId::AnalogItemType
+            })
+            .access_level(access)
+            .user_access_level(access)
+            .component_of(folder.clone())
+            .insert(space);
+        if !x.unit.is_empty() {
+            add_unit(space, ids, &id, eu_information_of(&x.unit));
         }
     }
 }
@@ -408,6 +484,11 @@ mod tests {
         // OPC UA Part 8: "HTZ" -> 0x48545A.
         assert_eq!(HERTZ.eu_information().unit_id, 0x48_54_5A);
         assert_eq!(AMPERE.eu_information().unit_id, 0x41_4D_50);
+        // A template value's unit: its code where known, else no code (-1) and the text shown.
+        assert_eq!(eu_information_of("V").unit_id, 0x56_4C_54);
+        assert_eq!(eu_information_of("%").unit_id, 0x50_31);
+        let odd = eu_information_of("m3/h");
+        assert_eq!((odd.unit_id, odd.display_name.text.as_ref()), (-1, "m3/h"));
     }
 
     #[test]

@@ -99,10 +99,19 @@ impl Space {
                 nodes::add_drive(&mut space, &self.ids, &d, *parameters, self.gw.store().is_some());
                 let v = self.gw.drive_view(&d);
                 let values = super::drive_values(&v, super::bus_online(&self.gw, &v.bus), now);
-                for (def, dv) in DRIVE_VARIABLES.iter().zip(values) {
-                    if let Some(NodeType::Variable(var)) =
-                        space.find_mut(&self.ids.drive_member(name, def.name))
-                    {
+                let named = d.named_values();
+                let named_values = super::named_values(
+                    &v,
+                    named.iter().map(|x| x.name.as_str()),
+                    super::bus_online(&self.gw, &v.bus),
+                    now,
+                );
+                let ids = DRIVE_VARIABLES
+                    .iter()
+                    .map(|def| self.ids.drive_member(name, def.name))
+                    .chain(named.iter().map(|x| self.ids.value(name, &x.name)));
+                for (id, dv) in ids.zip(values.into_iter().chain(named_values)) {
+                    if let Some(NodeType::Variable(var)) = space.find_mut(&id) {
                         var.set_data_value(dv);
                     }
                 }

@@ -242,23 +242,26 @@ pub fn metrics(gw: &Gateway) -> Arc<Metrics> {
     crate::metrics::attached(gw).sparkplug.clone()
 }
 
-/// Each drive's id and writable parameters. The parameters are one list per catalog, shared by
-/// every drive of that catalog: a copy per drive took about 40 KB each (issue 25).
-fn device_list(drives: &[Arc<DriveEntry>]) -> Vec<(String, Arc<[drivebus_drive::ParamDef]>)> {
-    let mut lists: Vec<(Arc<drivebus_drive::Catalog>, Arc<[drivebus_drive::ParamDef]>)> = Vec::new();
+/// Each drive's id, writable parameters and named values. The lists are one per kind (catalog),
+/// shared by every drive of that kind: a copy per drive took about 40 KB each (issue 25).
+fn device_list(drives: &[Arc<DriveEntry>]) -> Vec<(String, node::DeviceDef)> {
+    let mut lists: Vec<(Arc<drivebus_drive::Catalog>, node::DeviceDef)> = Vec::new();
     drives
         .iter()
         .map(|d| {
             let catalog = d.catalog();
-            let params = match lists.iter().find(|(c, _)| Arc::ptr_eq(c, &catalog)) {
-                Some((_, params)) => params.clone(),
+            let def = match lists.iter().find(|(c, _)| Arc::ptr_eq(c, &catalog)) {
+                Some((_, def)) => def.clone(),
                 None => {
-                    let params: Arc<[_]> = catalog.iter().filter(|p| !p.read_only).cloned().collect();
-                    lists.push((catalog, params.clone()));
-                    params
+                    let def = node::DeviceDef {
+                        params: catalog.iter().filter(|p| !p.read_only).cloned().collect(),
+                        values: d.named_values().into(),
+                    };
+                    lists.push((catalog, def.clone()));
+                    def
                 }
             };
-            (d.config.name.clone(), params)
+            (d.config.name.clone(), def)
         })
         .collect()
 }
@@ -726,9 +729,13 @@ mod tests {
             if first == i {
                 families += 1;
                 let writable = d.catalog().iter().filter(|p| !p.read_only).count();
-                assert_eq!(list[i].1.len(), writable, "{}", d.config.name);
+                assert_eq!(list[i].1.params.len(), writable, "{}", d.config.name);
             } else {
-                assert!(Arc::ptr_eq(&list[i].1, &list[first].1), "{} has a copy of its own", d.config.name);
+                assert!(
+                    Arc::ptr_eq(&list[i].1.params, &list[first].1.params),
+                    "{} has a copy of its own",
+                    d.config.name
+                );
             }
         }
         assert!(families < drives.len(), "the demo has two drives of one family");

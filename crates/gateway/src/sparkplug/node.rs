@@ -8,7 +8,7 @@ use std::sync::Arc;
 use drivebus_drive::ParamDef;
 
 use super::payload::{DataType, Metric, Payload, Value};
-use crate::core::{BusView, Command, DriveView};
+use crate::core::{BusView, Command, DriveView, ValueDef};
 
 /// The Sparkplug B topic namespace.
 pub const NAMESPACE: &str = "spBv1.0";
@@ -36,6 +36,10 @@ pub const COMMAND_METRICS: [&str; 4] = ["Command/Run", "Command/Stop", "Command/
 
 /// The prefix of a device's parameter metrics (`Parameters/<name>`, Double, in the unit).
 pub const PARAMETER_PREFIX: &str = "Parameters/";
+
+/// The prefix of a device's named values (a template's `[values]`: `Values/dc_bus_v`, Double, in
+/// the value's unit), read-only, after the parameters.
+pub const VALUE_PREFIX: &str = "Values/";
 
 /// The node's rebirth request metric. It has no alias (operational-behavior-data-commands-
 /// rebirth-name-aliases): a host asks for a rebirth by name, knowing nothing of this node.
@@ -80,25 +84,55 @@ pub enum DeviceMessage {
     Death(Payload),
 }
 
+/// What a device has beyond the fixed metrics: its writable parameters and its named values,
+/// each list shared with every device of the same kind.
+#[derive(Clone, Debug)]
+pub struct DeviceDef {
+    /// The writable parameters (`Parameters/<name>`).
+    pub params: Arc<[ParamDef]>,
+    /// The named values (`Values/<name>`).
+    pub values: Arc<[ValueDef]>,
+}
+
+impl Default for DeviceDef {
+    /// No parameters, no named values.
+    fn default() -> Self {
+        DeviceDef { params: Arc::from([]), values: Arc::from([]) }
+    }
+}
+
+impl PartialEq for DeviceDef {
+    fn eq(&self, other: &Self) -> bool {
+        (Arc::ptr_eq(&self.params, &other.params) || self.params == other.params)
+            && (Arc::ptr_eq(&self.values, &other.values) || self.values == other.values)
+    }
+}
+
 struct Device {
     base_alias: u64,
-    /// Shared with every device of the same catalog.
-    params: Arc<[ParamDef]>,
+    def: DeviceDef,
     born: bool,
-    last: Option<[Option<Value>; 8]>,
+    /// The status metrics' values, then the named values'.
+    last: Option<Vec<Option<Value>>>,
 }
 
 impl Device {
+    /// The first index of the named values.
+    fn values_at(&self) -> usize {
+        FIXED + self.def.params.len()
+    }
+
     fn metric_name(&self, i: usize) -> String {
         match i {
             _ if i < STATUS_METRICS.len() => STATUS_METRICS[i].0.to_string(),
             _ if i < FIXED => COMMAND_METRICS[i - STATUS_METRICS.len()].to_string(),
-            _ => format!("{PARAMETER_PREFIX}{}", self.params[i - FIXED].name),
+            _ if i < self.values_at() => format!("{PARAMETER_PREFIX}{}", self.def.params[i - FIXED].name),
+            _ => format!("{VALUE_PREFIX}{}", self.def.values[i - self.values_at()].name),
         }
     }
 
     fn index_of(&self, m: &Metric) -> Option<usize> {
-        let count = FIXED + self.params.len();
+        let count = self.values_at() + self.def.values.len();
         if let Some(a) = m.alias {
             let i = a.checked_sub(self.base_alias)? as usize;
             return (i < count).then_some(i);
@@ -110,8 +144,21 @@ impl Device {
         if let Some(i) = COMMAND_METRICS.iter().position(|n| *n == name) {
             return Some(STATUS_METRICS.len() + i);
         }
+        if let Some(v) = name.strip_prefix(VALUE_PREFIX) {
+            return self.def.values.iter().position(|d| d.name == v).map(|i| self.values_at() + i);
+        }
         let p = name.strip_prefix(PARAMETER_PREFIX)?;
-        self.params.iter().position(|d| d.name == p).map(|i| FIXED + i)
+        self.def.params.iter().position(|d| d.name == p).map(|i| FIXED + i)
+    }
+
+    /// The metric index of the `k`-th value of [`Device::last`] (a status metric or a named
+    /// value).
+    fn index_of_last(&self, k: usize) -> usize {
+        if k < STATUS_METRICS.len() {
+            k
+        } else {
+            self.values_at() + k - STATUS_METRICS.len()
+        }
     }
 }
 
@@ -128,6 +175,12 @@ pub fn status_values(v: &DriveView) -> [Option<Value>; 8] {
         known.then(|| Value::String(v.fault.as_ref().map_or(String::new(), |f| f.text.clone()))),
         v.online.map(Value::Boolean),
     ]
+}
+
+/// The values of a drive's named values `defs` (`Values/<name>`), in their order: `None` where
+/// the view has none (before the first answer).
+pub fn named_values(v: &DriveView, defs: &[ValueDef]) -> Vec<Option<Value>> {
+    defs.iter().map(|d| v.values.get(&d.name).map(|x| Value::Double(x.value))).collect()
 }
 
 /// The edge node's session state.
@@ -210,10 +263,10 @@ impl Node {
         self.devices.keys().cloned().collect()
     }
 
-    /// Puts the devices in line with the gateway's drives: `(id, writable parameters)`. New ones
-    /// get aliases never used before in this process; returns the ids that are gone and were
-    /// born (they need a DDEATH).
-    pub fn sync_devices(&mut self, drives: Vec<(String, Arc<[ParamDef]>)>) -> Vec<String> {
+    /// Puts the devices in line with the gateway's drives: `(id, parameters and values)`. New
+    /// ones get aliases never used before in this process; returns the ids that are gone and
+    /// were born (they need a DDEATH).
+    pub fn sync_devices(&mut self, drives: Vec<(String, DeviceDef)>) -> Vec<String> {
         let keep: std::collections::HashSet<&String> = drives.iter().map(|(id, _)| id).collect();
         let gone: Vec<String> = self.devices.keys().filter(|id| !keep.contains(id)).cloned().collect();
         let mut dead = Vec::new();
@@ -222,14 +275,14 @@ impl Node {
                 dead.push(id);
             }
         }
-        for (id, params) in drives {
-            if self.devices.get(&id).is_some_and(|d| Arc::ptr_eq(&d.params, &params) || d.params == params) {
+        for (id, def) in drives {
+            if self.devices.get(&id).is_some_and(|d| d.def == def) {
                 continue;
             }
             let base_alias = self.next_alias;
-            self.next_alias += (FIXED + params.len()) as u64;
+            self.next_alias += (FIXED + def.params.len() + def.values.len()) as u64;
             // A device whose metrics changed is born again with its new aliases.
-            self.devices.insert(id, Device { base_alias, params, born: false, last: None });
+            self.devices.insert(id, Device { base_alias, def, born: false, last: None });
         }
         dead
     }
@@ -315,7 +368,8 @@ impl Node {
     /// metrics that changed. While not: DDATA with what changed (to keep), whatever the link.
     pub fn on_drive(&mut self, v: &DriveView, publishing: bool, now_ms: i64) -> Option<DeviceMessage> {
         let d = self.devices.get_mut(&v.id)?;
-        let values = status_values(v);
+        let mut values = status_values(v).to_vec();
+        values.extend(named_values(v, &d.def.values));
         let t = v.last_seen_ms.unwrap_or(now_ms) as u64;
         if publishing && v.online == Some(false) {
             d.last = Some(values);
@@ -342,10 +396,16 @@ impl Node {
                 let alias = d.base_alias + (STATUS_METRICS.len() + i) as u64;
                 metrics.push(Metric::birth(name, alias, DataType::Boolean, Some(Value::Boolean(false)), t));
             }
-            for (i, p) in d.params.iter().enumerate() {
+            for (i, p) in d.def.params.iter().enumerate() {
                 let alias = d.base_alias + (FIXED + i) as u64;
                 let name = format!("{PARAMETER_PREFIX}{}", p.name);
                 metrics.push(Metric::birth(&name, alias, DataType::Double, None, t).with_unit(&p.unit));
+            }
+            for (i, (x, val)) in d.def.values.iter().zip(&values[STATUS_METRICS.len()..]).enumerate() {
+                let alias = d.base_alias + (d.values_at() + i) as u64;
+                let name = format!("{VALUE_PREFIX}{}", x.name);
+                metrics
+                    .push(Metric::birth(&name, alias, DataType::Double, val.clone(), t).with_unit(&x.unit));
             }
             d.last = Some(values);
             return Some(DeviceMessage::Birth(Payload {
@@ -357,16 +417,20 @@ impl Node {
         let changed: Vec<Metric> = values
             .iter()
             .enumerate()
-            .filter(|(i, val)| d.last.as_ref().map_or(true, |l| l[*i] != **val))
-            .map(|(i, val)| Metric {
-                name: Some(STATUS_METRICS[i].0.to_string()),
-                alias: Some(d.base_alias + i as u64),
-                timestamp: Some(t),
-                is_null: val.is_none().then_some(true),
-                // A value that became unknown keeps its type so the host can read the null.
-                datatype: val.is_none().then_some(STATUS_METRICS[i].1 as u32),
-                value: val.clone(),
-                ..Metric::default()
+            .filter(|(k, val)| d.last.as_ref().map_or(true, |l| l.get(*k) != Some(*val)))
+            .map(|(k, val)| {
+                let i = d.index_of_last(k);
+                let datatype = STATUS_METRICS.get(k).map_or(DataType::Double, |m| m.1);
+                Metric {
+                    name: Some(d.metric_name(i)),
+                    alias: Some(d.base_alias + i as u64),
+                    timestamp: Some(t),
+                    is_null: val.is_none().then_some(true),
+                    // A value that became unknown keeps its type so the host can read the null.
+                    datatype: val.is_none().then_some(datatype as u32),
+                    value: val.clone(),
+                    ..Metric::default()
+                }
             })
             .collect();
         d.last = Some(values);
@@ -378,7 +442,7 @@ impl Node {
     /// DDATA with a parameter's value just written (the write's result).
     pub fn param_written(&self, device: &str, name: &str, value: f64, now_ms: i64) -> Option<Payload> {
         let d = self.devices.get(device).filter(|d| d.born)?;
-        let i = d.params.iter().position(|p| p.name == name)?;
+        let i = d.def.params.iter().position(|p| p.name == name)?;
         Some(Payload {
             timestamp: Some(now_ms as u64),
             metrics: vec![Metric {
@@ -502,8 +566,11 @@ impl Node {
                         let cmd = ["run", "stop", "reverse", "reset"][i - STATUS_METRICS.len()];
                         Ok(Command::from_name(cmd).expect("the four command metrics are commands"))
                     }
+                    _ if i >= d.values_at() => {
+                        Err(refuse("unknown_metric", format!("{name} is read-only: it cannot be written")))
+                    }
                     _ => {
-                        let def = &d.params[i - FIXED];
+                        let def = &d.def.params[i - FIXED];
                         check_type(m, DataType::Double).map_err(|r| with_name(r, &name))?;
                         let Some(Value::Double(v)) = m.value else {
                             return Err(refuse("wrong_type", format!("{name}: give a Double value")));
@@ -584,10 +651,69 @@ mod tests {
         Catalog::load(Family::Generic).unwrap().iter().filter(|p| !p.read_only).cloned().collect()
     }
 
+    /// A generic drive's metrics: its writable parameters, no named values.
+    fn plain() -> DeviceDef {
+        DeviceDef { params: params(), values: Arc::from([]) }
+    }
+
     fn node() -> Node {
         let mut n = Node::new("plant", "hall-1");
-        n.sync_devices(vec![("pump-1".into(), params()), ("pump-2".into(), params())]);
+        n.sync_devices(vec![("pump-1".into(), plain()), ("pump-2".into(), plain())]);
         n
+    }
+
+    /// A templated drive's metrics: no parameters, two named values.
+    fn with_values() -> DeviceDef {
+        let def = |name: &str, unit: &str| ValueDef { name: name.into(), unit: unit.into() };
+        DeviceDef { params: Arc::from([]), values: Arc::from([def("dc_bus_v", "V"), def("power_kw", "kW")]) }
+    }
+
+    #[test]
+    fn named_values_are_read_only_metrics_born_with_their_unit_and_sent_when_they_change() {
+        let mut n = Node::new("plant", "hall-1");
+        n.sync_devices(vec![("fan".into(), with_values())]);
+        let mut v = view("fan", Some(true), 0.0);
+        v.values.insert("dc_bus_v".into(), crate::core::ValueView { value: 540.0, unit: "V".into() });
+        let Some(DeviceMessage::Birth(b)) = n.on_drive(&v, true, 5) else { panic!("no DBIRTH") };
+        let dc = b.metrics.iter().find(|m| m.name.as_deref() == Some("Values/dc_bus_v")).unwrap();
+        assert_eq!(
+            (dc.value.clone(), dc.datatype),
+            (Some(Value::Double(540.0)), Some(DataType::Double as u32))
+        );
+        let unit = dc.properties.as_ref().unwrap();
+        assert_eq!(unit.keys, ["engUnit"]);
+        // Not read yet: born null, with its type.
+        let kw = b.metrics.iter().find(|m| m.name.as_deref() == Some("Values/power_kw")).unwrap();
+        assert_eq!((kw.value.clone(), kw.is_null), (None, Some(true)), "{kw:?}");
+        let aliases: std::collections::HashSet<_> = b.metrics.iter().filter_map(|m| m.alias).collect();
+        assert_eq!(aliases.len(), STATUS_METRICS.len() + COMMAND_METRICS.len() + 2);
+
+        // A change of one value: DDATA with that metric only, by its alias and name.
+        v.values.insert("power_kw".into(), crate::core::ValueView { value: 1.5, unit: "kW".into() });
+        let Some(DeviceMessage::Data(d)) = n.on_drive(&v, true, 6) else { panic!("no DDATA") };
+        assert_eq!(d.metrics.len(), 1, "{:?}", d.metrics);
+        assert_eq!(d.metrics[0].name.as_deref(), Some("Values/power_kw"));
+        assert_eq!((d.metrics[0].alias, d.metrics[0].value.clone()), (kw.alias, Some(Value::Double(1.5))));
+        assert_eq!(n.on_drive(&v, true, 7), None, "nothing changed");
+        // Kept DDATA by name finds the alias again.
+        let kept = Node::to_keep(d.clone());
+        assert_eq!(n.historical("fan", kept).unwrap().metrics[0].alias, kw.alias);
+
+        // Written by name or alias: refused, read-only.
+        let by_alias = Payload {
+            metrics: vec![Metric {
+                alias: dc.alias,
+                datatype: Some(DataType::Double as u32),
+                value: Some(Value::Double(1.0)),
+                ..Metric::default()
+            }],
+            ..Payload::default()
+        };
+        for p in [cmd("Values/dc_bus_v", Value::Double(1.0), DataType::Double), by_alias] {
+            let e = n.device_command("fan", &p).unwrap_err();
+            assert_eq!(e.kind, "unknown_metric", "{e:?}");
+            assert!(e.message.contains("Values/dc_bus_v is read-only"), "{e:?}");
+        }
     }
 
     fn birth(n: &mut Node, id: &str) -> Payload {
@@ -804,7 +930,7 @@ mod tests {
         let nb = n.nbirth(0, &[], 1);
         let a = birth(&mut n, "pump-1");
         birth(&mut n, "pump-2");
-        let dead = n.sync_devices(vec![("pump-1".into(), params()), ("fan-1".into(), params())]);
+        let dead = n.sync_devices(vec![("pump-1".into(), plain()), ("fan-1".into(), plain())]);
         assert_eq!(dead, ["pump-2"]);
         assert!(n.is_born("pump-1") && !n.is_born("fan-1"));
         let f = birth(&mut n, "fan-1");

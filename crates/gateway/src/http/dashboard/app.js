@@ -312,6 +312,7 @@
     field(t, 'setpoint_hz').textContent = num(v.setpoint_hz, 2);
     field(t, 'current_a').textContent = num(v.current_a, 2);
     field(t, 'direction').textContent = directionText(v);
+    renderValues(field(t, 'values'), v.values);
     const f = field(t, 'fault');
     if (v.fault) {
       f.textContent = `fault ${v.fault.code}: ${v.fault.text}`;
@@ -327,6 +328,25 @@
     updateGauge(t, v);
     updateAge(d);
     if (d.trendOpen) drawTrend(d);
+  }
+
+  // A templated drive's named values (its template's [values]), a name and a value with its
+  // unit each; the list is rebuilt only when its text changes.
+  function renderValues(el, values) {
+    const entries = Object.entries(values || {});
+    el.hidden = entries.length === 0;
+    const shown = entries.map(([name, x]) => [name, x.unit ? `${x.value} ${x.unit}` : String(x.value)]);
+    const key = JSON.stringify(shown);
+    if (el.dataset.shown === key) return;
+    el.dataset.shown = key;
+    el.replaceChildren(...shown.flatMap(([name, text]) => {
+      const dt = document.createElement('dt');
+      dt.textContent = name;
+      const dd = document.createElement('dd');
+      dd.dataset.value = name;
+      dd.textContent = text;
+      return [dt, dd];
+    }));
   }
 
   // A locked drive's command controls are disabled, and say why, as are those of a drive this

@@ -1,31 +1,39 @@
 //! What a listening gateway learns from another master's traffic, without I/O: the values its
 //! drives answered and when, and which drives the master polls how often.
 //!
-//! Values: in a Modbus protocol each register read (03, 04) that got its reply is kept by
-//! drive, table and register with the time it was heard, so a standby's own poll is answered
-//! from whatever reads of the master covered its registers, whatever their span, order or
-//! interval; the reply is rebuilt as the drive would send it and the profile decodes it as its
-//! own (one decoding for both). In the other protocols a request has one reading: its reply is
-//! kept by the request's bytes. What answers a poll was heard since it began, or at most the
-//! master's own poll interval of that drive before (the bus owner chooses, [`Learnt::interval`]):
-//! the standby's value is never older than the master's view of it.
+//! Values: each answered request is read by its meaning, in the protocol's own addressing, and
+//! what it says is kept by drive and item with the time it was heard ([`items`]): Modbus
+//! registers by table ([`modbus`]: reads 03, 04 and 17, and acknowledged writes 06, 10, 17),
+//! TIP communication numbers ([`toshiba`]: `R`, `G`, acknowledged `W` and `P`, block reads),
+//! FC parameters by PNU and IND with every reply's status word and MAV ([`fc`]), B800 replies
+//! by read command ([`b800`]). A standby's own poll is answered from whatever the master's
+//! requests covered, whatever their form, span, order or interval: the reply is rebuilt as the
+//! drive would send it to the standby's request, and the profile decodes it as its own (one
+//! decoding for both). A request no meaning is read from (an error reply, a text block) is kept
+//! by its bytes, and answers the same bytes. What answers a poll was heard since it began, or
+//! at most the master's own poll interval of that drive before (the bus owner chooses,
+//! [`Learnt::interval`]): the standby's value is never older than the master's view of it.
 //!
 //! Schedule: the interval between two requests with the same bytes to one drive, smoothed; a
 //! drive's interval is its most frequent request's.
 
+mod b800;
+mod fc;
+mod items;
+mod modbus;
+mod toshiba;
+
 use std::collections::HashMap;
 use std::time::Duration;
 
-use drivebus_proto::modbus::pdu::RegisterAddress;
-use drivebus_proto::modbus::{Registers, Reply, ReplyPdu, Request, RequestPdu, UnitId};
 use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::Instant;
+
+use items::Items;
 
 /// At most this many distinct requests (or replies by request) are remembered; more (a master
 /// reading everything once, a scan) start the memory afresh.
 const MAX_REQUESTS: usize = 4096;
-/// At most this many registers are remembered.
-const MAX_REGISTERS: usize = 65536;
 
 /// A request heard repeatedly: when last, and the smoothed interval between its sendings.
 #[derive(Clone, Copy, Debug)]
@@ -38,9 +46,9 @@ struct Repeat {
 /// What one bus's listener has learnt.
 pub(crate) struct Learnt {
     protocol: WireProtocol,
-    /// Modbus: (drive, function 03 or 04, register) -> (value, when heard).
-    registers: HashMap<(u8, u8, u16), (u16, Instant)>,
-    /// Other protocols: request bytes -> (reply bytes, when heard).
+    /// What the drives said, by the protocol's addressing.
+    items: Items,
+    /// Replies no meaning was read from: request bytes -> (reply bytes, when heard).
     replies: HashMap<Vec<u8>, (Vec<u8>, Instant)>,
     /// Each distinct request heard, for the schedule.
     requests: HashMap<Vec<u8>, Repeat>,
@@ -48,15 +56,12 @@ pub(crate) struct Learnt {
     last: Option<(Vec<u8>, bool)>,
 }
 
-/// A Modbus register read: drive, function, first register, count.
-type Read = (u8, u8, u16, u16);
-
 impl Learnt {
     /// Nothing learnt yet on a bus speaking `protocol`.
     pub(crate) fn new(protocol: WireProtocol) -> Self {
         Learnt {
             protocol,
-            registers: HashMap::new(),
+            items: Items::default(),
             replies: HashMap::new(),
             requests: HashMap::new(),
             last: None,
@@ -92,57 +97,42 @@ impl Learnt {
         if let Some((r, answered)) = &mut self.last {
             *answered |= r == request;
         }
-        if self.protocol.is_modbus() {
-            let Some((unit, function, start, count)) = self.read(request) else { return };
-            let Some(values) = self.values(reply, unit, function) else { return };
-            if values.len() != count as usize {
-                return;
+        let items = &mut self.items;
+        let understood = match self.protocol {
+            WireProtocol::ModbusRtu | WireProtocol::ModbusAscii => {
+                modbus::learn(self.protocol, request, reply, now, items)
             }
-            if self.registers.len() + values.len() > MAX_REGISTERS {
-                self.registers.clear();
+            WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary => {
+                toshiba::learn(request, reply, now, items)
             }
-            for (i, v) in values.into_iter().enumerate() {
-                self.registers.insert((unit, function, start.wrapping_add(i as u16)), (v, now));
-            }
-        } else {
-            if self.replies.len() >= MAX_REQUESTS && !self.replies.contains_key(request) {
-                self.replies.clear();
-            }
-            self.replies.insert(request.to_vec(), (reply.to_vec(), now));
+            WireProtocol::DanfossFc => fc::learn(request, reply, now, items),
+            WireProtocol::B800 => b800::learn(request, reply, now, items),
+        };
+        if understood {
+            self.replies.remove(request);
+            return;
         }
+        if self.replies.len() >= MAX_REQUESTS && !self.replies.contains_key(request) {
+            self.replies.clear();
+        }
+        self.replies.insert(request.to_vec(), (reply.to_vec(), now));
     }
 
     /// The reply to `request` made of what was heard at or after `since`, when all of it was.
     pub(crate) fn answer(&self, request: &[u8], since: Instant) -> Option<Vec<u8>> {
-        if let Some((reply, at)) = self.replies.get(request) {
-            if *at >= since {
-                return Some(reply.clone());
+        let fresh = self.items.since(since);
+        let rebuilt = match self.protocol {
+            WireProtocol::ModbusRtu | WireProtocol::ModbusAscii => {
+                modbus::answer(self.protocol, request, &fresh)
             }
-        }
-        if !self.protocol.is_modbus() {
-            return None;
-        }
-        let (unit, function, start, count) = self.read(request)?;
-        let mut values = Vec::with_capacity(count as usize);
-        for i in 0..count {
-            let (v, at) = self.registers.get(&(unit, function, start.wrapping_add(i)))?;
-            if *at < since {
-                return None;
-            }
-            values.push(*v);
-        }
-        let values = Registers::from_values(&values);
-        let pdu = match function {
-            3 => ReplyPdu::ReadHoldingRegisters { values },
-            _ => ReplyPdu::ReadInputRegisters { values },
+            WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary => toshiba::answer(request, &fresh),
+            WireProtocol::DanfossFc => fc::answer(request, &fresh),
+            WireProtocol::B800 => b800::answer(request, &fresh),
         };
-        let reply = Reply { unit: UnitId(unit), pdu };
-        let mut out = [0u8; 520];
-        let n = match self.protocol {
-            WireProtocol::ModbusAscii => reply.emit_ascii(&mut out).ok()?,
-            _ => reply.emit_rtu(&mut out).ok()?,
-        };
-        Some(out[..n].to_vec())
+        rebuilt.or_else(|| {
+            let (reply, at) = self.replies.get(request)?;
+            (*at >= since).then(|| reply.clone())
+        })
     }
 
     /// The interval at which the master polled each drive it polled (a drive's most frequent
@@ -155,38 +145,6 @@ impl Learnt {
     /// The interval at which the master polled drive `address`, once heard twice.
     pub(crate) fn interval(&self, address: u8) -> Option<Duration> {
         self.requests.values().filter(|r| r.address == address).filter_map(|r| r.interval).min()
-    }
-
-    /// `request` as a Modbus register read (03 or 04) to one drive.
-    fn read(&self, request: &[u8]) -> Option<Read> {
-        let r = match self.protocol {
-            WireProtocol::ModbusAscii => Request::parse_ascii(request).ok()?,
-            _ => Request::parse_rtu(request).ok()?,
-        };
-        let (function, start, quantity) = match r.pdu {
-            RequestPdu::ReadHoldingRegisters { start: RegisterAddress(s), quantity } => (3, s, quantity),
-            RequestPdu::ReadInputRegisters { start: RegisterAddress(s), quantity } => (4, s, quantity),
-            _ => return None,
-        };
-        (r.unit.0 != 0).then_some((r.unit.0, function, start, quantity))
-    }
-
-    /// The register values of `reply`, when it is drive `unit`'s answer to a read `function`.
-    fn values(&self, reply: &[u8], unit: u8, function: u8) -> Option<Vec<u16>> {
-        let r = match self.protocol {
-            WireProtocol::ModbusAscii => Reply::parse_ascii(reply).ok()?,
-            _ => Reply::parse_rtu(reply).ok()?,
-        };
-        if r.unit.0 != unit {
-            return None;
-        }
-        let values = match (function, r.pdu) {
-            (3, ReplyPdu::ReadHoldingRegisters { values }) | (4, ReplyPdu::ReadInputRegisters { values }) => {
-                values
-            }
-            _ => return None,
-        };
-        Some(values.iter().collect())
     }
 }
 

@@ -324,3 +324,235 @@ async fn a_standby_that_polls_seldom_still_times_what_it_hears_as_it_came() {
     assert_eq!(b.role().unwrap().role, Role::Master);
     assert!(b.stats().transactions >= 1, "answered by its own exchange, not by what it heard before");
 }
+
+/// A line of `family` drives at `addresses` speaking `protocol`, with two masters' ports.
+fn line_of(
+    protocol: WireProtocol,
+    family: Family,
+    format: CharFormat,
+    addresses: &[u8],
+) -> Arc<Mutex<VirtualLine>> {
+    let mut line = VirtualLine::new(19200, format, Instant::ZERO);
+    for &address in addresses {
+        let spec = DriveSpec {
+            family,
+            address,
+            protocol: Some(protocol),
+            response: Duration::from_millis(3),
+            load: 0.5,
+            params: Vec::new(),
+        };
+        line.add_device(drivebus_sim::family::build(&spec, Instant::ZERO).unwrap());
+    }
+    assert_eq!(line.add_master(), 1);
+    Arc::new(Mutex::new(line))
+}
+
+/// An active bus owner and a standby on `line`'s two masters' ports, speaking `protocol`.
+fn pair_on(line: &Arc<Mutex<VirtualLine>>, protocol: WireProtocol, format: CharFormat) -> (Bus, Bus) {
+    let cfg = |standby| {
+        let mut cfg = BusConfig::new(protocol, 19200, format);
+        cfg.response_timeout = Some(Duration::from_millis(50));
+        cfg.role = Some(RoleConfig { standby, silence: SILENCE });
+        cfg
+    };
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, cfg(false)).unwrap();
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), cfg(true)).unwrap();
+    (a, b)
+}
+
+/// A master on a line of `family` drives that runs each of `speeds` through the profile and
+/// then polls each drive every 150 ms with the requests `polls` makes (each answered), never
+/// as the profile would; a standby beside it reads each drive's status through the profile
+/// every 40 ms. Checks that the standby sent nothing and that each of its status reads after
+/// the drives settled was answered with what the master's profile reads: running, output
+/// and current.
+async fn a_standby_reads_what_a_master_polls_otherwise(
+    protocol: WireProtocol,
+    family: Family,
+    format: CharFormat,
+    speeds: &[(u8, f64)],
+    polls: fn(u8) -> Vec<Vec<u8>>,
+) {
+    let addresses: Vec<u8> = speeds.iter().map(|(a, _)| *a).collect();
+    let line = line_of(protocol, family, format, &addresses);
+    let (a, b) = pair_on(&line, protocol, format);
+    let profile = move |addr| for_drive(family, protocol, addr).unwrap();
+    // The active one takes the line at its first poll after its silence.
+    let first = Drive::new(a.clone(), profile(addresses[0])).polling();
+    let start = tokio::time::Instant::now();
+    while first.status().await.is_err() {
+        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
+    }
+    for &(addr, hz) in speeds {
+        let d = Drive::new(a.clone(), profile(addr));
+        d.set_speed(hz).await.unwrap();
+        d.run().await.unwrap();
+    }
+    let (master, drives) = (a.clone(), addresses.clone());
+    let a_poll = tokio::spawn(async move {
+        loop {
+            for &addr in &drives {
+                for request in polls(addr) {
+                    let ex = Exchange { request, expect_reply: true };
+                    let reply = master.transact(addr, ex, Priority::Poll, None).await;
+                    assert!(matches!(reply, Ok(Some(_))), "drive {addr}: {reply:?}");
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(150)).await;
+        }
+    });
+    let statuses: Statuses = Default::default();
+    let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
+    let b_poll = tokio::spawn(async move {
+        let drives: Vec<(u8, Drive)> =
+            drives.iter().map(|&a| (a, Drive::new(standby.clone(), profile(a)).polling())).collect();
+        loop {
+            for (a, d) in &drives {
+                let r = d.status().await.map_err(|e| e.to_string());
+                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
+                tokio::time::sleep(Duration::from_millis(40)).await;
+            }
+        }
+    });
+    // Let the drives reach their speed.
+    tokio::time::sleep(Duration::from_secs(15)).await;
+    let since = tokio::time::Instant::now();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert!(!a_poll.is_finished(), "the master's polls are all answered");
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    let seen: Vec<_> = statuses.lock().unwrap().iter().filter(|(_, t, _)| *t >= since).cloned().collect();
+    for &(addr, hz) in speeds {
+        let truth = Drive::new(a.clone(), profile(addr)).status().await.unwrap();
+        assert!(truth.running && truth.output_hz.is_some_and(|f| (f - hz).abs() < 0.1), "{truth:?}");
+        let mine: Vec<_> = seen.iter().filter(|(a, _, _)| *a == addr).collect();
+        assert!(mine.len() >= 5, "drive {addr}: {seen:?}");
+        for (_, _, r) in mine {
+            let s = r.as_ref().unwrap_or_else(|e| panic!("drive {addr}: {e}"));
+            assert_eq!(
+                (s.running, s.output_hz, s.current_a, &s.fault),
+                (truth.running, truth.output_hz, truth.current_a, &truth.fault),
+                "drive {addr}: {s:?}"
+            );
+        }
+    }
+    a_poll.abort();
+    b_poll.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_toshiba_ascii_standby_learns_by_communication_number() {
+    use drivebus_proto::toshiba::ascii::{AsciiAddress, AsciiRequest};
+    use drivebus_proto::toshiba::CommNo;
+    // The master reads the numbers a Status needs in its own order, without `&` SUM (the
+    // profile sends them with it, FD01 first).
+    fn polls(addr: u8) -> Vec<Vec<u8>> {
+        [0xFE70, 0xFE03, 0xFE02, 0xFD00, 0xFD01]
+            .into_iter()
+            .map(|n| {
+                let mut out = [0u8; 32];
+                let len = AsciiRequest::read(AsciiAddress::Unit(addr), CommNo(n)).emit(&mut out).unwrap();
+                out[..len].to_vec()
+            })
+            .collect()
+    }
+    let format = CharFormat::EVEN_8E1;
+    a_standby_reads_what_a_master_polls_otherwise(
+        WireProtocol::ToshibaAscii,
+        Family::Toshiba,
+        format,
+        &[(1, 40.0), (2, 25.0)],
+        polls,
+    )
+    .await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_toshiba_binary_standby_answers_its_block_read_from_single_reads() {
+    use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryRequest};
+    use drivebus_proto::toshiba::CommNo;
+    // The master reads each number alone with `G` (dummy data), the block read selections
+    // f875–f879 among them; the standby's profile reads them with `R`, and its status with one
+    // `X` block read.
+    fn polls(addr: u8) -> Vec<Vec<u8>> {
+        [0x0875, 0x0876, 0x0877, 0x0878, 0x0879, 0xFE70, 0xFE02, 0xFE03, 0xFD00, 0xFD01]
+            .into_iter()
+            .map(|n| {
+                let mut out = [0u8; 16];
+                let len =
+                    BinaryRequest::read_dummy(BinaryAddress::Unit(addr), CommNo(n)).emit(&mut out).unwrap();
+                out[..len].to_vec()
+            })
+            .collect()
+    }
+    a_standby_reads_what_a_master_polls_otherwise(
+        WireProtocol::ToshibaBinary,
+        Family::Toshiba,
+        CharFormat::EVEN_8E1,
+        &[(1, 40.0), (2, 25.0)],
+        polls,
+    )
+    .await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_danfoss_standby_learns_parameters_and_every_telegrams_status_word() {
+    use drivebus_proto::fc::{AddressFormat, Adr, ParameterNumber, Request, MAX_TELEGRAM};
+    // The master reads the parameters a Status needs in its own order with PCD1 = 0000, and
+    // sends a process block for the status word and MAV; the profile's telegrams carry its
+    // own control word and reference.
+    fn polls(addr: u8) -> Vec<Vec<u8>> {
+        let adr = Adr::new(addr, AddressFormat::OneTo126).unwrap();
+        let mut out = Vec::new();
+        for pnu in [1614, 1602, 303, 302, 300] {
+            let mut buf = [0u8; MAX_TELEGRAM];
+            let n = Request::read(adr, ParameterNumber::new(pnu).unwrap(), 0).emit(&mut buf).unwrap();
+            out.push(buf[..n].to_vec());
+        }
+        let mut buf = [0u8; MAX_TELEGRAM];
+        let process =
+            Request::process(adr, drivebus_proto::fc::ControlWord(0), drivebus_proto::fc::Reference(0));
+        let n = process.emit(&mut buf).unwrap();
+        out.push(buf[..n].to_vec());
+        out
+    }
+    a_standby_reads_what_a_master_polls_otherwise(
+        WireProtocol::DanfossFc,
+        Family::Danfoss,
+        CharFormat::EVEN_8E1,
+        &[(1, 40.0), (2, 25.0)],
+        polls,
+    )
+    .await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_b800_standby_learns_by_command_from_a_master_that_writes_lower_case_hex() {
+    // The master asks `A`, `Z` and `T` in that order, its hex digits in lower case (drive 10
+    // is DA `8a`, `Z` is `5a`); the profile writes upper case, `T` first.
+    fn polls(addr: u8) -> Vec<Vec<u8>> {
+        [b'A', b'Z', b'T']
+            .into_iter()
+            .map(|cmd| {
+                let digits = format!("{:02x}{:02x}", addr + 128, cmd);
+                let sum = digits.bytes().fold(0u8, |s, c| s.wrapping_add(c));
+                let mut frame = vec![0x7E];
+                frame.extend_from_slice(digits.as_bytes());
+                frame.extend_from_slice(format!("{:02x}", !sum).as_bytes());
+                frame.push(0x7F);
+                frame
+            })
+            .collect()
+    }
+    a_standby_reads_what_a_master_polls_otherwise(
+        WireProtocol::B800,
+        Family::B800,
+        CharFormat::NONE_8N1,
+        &[(10, 40.0), (11, 25.0)],
+        polls,
+    )
+    .await;
+}

@@ -177,6 +177,73 @@ mod tests {
     }
 
     #[test]
+    fn a_read_write_and_the_writes_a_drive_acknowledged_tell_the_registers_new_values() {
+        let mut l = Learnt::new(WireProtocol::ModbusRtu);
+        let t = Instant::from_millis;
+        // 17: write 2001H = 0FA0H, then read 2100H..2101H.
+        l.reply(
+            t(10),
+            &rtu(&[1, 0x17, 0x21, 0x00, 0, 2, 0x20, 0x01, 0, 1, 2, 0x0F, 0xA0]),
+            &rtu(&[1, 0x17, 4, 0, 7, 0x0F, 0xA0]),
+        );
+        assert_eq!(l.answer(&rtu(&[1, 3, 0x21, 0x00, 0, 2]), t(0)), Some(rtu(&[1, 3, 4, 0, 7, 0x0F, 0xA0])));
+        assert_eq!(l.answer(&rtu(&[1, 3, 0x20, 0x01, 0, 1]), t(0)), Some(rtu(&[1, 3, 2, 0x0F, 0xA0])));
+        // 06 acknowledged (the request echoed): P0.02 = 1388H.
+        let write = rtu(&[1, 6, 0, 2, 0x13, 0x88]);
+        l.reply(t(20), &write, &write);
+        // 10 acknowledged: P0.07..P0.08 = 0064H, 00C8H.
+        l.reply(t(30), &rtu(&[1, 0x10, 0, 7, 0, 2, 4, 0, 0x64, 0, 0xC8]), &rtu(&[1, 0x10, 0, 7, 0, 2]));
+        let mine = rtu(&[1, 3, 0, 7, 0, 2]);
+        assert_eq!(l.answer(&mine, t(25)), Some(rtu(&[1, 3, 4, 0, 0x64, 0, 0xC8])));
+        assert_eq!(l.answer(&rtu(&[1, 3, 0, 2, 0, 1]), t(15)), Some(rtu(&[1, 3, 2, 0x13, 0x88])));
+        // Writes go to holding registers, not input registers.
+        assert_eq!(l.answer(&rtu(&[1, 4, 0, 2, 0, 1]), t(0)), None);
+        // A write refused (exception 03) tells nothing: the old value stays.
+        l.reply(t(40), &rtu(&[1, 6, 0, 2, 0xFF, 0xFF]), &rtu(&[1, 0x86, 3]));
+        assert_eq!(l.answer(&rtu(&[1, 3, 0, 2, 0, 1]), t(15)), Some(rtu(&[1, 3, 2, 0x13, 0x88])));
+        // Nor does a reply that is not the request's echo.
+        l.reply(t(50), &rtu(&[1, 6, 0, 2, 0x00, 0x01]), &rtu(&[1, 6, 0, 2, 0x00, 0x02]));
+        assert_eq!(l.answer(&rtu(&[1, 3, 0, 2, 0, 1]), t(15)), Some(rtu(&[1, 3, 2, 0x13, 0x88])));
+        // A broadcast write (unit 0) is not a drive's value.
+        let broadcast = rtu(&[0, 6, 0, 3, 0, 1]);
+        l.reply(t(60), &broadcast, &broadcast);
+        assert_eq!(l.answer(&rtu(&[1, 3, 0, 3, 0, 1]), t(0)), None);
+    }
+
+    #[test]
+    fn an_error_reply_answers_only_the_same_request_and_a_value_replaces_it() {
+        use drivebus_proto::toshiba::ascii::{AsciiAddress, AsciiRequest};
+        use drivebus_proto::toshiba::{CommNo, ErrorCode, TipRequest};
+        let mut l = Learnt::new(WireProtocol::ToshibaAscii);
+        let t = Instant::from_millis;
+        let emit = |r: &TipRequest| {
+            let mut out = [0u8; 32];
+            let n = r.emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        let plain = TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(3), CommNo(0xFE03)));
+        let summed = TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(3), CommNo(0xFE03)).with_sum());
+        let reply = |r: &TipRequest, tripped, data| {
+            let mut out = [0u8; 32];
+            let n = r.reply(3, tripped, data).unwrap().emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        // FE03 refused (data error): only the same request gets the same error back.
+        let mut out = [0u8; 32];
+        let n = plain.error_reply(3, false, ErrorCode(1)).emit(&mut out).unwrap();
+        l.reply(t(10), &emit(&plain), &out[..n]);
+        assert_eq!(l.answer(&emit(&plain), t(0)), Some(out[..n].to_vec()));
+        assert_eq!(l.answer(&emit(&summed), t(0)), None);
+        // Read by the master without SUM, while tripped: the standby's request with SUM gets
+        // the reply the drive would give it, SUM and lower case included.
+        l.reply(t(20), &emit(&plain), &reply(&plain, true, 0x1234));
+        assert_eq!(l.answer(&emit(&summed), t(15)), Some(reply(&summed, true, 0x1234)));
+        assert_eq!(l.answer(&emit(&plain), t(15)), Some(reply(&plain, true, 0x1234)));
+        // Heard before the poll began (and no longer the master's interval): nothing.
+        assert_eq!(l.answer(&emit(&summed), t(25)), None);
+    }
+
+    #[test]
     fn the_schedule_is_each_drives_most_frequent_request() {
         let mut l = Learnt::new(WireProtocol::ModbusRtu);
         let a = rtu(&[1, 3, 0x21, 0x00, 0, 2]);

@@ -556,3 +556,64 @@ async fn a_b800_standby_learns_by_command_from_a_master_that_writes_lower_case_h
     )
     .await;
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_modbus_standby_learns_a_register_from_the_writes_its_drive_acknowledged() {
+    let format = CharFormat::NONE_8N2;
+    let line = line_of(WireProtocol::ModbusRtu, Family::Generic, format, &[1, 2]);
+    let (a, b) = pair_on(&line, WireProtocol::ModbusRtu, format);
+    // The master writes each drive's keypad frequency P0.02 (0002H) every 100 ms with 06, and
+    // never reads it: drive 1 30.00 Hz, drive 2 35.00 Hz.
+    let raw = |addr: u8| 2500 + 500 * u16::from(addr);
+    let master = a.clone();
+    let acknowledged = Arc::new(Mutex::new(0u32));
+    let acks = acknowledged.clone();
+    let a_poll = tokio::spawn(async move {
+        loop {
+            for addr in [1u8, 2] {
+                let [hi, lo] = raw(addr).to_be_bytes();
+                let write = rtu(&[addr, 0x06, 0x00, 0x02, hi, lo]);
+                let ex = Exchange { request: write.clone(), expect_reply: true };
+                if master.transact(addr, ex, Priority::Poll, None).await == Ok(Some(write)) {
+                    *acks.lock().unwrap() += 1;
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+    });
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    // The standby reads P0.02 through the profile (03 of 0002H) every 40 ms.
+    let standby = b.clone();
+    let reads = Arc::new(Mutex::new(Vec::new()));
+    let seen = reads.clone();
+    let b_poll = tokio::spawn(async move {
+        let drives: Vec<(u8, Drive)> = [1u8, 2]
+            .into_iter()
+            .map(|a| {
+                let p = for_drive(Family::Generic, WireProtocol::ModbusRtu, a).unwrap();
+                (a, Drive::new(standby.clone(), p).polling())
+            })
+            .collect();
+        loop {
+            for (a, d) in &drives {
+                let r = d.read_param("P0.02").await.map(|(v, _)| v).map_err(|e| e.to_string());
+                seen.lock().unwrap().push((*a, r));
+                tokio::time::sleep(Duration::from_millis(40)).await;
+            }
+        }
+    });
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    assert!(*acknowledged.lock().unwrap() >= 20, "the drives acknowledged the master's writes");
+    let reads = reads.lock().unwrap().clone();
+    for addr in [1u8, 2] {
+        let mine: Vec<_> = reads.iter().filter(|(a, _)| *a == addr).map(|(_, r)| r.clone()).collect();
+        assert!(mine.len() >= 10, "drive {addr}: {reads:?}");
+        for r in &mine {
+            assert_eq!(r, &Ok(i64::from(raw(addr))), "drive {addr}: {reads:?}");
+        }
+    }
+    a_poll.abort();
+    b_poll.abort();
+}

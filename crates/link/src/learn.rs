@@ -244,6 +244,102 @@ mod tests {
     }
 
     #[test]
+    fn an_fc_write_the_drive_acknowledged_answers_a_read_with_the_latest_status_word() {
+        use drivebus_proto::fc::{
+            AddressFormat, Adr, ControlWord, FaultCode, ParameterNumber, Reference, Reply, Request,
+            StatusWord, MAX_TELEGRAM,
+        };
+        let mut l = Learnt::new(WireProtocol::DanfossFc);
+        let t = Instant::from_millis;
+        let bytes = |emit: &dyn Fn(&mut [u8]) -> usize| {
+            let mut out = [0u8; MAX_TELEGRAM];
+            let n = emit(&mut out);
+            out[..n].to_vec()
+        };
+        let adr = Adr::new(5, AddressFormat::OneTo126).unwrap();
+        let (p414, p412) = (ParameterNumber::new(414).unwrap(), ParameterNumber::new(412).unwrap());
+        // The master writes 4-14 = 65.0 Hz (AK 2), acknowledged with AK 1.
+        let write = bytes(&|o| Request::write_word(adr, p414, 0, 650, false).emit(o).unwrap());
+        let ack = Reply::value_word(adr, p414, 0, 650)
+            .with_process(StatusWord(0x0F07), Reference::from_word(0x2000));
+        l.reply(t(10), &write, &bytes(&|o| ack.emit(o).unwrap()));
+        // Then a process block: a newer status word and MAV.
+        let process =
+            bytes(&|o| Request::process(adr, ControlWord(0x047C), Reference(0x2000)).emit(o).unwrap());
+        let now = Reply::process(adr, StatusWord(0x0B07), Reference::from_word(0x1000));
+        l.reply(t(20), &process, &bytes(&|o| now.emit(o).unwrap()));
+        // The standby reads 4-14 with its own control word, in address format 1-31: the drive's
+        // reply to that telegram, with the latest status word and MAV.
+        let adr31 = Adr::new(5, AddressFormat::OneTo31).unwrap();
+        let read = bytes(&|o| {
+            Request::read(adr31, p414, 0)
+                .with_process(ControlWord(0x003C), Reference(0x1234))
+                .emit(o)
+                .unwrap()
+        });
+        let expected = Reply::value_word(adr31, p414, 0, 650)
+            .with_process(StatusWord(0x0B07), Reference::from_word(0x1000));
+        assert_eq!(l.answer(&read, t(5)), Some(bytes(&|o| expected.emit(o).unwrap())));
+        // Begun after the write was heard: its value is not fresh.
+        assert_eq!(l.answer(&read, t(15)), None);
+        // A process block of the standby: the status word and MAV alone.
+        let mine = bytes(&|o| Request::process(adr31, ControlWord(0), Reference(0)).emit(o).unwrap());
+        let expected = Reply::process(adr31, StatusWord(0x0B07), Reference::from_word(0x1000));
+        assert_eq!(l.answer(&mine, t(15)), Some(bytes(&|o| expected.emit(o).unwrap())));
+        // AK 7 "cannot be performed" to a read of 4-12 is no value of 4-12.
+        let refused = bytes(&|o| Request::read(adr, p412, 0).emit(o).unwrap());
+        let fault = bytes(&|o| Reply::fault(adr, p412, 0, FaultCode(0)).emit(o).unwrap());
+        l.reply(t(30), &refused, &fault);
+        let other = bytes(&|o| Request::read(adr31, p412, 0).emit(o).unwrap());
+        assert_eq!(l.answer(&other, t(0)), None);
+        assert_eq!(l.answer(&refused, t(0)), Some(fault));
+    }
+
+    #[test]
+    fn a_tip_block_read_is_read_by_the_selections_a_write_set() {
+        use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryRequest, BlockRequest};
+        use drivebus_proto::toshiba::CommNo;
+        let mut l = Learnt::new(WireProtocol::ToshibaBinary);
+        let t = Instant::from_millis;
+        let emit = |r: BinaryRequest| {
+            let mut out = [0u8; 16];
+            let n = r.emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        let reply = |r: BinaryRequest, data: u16| {
+            let mut out = [0u8; 16];
+            let n = r.reply(2, false, data).unwrap().emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        let unit = BinaryAddress::Unit(2);
+        let block = BinaryRequest::block(unit, BlockRequest::new(&[], 2).unwrap());
+        let block_reply = |rdata: &[u16]| {
+            let mut out = [0u8; 16];
+            let n = block.block_reply(2, false, rdata).unwrap().emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        // Before the selections are known, a block read answers only itself.
+        l.reply(t(10), &emit(block), &block_reply(&[0x0003, 0x0FA0]));
+        assert_eq!(l.answer(&emit(block), t(0)), Some(block_reply(&[0x0003, 0x0FA0])));
+        assert_eq!(l.answer(&emit(BinaryRequest::read(unit, CommNo(0xFD00))), t(0)), None);
+        // The master sets f875 = 12 (FE04) and f876 = 2 (FD00) with `P`, acknowledged.
+        for (n, selection) in [(0x0875, 12), (0x0876, 2)] {
+            let w = BinaryRequest::write_ram(unit, CommNo(n), selection);
+            l.reply(t(20), &emit(w), &reply(w, selection));
+        }
+        l.reply(t(30), &emit(block), &block_reply(&[0x0123, 0x0FA0]));
+        // A read of FD00 and FE04 is answered from the block, in the standby's form (`R`, `G`).
+        let fd00 = BinaryRequest::read(unit, CommNo(0xFD00));
+        assert_eq!(l.answer(&emit(fd00), t(25)), Some(reply(fd00, 0x0FA0)));
+        let fe04 = BinaryRequest::read_dummy(unit, CommNo(0xFE04));
+        assert_eq!(l.answer(&emit(fe04), t(25)), Some(reply(fe04, 0x0123)));
+        // The block read itself is rebuilt from the items.
+        assert_eq!(l.answer(&emit(block), t(25)), Some(block_reply(&[0x0123, 0x0FA0])));
+        // The values must be fresh (the selections, the drive's set-up, need not).
+        assert_eq!(l.answer(&emit(block), t(35)), None);
+    }
+
+    #[test]
     fn the_schedule_is_each_drives_most_frequent_request() {
         let mut l = Learnt::new(WireProtocol::ModbusRtu);
         let a = rtu(&[1, 3, 0x21, 0x00, 0, 2]);

@@ -2,13 +2,13 @@
 //! current, `V` version) by command, error replies included. A read is answered by the
 //! drive's reply to that command as heard, addressed as the drive would send it.
 
-use drivebus_proto::b800::{Destination, MasterCommand, Reply, Request, MAX_FRAME};
+use drivebus_proto::b800::{Address, Destination, MasterCommand, Reply, Request, MAX_FRAME};
 use drivebus_proto::Instant;
 
 use super::items::{Fresh, Item, Items, Value};
 
 /// The drive a read command addresses, and the command's letter.
-fn read(request: &[u8]) -> Option<(drivebus_proto::b800::Address, u8)> {
+fn read(request: &[u8]) -> Option<(Address, u8)> {
     let req = Request::parse(request).ok()?;
     let Destination::Drive(address) = req.da else { return None };
     match req.cmd {

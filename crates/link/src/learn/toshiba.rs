@@ -5,7 +5,7 @@
 //! read is answered by the reply the drive would send, in the request's own mode and form.
 
 use drivebus_proto::toshiba::ascii::AsciiAddress;
-use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryRequestBody, BlockRequest};
+use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryReplyBody, BinaryRequestBody, BlockRequest};
 use drivebus_proto::toshiba::{block_read_item, Cmd, CommNo, TipReply, TipRequest};
 use drivebus_proto::Instant;
 
@@ -65,13 +65,15 @@ pub(super) fn learn(request: &[u8], reply: &[u8], now: Instant, items: &mut Item
     ) {
         return false;
     }
-    let learnt = match ask(&req) {
+    // Any reply says whether the drive is tripped now.
+    items.put(unit, Item::Tripped, Value::Word(rep.tripped().into()), now);
+    match ask(&req) {
         Some(Ask::Number { cmd, comm_no }) => {
             let echoed = match &rep {
                 TipReply::Ascii(r) => r.comm_no() == Some(comm_no),
                 TipReply::Binary(r) => matches!(
                     r.body,
-                    drivebus_proto::toshiba::binary::BinaryReplyBody::Data { cmd: c, comm_no: n, .. }
+                    BinaryReplyBody::Data { cmd: c, comm_no: n, .. }
                         if (c, n) == (cmd, comm_no)
                 ),
             };
@@ -85,7 +87,7 @@ pub(super) fn learn(request: &[u8], reply: &[u8], now: Instant, items: &mut Item
         }
         Some(Ask::Block(b)) => {
             let TipReply::Binary(r) = &rep else { return false };
-            let drivebus_proto::toshiba::binary::BinaryReplyBody::Block(y) = r.body else { return false };
+            let BinaryReplyBody::Block(y) = r.body else { return false };
             match block_items(|item| items.latest(unit, item), y.n_r) {
                 Some(numbers) if y.n_r == b.reply_groups() => {
                     for (n, v) in numbers.iter().zip(y.rdata()) {
@@ -101,10 +103,7 @@ pub(super) fn learn(request: &[u8], reply: &[u8], now: Instant, items: &mut Item
             }
         }
         None => false,
-    };
-    // Any reply says whether the drive is tripped now.
-    items.put(unit, Item::Tripped, Value::Word(rep.tripped().into()), now);
-    learnt
+    }
 }
 
 /// The reply to `request`, a read of a number (`R`, `G`) or a block read without writes (`X`),

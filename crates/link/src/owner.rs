@@ -386,6 +386,8 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             let every = l.learnt.lock().unwrap_or_else(|p| p.into_inner()).interval(job.address);
             self.link.now() - every.unwrap_or(Duration::ZERO).min(l.role.silence())
         });
+        // The wait counts from the poll's start, however often the role's timer wakes it.
+        let give_up = self.link.now() + SHADOW_WAIT;
         while let Some(l) = self.listening.as_mut() {
             if l.role.may_send() {
                 break;
@@ -394,8 +396,6 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             if !master && priority != Priority::Poll {
                 return Err(BusError::Standby(self.link.name()));
             }
-            let start = self.link.now();
-            let give_up = start + SHADOW_WAIT;
             let until = l.role.poll_timeout().map_or(give_up, |t| t.min(give_up));
             let want = (!master).then_some(Want {
                 request: job.exchange.request.as_slice(),

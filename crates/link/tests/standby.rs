@@ -617,3 +617,26 @@ async fn a_modbus_standby_learns_a_register_from_the_writes_its_drive_acknowledg
     a_poll.abort();
     b_poll.abort();
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_poll_of_what_the_master_never_reads_fails_after_its_wait_and_holds_no_other_up() {
+    let line = line();
+    let (a, b) = masters(&line, true);
+    let a_poll = poller(a.clone(), Default::default());
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    // The master polls 2102H only: a read of 2105H is never answered by what the standby
+    // hears. It fails after the standby's wait (5 s), though the master keeps talking.
+    let start = tokio::time::Instant::now();
+    let never =
+        tokio::time::timeout(Duration::from_secs(30), b.transact(1, read(1, 0x2105), Priority::Poll, None));
+    let e = never.await.expect("the poll ends").unwrap_err();
+    assert!(matches!(e, BusError::Standby(_)), "{e}");
+    let waited = start.elapsed();
+    assert!(waited >= Duration::from_secs(5) && waited < Duration::from_secs(6), "{waited:?}");
+    // The bus goes on: a poll the master's traffic answers is answered.
+    let heard =
+        tokio::time::timeout(Duration::from_secs(2), b.transact(1, read(1, 0x2102), Priority::Poll, None));
+    assert!(matches!(heard.await, Ok(Ok(Some(_)))));
+    assert_eq!((b.role().unwrap().role, b.stats().transactions), (Role::Standby, 0));
+    a_poll.abort();
+}

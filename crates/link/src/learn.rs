@@ -10,9 +10,10 @@
 //! requests covered, whatever their form, span, order or interval: the reply is rebuilt as the
 //! drive would send it to the standby's request, and the profile decodes it as its own (one
 //! decoding for both). A reply no meaning is read from (an error reply, a text block) is kept
-//! by its request's bytes, and answers the same bytes. What answers a poll was heard since it began, or
-//! at most the master's own poll interval of that drive before (the bus owner chooses,
-//! [`Learnt::interval`]): the standby's value is never older than the master's view of it.
+//! by its request's bytes, and answers the same bytes. What answers a poll was heard since it
+//! began, or at most the master's own poll interval of that drive before (the bus owner
+//! chooses, [`Learnt::interval`]): the standby's value is never older than the master's view
+//! of it.
 //!
 //! Schedule: the interval between two requests with the same bytes to one drive, smoothed; a
 //! drive's interval is its most frequent request's.

@@ -573,3 +573,38 @@ fn a_fresh_run_to_a_drive_without_bus_control_is_refused() {
     assert_eq!(code & 0x0200, 0);
     assert!(meaning.contains("bit 09"), "{meaning}");
 }
+
+/// After `refresh_setup` the next status reads 3-00, 3-02 and 3-03 again, and 16-02 once a
+/// setpoint was commanded (for a standby listening: the setpoint stays the commanded one); the
+/// one after is one telegram again. Prints what a refresh adds on the wire.
+#[test]
+fn a_refresh_reads_the_scale_and_the_reference_once_more() {
+    let mut line = line_with(&[3]);
+    let fc = DanfossProfile::new(3).expect("profile");
+    let bytes = |line: &VirtualLine| line.stats().master_bytes + line.stats().device_bytes;
+    status(&mut line, &fc);
+    // Nothing commanded: the refresh reads the scale, and 16-02 as every status does.
+    fc.refresh_setup();
+    assert_eq!(run(&mut line, &fc, Operation::Status).1, 4, "3-00, 3-02, 3-03, 16-14");
+    run(&mut line, &fc, Operation::SetSpeed(30.0));
+    run(&mut line, &fc, Operation::Run);
+    wait(&mut line, Duration::from_secs(3));
+    let at = bytes(&line);
+    let (before, sent) = run(&mut line, &fc, Operation::Status);
+    let each = bytes(&line) - at;
+    assert_eq!(sent, 1);
+    fc.refresh_setup();
+    let at = bytes(&line);
+    let (refreshed, sent) = run(&mut line, &fc, Operation::Status);
+    let with_refresh = bytes(&line) - at;
+    assert_eq!(sent, 5, "3-00, 3-02, 3-03, 16-02, 16-14");
+    assert_eq!(refreshed, before);
+    let Outcome::Status(s) = refreshed else { panic!() };
+    assert_eq!(s.setpoint_hz, Some(30.0), "the commanded setpoint");
+    assert_eq!(run(&mut line, &fc, Operation::Status).1, 1);
+    println!("danfoss-fc: a refresh adds {} bytes on the wire", with_refresh - each);
+    // A broadcast profile has nothing to read.
+    let all = DanfossProfile::new(0).expect("profile");
+    all.refresh_setup();
+    assert!(all.plan(&Operation::Status).is_err());
+}

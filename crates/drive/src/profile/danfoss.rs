@@ -257,6 +257,8 @@ struct Memory {
     setpoint_hz: Option<f64>,
     /// The drive's reference scaling, as far as known.
     known: Known,
+    /// The next status reads the scaling again ([`Profile::refresh_setup`]).
+    refresh: bool,
 }
 
 /// The profile's fixed part and its memory, shared with its plans.
@@ -397,10 +399,24 @@ impl DanfossProfile {
                     return Err(no_reply("a status"));
                 }
                 plan.goal = Goal::Status;
-                plan.read_scale(false);
-                if inner.memory().setpoint_hz.is_none() {
+                let refresh = std::mem::take(&mut inner.memory().refresh);
+                if refresh {
+                    // Set-up values read again on the slow schedule: the drive's panel may
+                    // have changed them, and a standby listening learns them from these reads.
+                    for pnu in [REF_RANGE, MIN_REF, MAX_REF] {
+                        plan.push(Action::read(pnu, 0, Why::Scale));
+                    }
+                } else {
+                    plan.read_scale(false);
+                }
+                let memory = *inner.memory();
+                if memory.setpoint_hz.is_none() {
                     // Nothing commanded yet: the reference the drive holds (16-02).
                     plan.push(Action::read(REFERENCE_PCT, 0, Why::SyncReference));
+                } else if refresh && memory.ctw.is_some() {
+                    // The setpoint is the one commanded; 16-02 is read for a standby's sake
+                    // (its profile, which commands nothing, reads it for the setpoint).
+                    plan.push(Action::read(REFERENCE_PCT, 0, Why::Listeners));
                 }
                 plan.push(Action::read(MOTOR_CURRENT, 0, Why::Current));
             }
@@ -581,6 +597,14 @@ impl Profile for DanfossProfile {
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError> {
         Ok(Box::new(self.plan_for(op)?))
     }
+
+    /// The next status reads 3-00, 3-02 and 3-03 again (and 16-02, for a standby listening,
+    /// once a setpoint was commanded). A broadcast profile reads nothing.
+    fn refresh_setup(&self) {
+        if !self.inner.broadcast() {
+            self.inner.memory().refresh = true;
+        }
+    }
 }
 
 /// What the plan ends with.
@@ -602,6 +626,8 @@ enum Why {
     SyncReference,
     /// 16-14 for a status.
     Current,
+    /// Read so that a standby listening hears it; the value is not used.
+    Listeners,
     /// 15-30 element 0 for a status of a tripped drive.
     Alarm,
     /// 15-30 element 0 for a refusal.
@@ -831,6 +857,7 @@ impl FcPlan {
                         }
                     }
                     Why::Alarm => self.alarm = Some(alarm_fault(raw as u32)),
+                    Why::Listeners => {}
                     Why::Refusal(refusal) => return Err(refused(refusal, Some(raw as u32))),
                     Why::User => {
                         if index == 0 {

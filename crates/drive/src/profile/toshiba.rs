@@ -238,6 +238,9 @@ struct Memory {
     reverse: AtomicBool,
     /// What the drive's block read items (f875–f879) carry, once read.
     block: Mutex<BlockMap>,
+    /// The next status reads FE70 (and f875–f879 in block status) again
+    /// ([`Profile::refresh_setup`]).
+    refresh: AtomicBool,
 }
 
 impl Memory {
@@ -446,6 +449,14 @@ impl Profile for ToshibaProfile {
         self.def(name)
     }
 
+    /// The next status reads FE70 again, and in TIP binary mode with block status f875–f879.
+    /// A broadcast profile reads nothing.
+    fn refresh_setup(&self) {
+        if !self.is_broadcast() {
+            self.memory.refresh.store(true, Ordering::Relaxed);
+        }
+    }
+
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError> {
         let command = |kind: CommandKind| -> Result<Job, DriveError> {
             if self.is_broadcast() && kind == CommandKind::Run {
@@ -459,12 +470,16 @@ impl Profile for ToshibaProfile {
             Operation::Status => {
                 self.needs_reply("Status")?;
                 let block = self.block_status && self.protocol == WireProtocol::ToshibaBinary;
+                // Set-up values read again on the slow schedule: the drive's panel may have
+                // changed them, and a standby listening learns them from these reads.
+                let refresh = self.memory.refresh.swap(false, Ordering::Relaxed);
                 let mut todo = match (block, self.memory.block()) {
+                    (true, _) if refresh => (F875..=F879).map(Ask::Read).collect(),
                     (true, BlockMap::Unknown) => (F875..=F879).map(Ask::Read).collect(),
                     (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
                     _ => single_status_reads(),
                 };
-                if self.memory.rated_current.load(Ordering::Relaxed) == 0 {
+                if refresh || self.memory.rated_current.load(Ordering::Relaxed) == 0 {
                     todo.push(Ask::Read(FE70));
                 }
                 todo.reverse();

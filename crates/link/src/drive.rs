@@ -88,6 +88,12 @@ pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
     Ok(Bus::spawn(link, config)?)
 }
 
+/// How often a drive's status reads its set-up values again (the values a profile reads once
+/// to decode a status: Danfoss 3-00, 3-02, 3-03; Toshiba FE70, f875–f879 in TIP binary mode):
+/// a change made on the drive's panel shows within this time, and a standby gateway started
+/// after this one learns them within it ([`Profile::refresh_setup`]).
+pub const SETUP_REFRESH: Duration = Duration::from_secs(30);
+
 /// One drive on a bus, spoken to through its family's profile.
 #[derive(Clone)]
 pub struct Drive {
@@ -97,6 +103,8 @@ pub struct Drive {
     priority: Priority,
     /// Whose on-demand reads these are (the bus serves clients in turn).
     client: Arc<str>,
+    /// When a status last read the set-up values (shared by the drive's twins).
+    setup_read: Arc<Mutex<Option<tokio::time::Instant>>>,
 }
 
 impl Drive {
@@ -108,6 +116,7 @@ impl Drive {
             timeout: None,
             priority: Priority::Command,
             client: Arc::from(""),
+            setup_read: Arc::default(),
         }
     }
 
@@ -163,9 +172,26 @@ impl Drive {
         .await
     }
 
-    /// The drive's state.
+    /// The drive's state. Every [`SETUP_REFRESH`] a status also reads the drive's set-up
+    /// values again.
     pub async fn status(&self) -> Result<DriveStatus, Error> {
+        self.refresh_setup_when_due();
         status_of(self.execute(&Operation::Status).await?)
+    }
+
+    /// Tells the profile to read its set-up values again when [`SETUP_REFRESH`] has passed
+    /// since the first status (which reads them anyway) or the last refresh.
+    fn refresh_setup_when_due(&self) {
+        let now = tokio::time::Instant::now();
+        let mut last = self.setup_read.lock().unwrap_or_else(|p| p.into_inner());
+        match *last {
+            Some(at) if now.saturating_duration_since(at) < SETUP_REFRESH => {}
+            Some(_) => {
+                self.profile.refresh_setup();
+                *last = Some(now);
+            }
+            None => *last = Some(now),
+        }
     }
 
     /// Starts the motor.

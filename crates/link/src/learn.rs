@@ -69,14 +69,20 @@ impl Learnt {
         }
     }
 
-    /// Another master's request to `address` heard at `now`.
-    pub(crate) fn request(&mut self, now: Instant, address: u8, request: &[u8]) {
+    /// Another master's request heard at `now`, to drive `address` (`None`: a broadcast, which
+    /// is no drive's poll).
+    pub(crate) fn request(&mut self, now: Instant, address: Option<u8>, request: &[u8]) {
         // The same request again after no reply is the master's retry, not its next poll.
         let retry = self.last.as_ref().is_some_and(|(r, answered)| r == request && !answered);
         self.last = Some((request.to_vec(), false));
-        if retry {
-            return;
+        match self.protocol {
+            WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary => {
+                toshiba::forget_written(request, &mut self.items)
+            }
+            WireProtocol::DanfossFc => fc::forget_written(request, &mut self.items),
+            _ => {}
         }
+        let Some(address) = address.filter(|_| !retry) else { return };
         if self.requests.len() >= MAX_REQUESTS && !self.requests.contains_key(request) {
             self.requests.clear();
         }
@@ -281,8 +287,10 @@ mod tests {
         let expected = Reply::value_word(adr31, p414, 0, 650)
             .with_process(StatusWord(0x0B07), Reference::from_word(0x1000));
         assert_eq!(l.answer(&read, t(5)), Some(bytes(&|o| expected.emit(o).unwrap())));
-        // Begun after the write was heard: its value is not fresh.
-        assert_eq!(l.answer(&read, t(15)), None);
+        // Begun after the write was heard: 4-14 is a set-up value, answered whatever its age,
+        // but with a status word and MAV heard since the poll began.
+        assert_eq!(l.answer(&read, t(15)), Some(bytes(&|o| expected.emit(o).unwrap())));
+        assert_eq!(l.answer(&read, t(25)), None);
         // A process block of the standby: the status word and MAV alone.
         let mine = bytes(&|o| Request::process(adr31, ControlWord(0), Reference(0)).emit(o).unwrap());
         let expected = Reply::process(adr31, StatusWord(0x0B07), Reference::from_word(0x1000));
@@ -294,6 +302,88 @@ mod tests {
         let other = bytes(&|o| Request::read(adr31, p412, 0).emit(o).unwrap());
         assert_eq!(l.answer(&other, t(0)), None);
         assert_eq!(l.answer(&refused, t(0)), Some(fault));
+    }
+
+    #[test]
+    fn an_fc_set_up_value_answers_whatever_its_age_until_a_write_to_it_is_heard() {
+        use drivebus_proto::fc::{
+            AddressFormat, Adr, ControlWord, ParameterNumber, Reference, Reply, Request, StatusWord,
+            MAX_TELEGRAM,
+        };
+        let mut l = Learnt::new(WireProtocol::DanfossFc);
+        let t = Instant::from_millis;
+        let bytes = |emit: &dyn Fn(&mut [u8]) -> usize| {
+            let mut out = [0u8; MAX_TELEGRAM];
+            let n = emit(&mut out);
+            out[..n].to_vec()
+        };
+        let adr = Adr::new(4, AddressFormat::OneTo126).unwrap();
+        let pnu = |n| ParameterNumber::new(n).unwrap();
+        let (stw, mav) = (StatusWord(0x0F07), Reference::from_word(0x3000));
+        let read = |n| bytes(&|o| Request::read(adr, pnu(n), 0).emit(o).unwrap());
+        let value =
+            |n, v| bytes(&|o| Reply::value_word(adr, pnu(n), 0, v).with_process(stw, mav).emit(o).unwrap());
+        // The master reads 3-03 (50.000 Hz), 16-02 (80.0 %) and 16-14 once, at 10 ms; a process
+        // block at 100 ms keeps the status word fresh.
+        for (n, v) in [(303, 50000), (1602, 800), (1614, 1234)] {
+            l.request(t(10), Some(4), &read(n));
+            l.reply(t(10), &read(n), &value(n, v));
+        }
+        let process = bytes(&|o| Request::process(adr, ControlWord(0x003C), Reference(0)).emit(o).unwrap());
+        let now = bytes(&|o| Reply::process(adr, stw, mav).emit(o).unwrap());
+        l.request(t(100), Some(4), &process);
+        l.reply(t(100), &process, &now);
+        // A poll begun at 50 ms: 3-03 and 16-02 are answered, 16-14 (a process value) is not.
+        assert_eq!(l.answer(&read(303), t(50)), Some(value(303, 50000)));
+        assert_eq!(l.answer(&read(1602), t(50)), Some(value(1602, 800)));
+        assert_eq!(l.answer(&read(1614), t(50)), None);
+        // A write of 3-03 heard, its answer not: 3-03 is no longer known.
+        let write = bytes(&|o| Request::write_word(adr, pnu(303), 0, 60000, false).emit(o).unwrap());
+        l.request(t(110), Some(4), &write);
+        assert_eq!(l.answer(&read(303), t(50)), None);
+        assert_eq!(l.answer(&read(1602), t(50)), Some(value(1602, 800)));
+        // A telegram with a valid control word (bit 10) sets the reference: 16-02 is forgotten.
+        let run = bytes(&|o| Request::process(adr, ControlWord(0x047C), Reference(0x2000)).emit(o).unwrap());
+        l.request(t(120), Some(4), &run);
+        assert_eq!(l.answer(&read(1602), t(50)), None);
+        // Read again: known again.
+        l.request(t(130), Some(4), &read(303));
+        l.reply(t(130), &read(303), &value(303, 60000));
+        assert_eq!(l.answer(&read(303), t(50)), Some(value(303, 60000)));
+    }
+
+    #[test]
+    fn a_tip_set_up_value_answers_whatever_its_age_until_a_write_to_it_is_heard() {
+        use drivebus_proto::toshiba::ascii::{AsciiAddress, AsciiRequest};
+        use drivebus_proto::toshiba::{CommNo, TipRequest};
+        let mut l = Learnt::new(WireProtocol::ToshibaAscii);
+        let t = Instant::from_millis;
+        let emit = |r: &TipRequest| {
+            let mut out = [0u8; 32];
+            let n = r.emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        let read = |n| TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(0), CommNo(n)).with_sum());
+        let reply = |r: &TipRequest, data| {
+            let mut out = [0u8; 32];
+            let n = r.reply(0, false, data).unwrap().emit(&mut out).unwrap();
+            out[..n].to_vec()
+        };
+        // Inverter 0: FE70 (rated current), f875 and FD00 read at 10 ms; FD00 again at 100 ms.
+        for (n, v) in [(0xFE70, 145), (0x0875, 2), (0xFD00, 4000)] {
+            l.reply(t(10), &emit(&read(n)), &reply(&read(n), v));
+        }
+        l.reply(t(100), &emit(&read(0xFD00)), &reply(&read(0xFD00), 4001));
+        // A poll begun at 50 ms: FE70 and f875 whatever their age, FD00 only as heard since.
+        assert_eq!(l.answer(&emit(&read(0xFE70)), t(50)), Some(reply(&read(0xFE70), 145)));
+        assert_eq!(l.answer(&emit(&read(0x0875)), t(50)), Some(reply(&read(0x0875), 2)));
+        assert_eq!(l.answer(&emit(&read(0xFD00)), t(50)), Some(reply(&read(0xFD00), 4001)));
+        assert_eq!(l.answer(&emit(&read(0xFD00)), t(150)), None);
+        // A `P` write of f875 heard (to inverter 0), its answer not: f875 is no longer known.
+        let write = TipRequest::Ascii(AsciiRequest::write_ram(AsciiAddress::Unit(0), CommNo(0x0875), 3));
+        l.request(t(110), Some(0), &emit(&write));
+        assert_eq!(l.answer(&emit(&read(0x0875)), t(50)), None);
+        assert_eq!(l.answer(&emit(&read(0xFE70)), t(50)), Some(reply(&read(0xFE70), 145)));
     }
 
     #[test]
@@ -346,8 +436,8 @@ mod tests {
         let a = rtu(&[1, 3, 0x21, 0x00, 0, 2]);
         let b = rtu(&[1, 3, 0x30, 0x00, 0, 1]);
         for k in 0..10u64 {
-            l.request(Instant::from_millis(k * 200), 1, &a);
-            l.request(Instant::from_millis(k * 1000 + 5), 1, &b);
+            l.request(Instant::from_millis(k * 200), Some(1), &a);
+            l.request(Instant::from_millis(k * 1000 + 5), Some(1), &b);
         }
         let s = l.schedule();
         assert_eq!(s.get(&1), Some(&Duration::from_millis(200)));
@@ -357,8 +447,8 @@ mod tests {
         let c = rtu(&[2, 3, 0x21, 0x00, 0, 2]);
         let answer = rtu(&[2, 3, 4, 0, 0, 0, 0]);
         for k in 0..10u64 {
-            l.request(Instant::from_millis(k * 1000), 2, &c);
-            l.request(Instant::from_millis(k * 1000 + 50), 2, &c);
+            l.request(Instant::from_millis(k * 1000), Some(2), &c);
+            l.request(Instant::from_millis(k * 1000 + 50), Some(2), &c);
             l.reply(Instant::from_millis(k * 1000 + 60), &c, &answer);
         }
         assert_eq!(l.schedule().get(&2), Some(&Duration::from_secs(1)));

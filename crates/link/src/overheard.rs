@@ -22,7 +22,7 @@ use crate::bus::BusConfig;
 pub(crate) enum Heard {
     /// Another master's request.
     Request {
-        /// The drive it addresses, where it names one.
+        /// The drive it addresses, where it names one (`None` for a broadcast).
         address: Option<u8>,
         /// Its bytes.
         bytes: Vec<u8>,
@@ -88,6 +88,11 @@ impl Overheard {
                     if drivebus_drive::interdrive::master_drive_broadcast(self.protocol, &bytes).is_some() {
                         continue;
                     }
+                    // One drive by its number (TIP inverter 0 included); a broadcast none.
+                    let address = match r.frame.target {
+                        Some(drivebus_proto::describe::Target::Unit(n)) => Some(n),
+                        _ => None,
+                    };
                     Heard::Request { address, bytes }
                 }
                 (Kind::Frame, true, Direction::Drive) => match r.request {

@@ -497,9 +497,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         if let Some(t) = l.role.heard_request(now) {
                             l.publish(Some(t));
                         }
-                        if let Some(a) = address.filter(|a| *a != 0) {
-                            learnt.request(now, a, &bytes);
-                        }
+                        learnt.request(now, address, &bytes);
                     }
                     Heard::Reply { address, request, reply } => {
                         learnt.reply(now, &request, &reply);

@@ -640,3 +640,140 @@ async fn a_standby_poll_of_what_the_master_never_reads_fails_after_its_wait_and_
     assert_eq!((b.role().unwrap().role, b.stats().transactions), (Role::Standby, 0));
     a_poll.abort();
 }
+
+/// A drivebus master on a line of `family` drives runs each of `speeds` and polls their status
+/// through the profile every 150 ms, as the gateway does; a standby started `late` after it
+/// (when the master has read the drives' set-up values once already) reads each status through
+/// the profile every 40 ms. Each drive's status is served within the set-up refresh (30 s)
+/// plus one failed wait of the standby (5 s), and from then on every status read is answered
+/// with the master's view: running, output, current, fault. Returns the standby.
+async fn a_late_standby_serves_every_status_within_the_setup_refresh(
+    protocol: WireProtocol,
+    family: Family,
+    format: CharFormat,
+    speeds: &[(u8, f64)],
+    late: Duration,
+) -> Bus {
+    let addresses: Vec<u8> = speeds.iter().map(|(a, _)| *a).collect();
+    let line = line_of(protocol, family, format, &addresses);
+    let cfg = |standby| {
+        let mut cfg = BusConfig::new(protocol, 19200, format);
+        cfg.response_timeout = Some(Duration::from_millis(50));
+        cfg.role = Some(RoleConfig { standby, silence: SILENCE });
+        cfg
+    };
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, cfg(false)).unwrap();
+    let profile = move |addr| for_drive(family, protocol, addr).unwrap();
+    let masters: Vec<Drive> = addresses.iter().map(|&addr| Drive::new(a.clone(), profile(addr))).collect();
+    let start = tokio::time::Instant::now();
+    while masters[0].polling_twin().status().await.is_err() {
+        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
+    }
+    for (d, &(_, hz)) in masters.iter().zip(speeds) {
+        d.set_speed(hz).await.unwrap();
+        d.run().await.unwrap();
+    }
+    let polls: Vec<Drive> = masters.iter().map(Drive::polling_twin).collect();
+    let a_poll = tokio::spawn(async move {
+        loop {
+            for d in &polls {
+                let _ = d.status().await;
+            }
+            tokio::time::sleep(Duration::from_millis(150)).await;
+        }
+    });
+    tokio::time::sleep(late).await;
+    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), cfg(true)).unwrap();
+    let started = tokio::time::Instant::now();
+    let statuses: Statuses = Default::default();
+    let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
+    let b_poll = tokio::spawn(async move {
+        let drives: Vec<(u8, Drive)> =
+            drives.iter().map(|&a| (a, Drive::new(standby.clone(), profile(a)).polling())).collect();
+        loop {
+            for (a, d) in &drives {
+                let r = d.status().await.map_err(|e| e.to_string());
+                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
+                tokio::time::sleep(Duration::from_millis(40)).await;
+            }
+        }
+    });
+    let served = |addr: u8| statuses.lock().unwrap().iter().any(|(a, _, r)| *a == addr && r.is_ok());
+    let took = wait_for(Duration::from_secs(40), "every drive's status served by the late standby", || {
+        addresses.iter().all(|&a| served(a))
+    })
+    .await;
+    println!("{protocol}: a standby started {late:?} after the master served every status after {took:?}");
+    assert!(took < Duration::from_secs(36), "{took:?}");
+    // From then on every status read is answered, as the master sees the drive.
+    let since = tokio::time::Instant::now();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert!(started.elapsed() > Duration::ZERO);
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    let seen: Vec<_> = statuses.lock().unwrap().iter().filter(|(_, t, _)| *t >= since).cloned().collect();
+    for (d, &(addr, hz)) in masters.iter().zip(speeds) {
+        let truth = d.status().await.unwrap();
+        assert!(truth.running && truth.output_hz.is_some_and(|f| (f - hz).abs() < 0.1), "{truth:?}");
+        let mine: Vec<_> = seen.iter().filter(|(a, _, _)| *a == addr).collect();
+        assert!(mine.len() >= 5, "drive {addr}: {seen:?}");
+        for (_, _, r) in mine {
+            let s = r.as_ref().unwrap_or_else(|e| panic!("drive {addr}: {e}"));
+            assert_eq!(
+                (s.running, s.output_hz, s.setpoint_hz, s.current_a, &s.fault),
+                (truth.running, truth.output_hz, truth.setpoint_hz, truth.current_a, &truth.fault),
+                "drive {addr}: {s:?}"
+            );
+        }
+    }
+    a_poll.abort();
+    b_poll.abort();
+    b
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_toshiba_ascii_standby_started_late_serves_status_and_learns_inverter_0s_schedule() {
+    let b = a_late_standby_serves_every_status_within_the_setup_refresh(
+        WireProtocol::ToshibaAscii,
+        Family::Toshiba,
+        CharFormat::EVEN_8E1,
+        &[(0, 40.0), (1, 25.0)],
+        Duration::from_secs(3),
+    )
+    .await;
+    // Inverter 0 is a drive of TIP, not a broadcast: its polls are learnt as its schedule.
+    let learnt = b.learnt_schedule();
+    for addr in [0u8, 1] {
+        let every = learnt.get(&addr).copied().unwrap_or_default();
+        assert!(
+            every >= Duration::from_millis(150) && every < Duration::from_millis(400),
+            "drive {addr}: {learnt:?}"
+        );
+    }
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_toshiba_binary_standby_started_late_serves_the_block_status() {
+    a_late_standby_serves_every_status_within_the_setup_refresh(
+        WireProtocol::ToshibaBinary,
+        Family::Toshiba,
+        CharFormat::EVEN_8E1,
+        &[(1, 40.0), (2, 25.0)],
+        Duration::from_secs(3),
+    )
+    .await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_danfoss_standby_started_late_serves_status_and_setpoint() {
+    a_late_standby_serves_every_status_within_the_setup_refresh(
+        WireProtocol::DanfossFc,
+        Family::Danfoss,
+        CharFormat::EVEN_8E1,
+        &[(1, 40.0), (2, 25.0)],
+        Duration::from_secs(3),
+    )
+    .await;
+}

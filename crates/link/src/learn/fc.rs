@@ -5,12 +5,41 @@
 //! drive's latest status word and MAV.
 
 use drivebus_proto::fc::{
-    Block, ParameterBlock, ParameterCommand, ParameterResponse, Reference, Reply, Request, StatusWord,
-    MAX_TELEGRAM,
+    Block, ParameterBlock, ParameterCommand, ParameterNumber, ParameterResponse, Reference, Reply, Request,
+    StatusWord, MAX_TELEGRAM,
 };
 use drivebus_proto::Instant;
 
 use super::items::{Fresh, Item, Items, Value};
+
+/// 16-02 Reference [%]: the reference the drive holds, which a telegram with a valid control
+/// word (bit 10) sets.
+const REFERENCE_PCT: u16 = 1602;
+
+/// A value a profile reads once per drive to decode a status (3-00, 3-02, 3-03, 4-14 set-up
+/// values, 16-02 the reference the drive holds): served whatever its age, until a write to it
+/// is heard.
+fn setup(pnu: ParameterNumber, ind: u16) -> bool {
+    ind == 0 && matches!(pnu.pnu(), 300 | 302 | 303 | 414 | REFERENCE_PCT)
+}
+
+/// Forgets what `request` may change of the values [`setup`] keeps, of its drive or, broadcast,
+/// of every drive: the parameter it writes, and 16-02 when its control word is valid (bit 10:
+/// the drive takes its reference).
+pub(super) fn forget_written(request: &[u8], items: &mut Items) {
+    let Ok(req) = Request::parse(request) else { return };
+    let drive = req.adr.address();
+    if let Block::Parameter(q) = req.block {
+        if q.ak.is_write() && setup(q.pnu, q.ind) {
+            items.forget(drive, Item::Parameter { pnu: q.pnu, ind: q.ind });
+        }
+    }
+    if req.ctw.data_valid() {
+        if let Some(pnu) = ParameterNumber::new(REFERENCE_PCT) {
+            items.forget(drive, Item::Parameter { pnu, ind: 0 });
+        }
+    }
+}
 
 /// Learns from drive `request`'s `reply` heard at `now`; false when it tells nothing.
 pub(super) fn learn(request: &[u8], reply: &[u8], now: Instant, items: &mut Items) -> bool {
@@ -49,8 +78,9 @@ pub(super) fn answer(request: &[u8], fresh: &Fresh<'_>) -> Option<Vec<u8>> {
     let block = match req.block {
         Block::Process => Block::Process,
         Block::Parameter(q) if q.ak == ParameterCommand::ReadValue => {
-            let Value::Parameter { ak, pwe } = fresh.get(unit, Item::Parameter { pnu: q.pnu, ind: q.ind })?
-            else {
+            let item = Item::Parameter { pnu: q.pnu, ind: q.ind };
+            let value = if setup(q.pnu, q.ind) { fresh.latest(unit, item) } else { fresh.get(unit, item) };
+            let Value::Parameter { ak, pwe } = value? else {
                 return None;
             };
             Block::Parameter(ParameterBlock { ak, pnu: q.pnu, ind: q.ind, pwe })

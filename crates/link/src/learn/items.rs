@@ -76,6 +76,17 @@ impl Items {
         self.map.insert((drive, item), (value, now));
     }
 
+    /// Forgets `item` of `drive`, or of every drive with `None` (a write to it was heard: its
+    /// value is no longer known).
+    pub(crate) fn forget(&mut self, drive: Option<u8>, item: Item) {
+        match drive {
+            Some(d) => {
+                self.map.remove(&(d, item));
+            }
+            None => self.map.retain(|(_, i), _| *i != item),
+        }
+    }
+
     /// The last value of `item` heard, however long ago.
     pub(crate) fn latest(&self, drive: u8, item: Item) -> Option<Value> {
         self.map.get(&(drive, item)).map(|(v, _)| *v)
@@ -105,6 +116,19 @@ impl Fresh<'_> {
         match self.get(drive, item)? {
             Value::Word(w) => Some(w),
             _ => None,
+        }
+    }
+
+    /// A word item of `drive`: if heard since, or however long ago when `setup` (a set-up
+    /// value, kept until a write to it is heard).
+    pub(crate) fn word_or_setup(&self, drive: u8, item: Item, setup: bool) -> Option<u16> {
+        if setup {
+            match self.latest(drive, item)? {
+                Value::Word(w) => Some(w),
+                _ => None,
+            }
+        } else {
+            self.word(drive, item)
         }
     }
 

@@ -14,6 +14,15 @@ use super::items::{Fresh, Item, Items, Value};
 /// f875, the first block read item selection; f876–f879 follow.
 const F875: u16 = 0x0875;
 
+/// FE70, the rated current that scales FE03 (read-only).
+const FE70: u16 = 0xFE70;
+
+/// A set-up value a profile reads once per drive to decode a status (FE70, f875–f879): served
+/// whatever its age, until a write to it is heard.
+fn setup(comm_no: CommNo) -> bool {
+    comm_no.0 == FE70 || (F875..F875 + 5).contains(&comm_no.0)
+}
+
 /// The drive a request addresses by number (not a broadcast, not omitted).
 fn drive(request: &TipRequest) -> Option<u8> {
     match request {
@@ -53,6 +62,16 @@ fn block_items(latest: impl Fn(Item) -> Option<Value>, groups: u8) -> Option<Vec
             _ => None,
         })
         .collect()
+}
+
+/// Forgets the set-up value `request` writes (`W`, `P`), of its drive or, broadcast, of every
+/// drive: until the drive's answer is heard, what it holds is not known.
+pub(super) fn forget_written(request: &[u8], items: &mut Items) {
+    let Ok(req) = TipRequest::parse(request) else { return };
+    let Some(Ask::Number { cmd: Cmd::W | Cmd::P, comm_no }) = ask(&req) else { return };
+    if setup(comm_no) {
+        items.forget(drive(&req), Item::CommNo(comm_no.0));
+    }
 }
 
 /// Learns from drive `request`'s `reply` heard at `now`; false when it tells nothing.
@@ -114,7 +133,7 @@ pub(super) fn answer(request: &[u8], fresh: &Fresh<'_>) -> Option<Vec<u8>> {
     let tripped = fresh.word(unit, Item::Tripped)? != 0;
     let reply = match (ask(&req)?, &req) {
         (Ask::Number { cmd: Cmd::R | Cmd::G, comm_no }, _) => {
-            req.reply(unit, tripped, fresh.word(unit, Item::CommNo(comm_no.0))?)?
+            req.reply(unit, tripped, fresh.word_or_setup(unit, Item::CommNo(comm_no.0), setup(comm_no))?)?
         }
         (Ask::Block(b), TipRequest::Binary(r)) if b.n_w == 0 => {
             let numbers = block_items(|item| fresh.latest(unit, item), b.reply_groups())?;

@@ -583,9 +583,15 @@ fn a_refresh_reads_the_scale_and_the_reference_once_more() {
     let fc = DanfossProfile::new(3).expect("profile");
     let bytes = |line: &VirtualLine| line.stats().master_bytes + line.stats().device_bytes;
     status(&mut line, &fc);
-    // Nothing commanded: the refresh reads the scale, and 16-02 as every status does.
+    // Nothing commanded: the refresh reads the scale, and the setpoint from 16-02 again (set
+    // meanwhile by another master).
+    let other = DanfossProfile::new(3).expect("profile");
+    run(&mut line, &other, Operation::SetSpeed(20.0));
+    assert_eq!(status(&mut line, &fc).setpoint_hz, Some(0.0));
     fc.refresh_setup();
-    assert_eq!(run(&mut line, &fc, Operation::Status).1, 4, "3-00, 3-02, 3-03, 16-14");
+    let (Outcome::Status(s), sent) = run(&mut line, &fc, Operation::Status) else { panic!() };
+    assert_eq!(sent, 5, "3-00, 3-02, 3-03, 16-02, 16-14");
+    assert_eq!(s.setpoint_hz, Some(20.0));
     run(&mut line, &fc, Operation::SetSpeed(30.0));
     run(&mut line, &fc, Operation::Run);
     wait(&mut line, Duration::from_secs(3));

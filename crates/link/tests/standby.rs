@@ -728,6 +728,27 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
             );
         }
     }
+    // The master sets drive 1 to a new speed: the standby's status shows the new setpoint
+    // within two set-up refreshes (its own, which reads the setpoint again where the profile
+    // reads it once, and the master's) and its wait, and never a setpoint other than the two.
+    let (addr, old) = speeds[0];
+    let new = old - 10.0;
+    masters[0].set_speed(new).await.unwrap();
+    let changed = tokio::time::Instant::now();
+    let latest = |addr: u8| {
+        let seen = statuses.lock().unwrap();
+        let after = |(a, t, _): &&(u8, tokio::time::Instant, _)| *a == addr && *t > changed;
+        seen.iter().rev().filter(after).find_map(|(_, _, r)| r.as_ref().ok().map(|s| s.setpoint_hz))
+    };
+    let took =
+        wait_for(Duration::from_secs(70), "the new setpoint served", || latest(addr) == Some(Some(new)))
+            .await;
+    println!("{protocol}: the standby showed a setpoint the master commanded after {took:?}");
+    for (a, _, r) in statuses.lock().unwrap().iter() {
+        if let (true, Ok(s)) = (*a == addr, r) {
+            assert!(s.setpoint_hz == Some(old) || s.setpoint_hz == Some(new), "drive {addr}: {s:?}");
+        }
+    }
     a_poll.abort();
     b_poll.abort();
     b

@@ -409,6 +409,11 @@ impl DanfossProfile {
                 } else {
                     plan.read_scale(false);
                 }
+                if refresh && inner.memory().ctw.is_none() {
+                    // Nothing commanded: the setpoint is the drive's 16-02, read again (a
+                    // standby's profile follows the setpoints its master commands so).
+                    inner.memory().setpoint_hz = None;
+                }
                 let memory = *inner.memory();
                 if memory.setpoint_hz.is_none() {
                     // Nothing commanded yet: the reference the drive holds (16-02).
@@ -598,8 +603,9 @@ impl Profile for DanfossProfile {
         Ok(Box::new(self.plan_for(op)?))
     }
 
-    /// The next status reads 3-00, 3-02 and 3-03 again (and 16-02, for a standby listening,
-    /// once a setpoint was commanded). A broadcast profile reads nothing.
+    /// The next status reads 3-00, 3-02, 3-03 and 16-02 again (16-02 for the setpoint while
+    /// the profile has commanded none, else only for a standby listening). A broadcast profile
+    /// reads nothing.
     fn refresh_setup(&self) {
         if !self.inner.broadcast() {
             self.inner.memory().refresh = true;

@@ -13,7 +13,9 @@
 //! by its request's bytes, and answers the same bytes. What answers a poll was heard since it
 //! began, or at most the master's own poll interval of that drive before (the bus owner
 //! chooses, [`Learnt::interval`]): the standby's value is never older than the master's view
-//! of it.
+//! of it. Set-up values a profile reads once to decode a status (FC 3-00, 3-02, 3-03, 4-14,
+//! 16-02; TIP FE70, f875–f879) answer whatever their age, until a write to them is heard
+//! ([`Learnt::request`]).
 //!
 //! Schedule: the interval between two requests with the same bytes to one drive, smoothed; a
 //! drive's interval is its most frequent request's.

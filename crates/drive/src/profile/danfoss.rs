@@ -31,7 +31,8 @@
 //! Reference and MAV are 0x4000 = 100 % of 3-02..3-03 (0 Hz..3-03 with 3-00 = -max..+max).
 //! The profile **reads 3-00, 3-02 and 3-03 from the drive** the first time it needs them (a
 //! status, a set speed), and 4-14 Motor Speed High Limit before the first SetSpeed, then keeps
-//! them; reading or writing one of them through the profile updates what it keeps. A SetSpeed
+//! them; reading or writing one of them through the profile updates what it keeps, and a status
+//! after [`Profile::refresh_setup`] reads 3-00, 3-02, 3-03 and 16-02 again. A SetSpeed
 //! is refused (`OutOfRange`) below 0 Hz, below 3-02 (min–max range) and above the lower of
 //! 3-03 and 4-14; values that cannot be right on any drive (above 500 Hz, the highest 4-14)
 //! are refused before anything is sent. A broadcast profile cannot read: it uses the catalog

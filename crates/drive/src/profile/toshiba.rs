@@ -5,7 +5,7 @@
 //!
 //! | operation | exchanges |
 //! |---|---|
-//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile; FD01, FD00, FE03 needed), asking for the read groups up to the last of those three (3 with the default selection; FC90 is used where it lies within them, else read when FD01 says tripped), and FE02: 31 bytes on the wire instead of 56 |
+//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile, and again after [`Profile::refresh_setup`]), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile and after a refresh; FD01, FD00, FE03 needed), asking for the read groups up to the last of those three (3 with the default selection; FC90 is used where it lies within them, else read when FD01 says tripped), and FE02: 31 bytes on the wire instead of 56 |
 //! | Run / Jog | read FD01 (trip, direction), write FA00 = C400H / C500H with bit 9 = the direction FD01 shows |
 //! | Reverse | read FD01, write FA00 with bit 9 turned over (a running drive ramps through zero) |
 //! | Stop | write FA00 = C000H (command and frequency priority kept, run off), bit 9 as last known |

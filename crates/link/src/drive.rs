@@ -29,7 +29,7 @@ use std::fmt;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_drive::profile::{self, DriveError, DriveStatus, Operation, Outcome, Profile};
+use drivebus_drive::profile::{self, DriveError, DriveStatus, Operation, Outcome, Plan, Profile};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
@@ -163,7 +163,11 @@ impl Drive {
 
     /// Runs `op` to completion.
     pub async fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
-        let mut plan = self.profile.plan(op)?;
+        self.run_plan(self.profile.plan(op)?).await
+    }
+
+    /// Runs `plan` to completion.
+    async fn run_plan(&self, mut plan: Box<dyn Plan>) -> Result<Outcome, Error> {
         let this = self;
         profile::run(&mut *plan, move |exchange| async move {
             let address = this.profile.address();
@@ -174,9 +178,19 @@ impl Drive {
 
     /// The drive's state. Every [`SETUP_REFRESH`] a status also reads the drive's set-up
     /// values again.
+    ///
+    /// On a standby's bus that never heard a set-up value the status reads (its master does not
+    /// read it, [`BusError::Unheard`]), the status is read again without the set-up values
+    /// ([`Profile::plan_status_without_setup`]): values that need them are unknown (`None`).
     pub async fn status(&self) -> Result<DriveStatus, Error> {
         self.refresh_setup_when_due();
-        status_of(self.execute(&Operation::Status).await?)
+        match self.execute(&Operation::Status).await {
+            Err(Error::Bus(e @ BusError::Unheard(_))) => match self.profile.plan_status_without_setup() {
+                Some(plan) => status_of(self.run_plan(plan?).await?),
+                None => Err(e.into()),
+            },
+            outcome => status_of(outcome?),
+        }
     }
 
     /// Tells the profile to read its set-up values again when [`SETUP_REFRESH`] has passed

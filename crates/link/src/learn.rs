@@ -144,6 +144,18 @@ impl Learnt {
         })
     }
 
+    /// True when `request` reads a set-up value of which nothing was ever heard (or a write
+    /// to it was heard since).
+    pub(crate) fn unheard_setup(&self, request: &[u8]) -> bool {
+        match self.protocol {
+            WireProtocol::ToshibaAscii | WireProtocol::ToshibaBinary => {
+                toshiba::unheard_setup(request, &self.items)
+            }
+            WireProtocol::DanfossFc => fc::unheard_setup(request, &self.items),
+            _ => false,
+        }
+    }
+
     /// The interval at which the master polled each drive it polled (a drive's most frequent
     /// request's).
     pub(crate) fn schedule(&self) -> HashMap<u8, Duration> {
@@ -343,6 +355,8 @@ mod tests {
         let write = bytes(&|o| Request::write_word(adr, pnu(303), 0, 60000, false).emit(o).unwrap());
         l.request(t(110), Some(4), &write);
         assert_eq!(l.answer(&read(303), t(50)), None);
+        // Said at once to a standby's poll (a status is read without it); 16-14 is waited for.
+        assert!(l.unheard_setup(&read(303)) && !l.unheard_setup(&read(1614)));
         assert_eq!(l.answer(&read(1602), t(50)), Some(value(1602, 800)));
         // A telegram with a valid control word (bit 10) sets the reference: 16-02 is forgotten.
         let run = bytes(&|o| Request::process(adr, ControlWord(0x047C), Reference(0x2000)).emit(o).unwrap());
@@ -386,6 +400,8 @@ mod tests {
         l.request(t(110), Some(0), &emit(&write));
         assert_eq!(l.answer(&emit(&read(0x0875)), t(50)), None);
         assert_eq!(l.answer(&emit(&read(0xFE70)), t(50)), Some(reply(&read(0xFE70), 145)));
+        assert!(l.unheard_setup(&emit(&read(0x0875))));
+        assert!(!l.unheard_setup(&emit(&read(0xFE70))) && !l.unheard_setup(&emit(&read(0xFD00))));
     }
 
     #[test]

@@ -414,6 +414,11 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 {
                     return Ok(Some(reply));
                 }
+                // A set-up value never heard: the master does not read it; say so at once (a
+                // status is then read without it).
+                if l.learnt.lock().unwrap_or_else(|p| p.into_inner()).unheard_setup(w.request) {
+                    return Err(BusError::Unheard(self.link.name()));
+                }
             }
             if let Some(answer) = self.hear_until(until, want).await {
                 return answer;

@@ -641,6 +641,17 @@ async fn a_standby_poll_of_what_the_master_never_reads_fails_after_its_wait_and_
     a_poll.abort();
 }
 
+/// The second master's port of `line`, opened now: it hears nothing the line carried before
+/// (the virtual line keeps every master's bytes from its start).
+fn late_port(line: &Arc<Mutex<VirtualLine>>, clock: drivebus_link::Clock) -> SimLink {
+    let mut history = Vec::new();
+    let mut l = line.lock().unwrap();
+    l.advance_to(clock.now());
+    l.master_read_to(1, &mut history);
+    drop(l);
+    SimLink::for_master(line.clone(), "b", 1, clock)
+}
+
 /// A drivebus master on a line of `family` drives runs each of `speeds` and polls their status
 /// through the profile every 150 ms, as the gateway does; a standby started `late` after it
 /// (when the master has read the drives' set-up values once already) reads each status through
@@ -675,6 +686,8 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
         d.set_speed(hz).await.unwrap();
         d.run().await.unwrap();
     }
+    // The drives are at their speed by then.
+    let steady = tokio::time::Instant::now() + Duration::from_secs(12);
     let polls: Vec<Drive> = masters.iter().map(Drive::polling_twin).collect();
     let a_poll = tokio::spawn(async move {
         loop {
@@ -685,7 +698,7 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
         }
     });
     tokio::time::sleep(late).await;
-    let b = Bus::spawn(SimLink::for_master(line.clone(), "b", 1, clock), cfg(true)).unwrap();
+    let b = Bus::spawn(late_port(&line, clock), cfg(true)).unwrap();
     let started = tokio::time::Instant::now();
     let statuses: Statuses = Default::default();
     let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
@@ -700,23 +713,43 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
             }
         }
     });
-    let served = |addr: u8| statuses.lock().unwrap().iter().any(|(a, _, r)| *a == addr && r.is_ok());
-    let took = wait_for(Duration::from_secs(40), "every drive's status served by the late standby", || {
-        addresses.iter().all(|&a| served(a))
-    })
-    .await;
+    // Whole: with the values the set-up scales (until then they are unknown, not guessed).
+    let whole = |s: &DriveStatus| s.output_hz.is_some() && s.current_a.is_some() && s.setpoint_hz.is_some();
+    let served =
+        |addr: u8| statuses.lock().unwrap().iter().any(|(a, _, r)| *a == addr && r.as_ref().is_ok_and(whole));
+    let took =
+        wait_for(Duration::from_secs(40), "every drive's whole status served by the late standby", || {
+            addresses.iter().all(|&a| served(a))
+        })
+        .await;
     println!("{protocol}: a standby started {late:?} after the master served every status after {took:?}");
+    let first = statuses.lock().unwrap().iter().find(|(_, _, r)| r.is_ok()).map(|(_, t, _)| *t - started);
+    println!("{protocol}: its first status (what it could show) after {first:?}");
     assert!(took < Duration::from_secs(36), "{took:?}");
     // From then on every status read is answered, as the master sees the drive.
     let since = tokio::time::Instant::now();
     tokio::time::sleep(Duration::from_secs(3)).await;
-    assert!(started.elapsed() > Duration::ZERO);
     assert_eq!(b.role().unwrap().role, Role::Standby);
     assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
-    let seen: Vec<_> = statuses.lock().unwrap().iter().filter(|(_, t, _)| *t >= since).cloned().collect();
+    let all: Vec<_> = statuses.lock().unwrap().clone();
+    let seen: Vec<_> = all.iter().filter(|(_, t, _)| *t >= since).cloned().collect();
     for (d, &(addr, hz)) in masters.iter().zip(speeds) {
         let truth = d.status().await.unwrap();
         assert!(truth.running && truth.output_hz.is_some_and(|f| (f - hz).abs() < 0.1), "{truth:?}");
+        // Before (the drives at their speed): each value the master's or unknown, never another.
+        for (_, _, r) in all.iter().filter(|(a, t, _)| *a == addr && *t >= steady) {
+            if let Ok(s) = r {
+                let fits = |mine: Option<f64>, master: Option<f64>| mine.is_none() || mine == master;
+                assert!(
+                    s.running == truth.running
+                        && s.fault == truth.fault
+                        && fits(s.output_hz, truth.output_hz)
+                        && fits(s.current_a, truth.current_a)
+                        && fits(s.setpoint_hz, truth.setpoint_hz),
+                    "drive {addr}: {s:?} against {truth:?}"
+                );
+            }
+        }
         let mine: Vec<_> = seen.iter().filter(|(a, _, _)| *a == addr).collect();
         assert!(mine.len() >= 5, "drive {addr}: {seen:?}");
         for (_, _, r) in mine {
@@ -730,7 +763,8 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
     }
     // The master sets drive 1 to a new speed: the standby's status shows the new setpoint
     // within two set-up refreshes (its own, which reads the setpoint again where the profile
-    // reads it once, and the master's) and its wait, and never a setpoint other than the two.
+    // reads it once, and the master's), and never a setpoint other than the two (or unknown,
+    // while the standby knows the master commanded one and has not heard which).
     let (addr, old) = speeds[0];
     let new = old - 10.0;
     masters[0].set_speed(new).await.unwrap();
@@ -744,9 +778,12 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
         wait_for(Duration::from_secs(70), "the new setpoint served", || latest(addr) == Some(Some(new)))
             .await;
     println!("{protocol}: the standby showed a setpoint the master commanded after {took:?}");
-    for (a, _, r) in statuses.lock().unwrap().iter() {
-        if let (true, Ok(s)) = (*a == addr, r) {
-            assert!(s.setpoint_hz == Some(old) || s.setpoint_hz == Some(new), "drive {addr}: {s:?}");
+    for (a, t, r) in statuses.lock().unwrap().iter() {
+        if let (true, Ok(s)) = (*a == addr && *t >= since, r) {
+            assert!(
+                [Some(old), Some(new), None].contains(&s.setpoint_hz) && s.running,
+                "drive {addr}: {s:?}"
+            );
         }
     }
     a_poll.abort();
@@ -795,6 +832,158 @@ async fn a_danfoss_standby_started_late_serves_status_and_setpoint() {
         CharFormat::EVEN_8E1,
         &[(1, 40.0), (2, 25.0)],
         Duration::from_secs(3),
+    )
+    .await;
+}
+
+/// A master that is not drivebus polls each drive every 150 ms with `polls`, which never read
+/// the set-up values the standby's profile reads once (it was set up otherwise); a standby
+/// beside it reads each status through the profile every 40 ms. From its first second on,
+/// every status read is answered: what the status word and the process values say as the
+/// master's profile sees it, and what needs the set-up unknown (`blank` makes the expected
+/// status of the master's).
+async fn a_standby_beside_a_master_that_never_reads_the_set_up_shows_what_it_can(
+    protocol: WireProtocol,
+    family: Family,
+    format: CharFormat,
+    speeds: &[(u8, f64)],
+    polls: fn(u8) -> Vec<Vec<u8>>,
+    blank: fn(DriveStatus) -> DriveStatus,
+) {
+    let addresses: Vec<u8> = speeds.iter().map(|(a, _)| *a).collect();
+    let line = line_of(protocol, family, format, &addresses);
+    let cfg = |standby| {
+        let mut cfg = BusConfig::new(protocol, 19200, format);
+        cfg.response_timeout = Some(Duration::from_millis(50));
+        cfg.role = Some(RoleConfig { standby, silence: SILENCE });
+        cfg
+    };
+    let a_link = SimLink::new(line.clone(), "a");
+    let clock = a_link.clock();
+    let a = Bus::spawn(a_link, cfg(false)).unwrap();
+    let profile = move |addr| for_drive(family, protocol, addr).unwrap();
+    // Set up and run through the profile (reading the set-up once, before the standby starts).
+    let masters: Vec<Drive> = addresses.iter().map(|&addr| Drive::new(a.clone(), profile(addr))).collect();
+    let start = tokio::time::Instant::now();
+    while masters[0].polling_twin().status().await.is_err() {
+        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
+    }
+    for (d, &(_, hz)) in masters.iter().zip(speeds) {
+        d.set_speed(hz).await.unwrap();
+        d.run().await.unwrap();
+    }
+    tokio::time::sleep(Duration::from_secs(15)).await;
+    let mut truths = Vec::new();
+    for d in &masters {
+        truths.push(blank(d.status().await.unwrap()));
+    }
+    // From now on the master polls only `polls`, and the standby starts.
+    let b = Bus::spawn(late_port(&line, clock), cfg(true)).unwrap();
+    let (master, drives) = (a.clone(), addresses.clone());
+    let a_poll = tokio::spawn(async move {
+        loop {
+            for &addr in &drives {
+                for request in polls(addr) {
+                    let ex = Exchange { request, expect_reply: true };
+                    let reply = master.transact(addr, ex, Priority::Poll, None).await;
+                    assert!(matches!(reply, Ok(Some(_))), "drive {addr}: {reply:?}");
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(150)).await;
+        }
+    });
+    let statuses: Statuses = Default::default();
+    let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
+    let b_poll = tokio::spawn(async move {
+        let drives: Vec<(u8, Drive)> =
+            drives.iter().map(|&a| (a, Drive::new(standby.clone(), profile(a)).polling())).collect();
+        loop {
+            for (a, d) in &drives {
+                let r = d.status().await.map_err(|e| e.to_string());
+                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
+                tokio::time::sleep(Duration::from_millis(40)).await;
+            }
+        }
+    });
+    let since = tokio::time::Instant::now() + Duration::from_secs(1);
+    // Past a set-up refresh of the standby's profiles too.
+    tokio::time::sleep(Duration::from_secs(40)).await;
+    assert!(!a_poll.is_finished(), "the master's polls are all answered");
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    let seen: Vec<_> = statuses.lock().unwrap().iter().filter(|(_, t, _)| *t >= since).cloned().collect();
+    for (&addr, truth) in addresses.iter().zip(&truths) {
+        let mine: Vec<_> = seen.iter().filter(|(a, _, _)| *a == addr).collect();
+        assert!(mine.len() >= 100, "drive {addr}: {} status reads in 39 s", mine.len());
+        for (_, _, r) in mine {
+            let s = r.as_ref().unwrap_or_else(|e| panic!("drive {addr}: {e}"));
+            assert_eq!(
+                (s.running, s.output_hz, s.setpoint_hz, s.current_a, &s.fault),
+                (truth.running, truth.output_hz, truth.setpoint_hz, truth.current_a, &truth.fault),
+                "drive {addr}: {s:?}"
+            );
+        }
+    }
+    a_poll.abort();
+    b_poll.abort();
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_danfoss_standby_beside_a_master_that_never_reads_the_scale_shows_state_and_current() {
+    use drivebus_proto::fc::{
+        AddressFormat, Adr, ControlWord, ParameterNumber, Reference, Request, MAX_TELEGRAM,
+    };
+    // 16-14 and a process block: never 3-00, 3-02, 3-03 or 16-02.
+    fn polls(addr: u8) -> Vec<Vec<u8>> {
+        let adr = Adr::new(addr, AddressFormat::OneTo126).unwrap();
+        let mut buf = [0u8; MAX_TELEGRAM];
+        let n = Request::read(adr, ParameterNumber::new(1614).unwrap(), 0).emit(&mut buf).unwrap();
+        let mut out = vec![buf[..n].to_vec()];
+        let n = Request::process(adr, ControlWord(0), Reference(0)).emit(&mut buf).unwrap();
+        out.push(buf[..n].to_vec());
+        out
+    }
+    // MAV and 16-02 need the reference scaling: output and setpoint unknown.
+    fn blank(s: DriveStatus) -> DriveStatus {
+        DriveStatus { output_hz: None, setpoint_hz: None, direction: None, ..s }
+    }
+    a_standby_beside_a_master_that_never_reads_the_set_up_shows_what_it_can(
+        WireProtocol::DanfossFc,
+        Family::Danfoss,
+        CharFormat::EVEN_8E1,
+        &[(1, 40.0), (2, 25.0)],
+        polls,
+        blank,
+    )
+    .await;
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_toshiba_standby_beside_a_master_that_never_reads_fe70_shows_all_but_the_current() {
+    use drivebus_proto::toshiba::ascii::{AsciiAddress, AsciiRequest};
+    use drivebus_proto::toshiba::CommNo;
+    // FD01, FD00, FE02, FE03: never FE70.
+    fn polls(addr: u8) -> Vec<Vec<u8>> {
+        [0xFD01, 0xFD00, 0xFE02, 0xFE03]
+            .into_iter()
+            .map(|n| {
+                let mut out = [0u8; 32];
+                let len = AsciiRequest::read(AsciiAddress::Unit(addr), CommNo(n)).emit(&mut out).unwrap();
+                out[..len].to_vec()
+            })
+            .collect()
+    }
+    // FE03 is a share of FE70: the current unknown.
+    fn blank(s: DriveStatus) -> DriveStatus {
+        DriveStatus { current_a: None, ..s }
+    }
+    a_standby_beside_a_master_that_never_reads_the_set_up_shows_what_it_can(
+        WireProtocol::ToshibaAscii,
+        Family::Toshiba,
+        CharFormat::EVEN_8E1,
+        &[(1, 40.0), (2, 25.0)],
+        polls,
+        blank,
     )
     .await;
 }

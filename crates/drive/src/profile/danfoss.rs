@@ -604,6 +604,18 @@ impl Profile for DanfossProfile {
         Ok(Box::new(self.plan_for(op)?))
     }
 
+    /// A status of 16-14 alone: the status word (running, trip) and the current; the output
+    /// frequency only where 3-00, 3-02 and 3-03 are known, the setpoint only once commanded
+    /// or read.
+    fn plan_status_without_setup(&self) -> Option<Result<Box<dyn Plan>, DriveError>> {
+        if self.inner.broadcast() {
+            return Some(self.plan(&Operation::Status));
+        }
+        let mut plan = FcPlan::new(Arc::clone(&self.inner), Goal::Status);
+        plan.push(Action::read(MOTOR_CURRENT, 0, Why::Current));
+        Some(Ok(Box::new(plan)))
+    }
+
     /// The next status reads 3-00, 3-02, 3-03 and 16-02 again (16-02 for the setpoint while
     /// the profile has commanded none, else only for a standby listening). A broadcast profile
     /// reads nothing.

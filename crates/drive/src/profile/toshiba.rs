@@ -449,6 +449,21 @@ impl Profile for ToshibaProfile {
         self.def(name)
     }
 
+    /// A status without FE70 and f875–f879: the block read where its items are known, else
+    /// one number per request; the current only where FE70 is known.
+    fn plan_status_without_setup(&self) -> Option<Result<Box<dyn Plan>, DriveError>> {
+        if let Err(e) = self.needs_reply("Status") {
+            return Some(Err(e));
+        }
+        let block = self.block_status && self.protocol == WireProtocol::ToshibaBinary;
+        let mut todo = match (block, self.memory.block()) {
+            (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
+            _ => single_status_reads(),
+        };
+        todo.reverse();
+        Some(Ok(self.plan_for(Job::Status(StatusJob { todo, got: Monitors::default() }))))
+    }
+
     /// The next status reads FE70 again, and in TIP binary mode with block status f875–f879.
     /// A broadcast profile reads nothing.
     fn refresh_setup(&self) {

@@ -41,6 +41,15 @@ pub(super) fn forget_written(request: &[u8], items: &mut Items) {
     }
 }
 
+/// True when `request` is a parameter read (AK 1) of a set-up value not held.
+pub(super) fn unheard_setup(request: &[u8], items: &Items) -> bool {
+    let Ok(req) = Request::parse(request) else { return false };
+    let (Some(unit), Block::Parameter(q)) = (req.adr.address(), req.block) else { return false };
+    q.ak == ParameterCommand::ReadValue
+        && setup(q.pnu, q.ind)
+        && items.latest(unit, Item::Parameter { pnu: q.pnu, ind: q.ind }).is_none()
+}
+
 /// Learns from drive `request`'s `reply` heard at `now`; false when it tells nothing.
 pub(super) fn learn(request: &[u8], reply: &[u8], now: Instant, items: &mut Items) -> bool {
     let (Ok(req), Ok(rep)) = (Request::parse(request), Reply::parse(reply)) else { return false };

@@ -74,6 +74,15 @@ pub(super) fn forget_written(request: &[u8], items: &mut Items) {
     }
 }
 
+/// True when `request` reads (`R`, `G`) a set-up value not held.
+pub(super) fn unheard_setup(request: &[u8], items: &Items) -> bool {
+    let Ok(req) = TipRequest::parse(request) else { return false };
+    let (Some(unit), Some(Ask::Number { cmd: Cmd::R | Cmd::G, comm_no })) = (drive(&req), ask(&req)) else {
+        return false;
+    };
+    setup(comm_no) && items.latest(unit, Item::CommNo(comm_no.0)).is_none()
+}
+
 /// Learns from drive `request`'s `reply` heard at `now`; false when it tells nothing.
 pub(super) fn learn(request: &[u8], reply: &[u8], now: Instant, items: &mut Items) -> bool {
     let (Ok(req), Ok(rep)) = (TipRequest::parse(request), TipReply::parse(reply)) else { return false };

@@ -614,3 +614,36 @@ fn a_refresh_reads_the_scale_and_the_reference_once_more() {
     all.refresh_setup();
     assert!(all.plan(&Operation::Status).is_err());
 }
+
+/// A drive that refuses 16-02 (AK 7) to a refresh of a profile that has commanded a setpoint
+/// still gives its status: that read was only for a standby listening.
+#[test]
+fn a_refresh_whose_reference_read_is_refused_still_gives_the_status() {
+    use drivebus_proto::fc::{Adr, FaultCode, ParameterNumber, Reply, Request, MAX_TELEGRAM};
+    let mut line = line_with(&[2]);
+    let fc = DanfossProfile::new(2).expect("profile");
+    run(&mut line, &fc, Operation::SetSpeed(30.0));
+    run(&mut line, &fc, Operation::Run);
+    wait(&mut line, Duration::from_secs(3));
+    let before = status(&mut line, &fc);
+    fc.refresh_setup();
+    let adr = Adr::new(2, AddressFormat::OneTo126).unwrap();
+    let mut refused = 0;
+    let (outcome, sent) = support::execute(fc.plan(&Operation::Status).unwrap(), |x| {
+        let reads_1602 = matches!(
+            Request::parse(&x.request).map(|r| r.block),
+            Ok(drivebus_proto::fc::Block::Parameter(q)) if q.pnu.pnu() == 1602
+        );
+        if !reads_1602 {
+            return transact(&mut line, &x.request, x.expect_reply);
+        }
+        refused += 1;
+        let mut out = [0u8; MAX_TELEGRAM];
+        let n =
+            Reply::fault(adr, ParameterNumber::new(1602).unwrap(), 0, FaultCode(0)).emit(&mut out).unwrap();
+        Some(out[..n].to_vec())
+    });
+    assert_eq!((refused, sent.len()), (1, 5), "3-00, 3-02, 3-03, 16-02 refused, 16-14");
+    let Ok(Outcome::Status(s)) = outcome else { panic!("{outcome:?}") };
+    assert_eq!((s.running, s.setpoint_hz, s.output_hz), (before.running, Some(30.0), before.output_hz));
+}

@@ -856,6 +856,8 @@ impl FcPlan {
                         return Err(refused(refusal, None))
                     }
                     (Err(DriveError::Refused { .. }), Why::Alarm) => return Ok(()),
+                    // Read for a listener only: a drive that will not tell still has a status.
+                    (Err(DriveError::Refused { .. }), Why::Listeners) => return Ok(()),
                     (Err(e), _) => return Err(e),
                 };
                 match why {

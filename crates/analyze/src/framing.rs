@@ -25,11 +25,16 @@ pub(super) trait Framer: Send {
     /// True when `bytes` (a whole frame with a good checksum) parse as a frame from `from`
     /// (`None`: either direction); cheaper than a full report, for the scouts.
     fn valid(&self, bytes: &[u8], from: Option<Direction>) -> bool;
+    /// From now on, frames are read as sent by `from` (`None`: either direction); the bytes of
+    /// a frame in progress are read again that way, and the frames they make go to `out`.
+    fn expect(&mut self, from: Option<Direction>, out: &mut Vec<Cut>);
 }
 
-/// A deframer and a copy of the bytes it holds for a frame in progress.
+/// A deframer, whose frames it reads, and a copy of the bytes it holds for a frame in
+/// progress.
 struct Typed<C: Codec> {
     deframer: Deframer<C::Scanner>,
+    from: Option<Direction>,
     held: Vec<u8>,
 }
 
@@ -88,6 +93,15 @@ where
             }
         }
     }
+    fn expect(&mut self, from: Option<Direction>, out: &mut Vec<Cut>) {
+        if from == self.from {
+            return;
+        }
+        self.from = from;
+        self.deframer = Deframer::new(C::scanner(from));
+        let held = std::mem::take(&mut self.held);
+        self.push(&held, out);
+    }
 }
 
 /// A deframer for `protocol` and frames from `from` (`None`: both directions on one pair).
@@ -99,7 +113,11 @@ pub(super) fn framer(protocol: &str, from: Option<Direction>) -> Option<Box<dyn 
         where
             C::Scanner: Send + 'static,
         {
-            Box::new(Typed::<C> { deframer: Deframer::new(C::scanner(self.0)), held: Vec::new() })
+            Box::new(Typed::<C> {
+                deframer: Deframer::new(C::scanner(self.0)),
+                from: self.0,
+                held: Vec::new(),
+            })
         }
     }
     Some(protocol.parse::<WireProtocol>().ok()?.with_codec(Make(from)))

@@ -381,6 +381,7 @@ impl Analyzer {
             for c in cuts {
                 self.frame(p, port, at, c, out);
             }
+            self.steer(p, at, out);
         }
     }
 
@@ -390,13 +391,24 @@ impl Analyzer {
         }
     }
 
-    /// Feeds `bytes` to the port's framer `i` only.
+    /// Feeds `bytes` to the port's framer `i` only; a [`pairing::STEERED`] protocol's on a port
+    /// that hears both directions a byte at a time, as a line delivers them: each frame found
+    /// may change how the next is read ([`Analyzer::steer`]), however many frames one read
+    /// holds.
     fn decode_with(&mut self, port: usize, i: usize, time: Duration, bytes: &[u8], out: &mut Vec<Record>) {
-        let mut cuts = Vec::new();
-        self.ports[port].framers[i].1.push(bytes, &mut cuts);
         let p = self.ports[port].framers[i].0;
-        for c in cuts {
-            self.frame(p, port, time, c, out);
+        let steered = self.ports[port].side == Side::Both && pairing::STEERED.contains(&p);
+        let step = if steered { 1 } else { bytes.len().max(1) };
+        let mut cuts = Vec::new();
+        for chunk in bytes.chunks(step) {
+            self.ports[port].framers[i].1.push(chunk, &mut cuts);
+            if cuts.is_empty() {
+                continue;
+            }
+            for c in cuts.drain(..) {
+                self.frame(p, port, time, c, out);
+            }
+            self.steer(p, time, out);
         }
     }
 }

@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+use drivebus_proto::protocol::WireProtocol;
 use drivebus_proto::{Direction, Target};
 
 use super::framing::{parse, Cut};
@@ -46,6 +47,15 @@ pub(super) fn parse_either(
     as_master().or(reply)
 }
 
+/// The protocols whose frames' length depends on who sent them in a way the bytes cannot
+/// settle, so a listener of both directions reads a frame as the reply while a request waits
+/// ([`Analyzer::steer`]): TIP binary, whose `R` is 5 bytes from the master and 7 from a drive
+/// (plus INV-NO), and the first 6 bytes of a reply whose first data byte equals the request's
+/// SUM are that whole request again. In the others either reading frames alike (a Modbus RTU
+/// listener predicts both lengths), and a master that polls again before a reply must still be
+/// heard at once.
+pub(super) const STEERED: [&str; 1] = [WireProtocol::ToshibaBinary.name()];
+
 /// A request waiting for its reply.
 #[derive(Clone, Debug)]
 pub(super) struct Pending {
@@ -65,6 +75,40 @@ impl Analyzer {
         for k in due {
             if let Some(p) = self.pending.remove(k) {
                 self.no_reply(p, now, out);
+            }
+            self.steer(k, now, out);
+        }
+    }
+
+    /// On a port that hears both directions, reads what comes next of a [`STEERED`] protocol
+    /// as the drive's reply while a request waits, and as either otherwise. Frames the bytes in
+    /// progress make when read again are reported at `time`.
+    pub(super) fn steer(&mut self, protocol: &'static str, time: Duration, out: &mut Vec<Record>) {
+        if !STEERED.contains(&protocol) {
+            return;
+        }
+        // Each frame found may change what waits: a few rounds settle it.
+        for _ in 0..4 {
+            let from = self.pending.contains_key(protocol).then_some(Direction::Drive);
+            let mut found = false;
+            for port in 0..self.ports.len() {
+                if self.ports[port].side != Side::Both {
+                    continue;
+                }
+                for i in 0..self.ports[port].framers.len() {
+                    if self.ports[port].framers[i].0 != protocol {
+                        continue;
+                    }
+                    let mut cuts = Vec::new();
+                    self.ports[port].framers[i].1.expect(from, &mut cuts);
+                    for c in cuts {
+                        found = true;
+                        self.frame(protocol, port, time, c, out);
+                    }
+                }
+            }
+            if !found {
+                return;
             }
         }
     }

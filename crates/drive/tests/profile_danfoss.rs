@@ -573,3 +573,77 @@ fn a_fresh_run_to_a_drive_without_bus_control_is_refused() {
     assert_eq!(code & 0x0200, 0);
     assert!(meaning.contains("bit 09"), "{meaning}");
 }
+
+/// After `refresh_setup` the next status reads 3-00, 3-02 and 3-03 again, and 16-02 once a
+/// setpoint was commanded (for a standby listening: the setpoint stays the commanded one); the
+/// one after is one telegram again. Prints what a refresh adds on the wire.
+#[test]
+fn a_refresh_reads_the_scale_and_the_reference_once_more() {
+    let mut line = line_with(&[3]);
+    let fc = DanfossProfile::new(3).expect("profile");
+    let bytes = |line: &VirtualLine| line.stats().master_bytes + line.stats().device_bytes;
+    status(&mut line, &fc);
+    // Nothing commanded: the refresh reads the scale, and the setpoint from 16-02 again (set
+    // meanwhile by another master).
+    let other = DanfossProfile::new(3).expect("profile");
+    run(&mut line, &other, Operation::SetSpeed(20.0));
+    assert_eq!(status(&mut line, &fc).setpoint_hz, Some(0.0));
+    fc.refresh_setup();
+    let (Outcome::Status(s), sent) = run(&mut line, &fc, Operation::Status) else { panic!() };
+    assert_eq!(sent, 5, "3-00, 3-02, 3-03, 16-02, 16-14");
+    assert_eq!(s.setpoint_hz, Some(20.0));
+    run(&mut line, &fc, Operation::SetSpeed(30.0));
+    run(&mut line, &fc, Operation::Run);
+    wait(&mut line, Duration::from_secs(3));
+    let at = bytes(&line);
+    let (before, sent) = run(&mut line, &fc, Operation::Status);
+    let each = bytes(&line) - at;
+    assert_eq!(sent, 1);
+    fc.refresh_setup();
+    let at = bytes(&line);
+    let (refreshed, sent) = run(&mut line, &fc, Operation::Status);
+    let with_refresh = bytes(&line) - at;
+    assert_eq!(sent, 5, "3-00, 3-02, 3-03, 16-02, 16-14");
+    assert_eq!(refreshed, before);
+    let Outcome::Status(s) = refreshed else { panic!() };
+    assert_eq!(s.setpoint_hz, Some(30.0), "the commanded setpoint");
+    assert_eq!(run(&mut line, &fc, Operation::Status).1, 1);
+    println!("danfoss-fc: a refresh adds {} bytes on the wire", with_refresh - each);
+    // A broadcast profile has nothing to read.
+    let all = DanfossProfile::new(0).expect("profile");
+    all.refresh_setup();
+    assert!(all.plan(&Operation::Status).is_err());
+}
+
+/// A drive that refuses 16-02 (AK 7) to a refresh of a profile that has commanded a setpoint
+/// still gives its status: that read was only for a standby listening.
+#[test]
+fn a_refresh_whose_reference_read_is_refused_still_gives_the_status() {
+    use drivebus_proto::fc::{Adr, FaultCode, ParameterNumber, Reply, Request, MAX_TELEGRAM};
+    let mut line = line_with(&[2]);
+    let fc = DanfossProfile::new(2).expect("profile");
+    run(&mut line, &fc, Operation::SetSpeed(30.0));
+    run(&mut line, &fc, Operation::Run);
+    wait(&mut line, Duration::from_secs(3));
+    let before = status(&mut line, &fc);
+    fc.refresh_setup();
+    let adr = Adr::new(2, AddressFormat::OneTo126).unwrap();
+    let mut refused = 0;
+    let (outcome, sent) = support::execute(fc.plan(&Operation::Status).unwrap(), |x| {
+        let reads_1602 = matches!(
+            Request::parse(&x.request).map(|r| r.block),
+            Ok(drivebus_proto::fc::Block::Parameter(q)) if q.pnu.pnu() == 1602
+        );
+        if !reads_1602 {
+            return transact(&mut line, &x.request, x.expect_reply);
+        }
+        refused += 1;
+        let mut out = [0u8; MAX_TELEGRAM];
+        let n =
+            Reply::fault(adr, ParameterNumber::new(1602).unwrap(), 0, FaultCode(0)).emit(&mut out).unwrap();
+        Some(out[..n].to_vec())
+    });
+    assert_eq!((refused, sent.len()), (1, 5), "3-00, 3-02, 3-03, 16-02 refused, 16-14");
+    let Ok(Outcome::Status(s)) = outcome else { panic!("{outcome:?}") };
+    assert_eq!((s.running, s.setpoint_hz, s.output_hz), (before.running, Some(30.0), before.output_hz));
+}

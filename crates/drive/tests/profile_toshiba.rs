@@ -504,3 +504,28 @@ fn inverter_numbers_are_checked_per_protocol() {
     assert!(!zero.is_broadcast());
     assert_eq!(bus.read(&zero, "FE70"), 175);
 }
+
+/// After `refresh_setup` the next status reads FE70 again (and f875–f879 in binary mode with
+/// block status), so that a standby listening learns them; the one after is as before. Prints
+/// what a refresh adds on the wire (requests and replies).
+#[test]
+fn a_refresh_reads_the_set_up_values_once_more() {
+    for protocol in ALL {
+        let mut bus = Bus::new(protocol, &[1]);
+        let p = profile(protocol);
+        bus.status(&p);
+        let plain = |bus: &mut Bus, p: &ToshibaProfile| {
+            let (x, bytes) = (bus.exchanges, bus.line.stats().master_bytes + bus.line.stats().device_bytes);
+            let s = bus.status(p);
+            (s, bus.exchanges - x, bus.line.stats().master_bytes + bus.line.stats().device_bytes - bytes)
+        };
+        let (before, each, each_bytes) = plain(&mut bus, &p);
+        p.refresh_setup();
+        let (refreshed, with_refresh, refresh_bytes) = plain(&mut bus, &p);
+        let extra = if protocol == WireProtocol::ToshibaBinary { 6 } else { 1 };
+        assert_eq!(with_refresh - each, extra, "FE70 (and f875-f879) read again ({protocol})");
+        assert_eq!(refreshed, before, "{protocol}");
+        assert_eq!(plain(&mut bus, &p).1, each, "once ({protocol})");
+        println!("{protocol}: a refresh adds {} bytes on the wire", refresh_bytes - each_bytes);
+    }
+}

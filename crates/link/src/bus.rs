@@ -135,6 +135,9 @@ pub enum BusError {
     Busy(String),
     /// The bus listens as a standby (another gateway masters the line): nothing was sent.
     Standby(String),
+    /// The bus listens as a standby and has never heard the set-up value a poll reads (the
+    /// master does not read it): answered at once, nothing was sent.
+    Unheard(String),
 }
 
 impl fmt::Display for BusError {
@@ -156,6 +159,11 @@ impl fmt::Display for BusError {
             BusError::Standby(link) => write!(
                 f,
                 "{link} is listening as a standby: another gateway masters the line, send it there"
+            ),
+            BusError::Unheard(link) => write!(
+                f,
+                "{link} is listening as a standby and never heard this set-up value: the master \
+                 does not read it (a drivebus master reads it every 30 s)"
             ),
         }
     }

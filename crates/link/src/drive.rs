@@ -29,7 +29,7 @@ use std::fmt;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_drive::profile::{self, DriveError, DriveStatus, Operation, Outcome, Profile};
+use drivebus_drive::profile::{self, DriveError, DriveStatus, Operation, Outcome, Plan, Profile};
 use drivebus_drive::{Family, ParamDef, Storage};
 use drivebus_proto::line::CharFormat;
 use drivebus_proto::protocol::WireProtocol;
@@ -95,6 +95,12 @@ pub async fn open_with(port: &str, config: BusConfig) -> Result<Bus, Error> {
     Ok(Bus::spawn(link, config)?)
 }
 
+/// How often a drive's status reads its set-up values again (the values a profile reads once
+/// to decode a status: Danfoss 3-00, 3-02, 3-03; Toshiba FE70, f875–f879 in TIP binary mode):
+/// a change made on the drive's panel shows within this time, and a standby gateway started
+/// after this one learns them within it ([`Profile::refresh_setup`]).
+pub const SETUP_REFRESH: Duration = Duration::from_secs(30);
+
 /// One drive on a bus, spoken to through its family's profile.
 #[derive(Clone)]
 pub struct Drive {
@@ -104,6 +110,8 @@ pub struct Drive {
     priority: Priority,
     /// Whose on-demand reads these are (the bus serves clients in turn).
     client: Arc<str>,
+    /// When a status last read the set-up values (shared by the drive's twins).
+    setup_read: Arc<Mutex<Option<tokio::time::Instant>>>,
 }
 
 impl Drive {
@@ -115,6 +123,7 @@ impl Drive {
             timeout: None,
             priority: Priority::Command,
             client: Arc::from(""),
+            setup_read: Arc::default(),
         }
     }
 
@@ -161,7 +170,11 @@ impl Drive {
 
     /// Runs `op` to completion.
     pub async fn execute(&self, op: &Operation) -> Result<Outcome, Error> {
-        let mut plan = self.profile.plan(op)?;
+        self.run_plan(self.profile.plan(op)?).await
+    }
+
+    /// Runs `plan` to completion.
+    async fn run_plan(&self, mut plan: Box<dyn Plan>) -> Result<Outcome, Error> {
         let this = self;
         profile::run(&mut *plan, move |exchange| async move {
             let address = this.profile.address();
@@ -170,9 +183,36 @@ impl Drive {
         .await
     }
 
-    /// The drive's state.
+    /// The drive's state. Every [`SETUP_REFRESH`] a status also reads the drive's set-up
+    /// values again.
+    ///
+    /// On a standby's bus that never heard a set-up value the status reads (its master does not
+    /// read it, [`BusError::Unheard`]), the status is read again without the set-up values
+    /// ([`Profile::plan_status_without_setup`]): values that need them are unknown (`None`).
     pub async fn status(&self) -> Result<DriveStatus, Error> {
-        status_of(self.execute(&Operation::Status).await?)
+        self.refresh_setup_when_due();
+        match self.execute(&Operation::Status).await {
+            Err(Error::Bus(e @ BusError::Unheard(_))) => match self.profile.plan_status_without_setup() {
+                Some(plan) => status_of(self.run_plan(plan?).await?),
+                None => Err(e.into()),
+            },
+            outcome => status_of(outcome?),
+        }
+    }
+
+    /// Tells the profile to read its set-up values again when [`SETUP_REFRESH`] has passed
+    /// since the first status (which reads them anyway) or the last refresh.
+    fn refresh_setup_when_due(&self) {
+        let now = tokio::time::Instant::now();
+        let mut last = self.setup_read.lock().unwrap_or_else(|p| p.into_inner());
+        match *last {
+            Some(at) if now.saturating_duration_since(at) < SETUP_REFRESH => {}
+            Some(_) => {
+                self.profile.refresh_setup();
+                *last = Some(now);
+            }
+            None => *last = Some(now),
+        }
     }
 
     /// Starts the motor.

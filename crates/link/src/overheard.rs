@@ -22,7 +22,7 @@ use crate::bus::BusConfig;
 pub(crate) enum Heard {
     /// Another master's request.
     Request {
-        /// The drive it addresses, where it names one.
+        /// The drive it addresses, where it names one (`None` for a broadcast).
         address: Option<u8>,
         /// Its bytes.
         bytes: Vec<u8>,
@@ -88,6 +88,11 @@ impl Overheard {
                     if drivebus_drive::interdrive::master_drive_broadcast(self.protocol, &bytes).is_some() {
                         continue;
                     }
+                    // One drive by its number (TIP inverter 0 included); a broadcast none.
+                    let address = match r.frame.target {
+                        Some(drivebus_proto::describe::Target::Unit(n)) => Some(n),
+                        _ => None,
+                    };
                     Heard::Request { address, bytes }
                 }
                 (Kind::Frame, true, Direction::Drive) => match r.request {
@@ -158,5 +163,35 @@ mod tests {
         o.push(Instant::from_millis(1100), &[0x00, 0x06, 0x20, 0x01, 0x0F, 0xA0, 0xD7, 0x93], &mut out);
         o.tick(Instant::from_millis(2000), &mut out);
         assert!(out.is_empty(), "{out:?}");
+    }
+
+    #[test]
+    fn a_tip_binary_reply_that_begins_as_a_whole_request_is_the_reply() {
+        use drivebus_proto::toshiba::binary::{BinaryAddress, BinaryRequest};
+        use drivebus_proto::toshiba::CommNo;
+        let config = BusConfig::new(WireProtocol::ToshibaBinary, 19200, CharFormat::EVEN_8E1);
+        // R of 0876H to inverter 1: 2F 01 52 08 76, SUM 00. Its reply with data 0002H begins
+        // with the same five bytes and 00: a whole request with a good SUM.
+        let r = BinaryRequest::read(BinaryAddress::Unit(1), CommNo(0x0876));
+        let (mut req, mut rep) = ([0u8; 16], [0u8; 16]);
+        let (n, m) = (r.emit(&mut req).unwrap(), r.reply(1, false, 2).unwrap().emit(&mut rep).unwrap());
+        let (req, rep) = (&req[..n], &rep[..m]);
+        assert_eq!(rep[..req.len()], *req);
+        let expected = [
+            Heard::Request { address: Some(1), bytes: req.to_vec() },
+            Heard::Reply { address: Some(1), request: req.to_vec(), reply: rep.to_vec() },
+        ];
+        // Heard as it came, and in one read (a listener that read late).
+        let mut o = Overheard::new(&config, Duration::from_millis(100));
+        let mut out = Vec::new();
+        o.push(Instant::from_millis(0), req, &mut out);
+        o.push(Instant::from_millis(10), rep, &mut out);
+        o.tick(Instant::from_millis(500), &mut out);
+        assert_eq!(out, expected);
+        let mut o = Overheard::new(&config, Duration::from_millis(100));
+        let mut out = Vec::new();
+        o.push(Instant::from_millis(10), &[req, rep].concat(), &mut out);
+        o.tick(Instant::from_millis(500), &mut out);
+        assert_eq!(out, expected);
     }
 }

@@ -384,6 +384,8 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             let every = l.learnt.lock().unwrap_or_else(|p| p.into_inner()).interval(job.address);
             self.link.now() - every.unwrap_or(Duration::ZERO).min(l.role.silence())
         });
+        // The wait counts from the poll's start, however often the role's timer wakes it.
+        let give_up = self.link.now() + SHADOW_WAIT;
         while let Some(l) = self.listening.as_mut() {
             if l.role.may_send() {
                 break;
@@ -392,8 +394,6 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             if !master && priority != Priority::Poll {
                 return Err(BusError::Standby(self.link.name()));
             }
-            let start = self.link.now();
-            let give_up = start + SHADOW_WAIT;
             let until = l.role.poll_timeout().map_or(give_up, |t| t.min(give_up));
             let want = (!master).then_some(Want {
                 request: job.exchange.request.as_slice(),
@@ -411,6 +411,11 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                     l.learnt.lock().unwrap_or_else(|p| p.into_inner()).answer(w.request, w.since)
                 {
                     return Ok(Some(reply));
+                }
+                // A set-up value never heard: the master does not read it; say so at once (a
+                // status is then read without it).
+                if l.learnt.lock().unwrap_or_else(|p| p.into_inner()).unheard_setup(w.request) {
+                    return Err(BusError::Unheard(self.link.name()));
                 }
             }
             if let Some(answer) = self.hear_until(until, want).await {
@@ -495,9 +500,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                         if let Some(t) = l.role.heard_request(now) {
                             l.publish(Some(t));
                         }
-                        if let Some(a) = address.filter(|a| *a != 0) {
-                            learnt.request(now, a, &bytes);
-                        }
+                        learnt.request(now, address, &bytes);
                     }
                     Heard::Reply { address, request, reply } => {
                         learnt.reply(now, &request, &reply);

@@ -31,7 +31,8 @@
 //! Reference and MAV are 0x4000 = 100 % of 3-02..3-03 (0 Hz..3-03 with 3-00 = -max..+max).
 //! The profile **reads 3-00, 3-02 and 3-03 from the drive** the first time it needs them (a
 //! status, a set speed), and 4-14 Motor Speed High Limit before the first SetSpeed, then keeps
-//! them; reading or writing one of them through the profile updates what it keeps. A SetSpeed
+//! them; reading or writing one of them through the profile updates what it keeps, and a status
+//! after [`Profile::refresh_setup`] reads 3-00, 3-02, 3-03 and 16-02 again. A SetSpeed
 //! is refused (`OutOfRange`) below 0 Hz, below 3-02 (min–max range) and above the lower of
 //! 3-03 and 4-14; values that cannot be right on any drive (above 500 Hz, the highest 4-14)
 //! are refused before anything is sent. A broadcast profile cannot read: it uses the catalog
@@ -257,6 +258,8 @@ struct Memory {
     setpoint_hz: Option<f64>,
     /// The drive's reference scaling, as far as known.
     known: Known,
+    /// The next status reads the scaling again ([`Profile::refresh_setup`]).
+    refresh: bool,
 }
 
 /// The profile's fixed part and its memory, shared with its plans.
@@ -397,10 +400,29 @@ impl DanfossProfile {
                     return Err(no_reply("a status"));
                 }
                 plan.goal = Goal::Status;
-                plan.read_scale(false);
-                if inner.memory().setpoint_hz.is_none() {
+                let refresh = std::mem::take(&mut inner.memory().refresh);
+                if refresh {
+                    // Set-up values read again on the slow schedule: the drive's panel may
+                    // have changed them, and a standby listening learns them from these reads.
+                    for pnu in [REF_RANGE, MIN_REF, MAX_REF] {
+                        plan.push(Action::read(pnu, 0, Why::Scale));
+                    }
+                } else {
+                    plan.read_scale(false);
+                }
+                if refresh && inner.memory().ctw.is_none() {
+                    // Nothing commanded: the setpoint is the drive's 16-02, read again (a
+                    // standby's profile follows the setpoints its master commands so).
+                    inner.memory().setpoint_hz = None;
+                }
+                let memory = *inner.memory();
+                if memory.setpoint_hz.is_none() {
                     // Nothing commanded yet: the reference the drive holds (16-02).
                     plan.push(Action::read(REFERENCE_PCT, 0, Why::SyncReference));
+                } else if refresh && memory.ctw.is_some() {
+                    // The setpoint is the one commanded; 16-02 is read for a standby's sake
+                    // (its profile, which commands nothing, reads it for the setpoint).
+                    plan.push(Action::read(REFERENCE_PCT, 0, Why::Listeners));
                 }
                 plan.push(Action::read(MOTOR_CURRENT, 0, Why::Current));
             }
@@ -581,6 +603,27 @@ impl Profile for DanfossProfile {
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError> {
         Ok(Box::new(self.plan_for(op)?))
     }
+
+    /// A status of 16-14 alone: the status word (running, trip) and the current; the output
+    /// frequency only where 3-00, 3-02 and 3-03 are known, the setpoint only once commanded
+    /// or read.
+    fn plan_status_without_setup(&self) -> Option<Result<Box<dyn Plan>, DriveError>> {
+        if self.inner.broadcast() {
+            return Some(self.plan(&Operation::Status));
+        }
+        let mut plan = FcPlan::new(Arc::clone(&self.inner), Goal::Status);
+        plan.push(Action::read(MOTOR_CURRENT, 0, Why::Current));
+        Some(Ok(Box::new(plan)))
+    }
+
+    /// The next status reads 3-00, 3-02, 3-03 and 16-02 again (16-02 for the setpoint while
+    /// the profile has commanded none, else only for a standby listening). A broadcast profile
+    /// reads nothing.
+    fn refresh_setup(&self) {
+        if !self.inner.broadcast() {
+            self.inner.memory().refresh = true;
+        }
+    }
 }
 
 /// What the plan ends with.
@@ -602,6 +645,8 @@ enum Why {
     SyncReference,
     /// 16-14 for a status.
     Current,
+    /// Read so that a standby listening hears it; the value is not used.
+    Listeners,
     /// 15-30 element 0 for a status of a tripped drive.
     Alarm,
     /// 15-30 element 0 for a refusal.
@@ -811,6 +856,8 @@ impl FcPlan {
                         return Err(refused(refusal, None))
                     }
                     (Err(DriveError::Refused { .. }), Why::Alarm) => return Ok(()),
+                    // Read for a listener only: a drive that will not tell still has a status.
+                    (Err(DriveError::Refused { .. }), Why::Listeners) => return Ok(()),
                     (Err(e), _) => return Err(e),
                 };
                 match why {
@@ -831,6 +878,7 @@ impl FcPlan {
                         }
                     }
                     Why::Alarm => self.alarm = Some(alarm_fault(raw as u32)),
+                    Why::Listeners => {}
                     Why::Refusal(refusal) => return Err(refused(refusal, Some(raw as u32))),
                     Why::User => {
                         if index == 0 {

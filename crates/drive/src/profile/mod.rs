@@ -300,6 +300,20 @@ pub trait Profile: Send + Sync {
     fn param(&self, name: &str) -> Result<&ParamDef, DriveError>;
     /// Starts `op`, after checking its values (a speed against the drive's limits).
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError>;
+    /// Makes the next status read again the drive's set-up values that the profile otherwise
+    /// reads once and keeps to decode a status (Danfoss 3-00, 3-02, 3-03; Toshiba FE70, and
+    /// f875–f879 in TIP binary mode): they may have been changed on the drive's panel, and a
+    /// standby that started listening later learns them only from such a read. What is known
+    /// is kept until the new values come. Profiles that keep no set-up value do nothing.
+    fn refresh_setup(&self) {}
+    /// A status that reads none of those set-up values, for a standby listening beside a master
+    /// that never reads them: it decodes with what the profile knows of them, and a value that
+    /// needs one it does not know comes out unknown (`None`), never guessed (Danfoss: output
+    /// frequency, direction and setpoint; Toshiba: current). `None` for a profile that keeps no
+    /// set-up value (its status is the same plan).
+    fn plan_status_without_setup(&self) -> Option<Result<Box<dyn Plan>, DriveError>> {
+        None
+    }
 }
 
 /// The profile for drive `address` of `family` spoken in `protocol`.

@@ -5,7 +5,7 @@
 //!
 //! | operation | exchanges |
 //! |---|---|
-//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile; FD01, FD00, FE03 needed), asking for the read groups up to the last of those three (3 with the default selection; FC90 is used where it lies within them, else read when FD01 says tripped), and FE02: 31 bytes on the wire instead of 56 |
+//! | Status | read FD01 (status 1), FD00 (output frequency), FE02 (frequency command), FE03 (current, 0.01 % of FE70), FE70 (rated current, 0.1 A: read once per profile, and again after [`Profile::refresh_setup`]), FC90 (trip code, only when FD01 says tripped). Binary mode (block status, on by default, [`ToshibaProfile::with_block_status`]): one `X` block read of the items f875–f879 select (read once per profile and after a refresh; FD01, FD00, FE03 needed), asking for the read groups up to the last of those three (3 with the default selection; FC90 is used where it lies within them, else read when FD01 says tripped), and FE02: 31 bytes on the wire instead of 56 |
 //! | Run / Jog | read FD01 (trip, direction), write FA00 = C400H / C500H with bit 9 = the direction FD01 shows |
 //! | Reverse | read FD01, write FA00 with bit 9 turned over (a running drive ramps through zero) |
 //! | Stop | write FA00 = C000H (command and frequency priority kept, run off), bit 9 as last known |
@@ -238,6 +238,9 @@ struct Memory {
     reverse: AtomicBool,
     /// What the drive's block read items (f875–f879) carry, once read.
     block: Mutex<BlockMap>,
+    /// The next status reads FE70 (and f875–f879 in block status) again
+    /// ([`Profile::refresh_setup`]).
+    refresh: AtomicBool,
 }
 
 impl Memory {
@@ -446,6 +449,29 @@ impl Profile for ToshibaProfile {
         self.def(name)
     }
 
+    /// A status without FE70 and f875–f879: the block read where its items are known, else
+    /// one number per request; the current only where FE70 is known.
+    fn plan_status_without_setup(&self) -> Option<Result<Box<dyn Plan>, DriveError>> {
+        if let Err(e) = self.needs_reply("Status") {
+            return Some(Err(e));
+        }
+        let block = self.block_status && self.protocol == WireProtocol::ToshibaBinary;
+        let mut todo = match (block, self.memory.block()) {
+            (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
+            _ => single_status_reads(),
+        };
+        todo.reverse();
+        Some(Ok(self.plan_for(Job::Status(StatusJob { todo, got: Monitors::default() }))))
+    }
+
+    /// The next status reads FE70 again, and in TIP binary mode with block status f875–f879.
+    /// A broadcast profile reads nothing.
+    fn refresh_setup(&self) {
+        if !self.is_broadcast() {
+            self.memory.refresh.store(true, Ordering::Relaxed);
+        }
+    }
+
     fn plan(&self, op: &Operation) -> Result<Box<dyn Plan>, DriveError> {
         let command = |kind: CommandKind| -> Result<Job, DriveError> {
             if self.is_broadcast() && kind == CommandKind::Run {
@@ -459,12 +485,16 @@ impl Profile for ToshibaProfile {
             Operation::Status => {
                 self.needs_reply("Status")?;
                 let block = self.block_status && self.protocol == WireProtocol::ToshibaBinary;
+                // Set-up values read again on the slow schedule: the drive's panel may have
+                // changed them, and a standby listening learns them from these reads.
+                let refresh = self.memory.refresh.swap(false, Ordering::Relaxed);
                 let mut todo = match (block, self.memory.block()) {
+                    (true, _) if refresh => (F875..=F879).map(Ask::Read).collect(),
                     (true, BlockMap::Unknown) => (F875..=F879).map(Ask::Read).collect(),
                     (true, map @ BlockMap::Items(_)) => vec![Ask::Block(map.groups()), Ask::Read(FE02)],
                     _ => single_status_reads(),
                 };
-                if self.memory.rated_current.load(Ordering::Relaxed) == 0 {
+                if refresh || self.memory.rated_current.load(Ordering::Relaxed) == 0 {
                     todo.push(Ask::Read(FE70));
                 }
                 todo.reverse();

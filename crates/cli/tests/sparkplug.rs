@@ -500,8 +500,9 @@ fn bad_sparkplug_flags_are_one_line_errors() {
 }
 
 /// A `drivebus serve` of `[standby]` on `pty` (drives d1, d2 of a simulated line), publishing
-/// MQTT and Sparkplug B to `broker`, as edge node and MQTT gateway `name`.
-fn standby_serve(dir: &Path, name: &str, pty: &Path, broker: SocketAddr, standby: bool) -> Serve {
+/// MQTT and Sparkplug B to `broker`, as edge node and MQTT gateway `name`; `more` is added to
+/// its configuration (another bus).
+fn standby_serve(dir: &Path, name: &str, pty: &Path, broker: SocketAddr, standby: bool, more: &str) -> Serve {
     let mut text = format!(
         "name = \"{name}\"\n[http]\nanonymous_read = true\n[standby]\nrole = \"{}\"\nsilence_ms = 500\n\
          [[bus]]\nname = \"line\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\n",
@@ -513,6 +514,7 @@ fn standby_serve(dir: &Path, name: &str, pty: &Path, broker: SocketAddr, standby
             "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 200\n"
         ));
     }
+    text.push_str(more);
     let config = dir.join(format!("{name}.toml"));
     std::fs::write(&config, text).unwrap();
     let http: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
@@ -560,10 +562,10 @@ async fn the_host_sees_the_killed_masters_ndeath_and_the_standbys_nbirth() {
         tokio::time::sleep(std::time::Duration::from_millis(50)).await;
     }
     let devices = ["d1".to_string(), "d2".to_string()];
-    let mut master = standby_serve(dir.path(), "hall-a", &a, broker.addr, false);
+    let mut master = standby_serve(dir.path(), "hall-a", &a, broker.addr, false, "");
     let at = host.wait("hall-a's births", |log| births_of(log, "hall-a", 0, &devices)).await;
     let bd_seq = host.log()[at]["bdSeq"].as_u64().expect("bdSeq");
-    let standby = standby_serve(dir.path(), "hall-b", &b, broker.addr, true);
+    let standby = standby_serve(dir.path(), "hall-b", &b, broker.addr, true, "");
 
     // The standby is connected (it says offline) and hears the master's answers...
     watcher
@@ -611,5 +613,61 @@ async fn the_host_sees_the_killed_masters_ndeath_and_the_standbys_nbirth() {
             (online && d1.is_some_and(|m| m.text.contains(r#""source":"master""#))).then_some(())
         })
         .await;
+    host.assert_no_violation();
+}
+
+/// A gateway that masters one of its buses and only hears the other publishes every drive; each
+/// device's `Source` metric says whose values they are, and changes when the heard bus is taken.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs mosquitto and pysparkplug (.ci/install-witnesses.sh)"]
+async fn drives_on_a_bus_the_node_only_hears_carry_the_standby_source() {
+    let Some(bin) = witnesses() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let broker = Mosquitto::start(&bin, free_port()).await;
+    let host = Host::start(broker.addr, None).await;
+    let (a, b, solo) = (dir.path().join("pty-a"), dir.path().join("pty-b"), dir.path().join("pty-solo"));
+    let pty = |p: &Path| p.to_str().unwrap().to_string();
+    let drives = ["--drive", "generic@1:modbus-rtu", "--drive", "generic@2:modbus-rtu"];
+    let _line = sim::simulate_with(&[&drives[..], &["--pty", &pty(&a), "--pty", &pty(&b)]].concat());
+    // A line of its own that nobody else masters: hall-b takes it.
+    let _solo = sim::simulate_with(&["--drive", "generic@3:modbus-rtu", "--pty", &pty(&solo)]);
+    let mut master = standby_serve(dir.path(), "hall-a", &a, broker.addr, false, "");
+    let devices = ["d1".to_string(), "d2".to_string()];
+    host.wait("hall-a's births", |log| births_of(log, "hall-a", 0, &devices)).await;
+    let more = format!(
+        "[[bus]]\nname = \"solo\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\n\
+         [[bus.drive]]\nname = \"d3\"\nfamily = \"generic\"\naddress = 3\npoll_ms = 200\n",
+        solo.display()
+    );
+    let _b = standby_serve(dir.path(), "hall-b", &b, broker.addr, true, &more);
+    // hall-b masters "solo" and listens on "line": it births all three drives.
+    let all = ["d1".to_string(), "d2".to_string(), "d3".to_string()];
+    let born = host.wait("hall-b's births", |log| births_of(log, "hall-b", 0, &all)).await;
+    // The Source of `device` in hall-b's first DBIRTH after `from`, and in its last DBIRTH or
+    // DDATA that carries it.
+    let birth_source = |log: &[Value], device: &str| {
+        of(log, "DBIRTH", "hall-b")
+            .find(|(i, m)| *i > born && m["device"] == device)
+            .and_then(|(_, m)| metric(m, "Source").map(|x| x["value"].clone()))
+    };
+    let last_source = |log: &[Value], device: &str| {
+        log.iter()
+            .rev()
+            .filter(|m| m["edge"] == "hall-b" && m["device"] == device)
+            .filter(|m| m["type"] == "DBIRTH" || m["type"] == "DDATA")
+            .find_map(|m| metric(m, "Source").map(|x| x["value"].clone()))
+    };
+    let log = host.log();
+    assert_eq!(birth_source(&log, "d1"), Some(Value::from("standby")), "{log:?}");
+    assert_eq!(birth_source(&log, "d2"), Some(Value::from("standby")), "{log:?}");
+    assert_eq!(birth_source(&log, "d3"), Some(Value::from("master")), "{log:?}");
+    // The master dies: hall-b takes "line" too, and says so in d1's and d2's Source.
+    master.kill();
+    for d in ["d1", "d2"] {
+        host.wait(&format!("{d}'s Source master"), |log| {
+            (last_source(log, d) == Some(Value::from("master"))).then_some(())
+        })
+        .await;
+    }
     host.assert_no_violation();
 }

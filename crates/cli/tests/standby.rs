@@ -5,6 +5,10 @@
 //! frame of the master's garbled with a drive's late reply on a loaded machine must come with a
 //! reply the master missed; the counts are printed).
 //!
+//! A gateway that hears another master (`drivebus monitor` on the other pty) yields and takes the
+//! line back when that one falls silent; a standby that takes over polls at the intervals it
+//! learnt from the master, not at its own `poll_ms`.
+//!
 //! `DRIVEBUS_STANDBY_KILLS=20` runs twenty kills (three by default) and prints the takeover
 //! times.
 
@@ -12,6 +16,7 @@ use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
@@ -50,17 +55,23 @@ fn simulate(dir: &Path) -> (Killed, [PathBuf; 2], SocketAddr) {
     (Killed(child), ptys, control.expect("control"))
 }
 
-/// The configuration of a gateway on `pty`.
+/// The configuration of a gateway on `pty`: the 8 drives, each polled every 500 ms.
 fn config(dir: &Path, name: &str, pty: &Path, role: &str) -> PathBuf {
+    config_polling(dir, name, pty, role, &[500; DRIVES as usize])
+}
+
+/// The configuration of a gateway on `pty`: drive `d{a}` at address `a` polled every
+/// `poll_ms[a - 1]` ms, for each of `poll_ms`.
+fn config_polling(dir: &Path, name: &str, pty: &Path, role: &str, poll_ms: &[u64]) -> PathBuf {
     let mut text = format!(
         "name = \"{name}\"\n[[token]]\nname = \"ops\"\ntoken = \"{TOKEN}\"\nrole = \"write\"\n\
          [http]\nanonymous_read = true\n[standby]\nrole = \"{role}\"\nsilence_ms = 500\n\
          [[bus]]\nname = \"line\"\nport = \"{}\"\nprotocol = \"modbus-rtu\"\n",
         pty.display()
     );
-    for a in 1..=DRIVES {
+    for (a, poll) in (1..).zip(poll_ms) {
         text.push_str(&format!(
-            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = 500\n"
+            "[[bus.drive]]\nname = \"d{a}\"\nfamily = \"generic\"\naddress = {a}\npoll_ms = {poll}\n"
         ));
     }
     let file = dir.join(format!("{name}.toml"));
@@ -72,6 +83,8 @@ fn config(dir: &Path, name: &str, pty: &Path, role: &str) -> PathBuf {
 struct Gateway {
     child: Option<Killed>,
     http: SocketAddr,
+    /// Its log (stderr), line by line as it comes.
+    log: Arc<Mutex<Vec<String>>>,
 }
 
 impl Gateway {
@@ -86,7 +99,14 @@ impl Gateway {
         if standby {
             cmd.arg("--standby");
         }
-        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::null()).spawn().expect("start serve");
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("start serve");
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let (err, kept) = (BufReader::new(child.stderr.take().unwrap()), log.clone());
+        std::thread::spawn(move || {
+            for l in err.lines().map_while(Result::ok) {
+                kept.lock().unwrap().push(l);
+            }
+        });
         let out = BufReader::new(child.stdout.take().unwrap());
         let mut lines = out.lines();
         // The listeners are bound when the banner's HTTP line is out.
@@ -96,7 +116,7 @@ impl Gateway {
             }
         }
         std::thread::spawn(move || for _ in lines {});
-        Gateway { child: Some(Killed(child)), http }
+        Gateway { child: Some(Killed(child)), http, log }
     }
 
     fn get(&self, path: &str) -> Value {
@@ -112,6 +132,31 @@ impl Gateway {
 
     fn transactions(&self) -> u64 {
         self.get("/api/buses")[0]["transactions"].as_u64().unwrap_or(0)
+    }
+
+    /// The value of the metric `name` of the bus `line` in `/metrics`.
+    fn bus_metric(&self, name: &str) -> f64 {
+        let (status, text) = http::request(self.http, "GET", "/metrics", None, None);
+        assert_eq!(status, 200, "{text}");
+        let series = format!("{name}{{bus=\"line\"}} ");
+        let line = text.lines().find_map(|l| l.strip_prefix(series.as_str()));
+        line.unwrap_or_else(|| panic!("no {series}in /metrics:\n{text}")).trim().parse().unwrap()
+    }
+
+    /// The events of `kind` on the bus `line`.
+    fn bus_events(&self, kind: &str) -> Vec<Value> {
+        let v = self.get(&format!("/api/events?kind={kind}"));
+        v.as_array().unwrap().iter().filter(|e| e["bus"] == "line").cloned().collect()
+    }
+
+    /// Each drive's status polls so far (`/api/drives`' `polls`), by name.
+    fn polls(&self) -> std::collections::HashMap<String, u64> {
+        let v = self.get("/api/drives");
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|d| (d["id"].as_str().unwrap().to_string(), d["polls"].as_u64().unwrap()))
+            .collect()
     }
 
     /// `kill -9`.
@@ -169,6 +214,7 @@ fn the_standby_takes_over_a_killed_master_and_the_old_one_stays_standby() {
     assert!(events.to_string().contains("standby"), "the refusal is audited: {events}");
     let kills: usize = std::env::var("DRIVEBUS_STANDBY_KILLS").ok().and_then(|v| v.parse().ok()).unwrap_or(3);
     let mut took = Vec::new();
+    let mut worsts = Vec::new();
     let mut master = 0;
     for kill in 0..kills {
         let standby = 1 - master;
@@ -190,6 +236,7 @@ fn the_standby_takes_over_a_killed_master_and_the_old_one_stays_standby() {
             let v = gw[standby].get("/api/events?kind=takeover");
             v.as_array().is_some_and(|a| a.iter().any(|e| e["bus"] == "line"))
         });
+        worsts.push(worst);
         assert!(worst <= 2500, "kill {kill}: a drive's data was {worst} ms old");
         // The old master restarted (as configured: active) hears the new one and stays standby.
         gw[master] = Gateway::start(&configs[master], false);
@@ -205,6 +252,7 @@ fn the_standby_takes_over_a_killed_master_and_the_old_one_stays_standby() {
         master = standby;
     }
     took.sort();
+    println!("the oldest data age the standby showed until it polled, per kill (ms): {worsts:?}");
     println!(
         "takeover over {} kills: min {:?}, median {:?}, max {:?}; garbled frames on the line: {}",
         took.len(),
@@ -273,6 +321,109 @@ fn two_gateways_started_at_once_end_with_one_master_and_a_quiet_line() {
         grown(&line0, &line1, "garbled_frames")
     );
     println!("garbled frames at the common start: {before}");
+}
+
+/// `drivebus monitor` polling drive 1 every 100 ms on `pty`: another master on the line. The
+/// count of its refreshes that got the drive's answer goes up as it prints them.
+fn monitor(pty: &Path) -> (Killed, Arc<Mutex<u64>>) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_drivebus"))
+        .arg("--port")
+        .arg(pty)
+        .args(["--drive", "generic", "--protocol", "modbus-rtu", "--address", "1"])
+        .args(["monitor", "--plain", "--interval", "100"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start monitor");
+    let answered = Arc::new(Mutex::new(0));
+    let (out, count) = (BufReader::new(child.stdout.take().unwrap()), answered.clone());
+    std::thread::spawn(move || {
+        for l in out.lines().map_while(Result::ok) {
+            if l.contains("online=yes") && !l.contains(" error=") {
+                *count.lock().unwrap() += 1;
+            }
+        }
+    });
+    (Killed(child), answered)
+}
+
+#[test]
+fn a_master_that_hears_another_master_yields_and_takes_the_line_back_when_it_falls_silent() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_sim, ptys, _control) = simulate(dir.path());
+    let gw = Gateway::start(&config(dir.path(), "a", &ptys[0], "active"), false);
+    wait("the gateway masters the line and polls", || gw.role() == "master" && gw.transactions() > 0);
+    assert_eq!(gw.bus_metric("drivebus_bus_role"), 1.0);
+    assert_eq!(gw.bus_metric("drivebus_bus_yields_total"), 0.0);
+    // Another master (a commissioning tool on the other port) polls drive 1 every 100 ms.
+    let (other, answered) = monitor(&ptys[1]);
+    let heard = Instant::now();
+    wait("the gateway yields: role standby, counted, an event", || {
+        gw.role() == "standby"
+            && gw.bus_metric("drivebus_bus_yields_total") >= 1.0
+            && !gw.bus_events("yield").is_empty()
+    });
+    let yielded = heard.elapsed();
+    assert_eq!(gw.bus_metric("drivebus_bus_role"), 0.0);
+    let e = &gw.bus_events("yield")[0];
+    assert_eq!(e["detail"]["role"], "standby", "{e}");
+    assert!(e["result"].as_str().unwrap().contains("stopped sending"), "{e}");
+    wait("the yield is in the log", || {
+        gw.log.lock().unwrap().iter().any(|l| l.contains(" yield line") && l.contains("stopped sending"))
+    });
+    // It sends nothing while the other master polls: its requests stay as many while the
+    // other gets 10 answers more (a takeover in between, the other starved of CPU for longer
+    // than the silence, would be counted, and then it yields again).
+    let (sent, took) = (gw.transactions(), gw.bus_metric("drivebus_bus_takeovers_total"));
+    let got = *answered.lock().unwrap();
+    wait("the other master polls on", || *answered.lock().unwrap() >= got + 10);
+    if gw.bus_metric("drivebus_bus_takeovers_total") == took {
+        assert_eq!(gw.transactions(), sent, "a gateway that yielded sent requests");
+    }
+    // Its view of the drive the other polls stays warm from what it hears meanwhile.
+    wait("it serves d1's values from what it hears", || ages(&gw)[0].is_some_and(|a| a < 2500));
+    // The other falls silent: the gateway takes the line back and polls again.
+    drop(other);
+    let silent = Instant::now();
+    let sent = gw.transactions();
+    wait("the gateway takes the line back and polls", || gw.role() == "master" && gw.transactions() > sent);
+    let back = silent.elapsed();
+    assert_eq!(gw.bus_metric("drivebus_bus_role"), 1.0);
+    assert!(gw.bus_metric("drivebus_bus_takeovers_total") >= 1.0);
+    wait("the takeover is an event", || !gw.bus_events("takeover").is_empty());
+    println!(
+        "yielded {yielded:?} after the other master began; took the line back {back:?} after it stopped"
+    );
+}
+
+#[test]
+fn a_standby_that_takes_over_polls_each_drive_at_the_interval_it_learnt() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_sim, ptys, _control) = simulate(dir.path());
+    // Two of the line's drives: the master polls d1 every 100 ms and d2 every 500 ms (about
+    // half the line's time at 9600 baud); the standby's own configuration says 500 ms for both.
+    let a = config_polling(dir.path(), "a", &ptys[0], "active", &[100, 500]);
+    let b = config_polling(dir.path(), "b", &ptys[1], "standby", &[500, 500]);
+    let mut gw = [Gateway::start(&a, false), Gateway::start(&b, true)];
+    wait("a masters the line", || gw[0].role() == "master");
+    wait("b serves every drive from what it hears", || {
+        gw[1].role() == "standby" && ages(&gw[1]).iter().all(|a| a.is_some_and(|a| a < 2500))
+    });
+    // Long enough for b's learnt intervals to settle (they are smoothed over about four
+    // sendings, and a's first polls after its start came in a burst).
+    let p = gw[0].polls();
+    wait("a polls on", || gw[0].polls()["d2"] >= p["d2"] + 10);
+    gw[0].kill9();
+    wait("b takes over", || gw[1].role() == "master" && gw[1].transactions() > 0);
+    // From the takeover on, b polls d1 at the 100 ms it learnt and d2 at its own 500 ms:
+    // counted over the same stretch, about five polls of d1 to one of d2 (one to one if b
+    // polled at its own poll_ms). Counts, not times: a loaded machine slows both alike.
+    let p0 = gw[1].polls();
+    wait("b polls d2 ten times", || gw[1].polls()["d2"] >= p0["d2"] + 10);
+    let p1 = gw[1].polls();
+    let (d1, d2) = (p1["d1"] - p0["d1"], p1["d2"] - p0["d2"]);
+    println!("after the takeover: {d1} polls of d1 (learnt 100 ms), {d2} of d2 (500 ms)");
+    assert!(d1 >= 2 * d2 + 5, "d1 polled {d1} times while d2 was {d2} times: not at the learnt interval");
 }
 
 #[test]

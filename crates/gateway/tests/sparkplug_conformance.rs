@@ -195,9 +195,6 @@ const ASSERTIONS: &[(&str, &str)] = &[
 const GROUP: &str = "conf";
 const EDGE: &str = "hall-c";
 const HOST_ID: &str = "scada";
-/// How long the node is given to do what it must not do (publish, disconnect) before the test
-/// goes on: checks over such a window can only miss a slow fault, never fail a correct node.
-const QUIET: Duration = Duration::from_millis(700);
 
 // ---------------------------------------------------------------------------------------------
 // The wire tap.
@@ -474,6 +471,45 @@ async fn until(mut f: impl FnMut() -> bool) -> bool {
     true
 }
 
+/// The node's count of refused commands (`drivebus_sparkplug_commands_refused_total`).
+fn refused(p: &EdgeProcess) -> u64 {
+    let text = drivebus_gateway::metrics::render(&p.gw).unwrap();
+    text.lines()
+        .filter(|l| l.starts_with("drivebus_sparkplug_commands_refused_total{"))
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum::<f64>() as u64
+}
+
+/// Waits until the node has handled every message sent to it so far, not a fixed time: it is
+/// sent an NCMD that is no Sparkplug payload (again until it is heard, in case its
+/// subscription was not yet in place), which it refuses and counts, and it handles its
+/// messages in order. The Unix time (ms) then, once the clock has moved past it: whatever the
+/// node did on the earlier messages (a birth, a leave) is stamped at or before it, and whatever
+/// it does on the next ones after it. `None` if the node never refused the probe.
+async fn handled(host: &Subscriber, p: &EdgeProcess) -> Option<u64> {
+    let before = refused(p);
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let topic = format!("spBv1.0/{GROUP}/NCMD/{EDGE}");
+        host.client.publish(topic, QoS::AtMostOnce, false, b"not sparkplug".to_vec()).await.unwrap();
+        let resend = tokio::time::Instant::now() + Duration::from_millis(500);
+        while refused(p) == before && tokio::time::Instant::now() < resend {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        if refused(p) > before {
+            break;
+        }
+        if tokio::time::Instant::now() > deadline {
+            return None;
+        }
+    }
+    let t = unix_ms();
+    while unix_ms() <= t {
+        tokio::task::yield_now().await;
+    }
+    Some(t)
+}
+
 // ---------------------------------------------------------------------------------------------
 // The scenario.
 
@@ -488,6 +524,10 @@ struct Marks {
     stale_offline: (usize, usize),
     offline: usize,
     back_online: (usize, usize),
+    /// When the node had handled the message before each window where it must not act
+    /// ([`handled`]): the retained offline STATE, the stale online STATE, the stale offline
+    /// STATE, and its new session's subscription while the host is offline.
+    handled: [Option<u64>; 4],
     kill: (usize, usize),
     restart: (usize, usize),
 }
@@ -533,11 +573,11 @@ async fn scenario() -> Run {
     })
     .await;
     seen.insert("subscribed to STATE", ok);
-    tokio::time::sleep(QUIET).await;
+    m.handled[0] = handled(&host, &p1).await;
     // Online, but older than the offline STATE.
     m.stale_online = tap.len();
     state(&host, true, stamp - 1).await;
-    tokio::time::sleep(QUIET).await;
+    m.handled[1] = handled(&host, &p1).await;
     m.online = tap.len();
     state(&host, true, stamp + 1).await;
     let births = |from: usize| {
@@ -594,7 +634,7 @@ async fn scenario() -> Run {
     // Offline, but older than the online STATE: nothing happens.
     m.stale_offline.0 = tap.len();
     state(&host, false, stamp).await;
-    tokio::time::sleep(QUIET).await;
+    m.handled[2] = handled(&host, &p1).await;
     m.stale_offline.1 = tap.len();
 
     // The host goes offline: NDEATH, disconnect, a new session that waits.
@@ -612,7 +652,7 @@ async fn scenario() -> Run {
     })
     .await;
     seen.insert("left and connected again", ok);
-    tokio::time::sleep(QUIET).await;
+    m.handled[3] = handled(&host, &p1).await;
     m.back_online = (tap.len(), hlen());
     state(&host, true, stamp + 3).await;
     let (back, from) = m.back_online;
@@ -1268,16 +1308,25 @@ fn evaluate(run: &Run) -> Verdicts {
     let pubs_in = |from: usize, to: usize, kind: &str| {
         pubs.iter().filter(|p| p.at >= from && p.at < to && p.kind == kind).count()
     };
+    // Whether the node published `kind` (from the wire's `from` on) stamped at or before the
+    // time it had handled a message (`m.handled`): what it did on that message or an earlier
+    // one, however late it reached the wire. `true` when the probe was never handled.
+    let made_by = |kind: &str, from: usize, handled: Option<u64>| {
+        let Some(t) = handled else { return true };
+        pubs.iter()
+            .filter(|p| p.kind == kind && p.at >= from)
+            .any(|p| p.payload.as_ref().and_then(|x| x.timestamp).map_or(true, |ts| ts <= t))
+    };
     let first_conn_births = pubs.iter().find(|p| p.kind == "NBIRTH").map(|p| p.at);
     let waited = run.seen["subscribed to STATE"] && run.seen["births after online"];
     v.check(
         &["message-flow-edge-node-birth-publish-phid-wait-online"],
-        waited && pubs_in(0, m.stale_online, "NBIRTH") == 0,
+        waited && pubs_in(0, m.stale_online, "NBIRTH") == 0 && !made_by("NBIRTH", 0, m.handled[0]),
         || "NBIRTH while the retained STATE said offline".into(),
     );
     v.check(
         &["message-flow-edge-node-birth-publish-phid-wait-timestamp"],
-        waited && pubs_in(m.stale_online, m.online, "NBIRTH") == 0,
+        waited && pubs_in(m.stale_online, m.online, "NBIRTH") == 0 && !made_by("NBIRTH", 0, m.handled[1]),
         || "NBIRTH on an online STATE older than the offline one".into(),
     );
     let ids = [
@@ -1289,7 +1338,9 @@ fn evaluate(run: &Run) -> Verdicts {
     });
     v.check(
         &ids,
-        run.seen["births after the host is back"] && pubs_in(m.offline, m.back_online.0, "NBIRTH") == 0,
+        run.seen["births after the host is back"]
+            && pubs_in(m.offline, m.back_online.0, "NBIRTH") == 0
+            && !made_by("NBIRTH", m.offline, m.handled[3]),
         || "NBIRTH in the new session before the host was back".into(),
     );
 
@@ -1330,7 +1381,8 @@ fn evaluate(run: &Run) -> Verdicts {
     let disturbed = run.wire[a..b]
         .iter()
         .any(|w| matches!(w.packet, Packet::Disconnect | Packet::Closed | Packet::Connect { .. }))
-        || pubs_in(a, b, "NDEATH") > 0;
+        || pubs_in(a, b, "NDEATH") > 0
+        || made_by("NDEATH", a, m.handled[2]);
     v.check(&["operational-behavior-edge-node-termination-host-offline-timestamp"], !disturbed, || {
         "the node left on an old offline STATE".into()
     });

@@ -11,7 +11,7 @@
 //! goes out (the backoff doubles up to `max_backoff` while it stays silent). So a dead drive
 //! costs the others at most one timeout per backoff interval.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -26,7 +26,7 @@ use crate::fair::{OnDemand, Share, Turn};
 use crate::learn::Learnt;
 use crate::link::Link;
 use crate::overheard::{Heard, Overheard};
-use crate::role::{BusRole, RoleStatus, Transition};
+use crate::role::{BusRole, Role, RoleStatus, Transition};
 
 /// A standby's poll waits this long to hear what answers it from the master's traffic, then
 /// fails with [`BusError::Standby`] (the master polls something else, or nothing).
@@ -98,7 +98,15 @@ impl Bus {
                 let heard = Overheard::new(&heard_config, engine.response_timeout());
                 Listening { role, heard, status, learnt: learning }
             });
-            let owner = Owner { link, engine, rx_buf: Vec::new(), listening, _ended: ended_tx };
+            let owner = Owner {
+                link,
+                engine,
+                rx_buf: Vec::new(),
+                listening,
+                parked: Vec::new(),
+                released: VecDeque::new(),
+                _ended: ended_tx,
+            };
             let Queues { commands, bridged, polls, scans } = queues;
             tokio::spawn(owner.run(commands, bridged, polls, scans, od, share));
         });
@@ -243,6 +251,15 @@ struct Listening {
     learnt: Arc<Mutex<Learnt>>,
 }
 
+/// A standby's poll waiting to be answered from what it hears: by a reply made of what was heard
+/// since `since`, by the master's request to its drive left unanswered, or, at `give_up`, by
+/// [`BusError::Standby`].
+struct Parked {
+    job: Job,
+    since: Instant,
+    give_up: Instant,
+}
+
 /// What a standby's poll waits to hear: the answer to its request, made of what was heard since
 /// it began, or that the master got no answer from its drive.
 #[derive(Clone, Copy)]
@@ -267,6 +284,11 @@ struct Owner<L: Link, P: Protocol> {
     rx_buf: Vec<u8>,
     /// With another gateway on the line: the role and the listener.
     listening: Option<Listening>,
+    /// A standby's polls waiting for what answers them, each apart: one whose drive the master
+    /// has not polled lately holds up no other (see [`Owner::shadow`]).
+    parked: Vec<Parked>,
+    /// Polls parked while listening, sent as the bus's own once it has taken the line.
+    released: VecDeque<Job>,
     /// Dropped after the link (fields drop in order): tells [`Bus::close`] the link is closed.
     _ended: watch::Sender<()>,
 }
@@ -296,6 +318,15 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             if let Some((job, priority)) = first {
                 let result = self.run_job(&job, priority).await;
                 let _ = job.done.send(result);
+                continue;
+            }
+            // Polls that waited while listening, now the bus's own to send (parked again if it
+            // has yielded meanwhile).
+            if let Some(job) = self.released.pop_front() {
+                if let Some(job) = self.shadow(job).await {
+                    let result = self.run_job(&job, Priority::Poll).await;
+                    let _ = job.done.send(result);
+                }
                 continue;
             }
             if poll.is_none() {
@@ -345,6 +376,14 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 Turn::OnDemand => (on_demand.pop(), Priority::OnDemand),
             };
             let Some(job) = job else { continue };
+            let job = if priority == Priority::Poll {
+                match self.shadow(job).await {
+                    Some(job) => job,
+                    None => continue,
+                }
+            } else {
+                job
+            };
             let started = self.link.now();
             let result = self.run_job(&job, priority).await;
             if contended {
@@ -443,6 +482,52 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         result
     }
 
+    /// A standby's poll, answered from what was heard (as [`Owner::run_job`] does) without
+    /// holding up the others: when nothing heard answers it yet it is parked, and
+    /// [`Owner::hear_until`] answers it when the master's exchange with its drive is heard, so
+    /// each drive's values are taken as they come whatever order the master polls in. `None`
+    /// when the poll is answered or parked; the job back when the bus is not listening as a
+    /// standby (it then runs as any other).
+    async fn shadow(&mut self, job: Job) -> Option<Job> {
+        if !self.listening.as_ref().is_some_and(|l| l.role.role() == Role::Standby) {
+            return Some(job);
+        }
+        if !self.link.is_open() {
+            match self.link.reopen().await {
+                Ok(()) => self.engine.link_restored(),
+                Err(e) => {
+                    let _ = job.done.send(Err(BusError::Link(format!("{}: {e}", self.link.name()))));
+                    return None;
+                }
+            }
+        }
+        let now = self.link.now();
+        let _ = self.hear_until(now, None).await;
+        let l = self.listening.as_ref()?;
+        if l.role.role() != Role::Standby {
+            return Some(job);
+        }
+        // A drive the master gets no answer from is offline here too, as a polled one: its polls
+        // are answered at once until a reply of it is heard again.
+        if !self.engine.online(job.address) {
+            let _ = job.done.send(Err(BusError::Offline { address: job.address }));
+            return None;
+        }
+        // Answered by what the master's last poll of that drive saw, and newer: heard within the
+        // master's interval (at most the silence) before, or from now on.
+        let learnt = l.learnt.lock().unwrap_or_else(|p| p.into_inner());
+        let every = learnt.interval(job.address).unwrap_or(Duration::ZERO).min(l.role.silence());
+        let since = now - every;
+        if let Some(reply) = learnt.answer(&job.exchange.request, since) {
+            drop(learnt);
+            let _ = job.done.send(Ok(Some(reply)));
+            return None;
+        }
+        drop(learnt);
+        self.parked.push(Parked { job, since, give_up: now + SHADOW_WAIT });
+        None
+    }
+
     /// Hears the line for a moment ([`IDLE_SLICE`]) while no job waits.
     async fn hear_while_idle(&mut self) {
         if !self.link.is_open() {
@@ -453,7 +538,12 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             }
             self.engine.link_restored();
         }
-        let until = self.link.now() + IDLE_SLICE;
+        let mut until = self.link.now() + IDLE_SLICE;
+        // Parked polls end the slice when one gives up or the line is to be taken.
+        if let Some(l) = self.listening.as_ref().filter(|_| !self.parked.is_empty()) {
+            until = l.role.poll_timeout().map_or(until, |t| t.min(until));
+            until = self.parked.iter().map(|p| p.give_up).fold(until, Instant::min);
+        }
         let _ = self.hear_until(until, None).await;
     }
 
@@ -494,6 +584,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             }
             let mut learnt = l.learnt.lock().unwrap_or_else(|p| p.into_inner());
             let mut replied = false;
+            let mut unanswered: Vec<u8> = Vec::new();
             for h in heard.drain(..) {
                 match h {
                     Heard::Request { address, bytes } => {
@@ -511,6 +602,7 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                     }
                     Heard::NoReply { address: Some(a) } => {
                         self.engine.record(now, a, false);
+                        unanswered.push(a);
                         if want.is_some_and(|w| w.address == a) {
                             answer = Some(Err(BusError::Timeout {
                                 link: self.link.name(),
@@ -526,7 +618,36 @@ impl<L: Link, P: Protocol> Owner<L, P> {
             if let Some(w) = want.filter(|_| replied && answer.is_none()) {
                 answer = learnt.answer(w.request, w.since).map(|r| Ok(Some(r)));
             }
+            // The parked polls this answers, or that wait no longer.
+            let mut k = 0;
+            while k < self.parked.len() {
+                let p = &self.parked[k];
+                let address = p.job.address;
+                let result = if unanswered.contains(&address) {
+                    Some(Err(BusError::Timeout { link: self.link.name(), address, attempts: 1 }))
+                } else if replied {
+                    learnt.answer(&p.job.exchange.request, p.since).map(|r| Ok(Some(r)))
+                } else {
+                    None
+                };
+                match result.or_else(|| (now >= p.give_up).then(|| Err(BusError::Standby(self.link.name()))))
+                {
+                    Some(r) => {
+                        let _ = self.parked.remove(k).job.done.send(r);
+                    }
+                    None => k += 1,
+                }
+            }
             drop(learnt);
+            // The line falls silent while polls wait: it is taken, and they go out as its own.
+            if !self.parked.is_empty() {
+                if let Some(t) = l.role.poll(now) {
+                    l.publish(Some(t));
+                }
+                if l.role.may_send() {
+                    self.released.extend(self.parked.drain(..).map(|p| p.job));
+                }
+            }
             l.publish(None);
             if answer.is_some() || read.is_none() {
                 break;

@@ -204,6 +204,58 @@ async fn twenty_kills_each_hand_the_line_over_within_one_and_a_half_seconds() {
 /// Each status read's drive, when it ended and its result.
 type Statuses = Arc<Mutex<Vec<(u8, tokio::time::Instant, Result<DriveStatus, String>)>>>;
 
+#[tokio::test(start_paused = true)]
+async fn a_standby_poll_the_master_has_not_answered_yet_holds_up_no_other_drives() {
+    let line = line();
+    let (a, b) = masters(&line, true);
+    // The master polls drive 2 every 50 ms and drive 1 every 1.6 s, slower than the silence
+    // (500 ms): a value of drive 1 older than that answers no poll of the standby.
+    let master = a.clone();
+    let a_poll = tokio::spawn(async move {
+        for n in 0u64.. {
+            if n % 32 == 0 {
+                let _ = master.transact(1, read(1, 0x2102), Priority::Poll, None).await;
+            }
+            let _ = master.transact(2, read(2, 0x2102), Priority::Poll, None).await;
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    });
+    wait_for(Duration::from_secs(2), "a masters", || a.role().is_some_and(|r| r.role == Role::Master)).await;
+    // The standby polls both at once, as the gateway's scheduler does on a standby bus: drive
+    // 1's poll waits for the master's next read of it two thirds of the time.
+    let answers: Arc<Mutex<Vec<(u8, tokio::time::Instant, bool)>>> = Default::default();
+    let pollers: Vec<_> = [1u8, 2]
+        .into_iter()
+        .map(|addr| {
+            let (bus, answers) = (b.clone(), answers.clone());
+            tokio::spawn(async move {
+                loop {
+                    let r = bus.transact(addr, read(addr, 0x2102), Priority::Poll, None).await;
+                    answers.lock().unwrap().push((addr, tokio::time::Instant::now(), r.is_ok()));
+                    tokio::time::sleep(Duration::from_millis(10)).await;
+                }
+            })
+        })
+        .collect();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let from = answers.lock().unwrap().len();
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let got: Vec<_> = answers.lock().unwrap()[from..].to_vec();
+    assert!(got.iter().all(|(_, _, ok)| *ok), "{got:?}");
+    assert!(got.iter().any(|(a, _, _)| *a == 1), "drive 1 is answered too: {got:?}");
+    // Drive 2's polls are answered from the master's reads of it every 50 ms, also while drive
+    // 1's poll waits for up to 1.1 s: each poll waits apart.
+    let two: Vec<_> = got.iter().filter(|(a, _, _)| *a == 2).map(|(_, t, _)| *t).collect();
+    let longest = two.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(Duration::MAX);
+    assert!(longest < Duration::from_millis(200), "drive 2 waited {longest:?} for an answer: {got:?}");
+    assert_eq!(b.role().unwrap().role, Role::Standby);
+    assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
+    a_poll.abort();
+    for p in pollers {
+        p.abort();
+    }
+}
+
 /// Reads `quantity` registers from `start` of drive `addr`.
 fn read_span(addr: u8, start: u16, quantity: u16) -> Exchange {
     Exchange {

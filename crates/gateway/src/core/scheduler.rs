@@ -10,6 +10,7 @@ use std::time::Duration;
 use super::cache::{BusEntry, DriveEntry};
 use super::gateway::Gateway;
 use super::views::Change;
+use drivebus_link::role::Role;
 use drivebus_store::time::now_ms;
 use drivebus_store::{Event, EventKind};
 
@@ -35,7 +36,7 @@ impl Gateway {
     /// is polled at a time, or up to the bus's `max_in_flight` drives at once on a modbus-tcp bus
     /// that pipelines (a drive's own reads stay one after another).
     pub(super) async fn poll_bus(self: Arc<Self>, bus: Arc<BusEntry>) {
-        let limit = bus.config.max_in_flight.max(1);
+        let own_limit = bus.config.max_in_flight.max(1);
         let mut generation = u64::MAX;
         let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
         let mut due: Vec<tokio::time::Instant> = Vec::new();
@@ -62,6 +63,10 @@ impl Gateway {
                 wake.await;
                 continue;
             }
+            // A standby's polls are answered from what it hears, each when the master's exchange
+            // with that drive comes by: they all wait at once, so one the master has not polled
+            // lately holds up no other (the bus owner sends none of them).
+            let limit = if bus.role() == Role::Standby { mine.len().max(own_limit) } else { own_limit };
             // The most urgent drive not being polled, while fewer than `limit` polls are under way.
             let pick = (0..mine.len())
                 .filter(|&k| polling.len() < limit && !polling.keys().any(|b| Arc::ptr_eq(b, &mine[k])))

@@ -19,8 +19,10 @@ pub const MAX_SETPOINT_HZ: f64 = 600.0;
 /// Bus statistics are published (NDATA) at most this often unless a bus's link changed, ms.
 pub const NODE_DATA_INTERVAL_MS: i64 = 10_000;
 
-/// A device's status metrics, in alias order: (name, type, unit).
-pub const STATUS_METRICS: [(&str, DataType, &str); 8] = [
+/// A device's status metrics, in alias order: (name, type, unit). `Source` says whose poll
+/// the values come from: `master` (this gateway's own) or `standby` (heard on a line another
+/// gateway masters, `[standby]`), as MQTT's `"source"` does.
+pub const STATUS_METRICS: [(&str, DataType, &str); 9] = [
     ("OutputFrequency", DataType::Double, "Hz"),
     ("Setpoint", DataType::Double, "Hz"),
     ("Current", DataType::Double, "A"),
@@ -29,6 +31,7 @@ pub const STATUS_METRICS: [(&str, DataType, &str); 8] = [
     ("FaultCode", DataType::UInt32, ""),
     ("FaultText", DataType::String, ""),
     ("Online", DataType::Boolean, ""),
+    ("Source", DataType::String, ""),
 ];
 
 /// A device's command metrics (Boolean, written `true`), after the status metrics.
@@ -163,7 +166,7 @@ impl Device {
 }
 
 /// The values of a drive's status metrics, in [`STATUS_METRICS`] order.
-pub fn status_values(v: &DriveView) -> [Option<Value>; 8] {
+pub fn status_values(v: &DriveView) -> [Option<Value>; 9] {
     let known = v.running.is_some();
     [
         v.output_hz.map(Value::Double),
@@ -174,6 +177,7 @@ pub fn status_values(v: &DriveView) -> [Option<Value>; 8] {
         known.then(|| Value::Int(v.fault.as_ref().map_or(0, |f| f.code))),
         known.then(|| Value::String(v.fault.as_ref().map_or(String::new(), |f| f.text.clone()))),
         v.online.map(Value::Boolean),
+        Some(Value::String(v.source.to_string())),
     ]
 }
 
@@ -810,6 +814,29 @@ mod tests {
         let Some(DeviceMessage::Data(p)) = n.on_drive(&v, true, 11) else { panic!() };
         assert_eq!(p.metrics[0].value, Some(Value::Int(0x21)));
         assert_eq!(p.metrics[1].value, Some(Value::String("overcurrent".into())));
+    }
+
+    #[test]
+    fn values_heard_on_a_line_another_gateway_masters_are_marked_standby_until_polled_here() {
+        let mut n = node();
+        n.nbirth(0, &[], 1);
+        // Born while its bus listens: the values are the other master's, heard.
+        let mut v = view("pump-1", Some(true), 10.0);
+        v.source = "standby";
+        let Some(DeviceMessage::Birth(p)) = n.on_drive(&v, true, 5) else { panic!("no DBIRTH") };
+        let source = p.metrics.iter().find(|m| m.name.as_deref() == Some("Source")).expect("Source");
+        assert_eq!(source.value, Some(Value::String("standby".into())), "{source:?}");
+        assert_eq!(source.datatype, Some(DataType::String as u32));
+        // Its bus taken: the mark changes, in a DDATA of that metric alone.
+        v.source = "master";
+        let Some(DeviceMessage::Data(p)) = n.on_drive(&v, true, 6) else { panic!("no DDATA") };
+        let names: Vec<_> = p.metrics.iter().map(|m| m.name.clone().unwrap()).collect();
+        assert_eq!(names, ["Source"]);
+        assert_eq!(p.metrics[0].value, Some(Value::String("master".into())));
+        // A drive of a bus it masters says so from its birth.
+        let p = birth(&mut n, "pump-2");
+        let source = p.metrics.iter().find(|m| m.name.as_deref() == Some("Source")).expect("Source");
+        assert_eq!(source.value, Some(Value::String("master".into())));
     }
 
     #[test]

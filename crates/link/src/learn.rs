@@ -144,6 +144,14 @@ impl Learnt {
         })
     }
 
+    /// True when `request` reads a set-up value of drive `address` that the master does not
+    /// read: its polls of the drive were heard (twice, so its interval is known), the value
+    /// never was (or a write to it was heard since). Before the master's polls are heard
+    /// nothing can be told: the standby waits.
+    pub(crate) fn master_skips_setup(&self, address: u8, request: &[u8]) -> bool {
+        self.interval(address).is_some() && self.unheard_setup(request)
+    }
+
     /// True when `request` reads a set-up value of which nothing was ever heard (or a write
     /// to it was heard since).
     pub(crate) fn unheard_setup(&self, request: &[u8]) -> bool {

@@ -451,9 +451,10 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 {
                     return Ok(Some(reply));
                 }
-                // A set-up value never heard: the master does not read it; say so at once (a
-                // status is then read without it).
-                if l.learnt.lock().unwrap_or_else(|p| p.into_inner()).unheard_setup(w.request) {
+                // A set-up value never heard though the master's polls of the drive were: the
+                // master does not read it; say so at once (a status is then read without it).
+                let learnt = l.learnt.lock().unwrap_or_else(|p| p.into_inner());
+                if learnt.master_skips_setup(w.address, w.request) {
                     return Err(BusError::Unheard(self.link.name()));
                 }
             }
@@ -521,6 +522,14 @@ impl<L: Link, P: Protocol> Owner<L, P> {
         if let Some(reply) = learnt.answer(&job.exchange.request, since) {
             drop(learnt);
             let _ = job.done.send(Ok(Some(reply)));
+            return None;
+        }
+        // A set-up value never heard though the master's polls of the drive were: the master
+        // does not read it; say so at once (a status is then read without it) rather than park
+        // it until it gives up.
+        if learnt.master_skips_setup(job.address, &job.exchange.request) {
+            drop(learnt);
+            let _ = job.done.send(Err(BusError::Unheard(self.link.name())));
             return None;
         }
         drop(learnt);
@@ -626,7 +635,12 @@ impl<L: Link, P: Protocol> Owner<L, P> {
                 let result = if unanswered.contains(&address) {
                     Some(Err(BusError::Timeout { link: self.link.name(), address, attempts: 1 }))
                 } else if replied {
-                    learnt.answer(&p.job.exchange.request, p.since).map(|r| Ok(Some(r)))
+                    learnt.answer(&p.job.exchange.request, p.since).map(|r| Ok(Some(r))).or_else(|| {
+                        // A set-up value the master's polls of the drive, now heard, did not read.
+                        learnt
+                            .master_skips_setup(address, &p.job.exchange.request)
+                            .then(|| Err(BusError::Unheard(self.link.name())))
+                    })
                 } else {
                     None
                 };

@@ -5,8 +5,9 @@
 //!
 //! Changes are taken in batches: every change waiting when the publisher wakes is handed over
 //! under one hold of the subscriptions' lock (one lock of each session per batch, not per
-//! change), each changed value to its items in the order the changes came, and the next batch
-//! gathers for [`HOLD`]. A value is made only
+//! change), each changed value to its items in the order the changes came. Nothing waits for
+//! a batch to fill: a publisher that keeps up hands each change over as it comes, one that
+//! fell behind catches up in few batches. A value is made only
 //! for a node some monitored item watches, its node id looked up without allocating. When the
 //! publisher fell so far behind that the broadcast dropped changes for it
 //! (`drivebus_opcua_changes_lagged_total`), it hands every drive and bus over from the cache as
@@ -37,11 +38,6 @@ pub const MAX_BATCH: usize = 1024;
 
 /// How often every drive's values are handed over again from the cache.
 pub const SWEEP_EVERY: Duration = Duration::from_secs(1);
-
-/// How long the publisher lets changes gather after a handover: at most one batch per HOLD
-/// (each batch costs a lock of every session with monitored items), each change delayed by at
-/// most that, well under the shortest publishing interval the server takes (20 ms).
-pub const HOLD: Duration = Duration::from_millis(5);
 
 /// Where the publisher hands values and events: the server's [`SubscriptionCache`] (or, in
 /// tests, a recorder of what it was handed).
@@ -290,7 +286,6 @@ pub async fn publish<S: Subscribers>(
                 let sweep = behind && caught_up;
                 publisher.hand(&*subs, &gw, &mut batch, sweep);
                 behind &= !sweep;
-                tokio::time::sleep(HOLD).await;
             }
             _ = tick.tick() => {
                 let now = DateTime::now();

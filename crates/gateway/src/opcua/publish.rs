@@ -1,17 +1,17 @@
 //! The publisher: hands the gateway's changes (drive refreshes, bus statistics, the audit
 //! trail's events) to the OPC UA monitored items that watch them, and once a second every
 //! drive's values again from the cache (values that go stale turn Uncertain even when no poll
-//! comes). docs/opcua.md, "Subscriptions", describes what a client sees.
+//! comes). docs/opcua.md, "Values, timestamps and status", describes what a client sees.
 //!
 //! Changes are taken in batches: every change waiting when the publisher wakes is handed over
 //! under one hold of the subscriptions' lock (one lock of each session per batch, not per
-//! change), each changed value to its items in the order the changes came. Nothing waits for
-//! a batch to fill: a publisher that keeps up hands each change over as it comes, one that
-//! fell behind catches up in few batches. A value is made only
-//! for a node some monitored item watches, its node id looked up without allocating. When the
-//! publisher fell so far behind that the broadcast dropped changes for it
-//! (`drivebus_opcua_changes_lagged_total`), it hands every drive and bus over from the cache as
-//! soon as it has caught up, instead of leaving the missed values to the next second's sweep.
+//! change), each changed value to its items in the order the changes came. Nothing waits for a
+//! batch to fill: a publisher that keeps up hands each change over as it comes, one that fell
+//! behind catches up in few batches. A value is made only for a node some monitored item
+//! watches, its node id looked up without allocating. When the publisher fell so far behind
+//! that the broadcast dropped changes for it (`drivebus_opcua_changes_lagged_total`), it hands
+//! every drive and bus over from the cache as soon as it has caught up, instead of leaving the
+//! missed values to the next second's sweep.
 
 use std::collections::HashMap;
 use std::fmt::Write as _;

@@ -11,7 +11,8 @@ changed the value; same host, same clock); its server part is its server timesta
 gateway handed the value to the subscriptions) minus its source timestamp. An item's first
 notification (its initial value) is never counted (`late_initial_values`: how many arrived
 after counting began). `not_good`: notifications whose status is not Good (a value gone stale
-turns Uncertain, and that notification's latency is the value's age). Prints one JSON line,
+turns Uncertain, and that notification's latency is the value's age), by status in
+`not_good_by_status`. Prints one JSON line,
 with `cpu_pct`, this process's CPU over the counted SECS in % of a core (a subscriber short of
 CPU queues what it receives, and that queueing is in its latencies). With LATENCIES_FILE, also
 writes there every latency, those of Good values and every server part (seconds,
@@ -37,6 +38,7 @@ class Handler:
         self.seen = set()
         self.counting = False
         self.late_initial = 0
+        self.statuses = {}
 
     def datachange_notification(self, node, val, data):
         # An item's first notification is its initial value, not a change: never counted, even
@@ -57,6 +59,9 @@ class Handler:
             # latency is the value's age, as it should be, not a delay.
             if value.StatusCode_ is None or value.StatusCode_.is_good():
                 self.good.append(latency)
+            else:
+                name = value.StatusCode_.name
+                self.statuses[name] = self.statuses.get(name, 0) + 1
             if value.ServerTimestamp is not None:
                 self.server.append((value.ServerTimestamp - ts).total_seconds())
 
@@ -94,7 +99,7 @@ async def main(url, clients, secs, publish_ms, sample_ms, drives, out=None):
         "notifications": len(lat), "per_s": round(len(lat) / secs),
         "latency_ms_p50": pct(0.50), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0),
         "cpu_pct": round(cpu * 100 / secs, 1), "not_good": len(lat) - len(handler.good),
-        "late_initial_values": handler.late_initial,
+        "late_initial_values": handler.late_initial, "not_good_by_status": handler.statuses,
     }), flush=True)
     if out:
         with open(out, "w") as f:

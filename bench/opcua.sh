@@ -8,8 +8,20 @@
 # items each) with sampling $SAMPLE_MS (default 1000) and publishing $PUBLISH_MS (default 1000):
 #   - the gateway's CPU over $SECS s, against the mean of the windows with no client just before
 #     and just after (the drives' and the stirrer's own load moves);
-#   - notifications/s and their latency from the drive's answer (source timestamp) to arrival;
-#   - the gateway's RSS per client.
+#   - notifications/s and their latency from the drive's answer (source timestamp) to arrival
+#     (an item's initial value not counted), the p99 of those with a Good status alone (a
+#     value gone stale turns Uncertain: that notification's latency is the value's age),
+#     and its server part: from the drive's answer to the gateway handing the value to the
+#     subscriptions (server timestamp), the rest being the library's publishing, the network
+#     and the subscriber's own queue;
+#   - the gateway's RSS per client;
+#   - the subscribers' side: their CPU (each process's own, summed, in % of a core) and how busy
+#     core 1 was: near 100 % the subscribers queue what they receive and the latencies are theirs;
+#   - the changes the OPC UA publisher fell behind on (drivebus_opcua_changes_lagged_total);
+#   - the drives whose values are older than three poll intervals, sampled every 2 s
+#     (drivebus_drive_data_age_seconds), with and without clients.
+# The load average of the machine is printed next to each window (other work moves the figures:
+# compare builds back to back).
 #
 # SECS=20 CLIENTS="1 20" PUBLISH_MS=100 bench/opcua.sh
 # BIN=path measures that build of drivebus instead of building the release one here.
@@ -68,15 +80,37 @@ PY
 PIDS+=("$!")
 sleep 15
 
+# drivebus_opcua_changes_lagged_total now, or n/a for a build without it.
+lagged() {
+  curl -s "http://127.0.0.1:$HP/metrics" | awk '/^drivebus_opcua_changes_lagged_total / {v = $2} END {print (v == "" ? "n/a" : v)}'
+}
+# Busy and total ticks of core $1 so far (/proc/stat).
+core_ticks() { awk -v c="cpu$1" '$1 == c {print $2 + $3 + $4 + $7 + $8, $2 + $3 + $4 + $5 + $6 + $7 + $8}' /proc/stat; }
+# The load average over the last minute.
+load() { cut -d' ' -f1 /proc/loadavg; }
+# Drives whose values are older than three poll intervals (1.5 s) now, from /metrics.
+stale() {
+  curl -s "http://127.0.0.1:$HP/metrics" | awk '/^drivebus_drive_data_age_seconds\{/ && $2 > 1.5 {n++} END {print n + 0}'
+}
+# Samples stale() every 2 s for $1 s; prints the mean and the most.
+stale_over() {
+  local end=$((SECONDS + $1)) sum=0 k=0 most=0 n
+  while [ "$SECONDS" -lt "$end" ]; do
+    n=$(stale); sum=$((sum + n)); k=$((k + 1)); [ "$n" -gt "$most" ] && most=$n; sleep 2
+  done
+  echo "stale drives (age > 1.5 s, sampled every 2 s): mean $((sum / (k > 0 ? k : 1))), most $most"
+}
 measure() {  # measure SECS: the gateway's CPU over SECS s, in % of one core
   local t0 t1
   t0=$(cpu_ticks "$GW"); sleep "$1"; t1=$(cpu_ticks "$GW")
   python3 -c "print(round(($t1 - $t0) * 100 / ($HZ * $1), 1))"
 }
 echo "== baseline: no OPC UA client, $SECS s"
+stale_over "$SECS" &
 BASE=$(measure "$SECS")
+wait $!
 RSS0=$(rss_kb "$GW")
-echo "gateway CPU ${BASE} % of a core, RSS ${RSS0} kB"
+echo "gateway CPU ${BASE} % of a core, RSS ${RSS0} kB, load average $(load)"
 
 for n in $CLIENTS; do
   echo "== $n client(s) x 6000 monitored items (publishing ${PUBLISH_MS} ms, sampling ${SAMPLE_MS} ms), $SECS s"
@@ -90,19 +124,40 @@ for n in $CLIENTS; do
   for i in $(seq 1 "$n"); do
     until grep -q '"ready"' "$TMP/sub-$i.log" 2>/dev/null || ! kill -0 "${SUBS[$((i - 1))]}" 2>/dev/null; do sleep 0.5; done
   done
+  L0=$(lagged); C0=$(core_ticks 1)
+  stale_over "$SECS" &
+  STALE=$!
   CPU=$(measure "$SECS")
+  wait "$STALE"
+  L1=$(lagged); C1=$(core_ticks 1)
   RSS=$(rss_kb "$GW")
   for p in "${SUBS[@]}"; do wait "$p" || true; done
-  python3 - "$TMP" "$n" "$SECS" <<'PY'
+  python3 - "$TMP" "$n" "$SECS" "$L0" "$L1" "$C0 $C1" "$(load)" <<'PY'
 import glob, json, sys
 tmp, n, secs = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
-lat = sorted(x for f in glob.glob(f"{tmp}/lat-*.json") for x in json.load(open(f)))
-done = len(glob.glob(f"{tmp}/lat-*.json"))
-pct = lambda p: round(lat[min(len(lat) - 1, int(p * len(lat)))] * 1000, 1) if lat else None
+l0, l1, (b0, t0, b1, t1), load = sys.argv[4], sys.argv[5], map(int, sys.argv[6].split()), sys.argv[7]
+runs = [json.load(open(f)) for f in glob.glob(f"{tmp}/lat-*.json")]
+lat = sorted(x for r in runs for x in r["latency"])
+server = sorted(x for r in runs for x in r["server"])
+good = sorted(x for r in runs for x in r["good"])
+done = len(runs)
+pct = lambda p, xs=lat: round(xs[min(len(xs) - 1, int(p * len(xs)))] * 1000, 1) if xs else None
+cpu, late, statuses = [], 0, {}
+for f in glob.glob(f"{tmp}/sub-*.log"):
+    lines = [json.loads(x) for x in open(f) if x.startswith("{")]
+    cpu += [x["cpu_pct"] for x in lines if "cpu_pct" in x]
+    late += sum(x.get("late_initial_values", 0) for x in lines)
+    for x in lines:
+        for k, v in x.get("not_good_by_status", {}).items():
+            statuses[k] = statuses.get(k, 0) + v
 print(json.dumps({"clients": n, "clients_done": done, "notifications": len(lat), "per_s": round(len(lat) / secs),
-                  "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0)}))
+                  "latency_ms_p50": pct(0.5), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0),
+                  "not_good": len(lat) - len(good), "not_good_by_status": statuses, "good_latency_ms_p99": pct(0.99, good), "server_part_ms_p50": pct(0.5, server), "server_part_ms_p99": pct(0.99, server),
+                  "server_part_ms_max": pct(1.0, server), "late_initial_values": late, "subscribers_cpu_pct": round(sum(cpu), 1), "core1_busy_pct": round((b1 - b0) * 100 / max(1, t1 - t0), 1),
+                  "opcua_changes_lagged": "n/a" if "n/a" in (l0, l1) else int(float(l1) - float(l0)),
+                  "load_avg": float(load)}))
 PY
-  rm -f "$TMP"/lat-*.json
+  rm -f "$TMP"/lat-*.json "$TMP"/sub-*.log
   # The load of the drives and of the HTTP stirrer moves: a baseline after as well as before.
   AFTER=$(measure "$SECS")
   python3 -c "b = ($BASE + $AFTER) / 2; print(f'gateway CPU {$CPU} % of a core; baselines {$BASE} and {$AFTER} %: {round($CPU - b, 1)} % above their mean; RSS {$RSS} kB, {round(($RSS - $RSS0) / $n)} kB per client')"

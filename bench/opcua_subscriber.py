@@ -7,9 +7,17 @@ Opens CLIENTS sessions; each subscribes to 6 variables of every drive vfd-1..vfd
 (OutputFrequency, Setpoint, Current, Running, FaultCode, Online) with the given publishing and
 sampling intervals, then counts notifications for SECS seconds. The latency of a notification is
 the time it arrived minus its source timestamp (the time the drive answered the poll that
-changed the value; same host, same clock); the first publishes after subscribing (initial
-values) are not counted. Prints one JSON line; with LATENCIES_FILE, also writes every latency
-(seconds, JSON list) there, for bench/opcua.sh to merge the runs of several processes.
+changed the value; same host, same clock); its server part is its server timestamp (when the
+gateway handed the value to the subscriptions) minus its source timestamp. An item's first
+notification (its initial value) is never counted (`late_initial_values`: how many arrived
+after counting began). `not_good`: notifications whose status is not Good (a value gone stale
+turns Uncertain, and that notification's latency is the value's age), by status in
+`not_good_by_status`. Prints one JSON line,
+with `cpu_pct`, this process's CPU over the counted SECS in % of a core (a subscriber short of
+CPU queues what it receives, and that queueing is in its latencies). With LATENCIES_FILE, also
+writes there every latency, those of Good values and every server part (seconds,
+`{"latency": [...], "good": [...], "server": [...]}`), for bench/opcua.sh to merge the runs of
+several processes.
 """
 
 import asyncio
@@ -25,14 +33,37 @@ VARS = ["OutputFrequency", "Setpoint", "Current", "Running", "FaultCode", "Onlin
 class Handler:
     def __init__(self):
         self.latencies = []
+        self.good = []
+        self.server = []
+        self.seen = set()
         self.counting = False
+        self.late_initial = 0
+        self.statuses = {}
 
     def datachange_notification(self, node, val, data):
+        # An item's first notification is its initial value, not a change: never counted, even
+        # when it arrives after counting started (many sessions subscribing at once).
+        key = (id(data.subscription_data), data.monitored_item.ClientHandle)
+        if key not in self.seen:
+            self.seen.add(key)
+            self.late_initial += self.counting
+            return
         if not self.counting:
             return
-        ts = data.monitored_item.Value.SourceTimestamp
+        value = data.monitored_item.Value
+        ts = value.SourceTimestamp
         if ts is not None:
-            self.latencies.append(time.time() - ts.timestamp())
+            latency = time.time() - ts.timestamp()
+            self.latencies.append(latency)
+            # A value that went stale turns Uncertain (docs/opcua.md): that notification's
+            # latency is the value's age, as it should be, not a delay.
+            if value.StatusCode_ is None or value.StatusCode_.is_good():
+                self.good.append(latency)
+            else:
+                name = value.StatusCode_.name
+                self.statuses[name] = self.statuses.get(name, 0) + 1
+            if value.ServerTimestamp is not None:
+                self.server.append((value.ServerTimestamp - ts).total_seconds())
 
 
 async def client(url, drives, publish_ms, sample_ms, handler, ready):
@@ -57,7 +88,9 @@ async def main(url, clients, secs, publish_ms, sample_ms, drives, out=None):
     await asyncio.sleep(3 * publish_ms / 1000 + 1)
     print(json.dumps({"ready": True, "setup_s": round(setup, 1)}), flush=True)
     handler.counting = True
+    cpu0 = time.process_time()
     await asyncio.sleep(secs)
+    cpu = time.process_time() - cpu0
     handler.counting = False
     lat = sorted(handler.latencies)
     pct = lambda p: round(lat[min(len(lat) - 1, int(p * len(lat)))] * 1000, 1) if lat else None
@@ -65,10 +98,12 @@ async def main(url, clients, secs, publish_ms, sample_ms, drives, out=None):
         "clients": clients, "items": clients * drives * len(VARS), "secs": secs,
         "notifications": len(lat), "per_s": round(len(lat) / secs),
         "latency_ms_p50": pct(0.50), "latency_ms_p99": pct(0.99), "latency_ms_max": pct(1.0),
+        "cpu_pct": round(cpu * 100 / secs, 1), "not_good": len(lat) - len(handler.good),
+        "late_initial_values": handler.late_initial, "not_good_by_status": handler.statuses,
     }), flush=True)
     if out:
         with open(out, "w") as f:
-            json.dump(lat, f)
+            json.dump({"latency": lat, "good": handler.good, "server": handler.server}, f)
     for c in ready:
         await c.disconnect()
 

@@ -82,7 +82,7 @@ fn latency_histogram() -> Histogram {
     Histogram::new(exponential_buckets(0.0005, 4.0, 8))
 }
 
-/// The front ends' own counts (HTTP, Modbus TCP, MQTT) of one gateway, shared with every
+/// The front ends' own counts (HTTP, Modbus TCP, MQTT, OPC UA) of one gateway, shared with every
 /// scrape ([`front_ends`]).
 #[derive(Debug)]
 pub struct FrontEndMetrics {
@@ -96,6 +96,7 @@ pub struct FrontEndMetrics {
     modbus_latency_bus: Histogram,
     mqtt_publishes: Family<MqttLabels, Counter>,
     mqtt_connections: Counter,
+    opcua_changes_lagged: Counter,
 }
 
 impl Default for FrontEndMetrics {
@@ -113,6 +114,7 @@ impl Default for FrontEndMetrics {
             modbus_latency_bus,
             mqtt_publishes: Family::default(),
             mqtt_connections: Counter::default(),
+            opcua_changes_lagged: Counter::default(),
         }
     }
 }
@@ -157,6 +159,17 @@ impl FrontEndMetrics {
     /// Connections made to the MQTT broker so far.
     pub fn mqtt_connections(&self) -> u64 {
         self.mqtt_connections.get()
+    }
+
+    /// Counts `n` gateway changes the OPC UA publisher fell too far behind to receive (the
+    /// broadcast dropped them for it).
+    pub fn opcua_lagged(&self, n: u64) {
+        self.opcua_changes_lagged.inc_by(n);
+    }
+
+    /// Gateway changes the OPC UA publisher missed so far ([`FrontEndMetrics::opcua_lagged`]).
+    pub fn opcua_changes_lagged(&self) -> u64 {
+        self.opcua_changes_lagged.get()
     }
 
     /// MQTT messages of `kind` handed to the client so far.
@@ -296,7 +309,7 @@ pub fn render(gw: &Arc<Gateway>) -> Result<String, String> {
     Ok(out)
 }
 
-/// The registry of the front ends' families (HTTP, Modbus TCP, MQTT, Sparkplug B), built once
+/// The registry of the front ends' families (HTTP, Modbus TCP, MQTT, OPC UA, Sparkplug B), built once
 /// per gateway and shared with the front ends that count.
 fn registry(gw: &Arc<Gateway>) -> Registry {
     let mut reg = Registry::with_prefix(PREFIX);
@@ -325,6 +338,11 @@ fn registry(gw: &Arc<Gateway>) -> Registry {
     );
     reg.register("mqtt_publishes", "MQTT messages handed to the client, by kind", f.mqtt_publishes.clone());
     reg.register("mqtt_connections", "Connections made to the MQTT broker", f.mqtt_connections.clone());
+    reg.register(
+        "opcua_changes_lagged",
+        "Gateway changes the OPC UA publisher fell too far behind to receive",
+        f.opcua_changes_lagged.clone(),
+    );
     attached(gw).sparkplug.register(&mut reg);
     reg
 }

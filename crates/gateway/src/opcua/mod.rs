@@ -12,6 +12,7 @@ pub mod auth;
 pub mod history;
 pub mod manager;
 pub mod nodes;
+pub mod publish;
 pub mod sessions;
 pub mod space;
 pub mod standard;
@@ -25,18 +26,14 @@ use opcua::server::address_space::AddressSpace;
 use opcua::server::diagnostics::{DiagnosticsNodeManagerBuilder, NamespaceMetadata};
 use opcua::server::node_manager::memory::{CoreNodeManagerImpl, InMemoryNodeManagerBuilder};
 use opcua::server::node_manager::ServerContext;
-use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken, SubscriptionCache};
-use opcua::types::{
-    BuildInfo, ByteString, DataValue, DateTime, LocalizedText, MessageSecurityMode, NodeId, ObjectId,
-    StatusCode, UAString, Variant,
-};
+use opcua::server::{ServerBuilder, ServerEndpoint, ServerHandle, ServerUserToken};
+use opcua::types::{BuildInfo, DataValue, DateTime, MessageSecurityMode, StatusCode, UAString, Variant};
 use tokio::net::TcpListener;
 
 use crate::config::OpcUaConfig;
-use crate::core::{BusView, Change, DriveView, Gateway};
+use crate::core::{BusView, DriveView, Gateway};
 use manager::DriveNodes;
 use nodes::{Ids, BUS_VARIABLES, DRIVE_VARIABLES};
-use opcua::types::AttributeId;
 
 /// The placeholder user that lets endpoints offer user name logins (the users themselves are
 /// the gateway's tokens, checked by [`auth::TokenAuth`]).
@@ -144,7 +141,9 @@ pub fn start(
         .get_namespace_index(nodes::NAMESPACE)
         .ok_or_else(|| "OPC UA: the namespace urn:drivebus is missing".to_string())?;
     Ok(async move {
-        tokio::spawn(async move { publish(gw.clone(), Ids { ns }, handle.clone()).await });
+        let changes = gw.subscribe();
+        let subs = handle.subscriptions().clone();
+        tokio::spawn(publish::publish(gw, Ids { ns }, subs, changes));
         server.run_with(listener).await.map_err(|e| format!("OPC UA server stopped: {e}"))
     })
 }
@@ -338,22 +337,6 @@ pub fn named_values<'a>(
         .collect()
 }
 
-/// Every variable of drive `v` with its data value: [`DRIVE_VARIABLES`], then the named values
-/// its view holds (`Values/<name>`).
-fn drive_data(ids: &Ids, v: &DriveView, bus_online: bool, now: DateTime) -> Vec<(NodeId, DataValue)> {
-    let standard = DRIVE_VARIABLES
-        .iter()
-        .map(|def| ids.drive_member(&v.id, def.name))
-        .zip(drive_values(v, bus_online, now));
-    let named = v.values.keys().map(|name| ids.value(&v.id, name)).zip(named_values(
-        v,
-        v.values.keys().map(String::as_str),
-        bus_online,
-        now,
-    ));
-    standard.chain(named).collect()
-}
-
 /// Whether `bus` is online (a bus the gateway does not know counts as online).
 pub fn bus_online(gw: &Gateway, bus: &str) -> bool {
     gw.buses().iter().find(|b| b.config.name == bus).map_or(true, |b| b.online())
@@ -373,141 +356,6 @@ pub fn bus_values(b: &BusView) -> Vec<Variant> {
             _ => Variant::Boolean(b.online),
         })
         .collect()
-}
-
-/// What was last handed to the subscriptions per drive (value, status and source timestamp)
-/// and bus (value), in [`drive_data`] and [`BUS_VARIABLES`] order: a poll that neither
-/// changes nor confirms anything hands over nothing.
-#[derive(Default)]
-struct Last {
-    drives: std::collections::HashMap<String, Vec<(Variant, StatusCode, Option<DateTime>)>>,
-    buses: std::collections::HashMap<String, Vec<Variant>>,
-}
-
-/// Hands a drive's changed and confirmed values to the monitored items that watch them (only
-/// those that exist: [`SubscriptionCache::maybe_notify`] asks for a value only for an item it
-/// has). A value the poll only confirmed (same value and status, a later source timestamp)
-/// notifies nothing under the default trigger (StatusValue), and each confirming poll under
-/// StatusValueTimestamp, as the client asked.
-fn publish_drive(subs: &SubscriptionCache, ids: &Ids, last: &mut Last, v: &DriveView, bus_online: bool) {
-    let values = drive_data(ids, v, bus_online, DateTime::now());
-    let now: Vec<_> = values
-        .iter()
-        .map(|(_, dv)| (dv.value.clone().unwrap_or_default(), dv.status(), dv.source_timestamp))
-        .collect();
-    let before = last.drives.entry(v.id.clone()).or_default();
-    let changed: Vec<_> = values
-        .into_iter()
-        .enumerate()
-        .filter(|(i, _)| before.get(*i) != now.get(*i))
-        .map(|(_, x)| x)
-        .collect();
-    *before = now;
-    notify(subs, &changed);
-}
-
-/// Hands the changed statistics of a bus to the monitored items that watch them.
-fn publish_bus(subs: &SubscriptionCache, ids: &Ids, last: &mut Last, b: &BusView) {
-    let now = DateTime::now();
-    let values = bus_values(b);
-    let before = last.buses.entry(b.name.clone()).or_default();
-    let changed: Vec<_> = BUS_VARIABLES
-        .iter()
-        .zip(&values)
-        .enumerate()
-        .filter(|(i, (_, value))| before.get(*i) != Some(*value))
-        .map(|(_, (def, value))| (ids.bus_member(&b.name, def.name), DataValue::new_at(value.clone(), now)))
-        .collect();
-    *before = values;
-    notify(subs, &changed);
-}
-
-fn notify(subs: &SubscriptionCache, changed: &[(NodeId, DataValue)]) {
-    if changed.is_empty() {
-        return;
-    }
-    let values: std::collections::HashMap<&NodeId, &DataValue> =
-        changed.iter().map(|(id, dv)| (id, dv)).collect();
-    subs.maybe_notify(changed.iter().map(|(id, _)| (id, AttributeId::Value)), |id, _, range, _| {
-        let dv = (*values.get(id)?).clone();
-        Some(match range {
-            opcua::types::NumericRange::None => dv,
-            // A range of a scalar: what the library answers for its own nodes.
-            _ => DataValue { value: None, status: Some(StatusCode::BadIndexRangeNoData), ..dv },
-        })
-    });
-}
-
-/// Raises an event of the audit trail (trip, fault reset, online, offline, bus online or
-/// offline) on its drive or bus object and on the Server object.
-fn raise(subs: &SubscriptionCache, ids: &Ids, gw: &Gateway, e: &drivebus_store::Event) {
-    use drivebus_store::EventKind as K;
-    let severity = match e.kind {
-        K::Trip => 800,
-        K::Offline | K::BusOffline => 600,
-        K::FaultReset | K::Online | K::BusOnline => 300,
-        _ => return,
-    };
-    let (source, name) = match (&e.drive, &e.bus) {
-        (Some(d), _) if gw.drive(d).is_ok() => (ids.drive(d), d.clone()),
-        (None, Some(b)) => (ids.bus(b), b.clone()),
-        _ => return,
-    };
-    let event_id = ByteString::from(format!("{}-{}-{}", e.kind.as_str(), name, e.time_ms).into_bytes());
-    let event = opcua::server::address_space::BaseEventType::new(
-        opcua::types::ObjectTypeId::BaseEventType,
-        event_id,
-        LocalizedText::from(crate::core::log_line(e).as_str()),
-        datetime_ms(e.time_ms),
-    )
-    .set_source_node(source.clone())
-    .set_source_name(UAString::from(name.as_str()))
-    .set_severity(severity);
-    let server: NodeId = ObjectId::Server.into();
-    let folder = if e.drive.is_some() { ids.drives() } else { ids.buses() };
-    subs.notify_events(
-        [
-            (&event as &dyn opcua::server::address_space::Event, &source),
-            (&event as &dyn opcua::server::address_space::Event, &folder),
-            (&event as &dyn opcua::server::address_space::Event, &server),
-        ]
-        .into_iter(),
-    );
-}
-
-/// Keeps the subscriptions current: each drive refresh and bus statistic from the gateway's
-/// changes, the audit trail's events as OPC UA events, and once a second the ages (values that
-/// go stale turn Uncertain even when no poll comes). Drives and buses a reload added or removed
-/// need nothing here: the node manager makes nodes from the gateway's drives as they are now.
-async fn publish(gw: Arc<Gateway>, ids: Ids, handle: ServerHandle) {
-    let subs = handle.subscriptions().clone();
-    let mut changes = gw.subscribe();
-    let mut last = Last::default();
-    let mut tick = tokio::time::interval(Duration::from_secs(1));
-    loop {
-        tokio::select! {
-            c = changes.recv() => match c {
-                Ok(Change::Drive(v)) => {
-                    if gw.drive(&v.id).is_ok() {
-                        publish_drive(&subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
-                    }
-                }
-                Ok(Change::Bus(b)) => publish_bus(&subs, &ids, &mut last, &b),
-                Ok(Change::Event(e)) => raise(&subs, &ids, &gw, &e),
-                // Fell behind: the next tick and polls bring every value back.
-                Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
-                Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
-            },
-            _ = tick.tick() => {
-                let drives = gw.drives();
-                last.drives.retain(|name, _| drives.iter().any(|d| &d.config.name == name));
-                for d in drives.iter() {
-                    let v = gw.drive_view(d);
-                    publish_drive(&subs, &ids, &mut last, &v, bus_online(&gw, &v.bus));
-                }
-            }
-        }
-    }
 }
 
 #[cfg(test)]

@@ -301,3 +301,48 @@ async fn a_danfoss_3_03_write_changes_the_reported_scale() {
     steady(&actual, 60.0).await;
     assert!((reported(&gw) - 60.0).abs() < 0.05, "reported {} Hz, runs at {} Hz", reported(&gw), actual());
 }
+
+#[tokio::test(start_paused = true)]
+async fn the_first_poll_after_the_start_up_listening_is_not_followed_by_another_at_once() {
+    // An active gateway listens 500 ms before it sends; its drive is polled every 500 ms.
+    let cfg = GatewayConfig::from_toml(
+        "skew.toml",
+        r#"
+name = "skew"
+[store]
+disabled = true
+[standby]
+role = "active"
+silence_ms = 500
+[[bus]]
+name = "line-1"
+port = "virtual"
+protocol = "modbus-rtu"
+baud = 38400
+serial = "8N2"
+[[bus.drive]]
+name = "pump-1"
+family = "generic"
+address = 1
+poll_ms = 500
+"#,
+    )
+    .unwrap();
+    let gw = Gateway::start(cfg, None).unwrap();
+    let bus = gw.buses()[0].clone();
+    let sent = || gw.bus_view(&bus).transactions;
+    support::wait_for("the first poll", std::time::Duration::from_secs(10), || sent() > 0).await;
+    let started = tokio::time::Instant::now();
+    assert!(gw.bus_view(&bus).role == "master");
+    // Halfway to the second poll: the first poll's transactions alone. Then two polls a second.
+    tokio::time::sleep_until(started + std::time::Duration::from_millis(250)).await;
+    let first = sent();
+    tokio::time::sleep_until(started + std::time::Duration::from_millis(1250)).await;
+    let two = sent() - first;
+    assert_eq!(
+        first * 2,
+        two,
+        "the first poll ({first} transactions) was followed by another at once: the schedule \
+         did not restart from the end of the listening ({two} transactions in the next second)"
+    );
+}

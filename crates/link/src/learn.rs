@@ -17,8 +17,9 @@
 //! 16-02; TIP FE70, f875–f879) answer whatever their age, until a write to them is heard
 //! ([`Learnt::request`]).
 //!
-//! Schedule: the interval between two requests with the same bytes to one drive, smoothed; a
-//! drive's interval is its most frequent request's.
+//! Schedule: the interval between two requests with the same bytes to one drive, the median of
+//! the latest [`GAPS`] (an outlier, such as the burst after a master's start-up listening or a
+//! retry, is left out); a drive's interval is its most frequent request's.
 
 mod b800;
 mod fc;
@@ -38,12 +39,42 @@ use items::Items;
 /// reading everything once, a scan) start the memory afresh.
 const MAX_REQUESTS: usize = 4096;
 
-/// A request heard repeatedly: when last, and the smoothed interval between its sendings.
+/// How many of a request's latest intervals its learnt interval is the median of: an outlier
+/// (the burst after a master's start-up listening, a retry not told from a poll, a gap while
+/// the master was busy) changes nothing while fewer than half of them are outliers, and a new
+/// interval of the master's is learnt after three sendings.
+const GAPS: usize = 5;
+
+/// A request heard repeatedly: when last, and the latest intervals between its sendings.
 #[derive(Clone, Copy, Debug)]
 struct Repeat {
     address: u8,
     last: Instant,
-    interval: Option<Duration>,
+    /// The latest intervals, `heard` of them (at most [`GAPS`]), the newest at `heard % GAPS`
+    /// once full.
+    gaps: [Duration; GAPS],
+    heard: usize,
+}
+
+impl Repeat {
+    /// Adds an interval heard, in place of the oldest once [`GAPS`] are kept.
+    fn push(&mut self, gap: Duration) {
+        self.gaps[self.heard % GAPS] = gap;
+        self.heard += 1;
+        if self.heard == 2 * GAPS {
+            self.heard = GAPS;
+        }
+    }
+
+    /// The median of the intervals kept (of two or four, the longer middle one: a standby that
+    /// takes over never polls faster than the master did on the strength of a lone short gap);
+    /// `None` before the request was heard twice.
+    fn interval(&self) -> Option<Duration> {
+        let mut kept = self.gaps;
+        let kept = &mut kept[..self.heard.min(GAPS)];
+        kept.sort_unstable();
+        kept.get(kept.len() / 2).copied()
+    }
 }
 
 /// What one bus's listener has learnt.
@@ -88,15 +119,15 @@ impl Learnt {
         if self.requests.len() >= MAX_REQUESTS && !self.requests.contains_key(request) {
             self.requests.clear();
         }
-        let r =
-            self.requests.entry(request.to_vec()).or_insert(Repeat { address, last: now, interval: None });
+        let r = self.requests.entry(request.to_vec()).or_insert(Repeat {
+            address,
+            last: now,
+            gaps: [Duration::ZERO; GAPS],
+            heard: 0,
+        });
         let gap = now.saturating_since(r.last);
         if !gap.is_zero() {
-            // Smoothed over about four sendings: one late poll does not change the schedule.
-            r.interval = Some(match r.interval {
-                None => gap,
-                Some(i) => (i * 3 + gap) / 4,
-            });
+            r.push(gap);
         }
         r.last = now;
     }
@@ -173,7 +204,7 @@ impl Learnt {
 
     /// The interval at which the master polled drive `address`, once heard twice.
     pub(crate) fn interval(&self, address: u8) -> Option<Duration> {
-        self.requests.values().filter(|r| r.address == address).filter_map(|r| r.interval).min()
+        self.requests.values().filter(|r| r.address == address).filter_map(Repeat::interval).min()
     }
 }
 
@@ -454,6 +485,50 @@ mod tests {
         assert_eq!(l.answer(&emit(block), t(25)), Some(block_reply(&[0x0123, 0x0FA0])));
         // The values must be fresh (the selections, the drive's set-up, need not).
         assert_eq!(l.answer(&emit(block), t(35)), None);
+    }
+
+    #[test]
+    fn the_interval_is_not_skewed_by_a_start_up_burst_a_retry_or_a_busy_master() {
+        let mut l = Learnt::new(WireProtocol::ModbusRtu);
+        let a = rtu(&[1, 3, 0x21, 0x00, 0, 2]);
+        let a_reply = rtu(&[1, 3, 4, 0, 0, 0, 0]);
+        let b = rtu(&[2, 3, 0x21, 0x00, 0, 2]);
+        let b_reply = rtu(&[2, 3, 4, 0, 0, 0, 0]);
+        let t = Instant::from_millis;
+        let poll = |l: &mut Learnt, at: u64| {
+            l.request(t(at), Some(1), &a);
+            l.reply(t(at + 10), &a, &a_reply);
+        };
+        let ms = Duration::from_millis;
+        // Drive 1 polled every 500 ms; its first poll waited out the master's start-up
+        // listening, so the second came 30 ms after it.
+        poll(&mut l, 0);
+        poll(&mut l, 30);
+        poll(&mut l, 530);
+        assert_eq!(l.interval(1), Some(ms(500)), "of 30 and 500 ms, the longer");
+        poll(&mut l, 1030);
+        assert_eq!(l.interval(1), Some(ms(500)), "the burst is an outlier");
+        // At 1530 drive 1 does not answer; drive 2 is polled, then drive 1 again (the retry,
+        // which is no poll, though another request came between).
+        l.request(t(1530), Some(1), &a);
+        l.request(t(1550), Some(2), &b);
+        l.reply(t(1560), &b, &b_reply);
+        poll(&mut l, 1580);
+        assert_eq!(l.interval(1), Some(ms(500)), "the retry is an outlier");
+        poll(&mut l, 2030);
+        poll(&mut l, 2530);
+        // The master was busy for a second: its next poll of drive 1 came 1500 ms later.
+        poll(&mut l, 4030);
+        assert_eq!(l.interval(1), Some(ms(500)), "the busy gap is an outlier");
+        poll(&mut l, 4530);
+        assert_eq!(l.interval(1), Some(ms(500)));
+        // The master's interval changes to 200 ms: learnt after three sendings.
+        for at in [4730, 4930] {
+            poll(&mut l, at);
+            assert_eq!(l.interval(1), Some(ms(500)));
+        }
+        poll(&mut l, 5130);
+        assert_eq!(l.interval(1), Some(ms(200)));
     }
 
     #[test]

@@ -1039,3 +1039,42 @@ async fn a_toshiba_standby_beside_a_master_that_never_reads_fe70_shows_all_but_t
     )
     .await;
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_standby_learns_the_masters_interval_through_a_burst_and_an_extra_poll() {
+    let start = tokio::time::Instant::now();
+    let line = line();
+    let (a, b) = masters(&line, true);
+    let master = a.clone();
+    // Drive 1 polled every 400 ms (plus the exchange), but twice within 120 ms at first (a
+    // master's first poll held up by its start-up listening, the next one soon after), and once
+    // more 120 ms after drive 2 in its fourth round (a retry the standby cannot tell from a poll:
+    // another request came between).
+    let a_poll = tokio::spawn(async move {
+        let poll = |d: u8| master.transact(d, read(d, 0x2102), Priority::Poll, None);
+        let _ = poll(1).await;
+        tokio::time::sleep(Duration::from_millis(120)).await;
+        for round in 0.. {
+            let _ = poll(1).await;
+            if round == 3 {
+                let _ = poll(2).await;
+                tokio::time::sleep(Duration::from_millis(120)).await;
+                let _ = poll(1).await;
+            }
+            tokio::time::sleep(Duration::from_millis(400)).await;
+        }
+    });
+    // The first poll goes after a's start-up listening (500 ms), the burst's second at about
+    // 620 ms, the rounds about every 400 ms after it: the third at about 1430 ms, the extra
+    // poll at about 1970 ms.
+    for (at, after) in [(1500, "after the burst"), (2100, "after the extra poll"), (3500, "later")] {
+        tokio::time::sleep_until(start + Duration::from_millis(at)).await;
+        assert_eq!(a.role().unwrap().role, Role::Master);
+        let every = b.learnt_schedule().get(&1).copied();
+        assert!(
+            every.is_some_and(|e| e >= Duration::from_millis(400) && e < Duration::from_millis(430)),
+            "{after}: drive 1 learnt at {every:?}, polled every 400 ms and its exchange"
+        );
+    }
+    a_poll.abort();
+}

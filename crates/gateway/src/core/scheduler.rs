@@ -22,6 +22,25 @@ pub(super) fn poll_every(own: Duration, learnt: Option<Duration>) -> Duration {
     learnt.filter(|l| !l.is_zero()).map_or(own, |l| l.min(own))
 }
 
+/// When a drive whose poll was due at `due` and ended at `now` is next due, at `every`: `every`
+/// after `due` (a late poll is followed by the next at once, so the schedule catches up), or,
+/// when the poll began while the bus listened (`listened`: its start-up listening, a standby's
+/// wait), `every` after `now`. Such a poll went on the line (or was answered from the master's
+/// traffic) when it ended, not when it was due: the next at once would poll the drive twice in
+/// a row, a burst another gateway listening on the line would learn as the interval.
+fn next_due(
+    due: tokio::time::Instant,
+    every: Duration,
+    listened: bool,
+    now: tokio::time::Instant,
+) -> tokio::time::Instant {
+    if listened {
+        now + every
+    } else {
+        (due + every).max(now)
+    }
+}
+
 impl Gateway {
     /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do).
     pub(super) async fn refresh(self: &Arc<Self>, d: &Arc<DriveEntry>) {
@@ -40,8 +59,9 @@ impl Gateway {
         let mut generation = u64::MAX;
         let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
         let mut due: Vec<tokio::time::Instant> = Vec::new();
-        // The polls under way, each with its drive (released even when a poll panics).
-        let mut polling: InFlight<Arc<DriveEntry>> = InFlight::default();
+        // The polls under way, each with its drive and whether it began while the bus listened
+        // (released even when a poll panics).
+        let mut polling: InFlight<(Arc<DriveEntry>, bool)> = InFlight::default();
         loop {
             if bus.retired.load(Ordering::Relaxed) {
                 return;
@@ -66,25 +86,26 @@ impl Gateway {
             // A standby's polls are answered from what it hears, each when the master's exchange
             // with that drive comes by: they all wait at once, so one the master has not polled
             // lately holds up no other (the bus owner sends none of them).
-            let limit = if bus.role() == Role::Standby { mine.len().max(own_limit) } else { own_limit };
+            let listening = bus.role() == Role::Standby;
+            let limit = if listening { mine.len().max(own_limit) } else { own_limit };
             // The most urgent drive not being polled, while fewer than `limit` polls are under way.
             let pick = (0..mine.len())
-                .filter(|&k| polling.len() < limit && !polling.keys().any(|b| Arc::ptr_eq(b, &mine[k])))
+                .filter(|&k| polling.len() < limit && !polling.keys().any(|(b, _)| Arc::ptr_eq(b, &mine[k])))
                 .min_by_key(|&k| (due[k], mine[k].config.priority));
             let at = pick.map_or_else(|| tokio::time::Instant::now() + Duration::from_secs(3600), |k| due[k]);
             tokio::select! {
                 _ = tokio::time::sleep_until(at), if pick.is_some() => {
                     let d = mine[pick.expect("picked")].clone();
                     let (gw, bus, drive) = (self.clone(), bus.clone(), d.clone());
-                    polling.start(d, async move {
+                    polling.start((d, listening), async move {
                         let result = drive.poll.status().await;
                         gw.update(&bus, &drive, result).await;
                     });
                 }
-                Some(d) = polling.next_done(), if !polling.is_empty() => {
+                Some((d, listened)) = polling.next_done(), if !polling.is_empty() => {
                     if let Some(k) = mine.iter().position(|m| Arc::ptr_eq(m, &d)) {
-                        let next = due[k] + poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
-                        due[k] = next.max(tokio::time::Instant::now());
+                        let every = poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
+                        due[k] = next_due(due[k], every, listened, tokio::time::Instant::now());
                     }
                 }
                 _ = wake => continue,
@@ -196,7 +217,7 @@ impl<K> InFlight<K> {
 
 #[cfg(test)]
 mod tests {
-    use super::{poll_every, InFlight};
+    use super::{next_due, poll_every, InFlight};
     use std::time::Duration;
 
     #[tokio::test]
@@ -214,6 +235,20 @@ mod tests {
         assert_eq!(back, Ok(Some("fan")));
         assert_eq!(polls.keys().collect::<Vec<_>>(), [&"pump"]);
         assert!(!polls.is_empty());
+    }
+
+    #[test]
+    fn a_poll_held_up_by_listening_is_followed_an_interval_after_it_ended() {
+        let t0 = tokio::time::Instant::now();
+        let ms = Duration::from_millis;
+        // Due at 0, held by the start-up listening until 520 ms: the next 500 ms after that.
+        assert_eq!(next_due(t0, ms(500), true, t0 + ms(520)), t0 + ms(1020));
+        // A standby's poll answered 5 ms after it was due, by the master's poll: the next 500 ms
+        // after that poll was heard.
+        assert_eq!(next_due(t0, ms(500), true, t0 + ms(5)), t0 + ms(505));
+        // A master's poll that ended late (a slow reply, a busy line): the next at once.
+        assert_eq!(next_due(t0, ms(500), false, t0 + ms(520)), t0 + ms(520));
+        assert_eq!(next_due(t0, ms(500), false, t0 + ms(5)), t0 + ms(500));
     }
 
     #[test]

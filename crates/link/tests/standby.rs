@@ -5,7 +5,7 @@
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use drivebus_drive::profile::{for_drive, DriveStatus, Exchange};
+use drivebus_drive::profile::{for_drive, DriveStatus, Exchange, Profile};
 use drivebus_drive::Family;
 use drivebus_link::drive::Drive;
 use drivebus_link::link::Link;
@@ -401,13 +401,73 @@ fn line_of(
 }
 
 /// An active bus owner and a standby on `line`'s two masters' ports, speaking `protocol`.
+/// A bus of `protocol` on a line with another master: the active one, or a standby.
+fn shared_cfg(protocol: WireProtocol, format: CharFormat, standby: bool) -> BusConfig {
+    let mut cfg = BusConfig::new(protocol, 19200, format);
+    cfg.response_timeout = Some(Duration::from_millis(50));
+    cfg.role = Some(RoleConfig { standby, silence: SILENCE });
+    cfg
+}
+
+/// Once `a` masters the line, each drive of `speeds` set to its speed and run through its
+/// profile: the master's drives, in `speeds` order.
+async fn run_through(a: &Bus, profile: impl Fn(u8) -> Box<dyn Profile>, speeds: &[(u8, f64)]) -> Vec<Drive> {
+    let masters: Vec<Drive> = speeds.iter().map(|&(addr, _)| Drive::new(a.clone(), profile(addr))).collect();
+    // The active one takes the line at its first poll after its silence.
+    let start = tokio::time::Instant::now();
+    while masters[0].polling_twin().status().await.is_err() {
+        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
+    }
+    for (d, &(_, hz)) in masters.iter().zip(speeds) {
+        d.set_speed(hz).await.unwrap();
+        d.run().await.unwrap();
+    }
+    masters
+}
+
+/// Master `a` polls each of `drives` every 150 ms with the requests `polls` makes, each of
+/// which must be answered.
+fn poll_otherwise(a: &Bus, drives: Vec<u8>, polls: fn(u8) -> Vec<Vec<u8>>) -> tokio::task::JoinHandle<()> {
+    let master = a.clone();
+    tokio::spawn(async move {
+        loop {
+            for &addr in &drives {
+                for request in polls(addr) {
+                    let ex = Exchange { request, expect_reply: true };
+                    let reply = master.transact(addr, ex, Priority::Poll, None).await;
+                    assert!(matches!(reply, Ok(Some(_))), "drive {addr}: {reply:?}");
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(150)).await;
+        }
+    })
+}
+
+/// Standby `b` reads each of `drives`' status through its profile, one every 40 ms: what each
+/// read gave, and when.
+fn read_statuses(
+    b: &Bus,
+    drives: &[u8],
+    profile: impl Fn(u8) -> Box<dyn Profile>,
+) -> (Statuses, tokio::task::JoinHandle<()>) {
+    let statuses: Statuses = Default::default();
+    let seen = statuses.clone();
+    let drives: Vec<(u8, Drive)> =
+        drives.iter().map(|&a| (a, Drive::new(b.clone(), profile(a)).polling())).collect();
+    let task = tokio::spawn(async move {
+        loop {
+            for (a, d) in &drives {
+                let r = d.status().await.map_err(|e| e.to_string());
+                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
+                tokio::time::sleep(Duration::from_millis(40)).await;
+            }
+        }
+    });
+    (statuses, task)
+}
+
 fn pair_on(line: &Arc<Mutex<VirtualLine>>, protocol: WireProtocol, format: CharFormat) -> (Bus, Bus) {
-    let cfg = |standby| {
-        let mut cfg = BusConfig::new(protocol, 19200, format);
-        cfg.response_timeout = Some(Duration::from_millis(50));
-        cfg.role = Some(RoleConfig { standby, silence: SILENCE });
-        cfg
-    };
+    let cfg = |standby| shared_cfg(protocol, format, standby);
     let a_link = SimLink::new(line.clone(), "a");
     let clock = a_link.clock();
     let a = Bus::spawn(a_link, cfg(false)).unwrap();
@@ -432,43 +492,9 @@ async fn a_standby_reads_what_a_master_polls_otherwise(
     let line = line_of(protocol, family, format, &addresses);
     let (a, b) = pair_on(&line, protocol, format);
     let profile = move |addr| for_drive(family, protocol, addr).unwrap();
-    // The active one takes the line at its first poll after its silence.
-    let first = Drive::new(a.clone(), profile(addresses[0])).polling();
-    let start = tokio::time::Instant::now();
-    while first.status().await.is_err() {
-        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
-    }
-    for &(addr, hz) in speeds {
-        let d = Drive::new(a.clone(), profile(addr));
-        d.set_speed(hz).await.unwrap();
-        d.run().await.unwrap();
-    }
-    let (master, drives) = (a.clone(), addresses.clone());
-    let a_poll = tokio::spawn(async move {
-        loop {
-            for &addr in &drives {
-                for request in polls(addr) {
-                    let ex = Exchange { request, expect_reply: true };
-                    let reply = master.transact(addr, ex, Priority::Poll, None).await;
-                    assert!(matches!(reply, Ok(Some(_))), "drive {addr}: {reply:?}");
-                }
-            }
-            tokio::time::sleep(Duration::from_millis(150)).await;
-        }
-    });
-    let statuses: Statuses = Default::default();
-    let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
-    let b_poll = tokio::spawn(async move {
-        let drives: Vec<(u8, Drive)> =
-            drives.iter().map(|&a| (a, Drive::new(standby.clone(), profile(a)).polling())).collect();
-        loop {
-            for (a, d) in &drives {
-                let r = d.status().await.map_err(|e| e.to_string());
-                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
-                tokio::time::sleep(Duration::from_millis(40)).await;
-            }
-        }
-    });
+    let masters = run_through(&a, profile, speeds).await;
+    let a_poll = poll_otherwise(&a, addresses.clone(), polls);
+    let (statuses, b_poll) = read_statuses(&b, &addresses, profile);
     // Let the drives reach their speed.
     tokio::time::sleep(Duration::from_secs(15)).await;
     let since = tokio::time::Instant::now();
@@ -477,8 +503,8 @@ async fn a_standby_reads_what_a_master_polls_otherwise(
     assert_eq!(b.role().unwrap().role, Role::Standby);
     assert_eq!(b.stats().transactions, 0, "a standby sends nothing");
     let seen: Vec<_> = statuses.lock().unwrap().iter().filter(|(_, t, _)| *t >= since).cloned().collect();
-    for &(addr, hz) in speeds {
-        let truth = Drive::new(a.clone(), profile(addr)).status().await.unwrap();
+    for (d, &(addr, hz)) in masters.iter().zip(speeds) {
+        let truth = d.status().await.unwrap();
         assert!(truth.running && truth.output_hz.is_some_and(|f| (f - hz).abs() < 0.1), "{truth:?}");
         let mine: Vec<_> = seen.iter().filter(|(a, _, _)| *a == addr).collect();
         assert!(mine.len() >= 5, "drive {addr}: {seen:?}");
@@ -719,25 +745,12 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
 ) -> Bus {
     let addresses: Vec<u8> = speeds.iter().map(|(a, _)| *a).collect();
     let line = line_of(protocol, family, format, &addresses);
-    let cfg = |standby| {
-        let mut cfg = BusConfig::new(protocol, 19200, format);
-        cfg.response_timeout = Some(Duration::from_millis(50));
-        cfg.role = Some(RoleConfig { standby, silence: SILENCE });
-        cfg
-    };
+    let cfg = |standby| shared_cfg(protocol, format, standby);
     let a_link = SimLink::new(line.clone(), "a");
     let clock = a_link.clock();
     let a = Bus::spawn(a_link, cfg(false)).unwrap();
     let profile = move |addr| for_drive(family, protocol, addr).unwrap();
-    let masters: Vec<Drive> = addresses.iter().map(|&addr| Drive::new(a.clone(), profile(addr))).collect();
-    let start = tokio::time::Instant::now();
-    while masters[0].polling_twin().status().await.is_err() {
-        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
-    }
-    for (d, &(_, hz)) in masters.iter().zip(speeds) {
-        d.set_speed(hz).await.unwrap();
-        d.run().await.unwrap();
-    }
+    let masters = run_through(&a, profile, speeds).await;
     // The drives are at their speed by then.
     let steady = tokio::time::Instant::now() + Duration::from_secs(12);
     let polls: Vec<Drive> = masters.iter().map(Drive::polling_twin).collect();
@@ -752,19 +765,7 @@ async fn a_late_standby_serves_every_status_within_the_setup_refresh(
     tokio::time::sleep(late).await;
     let b = Bus::spawn(late_port(&line, clock), cfg(true)).unwrap();
     let started = tokio::time::Instant::now();
-    let statuses: Statuses = Default::default();
-    let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
-    let b_poll = tokio::spawn(async move {
-        let drives: Vec<(u8, Drive)> =
-            drives.iter().map(|&a| (a, Drive::new(standby.clone(), profile(a)).polling())).collect();
-        loop {
-            for (a, d) in &drives {
-                let r = d.status().await.map_err(|e| e.to_string());
-                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
-                tokio::time::sleep(Duration::from_millis(40)).await;
-            }
-        }
-    });
+    let (statuses, b_poll) = read_statuses(&b, &addresses, profile);
     // Whole: with the values the set-up scales (until then they are unknown, not guessed).
     let whole = |s: &DriveStatus| s.output_hz.is_some() && s.current_a.is_some() && s.setpoint_hz.is_some();
     let served =
@@ -904,26 +905,13 @@ async fn a_standby_beside_a_master_that_never_reads_the_set_up_shows_what_it_can
 ) {
     let addresses: Vec<u8> = speeds.iter().map(|(a, _)| *a).collect();
     let line = line_of(protocol, family, format, &addresses);
-    let cfg = |standby| {
-        let mut cfg = BusConfig::new(protocol, 19200, format);
-        cfg.response_timeout = Some(Duration::from_millis(50));
-        cfg.role = Some(RoleConfig { standby, silence: SILENCE });
-        cfg
-    };
+    let cfg = |standby| shared_cfg(protocol, format, standby);
     let a_link = SimLink::new(line.clone(), "a");
     let clock = a_link.clock();
     let a = Bus::spawn(a_link, cfg(false)).unwrap();
     let profile = move |addr| for_drive(family, protocol, addr).unwrap();
     // Set up and run through the profile (reading the set-up once, before the standby starts).
-    let masters: Vec<Drive> = addresses.iter().map(|&addr| Drive::new(a.clone(), profile(addr))).collect();
-    let start = tokio::time::Instant::now();
-    while masters[0].polling_twin().status().await.is_err() {
-        assert!(start.elapsed() < Duration::from_secs(2), "a masters: {:?}", a.role());
-    }
-    for (d, &(_, hz)) in masters.iter().zip(speeds) {
-        d.set_speed(hz).await.unwrap();
-        d.run().await.unwrap();
-    }
+    let masters = run_through(&a, profile, speeds).await;
     tokio::time::sleep(Duration::from_secs(15)).await;
     let mut truths = Vec::new();
     for d in &masters {
@@ -931,32 +919,8 @@ async fn a_standby_beside_a_master_that_never_reads_the_set_up_shows_what_it_can
     }
     // From now on the master polls only `polls`, and the standby starts.
     let b = Bus::spawn(late_port(&line, clock), cfg(true)).unwrap();
-    let (master, drives) = (a.clone(), addresses.clone());
-    let a_poll = tokio::spawn(async move {
-        loop {
-            for &addr in &drives {
-                for request in polls(addr) {
-                    let ex = Exchange { request, expect_reply: true };
-                    let reply = master.transact(addr, ex, Priority::Poll, None).await;
-                    assert!(matches!(reply, Ok(Some(_))), "drive {addr}: {reply:?}");
-                }
-            }
-            tokio::time::sleep(Duration::from_millis(150)).await;
-        }
-    });
-    let statuses: Statuses = Default::default();
-    let (standby, seen, drives) = (b.clone(), statuses.clone(), addresses.clone());
-    let b_poll = tokio::spawn(async move {
-        let drives: Vec<(u8, Drive)> =
-            drives.iter().map(|&a| (a, Drive::new(standby.clone(), profile(a)).polling())).collect();
-        loop {
-            for (a, d) in &drives {
-                let r = d.status().await.map_err(|e| e.to_string());
-                seen.lock().unwrap().push((*a, tokio::time::Instant::now(), r));
-                tokio::time::sleep(Duration::from_millis(40)).await;
-            }
-        }
-    });
+    let a_poll = poll_otherwise(&a, addresses.clone(), polls);
+    let (statuses, b_poll) = read_statuses(&b, &addresses, profile);
     let since = tokio::time::Instant::now() + Duration::from_secs(1);
     // Past a set-up refresh of the standby's profiles too.
     tokio::time::sleep(Duration::from_secs(40)).await;

@@ -53,8 +53,25 @@ pub trait Subscribers: Send + Sync + 'static {
 pub trait Handover {
     /// Hands the value `make` makes to every enabled monitored item on the Value of node
     /// `(ns, path)` (a string node id). `make` is called only when there is such an item, at
-    /// most once; `None` hands nothing.
-    fn hand(&mut self, ns: u16, path: &str, make: &mut dyn FnMut() -> Option<DataValue>);
+    /// most once; `None` hands nothing. A [`Fresh`] that only confirms the last value goes
+    /// only to the items whose trigger is the source timestamp too.
+    fn hand(&mut self, ns: u16, path: &str, make: &mut dyn FnMut() -> Option<Fresh>);
+}
+
+/// A value to hand over.
+pub struct Fresh {
+    /// The value.
+    pub value: DataValue,
+    /// Whether it differs from the value last handed over in its source timestamp alone: an
+    /// item whose trigger is StatusValue (the default) or Status would not be notified of it.
+    pub confirms: bool,
+}
+
+impl Fresh {
+    /// A value that changed (or of which nothing was handed before).
+    fn changed(value: DataValue) -> Self {
+        Fresh { value, confirms: false }
+    }
 }
 
 impl Subscribers for SubscriptionCache {
@@ -69,7 +86,7 @@ impl Subscribers for SubscriptionCache {
 }
 
 impl Handover for SubscriptionDataNotifier<'_> {
-    fn hand(&mut self, ns: u16, path: &str, make: &mut dyn FnMut() -> Option<DataValue>) {
+    fn hand(&mut self, ns: u16, path: &str, make: &mut dyn FnMut() -> Option<Fresh>) {
         let Some(mut batch) = self.notify_for((ns, path), AttributeId::Value) else {
             return;
         };
@@ -78,7 +95,12 @@ impl Handover for SubscriptionDataNotifier<'_> {
             if value.is_none() {
                 value = make();
             }
-            let Some(dv) = &value else { return };
+            let Some(Fresh { value: dv, confirms }) = &value else { return };
+            // A confirmation reaches only the items it can notify: looking up every item only
+            // for it to compare and drop the value was most of the cost of many clients.
+            if *confirms && !entry.timestamp_changes {
+                continue;
+            }
             let dv = match entry.index_range {
                 NumericRange::None => dv.clone(),
                 // A range of a scalar: what the library answers for its own nodes.
@@ -93,14 +115,16 @@ impl Handover for SubscriptionDataNotifier<'_> {
 type Handed = (Variant, StatusCode, Option<DateTime>);
 
 /// `dv` when it differs from what was last handed over (`before`, then updated): a value
-/// that neither changed nor was confirmed is not handed over again.
-fn changed(before: &mut Option<Handed>, dv: &DataValue) -> Option<DataValue> {
+/// that neither changed nor was confirmed is not handed over again; one only confirmed (a
+/// later source timestamp alone) is marked so.
+fn changed(before: &mut Option<Handed>, dv: &DataValue) -> Option<Fresh> {
     let handed = (dv.value.clone().unwrap_or_default(), dv.status(), dv.source_timestamp);
     if before.as_ref() == Some(&handed) {
         return None;
     }
+    let confirms = before.as_ref().is_some_and(|b| b.0 == handed.0 && b.1 == handed.1);
     *before = Some(handed);
-    Some(dv.clone())
+    Some(Fresh { value: dv.clone(), confirms })
 }
 
 /// What was last handed over per drive ([`DRIVE_VARIABLES`] order) and bus ([`BUS_VARIABLES`]
@@ -175,7 +199,7 @@ impl Publisher {
                     return None;
                 }
                 before[i] = Some(value.clone());
-                Some(DataValue::new_at(value.clone(), now))
+                Some(Fresh::changed(DataValue::new_at(value.clone(), now)))
             });
         }
     }
@@ -340,11 +364,11 @@ mod tests {
     }
 
     impl Handover for (&Vec<String>, &mut Vec<(String, DataValue, Instant)>) {
-        fn hand(&mut self, ns: u16, path: &str, make: &mut dyn FnMut() -> Option<DataValue>) {
+        fn hand(&mut self, ns: u16, path: &str, make: &mut dyn FnMut() -> Option<Fresh>) {
             assert_eq!(ns, 2);
             if self.0.iter().any(|w| w == path) {
                 if let Some(v) = make() {
-                    self.1.push((path.to_string(), v, Instant::now()));
+                    self.1.push((path.to_string(), v.value, Instant::now()));
                 }
             }
         }
@@ -371,6 +395,41 @@ mod tests {
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
         panic!("not within 6 s");
+    }
+
+    /// A value whose source timestamp alone moved is marked a confirmation (handed only to
+    /// items whose trigger includes the timestamp); a change of value or status, and the first
+    /// value, are not.
+    #[test]
+    fn a_later_timestamp_alone_is_a_confirmation() {
+        // ms milliseconds after 1601 (a DateTime counts 100 ns ticks).
+        let at = |ms: i64| Some(DateTime::from(ms * 10_000));
+        let dv = |x: f64, status: StatusCode, ms: i64| DataValue {
+            value: Some(Variant::Double(x)),
+            status: Some(status),
+            source_timestamp: at(ms),
+            ..DataValue::default()
+        };
+        let mut before = None;
+        let confirms = |before: &mut Option<Handed>, v: DataValue| changed(before, &v).map(|f| f.confirms);
+        assert_eq!(confirms(&mut before, dv(1.0, StatusCode::Good, 1000)), Some(false), "the first value");
+        assert_eq!(confirms(&mut before, dv(1.0, StatusCode::Good, 1000)), None, "nothing new");
+        assert_eq!(
+            confirms(&mut before, dv(1.0, StatusCode::Good, 1500)),
+            Some(true),
+            "a later poll, same value"
+        );
+        assert_eq!(confirms(&mut before, dv(2.0, StatusCode::Good, 2000)), Some(false), "a new value");
+        assert_eq!(
+            confirms(&mut before, dv(2.0, StatusCode::UncertainLastUsableValue, 2000)),
+            Some(false),
+            "a new status"
+        );
+        assert_eq!(
+            confirms(&mut before, dv(2.0, StatusCode::UncertainLastUsableValue, 2500)),
+            Some(true),
+            "a later timestamp, same value and status"
+        );
     }
 
     const HZ_A: &str = "Drives/a/OutputFrequency";

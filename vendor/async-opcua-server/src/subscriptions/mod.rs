@@ -8,6 +8,7 @@ use std::{hash::Hash, sync::Arc, time::Instant};
 use chrono::Utc;
 use hashbrown::{Equivalent, HashMap};
 pub use monitored_item::{CreateMonitoredItem, MonitoredItem};
+use monitored_item::FilterType;
 use opcua_core::{trace_read_lock, trace_write_lock, ResponseMessage};
 use opcua_nodes::{Event, TypeTree};
 pub use session_subscriptions::SessionSubscriptions;
@@ -23,6 +24,7 @@ pub use notify::{
 use opcua_core::sync::{Mutex, RwLock};
 
 use opcua_types::{
+    DataChangeTrigger,
     node_id::{IdentifierRef, NodeIdRef},
     AttributeId, CreateSubscriptionRequest, CreateSubscriptionResponse, DataEncoding, DataValue,
     DateTimeUtc, MessageSecurityMode, ModifySubscriptionRequest, ModifySubscriptionResponse,
@@ -80,6 +82,10 @@ pub struct MonitoredItemEntry {
     pub data_encoding: DataEncoding,
     /// The index range of the monitored item.
     pub index_range: NumericRange,
+    /// drivebus: whether a value that differs from the item's last one in its source timestamp
+    /// alone can notify the item (its trigger is StatusValueTimestamp, or it was modified since
+    /// it was created). When false, a server may leave such values out.
+    pub timestamp_changes: bool,
 }
 
 struct SubscriptionCacheInner {
@@ -430,6 +436,12 @@ impl SubscriptionCache {
                             enabled: !matches!(create.monitoring_mode(), MonitoringMode::Disabled),
                             index_range,
                             data_encoding: create.item_to_monitor().data_encoding.clone(),
+                            // drivebus: see `MonitoredItemEntry::timestamp_changes`.
+                            timestamp_changes: matches!(
+                                create.filter(),
+                                FilterType::DataChangeFilter(f)
+                                    if f.trigger == DataChangeTrigger::StatusValueTimestamp
+                            ),
                         },
                     );
                 }
@@ -456,13 +468,33 @@ impl SubscriptionCache {
         };
 
         let mut cache_lck = cache.lock();
-        cache_lck.modify_monitored_items(
+        let result = cache_lck.modify_monitored_items(
             subscription_id,
             info,
             timestamps_to_return,
             requests,
             type_tree,
-        )
+        );
+        drop(cache_lck);
+        // drivebus: a modified item may have a new trigger: from now on it is handed every
+        // value (see `MonitoredItemEntry::timestamp_changes`).
+        if let Ok(updated) = &result {
+            let mut lck = trace_write_lock!(self.inner);
+            for u in updated {
+                let key = MonitoredItemKey {
+                    id: u.node_id().clone(),
+                    attribute_id: u.attribute(),
+                };
+                if let Some(entry) = lck
+                    .monitored_items
+                    .get_mut(&key)
+                    .and_then(|items| items.get_mut(&u.handle()))
+                {
+                    entry.timestamp_changes = true;
+                }
+            }
+        }
+        result
     }
 
     fn get_key(session: &RwLock<Session>) -> PersistentSessionKey {

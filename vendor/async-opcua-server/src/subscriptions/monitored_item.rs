@@ -457,6 +457,11 @@ impl MonitoredItem {
     /// even at the cost of delaying the actual update by a little bit.
     ///
     /// Users that want to avoid this should just set the sampling interval to 0.
+    /// drivebus: whether the item holds a sampled value not yet due.
+    pub(super) fn has_skipped_value(&self) -> bool {
+        self.sample_skipped_data_value.is_some()
+    }
+
     pub(super) fn maybe_enqueue_skipped_value(&mut self, now: &DateTime) -> bool {
         match self.sample_skipped_data_value.take() {
             Some(value) if value.source_timestamp.is_some_and(|v| v <= *now) => {

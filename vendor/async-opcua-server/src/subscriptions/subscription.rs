@@ -674,6 +674,9 @@ impl Subscription {
                 );
             }
         } else {
+            // drivebus: an item whose sampled value is not yet due stays notified, so a later
+            // tick hands it on even when no further value comes for the item.
+            let mut pending = Vec::new();
             for item_id in self.notified_monitored_items.drain() {
                 let Some(monitored_item) = self.monitored_items.get_mut(&item_id) else {
                     continue;
@@ -688,7 +691,11 @@ impl Subscription {
                     &mut messages,
                     &mut self.sequence_number,
                 );
+                if monitored_item.has_skipped_value() {
+                    pending.push(item_id);
+                }
             }
+            self.notified_monitored_items.extend(pending);
         }
 
         self.handle_triggers(now, triggers, &mut notifications, &mut messages);
@@ -967,6 +974,62 @@ mod tests {
             .inner_as::<StatusChangeNotification>()
             .unwrap();
         assert_eq!(status_change.status, StatusCode::BadTimeout);
+    }
+
+    // drivebus: a value held back by the sampling interval reaches the client at the first
+    // tick after it is due, without another value for the item to push it out.
+    #[test]
+    fn a_held_back_sample_is_published_when_due_without_another_value() {
+        let mut sub = Subscription::new(1, true, Duration::from_millis(100), 100, 20, 1, 100, 1000);
+        let start = Instant::now();
+        let start_dt = Utc::now();
+        sub.last_time_publishing_interval_elapsed = start;
+        sub.tick(&start_dt, start, TickReason::TickTimerFired, true);
+        sub.insert(
+            1,
+            new_monitored_item(
+                1,
+                ReadValueId {
+                    node_id: NodeId::null(),
+                    attribute_id: AttributeId::Value as u32,
+                    ..Default::default()
+                },
+                MonitoringMode::Reporting,
+                FilterType::None,
+                SamplingInterval::NonZero(TimeDelta::milliseconds(100)),
+                false,
+                Some(DataValue::new_at(1, DateTime::from(start_dt))),
+            ),
+        );
+        let values = |sub: &mut Subscription| -> Vec<Option<Variant>> {
+            let mut got = Vec::new();
+            while let Some(msg) = sub.take_notification() {
+                for n in get_notifications(&msg) {
+                    if let Notification::MonitoredItemNotification(m) = n {
+                        got.push(m.value.value);
+                    }
+                }
+            }
+            got
+        };
+        let (time, time_inst) = offset(start_dt, start, 100);
+        sub.tick(&time, time_inst, TickReason::TickTimerFired, true);
+        assert_eq!(values(&mut sub), vec![Some(Variant::Int32(1))]);
+
+        // 2 comes a sampling interval after 1: published at the next tick.
+        let (time, _) = offset(start_dt, start, 150);
+        sub.notify_data_value(&1, DataValue::new_at(2, DateTime::from(time)), &DateTime::from(time));
+        // 3 comes 40 ms after 2: held back until 2's time plus the sampling interval (250 ms).
+        let (time, _) = offset(start_dt, start, 190);
+        sub.notify_data_value(&1, DataValue::new_at(3, DateTime::from(time)), &DateTime::from(time));
+        let (time, time_inst) = offset(start_dt, start, 200);
+        sub.tick(&time, time_inst, TickReason::TickTimerFired, true);
+        assert_eq!(values(&mut sub), vec![Some(Variant::Int32(2))]);
+
+        // No further value: 3 is published at the first tick after 250 ms.
+        let (time, time_inst) = offset(start_dt, start, 300);
+        sub.tick(&time, time_inst, TickReason::TickTimerFired, true);
+        assert_eq!(values(&mut sub), vec![Some(Variant::Int32(3))]);
     }
 
     #[test]

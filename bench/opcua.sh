@@ -23,6 +23,11 @@
 # The load average of the machine is printed next to each window (other work moves the figures:
 # compare builds back to back).
 #
+# With ROUNDS=N (default 1) the client windows run N times each, a baseline between any two
+# (B C B C ... B), and a last line per client count gives every round's CPU above its two
+# baselines with their mean and median: one round's figure moves by a few points of a core
+# with the stirrer's load and the machine's other work.
+#
 # SECS=20 CLIENTS="1 20" PUBLISH_MS=100 bench/opcua.sh
 # BIN=path measures that build of drivebus instead of building the release one here.
 set -euo pipefail
@@ -32,6 +37,7 @@ SECS=${SECS:-20}
 CLIENTS=${CLIENTS:-"1 20"}
 PUBLISH_MS=${PUBLISH_MS:-1000}
 SAMPLE_MS=${SAMPLE_MS:-1000}
+ROUNDS=${ROUNDS:-1}
 TOKEN=bench-opcua-token-0123456789
 
 # BIN: another build of drivebus to measure (default: the release build, built here).
@@ -112,8 +118,10 @@ wait $!
 RSS0=$(rss_kb "$GW")
 echo "gateway CPU ${BASE} % of a core, RSS ${RSS0} kB, load average $(load)"
 
+declare -A DELTAS
+for r in $(seq 1 "$ROUNDS"); do
 for n in $CLIENTS; do
-  echo "== $n client(s) x 6000 monitored items (publishing ${PUBLISH_MS} ms, sampling ${SAMPLE_MS} ms), $SECS s"
+  echo "== round $r: $n client(s) x 6000 monitored items (publishing ${PUBLISH_MS} ms, sampling ${SAMPLE_MS} ms), $SECS s"
   # One process per client (one asyncua session each), all on core 1.
   SUBS=()
   for i in $(seq 1 "$n"); do
@@ -161,5 +169,10 @@ PY
   # The load of the drives and of the HTTP stirrer moves: a baseline after as well as before.
   AFTER=$(measure "$SECS")
   python3 -c "b = ($BASE + $AFTER) / 2; print(f'gateway CPU {$CPU} % of a core; baselines {$BASE} and {$AFTER} %: {round($CPU - b, 1)} % above their mean; RSS {$RSS} kB, {round(($RSS - $RSS0) / $n)} kB per client')"
+  DELTAS[$n]+="$(python3 -c "print(round($CPU - ($BASE + $AFTER) / 2, 1))") "
   BASE=$AFTER
+done
+done
+for n in $CLIENTS; do
+  python3 -c "import statistics as s; d = [float(x) for x in '${DELTAS[$n]}'.split()]; print(f'== {$n} client(s), {len(d)} round(s): gateway CPU above the baselines {d} % of a core, mean {round(s.mean(d), 1)}, median {round(s.median(d), 1)}')"
 done

@@ -95,6 +95,8 @@ struct SubscriptionCacheInner {
     subscription_to_session: HashMap<u32, u32>,
     /// Map from notifier node ID to monitored item handles.
     monitored_items: HashMap<MonitoredItemKey, HashMap<MonitoredItemHandle, MonitoredItemEntry>>,
+    /// drivebus: how many entries of `monitored_items` have `timestamp_changes`.
+    timestamp_items: usize,
 }
 
 /// Structure storing all subscriptions and monitored items on the server.
@@ -116,6 +118,7 @@ impl SubscriptionCache {
                 session_subscriptions: HashMap::new(),
                 subscription_to_session: HashMap::new(),
                 monitored_items: HashMap::new(),
+                timestamp_items: 0,
             }),
             limits,
         }
@@ -430,20 +433,25 @@ impl SubscriptionCache {
 
                     let index_range = create.item_to_monitor().index_range.clone();
 
-                    lck.monitored_items.entry(key).or_default().insert(
+                    // drivebus: see `MonitoredItemEntry::timestamp_changes`.
+                    let timestamp_changes = matches!(
+                        create.filter(),
+                        FilterType::DataChangeFilter(f)
+                            if f.trigger == DataChangeTrigger::StatusValueTimestamp
+                    );
+                    let replaced = lck.monitored_items.entry(key).or_default().insert(
                         create.handle(),
                         MonitoredItemEntry {
                             enabled: !matches!(create.monitoring_mode(), MonitoringMode::Disabled),
                             index_range,
                             data_encoding: create.item_to_monitor().data_encoding.clone(),
-                            // drivebus: see `MonitoredItemEntry::timestamp_changes`.
-                            timestamp_changes: matches!(
-                                create.filter(),
-                                FilterType::DataChangeFilter(f)
-                                    if f.trigger == DataChangeTrigger::StatusValueTimestamp
-                            ),
+                            timestamp_changes,
                         },
                     );
+                    // drivebus: `timestamp_items` counts the entries with `timestamp_changes`.
+                    lck.timestamp_items += usize::from(timestamp_changes);
+                    lck.timestamp_items -=
+                        usize::from(replaced.is_some_and(|r| r.timestamp_changes));
                 }
             }
         }
@@ -485,12 +493,16 @@ impl SubscriptionCache {
                     id: u.node_id().clone(),
                     attribute_id: u.attribute(),
                 };
-                if let Some(entry) = lck
+                let inner = &mut *lck;
+                if let Some(entry) = inner
                     .monitored_items
                     .get_mut(&key)
                     .and_then(|items| items.get_mut(&u.handle()))
                 {
-                    entry.timestamp_changes = true;
+                    if !entry.timestamp_changes {
+                        entry.timestamp_changes = true;
+                        inner.timestamp_items += 1;
+                    }
                 }
             }
         }
@@ -585,8 +597,12 @@ impl SubscriptionCache {
                         id: rf.node_id().into(),
                         attribute_id: rf.attribute(),
                     };
-                    if let Some(it) = lck.monitored_items.get_mut(&key) {
-                        it.remove(&rf.handle());
+                    let inner = &mut *lck;
+                    if let Some(it) = inner.monitored_items.get_mut(&key) {
+                        // drivebus: `timestamp_items` counts the entries with `timestamp_changes`.
+                        if it.remove(&rf.handle()).is_some_and(|e| e.timestamp_changes) {
+                            inner.timestamp_items -= 1;
+                        }
                     }
                 }
             }
@@ -625,8 +641,12 @@ impl SubscriptionCache {
                         id: rf.node_id().into(),
                         attribute_id: rf.attribute(),
                     };
-                    if let Some(it) = lck.monitored_items.get_mut(&key) {
-                        it.remove(&rf.handle());
+                    let inner = &mut *lck;
+                    if let Some(it) = inner.monitored_items.get_mut(&key) {
+                        // drivebus: `timestamp_items` counts the entries with `timestamp_changes`.
+                        if it.remove(&rf.handle()).is_some_and(|e| e.timestamp_changes) {
+                            inner.timestamp_items -= 1;
+                        }
                     }
                 }
             }

@@ -74,6 +74,19 @@ impl<'a> SubscriptionDataNotifier<'a> {
         }
     }
 
+    /// drivebus: whether any monitored item is on any node (a server with none need not make
+    /// the values it would hand over).
+    pub fn any_items(&self) -> bool {
+        !self.lock.monitored_items.is_empty()
+    }
+
+    /// drivebus: whether any monitored item is notified of a value that differs from its last
+    /// one in the source timestamp alone (see `MonitoredItemEntry::timestamp_changes`): when
+    /// none is, a server need not hand such values over at all.
+    pub fn any_timestamp_items(&self) -> bool {
+        self.lock.timestamp_items > 0
+    }
+
     /// Maybe sample for the given node ID and attribute ID.
     ///
     /// This allows you to only sample when a user is listening.

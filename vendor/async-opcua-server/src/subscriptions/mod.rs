@@ -97,6 +97,25 @@ struct SubscriptionCacheInner {
     monitored_items: HashMap<MonitoredItemKey, HashMap<MonitoredItemHandle, MonitoredItemEntry>>,
 }
 
+impl SubscriptionCacheInner {
+    /// drivebus: forgets monitored item `rf`, and its node when it was the node's last item.
+    /// Every path that ends an item (DeleteMonitoredItems, DeleteSubscriptions, CloseSession,
+    /// a subscription's expiry) comes here: an item left listed was handed every value of its
+    /// node for as long as the server ran, its subscription gone.
+    fn forget_monitored_item(&mut self, rf: &MonitoredItemRef) {
+        let key = MonitoredItemKeyRef {
+            id: rf.node_id().into(),
+            attribute_id: rf.attribute(),
+        };
+        if let Some(items) = self.monitored_items.get_mut(&key) {
+            items.remove(&rf.handle());
+            if items.is_empty() {
+                self.monitored_items.remove(&key);
+            }
+        }
+    }
+}
+
 /// Structure storing all subscriptions and monitored items on the server.
 /// Used to notify users of changes.
 ///
@@ -139,25 +158,55 @@ impl SubscriptionCache {
         // be more efficient, and would be more responsive.
         let mut to_delete = Vec::new();
         let mut items_to_delete = Vec::new();
+        // drivebus: the subscriptions that expired in this tick, and the sessions that hold an
+        // expired subscription no publish request took the last notification of yet.
+        let mut expired_subscriptions = Vec::new();
+        let mut expired_held = Vec::new();
         {
             let now = Utc::now();
             let now_instant = Instant::now();
             let lck = trace_read_lock!(self.inner);
             for (session_id, sub) in lck.session_subscriptions.iter() {
                 let mut sub_lck = sub.lock();
-                items_to_delete.push((
-                    sub_lck.session().clone(),
-                    sub_lck.tick(&now, now_instant, TickReason::TickTimerFired),
-                ));
+                let ended = sub_lck.tick(&now, now_instant, TickReason::TickTimerFired);
+                expired_subscriptions.extend(ended.subscriptions);
+                if !ended.items.is_empty() {
+                    items_to_delete.push((sub_lck.session().clone(), ended.items));
+                }
+                if ended.expired_held {
+                    expired_held.push((*session_id, sub.clone(), sub_lck.session().clone()));
+                }
                 if sub_lck.is_ready_to_delete() {
                     to_delete.push(*session_id);
                 }
             }
         }
-        if !to_delete.is_empty() {
+        // drivebus: a closed session (closed without deleting its subscriptions, or timed out)
+        // takes no publish request any more, so its expired subscriptions would keep their last
+        // notification, and the session its subscriptions, for ever: they go now. A session
+        // with subscriptions was activated; one no longer activated is closed.
+        for (session_id, subs, session) in expired_held {
+            let closed = !trace_read_lock!(session).is_activated();
+            if closed {
+                let mut subs_lck = subs.lock();
+                subs_lck.remove_expired();
+                if subs_lck.is_ready_to_delete() {
+                    to_delete.push(session_id);
+                }
+            }
+        }
+        // drivebus: an expired subscription's items and its owner are forgotten with it (they
+        // stayed listed for ever, and their nodes' values were handed to them).
+        if !to_delete.is_empty() || !expired_subscriptions.is_empty() {
             let mut lck = trace_write_lock!(self.inner);
             for id in to_delete {
                 lck.session_subscriptions.remove(&id);
+            }
+            for id in expired_subscriptions {
+                lck.subscription_to_session.remove(&id);
+            }
+            for rf in items_to_delete.iter().flat_map(|(_, items)| items) {
+                lck.forget_monitored_item(rf);
             }
             context
                 .info
@@ -212,6 +261,13 @@ impl SubscriptionCache {
                 mgr.delete_monitored_items(&ctx, &owned).await;
             }
         }
+    }
+
+    /// drivebus: the monitored items the server holds, of every session: for a server's
+    /// metrics. Takes the read lock for a count per watched node.
+    pub fn monitored_item_count(&self) -> usize {
+        let lck = trace_read_lock!(self.inner);
+        lck.monitored_items.values().map(|items| items.len()).sum()
     }
 
     pub(crate) fn get_monitored_item_count(
@@ -581,13 +637,8 @@ impl SubscriptionCache {
         if let Ok(res) = &result {
             for (status, rf) in res {
                 if status.is_good() {
-                    let key = MonitoredItemKeyRef {
-                        id: rf.node_id().into(),
-                        attribute_id: rf.attribute(),
-                    };
-                    if let Some(it) = lck.monitored_items.get_mut(&key) {
-                        it.remove(&rf.handle());
-                    }
+                    // drivebus: the node goes too when this was its last item.
+                    lck.forget_monitored_item(rf);
                 }
             }
         }
@@ -619,16 +670,10 @@ impl SubscriptionCache {
                 continue;
             }
 
+            // drivebus: every item of the subscription is forgotten (only event items were; a
+            // data item stayed listed, and was handed its node's values, for ever).
             for rf in item_res {
-                if rf.attribute() == AttributeId::EventNotifier {
-                    let key = MonitoredItemKeyRef {
-                        id: rf.node_id().into(),
-                        attribute_id: rf.attribute(),
-                    };
-                    if let Some(it) = lck.monitored_items.get_mut(&key) {
-                        it.remove(&rf.handle());
-                    }
-                }
+                lck.forget_monitored_item(rf);
             }
         }
 

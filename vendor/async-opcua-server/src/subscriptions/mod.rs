@@ -831,3 +831,58 @@ impl PersistentSessionKey {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use opcua_types::{AttributeId, DataEncoding, NodeId, NumericRange};
+
+    use super::{MonitoredItemEntry, MonitoredItemKey, SubscriptionCache};
+    use crate::{node_manager::MonitoredItemRef, MonitoredItemHandle, SubscriptionLimits};
+
+    // drivebus: an item forgotten is neither counted nor handed values, and a node whose last
+    // item went is forgotten too (its empty map stayed, looked up for every value of the node).
+    #[test]
+    fn a_node_whose_last_item_is_forgotten_is_forgotten_too() {
+        let cache = SubscriptionCache::new(SubscriptionLimits::default());
+        let node = NodeId::new(1, "pump-1/OutputFrequency");
+        let item = |subscription_id, monitored_item_id| {
+            MonitoredItemRef::new(
+                MonitoredItemHandle {
+                    subscription_id,
+                    monitored_item_id,
+                },
+                node.clone(),
+                AttributeId::Value,
+            )
+        };
+        {
+            let mut lck = cache.inner.write();
+            for rf in [item(1, 1), item(2, 1)] {
+                let key = MonitoredItemKey {
+                    id: node.clone(),
+                    attribute_id: AttributeId::Value,
+                };
+                lck.monitored_items.entry(key).or_default().insert(
+                    rf.handle(),
+                    MonitoredItemEntry {
+                        enabled: true,
+                        data_encoding: DataEncoding::Binary,
+                        index_range: NumericRange::None,
+                        timestamp_changes: false,
+                    },
+                );
+            }
+        }
+        assert_eq!(cache.monitored_item_count(), 2);
+
+        cache.inner.write().forget_monitored_item(&item(1, 1));
+        assert_eq!(cache.monitored_item_count(), 1);
+        assert_eq!(cache.inner.read().monitored_items.len(), 1);
+
+        cache.inner.write().forget_monitored_item(&item(2, 1));
+        assert_eq!(cache.monitored_item_count(), 0);
+        assert!(cache.inner.read().monitored_items.is_empty());
+        let mut notifier = cache.data_notifier();
+        assert!(notifier.notify_for(&node, AttributeId::Value).is_none());
+    }
+}

@@ -834,10 +834,135 @@ impl PersistentSessionKey {
 
 #[cfg(test)]
 mod tests {
-    use opcua_types::{AttributeId, DataEncoding, NodeId, NumericRange};
+    use std::{
+        sync::Arc,
+        time::{Duration, Instant},
+    };
+
+    use opcua_core::sync::RwLock;
+    use opcua_types::{
+        ApplicationDescription, AttributeId, BuildInfo, ByteString, CreateSubscriptionRequest,
+        DataEncoding, MessageSecurityMode, NodeId, NumericRange, UAString,
+    };
 
     use super::{MonitoredItemEntry, MonitoredItemKey, SubscriptionCache};
-    use crate::{node_manager::MonitoredItemRef, MonitoredItemHandle, SubscriptionLimits};
+    use crate::{
+        authenticator::UserToken,
+        identity_token::IdentityToken,
+        node_manager::{MonitoredItemRef, RequestContext, RequestContextInner, ServerContext},
+        session::instance::Session,
+        MonitoredItemHandle, ServerBuilder, ServerStatusWrapper, SubscriptionLimits,
+    };
+
+    // drivebus: a subscription that expires (its client vanished) is forgotten as a
+    // subscription of its session at once (it stayed in `subscription_to_session`), and when its
+    // session is closed, it goes with the session's subscriptions (its last notification, which
+    // no publish request can take any more, kept them, and the session, for ever).
+    #[tokio::test]
+    async fn an_expired_subscription_of_a_closed_session_is_forgotten() {
+        let pki = std::env::temp_dir().join(format!("drivebus-vendor-pki-{}", std::process::id()));
+        let (_server, handle) = ServerBuilder::new_anonymous("test")
+            .pki_dir(&pki)
+            .create_sample_keypair(false)
+            .build()
+            .unwrap();
+        let info = handle.info().clone();
+        let subscriptions = handle.subscriptions().clone();
+        let context = ServerContext {
+            node_managers: handle.node_managers().as_weak(),
+            subscriptions: subscriptions.clone(),
+            info: info.clone(),
+            authenticator: info.authenticator.clone(),
+            type_tree: info.type_tree.clone(),
+            type_tree_getter: info.type_tree_getter.clone(),
+            status: Arc::new(ServerStatusWrapper::new(
+                BuildInfo::default(),
+                subscriptions.clone(),
+            )),
+        };
+        let token = UserToken("anonymous".to_string());
+        let mut session = Session::create(
+            &info,
+            NodeId::new(0, 1),
+            1,
+            60_000,
+            0,
+            0,
+            UAString::from("opc.tcp://localhost:4855/"),
+            "http://opcfoundation.org/UA/SecurityPolicy#None".to_string(),
+            IdentityToken::None,
+            None,
+            ByteString::null(),
+            UAString::from("test"),
+            ApplicationDescription::default(),
+            MessageSecurityMode::None,
+        );
+        session.activate(
+            1,
+            ByteString::null(),
+            IdentityToken::None,
+            None,
+            token.clone(),
+        );
+        let session_id = session.session_id_numeric();
+        let session = Arc::new(RwLock::new(session));
+        let request_context = RequestContext {
+            current_node_manager_index: 0,
+            inner: Arc::new(RequestContextInner {
+                session: session.clone(),
+                session_id,
+                authenticator: info.authenticator.clone(),
+                token,
+                type_tree: info.type_tree.clone(),
+                type_tree_getter: info.type_tree_getter.clone(),
+                subscriptions: subscriptions.clone(),
+                info: info.clone(),
+            }),
+        };
+        // A lifetime of 3 publishing intervals (a keep-alive at every one).
+        let request = CreateSubscriptionRequest {
+            requested_publishing_interval: 100.0,
+            requested_lifetime_count: 3,
+            requested_max_keep_alive_count: 1,
+            publishing_enabled: true,
+            ..Default::default()
+        };
+        let created = subscriptions
+            .create_subscription(session_id, &request, &request_context)
+            .unwrap();
+        let id = created.subscription_id;
+        let owned = || {
+            subscriptions
+                .inner
+                .read()
+                .subscription_to_session
+                .contains_key(&id)
+        };
+        assert!(owned());
+
+        // No publish request comes: the subscription expires.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while owned() {
+            assert!(
+                Instant::now() < deadline,
+                "after 30 s the subscription is still listed as its session's"
+            );
+            subscriptions.periodic_tick(&context).await;
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        // Its session is open: a publish request may still take its last notification.
+        subscriptions.periodic_tick(&context).await;
+        assert!(subscriptions
+            .get_session_subscriptions(session_id)
+            .is_some());
+
+        session.write().close();
+        subscriptions.periodic_tick(&context).await;
+        assert!(subscriptions
+            .get_session_subscriptions(session_id)
+            .is_none());
+        let _ = std::fs::remove_dir_all(&pki);
+    }
 
     // drivebus: an item forgotten is neither counted nor handed values, and a node whose last
     // item went is forgotten too (its empty map stayed, looked up for every value of the node).

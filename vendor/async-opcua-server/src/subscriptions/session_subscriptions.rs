@@ -655,6 +655,7 @@ impl SessionSubscriptions {
             // If the subscription expired, make sure to collect any deleted monitored items.
 
             if matches!(res, TickResult::Expired) {
+                // drivebus: the subscription and its items are reported (see `TickEnded`).
                 to_delete.subscriptions.push(sub_id);
                 to_delete.items.extend(subscription.drain().map(|item| {
                     MonitoredItemRef::new(
@@ -673,6 +674,7 @@ impl SessionSubscriptions {
                 self.retransmission_queue
                     .retain(|f| f.subscription_id != sub_id);
             } else if subscription.state() == SubscriptionState::Closed {
+                // drivebus: expired, its last notification not taken yet.
                 to_delete.expired_held = true;
             }
         }

@@ -60,6 +60,17 @@
         session without waiting for each answer are all Good, the audit trail lists them in the
         order they were sent, and the drive ends in the last commanded state.
 
+    opcua_client.py items URL HTTP DRIVES
+        URL      opc.tcp://HOST:PORT of a gateway with (at least) the two drives of DRIVES,
+                 comma-separated, anonymous reads on
+        HTTP     http://HOST:PORT of its HTTP API (anonymous reads on)
+        Checks: drivebus_opcua_monitored_items in GET /metrics counts the items subscribed to
+        (OutputFrequency, Current and Running of each drive, and events of the Server object)
+        and falls back to 0 when the client deletes its subscription, when another closes its
+        session (CloseSession, deleting its subscriptions), and when a third, with a short
+        subscription lifetime, drops its connection without closing anything (the subscription
+        expires).
+
 Prints one line per check and exits 0 when every check passed, 1 otherwise.
 """
 
@@ -631,6 +642,69 @@ async def standby(url, token, drive, bus):
     say("ALL OK")
 
 
+def monitored_items(http):
+    """drivebus_opcua_monitored_items in GET /metrics (None while it is not there)."""
+    with urllib.request.urlopen(f"{http}/metrics", timeout=10) as r:
+        text = r.read().decode()
+    for line in text.splitlines():
+        if line.startswith("drivebus_opcua_monitored_items "):
+            return int(line.split()[1])
+    return None
+
+
+async def metric_is(http, n, what):
+    async def probe():
+        return monitored_items(http) == n
+    try:
+        await until(what, probe)
+    except AssertionError:
+        raise AssertionError(f"{what}: drivebus_opcua_monitored_items is {monitored_items(http)}, not {n}")
+    say(f"metric: {what}: drivebus_opcua_monitored_items {n}")
+
+
+async def subscribe_items(c, drives, params):
+    """Subscribes (one subscription of `params`) to three variables of each drive and to the
+    Server object's events; returns the subscription and the number of items."""
+    ns = await c.get_namespace_index("urn:drivebus")
+    sub = await c.create_subscription(params, Changes())
+    variables = [node(c, ns, f"Drives/{d}/{n}") for d in drives for n in ("OutputFrequency", "Current", "Running")]
+    handles = await sub.subscribe_data_change(variables)
+    assert all(isinstance(h, int) for h in handles), f"data items refused: {handles}"
+    await sub.subscribe_events(c.nodes.server)
+    return sub, len(variables) + 1
+
+
+async def items(url, http, drives):
+    drives = drives.split(",")
+    await metric_is(http, 0, "no client yet")
+
+    async with Client(url) as c:
+        sub, k = await subscribe_items(c, drives, 100)
+        await metric_is(http, k, f"a client subscribed to {k} items")
+        await sub.delete()
+        await metric_is(http, 0, "the client deleted its subscription")
+
+    c = Client(url)
+    await c.connect()
+    _, k = await subscribe_items(c, drives, 100)
+    await metric_is(http, k, f"another client subscribed to {k} items")
+    await c.disconnect()
+    await metric_is(http, 0, "that client closed its session")
+
+    # A client that vanishes: its subscription (publishing every 50 ms, a keep-alive every
+    # publish, so a lifetime of 3 publishing intervals) expires once no publish request is left.
+    c = Client(url)
+    await c.connect()
+    params = ua.CreateSubscriptionParameters(
+        RequestedPublishingInterval=50, RequestedLifetimeCount=3, RequestedMaxKeepAliveCount=1,
+        MaxNotificationsPerPublish=0, PublishingEnabled=True, Priority=0)
+    _, k = await subscribe_items(c, drives, params)
+    await metric_is(http, k, f"a third client subscribed to {k} items")
+    c.disconnect_socket()
+    await metric_is(http, 0, "that client vanished (its subscription expired)")
+    say("ALL OK")
+
+
 def main():
     if len(sys.argv) >= 3 and sys.argv[1] == "mkcert":
         asyncio.run(mkcert(sys.argv[2]))
@@ -667,6 +741,12 @@ def main():
     elif len(sys.argv) == 6 and sys.argv[1] == "standby":
         try:
             asyncio.run(standby(*sys.argv[2:]))
+        except AssertionError as e:
+            print(f"FAILED: {e}", flush=True)
+            sys.exit(1)
+    elif len(sys.argv) == 5 and sys.argv[1] == "items":
+        try:
+            asyncio.run(items(*sys.argv[2:]))
         except AssertionError as e:
             print(f"FAILED: {e}", flush=True)
             sys.exit(1)

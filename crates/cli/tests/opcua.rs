@@ -282,3 +282,26 @@ fn asyncua_sees_a_standby_marked_and_its_commands_refused_with_bad_invalid_state
         "the refusal audited: {events}"
     );
 }
+
+/// The OPC UA server forgets a client's monitored items however its subscription ends
+/// (`drivebus_opcua_monitored_items` in /metrics, issue 25): deleted by the client, deleted
+/// with its session (CloseSession), or expired after the client vanished without closing
+/// anything. The library kept every data item of a deleted subscription, and every item of an
+/// expired one, for as long as the server ran (the eighth `drivebus:` change,
+/// vendor/async-opcua-server/DRIVEBUS.md).
+#[test]
+#[ignore = "needs asyncua (.ci/install-witnesses.sh)"]
+fn asyncua_monitored_items_are_forgotten_when_subscriptions_end() {
+    if !witness("Python asyncua", witness::python_has("asyncua"), "pip install asyncua") {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let config = "[http]\nanonymous_read = true\n\
+         [[bus]]\nname = \"line-1\"\nport = \"virtual\"\nprotocol = \"modbus-rtu\"\nbaud = 115200\n\
+         [[bus.drive]]\nname = \"pump-1\"\nfamily = \"generic\"\naddress = 1\npoll_ms = 100\n\
+         [[bus.drive]]\nname = \"pump-2\"\nfamily = \"generic\"\naddress = 2\npoll_ms = 100\n";
+    let file = dir.path().join("plant.toml");
+    std::fs::write(&file, config).unwrap();
+    let serve = Serve::start(&file, "127.0.0.1:0", &["--no-store"]);
+    client(&["items", &serve.url, &format!("http://{}", serve.http), "pump-1,pump-2"]);
+}

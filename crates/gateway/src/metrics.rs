@@ -11,7 +11,9 @@
 //! the HTTP front end (`http::metrics`).
 
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, OnceLock, RwLock};
+
+use opcua::server::SubscriptionCache;
 
 use prometheus_client::encoding::text::{encode_eof, encode_registry};
 use prometheus_client::encoding::EncodeLabelSet;
@@ -264,8 +266,35 @@ pub struct FrontEnds {
     pub counts: Arc<FrontEndMetrics>,
     /// The Sparkplug B edge node's messages, refusals and queue (`sparkplug::metrics`).
     pub sparkplug: Arc<SparkplugMetrics>,
+    /// The OPC UA server's subscriptions, once it runs ([`FrontEnds::serve_opcua`]).
+    opcua: OpcUaServed,
     /// The exposition's registry, built on the first scrape ([`render`]).
     exposition: Exposition,
+}
+
+impl FrontEnds {
+    /// Shows the subscriptions of the OPC UA server now serving in `/metrics`
+    /// (`drivebus_opcua_monitored_items`).
+    pub fn serve_opcua(&self, subscriptions: Arc<SubscriptionCache>) {
+        *self.opcua.0.write().unwrap_or_else(|e| e.into_inner()) = Some(subscriptions);
+    }
+
+    /// The monitored items the OPC UA server holds, of every session; None while it does not
+    /// run.
+    pub fn opcua_monitored_items(&self) -> Option<usize> {
+        let served = self.opcua.0.read().unwrap_or_else(|e| e.into_inner());
+        served.as_ref().map(|subs| subs.monitored_item_count())
+    }
+}
+
+/// The subscriptions of the OPC UA server, counted at each scrape.
+#[derive(Default)]
+struct OpcUaServed(RwLock<Option<Arc<SubscriptionCache>>>);
+
+impl std::fmt::Debug for OpcUaServed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("OpcUaServed")
+    }
 }
 
 /// What the front ends attach to `gw`, made empty on first use.
@@ -289,13 +318,15 @@ struct Exposition {
 /// The exposition now, as `GET /metrics` serves it.
 ///
 /// The series come out in this order: drives, buses, the gateway's counts, the front ends',
-/// Sparkplug's, health. The drive, bus, gateway and health series are written by hand straight
+/// Sparkplug's, the OPC UA server's, health. The drive, bus, gateway and health series are written by hand straight
 /// from the cache, the bus owners' counts and the kept health facts into one buffer sized from
 /// the last scrape: each drive's state is read under one short lock, its labels are written
 /// once per scrape and copied into each of its series, and no series allocates. The front
 /// ends' families (labels made by the front ends as they count) are encoded by
-/// `prometheus-client` from a registry built once per gateway. Nothing is polled, no file is
-/// touched (the store's check runs on its own schedule, `health::STORE_CHECK_EVERY`).
+/// `prometheus-client` from a registry built once per gateway. The OPC UA server's monitored
+/// items are counted in its subscriptions (a sum over the watched nodes under its read lock).
+/// Nothing is polled, no file is touched (the store's check runs on its own schedule,
+/// `health::STORE_CHECK_EVERY`).
 pub fn render(gw: &Arc<Gateway>) -> Result<String, String> {
     let front_ends = attached(gw);
     let exposition = &front_ends.exposition;
@@ -303,6 +334,13 @@ pub fn render(gw: &Arc<Gateway>) -> Result<String, String> {
     let mut out = String::with_capacity(exposition.last_len.load(Ordering::Relaxed) + 4096);
     core_series(gw, &mut out);
     encode_registry(&mut out, reg).map_err(|e| format!("cannot encode the metrics: {e}"))?;
+    if let Some(items) = front_ends.opcua_monitored_items() {
+        single(
+            &mut out,
+            ("opcua_monitored_items", "Monitored items the OPC UA server holds, all sessions."),
+            Value::Flag(i64::try_from(items).unwrap_or(i64::MAX)),
+        );
+    }
     health_series(gw, &mut out);
     encode_eof(&mut out).map_err(|e| format!("cannot encode the metrics: {e}"))?;
     exposition.last_len.store(out.len(), Ordering::Relaxed);
@@ -354,6 +392,7 @@ const PREFIX: &str = "drivebus";
 #[derive(Clone, Copy)]
 enum Value {
     Gauge(f64),
+    /// An integer gauge: a 0/1 flag, a code, a number of things held.
     Flag(i64),
     Count(u64),
 }

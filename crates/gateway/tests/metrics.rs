@@ -392,11 +392,19 @@ async fn the_exposition_has_exactly_the_series_docs_metrics_md_lists() {
     sp.refused("disabled");
     gw.health().slave_port("/dev/ttyRTU0", None);
     gw.health().listener("http", "127.0.0.1:8080".parse().unwrap(), true);
+    // An OPC UA server's subscriptions (none) shown.
+    let (_server, opcua) = opcua::server::ServerBuilder::new_anonymous("metrics")
+        .pki_dir(dir.join("pki"))
+        .create_sample_keypair(false)
+        .build()
+        .unwrap();
+    drivebus_gateway::metrics::attached(&gw).serve_opcua(opcua.subscriptions().clone());
     tokio::time::sleep(Duration::from_secs(20)).await;
     let app = app(&gw);
     assert_eq!(get_text(&app, "/api/ping").await.0, StatusCode::OK);
 
     let text = drivebus_gateway::metrics::render(&gw).unwrap();
+    assert!(text.contains("\ndrivebus_opcua_monitored_items 0\n"), "{text}");
     let documented = documented_series();
     assert!(documented.len() > 40, "the tables of docs/metrics.md were not read: {documented:?}");
     let exposed = exposed_series(&text);

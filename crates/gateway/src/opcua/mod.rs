@@ -143,6 +143,7 @@ pub fn start(
     Ok(async move {
         let changes = gw.subscribe();
         let subs = handle.subscriptions().clone();
+        crate::metrics::attached(&gw).serve_opcua(subs.clone());
         tokio::spawn(publish::publish(gw, Ids { ns }, subs, changes));
         server.run_with(listener).await.map_err(|e| format!("OPC UA server stopped: {e}"))
     })

@@ -99,6 +99,28 @@ struct SubscriptionCacheInner {
     timestamp_items: usize,
 }
 
+impl SubscriptionCacheInner {
+    /// drivebus: forgets monitored item `rf`, and its node when it was the node's last item.
+    /// Every path that ends an item (DeleteMonitoredItems, DeleteSubscriptions, CloseSession,
+    /// a subscription's expiry) comes here: an item left listed was handed every value of its
+    /// node for as long as the server ran, its subscription gone.
+    fn forget_monitored_item(&mut self, rf: &MonitoredItemRef) {
+        let key = MonitoredItemKeyRef {
+            id: rf.node_id().into(),
+            attribute_id: rf.attribute(),
+        };
+        if let Some(items) = self.monitored_items.get_mut(&key) {
+            // drivebus: `timestamp_items` counts the entries with `timestamp_changes`.
+            if items.remove(&rf.handle()).is_some_and(|e| e.timestamp_changes) {
+                self.timestamp_items -= 1;
+            }
+            if items.is_empty() {
+                self.monitored_items.remove(&key);
+            }
+        }
+    }
+}
+
 /// Structure storing all subscriptions and monitored items on the server.
 /// Used to notify users of changes.
 ///
@@ -142,25 +164,55 @@ impl SubscriptionCache {
         // be more efficient, and would be more responsive.
         let mut to_delete = Vec::new();
         let mut items_to_delete = Vec::new();
+        // drivebus: the subscriptions that expired in this tick, and the sessions that hold an
+        // expired subscription no publish request took the last notification of yet.
+        let mut expired_subscriptions = Vec::new();
+        let mut expired_held = Vec::new();
         {
             let now = Utc::now();
             let now_instant = Instant::now();
             let lck = trace_read_lock!(self.inner);
             for (session_id, sub) in lck.session_subscriptions.iter() {
                 let mut sub_lck = sub.lock();
-                items_to_delete.push((
-                    sub_lck.session().clone(),
-                    sub_lck.tick(&now, now_instant, TickReason::TickTimerFired),
-                ));
+                let ended = sub_lck.tick(&now, now_instant, TickReason::TickTimerFired);
+                expired_subscriptions.extend(ended.subscriptions);
+                if !ended.items.is_empty() {
+                    items_to_delete.push((sub_lck.session().clone(), ended.items));
+                }
+                if ended.expired_held {
+                    expired_held.push((*session_id, sub.clone(), sub_lck.session().clone()));
+                }
                 if sub_lck.is_ready_to_delete() {
                     to_delete.push(*session_id);
                 }
             }
         }
-        if !to_delete.is_empty() {
+        // drivebus: a closed session (closed without deleting its subscriptions, or timed out)
+        // takes no publish request any more, so its expired subscriptions would keep their last
+        // notification, and the session its subscriptions, for ever: they go now. A session
+        // with subscriptions was activated; one no longer activated is closed.
+        for (session_id, subs, session) in expired_held {
+            let closed = !trace_read_lock!(session).is_activated();
+            if closed {
+                let mut subs_lck = subs.lock();
+                subs_lck.remove_expired();
+                if subs_lck.is_ready_to_delete() {
+                    to_delete.push(session_id);
+                }
+            }
+        }
+        // drivebus: an expired subscription's items and its owner are forgotten with it (they
+        // stayed listed for ever, and their nodes' values were handed to them).
+        if !to_delete.is_empty() || !expired_subscriptions.is_empty() {
             let mut lck = trace_write_lock!(self.inner);
             for id in to_delete {
                 lck.session_subscriptions.remove(&id);
+            }
+            for id in expired_subscriptions {
+                lck.subscription_to_session.remove(&id);
+            }
+            for rf in items_to_delete.iter().flat_map(|(_, items)| items) {
+                lck.forget_monitored_item(rf);
             }
             context
                 .info
@@ -215,6 +267,13 @@ impl SubscriptionCache {
                 mgr.delete_monitored_items(&ctx, &owned).await;
             }
         }
+    }
+
+    /// drivebus: the monitored items the server holds, of every session: for a server's
+    /// metrics. Takes the read lock for a count per watched node.
+    pub fn monitored_item_count(&self) -> usize {
+        let lck = trace_read_lock!(self.inner);
+        lck.monitored_items.values().map(|items| items.len()).sum()
     }
 
     pub(crate) fn get_monitored_item_count(
@@ -593,17 +652,8 @@ impl SubscriptionCache {
         if let Ok(res) = &result {
             for (status, rf) in res {
                 if status.is_good() {
-                    let key = MonitoredItemKeyRef {
-                        id: rf.node_id().into(),
-                        attribute_id: rf.attribute(),
-                    };
-                    let inner = &mut *lck;
-                    if let Some(it) = inner.monitored_items.get_mut(&key) {
-                        // drivebus: `timestamp_items` counts the entries with `timestamp_changes`.
-                        if it.remove(&rf.handle()).is_some_and(|e| e.timestamp_changes) {
-                            inner.timestamp_items -= 1;
-                        }
-                    }
+                    // drivebus: the node goes too when this was its last item.
+                    lck.forget_monitored_item(rf);
                 }
             }
         }
@@ -635,20 +685,10 @@ impl SubscriptionCache {
                 continue;
             }
 
+            // drivebus: every item of the subscription is forgotten (only event items were; a
+            // data item stayed listed, and was handed its node's values, for ever).
             for rf in item_res {
-                if rf.attribute() == AttributeId::EventNotifier {
-                    let key = MonitoredItemKeyRef {
-                        id: rf.node_id().into(),
-                        attribute_id: rf.attribute(),
-                    };
-                    let inner = &mut *lck;
-                    if let Some(it) = inner.monitored_items.get_mut(&key) {
-                        // drivebus: `timestamp_items` counts the entries with `timestamp_changes`.
-                        if it.remove(&rf.handle()).is_some_and(|e| e.timestamp_changes) {
-                            inner.timestamp_items -= 1;
-                        }
-                    }
-                }
+                lck.forget_monitored_item(rf);
             }
         }
 
@@ -804,5 +844,187 @@ impl PersistentSessionKey {
         } else {
             other.token == self.token
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::{
+        sync::Arc,
+        time::{Duration, Instant},
+    };
+
+    use opcua_core::sync::RwLock;
+    use opcua_types::{
+        ApplicationDescription, AttributeId, BuildInfo, ByteString, CreateSubscriptionRequest,
+        DataEncoding, MessageSecurityMode, NodeId, NumericRange, UAString,
+    };
+
+    use super::{MonitoredItemEntry, MonitoredItemKey, SubscriptionCache};
+    use crate::{
+        authenticator::UserToken,
+        identity_token::IdentityToken,
+        node_manager::{MonitoredItemRef, RequestContext, RequestContextInner, ServerContext},
+        session::instance::Session,
+        MonitoredItemHandle, ServerBuilder, ServerStatusWrapper, SubscriptionLimits,
+    };
+
+    // drivebus: a subscription that expires (its client vanished) is forgotten as a
+    // subscription of its session at once (it stayed in `subscription_to_session`), and when its
+    // session is closed, it goes with the session's subscriptions (its last notification, which
+    // no publish request can take any more, kept them, and the session, for ever).
+    #[tokio::test]
+    async fn an_expired_subscription_of_a_closed_session_is_forgotten() {
+        let pki = std::env::temp_dir().join(format!("drivebus-vendor-pki-{}", std::process::id()));
+        let (_server, handle) = ServerBuilder::new_anonymous("test")
+            .pki_dir(&pki)
+            .create_sample_keypair(false)
+            .build()
+            .unwrap();
+        let info = handle.info().clone();
+        let subscriptions = handle.subscriptions().clone();
+        let context = ServerContext {
+            node_managers: handle.node_managers().as_weak(),
+            subscriptions: subscriptions.clone(),
+            info: info.clone(),
+            authenticator: info.authenticator.clone(),
+            type_tree: info.type_tree.clone(),
+            type_tree_getter: info.type_tree_getter.clone(),
+            status: Arc::new(ServerStatusWrapper::new(
+                BuildInfo::default(),
+                subscriptions.clone(),
+            )),
+        };
+        let token = UserToken("anonymous".to_string());
+        let mut session = Session::create(
+            &info,
+            NodeId::new(0, 1),
+            1,
+            60_000,
+            0,
+            0,
+            UAString::from("opc.tcp://localhost:4855/"),
+            "http://opcfoundation.org/UA/SecurityPolicy#None".to_string(),
+            IdentityToken::None,
+            None,
+            ByteString::null(),
+            UAString::from("test"),
+            ApplicationDescription::default(),
+            MessageSecurityMode::None,
+        );
+        session.activate(
+            1,
+            ByteString::null(),
+            IdentityToken::None,
+            None,
+            token.clone(),
+        );
+        let session_id = session.session_id_numeric();
+        let session = Arc::new(RwLock::new(session));
+        let request_context = RequestContext {
+            current_node_manager_index: 0,
+            inner: Arc::new(RequestContextInner {
+                session: session.clone(),
+                session_id,
+                authenticator: info.authenticator.clone(),
+                token,
+                type_tree: info.type_tree.clone(),
+                type_tree_getter: info.type_tree_getter.clone(),
+                subscriptions: subscriptions.clone(),
+                info: info.clone(),
+            }),
+        };
+        // A lifetime of 3 publishing intervals (a keep-alive at every one).
+        let request = CreateSubscriptionRequest {
+            requested_publishing_interval: 100.0,
+            requested_lifetime_count: 3,
+            requested_max_keep_alive_count: 1,
+            publishing_enabled: true,
+            ..Default::default()
+        };
+        let created = subscriptions
+            .create_subscription(session_id, &request, &request_context)
+            .unwrap();
+        let id = created.subscription_id;
+        let owned = || {
+            subscriptions
+                .inner
+                .read()
+                .subscription_to_session
+                .contains_key(&id)
+        };
+        assert!(owned());
+
+        // No publish request comes: the subscription expires.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while owned() {
+            assert!(
+                Instant::now() < deadline,
+                "after 30 s the subscription is still listed as its session's"
+            );
+            subscriptions.periodic_tick(&context).await;
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        // Its session is open: a publish request may still take its last notification.
+        subscriptions.periodic_tick(&context).await;
+        assert!(subscriptions
+            .get_session_subscriptions(session_id)
+            .is_some());
+
+        session.write().close();
+        subscriptions.periodic_tick(&context).await;
+        assert!(subscriptions
+            .get_session_subscriptions(session_id)
+            .is_none());
+        let _ = std::fs::remove_dir_all(&pki);
+    }
+
+    // drivebus: an item forgotten is neither counted nor handed values, and a node whose last
+    // item went is forgotten too (its empty map stayed, looked up for every value of the node).
+    #[test]
+    fn a_node_whose_last_item_is_forgotten_is_forgotten_too() {
+        let cache = SubscriptionCache::new(SubscriptionLimits::default());
+        let node = NodeId::new(1, "pump-1/OutputFrequency");
+        let item = |subscription_id, monitored_item_id| {
+            MonitoredItemRef::new(
+                MonitoredItemHandle {
+                    subscription_id,
+                    monitored_item_id,
+                },
+                node.clone(),
+                AttributeId::Value,
+            )
+        };
+        {
+            let mut lck = cache.inner.write();
+            for rf in [item(1, 1), item(2, 1)] {
+                let key = MonitoredItemKey {
+                    id: node.clone(),
+                    attribute_id: AttributeId::Value,
+                };
+                lck.monitored_items.entry(key).or_default().insert(
+                    rf.handle(),
+                    MonitoredItemEntry {
+                        enabled: true,
+                        data_encoding: DataEncoding::Binary,
+                        index_range: NumericRange::None,
+                        timestamp_changes: rf.handle().subscription_id == 1,
+                    },
+                );
+            }
+            lck.timestamp_items = 1;
+        }
+        assert_eq!(cache.monitored_item_count(), 2);
+
+        cache.inner.write().forget_monitored_item(&item(1, 1));
+        assert_eq!(cache.monitored_item_count(), 1);
+        assert_eq!(cache.inner.read().timestamp_items, 0);
+        assert_eq!(cache.inner.read().monitored_items.len(), 1);
+
+        cache.inner.write().forget_monitored_item(&item(2, 1));
+        assert_eq!(cache.monitored_item_count(), 0);
+        assert!(cache.inner.read().monitored_items.is_empty());
+        let mut notifier = cache.data_notifier();
+        assert!(notifier.notify_for(&node, AttributeId::Value).is_none());
     }
 }

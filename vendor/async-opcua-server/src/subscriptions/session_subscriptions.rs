@@ -6,7 +6,7 @@ use std::{
 
 use super::{
     monitored_item::MonitoredItem,
-    subscription::{MonitoredItemHandle, Subscription, TickReason, TickResult},
+    subscription::{MonitoredItemHandle, Subscription, SubscriptionState, TickReason, TickResult},
     CreateMonitoredItem, NonAckedPublish, PendingPublish, PersistentSessionKey,
 };
 use hashbrown::{HashMap, HashSet};
@@ -27,6 +27,21 @@ use opcua_types::{
     RepublishResponse, ResponseHeader, ServiceFault, SetPublishingModeRequest,
     SetPublishingModeResponse, StatusCode, TimestampsToReturn,
 };
+
+/// drivebus: what a tick ended: the subscriptions that expired in it (their lifetime ran out
+/// without a publish request), their monitored items, which the node managers and the
+/// subscription cache forget, and whether the session still holds an expired subscription whose
+/// last notification (Bad_Timeout) no publish request took yet.
+#[derive(Default)]
+pub(crate) struct TickEnded {
+    /// The monitored items of the subscriptions that expired.
+    pub items: Vec<MonitoredItemRef>,
+    /// The subscriptions that expired.
+    pub subscriptions: Vec<u32>,
+    /// Whether an expired subscription still waits for a publish request to take its last
+    /// notification.
+    pub expired_held: bool,
+}
 
 /// Subscriptions belonging to a single session. Note that they are technically _owned_ by
 /// a user token, which means that they can be transfered to a different session.
@@ -588,8 +603,8 @@ impl SessionSubscriptions {
         now: &DateTimeUtc,
         now_instant: Instant,
         tick_reason: TickReason,
-    ) -> Vec<MonitoredItemRef> {
-        let mut to_delete = Vec::new();
+    ) -> TickEnded {
+        let mut to_delete = TickEnded::default();
         if self.subscriptions.is_empty() {
             for pb in self.publish_request_queue.drain(..) {
                 let _ = pb.response.send(
@@ -640,7 +655,9 @@ impl SessionSubscriptions {
             // If the subscription expired, make sure to collect any deleted monitored items.
 
             if matches!(res, TickResult::Expired) {
-                to_delete.extend(subscription.drain().map(|item| {
+                // drivebus: the subscription and its items are reported (see `TickEnded`).
+                to_delete.subscriptions.push(sub_id);
+                to_delete.items.extend(subscription.drain().map(|item| {
                     MonitoredItemRef::new(
                         MonitoredItemHandle {
                             subscription_id: sub_id,
@@ -656,6 +673,9 @@ impl SessionSubscriptions {
                 self.subscriptions.remove(&sub_id);
                 self.retransmission_queue
                     .retain(|f| f.subscription_id != sub_id);
+            } else if subscription.state() == SubscriptionState::Closed {
+                // drivebus: expired, its last notification not taken yet.
+                to_delete.expired_held = true;
             }
         }
 
@@ -697,6 +717,21 @@ impl SessionSubscriptions {
         }
 
         to_delete
+    }
+
+    /// drivebus: removes the subscriptions that expired, with their notifications: for a
+    /// session that is closed, whose expired subscriptions no publish request will ever empty
+    /// (they kept the session's subscriptions, and the session, on the server for ever).
+    pub(super) fn remove_expired(&mut self) {
+        let expired: Vec<u32> = self
+            .subscriptions
+            .iter()
+            .filter(|(_, sub)| sub.state() == SubscriptionState::Closed)
+            .map(|(id, _)| *id)
+            .collect();
+        for id in expired {
+            self.remove(id);
+        }
     }
 
     fn find_notification_message(

@@ -521,7 +521,9 @@ impl Subscription {
             UpdateStateAction::SubscriptionCreated => TickResult::None,
             UpdateStateAction::SubscriptionExpired => {
                 debug!("Subscription status change to closed / timeout");
-                self.monitored_items.clear();
+                // drivebus: the items stay until the session drains them (it does on
+                // `TickResult::Expired`), so that the server forgets them everywhere it lists
+                // them; cleared here, they were never drained and stayed listed for ever.
                 let notification = NotificationMessage::status_change(
                     self.sequence_number.next(),
                     DateTime::from(*now),
@@ -810,7 +812,7 @@ mod tests {
         ReadValueId, StatusChangeNotification, StatusCode, Variant,
     };
 
-    use super::{Subscription, TickReason};
+    use super::{Subscription, TickReason, TickResult};
 
     fn get_notifications(message: &NotificationMessage) -> Vec<Notification> {
         let mut res = Vec::new();
@@ -1030,6 +1032,51 @@ mod tests {
         let (time, time_inst) = offset(start_dt, start, 300);
         sub.tick(&time, time_inst, TickReason::TickTimerFired, true);
         assert_eq!(values(&mut sub), vec![Some(Variant::Int32(3))]);
+    }
+
+    // drivebus: a subscription that expires (no publish request for its lifetime) still holds
+    // its monitored items when the tick says so, for the session to drain them and the server
+    // to forget them; they were cleared first, so nothing was drained and the server kept
+    // listing them.
+    #[test]
+    fn an_expired_subscription_hands_its_items_over() {
+        let mut sub = Subscription::new(1, true, Duration::from_millis(100), 3, 1, 1, 100, 1000);
+        let start = Instant::now();
+        let start_dt = Utc::now();
+        sub.last_time_publishing_interval_elapsed = start;
+        sub.tick(&start_dt, start, TickReason::TickTimerFired, true);
+        for id in 1..=2 {
+            sub.insert(
+                id,
+                new_monitored_item(
+                    id,
+                    ReadValueId {
+                        node_id: NodeId::new(1, id),
+                        attribute_id: AttributeId::Value as u32,
+                        ..Default::default()
+                    },
+                    MonitoringMode::Reporting,
+                    FilterType::None,
+                    SamplingInterval::NonZero(TimeDelta::milliseconds(100)),
+                    false,
+                    None,
+                ),
+            );
+        }
+        let mut expired = false;
+        for i in 1..=20 {
+            let (time, time_inst) = offset(start_dt, start, i * 100);
+            if sub.tick(&time, time_inst, TickReason::TickTimerFired, false) == TickResult::Expired
+            {
+                expired = true;
+                break;
+            }
+        }
+        assert!(expired, "the subscription did not expire");
+        assert_eq!(sub.state, SubscriptionState::Closed);
+        let mut drained: Vec<u32> = sub.drain().map(|(id, _)| id).collect();
+        drained.sort();
+        assert_eq!(drained, vec![1, 2]);
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //! profile on its bus owner, the bus owner itself).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
 use drivebus_drive::profile::DriveStatus;
 use drivebus_drive::ParamDef;
@@ -145,6 +145,9 @@ pub struct BusEntry {
     pub(super) generation: AtomicU64,
     /// Set when a reload removed or replaced the bus: its scheduler ends and the port closes.
     pub(super) retired: AtomicBool,
+    /// The drives whose status a command's refresh read (ahead of polls), and when, for the
+    /// scheduler to count as their polls.
+    pub(super) refreshed: Mutex<Vec<(Arc<DriveEntry>, tokio::time::Instant)>>,
     /// The simulated drives of a virtual bus.
     #[cfg(feature = "virtual")]
     pub line: Option<Arc<std::sync::Mutex<VirtualLine>>>,

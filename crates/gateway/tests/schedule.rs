@@ -4,7 +4,7 @@
 //! reads a status, each behind the manual's 10 ms of silence: about 0.95 s of line time a round,
 //! so each drive is polled about once a second whatever `poll_ms` says), with speed commands
 //! coming ten a second, the drives due are polled oldest values first, whether a poll or a
-//! refresh read them last.
+//! refresh read them last, and the bus's poll lag shows the line is full.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -65,9 +65,11 @@ async fn the_refresh_after_a_command_counts_as_the_drives_poll() {
         "polled {:?} after the command's refresh (poll_ms {poll:?})",
         next - refreshed
     );
-    // And then every second again.
+    // And then every second again, on time.
     let after = next_status(&mut changes, "vfd-1", Duration::from_secs(10)).await;
     assert!(after - next >= poll - Duration::from_millis(5), "{:?}", after - next);
+    let lag = gw.buses()[0].poll_lag();
+    assert!(lag < Duration::from_millis(5), "polls began {lag:?} late");
 }
 
 /// Over `run`, the longest any of `drives` went without a new status in the cache (a poll's or
@@ -127,4 +129,9 @@ async fn on_a_full_line_the_oldest_values_are_read_first() {
     // between them: 1.85 s at worst.
     assert!(statuses > 30 * 25, "{statuses} statuses in 30 s");
     assert!(worst < Duration::from_millis(1750), "a drive went {worst:?} without a new status");
+    // The line is full, and the bus says so: polls begin far behind their schedule (while the
+    // bytes on the wire take some 11 % of the time).
+    let bus = &gw.buses()[0];
+    let (lag, wire) = (bus.poll_lag(), bus.stats().utilization());
+    assert!(lag > Duration::from_millis(300) && wire < 0.2, "polls {lag:?} late, the wire busy {wire}");
 }

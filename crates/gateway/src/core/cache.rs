@@ -148,6 +148,8 @@ pub struct BusEntry {
     /// The drives whose status a command's refresh read (ahead of polls), and when, for the
     /// scheduler to count as their polls.
     pub(super) refreshed: Mutex<Vec<(Arc<DriveEntry>, tokio::time::Instant)>>,
+    /// How late the bus's last poll began after it was due, µs ([`BusEntry::poll_lag`]).
+    pub(super) poll_lag_us: AtomicU64,
     /// The simulated drives of a virtual bus.
     #[cfg(feature = "virtual")]
     pub line: Option<Arc<std::sync::Mutex<VirtualLine>>>,
@@ -163,6 +165,14 @@ impl BusEntry {
     /// Master (it polls) or standby (it listens); the only master is master.
     pub fn role(&self) -> drivebus_link::role::Role {
         self.role_status().map_or(drivebus_link::role::Role::Master, |s| s.role)
+    }
+
+    /// How late the bus's last poll began after it was due. Above zero for long, the line
+    /// cannot poll its drives at their `poll_ms` (the silences, the requests, the drives' reply
+    /// delays and the replies of one round take longer than the interval, or commands take the
+    /// rest): each drive is then polled once a round.
+    pub fn poll_lag(&self) -> std::time::Duration {
+        std::time::Duration::from_micros(self.poll_lag_us.load(Ordering::Relaxed))
     }
 
     /// The bus owner's counts.

@@ -153,6 +153,8 @@ impl Gateway {
             let at = pick.map_or_else(|| now + Duration::from_secs(3600), |k| slots[k].due);
             tokio::select! {
                 _ = tokio::time::sleep_until(at), if pick.is_some() => {
+                    let late = tokio::time::Instant::now().saturating_duration_since(at);
+                    bus.poll_lag_us.store(u64::try_from(late.as_micros()).unwrap_or(u64::MAX), Ordering::Relaxed);
                     let d = mine[pick.expect("picked")].clone();
                     let (gw, bus, drive) = (self.clone(), bus.clone(), d.clone());
                     polling.start((d, listening), async move {

@@ -230,6 +230,7 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         generation: AtomicU64::new(0),
         retired: AtomicBool::new(false),
         refreshed: Mutex::new(Vec::new()),
+        poll_lag_us: AtomicU64::new(0),
         #[cfg(feature = "virtual")]
         line,
     }))

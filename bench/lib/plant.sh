@@ -5,7 +5,7 @@
 # Such a line is full: a generic drive's status is two reads, each about 15 ms of line time (the
 # manual's 10 ms of silence, the request, the drive's 3 ms reply delay, the reply), so a line
 # reads some 34 statuses a second and its 31 or 32 drives are polled about once a second, not
-# every 500 ms (drivebus_bus_poll_lag_seconds about 0.9 s; drivebus_bus_utilization, the wire
+# every 500 ms (drivebus_bus_poll_lag_seconds about 0.43 s; drivebus_bus_utilization, the wire
 # bytes alone, 0.11). Every command is three more exchanges (its write and the refresh's two
 # reads).
 #

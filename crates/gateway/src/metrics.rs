@@ -516,7 +516,7 @@ struct BusRow {
     online: bool,
     /// The gateway masters the bus (not a standby listening).
     master: bool,
-    /// How late its last poll began, s.
+    /// How much longer than its interval its last polled drive waited, s.
     poll_lag: f64,
     takeovers: u64,
     yields: u64,
@@ -617,7 +617,7 @@ fn core_series(gw: &Gateway, out: &mut String) {
         out,
         (
             "bus_poll_lag",
-            "How late the bus's last poll began after it was due: above 0 for long, the line cannot poll its drives at their poll_ms.",
+            "How much longer than its poll interval the last polled drive's values waited for the poll: above 0 for long, the line cannot poll its drives at their poll_ms.",
             Some("seconds"),
         ),
         per_bus(&buses, &text, |r| Value::Gauge(r.poll_lag)),

@@ -4,7 +4,8 @@
 //! reads a status, each behind the manual's 10 ms of silence: about 0.95 s of line time a round,
 //! so each drive is polled about once a second whatever `poll_ms` says), with speed commands
 //! coming ten a second, the drives due are polled oldest values first, whether a poll or a
-//! refresh read them last, and the bus's poll lag shows the line is full.
+//! refresh read them last, and the bus's poll lag shows the line is full (and none on a line
+//! that keeps its intervals).
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -70,6 +71,23 @@ async fn the_refresh_after_a_command_counts_as_the_drives_poll() {
     assert!(after - next >= poll - Duration::from_millis(5), "{:?}", after - next);
     let lag = gw.buses()[0].poll_lag();
     assert!(lag < Duration::from_millis(5), "polls began {lag:?} late");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_line_that_keeps_its_intervals_shows_no_poll_lag() {
+    // 8 drives polled every second, all due at once from the start: the last of each round
+    // begins some 0.2 s after it was due, every second, so its values wait no longer than the
+    // interval.
+    let gw = Gateway::start(line(8, 1000), None).unwrap();
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let bus = gw.buses()[0].clone();
+    let mut most = Duration::ZERO;
+    for _ in 0..200 {
+        tokio::time::sleep(Duration::from_millis(25)).await;
+        most = most.max(bus.poll_lag());
+    }
+    assert!(most < Duration::from_millis(5), "a poll lag of {most:?} on a line that keeps its intervals");
+    assert!(bus.stats().transactions > 8 * 2 * 7, "{:?}", bus.stats());
 }
 
 /// Over `run`, the longest any of `drives` went without a new status in the cache (a poll's or

@@ -148,7 +148,8 @@ pub struct BusEntry {
     /// The drives whose status a command's refresh read (ahead of polls), and when, for the
     /// scheduler to count as their polls.
     pub(super) refreshed: Mutex<Vec<(Arc<DriveEntry>, tokio::time::Instant)>>,
-    /// How late the bus's last poll began after it was due, µs ([`BusEntry::poll_lag`]).
+    /// How much longer than its interval the last polled drive's values waited, µs
+    /// ([`BusEntry::poll_lag`]).
     pub(super) poll_lag_us: AtomicU64,
     /// The simulated drives of a virtual bus.
     #[cfg(feature = "virtual")]
@@ -167,10 +168,11 @@ impl BusEntry {
         self.role_status().map_or(drivebus_link::role::Role::Master, |s| s.role)
     }
 
-    /// How late the bus's last poll began after it was due. Above zero for long, the line
-    /// cannot poll its drives at their `poll_ms` (the silences, the requests, the drives' reply
-    /// delays and the replies of one round take longer than the interval, or commands take the
-    /// rest): each drive is then polled once a round.
+    /// How much longer than its poll interval the values of the bus's last polled drive waited
+    /// for that poll (since its last poll ended or a command's refresh read it). Above zero for
+    /// long, the line cannot poll its drives at their `poll_ms` (the silences, the requests, the
+    /// drives' reply delays and the replies of one round take longer than the interval, or
+    /// commands take the rest): each drive is then polled once a round.
     pub fn poll_lag(&self) -> std::time::Duration {
         std::time::Duration::from_micros(self.poll_lag_us.load(Ordering::Relaxed))
     }

@@ -153,9 +153,13 @@ impl Gateway {
             let at = pick.map_or_else(|| now + Duration::from_secs(3600), |k| slots[k].due);
             tokio::select! {
                 _ = tokio::time::sleep_until(at), if pick.is_some() => {
-                    let late = tokio::time::Instant::now().saturating_duration_since(at);
-                    bus.poll_lag_us.store(u64::try_from(late.as_micros()).unwrap_or(u64::MAX), Ordering::Relaxed);
-                    let d = mine[pick.expect("picked")].clone();
+                    let k = pick.expect("picked");
+                    let d = mine[k].clone();
+                    // How much longer than its interval the drive's values waited for this poll.
+                    let every = poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
+                    let waited = slots[k].read.map(|r| tokio::time::Instant::now().saturating_duration_since(r));
+                    let lag = waited.map_or(Duration::ZERO, |w| w.saturating_sub(every));
+                    bus.poll_lag_us.store(u64::try_from(lag.as_micros()).unwrap_or(u64::MAX), Ordering::Relaxed);
                     let (gw, bus, drive) = (self.clone(), bus.clone(), d.clone());
                     polling.start((d, listening), async move {
                         let result = drive.poll.status().await;

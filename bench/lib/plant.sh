@@ -1,10 +1,17 @@
 # Sourced by the benchmarks: writes the configuration of a big plant, 1000 simulated generic
-# drives on 32 virtual buses (115200 baud, poll 500 ms; 8 buses of 32 drives, 24 of 31), named
-# vfd-1..vfd-1000 on line-1..line-32.
+# drives on 32 virtual buses (115200 baud, poll POLL_MS, 500 ms unless given; 8 buses of 32
+# drives, 24 of 31), named vfd-1..vfd-1000 on line-1..line-32.
 #
-#   write_plant FILE [NAME] [EXTRA]   EXTRA: TOML put before the buses (tokens, [opcua], ...)
+# Such a line is full: a generic drive's status is two reads, each about 15 ms of line time (the
+# manual's 10 ms of silence, the request, the drive's 3 ms reply delay, the reply), so a line
+# reads some 34 statuses a second and its 31 or 32 drives are polled about once a second, not
+# every 500 ms (drivebus_bus_poll_lag_seconds about 0.43 s; drivebus_bus_utilization, the wire
+# bytes alone, 0.11). Every command is three more exchanges (its write and the refresh's two
+# reads).
+#
+#   write_plant FILE [NAME] [EXTRA] [POLL_MS]   EXTRA: TOML put before the buses (tokens, ...)
 write_plant() {
-  local file="$1" name="${2:-load}" extra="${3:-}"
+  local file="$1" name="${2:-load}" extra="${3:-}" poll="${4:-500}"
   {
     echo "name = \"$name\""
     printf '[http]\nanonymous_read = true\n'
@@ -15,7 +22,7 @@ write_plant() {
       printf '[[bus]]\nname = "line-%d"\nport = "virtual"\nprotocol = "modbus-rtu"\nbaud = 115200\n' "$b"
       for a in $(seq 1 "$per"); do
         n=$((n + 1))
-        printf '[[bus.drive]]\nname = "vfd-%d"\nfamily = "generic"\naddress = %d\n' "$n" "$a"
+        printf '[[bus.drive]]\nname = "vfd-%d"\nfamily = "generic"\naddress = %d\npoll_ms = %d\n' "$n" "$a" "$poll"
       done
     done
   } >"$file"

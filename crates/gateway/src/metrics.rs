@@ -555,6 +555,8 @@ struct BusRow {
     online: bool,
     /// The gateway masters the bus (not a standby listening).
     master: bool,
+    /// How much longer than its interval its last polled drive waited, s.
+    poll_lag: f64,
     takeovers: u64,
     yields: u64,
 }
@@ -612,6 +614,7 @@ fn core_series(gw: &Gateway, out: &mut String) {
                 stats: b.stats(),
                 online: b.online(),
                 master: b.role() == drivebus_link::role::Role::Master,
+                poll_lag: b.poll_lag().as_secs_f64(),
                 takeovers: rs.map_or(0, |r| r.takeovers),
                 yields: rs.map_or(0, |r| r.yields),
             }
@@ -648,6 +651,15 @@ fn core_series(gw: &Gateway, out: &mut String) {
             let u = r.stats.utilization();
             Value::Gauge(if u.is_finite() { u } else { 0.0 })
         }),
+    );
+    family(
+        out,
+        (
+            "bus_poll_lag",
+            "How much longer than its poll interval the last polled drive's values waited for the poll: above 0 for long, the line cannot poll its drives at their poll_ms.",
+            Some("seconds"),
+        ),
+        per_bus(&buses, &text, |r| Value::Gauge(r.poll_lag)),
     );
     let (name, help, v) =
         count("bus_wire_bytes", "Bytes of the requests and their replies on the line.", |s| s.wire_bytes);

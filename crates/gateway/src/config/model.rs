@@ -223,7 +223,7 @@ impl BusConfig {
     }
 }
 
-/// Which drive is polled first when several are due.
+/// Which drive is polled first when several are due and their values are as old (at start).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum PollPriority {
     /// Polled first.

@@ -3,7 +3,7 @@
 //! profile on its bus owner, the bus owner itself).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
 use drivebus_drive::profile::DriveStatus;
 use drivebus_drive::ParamDef;
@@ -145,6 +145,12 @@ pub struct BusEntry {
     pub(super) generation: AtomicU64,
     /// Set when a reload removed or replaced the bus: its scheduler ends and the port closes.
     pub(super) retired: AtomicBool,
+    /// The drives whose status a command's refresh read (ahead of polls), and when, for the
+    /// scheduler to count as their polls.
+    pub(super) refreshed: Mutex<Vec<(Arc<DriveEntry>, tokio::time::Instant)>>,
+    /// How much longer than its interval the last polled drive's values waited, µs
+    /// ([`BusEntry::poll_lag`]).
+    pub(super) poll_lag_us: AtomicU64,
     /// The simulated drives of a virtual bus.
     #[cfg(feature = "virtual")]
     pub line: Option<Arc<std::sync::Mutex<VirtualLine>>>,
@@ -160,6 +166,15 @@ impl BusEntry {
     /// Master (it polls) or standby (it listens); the only master is master.
     pub fn role(&self) -> drivebus_link::role::Role {
         self.role_status().map_or(drivebus_link::role::Role::Master, |s| s.role)
+    }
+
+    /// How much longer than its poll interval the values of the bus's last polled drive waited
+    /// for that poll (since its last poll ended or a command's refresh read it). Above zero for
+    /// long, the line cannot poll its drives at their `poll_ms` (the silences, the requests, the
+    /// drives' reply delays and the replies of one round take longer than the interval, or
+    /// commands take the rest): each drive is then polled once a round.
+    pub fn poll_lag(&self) -> std::time::Duration {
+        std::time::Duration::from_micros(self.poll_lag_us.load(Ordering::Relaxed))
     }
 
     /// The bus owner's counts.

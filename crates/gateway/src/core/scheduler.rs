@@ -1,5 +1,6 @@
 //! The poll loops: one scheduler per bus that polls each drive at its interval, a status read
-//! ahead of polls after a command, and the buses' statistics for live subscribers.
+//! ahead of polls after a command (which counts as the drive's poll), and the buses' statistics
+//! for live subscribers.
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -10,6 +11,7 @@ use std::time::Duration;
 use super::cache::{BusEntry, DriveEntry};
 use super::gateway::Gateway;
 use super::views::Change;
+use crate::config::PollPriority;
 use drivebus_link::role::Role;
 use drivebus_store::time::now_ms;
 use drivebus_store::{Event, EventKind};
@@ -41,24 +43,69 @@ fn next_due(
     }
 }
 
+/// Where a drive stands in its bus's schedule.
+#[derive(Clone, Copy, Debug)]
+struct Slot {
+    /// When its next poll is due.
+    due: tokio::time::Instant,
+    /// When its status was last read: its last poll ended (answered or not), or a command's
+    /// refresh read it (ahead of polls). `None` before either.
+    read: Option<tokio::time::Instant>,
+}
+
+impl Slot {
+    /// A drive not polled yet, due at `now`.
+    fn new(now: tokio::time::Instant) -> Self {
+        Slot { due: now, read: None }
+    }
+
+    /// A command's refresh read the drive's status at `at`: it stands for a poll, so the next
+    /// is due no sooner than `every` after it, and the drive waits behind those read longer ago.
+    fn refreshed(&mut self, every: Duration, at: tokio::time::Instant) {
+        self.due = self.due.max(at + every);
+        self.read = Some(self.read.map_or(at, |r| r.max(at)));
+    }
+
+    /// How urgent the drive's poll is at `now`, the smallest first: the drives due, the one read
+    /// longest ago first (on a line too full to poll every drive at its interval, the oldest
+    /// values first, whether a poll or a command's refresh read them last); then the one due
+    /// next; by priority on a tie.
+    fn urgency(
+        &self,
+        priority: PollPriority,
+        now: tokio::time::Instant,
+    ) -> (bool, Option<tokio::time::Instant>, tokio::time::Instant, PollPriority) {
+        let waiting = self.due > now;
+        (waiting, if waiting { None } else { self.read }, self.due, priority)
+    }
+}
+
 impl Gateway {
-    /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do).
+    /// Reads drive `d`'s status now, ahead of polls, into the cache (what a poll would do); the
+    /// bus's scheduler counts it as the drive's poll ([`Slot::refreshed`]).
     pub(super) async fn refresh(self: &Arc<Self>, d: &Arc<DriveEntry>) {
         let Some(bus) = self.buses().iter().find(|b| b.config.name == d.bus).cloned() else { return };
         let status = d.command.status().await;
+        let read = status.is_ok();
         self.update(&bus, d, status).await;
+        if read {
+            let at = tokio::time::Instant::now();
+            bus.refreshed.lock().unwrap_or_else(|p| p.into_inner()).push((d.clone(), at));
+            bus.wake.notify_one();
+        }
     }
 
-    /// The scheduler of `bus`: polls each of its drives when due (the most urgent first, by
-    /// priority on a tie; at [`poll_every`]) until a reload retires the bus; a reload that
-    /// changes its drives keeps the kept drives' schedule and polls new ones at once. One drive
-    /// is polled at a time, or up to the bus's `max_in_flight` drives at once on a modbus-tcp bus
-    /// that pipelines (a drive's own reads stay one after another).
+    /// The scheduler of `bus`: polls each of its drives when due (the most urgent first,
+    /// [`Slot::urgency`]; at [`poll_every`], a command's refresh counting as a poll) until a
+    /// reload retires the bus; a reload that changes its drives keeps the kept drives' schedule
+    /// and polls new ones at once. One drive is polled at a time, or up to the bus's
+    /// `max_in_flight` drives at once on a modbus-tcp bus that pipelines (a drive's own reads
+    /// stay one after another).
     pub(super) async fn poll_bus(self: Arc<Self>, bus: Arc<BusEntry>) {
         let own_limit = bus.config.max_in_flight.max(1);
         let mut generation = u64::MAX;
         let mut mine: Vec<Arc<DriveEntry>> = Vec::new();
-        let mut due: Vec<tokio::time::Instant> = Vec::new();
+        let mut slots: Vec<Slot> = Vec::new();
         // The polls under way, each with its drive and whether it began while the bus listened
         // (released even when a poll panics).
         let mut polling: InFlight<(Arc<DriveEntry>, bool)> = InFlight::default();
@@ -72,11 +119,21 @@ impl Gateway {
                 generation = now_gen;
                 let next = bus.members.read().unwrap_or_else(|p| p.into_inner()).clone();
                 let now = tokio::time::Instant::now();
-                due = next
+                slots = next
                     .iter()
-                    .map(|d| mine.iter().position(|m| Arc::ptr_eq(m, d)).map_or(now, |k| due[k]))
+                    .map(|d| mine.iter().position(|m| Arc::ptr_eq(m, d)).map_or(Slot::new(now), |k| slots[k]))
                     .collect();
                 mine = next;
+            }
+            // Commands' refreshes stand for the drives' polls. A drive being polled is left to
+            // its poll, which ends later than the refresh and schedules the next.
+            let refreshed = std::mem::take(&mut *bus.refreshed.lock().unwrap_or_else(|p| p.into_inner()));
+            for (d, at) in refreshed {
+                let Some(k) = mine.iter().position(|m| Arc::ptr_eq(m, &d)) else { continue };
+                if !polling.keys().any(|(b, _)| Arc::ptr_eq(b, &d)) {
+                    let every = poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
+                    slots[k].refreshed(every, at);
+                }
             }
             let wake = bus.wake.notified();
             if mine.is_empty() && polling.is_empty() {
@@ -89,13 +146,20 @@ impl Gateway {
             let listening = bus.role() == Role::Standby;
             let limit = if listening { mine.len().max(own_limit) } else { own_limit };
             // The most urgent drive not being polled, while fewer than `limit` polls are under way.
+            let now = tokio::time::Instant::now();
             let pick = (0..mine.len())
                 .filter(|&k| polling.len() < limit && !polling.keys().any(|(b, _)| Arc::ptr_eq(b, &mine[k])))
-                .min_by_key(|&k| (due[k], mine[k].config.priority));
-            let at = pick.map_or_else(|| tokio::time::Instant::now() + Duration::from_secs(3600), |k| due[k]);
+                .min_by_key(|&k| slots[k].urgency(mine[k].config.priority, now));
+            let at = pick.map_or_else(|| now + Duration::from_secs(3600), |k| slots[k].due);
             tokio::select! {
                 _ = tokio::time::sleep_until(at), if pick.is_some() => {
-                    let d = mine[pick.expect("picked")].clone();
+                    let k = pick.expect("picked");
+                    let d = mine[k].clone();
+                    // How much longer than its interval the drive's values waited for this poll.
+                    let every = poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
+                    let waited = slots[k].read.map(|r| tokio::time::Instant::now().saturating_duration_since(r));
+                    let lag = waited.map_or(Duration::ZERO, |w| w.saturating_sub(every));
+                    bus.poll_lag_us.store(u64::try_from(lag.as_micros()).unwrap_or(u64::MAX), Ordering::Relaxed);
                     let (gw, bus, drive) = (self.clone(), bus.clone(), d.clone());
                     polling.start((d, listening), async move {
                         let result = drive.poll.status().await;
@@ -105,7 +169,8 @@ impl Gateway {
                 Some((d, listened)) = polling.next_done(), if !polling.is_empty() => {
                     if let Some(k) = mine.iter().position(|m| Arc::ptr_eq(m, &d)) {
                         let every = poll_every(d.config.poll, bus.bus.learnt_interval(d.config.address));
-                        due[k] = next_due(due[k], every, listened, tokio::time::Instant::now());
+                        let now = tokio::time::Instant::now();
+                        slots[k] = Slot { due: next_due(slots[k].due, every, listened, now), read: Some(now) };
                     }
                 }
                 _ = wake => continue,
@@ -217,7 +282,8 @@ impl<K> InFlight<K> {
 
 #[cfg(test)]
 mod tests {
-    use super::{next_due, poll_every, InFlight};
+    use super::{next_due, poll_every, InFlight, Slot};
+    use crate::config::PollPriority;
     use std::time::Duration;
 
     #[tokio::test]
@@ -249,6 +315,43 @@ mod tests {
         // A master's poll that ended late (a slow reply, a busy line): the next at once.
         assert_eq!(next_due(t0, ms(500), false, t0 + ms(520)), t0 + ms(520));
         assert_eq!(next_due(t0, ms(500), false, t0 + ms(5)), t0 + ms(500));
+    }
+
+    #[test]
+    fn a_commands_refresh_stands_for_the_drives_poll() {
+        let t0 = tokio::time::Instant::now();
+        let ms = Duration::from_millis;
+        // Due at 500 ms, refreshed at 300 ms: the next poll an interval after the refresh.
+        let mut s = Slot { due: t0 + ms(500), read: Some(t0) };
+        s.refreshed(ms(500), t0 + ms(300));
+        assert_eq!((s.due, s.read), (t0 + ms(800), Some(t0 + ms(300))));
+        // A refresh never brings the next poll forward, nor makes the values look older.
+        let mut s = Slot { due: t0 + ms(2000), read: Some(t0 + ms(900)) };
+        s.refreshed(ms(500), t0 + ms(800));
+        assert_eq!((s.due, s.read), (t0 + ms(2000), Some(t0 + ms(900))));
+    }
+
+    #[test]
+    fn of_the_drives_due_the_one_read_longest_ago_goes_first() {
+        let t0 = tokio::time::Instant::now();
+        let ms = Duration::from_millis;
+        let now = t0 + ms(2000);
+        let normal = PollPriority::Normal;
+        // On a full line every drive is overdue: whichever was due first, the oldest values go
+        // first (a command's refresh read the first drive after the second's last poll).
+        let refreshed = Slot { due: t0 + ms(100), read: Some(t0 + ms(1500)) };
+        let polled = Slot { due: t0 + ms(900), read: Some(t0 + ms(1000)) };
+        assert!(polled.urgency(normal, now) < refreshed.urgency(normal, now));
+        // A drive never read goes first; one not due yet waits behind every drive due.
+        let new = Slot::new(now);
+        assert!(new.urgency(PollPriority::Low, now) < polled.urgency(PollPriority::High, now));
+        let later = Slot { due: now + ms(1), read: Some(t0) };
+        assert!(refreshed.urgency(PollPriority::Low, now) < later.urgency(PollPriority::High, now));
+        // Of the drives not due, the one due first; on a tie, by priority.
+        let sooner = Slot { due: now + ms(1), read: Some(t0 + ms(1900)) };
+        let after = Slot { due: now + ms(2), read: Some(t0) };
+        assert!(sooner.urgency(normal, now) < after.urgency(normal, now));
+        assert!(later.urgency(PollPriority::High, now) < sooner.urgency(normal, now));
     }
 
     #[test]

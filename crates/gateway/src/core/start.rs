@@ -3,7 +3,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, RwLock};
 
 use drivebus_link::drive::Drive;
 use drivebus_link::owner::{Bus, BusConfig as OwnerConfig};
@@ -229,6 +229,8 @@ fn build_bus(b: &BusConfig) -> Result<Arc<BusEntry>, String> {
         members: RwLock::new(members),
         generation: AtomicU64::new(0),
         retired: AtomicBool::new(false),
+        refreshed: Mutex::new(Vec::new()),
+        poll_lag_us: AtomicU64::new(0),
         #[cfg(feature = "virtual")]
         line,
     }))

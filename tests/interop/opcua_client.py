@@ -705,60 +705,32 @@ async def items(url, http, drives):
     say("ALL OK")
 
 
+# Each mode: its coroutine and how many arguments it takes after the mode's name.
+MODES = {
+    "trust": (trust, 6),
+    "history": (history, 3),
+    "big": (big, 2),
+    "order": (order, 5),
+    "template": (template, 3),
+    "standby": (standby, 4),
+    "items": (items, 3),
+    "check": (check, 7),
+}
+
+
 def main():
     if len(sys.argv) >= 3 and sys.argv[1] == "mkcert":
         asyncio.run(mkcert(sys.argv[2]))
-    elif len(sys.argv) == 8 and sys.argv[1] == "trust":
-        try:
-            asyncio.run(trust(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 5 and sys.argv[1] == "history":
-        try:
-            asyncio.run(history(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 4 and sys.argv[1] == "big":
-        try:
-            asyncio.run(big(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 7 and sys.argv[1] == "order":
-        try:
-            asyncio.run(order(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 5 and sys.argv[1] == "template":
-        try:
-            asyncio.run(template(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 6 and sys.argv[1] == "standby":
-        try:
-            asyncio.run(standby(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 5 and sys.argv[1] == "items":
-        try:
-            asyncio.run(items(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    elif len(sys.argv) == 9 and sys.argv[1] == "check":
-        try:
-            asyncio.run(check(*sys.argv[2:]))
-        except AssertionError as e:
-            print(f"FAILED: {e}", flush=True)
-            sys.exit(1)
-    else:
+        return
+    mode = MODES.get(sys.argv[1]) if len(sys.argv) >= 2 else None
+    if mode is None or len(sys.argv) != 2 + mode[1]:
         print(__doc__)
         sys.exit(3)
+    try:
+        asyncio.run(mode[0](*sys.argv[2:]))
+    except AssertionError as e:
+        print(f"FAILED: {e}", flush=True)
+        sys.exit(1)
 
 
 if __name__ == "__main__":

@@ -213,6 +213,13 @@ mod tests {
     use super::*;
     use drivebus_proto::checksum::crc16_modbus;
 
+    /// The bytes of a Toshiba request.
+    fn emit(r: &drivebus_proto::toshiba::TipRequest) -> Vec<u8> {
+        let mut out = [0u8; 32];
+        let n = r.emit(&mut out).unwrap();
+        out[..n].to_vec()
+    }
+
     fn rtu(frame: &[u8]) -> Vec<u8> {
         let mut v = frame.to_vec();
         v.extend_from_slice(&crc16_modbus(frame).to_le_bytes());
@@ -276,11 +283,6 @@ mod tests {
         use drivebus_proto::toshiba::{CommNo, ErrorCode, TipRequest};
         let mut l = Learnt::new(WireProtocol::ToshibaAscii);
         let t = Instant::from_millis;
-        let emit = |r: &TipRequest| {
-            let mut out = [0u8; 32];
-            let n = r.emit(&mut out).unwrap();
-            out[..n].to_vec()
-        };
         let plain = TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(3), CommNo(0xFE03)));
         let summed = TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(3), CommNo(0xFE03)).with_sum());
         let reply = |r: &TipRequest, tripped, data| {
@@ -413,11 +415,6 @@ mod tests {
         use drivebus_proto::toshiba::{CommNo, TipRequest};
         let mut l = Learnt::new(WireProtocol::ToshibaAscii);
         let t = Instant::from_millis;
-        let emit = |r: &TipRequest| {
-            let mut out = [0u8; 32];
-            let n = r.emit(&mut out).unwrap();
-            out[..n].to_vec()
-        };
         let read = |n| TipRequest::Ascii(AsciiRequest::read(AsciiAddress::Unit(0), CommNo(n)).with_sum());
         let reply = |r: &TipRequest, data| {
             let mut out = [0u8; 32];
